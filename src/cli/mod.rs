@@ -1,0 +1,65 @@
+//! Command line: clap commands, and every error turned into one readable message.
+
+mod info;
+mod smoke;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+use crate::gpu::Gpu;
+
+#[derive(Parser)]
+#[command(
+    name = "iastgcn",
+    version,
+    about = "Pose residual prediction for a polishing robot (IASTGCN on wgpu)"
+)]
+struct Cli {
+    /// Use the first adapter whose name contains this text (overrides IASTGCN_ADAPTER).
+    #[arg(long, global = true)]
+    adapter: Option<String>,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Print the chosen adapter, its compute limits and features, and every adapter seen.
+    Info,
+    /// Run the kernels once on the device and check them against the CPU reference.
+    Smoke(smoke::SmokeArgs),
+}
+
+fn open_gpu(adapter: Option<&str>) -> anyhow::Result<Gpu> {
+    Ok(match adapter {
+        Some(name) => Gpu::with_adapter(Some(name))?,
+        None => Gpu::new()?,
+    })
+}
+
+/// Entry point of the `iastgcn` binary.
+pub fn main() -> ExitCode {
+    // Mesa's device-select layer complains on stderr at every enumeration when there is
+    // no XDG_RUNTIME_DIR (headless CI); it has nothing to select among here anyway.
+    // Safe: no other thread exists yet.
+    if std::env::var_os("XDG_RUNTIME_DIR").is_none()
+        && std::env::var_os("NODEVICE_SELECT").is_none()
+    {
+        std::env::set_var("NODEVICE_SELECT", "1");
+    }
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Info => info::run(cli.adapter.as_deref()),
+        Command::Smoke(args) => {
+            open_gpu(cli.adapter.as_deref()).and_then(|gpu| smoke::run(&gpu, &args))
+        }
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

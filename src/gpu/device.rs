@@ -1,0 +1,177 @@
+//! Adapter selection and the device handle every other GPU type hangs off.
+
+use std::sync::Mutex;
+
+use super::pipeline::PipelineCache;
+use super::GpuError;
+
+/// Environment variable that picks an adapter by (case-insensitive) name substring,
+/// e.g. `IASTGCN_ADAPTER=llvmpipe` or `IASTGCN_ADAPTER=nvidia`.
+pub const ADAPTER_ENV: &str = "IASTGCN_ADAPTER";
+
+/// The backends we ask for. GL is left out on purpose: it only adds a second
+/// llvmpipe adapter and 30-300 ms of EGL probing (see shared/notes/lavapipe.md).
+pub const BACKENDS: wgpu::Backends = wgpu::Backends::VULKAN
+    .union(wgpu::Backends::METAL)
+    .union(wgpu::Backends::DX12);
+
+/// How to get a software Vulkan driver when no adapter exists at all.
+pub const INSTALL_HINT: &str = "install a Vulkan driver; for the software one (Mesa lavapipe) \
+on Debian/Ubuntu run as root: apt-get update && apt-get install -y mesa-vulkan-drivers libvulkan1 \
+(or run `make test`, which does it for you)";
+
+/// A device, its queue and the pipelines compiled on it.
+///
+/// Create one per process (or per test); everything else borrows it.
+pub struct Gpu {
+    pub(crate) device: wgpu::Device,
+    pub(crate) queue: wgpu::Queue,
+    info: wgpu::AdapterInfo,
+    limits: wgpu::Limits,
+    adapter_features: wgpu::Features,
+    pub(crate) pipelines: Mutex<PipelineCache>,
+}
+
+/// Rank of an adapter type: a real GPU first, the CPU (lavapipe) last.
+fn preference(kind: wgpu::DeviceType) -> u8 {
+    match kind {
+        wgpu::DeviceType::DiscreteGpu => 4,
+        wgpu::DeviceType::IntegratedGpu => 3,
+        wgpu::DeviceType::VirtualGpu => 2,
+        wgpu::DeviceType::Other => 1,
+        wgpu::DeviceType::Cpu => 0,
+    }
+}
+
+/// Picks an adapter: the one whose name contains `wanted` (case-insensitive) when given,
+/// else the most GPU-like one; ties keep enumeration order. Pure, so it is testable
+/// without a driver.
+pub fn choose_adapter(
+    infos: &[wgpu::AdapterInfo],
+    wanted: Option<&str>,
+) -> Result<usize, GpuError> {
+    if infos.is_empty() {
+        return Err(GpuError::NoAdapter {
+            hint: INSTALL_HINT.to_string(),
+        });
+    }
+    match wanted {
+        Some(w) => {
+            let needle = w.to_lowercase();
+            infos
+                .iter()
+                .position(|i| i.name.to_lowercase().contains(&needle))
+                .ok_or_else(|| GpuError::AdapterNotFound {
+                    wanted: w.to_string(),
+                    available: infos.iter().map(describe).collect(),
+                })
+        }
+        None => {
+            let mut best = 0;
+            for (i, info) in infos.iter().enumerate() {
+                if preference(info.device_type) > preference(infos[best].device_type) {
+                    best = i;
+                }
+            }
+            Ok(best)
+        }
+    }
+}
+
+/// One-line description of an adapter: `name (backend, type, driver)`.
+pub fn describe(info: &wgpu::AdapterInfo) -> String {
+    format!(
+        "{} ({:?}, {:?}, {} {})",
+        info.name, info.backend, info.device_type, info.driver, info.driver_info
+    )
+}
+
+impl Gpu {
+    /// Opens the adapter named by `IASTGCN_ADAPTER` if set, else the best one available.
+    pub fn new() -> Result<Gpu, GpuError> {
+        let wanted = std::env::var(ADAPTER_ENV).ok().filter(|s| !s.is_empty());
+        Gpu::with_adapter(wanted.as_deref())
+    }
+
+    /// Opens the first adapter whose name contains `wanted`, or the best one when `None`.
+    pub fn with_adapter(wanted: Option<&str>) -> Result<Gpu, GpuError> {
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+        desc.backends = BACKENDS;
+        // WGPU_BACKEND and the debug flags still work for people who know wgpu.
+        let instance = wgpu::Instance::new(desc.with_env());
+        let adapters = pollster::block_on(instance.enumerate_adapters(BACKENDS));
+        let infos: Vec<_> = adapters.iter().map(|a| a.get_info()).collect();
+        let index = choose_adapter(&infos, wanted)?;
+        let adapter = &adapters[index];
+        let limits = adapter.limits();
+        let adapter_features = adapter.features();
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("iastgcn"),
+            required_features: wgpu::Features::empty(),
+            // wgpu's defaults are far below what compute needs (256 MiB buffers, 16 KiB
+            // workgroup memory); ask for everything the adapter offers.
+            required_limits: limits.clone(),
+            experimental_features: wgpu::ExperimentalFeatures::disabled(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            trace: wgpu::Trace::Off,
+        }))
+        .map_err(|e| GpuError::RequestDevice {
+            adapter: describe(&infos[index]),
+            reason: e.to_string(),
+        })?;
+        Ok(Gpu {
+            device,
+            queue,
+            info: infos[index].clone(),
+            limits,
+            adapter_features,
+            pipelines: Mutex::new(PipelineCache::default()),
+        })
+    }
+
+    /// Lists every adapter the instance can see, without opening any.
+    pub fn list_adapters() -> Vec<wgpu::AdapterInfo> {
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+        desc.backends = BACKENDS;
+        let instance = wgpu::Instance::new(desc.with_env());
+        pollster::block_on(instance.enumerate_adapters(BACKENDS))
+            .iter()
+            .map(|a| a.get_info())
+            .collect()
+    }
+
+    pub fn info(&self) -> &wgpu::AdapterInfo {
+        &self.info
+    }
+
+    /// The limits the device was opened with (all the adapter offers).
+    pub fn limits(&self) -> &wgpu::Limits {
+        &self.limits
+    }
+
+    /// Features the adapter supports (not all of them are enabled on the device).
+    pub fn adapter_features(&self) -> wgpu::Features {
+        self.adapter_features
+    }
+
+    pub fn device(&self) -> &wgpu::Device {
+        &self.device
+    }
+
+    pub fn queue(&self) -> &wgpu::Queue {
+        &self.queue
+    }
+
+    /// True when the adapter is a CPU implementation (lavapipe, WARP, ...).
+    pub fn is_software(&self) -> bool {
+        self.info.device_type == wgpu::DeviceType::Cpu
+    }
+
+    /// Blocks until all submitted work has finished.
+    pub fn wait(&self) -> Result<(), GpuError> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| GpuError::Device(e.to_string()))
+    }
+}

@@ -1,0 +1,148 @@
+//! The device layer: adapter choice, tensors, pipeline cache, recorder, readback.
+//!
+//! Knows nothing about robots or training; it moves tensors and runs kernels.
+
+mod device;
+mod pipeline;
+mod recorder;
+mod tensor;
+
+pub use device::{choose_adapter, describe, Gpu, ADAPTER_ENV, BACKENDS, INSTALL_HINT};
+pub use pipeline::{validate_wgsl, Access, Binding, Kernel, PipelineCache, Shader, COMMON_WGSL};
+pub use recorder::{Dispatch, Recorder};
+pub use tensor::{DType, Readback, Tensor};
+
+use wgpu::util::DeviceExt;
+
+/// Everything that can go wrong in the device layer, with the name of what was involved.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    #[error("no GPU adapter found (Vulkan, Metal or DX12): {hint}")]
+    NoAdapter { hint: String },
+    #[error(
+        "no adapter name contains {wanted:?} (set by {ADAPTER_ENV} or --adapter); available: {}",
+        if available.is_empty() { "none".to_string() } else { available.join("; ") }
+    )]
+    AdapterNotFound {
+        wanted: String,
+        available: Vec<String>,
+    },
+    #[error("could not open a device on {adapter}: {reason}")]
+    RequestDevice { adapter: String, reason: String },
+    #[error("{location}: {message}")]
+    Shader { location: String, message: String },
+    #[error("tensor {tensor}: expected {expected}, got {got}")]
+    Shape {
+        tensor: String,
+        expected: String,
+        got: String,
+    },
+    #[error("{kernel}: {count} workgroups along one axis exceed the device limit of {limit}")]
+    TooManyWorkgroups {
+        kernel: String,
+        count: u32,
+        limit: u32,
+    },
+    #[error("readback of {0} failed")]
+    Readback(String),
+    #[error("device error: {0}")]
+    Device(String),
+}
+
+impl Gpu {
+    /// Binds `tensors` to `kernel`'s storage slots (in [`Kernel::bindings`] order), with
+    /// `params` as the uniform block at slot 0, ready to record.
+    pub fn dispatch<P: bytemuck::Pod>(
+        &self,
+        kernel: &Kernel,
+        constants: &[(&'static str, f64)],
+        params: &P,
+        tensors: &[&Tensor],
+        workgroups: [u32; 3],
+    ) -> Result<Dispatch, GpuError> {
+        let label = format!("{}::{}", kernel.shader.name, kernel.entry);
+        if tensors.len() != kernel.bindings.len() {
+            return Err(GpuError::Shape {
+                tensor: format!("bindings of {label}"),
+                expected: format!("{} tensors", kernel.bindings.len()),
+                got: format!("{}", tensors.len()),
+            });
+        }
+        let limit = self.limits().max_compute_workgroups_per_dimension;
+        if let Some(&count) = workgroups.iter().find(|&&c| c > limit) {
+            return Err(GpuError::TooManyWorkgroups {
+                kernel: label,
+                count,
+                limit,
+            });
+        }
+        let pipeline = self
+            .pipelines
+            .lock()
+            .expect("pipeline cache poisoned")
+            .get(&self.device, kernel, constants)?;
+        let params = self
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(&label),
+                contents: bytemuck::bytes_of(params),
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            });
+        let mut entries = vec![wgpu::BindGroupEntry {
+            binding: 0,
+            resource: params.as_entire_binding(),
+        }];
+        entries.extend(
+            kernel
+                .bindings
+                .iter()
+                .zip(tensors)
+                .map(|(b, t)| wgpu::BindGroupEntry {
+                    binding: b.slot,
+                    resource: t.buffer.as_entire_binding(),
+                }),
+        );
+        let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(&label),
+            layout: &pipeline.layout,
+            entries: &entries,
+        });
+        Ok(Dispatch {
+            pipeline,
+            bind_group,
+            params,
+            workgroups,
+            label,
+        })
+    }
+
+    /// Number of pipelines compiled on this device so far.
+    pub fn pipeline_count(&self) -> usize {
+        self.pipelines
+            .lock()
+            .expect("pipeline cache poisoned")
+            .len()
+    }
+
+    /// Records `dispatches` into one command buffer, submits it and waits.
+    pub fn run(&self, dispatches: &[Dispatch]) -> Result<(), GpuError> {
+        let mut rec = Recorder::new(self);
+        rec.dispatch_all(dispatches);
+        rec.submit();
+        self.wait()
+    }
+}
+
+/// Workgroup grid that covers `threads` invocations of a 1-D kernel with `size` threads per
+/// workgroup, folded into x and y so neither exceeds `max_per_dim`. The kernel recovers
+/// the flat index as `(wg.y * num_wg.x + wg.x) * size + local`.
+pub fn grid_1d(threads: usize, size: u32, max_per_dim: u32) -> [u32; 3] {
+    let groups = threads.div_ceil(size as usize).max(1) as u64;
+    let max = max_per_dim as u64;
+    if groups <= max {
+        [groups as u32, 1, 1]
+    } else {
+        let y = groups.div_ceil(max);
+        [groups.div_ceil(y) as u32, y as u32, 1]
+    }
+}

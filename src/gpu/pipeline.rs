@@ -1,0 +1,196 @@
+//! WGSL sources, their validation with naga, and the per-device pipeline cache.
+//!
+//! Every op shader is compiled with `shaders/common.wgsl` prepended, so shared helpers
+//! (indexing, activations) are written once. Errors are reported against the original
+//! file and line, not the concatenation.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use super::GpuError;
+
+/// The helpers every op shader may use; prepended by [`Shader::full_source`].
+pub const COMMON_WGSL: &str = include_str!("../../shaders/common.wgsl");
+
+/// One `.wgsl` file of `shaders/`.
+#[derive(Debug)]
+pub struct Shader {
+    /// File stem: `matmul` for `shaders/matmul.wgsl`.
+    pub name: &'static str,
+    pub source: &'static str,
+}
+
+impl Shader {
+    /// The text handed to the compiler: common helpers, then this file.
+    pub fn full_source(&self) -> String {
+        format!("{COMMON_WGSL}\n{}", self.source)
+    }
+
+    /// Parses and validates the shader (with the common prelude) with naga.
+    pub fn validate(&self) -> Result<naga::Module, GpuError> {
+        validate_wgsl(self.name, self.source)
+    }
+}
+
+/// How a kernel uses one storage binding.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Access {
+    Read,
+    ReadWrite,
+}
+
+/// One storage binding of a kernel: its `@binding` slot and access. Slot 0 is always
+/// the kernel's uniform parameter block.
+#[derive(Clone, Copy, Debug)]
+pub struct Binding {
+    pub slot: u32,
+    pub access: Access,
+}
+
+/// A compute entry point together with its bind layout.
+#[derive(Debug)]
+pub struct Kernel {
+    pub shader: &'static Shader,
+    pub entry: &'static str,
+    /// Storage bindings in the order tensors are passed to [`crate::gpu::Gpu::dispatch`].
+    pub bindings: &'static [Binding],
+}
+
+/// Validates `source` (with the common prelude) and maps error positions back to
+/// `shaders/<name>.wgsl:line:col` (or `shaders/common.wgsl`).
+pub fn validate_wgsl(name: &str, source: &str) -> Result<naga::Module, GpuError> {
+    let full = format!("{COMMON_WGSL}\n{source}");
+    // Lines up to and including the separator newline belong to the prelude.
+    let prelude_lines = COMMON_WGSL.matches('\n').count() + 1;
+    let locate = |span: Option<naga::Span>| -> String {
+        match span.filter(|s| s.is_defined()) {
+            Some(s) => {
+                let loc = s.location(&full);
+                let line = loc.line_number as usize;
+                if line <= prelude_lines {
+                    format!("shaders/common.wgsl:{}:{}", line, loc.line_position)
+                } else {
+                    format!(
+                        "shaders/{name}.wgsl:{}:{}",
+                        line - prelude_lines,
+                        loc.line_position
+                    )
+                }
+            }
+            None => format!("shaders/{name}.wgsl"),
+        }
+    };
+    let module = naga::front::wgsl::parse_str(&full).map_err(|e| GpuError::Shader {
+        location: locate(e.labels().next().map(|(span, _)| span)),
+        message: e.message().to_string(),
+    })?;
+    let mut validator = naga::valid::Validator::new(
+        naga::valid::ValidationFlags::all(),
+        naga::valid::Capabilities::all(),
+    );
+    validator.validate(&module).map_err(|e| GpuError::Shader {
+        location: locate(e.spans().next().map(|(span, _)| *span)),
+        message: format!("{}", e.as_inner()),
+    })?;
+    Ok(module)
+}
+
+/// A compiled pipeline and the bind layout its dispatches use.
+#[derive(Debug)]
+pub struct Pipeline {
+    pub(crate) pipeline: wgpu::ComputePipeline,
+    pub(crate) layout: wgpu::BindGroupLayout,
+}
+
+type PipelineKey = (&'static str, &'static str, Vec<(&'static str, u64)>);
+
+/// Shader modules and pipelines of one device; each is compiled once.
+#[derive(Default)]
+pub struct PipelineCache {
+    modules: HashMap<&'static str, wgpu::ShaderModule>,
+    pipelines: HashMap<PipelineKey, Arc<Pipeline>>,
+}
+
+impl PipelineCache {
+    /// Number of distinct pipelines compiled so far.
+    pub fn len(&self) -> usize {
+        self.pipelines.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.pipelines.is_empty()
+    }
+
+    /// Returns the pipeline for `kernel` with the given override constants, compiling the
+    /// shader module and the pipeline on first use.
+    pub fn get(
+        &mut self,
+        device: &wgpu::Device,
+        kernel: &Kernel,
+        constants: &[(&'static str, f64)],
+    ) -> Result<Arc<Pipeline>, GpuError> {
+        let key: PipelineKey = (
+            kernel.shader.name,
+            kernel.entry,
+            constants.iter().map(|(k, v)| (*k, v.to_bits())).collect(),
+        );
+        if let Some(p) = self.pipelines.get(&key) {
+            return Ok(p.clone());
+        }
+        if !self.modules.contains_key(kernel.shader.name) {
+            kernel.shader.validate()?;
+            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(kernel.shader.name),
+                source: wgpu::ShaderSource::Wgsl(kernel.shader.full_source().into()),
+            });
+            self.modules.insert(kernel.shader.name, module);
+        }
+        let module = &self.modules[kernel.shader.name];
+        let mut entries = vec![wgpu::BindGroupLayoutEntry {
+            binding: 0,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        }];
+        entries.extend(kernel.bindings.iter().map(|b| wgpu::BindGroupLayoutEntry {
+            binding: b.slot,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage {
+                    read_only: b.access == Access::Read,
+                },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        }));
+        let label = format!("{}::{}", kernel.shader.name, kernel.entry);
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some(&label),
+            entries: &entries,
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some(&label),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(&label),
+            layout: Some(&pipeline_layout),
+            module,
+            entry_point: Some(kernel.entry),
+            compilation_options: wgpu::PipelineCompilationOptions {
+                constants,
+                zero_initialize_workgroup_memory: false,
+            },
+            cache: None,
+        });
+        let p = Arc::new(Pipeline { pipeline, layout });
+        self.pipelines.insert(key, p.clone());
+        Ok(p)
+    }
+}

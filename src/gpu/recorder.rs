@@ -1,0 +1,140 @@
+//! Prepared dispatches and the recorder that batches them into one submit.
+
+use std::sync::Arc;
+
+use super::pipeline::Pipeline;
+use super::{Gpu, GpuError, Readback, Tensor};
+
+/// One kernel launch with its buffers bound: built once, recorded any number of times.
+///
+/// Owns its uniform parameter block, so recording allocates nothing.
+#[derive(Debug)]
+pub struct Dispatch {
+    pub(crate) pipeline: Arc<Pipeline>,
+    pub(crate) bind_group: wgpu::BindGroup,
+    pub(crate) params: wgpu::Buffer,
+    pub(crate) workgroups: [u32; 3],
+    pub(crate) label: String,
+}
+
+impl Dispatch {
+    pub fn label(&self) -> &str {
+        &self.label
+    }
+
+    pub fn workgroups(&self) -> [u32; 3] {
+        self.workgroups
+    }
+
+    /// Replaces the uniform parameters (same type as at creation), e.g. a learning rate.
+    pub fn write_params<P: bytemuck::Pod>(&self, gpu: &Gpu, params: &P) -> Result<(), GpuError> {
+        let bytes = bytemuck::bytes_of(params);
+        if bytes.len() as u64 != self.params.size() {
+            return Err(GpuError::Shape {
+                tensor: format!("params of {}", self.label),
+                expected: format!("{} bytes", self.params.size()),
+                got: format!("{} bytes", bytes.len()),
+            });
+        }
+        gpu.queue.write_buffer(&self.params, 0, bytes);
+        Ok(())
+    }
+}
+
+/// Records dispatches and copies into one command encoder; consecutive dispatches share
+/// one compute pass (wgpu inserts the barriers between them). Nothing runs until
+/// [`Recorder::submit`].
+pub struct Recorder<'g> {
+    gpu: &'g Gpu,
+    encoder: wgpu::CommandEncoder,
+    pass: Option<wgpu::ComputePass<'static>>,
+    dispatches: usize,
+}
+
+impl<'g> Recorder<'g> {
+    pub fn new(gpu: &'g Gpu) -> Recorder<'g> {
+        let encoder = gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("recorder"),
+            });
+        Recorder {
+            gpu,
+            encoder,
+            pass: None,
+            dispatches: 0,
+        }
+    }
+
+    /// Records one dispatch.
+    pub fn dispatch(&mut self, d: &Dispatch) {
+        let pass = self.pass.get_or_insert_with(|| {
+            self.encoder
+                .begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("ops"),
+                    timestamp_writes: None,
+                })
+                .forget_lifetime()
+        });
+        pass.set_pipeline(&d.pipeline.pipeline);
+        pass.set_bind_group(0, &d.bind_group, &[]);
+        let [x, y, z] = d.workgroups;
+        pass.dispatch_workgroups(x, y, z);
+        self.dispatches += 1;
+    }
+
+    /// Records every dispatch of `ds` in order.
+    pub fn dispatch_all<'d>(&mut self, ds: impl IntoIterator<Item = &'d Dispatch>) {
+        for d in ds {
+            self.dispatch(d);
+        }
+    }
+
+    fn end_pass(&mut self) {
+        self.pass = None;
+    }
+
+    /// Records a full copy of `src` into `dst` (same byte length).
+    pub fn copy(&mut self, src: &Tensor, dst: &Tensor) -> Result<(), GpuError> {
+        if src.byte_len() != dst.byte_len() {
+            return Err(GpuError::Shape {
+                tensor: dst.name().to_string(),
+                expected: format!("{} bytes like {}", src.byte_len(), src.name()),
+                got: format!("{} bytes", dst.byte_len()),
+            });
+        }
+        self.end_pass();
+        if src.byte_len() > 0 {
+            self.encoder
+                .copy_buffer_to_buffer(&src.buffer, 0, &dst.buffer, 0, src.byte_len());
+        }
+        Ok(())
+    }
+
+    /// Records zero-filling of `t`.
+    pub fn zero(&mut self, t: &Tensor) {
+        self.end_pass();
+        self.encoder.clear_buffer(&t.buffer, 0, None);
+    }
+
+    /// Records a copy of `t` into the staging buffer `rb`; read it after [`Self::submit`].
+    pub fn read_into(&mut self, t: &Tensor, rb: &Readback) -> Result<(), GpuError> {
+        self.end_pass();
+        rb.copy_from(&mut self.encoder, t)
+    }
+
+    /// Number of dispatches recorded so far.
+    pub fn len(&self) -> usize {
+        self.dispatches
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.dispatches == 0
+    }
+
+    /// Submits everything recorded as one command buffer. Does not wait.
+    pub fn submit(mut self) -> wgpu::SubmissionIndex {
+        self.end_pass();
+        self.gpu.queue.submit([self.encoder.finish()])
+    }
+}

@@ -1,0 +1,202 @@
+//! Device-resident tensors: a storage buffer with a shape and an element type.
+
+use super::{Gpu, GpuError};
+
+/// Element type of a tensor.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DType {
+    F32,
+    U32,
+}
+
+impl DType {
+    pub fn size(self) -> usize {
+        4
+    }
+}
+
+/// A buffer on the device with a row-major shape. Cloning shares the buffer.
+///
+/// Data only moves between host and device through explicit calls
+/// ([`Gpu::upload`], [`Gpu::write`], [`Gpu::read_f32`], [`Readback`]).
+#[derive(Clone, Debug)]
+pub struct Tensor {
+    pub(crate) buffer: wgpu::Buffer,
+    shape: Vec<usize>,
+    dtype: DType,
+    name: String,
+}
+
+impl Tensor {
+    pub fn shape(&self) -> &[usize] {
+        &self.shape
+    }
+
+    pub fn dtype(&self) -> DType {
+        self.dtype
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    pub fn numel(&self) -> usize {
+        self.shape.iter().product()
+    }
+
+    pub fn byte_len(&self) -> u64 {
+        (self.numel() * self.dtype.size()) as u64
+    }
+
+    pub fn buffer(&self) -> &wgpu::Buffer {
+        &self.buffer
+    }
+
+    /// The same buffer seen with another shape of the same element count.
+    pub fn reshaped(&self, shape: &[usize]) -> Result<Tensor, GpuError> {
+        if shape.iter().product::<usize>() != self.numel() {
+            return Err(GpuError::Shape {
+                tensor: self.name.clone(),
+                expected: format!("{} elements", self.numel()),
+                got: format!("{shape:?}"),
+            });
+        }
+        Ok(Tensor {
+            shape: shape.to_vec(),
+            ..self.clone()
+        })
+    }
+
+    /// Fails with a message naming the tensor unless it holds exactly `numel` elements.
+    pub fn expect_len(&self, numel: usize) -> Result<(), GpuError> {
+        if self.numel() == numel {
+            Ok(())
+        } else {
+            Err(GpuError::Shape {
+                tensor: self.name.clone(),
+                expected: format!("{numel} elements"),
+                got: format!("{:?} = {} elements", self.shape, self.numel()),
+            })
+        }
+    }
+}
+
+impl Gpu {
+    /// A zero-filled tensor.
+    pub fn zeros(&self, name: &str, shape: &[usize], dtype: DType) -> Tensor {
+        let numel: usize = shape.iter().product();
+        // Bindings may not be empty: keep at least one element of storage.
+        let size = (numel.max(1) * dtype.size()) as u64;
+        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(name),
+            size,
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        Tensor {
+            buffer,
+            shape: shape.to_vec(),
+            dtype,
+            name: name.to_string(),
+        }
+    }
+
+    /// A new f32 tensor holding `data`.
+    pub fn upload(&self, name: &str, shape: &[usize], data: &[f32]) -> Result<Tensor, GpuError> {
+        let t = self.zeros(name, shape, DType::F32);
+        self.write(&t, data)?;
+        Ok(t)
+    }
+
+    /// Overwrites the whole tensor with `data` (queued; ordered before the next submit).
+    pub fn write<T: bytemuck::Pod>(&self, tensor: &Tensor, data: &[T]) -> Result<(), GpuError> {
+        let bytes: &[u8] = bytemuck::cast_slice(data);
+        if bytes.len() as u64 != tensor.byte_len() {
+            return Err(GpuError::Shape {
+                tensor: tensor.name.clone(),
+                expected: format!("{} bytes ({:?})", tensor.byte_len(), tensor.shape),
+                got: format!("{} bytes", bytes.len()),
+            });
+        }
+        if !bytes.is_empty() {
+            self.queue.write_buffer(&tensor.buffer, 0, bytes);
+        }
+        Ok(())
+    }
+
+    /// Copies a tensor back to the host and waits for it. Allocates a staging buffer each
+    /// call: for repeated reads of the same tensor use a [`Readback`].
+    pub fn read_f32(&self, tensor: &Tensor) -> Result<Vec<f32>, GpuError> {
+        let rb = Readback::new(self, tensor.name(), tensor.byte_len());
+        let mut enc = self.device.create_command_encoder(&Default::default());
+        rb.copy_from(&mut enc, tensor)?;
+        self.queue.submit([enc.finish()]);
+        rb.read_f32(self)
+    }
+}
+
+/// A reusable host-visible staging buffer for explicit readback.
+pub struct Readback {
+    buffer: wgpu::Buffer,
+    size: u64,
+    name: String,
+}
+
+impl Readback {
+    pub fn new(gpu: &Gpu, name: &str, bytes: u64) -> Readback {
+        let size = bytes.max(4).next_multiple_of(4);
+        let buffer = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(&format!("readback {name}")),
+            size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        Readback {
+            buffer,
+            size,
+            name: name.to_string(),
+        }
+    }
+
+    /// Records a copy of `tensor` into this staging buffer.
+    pub(crate) fn copy_from(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        tensor: &Tensor,
+    ) -> Result<(), GpuError> {
+        if tensor.byte_len() > self.size {
+            return Err(GpuError::Shape {
+                tensor: tensor.name.clone(),
+                expected: format!("at most {} bytes (readback {})", self.size, self.name),
+                got: format!("{} bytes", tensor.byte_len()),
+            });
+        }
+        if tensor.byte_len() > 0 {
+            enc.copy_buffer_to_buffer(&tensor.buffer, 0, &self.buffer, 0, tensor.byte_len());
+        }
+        Ok(())
+    }
+
+    /// Waits for submitted work and returns the whole staging buffer as f32.
+    pub fn read_f32(&self, gpu: &Gpu) -> Result<Vec<f32>, GpuError> {
+        let (tx, rx) = std::sync::mpsc::channel();
+        self.buffer.map_async(wgpu::MapMode::Read, .., move |r| {
+            let _ = tx.send(r);
+        });
+        gpu.wait()?;
+        rx.recv()
+            .map_err(|e| GpuError::Readback(format!("{}: {e}", self.name)))?
+            .map_err(|e| GpuError::Readback(format!("{}: {e}", self.name)))?;
+        let out = {
+            let view = self
+                .buffer
+                .get_mapped_range(..)
+                .map_err(|e| GpuError::Readback(format!("{}: {e}", self.name)))?;
+            bytemuck::cast_slice::<u8, f32>(&view).to_vec()
+        };
+        self.buffer.unmap();
+        Ok(out)
+    }
+}

@@ -1,0 +1,17 @@
+//! IASTGCN: predicting the pose residual errors of an optical-polishing hybrid robot with
+//! an interpretable adaptive spatio-temporal graph network, trained on any GPU through
+//! WGSL compute shaders.
+//!
+//! The pipeline, module by module: `gpu` (device, tensors, pipelines, recorder) →
+//! `ops` (WGSL kernels with forward/backward and f64 CPU references). Later stages
+//! (twin, calibrate, data, graph, model, train, compensate) build on these.
+
+pub mod cli;
+pub mod gpu;
+pub mod ops;
+pub mod testing;
+
+/// The README's Rust examples, compiled and run as doc tests so they stay true.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;

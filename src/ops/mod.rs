@@ -1,0 +1,12 @@
+//! One module per op family: the dispatch of its WGSL forward/backward kernels next to
+//! its f64 CPU reference. Ops see tensors only.
+
+pub mod elementwise;
+pub mod matmul;
+
+use crate::gpu::Shader;
+
+/// Every op shader, for validation and for the pipeline warm-up.
+pub fn shaders() -> [&'static Shader; 2] {
+    [&elementwise::SHADER, &matmul::SHADER]
+}

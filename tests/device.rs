@@ -1,0 +1,147 @@
+//! Adapter choice (pure logic, no driver needed) and the device layer on the real adapter:
+//! tensors, the pipeline cache, the recorder and explicit readback.
+
+use iastgcn::gpu::{choose_adapter, DType, GpuError, Readback, Recorder};
+use iastgcn::ops::elementwise::{self, Unary};
+use iastgcn::testing::gpu;
+
+fn info(name: &str, device_type: wgpu::DeviceType) -> wgpu::AdapterInfo {
+    wgpu::AdapterInfo {
+        name: name.to_string(),
+        vendor: 0,
+        device: 0,
+        device_type,
+        device_pci_bus_id: String::new(),
+        driver: "test".to_string(),
+        driver_info: String::new(),
+        backend: wgpu::Backend::Vulkan,
+        subgroup_min_size: 8,
+        subgroup_max_size: 8,
+        transient_saves_memory: None,
+        limit_bucket: None,
+    }
+}
+
+#[test]
+fn prefers_a_real_gpu_over_lavapipe() {
+    let list = [
+        info("llvmpipe (LLVM 15.0.6, 256 bits)", wgpu::DeviceType::Cpu),
+        info("Intel(R) UHD Graphics", wgpu::DeviceType::IntegratedGpu),
+        info("NVIDIA H100", wgpu::DeviceType::DiscreteGpu),
+    ];
+    assert_eq!(choose_adapter(&list, None).unwrap(), 2);
+    assert_eq!(choose_adapter(&list[..2], None).unwrap(), 1);
+    assert_eq!(
+        choose_adapter(&list[..1], None).unwrap(),
+        0,
+        "falls back to the CPU adapter"
+    );
+}
+
+#[test]
+fn name_override_is_a_case_insensitive_substring() {
+    let list = [
+        info("llvmpipe (LLVM 15.0.6, 256 bits)", wgpu::DeviceType::Cpu),
+        info("NVIDIA H100", wgpu::DeviceType::DiscreteGpu),
+    ];
+    assert_eq!(choose_adapter(&list, Some("LLVMPIPE")).unwrap(), 0);
+    assert_eq!(choose_adapter(&list, Some("h100")).unwrap(), 1);
+    let err = choose_adapter(&list, Some("radeon"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("\"radeon\"") && err.contains("llvmpipe") && err.contains("NVIDIA H100"),
+        "{err}"
+    );
+}
+
+#[test]
+fn no_adapter_says_how_to_install_one() {
+    let err = choose_adapter(&[], None).unwrap_err();
+    assert!(matches!(err, GpuError::NoAdapter { .. }));
+    assert!(
+        err.to_string()
+            .contains("apt-get install -y mesa-vulkan-drivers libvulkan1"),
+        "{err}"
+    );
+}
+
+#[test]
+fn upload_and_read_back_round_trip() {
+    let g = gpu();
+    let data: Vec<f32> = (0..1001).map(|i| i as f32 * 0.5 - 3.0).collect();
+    let t = g.upload("ramp", &[7, 143], &data).unwrap();
+    assert_eq!(t.shape(), &[7, 143]);
+    assert_eq!(g.read_f32(&t).unwrap(), data);
+    let wrong = g
+        .upload("short", &[10], &data[..9])
+        .unwrap_err()
+        .to_string();
+    assert!(wrong.contains("tensor short"), "{wrong}");
+}
+
+#[test]
+fn recorder_batches_copy_zero_and_dispatch_in_one_submit() {
+    let g = gpu();
+    let n = 700;
+    let x: Vec<f32> = (0..n).map(|i| (i as f32 - 350.0) / 100.0).collect();
+    let a = g.upload("a", &[n], &x).unwrap();
+    let b = g.zeros("b", &[n], DType::F32);
+    let y = g.upload("y", &[n], &vec![5.0; n]).unwrap();
+    let relu = elementwise::unary_forward(&g, Unary::Relu, &b, &y, true).unwrap();
+    let rb = Readback::new(&g, "y", y.byte_len());
+    let mut rec = Recorder::new(&g);
+    rec.copy(&a, &b).unwrap();
+    rec.zero(&y);
+    rec.dispatch(&relu); // y = 0 + relu(copy of a)
+    rec.dispatch(&relu); // y += relu(a) again: accumulate mode
+    rec.read_into(&y, &rb).unwrap();
+    assert_eq!(rec.len(), 2);
+    rec.submit();
+    let got = rb.read_f32(&g).unwrap();
+    let want: Vec<f32> = x.iter().map(|v| 2.0 * v.max(0.0)).collect();
+    assert_eq!(got, want);
+    // The staging buffer is reusable.
+    let mut rec = Recorder::new(&g);
+    rec.zero(&y);
+    rec.read_into(&y, &rb).unwrap();
+    rec.submit();
+    assert!(rb.read_f32(&g).unwrap().iter().all(|&v| v == 0.0));
+}
+
+#[test]
+fn each_pipeline_is_compiled_once_per_device() {
+    let g = gpu();
+    let x = g.zeros("x", &[10], DType::F32);
+    let y = g.zeros("y", &[10], DType::F32);
+    let z = g.zeros("z", &[10], DType::F32);
+    assert_eq!(g.pipeline_count(), 0);
+    for _ in 0..3 {
+        elementwise::unary_forward(&g, Unary::Tanh, &x, &y, false).unwrap();
+        elementwise::unary_forward(&g, Unary::Tanh, &y, &z, false).unwrap();
+    }
+    assert_eq!(g.pipeline_count(), 1);
+    elementwise::unary_forward(&g, Unary::Sigmoid, &x, &y, false).unwrap();
+    assert_eq!(g.pipeline_count(), 2);
+}
+
+#[test]
+fn mismatched_or_aliased_tensors_are_rejected_by_name() {
+    let g = gpu();
+    let x = g.zeros("x", &[10], DType::F32);
+    let y = g.zeros("y", &[11], DType::F32);
+    let err = elementwise::unary_forward(&g, Unary::Relu, &x, &y, false)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("tensor x") && err.contains("11 elements"),
+        "{err}"
+    );
+    let err = elementwise::unary_forward(&g, Unary::Relu, &x, &x, false)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("distinct"), "{err}");
+    let view = x.reshaped(&[2, 5]).unwrap();
+    assert_eq!(view.shape(), &[2, 5]);
+    assert!(x.reshaped(&[3, 3]).is_err());
+}
