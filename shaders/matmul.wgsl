@@ -116,3 +116,97 @@ fn matmul(@builtin(global_invocation_id) gid: vec3<u32>) {
     store_row(row0 + 2u, col0, cbase, acc2);
     store_row(row0 + 3u, col0, cbase, acc3);
 }
+
+// ---- vector-load variant ----------------------------------------------------------------
+// Same contract, for operands whose contiguous axis, strides and K are multiples of 4:
+// every load fetches four floats at once, which is what lavapipe (and real GPUs) reward.
+// The override constants say along which axis each operand is contiguous; the host
+// (ops/matmul.rs) picks this entry point only when the alignment holds.
+
+@group(0) @binding(1) var<storage, read> a4: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read> b4: array<vec4<f32>>;
+
+// op(A) is contiguous along k (A stored untransposed); else along m.
+override A_ALONG_K: bool = true;
+// op(B) is contiguous along n (B stored untransposed); else along k.
+override B_ALONG_N: bool = true;
+
+@compute @workgroup_size(8, 8, 1)
+fn matmul_vec4(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let row0 = gid.y * 4u;
+    let col0 = gid.x * 4u;
+    if row0 >= p.m || col0 >= p.n {
+        return;
+    }
+    let z = gid.z;
+    let ml = p.m - 1u;
+    let nl = p.n - 1u;
+    // Per-row / per-column offsets (clamped like the scalar kernel). Along a contiguous
+    // axis the four rows (columns) form one vector instead and need no clamping: that
+    // axis is a multiple of 4.
+    let ra = vec4<u32>(min(row0, ml), min(row0 + 1u, ml), min(row0 + 2u, ml), min(row0 + 3u, ml)) * p.a_row;
+    let cb = vec4<u32>(min(col0, nl), min(col0 + 1u, nl), min(col0 + 2u, nl), min(col0 + 3u, nl)) * p.b_col;
+    var acc0 = vec4<f32>(0.0);
+    var acc1 = vec4<f32>(0.0);
+    var acc2 = vec4<f32>(0.0);
+    var acc3 = vec4<f32>(0.0);
+    for (var r = 0u; r < p.reduce; r++) {
+        let abase = z * p.a_batch + r * p.a_reduce;
+        let bbase = z * p.b_batch + r * p.b_reduce;
+        for (var kk = 0u; kk < p.k; kk += 4u) {
+            // x0..x3: rows of the 4x4 block of op(A) (each over k).
+            var x0: vec4<f32>;
+            var x1: vec4<f32>;
+            var x2: vec4<f32>;
+            var x3: vec4<f32>;
+            if A_ALONG_K {
+                let o = abase + kk;
+                x0 = a4[(o + ra.x) >> 2u];
+                x1 = a4[(o + ra.y) >> 2u];
+                x2 = a4[(o + ra.z) >> 2u];
+                x3 = a4[(o + ra.w) >> 2u];
+            } else {
+                let o = abase + kk * p.a_col + row0;
+                let c0 = a4[o >> 2u];
+                let c1 = a4[(o + p.a_col) >> 2u];
+                let c2 = a4[(o + 2u * p.a_col) >> 2u];
+                let c3 = a4[(o + 3u * p.a_col) >> 2u];
+                x0 = vec4<f32>(c0.x, c1.x, c2.x, c3.x);
+                x1 = vec4<f32>(c0.y, c1.y, c2.y, c3.y);
+                x2 = vec4<f32>(c0.z, c1.z, c2.z, c3.z);
+                x3 = vec4<f32>(c0.w, c1.w, c2.w, c3.w);
+            }
+            // y0..y3: rows of the 4x4 block of op(B) (each over n).
+            var y0: vec4<f32>;
+            var y1: vec4<f32>;
+            var y2: vec4<f32>;
+            var y3: vec4<f32>;
+            if B_ALONG_N {
+                let o = bbase + kk * p.b_row + col0;
+                y0 = b4[o >> 2u];
+                y1 = b4[(o + p.b_row) >> 2u];
+                y2 = b4[(o + 2u * p.b_row) >> 2u];
+                y3 = b4[(o + 3u * p.b_row) >> 2u];
+            } else {
+                let o = bbase + kk;
+                let w0 = b4[(o + cb.x) >> 2u];
+                let w1 = b4[(o + cb.y) >> 2u];
+                let w2 = b4[(o + cb.z) >> 2u];
+                let w3 = b4[(o + cb.w) >> 2u];
+                y0 = vec4<f32>(w0.x, w1.x, w2.x, w3.x);
+                y1 = vec4<f32>(w0.y, w1.y, w2.y, w3.y);
+                y2 = vec4<f32>(w0.z, w1.z, w2.z, w3.z);
+                y3 = vec4<f32>(w0.w, w1.w, w2.w, w3.w);
+            }
+            acc0 += x0.x * y0 + x0.y * y1 + x0.z * y2 + x0.w * y3;
+            acc1 += x1.x * y0 + x1.y * y1 + x1.z * y2 + x1.w * y3;
+            acc2 += x2.x * y0 + x2.y * y1 + x2.z * y2 + x2.w * y3;
+            acc3 += x3.x * y0 + x3.y * y1 + x3.z * y2 + x3.w * y3;
+        }
+    }
+    let cbase = z * p.c_batch;
+    store_row(row0, col0, cbase, acc0);
+    store_row(row0 + 1u, col0, cbase, acc1);
+    store_row(row0 + 2u, col0, cbase, acc2);
+    store_row(row0 + 3u, col0, cbase, acc3);
+}

@@ -204,6 +204,44 @@ fn model_sized_product_matches_reference() {
 }
 
 #[test]
+fn aligned_shapes_take_the_vector_kernel_and_ragged_ones_the_scalar_kernel() {
+    let g = gpu();
+    let kernel = |mm: Matmul| {
+        let a = g.zeros("a", &[mm.a_len()], DType::F32);
+        let b = g.zeros("b", &[mm.b_len()], DType::F32);
+        let c = g.zeros("c", &[mm.c_len()], DType::F32);
+        let da = g.zeros("da", &[mm.a_len()], DType::F32);
+        let db = g.zeros("db", &[mm.b_len()], DType::F32);
+        [
+            mm.forward(&g, &a, &b, &c, false)
+                .unwrap()
+                .label()
+                .to_string(),
+            mm.backward_a(&g, &b, &c, &da, false)
+                .unwrap()
+                .label()
+                .to_string(),
+            mm.backward_b(&g, &a, &c, &db, false)
+                .unwrap()
+                .label()
+                .to_string(),
+        ]
+    };
+    for (ta, tb) in [(false, false), (true, false), (false, true), (true, true)] {
+        let mm = Matmul::new(12, 20, 16)
+            .batched(2)
+            .share_b(true)
+            .transpose_a(ta)
+            .transpose_b(tb);
+        assert_eq!(kernel(mm), ["matmul::matmul_vec4"; 3], "{mm:?}");
+    }
+    // Row count 13 is fine when A is contiguous along k (forward), not for dA's layout.
+    assert_eq!(kernel(Matmul::new(13, 8, 12))[0], "matmul::matmul_vec4");
+    assert_eq!(kernel(Matmul::new(5, 7, 3)), ["matmul::matmul"; 3]);
+    assert_eq!(kernel(Matmul::new(12, 8, 14))[0], "matmul::matmul");
+}
+
+#[test]
 fn wrong_lengths_name_the_tensor() {
     let g = gpu();
     let mm = Matmul::new(4, 4, 4);

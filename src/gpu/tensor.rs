@@ -85,8 +85,9 @@ impl Gpu {
     /// A zero-filled tensor.
     pub fn zeros(&self, name: &str, shape: &[usize], dtype: DType) -> Tensor {
         let numel: usize = shape.iter().product();
-        // Bindings may not be empty: keep at least one element of storage.
-        let size = (numel.max(1) * dtype.size()) as u64;
+        // Bindings may not be empty, and kernels may view the buffer as vec4s: round up to
+        // whole 16-byte vectors (the tail is never read as data).
+        let size = (numel * dtype.size()).max(1).next_multiple_of(16) as u64;
         let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(name),
             size,

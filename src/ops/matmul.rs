@@ -13,23 +13,33 @@ pub static SHADER: Shader = Shader {
     source: include_str!("../../shaders/matmul.wgsl"),
 };
 
+const BINDINGS: &[Binding] = &[
+    Binding {
+        slot: 1,
+        access: Access::Read,
+    },
+    Binding {
+        slot: 2,
+        access: Access::Read,
+    },
+    Binding {
+        slot: 3,
+        access: Access::ReadWrite,
+    },
+];
+
+/// Scalar loads: any shape and stride.
 static KERNEL: Kernel = Kernel {
     shader: &SHADER,
     entry: "matmul",
-    bindings: &[
-        Binding {
-            slot: 1,
-            access: Access::Read,
-        },
-        Binding {
-            slot: 2,
-            access: Access::Read,
-        },
-        Binding {
-            slot: 3,
-            access: Access::ReadWrite,
-        },
-    ],
+    bindings: BINDINGS,
+};
+
+/// Four-float loads: operands aligned to 4 along their contiguous axis (see [`Gemm::vec4`]).
+static KERNEL_VEC4: Kernel = Kernel {
+    shader: &SHADER,
+    entry: "matmul_vec4",
+    bindings: BINDINGS,
 };
 
 /// Outputs per invocation along each axis, and invocations per workgroup axis.
@@ -294,6 +304,34 @@ struct Gemm {
 }
 
 impl Gemm {
+    /// The override constants of `matmul_vec4` when every vector load is aligned: each
+    /// operand contiguous along one axis, that axis, K, the other stride and the batch
+    /// strides all multiples of 4. `None` means the scalar kernel.
+    fn vec4(&self) -> Option<[(&'static str, f64); 2]> {
+        let aligned = |xs: &[usize]| xs.iter().all(|x| x % 4 == 0);
+        if !aligned(&[self.k, self.lhs.batch, self.rhs.batch]) {
+            return None;
+        }
+        let a_along_k = if self.lhs.col == 1 && aligned(&[self.lhs.row]) {
+            true
+        } else if self.lhs.row == 1 && aligned(&[self.lhs.col, self.m]) {
+            false
+        } else {
+            return None;
+        };
+        let b_along_n = if self.rhs.col == 1 && aligned(&[self.rhs.row, self.n]) {
+            true
+        } else if self.rhs.row == 1 && aligned(&[self.rhs.col]) {
+            false
+        } else {
+            return None;
+        };
+        Some([
+            ("A_ALONG_K", f64::from(u8::from(a_along_k))),
+            ("B_ALONG_N", f64::from(u8::from(b_along_n))),
+        ])
+    }
+
     fn dispatch(
         self,
         gpu: &Gpu,
@@ -350,7 +388,12 @@ impl Gemm {
             self.m.div_ceil(tile).max(1) as u32,
             out_batches as u32,
         ];
-        gpu.dispatch(&KERNEL, &[], &params, &[lhs, rhs, out], groups)
+        match self.vec4() {
+            Some(constants) => {
+                gpu.dispatch(&KERNEL_VEC4, &constants, &params, &[lhs, rhs, out], groups)
+            }
+            None => gpu.dispatch(&KERNEL, &[], &params, &[lhs, rhs, out], groups),
+        }
     }
 }
 
