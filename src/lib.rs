@@ -9,7 +9,9 @@
 pub mod cli;
 pub mod gpu;
 pub mod ops;
+pub mod robot;
 pub mod testing;
+pub mod twin;
 
 /// The README's Rust examples, compiled and run as doc tests so they stay true.
 #[cfg(doctest)]

@@ -1,0 +1,188 @@
+//! Nominal geometry: the TOML asset (`assets/robot.toml`), checked on load.
+
+use nalgebra::{Isometry3, Rotation3, Translation3, Vector3};
+use serde::Deserialize;
+
+use super::RobotError;
+
+/// The asset shipped with the engine, used when no other file is given.
+pub const DEFAULT_ASSET: &str = include_str!("../../assets/robot.toml");
+
+/// One modified Denavit–Hartenberg row (eq. 7): `Rx(α) Tx(a) Rz(θ + offset) Tz(d)`.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct MdhJoint {
+    pub name: String,
+    pub alpha_deg: f64,
+    pub a: f64,
+    pub theta_offset_deg: f64,
+    pub d: f64,
+    pub limits_deg: [f64; 2],
+}
+
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ParallelGeometry {
+    pub base_radius: f64,
+    pub base_angles_deg: [f64; 3],
+    pub platform_radius: f64,
+    pub platform_angles_deg: [f64; 3],
+    pub shaft_length: f64,
+    pub stroke: [f64; 2],
+    pub extension: [f64; 2],
+    pub tilt_limit_deg: f64,
+}
+
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SerialGeometry {
+    pub joints: [MdhJoint; 2],
+}
+
+/// The fixed MDH row from the last joint to the polishing-pad centre.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ToolGeometry {
+    pub alpha_deg: f64,
+    pub a: f64,
+    pub theta_deg: f64,
+    pub d: f64,
+}
+
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TrackerGeometry {
+    pub position: [f64; 3],
+    pub rpy_deg: [f64; 3],
+}
+
+/// Nominal geometry of the hybrid robot (mm, degrees as in the file).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Geometry {
+    pub parallel: ParallelGeometry,
+    pub serial: SerialGeometry,
+    pub tool: ToolGeometry,
+    pub tracker: TrackerGeometry,
+}
+
+impl Geometry {
+    /// The embedded default asset.
+    pub fn default_asset() -> Geometry {
+        Geometry::parse(DEFAULT_ASSET, "assets/robot.toml").expect("embedded robot asset is valid")
+    }
+
+    /// Reads and checks a geometry file.
+    pub fn load(path: &std::path::Path) -> Result<Geometry, RobotError> {
+        let text = std::fs::read_to_string(path).map_err(|e| RobotError::Asset {
+            file: path.display().to_string(),
+            message: e.to_string(),
+        })?;
+        Geometry::parse(&text, &path.display().to_string())
+    }
+
+    /// Parses TOML text; `file` names the source in errors.
+    pub fn parse(text: &str, file: &str) -> Result<Geometry, RobotError> {
+        let g: Geometry = toml::from_str(text).map_err(|e| RobotError::Asset {
+            file: file.to_string(),
+            message: e.to_string(),
+        })?;
+        g.check().map_err(|message| RobotError::Asset {
+            file: file.to_string(),
+            message,
+        })?;
+        Ok(g)
+    }
+
+    fn check(&self) -> Result<(), String> {
+        let p = &self.parallel;
+        let positive = [
+            ("parallel.base_radius", p.base_radius),
+            ("parallel.platform_radius", p.platform_radius),
+            ("parallel.tilt_limit_deg", p.tilt_limit_deg),
+        ];
+        for (name, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("{name} must be a positive number, got {v}"));
+            }
+        }
+        if !(p.shaft_length.is_finite() && p.shaft_length >= 0.0) {
+            return Err(format!(
+                "parallel.shaft_length must be >= 0, got {}",
+                p.shaft_length
+            ));
+        }
+        let ranges = [
+            ("parallel.stroke", p.stroke),
+            ("parallel.extension", p.extension),
+            (
+                "serial.joints[0].limits_deg",
+                self.serial.joints[0].limits_deg,
+            ),
+            (
+                "serial.joints[1].limits_deg",
+                self.serial.joints[1].limits_deg,
+            ),
+        ];
+        for (name, [lo, hi]) in ranges {
+            if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+                return Err(format!(
+                    "{name} must be [low, high] with low < high, got [{lo}, {hi}]"
+                ));
+            }
+        }
+        if p.extension[0] <= 0.0 {
+            return Err("parallel.extension must stay positive".to_string());
+        }
+        if p.tilt_limit_deg >= 80.0 {
+            return Err(format!(
+                "parallel.tilt_limit_deg must be below 80, got {}",
+                p.tilt_limit_deg
+            ));
+        }
+        let mut all = vec![
+            self.tool.alpha_deg,
+            self.tool.a,
+            self.tool.theta_deg,
+            self.tool.d,
+        ];
+        all.extend(self.tracker.position);
+        all.extend(self.tracker.rpy_deg);
+        for j in &self.serial.joints {
+            all.extend([j.alpha_deg, j.a, j.theta_offset_deg, j.d]);
+        }
+        all.extend(p.base_angles_deg);
+        all.extend(p.platform_angles_deg);
+        if all.iter().any(|v| !v.is_finite()) {
+            return Err("every number must be finite".to_string());
+        }
+        Ok(())
+    }
+
+    /// Base joint centres `b_i` (base frame).
+    pub fn base_points(&self) -> [Vector3<f64>; 3] {
+        let p = &self.parallel;
+        p.base_angles_deg.map(|a| on_circle(p.base_radius, a))
+    }
+
+    /// Platform joint centres `a_0i` (platform frame).
+    pub fn platform_points(&self) -> [Vector3<f64>; 3] {
+        let p = &self.parallel;
+        p.platform_angles_deg
+            .map(|a| on_circle(p.platform_radius, a))
+    }
+
+    /// Nominal pose of the base frame in the tracker frame.
+    pub fn tracker_from_base(&self) -> Isometry3<f64> {
+        let [r, p, y] = self.tracker.rpy_deg.map(f64::to_radians);
+        Isometry3::from_parts(
+            Translation3::from(Vector3::from(self.tracker.position)),
+            Rotation3::from_euler_angles(r, p, y).into(),
+        )
+    }
+}
+
+fn on_circle(radius: f64, angle_deg: f64) -> Vector3<f64> {
+    let a = angle_deg.to_radians();
+    Vector3::new(radius * a.cos(), radius * a.sin(), 0.0)
+}

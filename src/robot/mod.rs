@@ -1,0 +1,256 @@
+//! The hybrid robot: nominal geometry (asset), 3-UPS/UP inverse and forward kinematics,
+//! the serial MDH head, the full tool pose, and the Table I error parameters.
+//!
+//! CPU only (nalgebra). Units inside: mm and rad. The base frame's z axis points down,
+//! towards the workpiece.
+
+mod errors;
+mod geometry;
+mod parallel;
+mod serial;
+
+pub use errors::{ErrorParams, LimbErrors, MdhErrors, LIMB_PARAMS, LIMB_VECTORS, N_PARAMS};
+pub use geometry::{Geometry, MdhJoint, DEFAULT_ASSET};
+pub use parallel::{platform_frame, tilt, Limb, PlatformPose};
+pub use serial::mdh;
+
+use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
+
+/// What can go wrong in the robot model, with the numbers that explain it.
+#[derive(Debug, thiserror::Error)]
+pub enum RobotError {
+    #[error("{file}: {message}")]
+    Asset { file: String, message: String },
+    #[error("{what} = {value:.6} is outside the workspace [{low:.6}, {high:.6}]")]
+    OutsideWorkspace {
+        what: String,
+        value: f64,
+        low: f64,
+        high: f64,
+    },
+    #[error(
+        "forward kinematics did not converge for limb lengths {lengths:?} mm: residual {residual:.3e} mm after {iterations} Newton steps"
+    )]
+    NoConvergence {
+        lengths: [f64; 3],
+        residual: f64,
+        iterations: usize,
+    },
+    #[error("forward kinematics hit a singular configuration at limb lengths {lengths:?} mm")]
+    Singular { lengths: [f64; 3] },
+}
+
+/// Joint inputs of the whole robot: the three UPS actuator lengths (mm, nodes Q1–Q3) and
+/// the two serial joint angles (rad, Q4–Q5).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Joints {
+    pub limbs: [f64; 3],
+    pub head: [f64; 2],
+}
+
+/// A robot: nominal geometry plus a set of geometric errors (zero for the nominal model,
+/// a seeded draw for the twin's hidden truth, the estimate after calibration).
+#[derive(Clone, Debug)]
+pub struct Robot {
+    pub geometry: Geometry,
+    pub errors: ErrorParams,
+    limbs: [Limb; 3],
+}
+
+impl Robot {
+    pub fn new(geometry: Geometry, errors: ErrorParams) -> Robot {
+        let b = geometry.base_points();
+        let a = geometry.platform_points();
+        let delta = geometry.parallel.shaft_length;
+        let limbs = [0, 1, 2].map(|i| Limb {
+            b: b[i],
+            a0: a[i],
+            delta,
+            err: errors.limb(i),
+        });
+        Robot {
+            geometry,
+            errors,
+            limbs,
+        }
+    }
+
+    /// The error-free robot of the given geometry.
+    pub fn nominal(geometry: Geometry) -> Robot {
+        Robot::new(geometry, ErrorParams::zero())
+    }
+
+    /// The same geometry with other errors.
+    pub fn with_errors(&self, errors: ErrorParams) -> Robot {
+        Robot::new(self.geometry.clone(), errors)
+    }
+
+    /// Home: platform untilted in the middle of its extension, head at zero.
+    pub fn home(&self) -> PlatformPose {
+        let [lo, hi] = self.geometry.parallel.extension;
+        PlatformPose {
+            alpha: 0.0,
+            beta: 0.0,
+            w: 0.5 * (lo + hi),
+        }
+    }
+
+    /// Platform frame in the base frame, with the platform errors Δr_A, θ_A.
+    pub fn platform_frame(&self, p: &PlatformPose) -> Isometry3<f64> {
+        let (dr, theta) = self.errors.platform();
+        let err = Isometry3::from_parts(
+            Translation3::from(dr),
+            UnitQuaternion::from_scaled_axis(theta),
+        );
+        err * platform_frame(p)
+    }
+
+    /// Inverse kinematics of the parallel module (closed form per limb): the actuator
+    /// lengths that put the platform at `p`.
+    pub fn limb_lengths(&self, p: &PlatformPose) -> [f64; 3] {
+        let frame = self.platform_frame(p);
+        self.limbs.map(|l| l.length(&frame))
+    }
+
+    /// Fails when `p` leaves the UP joint's tilt range or the slide's extension range.
+    pub fn check_platform(&self, p: &PlatformPose) -> Result<(), RobotError> {
+        let g = &self.geometry.parallel;
+        let t = g.tilt_limit_deg.to_radians();
+        check("platform tilt alpha (rad)", p.alpha, [-t, t])?;
+        check("platform tilt beta (rad)", p.beta, [-t, t])?;
+        check("UP limb extension w (mm)", p.w, g.extension)
+    }
+
+    /// Fails when an actuator length leaves its stroke.
+    pub fn check_lengths(&self, lengths: &[f64; 3]) -> Result<(), RobotError> {
+        for (i, &l) in lengths.iter().enumerate() {
+            check(
+                &format!("limb {} length (mm)", i + 1),
+                l,
+                self.geometry.parallel.stroke,
+            )?;
+        }
+        Ok(())
+    }
+
+    /// Fails when a serial joint leaves its range.
+    pub fn check_head(&self, head: &[f64; 2]) -> Result<(), RobotError> {
+        for (j, (&q, joint)) in head.iter().zip(&self.geometry.serial.joints).enumerate() {
+            let [lo, hi] = joint.limits_deg;
+            check(
+                &format!("serial joint {} ({}) angle (rad)", j + 1, joint.name),
+                q,
+                [lo.to_radians(), hi.to_radians()],
+            )?;
+        }
+        Ok(())
+    }
+
+    /// Forward kinematics of the parallel module: Newton on the limb lengths, started at
+    /// `guess` (home when `None`); the result is checked against the workspace.
+    pub fn platform_from_lengths(
+        &self,
+        lengths: [f64; 3],
+        guess: Option<PlatformPose>,
+    ) -> Result<PlatformPose, RobotError> {
+        self.check_lengths(&lengths)?;
+        let target = Vector3::from(lengths);
+        let mut x = guess.unwrap_or_else(|| self.home()).to_vector();
+        let f = |x: &Vector3<f64>| {
+            Vector3::from(self.limb_lengths(&PlatformPose::from_vector(x))) - target
+        };
+        let max_iter = 30;
+        let mut r = f(&x);
+        for _ in 0..max_iter {
+            if r.amax() < 1e-11 {
+                let p = PlatformPose::from_vector(&x);
+                self.check_platform(&p)?;
+                return Ok(p);
+            }
+            let mut j = Matrix3::zeros();
+            for k in 0..3 {
+                // Central differences: rad steps for the tilts, mm for the extension.
+                let h = if k < 2 { 1e-7 } else { 1e-5 };
+                let mut xp = x;
+                let mut xm = x;
+                xp[k] += h;
+                xm[k] -= h;
+                j.set_column(k, &((f(&xp) - f(&xm)) / (2.0 * h)));
+            }
+            let step = parallel::newton_step(&j, &r).ok_or(RobotError::Singular { lengths })?;
+            x -= step;
+            if !x.iter().all(|v| v.is_finite()) || x[0].abs() > 1.5 || x[1].abs() > 1.5 {
+                break;
+            }
+            r = f(&x);
+        }
+        Err(RobotError::NoConvergence {
+            lengths,
+            residual: r.amax(),
+            iterations: max_iter,
+        })
+    }
+
+    /// Platform frame → tool frame (pad centre, z along the tool axis) through the MDH
+    /// rows of the head and the tool, with their errors.
+    pub fn head_transform(&self, head: &[f64; 2]) -> Isometry3<f64> {
+        let mut t = Isometry3::identity();
+        for (j, joint) in self.geometry.serial.joints.iter().enumerate() {
+            let e = self.errors.mdh(j);
+            t *= mdh(
+                joint.alpha_deg.to_radians() + e.alpha,
+                joint.a + e.a,
+                head[j] + joint.theta_offset_deg.to_radians() + e.theta,
+                joint.d + e.d,
+            );
+        }
+        let tool = &self.geometry.tool;
+        t *= mdh(
+            tool.alpha_deg.to_radians(),
+            tool.a,
+            tool.theta_deg.to_radians(),
+            tool.d,
+        );
+        t * Translation3::from(self.errors.tool())
+    }
+
+    /// Tool pose in the base frame for a platform pose and head angles.
+    pub fn tool_pose(&self, p: &PlatformPose, head: &[f64; 2]) -> Isometry3<f64> {
+        self.platform_frame(p) * self.head_transform(head)
+    }
+
+    /// Full forward kinematics from joint inputs: the platform pose (Newton from `guess`)
+    /// and the tool pose in the base frame.
+    pub fn forward(
+        &self,
+        joints: &Joints,
+        guess: Option<PlatformPose>,
+    ) -> Result<(PlatformPose, Isometry3<f64>), RobotError> {
+        self.check_head(&joints.head)?;
+        let p = self.platform_from_lengths(joints.limbs, guess)?;
+        Ok((p, self.tool_pose(&p, &joints.head)))
+    }
+
+    /// Pose of the base frame in the laser tracker's frame, with the registration error.
+    pub fn tracker_from_base(&self) -> Isometry3<f64> {
+        let (dp, theta) = self.errors.tracker();
+        let err = Isometry3::from_parts(
+            Translation3::from(dp),
+            UnitQuaternion::from_scaled_axis(theta),
+        );
+        err * self.geometry.tracker_from_base()
+    }
+}
+
+fn check(what: &str, value: f64, [low, high]: [f64; 2]) -> Result<(), RobotError> {
+    if value.is_finite() && (low..=high).contains(&value) {
+        Ok(())
+    } else {
+        Err(RobotError::OutsideWorkspace {
+            what: what.to_string(),
+            value,
+            low,
+            high,
+        })
+    }
+}

@@ -1,0 +1,143 @@
+//! The 3-UPS/UP parallel module: platform frame, limb model with the Table I errors,
+//! closed-form inverse kinematics and Newton forward kinematics.
+//!
+//! Platform coordinates are the passive UP limb's joints: tilt `alpha` about the base x
+//! axis, then `beta` about the rotated y axis (its universal joint), and the extension `w`
+//! of its slide. The platform centre is at `w · R e` with `R = Rx(alpha) Ry(beta)`.
+
+use nalgebra::{Isometry3, Matrix2, Matrix3, Matrix3x2, Rotation3, Translation3, Vector2, Vector3};
+
+use super::errors::LimbErrors;
+
+/// Pose of the moving platform in the UP limb's joint coordinates (rad, rad, mm).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlatformPose {
+    pub alpha: f64,
+    pub beta: f64,
+    pub w: f64,
+}
+
+impl PlatformPose {
+    pub fn to_vector(self) -> Vector3<f64> {
+        Vector3::new(self.alpha, self.beta, self.w)
+    }
+
+    pub fn from_vector(v: &Vector3<f64>) -> PlatformPose {
+        PlatformPose {
+            alpha: v.x,
+            beta: v.y,
+            w: v.z,
+        }
+    }
+}
+
+pub(crate) fn e() -> Vector3<f64> {
+    Vector3::z()
+}
+
+/// `exp(θ̂)`: the rotation of a small attitude-error vector.
+pub(crate) fn rot(theta: &Vector3<f64>) -> Rotation3<f64> {
+    Rotation3::new(*theta)
+}
+
+/// Orientation of the platform, `Rx(alpha) Ry(beta)`.
+pub fn tilt(alpha: f64, beta: f64) -> Rotation3<f64> {
+    Rotation3::from_axis_angle(&Vector3::x_axis(), alpha)
+        * Rotation3::from_axis_angle(&Vector3::y_axis(), beta)
+}
+
+/// Nominal platform frame (before platform errors): `R = Rx Ry`, centre `w R e`.
+pub fn platform_frame(p: &PlatformPose) -> Isometry3<f64> {
+    let r = tilt(p.alpha, p.beta);
+    Isometry3::from_parts(Translation3::from(p.w * (r * e())), r.into())
+}
+
+/// Angles of a two-axis Hooke joint `Rx(φ1) · err · Ry(φ2)` that point `e` along the unit
+/// vector `v`, where `err` is the small attitude error between the axes. Closed form for
+/// `err = I`, then Gauss–Newton corrections (a fixed count keeps the map smooth).
+fn hooke_angles(v: &Vector3<f64>, between: &Rotation3<f64>) -> (f64, f64) {
+    let mut phi2 = v.x.clamp(-1.0, 1.0).asin();
+    let mut phi1 = (-v.y).atan2(v.z);
+    let axis = |p1: f64, p2: f64| {
+        Rotation3::from_axis_angle(&Vector3::x_axis(), p1)
+            * between
+            * Rotation3::from_axis_angle(&Vector3::y_axis(), p2)
+            * e()
+    };
+    for _ in 0..3 {
+        let r = axis(phi1, phi2) - v;
+        let h = 1e-7;
+        let j = Matrix3x2::from_columns(&[
+            (axis(phi1 + h, phi2) - axis(phi1 - h, phi2)) / (2.0 * h),
+            (axis(phi1, phi2 + h) - axis(phi1, phi2 - h)) / (2.0 * h),
+        ]);
+        let jtj: Matrix2<f64> = j.transpose() * j;
+        if let Some(inv) = jtj.try_inverse() {
+            let d: Vector2<f64> = inv * (j.transpose() * r);
+            phi1 -= d.x;
+            phi2 -= d.y;
+        }
+    }
+    (phi1, phi2)
+}
+
+/// One UPS limb with its errors: base joint centre `b`, platform joint centre `a0`
+/// (platform frame), shaft length `delta`.
+#[derive(Clone, Copy, Debug)]
+pub struct Limb {
+    pub b: Vector3<f64>,
+    pub a0: Vector3<f64>,
+    pub delta: f64,
+    pub err: LimbErrors,
+}
+
+impl Limb {
+    /// The limb axis end points (base side, platform side) for limb direction `u`.
+    ///
+    /// Base side (eq. 2, right): `b + Δb + exp(θ_B) Rx(φ1) Δn`, where the Hooke angles
+    /// satisfy `exp(θ_B) Rx(φ1) exp(θ_N) Ry(φ2) e = u`. Platform side (eq. 2, left):
+    /// `r_A + R_A (a0 + Δa) + R_A exp(θ_A) Rx(ψ1) [Δm + exp(θ_M) Ry(ψ2) (−(δ+Δδ) e + ΔS)]`
+    /// with `exp(θ_A) Rx(ψ1) exp(θ_M) Ry(ψ2) e = R_Aᵀ u`. θ_N and θ_M only redistribute the
+    /// free joint angles, so their effect on the pose is second order (and the calibration
+    /// finds them unidentifiable).
+    fn ends(&self, frame: &Isometry3<f64>, u: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+        let er = &self.err;
+        let rb = rot(&er.theta_b);
+        let (p1, _) = hooke_angles(&(rb.inverse() * u), &rot(&er.theta_n));
+        let bottom =
+            self.b + er.db + rb * Rotation3::from_axis_angle(&Vector3::x_axis(), p1) * er.dn;
+        let ra = frame.rotation.to_rotation_matrix();
+        let rta = rot(&er.theta_a);
+        let rm = rot(&er.theta_m);
+        let local = rta.inverse() * (ra.inverse() * u);
+        let (q1, q2) = hooke_angles(&local, &rm);
+        let shaft = rm
+            * Rotation3::from_axis_angle(&Vector3::y_axis(), q2)
+            * (-(self.delta + er.d_shaft) * e() + er.ds);
+        let top = frame.translation.vector
+            + ra * (self.a0 + er.da)
+            + ra * rta * Rotation3::from_axis_angle(&Vector3::x_axis(), q1) * (er.dm + shaft);
+        (bottom, top)
+    }
+
+    /// The actuator reading `l` that realises the platform `frame`: the axis length minus
+    /// the drive's zero error Δl (the true rod is `l + Δl`).
+    pub fn length(&self, frame: &Isometry3<f64>) -> f64 {
+        let a_nominal = frame.translation.vector + frame.rotation * self.a0;
+        let mut u = (a_nominal - self.b).normalize();
+        // The ends move with u only through offsets of a fraction of a millimetre on a
+        // limb of most of a metre: each pass shrinks the error by ~1e-3, five are exact.
+        let mut axis = Vector3::zeros();
+        for _ in 0..5 {
+            let (bottom, top) = self.ends(frame, &u);
+            axis = top - bottom;
+            u = axis.normalize();
+        }
+        axis.norm() - self.err.d_length
+    }
+}
+
+/// Solves the 3×3 Newton step `J d = r`; `None` when `J` is singular.
+pub(crate) fn newton_step(j: &Matrix3<f64>, r: &Vector3<f64>) -> Option<Vector3<f64>> {
+    j.lu().solve(r)
+}
