@@ -17,7 +17,9 @@ pub struct MdhJoint {
     pub a: f64,
     pub theta_offset_deg: f64,
     pub d: f64,
-    pub limits_deg: [f64; 2],
+    /// Joint range; `None` for a continuous (slip-ring) joint.
+    #[serde(default)]
+    pub limits_deg: Option<[f64; 2]>,
 }
 
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -112,18 +114,16 @@ impl Geometry {
                 p.shaft_length
             ));
         }
-        let ranges = [
+        let mut ranges = vec![
             ("parallel.stroke", p.stroke),
             ("parallel.extension", p.extension),
-            (
-                "serial.joints[0].limits_deg",
-                self.serial.joints[0].limits_deg,
-            ),
-            (
-                "serial.joints[1].limits_deg",
-                self.serial.joints[1].limits_deg,
-            ),
         ];
+        let joint_names = ["serial.joints[0].limits_deg", "serial.joints[1].limits_deg"];
+        for (j, name) in self.serial.joints.iter().zip(joint_names) {
+            if let Some(l) = j.limits_deg {
+                ranges.push((name, l));
+            }
+        }
         for (name, [lo, hi]) in ranges {
             if !(lo.is_finite() && hi.is_finite() && lo < hi) {
                 return Err(format!(

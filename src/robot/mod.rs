@@ -38,6 +38,12 @@ pub enum RobotError {
     },
     #[error("forward kinematics hit a singular configuration at limb lengths {lengths:?} mm")]
     Singular { lengths: [f64; 3] },
+    #[error("inverse kinematics hit a singular configuration for the tool at {target:?} mm")]
+    SingularTool { target: [f64; 3] },
+    #[error(
+        "the tool cannot reach {target:?} mm with the requested axis (residual {residual:.3e})"
+    )]
+    ToolUnreachable { target: [f64; 3], residual: f64 },
 }
 
 /// Joint inputs of the whole robot: the three UPS actuator lengths (mm, nodes Q1–Q3) and
@@ -136,12 +142,12 @@ impl Robot {
     /// Fails when a serial joint leaves its range.
     pub fn check_head(&self, head: &[f64; 2]) -> Result<(), RobotError> {
         for (j, (&q, joint)) in head.iter().zip(&self.geometry.serial.joints).enumerate() {
-            let [lo, hi] = joint.limits_deg;
-            check(
-                &format!("serial joint {} ({}) angle (rad)", j + 1, joint.name),
-                q,
-                [lo.to_radians(), hi.to_radians()],
-            )?;
+            let what = format!("serial joint {} ({}) angle (rad)", j + 1, joint.name);
+            let range = match joint.limits_deg {
+                Some([lo, hi]) => [lo.to_radians(), hi.to_radians()],
+                None => [f64::MIN, f64::MAX],
+            };
+            check(&what, q, range)?;
         }
         Ok(())
     }
@@ -251,6 +257,114 @@ fn check(what: &str, value: f64, [low, high]: [f64; 2]) -> Result<(), RobotError
             value,
             low,
             high,
+        })
+    }
+}
+
+/// A configuration of the whole robot in its joint coordinates: the platform pose (UP
+/// limb joints) and the two head angles.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Configuration {
+    pub platform: PlatformPose,
+    pub head: [f64; 2],
+}
+
+impl Configuration {
+    fn to_array(self) -> [f64; 5] {
+        let p = self.platform;
+        [p.alpha, p.beta, p.w, self.head[0], self.head[1]]
+    }
+
+    fn from_array(x: &[f64; 5]) -> Configuration {
+        Configuration {
+            platform: PlatformPose {
+                alpha: x[0],
+                beta: x[1],
+                w: x[2],
+            },
+            head: [x[3], x[4]],
+        }
+    }
+}
+
+/// Where the tool should be: pad centre (mm, base frame) and the unit tool axis. The spin
+/// about the axis is free (the pad rotates anyway), which leaves five coordinates for the
+/// robot's five joints.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ToolTarget {
+    pub position: Vector3<f64>,
+    pub axis: Vector3<f64>,
+}
+
+impl Robot {
+    /// Inverse kinematics of the whole robot: the configuration that puts the pad centre
+    /// at `target.position` with the tool axis along `target.axis`, by Gauss–Newton from
+    /// `guess` (the previous step of a path keeps the solution branch continuous). The
+    /// result is checked against every joint range, the limb strokes included.
+    pub fn solve_tool(
+        &self,
+        target: &ToolTarget,
+        guess: &Configuration,
+    ) -> Result<(Configuration, [f64; 3]), RobotError> {
+        let axis = target.axis.normalize();
+        // Residual: position (mm) and axis (scaled to mm by a 1 m lever, so both count).
+        let residual = |x: &[f64; 5]| -> nalgebra::SVector<f64, 6> {
+            let c = Configuration::from_array(x);
+            let t = self.tool_pose(&c.platform, &c.head);
+            let dp = t.translation.vector - target.position;
+            let dn = (t.rotation * Vector3::z() - axis) * 1000.0;
+            nalgebra::SVector::<f64, 6>::from_column_slice(&[dp.x, dp.y, dp.z, dn.x, dn.y, dn.z])
+        };
+        let mut x = guess.to_array();
+        let mut r = residual(&x);
+        let max_iter = 60;
+        for _ in 0..max_iter {
+            if r.amax() < 1e-10 {
+                // Whole turns of the revolution joint give the same pose: keep the one
+                // nearest the guess, so a path never makes its head spin needlessly.
+                let turn = std::f64::consts::TAU;
+                x[3] = guess.head[0] + (x[3] - guess.head[0] + 0.5 * turn).rem_euclid(turn)
+                    - 0.5 * turn;
+                let c = Configuration::from_array(&x);
+                self.check_platform(&c.platform)?;
+                self.check_head(&c.head)?;
+                let lengths = self.limb_lengths(&c.platform);
+                self.check_lengths(&lengths)?;
+                return Ok((c, lengths));
+            }
+            let mut j = nalgebra::SMatrix::<f64, 6, 5>::zeros();
+            for k in 0..5 {
+                let h = if k == 2 { 1e-5 } else { 1e-7 };
+                let (mut xp, mut xm) = (x, x);
+                xp[k] += h;
+                xm[k] -= h;
+                j.set_column(k, &((residual(&xp) - residual(&xm)) / (2.0 * h)));
+            }
+            // Levenberg–Marquardt damping: at the head's singularity (tilt 0, tool axis on
+            // the revolution axis) the revolution angle has no effect and JᵀJ is singular;
+            // the damped step simply leaves it where it is.
+            let mut jtj = j.transpose() * j;
+            let damping = 1e-9 * jtj.diagonal().max();
+            for k in 0..5 {
+                jtj[(k, k)] += damping;
+            }
+            let step = jtj
+                .lu()
+                .solve(&(j.transpose() * r))
+                .ok_or(RobotError::SingularTool {
+                    target: target.position.into(),
+                })?;
+            for k in 0..5 {
+                x[k] -= step[k];
+            }
+            if !x.iter().all(|v| v.is_finite()) {
+                break;
+            }
+            r = residual(&x);
+        }
+        Err(RobotError::ToolUnreachable {
+            target: target.position.into(),
+            residual: r.amax(),
         })
     }
 }

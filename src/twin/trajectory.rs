@@ -1,0 +1,235 @@
+//! Polishing paths over the mirror (raster grid, Fermat spiral, Hilbert curve) walked at
+//! a modulated feed, and random static configurations for calibration.
+
+use std::str::FromStr;
+
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::mirror::Mirror;
+use crate::robot::{Configuration, PlatformPose, Robot};
+
+/// The tool paths of section IV-D.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PathKind {
+    /// Raster lines across the disk, alternating direction.
+    Grid,
+    /// Fermat spiral `r = a·√θ` from the centre out (constant area per turn).
+    Fermat,
+    /// Hilbert curve over the square inscribed in the aperture.
+    Hilbert,
+}
+
+impl PathKind {
+    pub const ALL: [PathKind; 3] = [PathKind::Grid, PathKind::Fermat, PathKind::Hilbert];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            PathKind::Grid => "grid",
+            PathKind::Fermat => "fermat",
+            PathKind::Hilbert => "hilbert",
+        }
+    }
+}
+
+impl FromStr for PathKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<PathKind, String> {
+        PathKind::ALL
+            .into_iter()
+            .find(|k| k.name() == s)
+            .ok_or_else(|| format!("unknown path {s:?}: expected grid, fermat or hilbert"))
+    }
+}
+
+/// Path spacing and edge margin, mm.
+#[derive(Clone, Copy, Debug)]
+pub struct PathParams {
+    /// Distance between neighbouring passes.
+    pub spacing: f64,
+    /// Distance kept from the mirror's edge.
+    pub margin: f64,
+}
+
+impl Default for PathParams {
+    fn default() -> PathParams {
+        PathParams {
+            spacing: 15.0,
+            margin: 10.0,
+        }
+    }
+}
+
+/// A planar polyline `(x, y)` with its cumulative arc length.
+#[derive(Clone, Debug)]
+pub struct Path {
+    points: Vec<[f64; 2]>,
+    arc: Vec<f64>,
+}
+
+impl Path {
+    pub fn new(points: Vec<[f64; 2]>) -> Path {
+        let mut arc = Vec::with_capacity(points.len());
+        let mut s = 0.0;
+        for (i, p) in points.iter().enumerate() {
+            if i > 0 {
+                let q = points[i - 1];
+                s += (p[0] - q[0]).hypot(p[1] - q[1]);
+            }
+            arc.push(s);
+        }
+        Path { points, arc }
+    }
+
+    pub fn length(&self) -> f64 {
+        *self.arc.last().unwrap_or(&0.0)
+    }
+
+    pub fn points(&self) -> &[[f64; 2]] {
+        &self.points
+    }
+
+    /// The point at arc length `s`; past the end the tool walks the path back
+    /// (and forth again), as a polishing machine repeats its passes.
+    pub fn at(&self, s: f64) -> [f64; 2] {
+        let len = self.length();
+        if len <= 0.0 {
+            return self.points[0];
+        }
+        let period = 2.0 * len;
+        let mut u = s.rem_euclid(period);
+        if u > len {
+            u = period - u;
+        }
+        let i = self
+            .arc
+            .partition_point(|&a| a <= u)
+            .clamp(1, self.points.len() - 1);
+        let (s0, s1) = (self.arc[i - 1], self.arc[i]);
+        let f = if s1 > s0 { (u - s0) / (s1 - s0) } else { 0.0 };
+        let (p, q) = (self.points[i - 1], self.points[i]);
+        [p[0] + f * (q[0] - p[0]), p[1] + f * (q[1] - p[1])]
+    }
+
+    /// Builds the path of `kind` over the usable disk of `mirror`.
+    pub fn generate(kind: PathKind, mirror: &Mirror, params: &PathParams) -> Path {
+        let r = mirror.radius() - params.margin;
+        let h = params.spacing;
+        let points = match kind {
+            PathKind::Grid => {
+                let lines = (2.0 * r / h).floor() as usize;
+                let mut pts = Vec::new();
+                for i in 0..lines {
+                    let y = -r + h * (i as f64 + 0.5);
+                    let half = (r * r - y * y).max(0.0).sqrt();
+                    let (a, b) = if i % 2 == 0 {
+                        (-half, half)
+                    } else {
+                        (half, -half)
+                    };
+                    pts.push([a, y]);
+                    pts.push([b, y]);
+                }
+                densify(&pts, 2.0)
+            }
+            PathKind::Fermat => {
+                // Arms are ~π a² / r apart: match the spacing at mid-radius.
+                let a = (h * 0.5 * r / std::f64::consts::PI).sqrt();
+                let theta_max = (r / a).powi(2);
+                let mut pts = Vec::new();
+                let mut theta: f64 = 0.0;
+                while theta <= theta_max {
+                    let rr = a * theta.sqrt();
+                    pts.push([rr * theta.cos(), rr * theta.sin()]);
+                    // Steps of about 2 mm along the curve.
+                    theta += (2.0 / rr.max(2.0)).min(0.5);
+                }
+                densify(&pts, 2.0)
+            }
+            PathKind::Hilbert => {
+                let side = r * std::f64::consts::SQRT_2;
+                let order = ((side / h).log2().ceil().max(1.0)) as u32;
+                let n = 1usize << order;
+                let cell = side / n as f64;
+                let mut pts = Vec::new();
+                for d in 0..n * n {
+                    let (i, j) = hilbert_d2xy(n, d);
+                    let c = [
+                        -0.5 * side + (i as f64 + 0.5) * cell,
+                        -0.5 * side + (j as f64 + 0.5) * cell,
+                    ];
+                    pts.push(c);
+                }
+                densify(&pts, 2.0)
+            }
+        };
+        Path::new(points)
+    }
+}
+
+/// Inserts points so that no segment is longer than `step` (arc-length sampling then
+/// follows straight lines between the corners at an even pace).
+fn densify(corners: &[[f64; 2]], step: f64) -> Vec<[f64; 2]> {
+    let mut out = Vec::with_capacity(corners.len());
+    for (i, &c) in corners.iter().enumerate() {
+        if i > 0 {
+            let p = corners[i - 1];
+            let n = ((c[0] - p[0]).hypot(c[1] - p[1]) / step).ceil() as usize;
+            for k in 1..n {
+                let f = k as f64 / n as f64;
+                out.push([p[0] + f * (c[0] - p[0]), p[1] + f * (c[1] - p[1])]);
+            }
+        }
+        out.push(c);
+    }
+    out
+}
+
+/// Index `d` along a Hilbert curve of side `n` (a power of two) to cell `(x, y)`.
+fn hilbert_d2xy(n: usize, d: usize) -> (usize, usize) {
+    let (mut x, mut y, mut t) = (0, 0, d);
+    let mut s = 1;
+    while s < n {
+        let rx = 1 & (t / 2);
+        let ry = 1 & (t ^ rx);
+        if ry == 0 {
+            if rx == 1 {
+                x = s - 1 - x;
+                y = s - 1 - y;
+            }
+            std::mem::swap(&mut x, &mut y);
+        }
+        x += s * rx;
+        y += s * ry;
+        t /= 4;
+        s *= 2;
+    }
+    (x, y)
+}
+
+/// Random static configurations spread over the workspace (limb strokes, tilt and head
+/// ranges respected, with a margin), for geometric calibration.
+pub fn calibration_configurations(robot: &Robot, n: usize, seed: u64) -> Vec<Configuration> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let g = &robot.geometry;
+    let tilt = 0.9 * g.parallel.tilt_limit_deg.to_radians();
+    let [wlo, whi] = g.parallel.extension;
+    let [slo, shi] = g.parallel.stroke;
+    let mut out = Vec::with_capacity(n);
+    while out.len() < n {
+        let platform = PlatformPose {
+            alpha: rng.random_range(-tilt..tilt),
+            beta: rng.random_range(-tilt..tilt),
+            w: rng.random_range(wlo + 10.0..whi - 10.0),
+        };
+        let head = [0, 1].map(|j| {
+            let [lo, hi] = g.serial.joints[j].limits_deg.unwrap_or([-180.0, 180.0]);
+            rng.random_range(0.9 * lo.to_radians()..0.9 * hi.to_radians())
+        });
+        let lengths = robot.limb_lengths(&platform);
+        if lengths.iter().all(|l| (slo + 5.0..shi - 5.0).contains(l)) {
+            out.push(Configuration { platform, head });
+        }
+    }
+    out
+}
