@@ -12,7 +12,7 @@ fn nominal() -> Robot {
 }
 
 fn twin() -> Robot {
-    nominal().with_errors(draw_errors(11, &ErrorScales::default()))
+    nominal().with_errors(draw_errors(1, &ErrorScales::default()))
 }
 
 /// Random platform poses over the workspace, kept where every limb is within its stroke
@@ -174,15 +174,16 @@ fn geometric_errors_move_the_tool_by_a_realistic_amount() {
         mean(&pos),
         mean(&att)
     );
-    // Geometric errors alone: a few tenths of a millimetre and a tenth of a degree or so,
-    // the bulk of TWIN.md's uncalibrated 0.5-0.7 mm / 0.15-0.2 deg.
+    // The twin's machine (seed 1) over the whole workspace, geometric errors alone: most
+    // of a millimetre and a few tenths of a degree (polishing paths use less of the
+    // workspace; the twin's magnitude test checks those against TWIN.md).
     assert!(
-        (0.2..1.0).contains(&mean(&pos)),
+        (0.4..1.5).contains(&mean(&pos)),
         "mean position error {} mm",
         mean(&pos)
     );
     assert!(
-        (0.05..0.3).contains(&mean(&att)),
+        (0.08..0.4).contains(&mean(&att)),
         "mean attitude error {} deg",
         mean(&att)
     );

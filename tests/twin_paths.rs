@@ -103,7 +103,11 @@ fn the_tool_reaches_every_path_normal_to_the_surface() {
                 .unwrap_or_else(|e| panic!("{kind:?} at ({x:.1}, {y:.1}): {e}"));
             let pose = robot.tool_pose(&next.platform, &next.head);
             assert!((pose.translation.vector - target.position).norm() < 1e-8);
-            assert!((pose.rotation * Vector3::z() - target.axis).norm() < 1e-10);
+            let dev = (pose.rotation * Vector3::z() - target.axis).norm();
+            assert!(
+                dev < 1e-10,
+                "{kind:?} at ({x:.1}, {y:.1}): axis off by {dev:.3e}"
+            );
             c = next;
             s += 25.0;
         }

@@ -261,6 +261,12 @@ fn check(what: &str, value: f64, [low, high]: [f64; 2]) -> Result<(), RobotError
     }
 }
 
+/// Weight of the tool-axis residual (mm per rad) in [`Robot::solve_tool`].
+const AXIS_WEIGHT: f64 = 1.0;
+/// Largest tool-axis deviation (rad) [`Robot::solve_tool`] accepts where the exact axis is
+/// out of reach.
+pub const MAX_AXIS_DEVIATION: f64 = 0.01;
+
 /// A configuration of the whole robot in its joint coordinates: the platform pose (UP
 /// limb joints) and the two head angles.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -306,31 +312,48 @@ impl Robot {
         target: &ToolTarget,
         guess: &Configuration,
     ) -> Result<(Configuration, [f64; 3]), RobotError> {
+        let first = self.solve_tool_from(target, guess);
+        if first.is_ok() || guess.head[1].abs() > 1e-3 {
+            return first;
+        }
+        // A guess on the head's singularity (tilt 0) cannot tell which way to tilt: try
+        // tilting from four revolution angles, keeping the first that converges.
+        for k in 0..4 {
+            let mut g = *guess;
+            g.head = [guess.head[0] + k as f64 * std::f64::consts::FRAC_PI_2, 0.02];
+            if let Ok(found) = self.solve_tool_from(target, &g) {
+                return Ok(found);
+            }
+        }
+        first
+    }
+
+    fn solve_tool_from(
+        &self,
+        target: &ToolTarget,
+        guess: &Configuration,
+    ) -> Result<(Configuration, [f64; 3]), RobotError> {
         let axis = target.axis.normalize();
-        // Residual: position (mm) and axis (scaled to mm by a 1 m lever, so both count).
+        // Residual: position (mm) and tool axis (rad × AXIS_WEIGHT). The light axis weight
+        // matters only where no exact solution exists: a head whose axes are not quite
+        // perpendicular cannot point its tool within a few mrad of the revolution axis,
+        // and there position is kept and the axis gives way.
         let residual = |x: &[f64; 5]| -> nalgebra::SVector<f64, 6> {
             let c = Configuration::from_array(x);
             let t = self.tool_pose(&c.platform, &c.head);
             let dp = t.translation.vector - target.position;
-            let dn = (t.rotation * Vector3::z() - axis) * 1000.0;
+            let dn = (t.rotation * Vector3::z() - axis) * AXIS_WEIGHT;
             nalgebra::SVector::<f64, 6>::from_column_slice(&[dp.x, dp.y, dp.z, dn.x, dn.y, dn.z])
         };
         let mut x = guess.to_array();
         let mut r = residual(&x);
-        let max_iter = 60;
-        for _ in 0..max_iter {
-            if r.amax() < 1e-10 {
-                // Whole turns of the revolution joint give the same pose: keep the one
-                // nearest the guess, so a path never makes its head spin needlessly.
-                let turn = std::f64::consts::TAU;
-                x[3] = guess.head[0] + (x[3] - guess.head[0] + 0.5 * turn).rem_euclid(turn)
-                    - 0.5 * turn;
-                let c = Configuration::from_array(&x);
-                self.check_platform(&c.platform)?;
-                self.check_head(&c.head)?;
-                let lengths = self.limb_lengths(&c.platform);
-                self.check_lengths(&lengths)?;
-                return Ok((c, lengths));
+        // Levenberg–Marquardt: the damping makes the head's singularity harmless (at tilt
+        // 0 the revolution angle has no effect and JᵀJ is singular; the damped step leaves
+        // it alone) and backs off whenever a step would not reduce the residual.
+        let mut lambda = 1e-9;
+        for _ in 0..100 {
+            if r.amax() < 1e-11 {
+                break;
             }
             let mut j = nalgebra::SMatrix::<f64, 6, 5>::zeros();
             for k in 0..5 {
@@ -340,31 +363,55 @@ impl Robot {
                 xm[k] -= h;
                 j.set_column(k, &((residual(&xp) - residual(&xm)) / (2.0 * h)));
             }
-            // Levenberg–Marquardt damping: at the head's singularity (tilt 0, tool axis on
-            // the revolution axis) the revolution angle has no effect and JᵀJ is singular;
-            // the damped step simply leaves it where it is.
-            let mut jtj = j.transpose() * j;
-            let damping = 1e-9 * jtj.diagonal().max();
-            for k in 0..5 {
-                jtj[(k, k)] += damping;
-            }
-            let step = jtj
-                .lu()
-                .solve(&(j.transpose() * r))
-                .ok_or(RobotError::SingularTool {
+            let jtj = j.transpose() * j;
+            let jtr = j.transpose() * r;
+            let scale = jtj.diagonal().max();
+            let mut improved = false;
+            while lambda < 1e3 {
+                let mut damped = jtj;
+                for k in 0..5 {
+                    damped[(k, k)] += lambda * scale;
+                }
+                let step = damped.lu().solve(&jtr).ok_or(RobotError::SingularTool {
                     target: target.position.into(),
                 })?;
-            for k in 0..5 {
-                x[k] -= step[k];
+                let mut trial = x;
+                for k in 0..5 {
+                    trial[k] -= step[k];
+                }
+                let rt = residual(&trial);
+                if rt.norm() < r.norm() {
+                    let gain = r.norm() - rt.norm();
+                    improved = gain > 1e-14 * r.norm().max(1e-300);
+                    x = trial;
+                    r = rt;
+                    lambda = (lambda / 3.0).max(1e-12);
+                    break;
+                }
+                lambda *= 10.0;
             }
-            if !x.iter().all(|v| v.is_finite()) {
+            // A least-squares optimum (no step reduces the residual any more).
+            if !improved {
                 break;
             }
-            r = residual(&x);
         }
-        Err(RobotError::ToolUnreachable {
-            target: target.position.into(),
-            residual: r.amax(),
-        })
+        let position_error = r.fixed_rows::<3>(0).norm();
+        let axis_error = r.fixed_rows::<3>(3).norm() / AXIS_WEIGHT;
+        if !(position_error < 1e-4 && axis_error < MAX_AXIS_DEVIATION) {
+            return Err(RobotError::ToolUnreachable {
+                target: target.position.into(),
+                residual: position_error.max(axis_error * 1000.0),
+            });
+        }
+        // Whole turns of the revolution joint give the same pose: keep the one nearest
+        // the guess, so a path never makes its head spin needlessly.
+        let turn = std::f64::consts::TAU;
+        x[3] = guess.head[0] + (x[3] - guess.head[0] + 0.5 * turn).rem_euclid(turn) - 0.5 * turn;
+        let c = Configuration::from_array(&x);
+        self.check_platform(&c.platform)?;
+        self.check_head(&c.head)?;
+        let lengths = self.limb_lengths(&c.platform);
+        self.check_lengths(&lengths)?;
+        Ok((c, lengths))
     }
 }

@@ -1,11 +1,20 @@
-//! The digital twin of the polishing robot: the hidden-truth machine, the mirror and the
-//! polishing paths, and (in later slices) its non-geometric error sources, sensors and
-//! tracker. Imports `robot` only: the ground truth never peeks at the estimator.
+//! The digital twin of the polishing robot: the hidden-truth machine (geometric errors
+//! and non-geometric sources), the mirror and polishing paths, the sensors and the laser
+//! tracker, and the simulation that runs them. Imports `robot` only: the ground truth
+//! never peeks at the estimator.
 
 mod mirror;
+pub mod sensors;
+mod simulate;
+pub mod sources;
 mod trajectory;
 mod truth;
 
 pub use mirror::Mirror;
+pub use sensors::{SensorNoise, SensorRates, CHANNELS, CHANNEL_UNITS};
+pub use simulate::{
+    measure_calibration, Actual, CalibrationMeasurement, Hidden, Machine, Sample, SimConfig,
+    Simulation,
+};
 pub use trajectory::{calibration_configurations, Path, PathKind, PathParams};
-pub use truth::{draw_errors, ErrorScales};
+pub use truth::{draw_errors, draw_machine, draw_nongeometric, gaussian, ErrorScales};

@@ -1,9 +1,14 @@
 //! The twin's hidden truth: a seeded draw of the geometric errors of one machine.
 
-use rand::{RngExt, SeedableRng};
+use rand::{Rng, RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rand_distr::StandardNormal;
 
-use crate::robot::{ErrorParams, LIMB_VECTORS, N_PARAMS};
+use super::simulate::Machine;
+use super::sources::{
+    BacklashParams, ComplianceParams, LostMotionParams, NonGeometric, ThermalParams,
+};
+use crate::robot::{ErrorParams, Geometry, Robot, LIMB_VECTORS, N_PARAMS};
 
 /// Typical sizes (one standard deviation) of a machine's geometric errors.
 #[derive(Clone, Copy, Debug)]
@@ -27,9 +32,9 @@ impl Default for ErrorScales {
     fn default() -> ErrorScales {
         ErrorScales {
             position: 0.03,
-            attitude: 4.0e-4,
+            attitude: 6.0e-4,
             length: 0.05,
-            mdh_angle: 1.0e-3,
+            mdh_angle: 2.0e-3,
             mdh_length: 0.08,
             tracker_position: 0.1,
             tracker_attitude: 2.0e-4,
@@ -41,12 +46,7 @@ impl Default for ErrorScales {
 /// layout of [`ErrorParams`]. The same seed gives the same machine, bit for bit.
 pub fn draw_errors(seed: u64, scales: &ErrorScales) -> ErrorParams {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut normal = |sigma: f64| {
-        // Box–Muller from two uniforms: exact and reproducible everywhere.
-        let u1: f64 = rng.random_range(f64::EPSILON..1.0);
-        let u2: f64 = rng.random_range(0.0..1.0);
-        sigma * (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-    };
+    let mut normal = |sigma: f64| gaussian(&mut rng, sigma);
     let mut values = Vec::with_capacity(N_PARAMS);
     for _ in 0..3 {
         for (name, _) in LIMB_VECTORS {
@@ -73,4 +73,53 @@ pub fn draw_errors(seed: u64, scales: &ErrorScales) -> ErrorParams {
     values.extend((0..3).map(|_| normal(scales.tracker_attitude)));
     debug_assert_eq!(values.len(), N_PARAMS);
     ErrorParams { values }
+}
+
+/// A normal draw with standard deviation `sigma`.
+pub fn gaussian<R: Rng + ?Sized>(rng: &mut R, sigma: f64) -> f64 {
+    let z: f64 = rng.sample(StandardNormal);
+    sigma * z
+}
+
+/// A seeded draw of a machine's non-geometric sources, in the ranges of TWIN.md.
+pub fn draw_nongeometric(seed: u64) -> NonGeometric {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x6e6f_6e67_656f);
+    let mut between = |lo: f64, hi: f64| rng.random_range(lo..hi);
+    NonGeometric {
+        lost_motion: Some(LostMotionParams {
+            width: [0; 3].map(|_| between(0.010, 0.030)),
+            wear_per_m: 0.02,
+        }),
+        backlash: Some(BacklashParams {
+            width: [0; 2].map(|_| between(0.005, 0.02).to_radians()),
+        }),
+        thermal: Some(ThermalParams {
+            gain_per_speed: [0; 3].map(|_| between(1.0, 2.0)),
+            time_constant: 180.0,
+            expansion: 11.5e-6,
+            length: 800.0,
+            ambient_amplitude: 0.3,
+            ambient_period: 3600.0,
+            ambient_phase: between(0.0, std::f64::consts::TAU),
+        }),
+        compliance: Some(ComplianceParams {
+            limb: 5e-5,
+            weight: 600.0,
+            tip_axial: 3e-4,
+            tip_lateral: 6e-4,
+            head_rotation: 4.5e-4,
+            head_lever: 0.07,
+            head_weight: 200.0,
+            friction: 0.3,
+        }),
+    }
+}
+
+/// The twin's machine for `seed`: geometric errors and non-geometric sources drawn
+/// with the default scales.
+pub fn draw_machine(geometry: Geometry, seed: u64) -> Machine {
+    Machine {
+        robot: Robot::new(geometry, draw_errors(seed, &ErrorScales::default())),
+        nongeometric: draw_nongeometric(seed),
+    }
 }

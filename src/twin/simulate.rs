@@ -1,0 +1,417 @@
+//! The running twin: a controller turns path targets into joint commands with *its*
+//! model of the robot; the hidden-truth machine moves with its geometric errors and its
+//! non-geometric sources; the sensors and the laser tracker report what they see.
+
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use super::mirror::Mirror;
+use super::sensors::{SensorNoise, SensorRates, CHANNELS};
+use super::sources::{compliance, Backlash, LostMotion, NonGeometric, Thermal};
+use super::trajectory::{Path, PathKind, PathParams};
+use super::truth::gaussian;
+use crate::robot::{Configuration, Joints, PlatformPose, Robot, RobotError, ToolTarget};
+
+/// The hidden-truth machine: geometry with its errors, and its non-geometric sources.
+#[derive(Clone, Debug)]
+pub struct Machine {
+    pub robot: Robot,
+    pub nongeometric: NonGeometric,
+}
+
+/// The dynamic state of a machine's non-geometric sources.
+#[derive(Clone, Debug)]
+struct SourceState {
+    lost_motion: Option<LostMotion>,
+    backlash: Option<Backlash>,
+    thermal: Option<Thermal>,
+}
+
+/// Where the machine really is after one control tick.
+#[derive(Clone, Copy, Debug)]
+pub struct Actual {
+    pub platform: PlatformPose,
+    /// True rod lengths (mm) and load-side joint angles (rad).
+    pub joints: Joints,
+    /// True pad pose in the base frame, deflections included.
+    pub pose: Isometry3<f64>,
+}
+
+impl Machine {
+    fn state(&self) -> SourceState {
+        let ng = &self.nongeometric;
+        SourceState {
+            lost_motion: ng.lost_motion.map(LostMotion::new),
+            backlash: ng.backlash.map(Backlash::new),
+            thermal: ng.thermal.map(Thermal::new),
+        }
+    }
+
+    /// One tick: the drives sit at `encoders`; returns the true state. `force` presses the
+    /// pad along `tool_axis` while it moves along `feed_dir` (zero when at rest).
+    fn drive(
+        &self,
+        state: &mut SourceState,
+        t: f64,
+        dt: f64,
+        encoders: &Joints,
+        contact: Option<(&Vector3<f64>, &Vector3<f64>, f64)>,
+        guess: PlatformPose,
+    ) -> Result<Actual, RobotError> {
+        let mut rods = encoders.limbs;
+        let mut head = encoders.head;
+        if let Some(lm) = &mut state.lost_motion {
+            let e = lm.step(encoders.limbs);
+            (0..3).for_each(|i| rods[i] += e[i]);
+        }
+        if let Some(th) = &mut state.thermal {
+            let e = th.step(t, dt, encoders.limbs);
+            (0..3).for_each(|i| rods[i] += e[i]);
+        }
+        if let Some(bl) = &mut state.backlash {
+            let e = bl.step(encoders.head);
+            (0..2).for_each(|j| head[j] += e[j]);
+        }
+        let compliance = self.nongeometric.compliance;
+        let mut platform = self.robot.platform_from_lengths(rods, Some(guess))?;
+        if let Some(c) = &compliance {
+            let (axis, force) = match contact {
+                Some((axis, _, f)) => (*axis, f),
+                None => (Vector3::z(), 0.0),
+            };
+            // The stretch depends on the limb directions, which depend on the pose it
+            // produces: two fixed-point passes are exact far below a nanometre.
+            let b = self.robot.geometry.base_points();
+            let a = self.robot.geometry.platform_points();
+            let unstretched = rods;
+            for _ in 0..2 {
+                let frame = self.robot.platform_frame(&platform);
+                let u = [0, 1, 2]
+                    .map(|i| (frame * Point3::from(a[i]) - Point3::from(b[i])).normalize());
+                let s = compliance::limb_stretch(c, &u, &axis, force);
+                rods = [0, 1, 2].map(|i| unstretched[i] + s[i]);
+                platform = self.robot.platform_from_lengths(rods, Some(platform))?;
+            }
+        }
+        let mut pose = self.robot.tool_pose(&platform, &head);
+        if let (Some(c), Some((axis, feed_dir, force))) = (&compliance, contact) {
+            let d = compliance::tip_deflection(c, axis, feed_dir, force);
+            pose = Isometry3::from_parts(
+                Translation3::from(pose.translation.vector + d.translation.vector),
+                d.rotation * pose.rotation,
+            );
+        }
+        Ok(Actual {
+            platform,
+            joints: Joints { limbs: rods, head },
+            pose,
+        })
+    }
+}
+
+/// Settings of one polishing run.
+#[derive(Clone, Debug)]
+pub struct SimConfig {
+    /// Control period, s.
+    pub dt: f64,
+    /// Length of the run, s.
+    pub duration: f64,
+    pub path: PathKind,
+    pub path_params: PathParams,
+    /// Mean feed along the path, mm/s.
+    pub feed: f64,
+    /// Relative amplitude of the dwell-time modulation of the feed.
+    pub feed_variation: f64,
+    /// Pneumatic force: mean, standard deviation (N) and correlation time (s).
+    pub force_mean: f64,
+    pub force_sd: f64,
+    pub force_time_constant: f64,
+    pub noise: SensorNoise,
+    pub rates: SensorRates,
+    pub seed: u64,
+}
+
+impl SimConfig {
+    pub fn new(path: PathKind, duration: f64, seed: u64) -> SimConfig {
+        SimConfig {
+            dt: 0.02,
+            duration,
+            path,
+            path_params: PathParams::default(),
+            feed: 20.0,
+            feed_variation: 0.3,
+            force_mean: 100.0,
+            force_sd: 15.0,
+            force_time_constant: 20.0,
+            noise: SensorNoise::default(),
+            rates: SensorRates::default(),
+            seed,
+        }
+    }
+
+    pub fn steps(&self) -> usize {
+        (self.duration / self.dt).round() as usize
+    }
+}
+
+/// What the twin knows and a real machine would not: for tests and diagnostics only,
+/// never written to a recording.
+#[derive(Clone, Copy, Debug)]
+pub struct Hidden {
+    /// Where the path wanted the pad.
+    pub target: ToolTarget,
+    /// Pad pose the controller's model expects for its command.
+    pub commanded: Isometry3<f64>,
+    pub actual: Actual,
+}
+
+/// One control tick as the sensors saw it.
+#[derive(Clone, Debug)]
+pub struct Sample {
+    pub t: f64,
+    /// Per [`CHANNELS`], `None` when that sensor had no sample at this tick.
+    pub channels: [Option<f64>; 15],
+    /// The tracker's measurement of the pad pose in its own frame.
+    pub tracker: Option<Isometry3<f64>>,
+    pub hidden: Hidden,
+}
+
+/// `pose` with tracker noise of the given standard deviations (mm, rad) per axis.
+fn noisy_pose(
+    rng: &mut ChaCha8Rng,
+    pose: &Isometry3<f64>,
+    position_sd: f64,
+    attitude_sd: f64,
+) -> Isometry3<f64> {
+    let dp = Vector3::from_fn(|_, _| gaussian(rng, position_sd));
+    let dr = Vector3::from_fn(|_, _| gaussian(rng, attitude_sd));
+    Isometry3::from_parts(
+        Translation3::from(pose.translation.vector + dp),
+        UnitQuaternion::from_scaled_axis(dr) * pose.rotation,
+    )
+}
+
+/// A polishing run: call [`Simulation::step`] until it returns `None`.
+pub struct Simulation<'a> {
+    machine: &'a Machine,
+    controller: &'a Robot,
+    mirror: Mirror,
+    config: SimConfig,
+    path: Path,
+    rng: ChaCha8Rng,
+    state: SourceState,
+    k: usize,
+    arc: f64,
+    force: f64,
+    phases: [f64; 2],
+    command: Configuration,
+    platform: PlatformPose,
+    last_target: Option<Vector3<f64>>,
+}
+
+impl<'a> Simulation<'a> {
+    /// Starts at the beginning of the path, the controller having moved there from home.
+    pub fn new(
+        machine: &'a Machine,
+        controller: &'a Robot,
+        mirror: Mirror,
+        config: SimConfig,
+    ) -> Result<Simulation<'a>, RobotError> {
+        let path = Path::generate(config.path, &mirror, &config.path_params);
+        let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
+        let phases =
+            [0, 1].map(|_| rand::RngExt::random_range(&mut rng, 0.0..std::f64::consts::TAU));
+        let [x, y] = path.at(0.0);
+        let home = Configuration {
+            platform: controller.home(),
+            head: [0.0, 0.0],
+        };
+        let (command, _) = controller.solve_tool(&mirror.target(x, y), &home)?;
+        Ok(Simulation {
+            machine,
+            controller,
+            mirror,
+            force: config.force_mean,
+            path,
+            rng,
+            state: machine.state(),
+            k: 0,
+            arc: 0.0,
+            phases,
+            command,
+            platform: command.platform,
+            last_target: None,
+            config,
+        })
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    pub fn config(&self) -> &SimConfig {
+        &self.config
+    }
+
+    /// Advances one control tick.
+    pub fn step(&mut self) -> Option<Result<Sample, RobotError>> {
+        if self.k >= self.config.steps() {
+            return None;
+        }
+        Some(self.tick())
+    }
+
+    fn tick(&mut self) -> Result<Sample, RobotError> {
+        let c = &self.config;
+        let (dt, k) = (c.dt, self.k);
+        let t = k as f64 * dt;
+        // Dwell-time polishing: the feed breathes around its mean.
+        let feed = c.feed
+            * (1.0
+                + c.feed_variation
+                    * (t / 7.0 + self.phases[0]).sin()
+                    * (t / 23.0 + self.phases[1]).cos());
+        if k > 0 {
+            self.arc += feed * dt;
+        }
+        // Pneumatic force: Ornstein–Uhlenbeck around its mean.
+        let a = (-dt / c.force_time_constant).exp();
+        self.force = c.force_mean
+            + (self.force - c.force_mean) * a
+            + gaussian(&mut self.rng, c.force_sd * (1.0 - a * a).sqrt());
+        let [x, y] = self.path.at(self.arc);
+        let target = self.mirror.target(x, y);
+        let (command, lengths) = self.controller.solve_tool(&target, &self.command)?;
+        self.command = command;
+        let encoders = Joints {
+            limbs: lengths,
+            head: command.head,
+        };
+        let feed_dir = match self.last_target {
+            Some(p) if (target.position - p).norm() > 1e-9 => (target.position - p).normalize(),
+            _ => Vector3::zeros(),
+        };
+        self.last_target = Some(target.position);
+        let actual = self.machine.drive(
+            &mut self.state,
+            t,
+            dt,
+            &encoders,
+            Some((&target.axis, &feed_dir, self.force)),
+            self.platform,
+        )?;
+        self.platform = actual.platform;
+        let commanded = self.controller.tool_pose(&command.platform, &command.head);
+        let c = &self.config;
+        let n = &c.noise;
+        let (roll, pitch, yaw) = actual.pose.rotation.euler_angles();
+        let values = [
+            (actual.joints.limbs[0] - encoders.limbs[0]) * 1e3
+                + gaussian(&mut self.rng, n.length_error),
+            (actual.joints.limbs[1] - encoders.limbs[1]) * 1e3
+                + gaussian(&mut self.rng, n.length_error),
+            (actual.joints.limbs[2] - encoders.limbs[2]) * 1e3
+                + gaussian(&mut self.rng, n.length_error),
+            (actual.platform.w - command.platform.w) * 1e3
+                + gaussian(&mut self.rng, n.length_error),
+            (actual.joints.head[0] - encoders.head[0]).to_degrees() * 1e3
+                + gaussian(&mut self.rng, n.angle_error),
+            (actual.joints.head[1] - encoders.head[1]).to_degrees() * 1e3
+                + gaussian(&mut self.rng, n.angle_error),
+            encoders.limbs[0] + gaussian(&mut self.rng, n.encoder_length),
+            encoders.limbs[1] + gaussian(&mut self.rng, n.encoder_length),
+            encoders.limbs[2] + gaussian(&mut self.rng, n.encoder_length),
+            encoders.head[0].to_degrees() + gaussian(&mut self.rng, n.encoder_angle),
+            encoders.head[1].to_degrees() + gaussian(&mut self.rng, n.encoder_angle),
+            roll.to_degrees() + gaussian(&mut self.rng, n.tilt),
+            pitch.to_degrees() + gaussian(&mut self.rng, n.tilt),
+            yaw.to_degrees() + gaussian(&mut self.rng, n.tilt),
+            self.force + gaussian(&mut self.rng, n.force),
+        ];
+        // Every sensor draws its noise each tick (so rates never shift the random
+        // stream); only the ticks at its rate are kept.
+        let mut channels = [None; 15];
+        for (i, v) in values.into_iter().enumerate() {
+            if (k as u32).is_multiple_of(c.rates.channel_every[i]) {
+                channels[i] = Some(v);
+            }
+        }
+        let in_tracker = self.machine.robot.tracker_from_base() * actual.pose;
+        let measured = noisy_pose(
+            &mut self.rng,
+            &in_tracker,
+            n.tracker_position,
+            n.tracker_attitude,
+        );
+        let tracker = (k as u32)
+            .is_multiple_of(c.rates.tracker_every)
+            .then_some(measured);
+        self.k += 1;
+        debug_assert_eq!(channels.len(), CHANNELS.len());
+        Ok(Sample {
+            t,
+            channels,
+            tracker,
+            hidden: Hidden {
+                target,
+                commanded,
+                actual,
+            },
+        })
+    }
+}
+
+/// One static calibration measurement: the commanded joint inputs and the tracker's
+/// measured pad pose (tracker frame).
+#[derive(Clone, Copy, Debug)]
+pub struct CalibrationMeasurement {
+    pub joints: Joints,
+    pub measured: Isometry3<f64>,
+    /// The true pad pose in the base frame (hidden; for tests).
+    pub actual: Isometry3<f64>,
+}
+
+/// Drives the machine to each configuration (joint inputs from the nominal model of the
+/// controller) and measures it at rest: no polishing force, the tracker's reading averaged
+/// over `repeats` samples.
+pub fn measure_calibration(
+    machine: &Machine,
+    controller: &Robot,
+    configurations: &[Configuration],
+    noise: &SensorNoise,
+    repeats: usize,
+    seed: u64,
+) -> Result<Vec<CalibrationMeasurement>, RobotError> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut state = machine.state();
+    let mut guess = controller.home();
+    let dwell = 2.0; // seconds between measurements: the drives at rest heat nothing
+    configurations
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            let joints = Joints {
+                limbs: controller.limb_lengths(&c.platform),
+                head: c.head,
+            };
+            let actual =
+                machine.drive(&mut state, i as f64 * dwell, dwell, &joints, None, guess)?;
+            guess = actual.platform;
+            let in_tracker = machine.robot.tracker_from_base() * actual.pose;
+            // The mean of `repeats` readings: the noise shrinks by √repeats.
+            let shrink = (repeats.max(1) as f64).sqrt();
+            let measured = noisy_pose(
+                &mut rng,
+                &in_tracker,
+                noise.tracker_position / shrink,
+                noise.tracker_attitude / shrink,
+            );
+            Ok(CalibrationMeasurement {
+                joints,
+                measured,
+                actual: actual.pose,
+            })
+        })
+        .collect()
+}
