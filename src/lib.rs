@@ -7,8 +7,11 @@
 //! (twin, calibrate, data, graph, model, train, compensate) build on these.
 
 pub mod cli;
+pub mod data;
 pub mod gpu;
+pub mod graph;
 pub mod ops;
+pub mod plot;
 pub mod robot;
 pub mod testing;
 pub mod twin;

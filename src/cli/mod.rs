@@ -1,6 +1,7 @@
 //! Command line: clap commands, and every error turned into one readable message.
 
 mod info;
+mod simulate;
 mod smoke;
 
 use std::process::ExitCode;
@@ -29,6 +30,8 @@ enum Command {
     Info,
     /// Run the kernels once on the device and check them against the CPU reference.
     Smoke(smoke::SmokeArgs),
+    /// Run the digital twin and write a recording CSV (or a calibration measurement set).
+    Simulate(simulate::SimulateArgs),
 }
 
 fn open_gpu(adapter: Option<&str>) -> anyhow::Result<Gpu> {
@@ -54,6 +57,7 @@ pub fn main() -> ExitCode {
         Command::Smoke(args) => {
             open_gpu(cli.adapter.as_deref()).and_then(|gpu| smoke::run(&gpu, &args))
         }
+        Command::Simulate(args) => simulate::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,369 @@
+//! The recording CSV of TWIN.md: `t`, one column per sensor channel, then the laser
+//! tracker's pose `x,y,z` (mm) and `rx,ry,rz` (rotation vector, rad). Empty cells mean
+//! "no sample at this tick" (slower sensors, the tracker between its samples).
+//!
+//! Also the calibration measurement set: commanded joint inputs `q1..q3` (mm), `q4,q5`
+//! (deg) and the measured pose per row.
+//!
+//! Readers reject bad input with `file:line:column` and never drop anything silently.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// The tracker's columns, in order.
+pub const TRACKER_COLUMNS: [&str; 6] = ["x", "y", "z", "rx", "ry", "rz"];
+/// The joint-input columns of a calibration set.
+pub const JOINT_COLUMNS: [&str; 5] = ["q1", "q2", "q3", "q4", "q5"];
+
+/// What went wrong reading or writing a data file, and where.
+#[derive(Debug, thiserror::Error)]
+pub enum DataError {
+    #[error("{file}: {message}")]
+    File { file: String, message: String },
+    #[error("{file}:{line}:{column}: {message}")]
+    At {
+        file: String,
+        line: u64,
+        column: String,
+        message: String,
+    },
+}
+
+fn file_err(file: &str, message: impl Into<String>) -> DataError {
+    DataError::File {
+        file: file.to_string(),
+        message: message.into(),
+    }
+}
+
+/// One tick of a recording.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Row {
+    pub t: f64,
+    /// One entry per [`Recording::channels`]; `None` where the sensor had no sample.
+    pub values: Vec<Option<f64>>,
+    /// Tracker pose `[x, y, z, rx, ry, rz]` when it measured at this tick.
+    pub tracker: Option<[f64; 6]>,
+}
+
+/// A recording: channel names and rows in time order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Recording {
+    pub channels: Vec<String>,
+    pub rows: Vec<Row>,
+}
+
+fn cell(out: &mut String, v: Option<f64>) {
+    out.push(',');
+    if let Some(v) = v {
+        // Rust's shortest round-trip formatting: the file reads back bit for bit.
+        write!(out, "{v}").expect("writing to a String");
+    }
+}
+
+impl Recording {
+    /// The CSV text (deterministic: the same recording gives the same bytes).
+    pub fn to_csv(&self) -> String {
+        let mut out = String::from("t");
+        for c in self
+            .channels
+            .iter()
+            .map(String::as_str)
+            .chain(TRACKER_COLUMNS)
+        {
+            out.push(',');
+            out.push_str(c);
+        }
+        out.push('\n');
+        for r in &self.rows {
+            write!(out, "{}", r.t).expect("writing to a String");
+            for &v in &r.values {
+                cell(&mut out, v);
+            }
+            for k in 0..6 {
+                cell(&mut out, r.tracker.map(|p| p[k]));
+            }
+            out.push('\n');
+        }
+        out
+    }
+
+    /// Writes the CSV atomically (temporary file, then rename).
+    pub fn write(&self, path: &Path) -> Result<(), DataError> {
+        write_atomic(path, self.to_csv().as_bytes())
+    }
+
+    /// Reads a recording whose sensor columns must be exactly `channels` (any order in
+    /// the file; returned in file order), with at least `min_rows` rows.
+    pub fn read(path: &Path, channels: &[&str], min_rows: usize) -> Result<Recording, DataError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| file_err(&file, e.to_string()))?;
+        Recording::parse(&text, &file, channels, min_rows)
+    }
+
+    /// Parses CSV text; `file` names the source in errors.
+    pub fn parse(
+        text: &str,
+        file: &str,
+        channels: &[&str],
+        min_rows: usize,
+    ) -> Result<Recording, DataError> {
+        let table = Table::parse(text, file)?;
+        let header = &table.header;
+        if header.first().map(String::as_str) != Some("t") {
+            return Err(table.at(1, 0, "the first column must be `t` (time in seconds)"));
+        }
+        let n = header.len();
+        if n < 7
+            || header[n - 6..]
+                .iter()
+                .map(String::as_str)
+                .ne(TRACKER_COLUMNS)
+        {
+            return Err(file_err(
+                file,
+                "the last six columns must be the tracker pose x,y,z,rx,ry,rz",
+            ));
+        }
+        let sensor_cols = &header[1..n - 6];
+        for (i, c) in sensor_cols.iter().enumerate() {
+            if !channels.contains(&c.as_str()) {
+                return Err(table.at(
+                    1,
+                    i + 1,
+                    format!(
+                        "unexpected column {c:?}; expected channels: {}",
+                        channels.join(",")
+                    ),
+                ));
+            }
+            if sensor_cols[..i].contains(c) {
+                return Err(table.at(1, i + 1, format!("column {c:?} appears twice")));
+            }
+        }
+        if let Some(missing) = channels
+            .iter()
+            .find(|c| !sensor_cols.iter().any(|s| s == *c))
+        {
+            return Err(file_err(file, format!("missing column {missing:?}")));
+        }
+        let mut rows = Vec::with_capacity(table.rows.len());
+        let mut last_t = f64::NEG_INFINITY;
+        for (line, cells) in &table.rows {
+            let t = table
+                .number(*line, 0, &cells[0])?
+                .ok_or_else(|| table.at(*line, 0, "time is empty"))?;
+            if t <= last_t {
+                return Err(table.at(
+                    *line,
+                    0,
+                    format!("time goes backwards or repeats: {t} after {last_t}"),
+                ));
+            }
+            last_t = t;
+            let values = (1..n - 6)
+                .map(|c| table.number(*line, c, &cells[c]))
+                .collect::<Result<Vec<_>, _>>()?;
+            let pose = (n - 6..n)
+                .map(|c| table.number(*line, c, &cells[c]))
+                .collect::<Result<Vec<_>, _>>()?;
+            let tracker = match pose.iter().filter(|v| v.is_some()).count() {
+                0 => None,
+                6 => Some([0, 1, 2, 3, 4, 5].map(|k| pose[k].expect("all six present"))),
+                _ => {
+                    let c = (0..6).find(|&k| pose[k].is_none()).expect("one is empty");
+                    return Err(table.at(
+                        *line,
+                        n - 6 + c,
+                        "the tracker pose is incomplete: give all six values or none",
+                    ));
+                }
+            };
+            rows.push(Row { t, values, tracker });
+        }
+        if rows.len() < min_rows {
+            return Err(file_err(
+                file,
+                format!(
+                    "{} rows, but at least {min_rows} are needed (one window)",
+                    rows.len()
+                ),
+            ));
+        }
+        Ok(Recording {
+            channels: sensor_cols.to_vec(),
+            rows,
+        })
+    }
+}
+
+/// A calibration measurement: commanded joint inputs (mm, mm, mm, deg, deg) and the
+/// tracker's pose `[x, y, z, rx, ry, rz]`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CalibrationRow {
+    pub joints: [f64; 5],
+    pub pose: [f64; 6],
+}
+
+/// Writes a calibration set atomically.
+pub fn write_calibration_set(path: &Path, rows: &[CalibrationRow]) -> Result<(), DataError> {
+    let mut out = JOINT_COLUMNS
+        .iter()
+        .chain(&TRACKER_COLUMNS)
+        .copied()
+        .collect::<Vec<_>>()
+        .join(",");
+    out.push('\n');
+    for r in rows {
+        let cells: Vec<String> = r
+            .joints
+            .iter()
+            .chain(&r.pose)
+            .map(|v| format!("{v}"))
+            .collect();
+        out.push_str(&cells.join(","));
+        out.push('\n');
+    }
+    write_atomic(path, out.as_bytes())
+}
+
+/// Reads a calibration set: columns q1..q5, x,y,z,rx,ry,rz, every cell a finite number.
+pub fn read_calibration_set(path: &Path) -> Result<Vec<CalibrationRow>, DataError> {
+    let file = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|e| file_err(&file, e.to_string()))?;
+    parse_calibration_set(&text, &file)
+}
+
+pub fn parse_calibration_set(text: &str, file: &str) -> Result<Vec<CalibrationRow>, DataError> {
+    let table = Table::parse(text, file)?;
+    let expected: Vec<&str> = JOINT_COLUMNS
+        .iter()
+        .chain(&TRACKER_COLUMNS)
+        .copied()
+        .collect();
+    if table
+        .header
+        .iter()
+        .map(String::as_str)
+        .ne(expected.iter().copied())
+    {
+        return Err(file_err(
+            file,
+            format!("the header must be {}", expected.join(",")),
+        ));
+    }
+    let mut rows = Vec::with_capacity(table.rows.len());
+    for (line, cells) in &table.rows {
+        let mut v = [0.0; 11];
+        for (c, x) in v.iter_mut().enumerate() {
+            *x = table
+                .number(*line, c, &cells[c])?
+                .ok_or_else(|| table.at(*line, c, "empty cell"))?;
+        }
+        rows.push(CalibrationRow {
+            joints: [v[0], v[1], v[2], v[3], v[4]],
+            pose: [v[5], v[6], v[7], v[8], v[9], v[10]],
+        });
+    }
+    if rows.is_empty() {
+        return Err(file_err(file, "no measurements"));
+    }
+    Ok(rows)
+}
+
+/// A parsed CSV: header and rows with their 1-based line numbers.
+struct Table<'a> {
+    file: &'a str,
+    header: Vec<String>,
+    rows: Vec<(u64, Vec<String>)>,
+}
+
+impl<'a> Table<'a> {
+    fn parse(text: &str, file: &'a str) -> Result<Table<'a>, DataError> {
+        let mut reader = csv::ReaderBuilder::new()
+            .has_headers(true)
+            .from_reader(text.as_bytes());
+        let header: Vec<String> = reader
+            .headers()
+            .map_err(|e| file_err(file, e.to_string()))?
+            .iter()
+            .map(|h| h.trim().to_string())
+            .collect();
+        if header.iter().all(String::is_empty) {
+            return Err(file_err(file, "empty file: no header"));
+        }
+        let mut rows = Vec::new();
+        for record in reader.records() {
+            let record = record.map_err(|e| match e.position() {
+                Some(p) => DataError::At {
+                    file: file.to_string(),
+                    line: p.line(),
+                    column: "-".to_string(),
+                    message: match e.kind() {
+                        csv::ErrorKind::UnequalLengths {
+                            expected_len, len, ..
+                        } => {
+                            format!("{len} fields, but the header has {expected_len}")
+                        }
+                        _ => e.to_string(),
+                    },
+                },
+                None => file_err(file, e.to_string()),
+            })?;
+            let line = record.position().map_or(0, |p| p.line());
+            rows.push((line, record.iter().map(|c| c.trim().to_string()).collect()));
+        }
+        Ok(Table { file, header, rows })
+    }
+
+    fn at(&self, line: u64, column: usize, message: impl Into<String>) -> DataError {
+        DataError::At {
+            file: self.file.to_string(),
+            line,
+            column: self
+                .header
+                .get(column)
+                .cloned()
+                .unwrap_or_else(|| format!("#{}", column + 1)),
+            message: message.into(),
+        }
+    }
+
+    /// A cell as a finite number, `None` when empty.
+    fn number(&self, line: u64, column: usize, cell: &str) -> Result<Option<f64>, DataError> {
+        if cell.is_empty() {
+            return Ok(None);
+        }
+        let v: f64 = cell
+            .parse()
+            .map_err(|_| self.at(line, column, format!("not a number: {cell:?}")))?;
+        if !v.is_finite() {
+            return Err(self.at(line, column, format!("not a finite number: {cell:?}")));
+        }
+        Ok(Some(v))
+    }
+}
+
+/// Writes `bytes` to a temporary file beside `path`, then renames it into place, so a
+/// reader never sees half a file.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DataError> {
+    let file = path.display().to_string();
+    let dir = path
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .ok_or_else(|| file_err(&file, "not a file path"))?;
+    let tmp = dir.join(format!(
+        ".{}.tmp{}",
+        name.to_string_lossy(),
+        std::process::id()
+    ));
+    std::fs::write(&tmp, bytes)
+        .map_err(|e| file_err(&file, format!("writing {}: {e}", tmp.display())))?;
+    std::fs::rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        file_err(&file, e.to_string())
+    })
+}
