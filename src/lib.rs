@@ -6,6 +6,7 @@
 //! `ops` (WGSL kernels with forward/backward and f64 CPU references). Later stages
 //! (twin, calibrate, data, graph, model, train, compensate) build on these.
 
+pub mod calibrate;
 pub mod cli;
 pub mod data;
 pub mod gpu;
