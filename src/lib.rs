@@ -6,6 +6,7 @@
 //! `ops` (WGSL kernels with forward/backward and f64 CPU references). Later stages
 //! (twin, calibrate, data, graph, model, train, compensate) build on these.
 
+pub mod atomic;
 pub mod calibrate;
 pub mod cli;
 pub mod data;
@@ -14,6 +15,7 @@ pub mod graph;
 pub mod ops;
 pub mod plot;
 pub mod robot;
+pub mod stats;
 pub mod testing;
 pub mod twin;
 

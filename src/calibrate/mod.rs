@@ -1,4 +1,14 @@
-//! Geometric calibration on the CPU: the identification Jacobian (and, in later slices,
-//! identifiability, the graded EKF and residual extraction). Imports `robot` only.
+//! Geometric calibration on the CPU: the identification Jacobian, identifiability, the
+//! graded iterated EKF, the calibration file and residual extraction. Imports `robot`
+//! only.
 
+pub mod file;
+pub mod identify;
 pub mod jacobian;
+pub mod residual;
+
+pub use identify::{
+    calibrate, default_prior_sigma, Calibration, CalibrationError, EkfConfig, Measurement,
+    StageReport,
+};
+pub use residual::residual;

@@ -1,5 +1,6 @@
 //! Command line: clap commands, and every error turned into one readable message.
 
+mod calibrate;
 mod info;
 mod simulate;
 mod smoke;
@@ -32,6 +33,8 @@ enum Command {
     Smoke(smoke::SmokeArgs),
     /// Run the digital twin and write a recording CSV (or a calibration measurement set).
     Simulate(simulate::SimulateArgs),
+    /// Identify the geometric errors (graded EKF) from a calibration measurement set.
+    Calibrate(calibrate::CalibrateArgs),
 }
 
 fn open_gpu(adapter: Option<&str>) -> anyhow::Result<Gpu> {
@@ -58,6 +61,7 @@ pub fn main() -> ExitCode {
             open_gpu(cli.adapter.as_deref()).and_then(|gpu| smoke::run(&gpu, &args))
         }
         Command::Simulate(args) => simulate::run(&args),
+        Command::Calibrate(args) => calibrate::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -4,6 +4,6 @@
 pub mod recording;
 
 pub use recording::{
-    read_calibration_set, write_atomic, write_calibration_set, CalibrationRow, DataError,
-    Recording, Row, JOINT_COLUMNS, TRACKER_COLUMNS,
+    read_calibration_set, write_calibration_set, CalibrationRow, DataError, Recording, Row,
+    JOINT_COLUMNS, TRACKER_COLUMNS,
 };

@@ -10,6 +10,8 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
+use crate::atomic;
+
 /// The tracker's columns, in order.
 pub const TRACKER_COLUMNS: [&str; 6] = ["x", "y", "z", "rx", "ry", "rz"];
 /// The joint-input columns of a calibration set.
@@ -90,7 +92,8 @@ impl Recording {
 
     /// Writes the CSV atomically (temporary file, then rename).
     pub fn write(&self, path: &Path) -> Result<(), DataError> {
-        write_atomic(path, self.to_csv().as_bytes())
+        atomic::write(path, self.to_csv().as_bytes())
+            .map_err(|e| file_err(&path.display().to_string(), e.to_string()))
     }
 
     /// Reads a recording whose sensor columns must be exactly `channels` (any order in
@@ -224,7 +227,8 @@ pub fn write_calibration_set(path: &Path, rows: &[CalibrationRow]) -> Result<(),
         out.push_str(&cells.join(","));
         out.push('\n');
     }
-    write_atomic(path, out.as_bytes())
+    atomic::write(path, out.as_bytes())
+        .map_err(|e| file_err(&path.display().to_string(), e.to_string()))
 }
 
 /// Reads a calibration set: columns q1..q5, x,y,z,rx,ry,rz, every cell a finite number.
@@ -342,28 +346,4 @@ impl<'a> Table<'a> {
         }
         Ok(Some(v))
     }
-}
-
-/// Writes `bytes` to a temporary file beside `path`, then renames it into place, so a
-/// reader never sees half a file.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DataError> {
-    let file = path.display().to_string();
-    let dir = path
-        .parent()
-        .filter(|d| !d.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .ok_or_else(|| file_err(&file, "not a file path"))?;
-    let tmp = dir.join(format!(
-        ".{}.tmp{}",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
-    std::fs::write(&tmp, bytes)
-        .map_err(|e| file_err(&file, format!("writing {}: {e}", tmp.display())))?;
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        file_err(&file, e.to_string())
-    })
 }

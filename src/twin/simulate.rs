@@ -372,6 +372,11 @@ pub struct CalibrationMeasurement {
     pub actual: Isometry3<f64>,
 }
 
+/// Limb speed of the moves between calibration poses, mm/s.
+const CALIBRATION_SPEED: f64 = 10.0;
+/// Time at rest at each calibration pose while the tracker measures, s.
+const CALIBRATION_SETTLE: f64 = 30.0;
+
 /// Drives the machine to each configuration (joint inputs from the nominal model of the
 /// controller) and measures it at rest: no polishing force, the tracker's reading averaged
 /// over `repeats` samples.
@@ -386,17 +391,33 @@ pub fn measure_calibration(
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut state = machine.state();
     let mut guess = controller.home();
-    let dwell = 2.0; // seconds between measurements: the drives at rest heat nothing
+    let mut last = controller.limb_lengths(&guess);
+    let mut t = 0.0;
     configurations
         .iter()
-        .enumerate()
-        .map(|(i, c)| {
+        .map(|c| {
             let joints = Joints {
                 limbs: controller.limb_lengths(&c.platform),
                 head: c.head,
             };
-            let actual =
-                machine.drive(&mut state, i as f64 * dwell, dwell, &joints, None, guess)?;
+            // Move at the calibration speed, then settle while the tracker measures: the
+            // screws warm during the move and cool during the wait, as on a real machine.
+            let travel = (0..3)
+                .map(|i| (joints.limbs[i] - last[i]).abs())
+                .fold(0.0, f64::max);
+            let moving = (travel / CALIBRATION_SPEED).max(1.0);
+            t += moving;
+            let moved = machine.drive(&mut state, t, moving, &joints, None, guess)?;
+            t += CALIBRATION_SETTLE;
+            let actual = machine.drive(
+                &mut state,
+                t,
+                CALIBRATION_SETTLE,
+                &joints,
+                None,
+                moved.platform,
+            )?;
+            last = joints.limbs;
             guess = actual.platform;
             let in_tracker = machine.robot.tracker_from_base() * actual.pose;
             // The mean of `repeats` readings: the noise shrinks by √repeats.

@@ -1,0 +1,156 @@
+//! The calibration file (TOML) that `calibrate` writes and later stages read: every
+//! parameter's estimated error, which ones were identified, their covariance, and how the
+//! filter ended.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use super::identify::Calibration;
+use crate::robot::{ErrorParams, N_PARAMS};
+
+#[derive(Debug, thiserror::Error)]
+#[error("{file}: {message}")]
+pub struct CalibrationFileError {
+    pub file: String,
+    pub message: String,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct StageFile {
+    name: String,
+    round: usize,
+    parameters: usize,
+    sweeps: usize,
+    gamma: f64,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CalibrationFile {
+    /// Format version.
+    version: u32,
+    /// Number of measurement poses the filter used.
+    measurements: usize,
+    /// δX of eq. 18 for every parameter (mm, rad); zero where not identified.
+    errors: BTreeMap<String, f64>,
+    /// Identified parameters, their posterior σ and covariance (same order).
+    identified: Vec<String>,
+    sigma: Vec<f64>,
+    covariance: Vec<Vec<f64>>,
+    /// Condition numbers of the scaled identification Jacobian (serial, parallel, joint).
+    condition: Vec<f64>,
+    stages: Vec<StageFile>,
+}
+
+/// A calibration read back from its file.
+#[derive(Clone, Debug)]
+pub struct LoadedCalibration {
+    pub errors: ErrorParams,
+    pub identified: Vec<String>,
+    pub sigma: Vec<f64>,
+    pub measurements: usize,
+}
+
+/// Writes `cal` to `path` atomically.
+pub fn save(
+    path: &Path,
+    cal: &Calibration,
+    measurements: usize,
+) -> Result<(), CalibrationFileError> {
+    let names = ErrorParams::names();
+    let file = CalibrationFile {
+        version: 1,
+        measurements,
+        errors: names
+            .iter()
+            .cloned()
+            .zip(cal.errors.values.iter().copied())
+            .collect(),
+        identified: cal.identified.iter().map(|&k| names[k].clone()).collect(),
+        sigma: (0..cal.identified.len())
+            .map(|i| cal.covariance[(i, i)].sqrt())
+            .collect(),
+        covariance: (0..cal.identified.len())
+            .map(|i| {
+                (0..cal.identified.len())
+                    .map(|j| cal.covariance[(i, j)])
+                    .collect()
+            })
+            .collect(),
+        condition: cal.condition.clone(),
+        stages: cal
+            .stages
+            .iter()
+            .map(|s| StageFile {
+                name: s.name.to_string(),
+                round: s.round,
+                parameters: s.parameters,
+                sweeps: s.sweeps,
+                gamma: s.gamma,
+            })
+            .collect(),
+    };
+    let err = |message: String| CalibrationFileError {
+        file: path.display().to_string(),
+        message,
+    };
+    let text = toml::to_string(&file).map_err(|e| err(e.to_string()))?;
+    let text = format!(
+        "# iastgcn geometric calibration: X_real = X_nom + δX (eq. 18), mm and rad.\n{text}"
+    );
+    crate::atomic::write(path, text.as_bytes()).map_err(|e| err(e.to_string()))
+}
+
+/// Reads a calibration file, checking names, sizes and values.
+pub fn load(path: &Path) -> Result<LoadedCalibration, CalibrationFileError> {
+    let name = path.display().to_string();
+    let err = |message: String| CalibrationFileError {
+        file: name.clone(),
+        message,
+    };
+    let text = std::fs::read_to_string(path).map_err(|e| err(e.to_string()))?;
+    let f: CalibrationFile = toml::from_str(&text).map_err(|e| err(e.to_string()))?;
+    if f.version != 1 {
+        return Err(err(format!("unsupported version {}", f.version)));
+    }
+    let names = ErrorParams::names();
+    let mut errors = ErrorParams::zero();
+    for (k, v) in &f.errors {
+        let i = names
+            .iter()
+            .position(|n| n == k)
+            .ok_or_else(|| err(format!("unknown parameter {k:?} in [errors]")))?;
+        if !v.is_finite() {
+            return Err(err(format!("errors.{k:?} is not finite")));
+        }
+        errors.values[i] = *v;
+    }
+    if f.errors.len() != N_PARAMS {
+        let missing = names
+            .iter()
+            .find(|n| !f.errors.contains_key(*n))
+            .cloned()
+            .unwrap_or_default();
+        return Err(err(format!(
+            "[errors] has {} parameters, expected {N_PARAMS} (missing {missing:?})",
+            f.errors.len()
+        )));
+    }
+    if f.sigma.len() != f.identified.len() || f.covariance.len() != f.identified.len() {
+        return Err(err(
+            "identified, sigma and covariance differ in length".to_string()
+        ));
+    }
+    if let Some(bad) = f.identified.iter().find(|n| !names.contains(n)) {
+        return Err(err(format!("unknown identified parameter {bad:?}")));
+    }
+    Ok(LoadedCalibration {
+        errors,
+        identified: f.identified,
+        sigma: f.sigma,
+        measurements: f.measurements,
+    })
+}
