@@ -13,11 +13,23 @@ vulkan:
 test: vulkan
 	$(CARGO) test --no-fail-fast
 
-## Main job on what exists so far: adapter report, then every kernel checked and timed.
+DEMO_DIR ?= report
+
+## Main job on what exists so far: the adapter and its kernels checked against the CPU,
+## then the twin's calibration set and three polishing recordings, and the EKF
+## calibration with its before/after report. Outputs land in $(DEMO_DIR)/.
 demo: vulkan
 	$(CARGO) build --release
 	./target/release/iastgcn info
 	./target/release/iastgcn smoke
+	mkdir -p $(DEMO_DIR)
+	./target/release/iastgcn simulate --trajectory calibration --poses 80 --out $(DEMO_DIR)/calibration_set.csv
+	for path in grid fermat hilbert; do \
+	    ./target/release/iastgcn simulate --trajectory $$path --minutes 3 --seed 11 --out $(DEMO_DIR)/$$path.csv || exit 1; \
+	done
+	./target/release/iastgcn calibrate --measurements $(DEMO_DIR)/calibration_set.csv \
+	    --out $(DEMO_DIR)/calibration.toml \
+	    --recordings $(DEMO_DIR)/grid.csv $(DEMO_DIR)/fermat.csv $(DEMO_DIR)/hilbert.csv
 
 ## Criterion benchmarks (matmul GFLOP/s, dispatch and submit costs).
 bench: vulkan

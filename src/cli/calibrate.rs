@@ -148,6 +148,8 @@ pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
             .join(", "),
         args.out.display()
     );
+    let identified: Vec<&str> = cal.identified.iter().map(|&k| names[k].as_str()).collect();
+    println!("  identified: {}", identified.join(" "));
     for s in &cal.stages {
         println!(
             "  {:<8} round {} : {:>2} parameters, {} sweeps, Γ = {:.1e}",
