@@ -54,3 +54,58 @@ fn bad_graphs_are_rejected_by_name() {
         assert!(err.starts_with("g.toml: ") && err.contains(want), "{err}");
     }
 }
+
+fn chain(n: usize, ring: bool) -> Graph {
+    let nodes: Vec<String> = (0..n).map(|i| format!("n{i}")).collect();
+    let mut edges = (0..n - 1).map(|i| (i, i + 1)).collect::<Vec<_>>();
+    if ring {
+        edges.push((0, n - 1));
+    }
+    Graph { nodes, edges }
+}
+
+#[test]
+fn laplacian_spectra_of_path_and_ring_have_their_closed_forms() {
+    // Ring C_n (2-regular): λ_k = 1 − cos(2πk/n). Path P_n, normalised: λ_k = 1 − cos(πk/(n−1)).
+    for n in [5, 8, 14] {
+        let ring = chain(n, true).spectral().eigenvalues;
+        let mut want: Vec<f64> = (0..n)
+            .map(|k| 1.0 - (std::f64::consts::TAU * k as f64 / n as f64).cos())
+            .collect();
+        want.sort_by(f64::total_cmp);
+        for (a, b) in ring.iter().zip(&want) {
+            assert!((a - b).abs() < 1e-12, "ring {n}: {ring:?} vs {want:?}");
+        }
+        let path = chain(n, false).spectral().eigenvalues;
+        let want: Vec<f64> = (0..n)
+            .map(|k| 1.0 - (std::f64::consts::PI * k as f64 / (n - 1) as f64).cos())
+            .collect();
+        for (a, b) in path.iter().zip(&want) {
+            assert!((a - b).abs() < 1e-12, "path {n}: {path:?} vs {want:?}");
+        }
+    }
+}
+
+#[test]
+fn wavelet_basis_and_its_inverse_multiply_to_identity() {
+    let s = Graph::default_asset().spectral();
+    for scale in [0.5, 1.0, 2.0] {
+        let p = s.wavelet(scale) * s.wavelet_inverse(scale);
+        let err = (p - nalgebra::DMatrix::identity(14, 14)).amax();
+        assert!(err < 1e-10, "scale {scale}: {err}");
+    }
+    // Heat kernels are symmetric, and at scale 0 the identity.
+    let w = s.wavelet(1.0);
+    assert!((&w - w.transpose()).amax() < 1e-14);
+    assert!((s.wavelet(0.0) - nalgebra::DMatrix::identity(14, 14)).amax() < 1e-12);
+    // Normalised Laplacian eigenvalues lie in [0, 2], the smallest 0 (connected graph).
+    assert!(
+        s.eigenvalues[0].abs() < 1e-12
+            && s.eigenvalues[1] > 1e-6
+            && s.eigenvalues[13] <= 2.0 + 1e-12
+    );
+    // Chebyshev: T_2 = 2 L̃² − I.
+    let t = s.chebyshev(3);
+    let lt = &t[1];
+    assert!((&t[2] - (lt * lt * 2.0 - nalgebra::DMatrix::identity(14, 14))).amax() < 1e-12);
+}

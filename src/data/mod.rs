@@ -1,9 +1,13 @@
-//! Recordings and datasets: the CSV formats of TWIN.md (and, in later slices,
-//! resampling, filtering, features, windows and splits).
+//! Recordings and datasets: the CSV formats of TWIN.md, causal preprocessing (hold,
+//! low-pass, differences, entropy), windows and leakage-free splits.
 
+pub mod features;
 pub mod recording;
+pub mod windows;
 
+pub use features::FeatureConfig;
 pub use recording::{
     read_calibration_set, write_calibration_set, CalibrationRow, DataError, Recording, Row,
     JOINT_COLUMNS, TRACKER_COLUMNS,
 };
+pub use windows::{split, window_ends, SplitMode, Splits, Window, WindowConfig};

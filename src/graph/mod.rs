@@ -107,3 +107,88 @@ impl Graph {
         a
     }
 }
+
+/// The spectral quantities of MODEL.md ("Graph"), computed once on the CPU in f64.
+#[derive(Clone, Debug)]
+pub struct Spectral {
+    /// Normalised Laplacian L = I − D^(−1/2) A D^(−1/2).
+    pub laplacian: DMatrix<f64>,
+    /// Eigenvalues λ (ascending) and orthonormal eigenvectors U (columns) of L.
+    pub eigenvalues: Vec<f64>,
+    pub eigenvectors: DMatrix<f64>,
+}
+
+impl Graph {
+    /// L = I − D^(−1/2) A D^(−1/2); an isolated node (degree 0) keeps a zero row and column.
+    pub fn normalized_laplacian(&self) -> DMatrix<f64> {
+        let a = self.adjacency();
+        let n = self.len();
+        let d: Vec<f64> = (0..n).map(|i| a.row(i).sum()).collect();
+        DMatrix::from_fn(n, n, |i, j| {
+            let off = if d[i] > 0.0 && d[j] > 0.0 {
+                a[(i, j)] / (d[i] * d[j]).sqrt()
+            } else {
+                0.0
+            };
+            let diag = if i == j && d[i] > 0.0 { 1.0 } else { 0.0 };
+            diag - off
+        })
+    }
+
+    /// Exact symmetric eigendecomposition of the normalised Laplacian (N is small).
+    pub fn spectral(&self) -> Spectral {
+        let laplacian = self.normalized_laplacian();
+        let eig = laplacian.clone().symmetric_eigen();
+        let mut order: Vec<usize> = (0..self.len()).collect();
+        order.sort_by(|&i, &j| eig.eigenvalues[i].total_cmp(&eig.eigenvalues[j]));
+        let eigenvalues = order.iter().map(|&i| eig.eigenvalues[i]).collect();
+        let eigenvectors = DMatrix::from_fn(self.len(), self.len(), |r, c| {
+            eig.eigenvectors[(r, order[c])]
+        });
+        Spectral {
+            laplacian,
+            eigenvalues,
+            eigenvectors,
+        }
+    }
+}
+
+impl Spectral {
+    /// U diag(f(λ)) Uᵀ.
+    fn filter(&self, f: impl Fn(f64) -> f64) -> DMatrix<f64> {
+        let u = &self.eigenvectors;
+        let d = DMatrix::from_diagonal(&nalgebra::DVector::from_iterator(
+            self.eigenvalues.len(),
+            self.eigenvalues.iter().map(|&l| f(l)),
+        ));
+        u * d * u.transpose()
+    }
+
+    /// Heat-kernel wavelet basis ψ_s = U diag(exp(−s λ)) Uᵀ (GWNN).
+    pub fn wavelet(&self, s: f64) -> DMatrix<f64> {
+        self.filter(|l| (-s * l).exp())
+    }
+
+    /// Its inverse ψ_s⁻¹ = U diag(exp(s λ)) Uᵀ.
+    pub fn wavelet_inverse(&self, s: f64) -> DMatrix<f64> {
+        self.filter(|l| (s * l).exp())
+    }
+
+    /// Chebyshev polynomials T_0..T_{order−1} of the scaled Laplacian
+    /// L̃ = 2L/λ_max − I (for the `iastgcn-s` ablation).
+    pub fn chebyshev(&self, order: usize) -> Vec<DMatrix<f64>> {
+        let n = self.laplacian.nrows();
+        let lmax = self.eigenvalues.last().copied().unwrap_or(0.0).max(1e-12);
+        let scaled = &self.laplacian * (2.0 / lmax) - DMatrix::identity(n, n);
+        let mut out: Vec<DMatrix<f64>> = Vec::with_capacity(order);
+        for k in 0..order {
+            let t = match k {
+                0 => DMatrix::identity(n, n),
+                1 => scaled.clone(),
+                _ => &scaled * &out[k - 1] * 2.0 - &out[k - 2],
+            };
+            out.push(t);
+        }
+        out
+    }
+}

@@ -1,0 +1,119 @@
+//! Sliding windows and leakage-free splits.
+//!
+//! Contiguous mode (the default): each recording is cut into three blocks in time,
+//! 70/20/10 %, and a window belongs to a split only when all its steps lie inside that
+//! split's block — windows straddling a boundary are dropped, so no step of a test window
+//! is ever seen in training. Random mode shuffles windows into the splits, as the paper's
+//! protocol does; overlapping windows then leak between splits, and reports say so.
+
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+/// How windows are assigned to train / validation / test.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SplitMode {
+    Contiguous,
+    /// The paper's protocol; leaks through overlapping windows.
+    Random {
+        seed: u64,
+    },
+}
+
+impl SplitMode {
+    /// A label for reports.
+    pub fn describe(&self) -> &'static str {
+        match self {
+            SplitMode::Contiguous => "contiguous blocks per recording (leakage-free)",
+            SplitMode::Random { .. } => {
+                "random (paper protocol; overlapping windows leak between splits)"
+            }
+        }
+    }
+}
+
+/// Window geometry: length T and stride S in control ticks.
+#[derive(Clone, Copy, Debug)]
+pub struct WindowConfig {
+    pub length: usize,
+    pub stride: usize,
+    /// Fractions of train and validation (test takes the rest).
+    pub train: f64,
+    pub validation: f64,
+}
+
+impl Default for WindowConfig {
+    fn default() -> WindowConfig {
+        WindowConfig {
+            length: 100,
+            stride: 20,
+            train: 0.7,
+            validation: 0.2,
+        }
+    }
+}
+
+/// A window of recording `recording` ending at row `end` (inclusive), covering
+/// `end + 1 − T ..= end`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Window {
+    pub recording: usize,
+    pub end: usize,
+}
+
+/// Window ends of a recording of `rows` rows: every `stride` rows from the first full
+/// window, kept where `labelled(end)` (the tracker measured at that row).
+pub fn window_ends(
+    rows: usize,
+    config: &WindowConfig,
+    labelled: impl Fn(usize) -> bool,
+) -> Vec<usize> {
+    if rows < config.length {
+        return Vec::new();
+    }
+    (config.length - 1..rows)
+        .step_by(config.stride.max(1))
+        .filter(|&e| labelled(e))
+        .collect()
+}
+
+/// Train / validation / test windows.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Splits {
+    pub train: Vec<Window>,
+    pub validation: Vec<Window>,
+    pub test: Vec<Window>,
+}
+
+/// Assigns `windows` (of recordings with `rows[r]` rows) to splits.
+pub fn split(windows: &[Window], rows: &[usize], config: &WindowConfig, mode: SplitMode) -> Splits {
+    let mut s = Splits::default();
+    match mode {
+        SplitMode::Contiguous => {
+            for &w in windows {
+                let n = rows[w.recording] as f64;
+                let b1 = (config.train * n).round() as usize;
+                let b2 = ((config.train + config.validation) * n).round() as usize;
+                let start = w.end + 1 - config.length;
+                if w.end < b1 {
+                    s.train.push(w);
+                } else if start >= b1 && w.end < b2 {
+                    s.validation.push(w);
+                } else if start >= b2 {
+                    s.test.push(w);
+                }
+            }
+        }
+        SplitMode::Random { seed } => {
+            let mut all = windows.to_vec();
+            all.shuffle(&mut ChaCha8Rng::seed_from_u64(seed));
+            let n = all.len() as f64;
+            let a = (config.train * n).round() as usize;
+            let b = ((config.train + config.validation) * n).round() as usize;
+            s.test = all.split_off(b.min(all.len()));
+            s.validation = all.split_off(a.min(all.len()));
+            s.train = all;
+        }
+    }
+    s
+}
