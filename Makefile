@@ -16,8 +16,8 @@ test: vulkan
 DEMO_DIR ?= report
 
 ## Main job on what exists so far: the adapter and its kernels checked against the CPU,
-## then the twin's calibration set and three polishing recordings, and the EKF
-## calibration with its before/after report. Outputs land in $(DEMO_DIR)/.
+## then the twin's calibration set and three polishing recordings, the EKF calibration
+## with its before/after report, and the dataset summary. Outputs land in $(DEMO_DIR)/.
 demo: vulkan
 	$(CARGO) build --release
 	./target/release/iastgcn info
@@ -29,6 +29,8 @@ demo: vulkan
 	done
 	./target/release/iastgcn calibrate --measurements $(DEMO_DIR)/calibration_set.csv \
 	    --out $(DEMO_DIR)/calibration.toml \
+	    --recordings $(DEMO_DIR)/grid.csv $(DEMO_DIR)/fermat.csv $(DEMO_DIR)/hilbert.csv
+	./target/release/iastgcn dataset --calibration $(DEMO_DIR)/calibration.toml \
 	    --recordings $(DEMO_DIR)/grid.csv $(DEMO_DIR)/fermat.csv $(DEMO_DIR)/hilbert.csv
 
 ## Criterion benchmarks (matmul GFLOP/s, dispatch and submit costs).

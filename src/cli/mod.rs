@@ -1,6 +1,7 @@
 //! Command line: clap commands, and every error turned into one readable message.
 
 mod calibrate;
+mod dataset;
 mod info;
 mod simulate;
 mod smoke;
@@ -35,6 +36,8 @@ enum Command {
     Simulate(simulate::SimulateArgs),
     /// Identify the geometric errors (graded EKF) from a calibration measurement set.
     Calibrate(calibrate::CalibrateArgs),
+    /// Build the dataset (features, labels, splits) from recordings and print its summary.
+    Dataset(dataset::DatasetArgs),
 }
 
 fn open_gpu(adapter: Option<&str>) -> anyhow::Result<Gpu> {
@@ -62,6 +65,7 @@ pub fn main() -> ExitCode {
         }
         Command::Simulate(args) => simulate::run(&args),
         Command::Calibrate(args) => calibrate::run(&args),
+        Command::Dataset(args) => dataset::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,10 +1,12 @@
 //! Recordings and datasets: the CSV formats of TWIN.md, causal preprocessing (hold,
 //! low-pass, differences, entropy), windows and leakage-free splits.
 
+pub mod dataset;
 pub mod features;
 pub mod recording;
 pub mod windows;
 
+pub use dataset::{Dataset, DatasetError, Normalization, FEATURES, OUTPUTS};
 pub use features::FeatureConfig;
 pub use recording::{
     read_calibration_set, write_calibration_set, CalibrationRow, DataError, Recording, Row,

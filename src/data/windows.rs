@@ -61,20 +61,25 @@ pub struct Window {
     pub end: usize,
 }
 
-/// Window ends of a recording of `rows` rows: every `stride` rows from the first full
-/// window, kept where `labelled(end)` (the tracker measured at that row).
+/// Window ends of a recording of `rows` rows: the first labelled row (the tracker
+/// measured there) that completes a window, then each labelled row at least `stride` rows
+/// after the previous end. With the tracker every 5 ticks and S = 20 that is exactly every
+/// 20 rows.
 pub fn window_ends(
     rows: usize,
     config: &WindowConfig,
     labelled: impl Fn(usize) -> bool,
 ) -> Vec<usize> {
-    if rows < config.length {
-        return Vec::new();
+    let mut ends: Vec<usize> = Vec::new();
+    for e in config.length.saturating_sub(1)..rows {
+        let due = ends
+            .last()
+            .is_none_or(|&last| e >= last + config.stride.max(1));
+        if due && labelled(e) {
+            ends.push(e);
+        }
     }
-    (config.length - 1..rows)
-        .step_by(config.stride.max(1))
-        .filter(|&e| labelled(e))
-        .collect()
+    ends
 }
 
 /// Train / validation / test windows.

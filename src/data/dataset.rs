@@ -1,0 +1,344 @@
+//! Model-ready tensors from recordings and a calibration: features per node and step,
+//! labels at window ends (eq. 19 under the calibrated model), normalisation statistics
+//! from the training split only.
+
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+
+use super::features::{hold, node_features, FeatureConfig};
+use super::recording::Recording;
+use super::windows::{split, window_ends, SplitMode, Splits, Window, WindowConfig};
+use crate::calibrate::residual;
+use crate::graph::Graph;
+use crate::robot::{Joints, PlatformPose, Robot};
+
+/// Features per node and step (MODEL.md F).
+pub const FEATURES: usize = 3;
+/// Label components: dx, dy, dz (µm), rx, ry, rz (mdeg).
+pub const OUTPUTS: usize = 6;
+/// The joint-input channels the labels need.
+const JOINT_CHANNELS: [&str; 5] = ["Q1", "Q2", "Q3", "Q4", "Q5"];
+
+#[derive(Debug, thiserror::Error)]
+#[error("{file}: {message}")]
+pub struct DatasetError {
+    pub file: String,
+    pub message: String,
+}
+
+/// Mean and standard deviation per (node, feature) and per label component.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Normalization {
+    /// `[N][F]`.
+    pub feature_mean: Vec<[f64; FEATURES]>,
+    pub feature_std: Vec<[f64; FEATURES]>,
+    pub label_mean: [f64; OUTPUTS],
+    pub label_std: [f64; OUTPUTS],
+}
+
+/// Windows, their tensors and splits.
+#[derive(Clone, Debug)]
+pub struct Dataset {
+    pub nodes: Vec<String>,
+    pub recordings: Vec<String>,
+    pub window: WindowConfig,
+    pub mode: SplitMode,
+    /// Every window in `splits` order: train, then validation, then test.
+    pub windows: Vec<Window>,
+    pub splits: Splits,
+    /// `[W, N, F, T]`, z-scored with the training statistics.
+    pub x: Vec<f32>,
+    /// `[W, 6]`, z-scored labels.
+    pub y: Vec<f32>,
+    /// `[W]` raw labels (µm, mdeg).
+    pub labels: Vec<[f64; OUTPUTS]>,
+    pub normalization: Normalization,
+}
+
+struct Prepared {
+    /// `[N][F][rows]`.
+    features: Vec<[Vec<f64>; FEATURES]>,
+    labels: Vec<Option<[f64; OUTPUTS]>>,
+}
+
+fn err(file: &str, message: impl Into<String>) -> DatasetError {
+    DatasetError {
+        file: file.to_string(),
+        message: message.into(),
+    }
+}
+
+/// Checks the clock: rows must be evenly spaced (one control period); returns it.
+fn control_period(name: &str, rec: &Recording) -> Result<f64, DatasetError> {
+    if rec.rows.len() < 2 {
+        return Err(err(name, "fewer than two rows"));
+    }
+    let dt = rec.rows[1].t - rec.rows[0].t;
+    for (i, w) in rec.rows.windows(2).enumerate() {
+        let step = w[1].t - w[0].t;
+        if (step - dt).abs() > 0.25 * dt {
+            // +2: the header is line 1 and rows count from 0.
+            return Err(err(
+                name,
+                format!("line {}: a gap in time ({:.4} s after {:.4} s; the control period is {dt:.4} s)", i + 3, step, w[0].t),
+            ));
+        }
+    }
+    Ok(dt)
+}
+
+fn prepare(
+    name: &str,
+    rec: &Recording,
+    graph: &Graph,
+    model: &Robot,
+    config: &FeatureConfig,
+) -> Result<Prepared, DatasetError> {
+    let dt = control_period(name, rec)?;
+    let column = |c: &str| {
+        rec.channels.iter().position(|x| x == c).ok_or_else(|| {
+            err(
+                name,
+                format!("no column for {c:?} (needed by the graph asset or the labels)"),
+            )
+        })
+    };
+    let mut features = Vec::with_capacity(graph.len());
+    for node in &graph.nodes {
+        let c = column(node)?;
+        let values: Vec<Option<f64>> = rec.rows.iter().map(|r| r.values[c]).collect();
+        let held = hold(&values)
+            .ok_or_else(|| err(name, format!("sensor {node:?} has no sample at all")))?;
+        features.push(node_features(&held, dt, config));
+    }
+    let q: Vec<Vec<f64>> = JOINT_CHANNELS
+        .iter()
+        .map(|c| {
+            let col = column(c)?;
+            hold(&rec.rows.iter().map(|r| r.values[col]).collect::<Vec<_>>())
+                .ok_or_else(|| err(name, format!("sensor {c:?} has no sample at all")))
+        })
+        .collect::<Result<_, _>>()?;
+    let mut guess: Option<PlatformPose> = None;
+    let mut labels = Vec::with_capacity(rec.rows.len());
+    for (i, row) in rec.rows.iter().enumerate() {
+        let Some(p) = row.tracker else {
+            labels.push(None);
+            continue;
+        };
+        let joints = Joints {
+            limbs: [q[0][i], q[1][i], q[2][i]],
+            head: [q[3][i].to_radians(), q[4][i].to_radians()],
+        };
+        let measured = Isometry3::from_parts(
+            Translation3::new(p[0], p[1], p[2]),
+            UnitQuaternion::from_scaled_axis(Vector3::new(p[3], p[4], p[5])),
+        );
+        let (label, platform) = residual(model, &joints, &measured, guess)
+            .map_err(|e| err(name, format!("line {}: {e}", i + 2)))?;
+        guess = Some(platform);
+        labels.push(Some(label));
+    }
+    Ok(Prepared { features, labels })
+}
+
+fn mean_std(values: impl Iterator<Item = f64>) -> (f64, f64) {
+    let (mut n, mut s, mut s2) = (0.0, 0.0, 0.0);
+    for v in values {
+        n += 1.0;
+        s += v;
+        s2 += v * v;
+    }
+    if n == 0.0 {
+        return (0.0, 1.0);
+    }
+    let mean = s / n;
+    let sd = (s2 / n - mean * mean).max(0.0).sqrt();
+    (mean, if sd > 1e-12 { sd } else { 1.0 })
+}
+
+impl Dataset {
+    /// Builds the dataset from named recordings, the sensor graph and the calibrated model.
+    pub fn build(
+        recordings: &[(String, Recording)],
+        graph: &Graph,
+        model: &Robot,
+        features: &FeatureConfig,
+        window: &WindowConfig,
+        mode: SplitMode,
+    ) -> Result<Dataset, DatasetError> {
+        let prepared: Vec<Prepared> = recordings
+            .iter()
+            .map(|(name, rec)| prepare(name, rec, graph, model, features))
+            .collect::<Result<_, _>>()?;
+        let mut all = Vec::new();
+        for (r, ((name, rec), p)) in recordings.iter().zip(&prepared).enumerate() {
+            let ends = window_ends(rec.rows.len(), window, |e| p.labels[e].is_some());
+            if ends.is_empty() {
+                return Err(err(
+                    name,
+                    format!(
+                        "{} rows give no labelled window of {} steps",
+                        rec.rows.len(),
+                        window.length
+                    ),
+                ));
+            }
+            all.extend(ends.into_iter().map(|end| Window { recording: r, end }));
+        }
+        let rows: Vec<usize> = recordings.iter().map(|(_, r)| r.rows.len()).collect();
+        let splits = split(&all, &rows, window, mode);
+        if splits.train.is_empty() {
+            return Err(err(
+                "dataset",
+                "no training window: the recordings are too short",
+            ));
+        }
+        // Statistics over the steps of training windows only (each step once).
+        let n_nodes = graph.len();
+        let mut in_train: Vec<Vec<bool>> = rows.iter().map(|&n| vec![false; n]).collect();
+        for w in &splits.train {
+            in_train[w.recording][w.end + 1 - window.length..=w.end].fill(true);
+        }
+        let mut feature_mean = vec![[0.0; FEATURES]; n_nodes];
+        let mut feature_std = vec![[1.0; FEATURES]; n_nodes];
+        for n in 0..n_nodes {
+            for f in 0..FEATURES {
+                let values = prepared.iter().enumerate().flat_map(|(r, p)| {
+                    let mask = &in_train[r];
+                    p.features[n][f]
+                        .iter()
+                        .enumerate()
+                        .filter(move |(t, _)| mask[*t])
+                        .map(|(_, v)| *v)
+                });
+                (feature_mean[n][f], feature_std[n][f]) = mean_std(values);
+            }
+        }
+        let label_of =
+            |w: &Window| prepared[w.recording].labels[w.end].expect("windows end on labelled rows");
+        let mut label_mean = [0.0; OUTPUTS];
+        let mut label_std = [1.0; OUTPUTS];
+        for k in 0..OUTPUTS {
+            (label_mean[k], label_std[k]) = mean_std(splits.train.iter().map(|w| label_of(w)[k]));
+        }
+        let windows: Vec<Window> = splits
+            .train
+            .iter()
+            .chain(&splits.validation)
+            .chain(&splits.test)
+            .copied()
+            .collect();
+        let t_len = window.length;
+        let mut x = Vec::with_capacity(windows.len() * n_nodes * FEATURES * t_len);
+        let mut y = Vec::with_capacity(windows.len() * OUTPUTS);
+        let mut labels = Vec::with_capacity(windows.len());
+        for w in &windows {
+            let p = &prepared[w.recording];
+            let start = w.end + 1 - t_len;
+            for n in 0..n_nodes {
+                for f in 0..FEATURES {
+                    let (m, s) = (feature_mean[n][f], feature_std[n][f]);
+                    x.extend(
+                        p.features[n][f][start..=w.end]
+                            .iter()
+                            .map(|v| ((v - m) / s) as f32),
+                    );
+                }
+            }
+            let l = label_of(w);
+            y.extend((0..OUTPUTS).map(|k| ((l[k] - label_mean[k]) / label_std[k]) as f32));
+            labels.push(l);
+        }
+        Ok(Dataset {
+            nodes: graph.nodes.clone(),
+            recordings: recordings.iter().map(|(n, _)| n.clone()).collect(),
+            window: *window,
+            mode,
+            windows,
+            splits,
+            x,
+            y,
+            labels,
+            normalization: Normalization {
+                feature_mean,
+                feature_std,
+                label_mean,
+                label_std,
+            },
+        })
+    }
+
+    /// Positions (in `windows`) of the training, validation and test windows.
+    pub fn split_ranges(&self) -> [std::ops::Range<usize>; 3] {
+        let a = self.splits.train.len();
+        let b = a + self.splits.validation.len();
+        [0..a, a..b, b..self.windows.len()]
+    }
+
+    /// Mini-batches of `batch` window positions from `range`, shuffled with `seed` (the
+    /// same seed gives the same batches; the last batch may be short).
+    pub fn batches(
+        &self,
+        range: std::ops::Range<usize>,
+        batch: usize,
+        seed: u64,
+    ) -> Vec<Vec<usize>> {
+        use rand::seq::SliceRandom;
+        use rand::SeedableRng;
+        let mut order: Vec<usize> = range.collect();
+        order.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(seed));
+        order.chunks(batch.max(1)).map(<[usize]>::to_vec).collect()
+    }
+
+    /// The windows at `positions` as contiguous buffers ready for upload:
+    /// `x` `[B, N, F, T]` and `y` `[B, 6]`.
+    pub fn gather(&self, positions: &[usize]) -> (Vec<f32>, Vec<f32>) {
+        let len = self.window_len();
+        let mut x = Vec::with_capacity(positions.len() * len);
+        let mut y = Vec::with_capacity(positions.len() * OUTPUTS);
+        for &p in positions {
+            x.extend_from_slice(&self.x[p * len..(p + 1) * len]);
+            y.extend_from_slice(&self.y[p * OUTPUTS..(p + 1) * OUTPUTS]);
+        }
+        (x, y)
+    }
+
+    /// Elements of one window in `x`: N·F·T.
+    pub fn window_len(&self) -> usize {
+        self.nodes.len() * FEATURES * self.window.length
+    }
+
+    /// A printable summary: windows per split and recording, label statistics.
+    pub fn summary(&self) -> String {
+        let mut s = format!(
+            "{} windows of {} steps (stride {}), split: {}\n",
+            self.windows.len(),
+            self.window.length,
+            self.window.stride,
+            self.mode.describe()
+        );
+        s += &format!(
+            "  train {}, validation {}, test {}\n",
+            self.splits.train.len(),
+            self.splits.validation.len(),
+            self.splits.test.len()
+        );
+        for (r, name) in self.recordings.iter().enumerate() {
+            let count = |ws: &[Window]| ws.iter().filter(|w| w.recording == r).count();
+            s += &format!(
+                "  {name}: train {}, validation {}, test {}\n",
+                count(&self.splits.train),
+                count(&self.splits.validation),
+                count(&self.splits.test)
+            );
+        }
+        let n = &self.normalization;
+        let names = ["dx µm", "dy µm", "dz µm", "rx mdeg", "ry mdeg", "rz mdeg"];
+        s += "  labels (training mean ± SD):";
+        for ((name, mean), sd) in names.iter().zip(n.label_mean).zip(n.label_std) {
+            s += &format!(" {name} {mean:.1}±{sd:.1};");
+        }
+        s.push('\n');
+        s
+    }
+}
