@@ -62,6 +62,28 @@ fn store_row(row: u32, col0: u32, base: u32, v: vec4<f32>) {
     }
 }
 
+// Offsets of the four rows of op(A) (times a_row) and the four columns of op(B) (times
+// b_col) of this invocation's block. Rows/columns past the edge are clamped so every load
+// stays in bounds; their results are computed but never stored, which keeps the inner
+// loops branch-free.
+fn row_offsets(row0: u32) -> vec4<u32> {
+    let ml = p.m - 1u;
+    return vec4<u32>(min(row0, ml), min(row0 + 1u, ml), min(row0 + 2u, ml), min(row0 + 3u, ml)) * p.a_row;
+}
+
+fn col_offsets(col0: u32) -> vec4<u32> {
+    let nl = p.n - 1u;
+    return vec4<u32>(min(col0, nl), min(col0 + 1u, nl), min(col0 + 2u, nl), min(col0 + 3u, nl)) * p.b_col;
+}
+
+fn store_tile(row0: u32, col0: u32, z: u32, acc0: vec4<f32>, acc1: vec4<f32>, acc2: vec4<f32>, acc3: vec4<f32>) {
+    let cbase = z * p.c_batch;
+    store_row(row0, col0, cbase, acc0);
+    store_row(row0 + 1u, col0, cbase, acc1);
+    store_row(row0 + 2u, col0, cbase, acc2);
+    store_row(row0 + 3u, col0, cbase, acc3);
+}
+
 @compute @workgroup_size(8, 8, 1)
 fn matmul(@builtin(global_invocation_id) gid: vec3<u32>) {
     let row0 = gid.y * 4u;
@@ -70,12 +92,8 @@ fn matmul(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let z = gid.z;
-    // Rows/columns past the edge are clamped so every load stays in bounds; their
-    // results are computed but never stored. This keeps the inner loop branch-free.
-    let ml = p.m - 1u;
-    let nl = p.n - 1u;
-    let ra = vec4<u32>(min(row0, ml), min(row0 + 1u, ml), min(row0 + 2u, ml), min(row0 + 3u, ml)) * p.a_row;
-    let cb = vec4<u32>(min(col0, nl), min(col0 + 1u, nl), min(col0 + 2u, nl), min(col0 + 3u, nl)) * p.b_col;
+    let ra = row_offsets(row0);
+    let cb = col_offsets(col0);
     var acc0 = vec4<f32>(0.0);
     var acc1 = vec4<f32>(0.0);
     var acc2 = vec4<f32>(0.0);
@@ -110,11 +128,7 @@ fn matmul(@builtin(global_invocation_id) gid: vec3<u32>) {
             acc3 += a[ak + ra.w] * bv;
         }
     }
-    let cbase = z * p.c_batch;
-    store_row(row0, col0, cbase, acc0);
-    store_row(row0 + 1u, col0, cbase, acc1);
-    store_row(row0 + 2u, col0, cbase, acc2);
-    store_row(row0 + 3u, col0, cbase, acc3);
+    store_tile(row0, col0, z, acc0, acc1, acc2, acc3);
 }
 
 // ---- vector-load variant ----------------------------------------------------------------
@@ -139,13 +153,10 @@ fn matmul_vec4(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let z = gid.z;
-    let ml = p.m - 1u;
-    let nl = p.n - 1u;
-    // Per-row / per-column offsets (clamped like the scalar kernel). Along a contiguous
-    // axis the four rows (columns) form one vector instead and need no clamping: that
-    // axis is a multiple of 4.
-    let ra = vec4<u32>(min(row0, ml), min(row0 + 1u, ml), min(row0 + 2u, ml), min(row0 + 3u, ml)) * p.a_row;
-    let cb = vec4<u32>(min(col0, nl), min(col0 + 1u, nl), min(col0 + 2u, nl), min(col0 + 3u, nl)) * p.b_col;
+    // Along a contiguous axis the four rows (columns) are loaded as one vector from
+    // row0 (col0) instead: that axis is a multiple of 4, so they need no clamping.
+    let ra = row_offsets(row0);
+    let cb = col_offsets(col0);
     var acc0 = vec4<f32>(0.0);
     var acc1 = vec4<f32>(0.0);
     var acc2 = vec4<f32>(0.0);
@@ -204,9 +215,5 @@ fn matmul_vec4(@builtin(global_invocation_id) gid: vec3<u32>) {
             acc3 += x3.x * y0 + x3.y * y1 + x3.z * y2 + x3.w * y3;
         }
     }
-    let cbase = z * p.c_batch;
-    store_row(row0, col0, cbase, acc0);
-    store_row(row0 + 1u, col0, cbase, acc1);
-    store_row(row0 + 2u, col0, cbase, acc2);
-    store_row(row0 + 3u, col0, cbase, acc3);
+    store_tile(row0, col0, z, acc0, acc1, acc2, acc3);
 }

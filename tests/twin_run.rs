@@ -125,28 +125,16 @@ fn same_seed_gives_the_same_bytes_and_another_seed_does_not() {
     assert_eq!(text.lines().count(), 1 + 300);
     assert!(std::fs::metadata(f("a.png")).unwrap().len() > 10_000);
     // Calibration sets are reproducible too.
-    simulate(
-        &[
-            "--trajectory",
-            "calibration",
-            "--poses",
-            "12",
-            "--seed",
-            "5",
-        ],
-        &f("k1.csv"),
-    );
-    simulate(
-        &[
-            "--trajectory",
-            "calibration",
-            "--poses",
-            "12",
-            "--seed",
-            "5",
-        ],
-        &f("k2.csv"),
-    );
+    let calibration = [
+        "--trajectory",
+        "calibration",
+        "--poses",
+        "12",
+        "--seed",
+        "5",
+    ];
+    simulate(&calibration, &f("k1.csv"));
+    simulate(&calibration, &f("k2.csv"));
     assert_eq!(read("k1.csv"), read("k2.csv"));
     let cal = iastgcn::data::read_calibration_set(&f("k1.csv")).unwrap();
     assert_eq!(cal.len(), 12);
@@ -176,23 +164,24 @@ fn recordings_read_back_with_the_graph_channels() {
 
 #[test]
 fn bad_arguments_are_clear() {
-    let o = Command::new(env!("CARGO_BIN_EXE_iastgcn"))
-        .args(["simulate", "--trajectory", "zigzag", "--out", "/tmp/x.csv"])
-        .output()
-        .unwrap();
-    assert!(!o.status.success());
-    assert!(String::from_utf8_lossy(&o.stderr).contains("zigzag"));
-    let o = Command::new(env!("CARGO_BIN_EXE_iastgcn"))
-        .args([
-            "simulate",
-            "--trajectory",
-            "grid",
-            "--minutes",
-            "0",
-            "--out",
-            "/tmp/x.csv",
-        ])
-        .output()
-        .unwrap();
-    assert!(String::from_utf8_lossy(&o.stderr).contains("--minutes must be positive"));
+    let stderr = |args: &[&str]| {
+        let o = Command::new(env!("CARGO_BIN_EXE_iastgcn"))
+            .args(args)
+            .output()
+            .unwrap();
+        assert!(!o.status.success());
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let out = "/tmp/iastgcn-never-written.csv";
+    assert!(stderr(&["simulate", "--trajectory", "zigzag", "--out", out]).contains("zigzag"));
+    let e = stderr(&[
+        "simulate",
+        "--trajectory",
+        "grid",
+        "--minutes",
+        "0",
+        "--out",
+        out,
+    ]);
+    assert!(e.contains("--minutes must be positive"), "{e}");
 }

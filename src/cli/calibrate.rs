@@ -6,10 +6,10 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use indicatif::ProgressBar;
-use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::Vector3;
 
 use crate::calibrate::{self, file, jacobian::twist, EkfConfig, Measurement};
-use crate::data::{read_calibration_set, Recording};
+use crate::data::{expected_channels, read_calibration_set, tracker_pose, Recording};
 use crate::graph::Graph;
 use crate::robot::{Geometry, Joints, Robot};
 use crate::stats::Summary;
@@ -31,13 +31,6 @@ pub struct CalibrateArgs {
     /// Polishing recordings to report the error on before and after calibration.
     #[arg(long, num_args = 1..)]
     recordings: Vec<PathBuf>,
-}
-
-fn pose(p: &[f64; 6]) -> Isometry3<f64> {
-    Isometry3::from_parts(
-        Translation3::new(p[0], p[1], p[2]),
-        UnitQuaternion::from_scaled_axis(Vector3::new(p[3], p[4], p[5])),
-    )
 }
 
 /// Position (µm) and attitude (mdeg) errors of `model`'s prediction of each measurement.
@@ -67,9 +60,8 @@ fn row(label: &str, stage: &str, (p, a): &(Vec<f64>, Vec<f64>)) -> String {
 
 /// The tracked rows of a recording as measurements (Q1–Q5 as joint inputs).
 fn recording_measurements(path: &std::path::Path) -> anyhow::Result<Vec<Measurement>> {
-    let graph = Graph::default_asset();
-    let mut channels: Vec<&str> = graph.nodes.iter().map(String::as_str).collect();
-    channels.push("F");
+    let channels = expected_channels(&Graph::default_asset().nodes);
+    let channels: Vec<&str> = channels.iter().map(String::as_str).collect();
     let rec = Recording::read(path, &channels, 1)?;
     let col = |name: &str| {
         rec.channels
@@ -95,7 +87,7 @@ fn recording_measurements(path: &std::path::Path) -> anyhow::Result<Vec<Measurem
                 limbs: [q1, q2, q3],
                 head: [q4.to_radians(), q5.to_radians()],
             },
-            pose: pose(&t),
+            pose: tracker_pose(&t),
         });
     }
     anyhow::ensure!(
@@ -120,7 +112,7 @@ pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
                 limbs: [r.joints[0], r.joints[1], r.joints[2]],
                 head: [r.joints[3].to_radians(), r.joints[4].to_radians()],
             },
-            pose: pose(&r.pose),
+            pose: tracker_pose(&r.pose),
         })
         .collect();
     let (fit, held): (Vec<_>, Vec<_>) = all

@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use crate::calibrate::file;
-use crate::data::{Dataset, FeatureConfig, Recording, SplitMode, WindowConfig};
+use crate::data::{expected_channels, Dataset, FeatureConfig, Recording, SplitMode, WindowConfig};
 use crate::graph::Graph;
 use crate::robot::{Geometry, Robot};
 
@@ -45,12 +45,8 @@ pub fn run(args: &DatasetArgs) -> anyhow::Result<()> {
     };
     let cal = file::load(&args.calibration)?;
     let model = Robot::new(geometry, cal.errors);
-    let mut channels: Vec<&str> = graph.nodes.iter().map(String::as_str).collect();
-    for extra in ["Q1", "Q2", "Q3", "Q4", "Q5", "F"] {
-        if !channels.contains(&extra) {
-            channels.push(extra);
-        }
-    }
+    let channels = expected_channels(&graph.nodes);
+    let channels: Vec<&str> = channels.iter().map(String::as_str).collect();
     let window = WindowConfig {
         length: args.window,
         stride: args.stride,

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::data::{write_calibration_set, CalibrationRow, Recording, Row};
+use crate::data::{tracker_columns, write_calibration_set, CalibrationRow, Recording, Row};
 use crate::plot::{self, Panel, Series};
 use crate::robot::{Geometry, Robot};
 use crate::twin::{
@@ -77,10 +77,7 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
     let mut truth = Vec::with_capacity(steps);
     while let Some(sample) = sim.step() {
         let s = sample.with_context(|| format!("at t = {:.2} s", rows.len() as f64 * 0.02))?;
-        let tracker = s.tracker.map(|p| {
-            let (v, r) = (p.translation.vector, p.rotation.scaled_axis());
-            [v.x, v.y, v.z, r.x, r.y, r.z]
-        });
+        let tracker = s.tracker.as_ref().map(tracker_columns);
         let h = s.hidden;
         truth.push((
             s.t,
@@ -199,10 +196,6 @@ fn calibration(
         args.seed,
     )?;
     for m in &measured {
-        let (v, r) = (
-            m.measured.translation.vector,
-            m.measured.rotation.scaled_axis(),
-        );
         let j = &m.joints;
         rows.push(CalibrationRow {
             joints: [
@@ -212,7 +205,7 @@ fn calibration(
                 j.head[0].to_degrees(),
                 j.head[1].to_degrees(),
             ],
-            pose: [v.x, v.y, v.z, r.x, r.y, r.z],
+            pose: tracker_columns(&m.measured),
         });
         bar.inc(1);
     }

@@ -2,10 +2,8 @@
 //! labels at window ends (eq. 19 under the calibrated model), normalisation statistics
 //! from the training split only.
 
-use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
-
 use super::features::{hold, node_features, FeatureConfig};
-use super::recording::Recording;
+use super::recording::{tracker_pose, Recording};
 use super::windows::{split, window_ends, SplitMode, Splits, Window, WindowConfig};
 use crate::calibrate::residual;
 use crate::graph::Graph;
@@ -129,10 +127,7 @@ fn prepare(
             limbs: [q[0][i], q[1][i], q[2][i]],
             head: [q[3][i].to_radians(), q[4][i].to_radians()],
         };
-        let measured = Isometry3::from_parts(
-            Translation3::new(p[0], p[1], p[2]),
-            UnitQuaternion::from_scaled_axis(Vector3::new(p[3], p[4], p[5])),
-        );
+        let measured = tracker_pose(&p);
         let (label, platform) = residual(model, &joints, &measured, guess)
             .map_err(|e| err(name, format!("line {}: {e}", i + 2)))?;
         guess = Some(platform);

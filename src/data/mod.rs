@@ -9,7 +9,7 @@ pub mod windows;
 pub use dataset::{Dataset, DatasetError, Normalization, FEATURES, OUTPUTS};
 pub use features::FeatureConfig;
 pub use recording::{
-    read_calibration_set, write_calibration_set, CalibrationRow, DataError, Recording, Row,
-    JOINT_COLUMNS, TRACKER_COLUMNS,
+    expected_channels, read_calibration_set, tracker_columns, tracker_pose, write_calibration_set,
+    CalibrationRow, DataError, Recording, Row, JOINT_COLUMNS, TRACKER_COLUMNS,
 };
 pub use windows::{split, window_ends, SplitMode, Splits, Window, WindowConfig};

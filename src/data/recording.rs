@@ -38,6 +38,32 @@ fn file_err(file: &str, message: impl Into<String>) -> DataError {
     }
 }
 
+/// The tracker columns `[x, y, z, rx, ry, rz]` (mm, rotation vector in rad) as a pose.
+pub fn tracker_pose(p: &[f64; 6]) -> nalgebra::Isometry3<f64> {
+    nalgebra::Isometry3::from_parts(
+        nalgebra::Translation3::new(p[0], p[1], p[2]),
+        nalgebra::UnitQuaternion::from_scaled_axis(nalgebra::Vector3::new(p[3], p[4], p[5])),
+    )
+}
+
+/// A pose as the tracker columns `[x, y, z, rx, ry, rz]`.
+pub fn tracker_columns(pose: &nalgebra::Isometry3<f64>) -> [f64; 6] {
+    let (v, r) = (pose.translation.vector, pose.rotation.scaled_axis());
+    [v.x, v.y, v.z, r.x, r.y, r.z]
+}
+
+/// The sensor columns a recording must have for `nodes`: the graph's nodes, the joint
+/// inputs Q1–Q5 the labels need, and the polishing force F.
+pub fn expected_channels(nodes: &[String]) -> Vec<String> {
+    let mut c = nodes.to_vec();
+    for extra in ["Q1", "Q2", "Q3", "Q4", "Q5", "F"] {
+        if !c.iter().any(|n| n == extra) {
+            c.push(extra.to_string());
+        }
+    }
+    c
+}
+
 /// One tick of a recording.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Row {
