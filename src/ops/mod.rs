@@ -2,11 +2,12 @@
 //! its f64 CPU reference. Ops see tensors only.
 
 pub mod elementwise;
+pub mod layer_norm;
 pub mod matmul;
 
 use crate::gpu::Shader;
 
 /// Every op shader, for validation and for the pipeline warm-up.
-pub fn shaders() -> [&'static Shader; 2] {
-    [&elementwise::SHADER, &matmul::SHADER]
+pub fn shaders() -> [&'static Shader; 3] {
+    [&elementwise::SHADER, &layer_norm::SHADER, &matmul::SHADER]
 }

@@ -1,0 +1,148 @@
+// LayerNorm over the channel axis of [B, N, C, T] activations (MODEL.md step 6), forward
+// and backward (Rust side: src/ops/layer_norm.rs).
+//
+// Rows are (b·N + n, t) pairs: `outer` = B·N blocks of C·T elements, channel stride T.
+// Forward saves each row's mean and 1/σ for the backward pass.
+
+struct LnParams {
+    outer: u32,
+    channels: u32,
+    steps: u32,
+    accumulate: u32,
+    eps: f32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+const LN_WG: u32 = 256u;
+
+@group(0) @binding(0) var<uniform> p: LnParams;
+@group(0) @binding(1) var<storage, read> x: array<f32>;
+@group(0) @binding(2) var<storage, read> gamma: array<f32>;
+@group(0) @binding(3) var<storage, read> beta: array<f32>;
+@group(0) @binding(4) var<storage, read_write> y: array<f32>;
+@group(0) @binding(5) var<storage, read_write> mean: array<f32>;
+@group(0) @binding(6) var<storage, read_write> rstd: array<f32>;
+
+// First element of row `row` (= o·T + t) and the channel stride.
+fn row_base(row: u32) -> u32 {
+    let o = row / p.steps;
+    let t = row - o * p.steps;
+    return o * p.channels * p.steps + t;
+}
+
+@compute @workgroup_size(256)
+fn layer_norm_forward(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                      @builtin(local_invocation_index) li: u32) {
+    let row = flat_index(wg, nwg, li, LN_WG);
+    if row >= p.outer * p.steps {
+        return;
+    }
+    let base = row_base(row);
+    let c = f32(p.channels);
+    var s = 0.0;
+    for (var k = 0u; k < p.channels; k++) {
+        s += x[base + k * p.steps];
+    }
+    let mu = s / c;
+    var v = 0.0;
+    for (var k = 0u; k < p.channels; k++) {
+        let d = x[base + k * p.steps] - mu;
+        v += d * d;
+    }
+    let r = 1.0 / sqrt(v / c + p.eps);
+    mean[row] = mu;
+    rstd[row] = r;
+    for (var k = 0u; k < p.channels; k++) {
+        let i = base + k * p.steps;
+        y[i] = gamma[k] * (x[i] - mu) * r + beta[k];
+    }
+}
+
+// ---- backward ---------------------------------------------------------------------------
+// Input gradient: dx = r/C · (C·g − Σg − x̂·Σ(g·x̂)), g = dy·γ, per row.
+
+@group(0) @binding(1) var<storage, read> bx: array<f32>;
+@group(0) @binding(2) var<storage, read> bgamma: array<f32>;
+@group(0) @binding(3) var<storage, read> bdy: array<f32>;
+@group(0) @binding(4) var<storage, read> bmean: array<f32>;
+@group(0) @binding(5) var<storage, read> brstd: array<f32>;
+@group(0) @binding(6) var<storage, read_write> dx: array<f32>;
+
+@compute @workgroup_size(256)
+fn layer_norm_backward_input(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                             @builtin(local_invocation_index) li: u32) {
+    let row = flat_index(wg, nwg, li, LN_WG);
+    if row >= p.outer * p.steps {
+        return;
+    }
+    let base = row_base(row);
+    let mu = bmean[row];
+    let r = brstd[row];
+    var sg = 0.0;
+    var sgx = 0.0;
+    for (var k = 0u; k < p.channels; k++) {
+        let i = base + k * p.steps;
+        let g = bdy[i] * bgamma[k];
+        sg += g;
+        sgx += g * (bx[i] - mu) * r;
+    }
+    let c = f32(p.channels);
+    for (var k = 0u; k < p.channels; k++) {
+        let i = base + k * p.steps;
+        let xh = (bx[i] - mu) * r;
+        let v = r / c * (c * bdy[i] * bgamma[k] - sg - xh * sgx);
+        if p.accumulate != 0u {
+            dx[i] = dx[i] + v;
+        } else {
+            dx[i] = v;
+        }
+    }
+}
+
+// Parameter gradients: dγ[c] = Σ dy·x̂, dβ[c] = Σ dy over all rows. One workgroup per
+// channel; its threads stride over the rows and reduce in workgroup memory.
+
+@group(0) @binding(1) var<storage, read> px: array<f32>;
+@group(0) @binding(2) var<storage, read> pdy: array<f32>;
+@group(0) @binding(3) var<storage, read> pmean: array<f32>;
+@group(0) @binding(4) var<storage, read> prstd: array<f32>;
+@group(0) @binding(5) var<storage, read_write> dgamma: array<f32>;
+@group(0) @binding(6) var<storage, read_write> dbeta: array<f32>;
+
+var<workgroup> red_g: array<f32, 256>;
+var<workgroup> red_b: array<f32, 256>;
+
+@compute @workgroup_size(256)
+fn layer_norm_backward_params(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    let k = wg.x;
+    let rows = p.outer * p.steps;
+    var sg = 0.0;
+    var sb = 0.0;
+    for (var row = li; row < rows; row += LN_WG) {
+        let i = row_base(row) + k * p.steps;
+        let g = pdy[i];
+        sg += g * (px[i] - pmean[row]) * prstd[row];
+        sb += g;
+    }
+    red_g[li] = sg;
+    red_b[li] = sb;
+    workgroupBarrier();
+    for (var half = LN_WG / 2u; half > 0u; half /= 2u) {
+        if li < half {
+            red_g[li] += red_g[li + half];
+            red_b[li] += red_b[li + half];
+        }
+        workgroupBarrier();
+    }
+    if li == 0u {
+        if p.accumulate != 0u {
+            dgamma[k] = dgamma[k] + red_g[0];
+            dbeta[k] = dbeta[k] + red_b[0];
+        } else {
+            dgamma[k] = red_g[0];
+            dbeta[k] = red_b[0];
+        }
+    }
+}

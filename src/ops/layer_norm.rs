@@ -1,0 +1,249 @@
+//! LayerNorm over the channel axis of `[B, N, C, T]` (MODEL.md step 6): forward, input and
+//! parameter gradients, and the f64 CPU reference.
+
+use crate::gpu::{grid_1d, Access, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
+
+pub static SHADER: Shader = Shader {
+    name: "layer_norm",
+    source: include_str!("../../shaders/layer_norm.wgsl"),
+};
+
+const fn read(slot: u32) -> Binding {
+    Binding {
+        slot,
+        access: Access::Read,
+    }
+}
+
+const fn write(slot: u32) -> Binding {
+    Binding {
+        slot,
+        access: Access::ReadWrite,
+    }
+}
+
+static FORWARD: Kernel = Kernel {
+    shader: &SHADER,
+    entry: "layer_norm_forward",
+    bindings: &[read(1), read(2), read(3), write(4), write(5), write(6)],
+};
+static BACKWARD_INPUT: Kernel = Kernel {
+    shader: &SHADER,
+    entry: "layer_norm_backward_input",
+    bindings: &[read(1), read(2), read(3), read(4), read(5), write(6)],
+};
+static BACKWARD_PARAMS: Kernel = Kernel {
+    shader: &SHADER,
+    entry: "layer_norm_backward_params",
+    bindings: &[read(1), read(2), read(3), read(4), write(5), write(6)],
+};
+
+const WORKGROUP: u32 = 256;
+
+/// Shape of a LayerNorm over C for each of `outer` (= B·N) blocks and `steps` (= T).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LayerNorm {
+    pub outer: usize,
+    pub channels: usize,
+    pub steps: usize,
+    pub eps: f32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct Params {
+    outer: u32,
+    channels: u32,
+    steps: u32,
+    accumulate: u32,
+    eps: f32,
+    _pad: [u32; 3],
+}
+
+impl LayerNorm {
+    /// MODEL.md: ε = 1e-5.
+    pub fn new(outer: usize, channels: usize, steps: usize) -> LayerNorm {
+        LayerNorm {
+            outer,
+            channels,
+            steps,
+            eps: 1e-5,
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.outer * self.channels * self.steps
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Rows normalised: one mean and one 1/σ each.
+    pub fn rows(&self) -> usize {
+        self.outer * self.steps
+    }
+
+    fn params(&self, accumulate: bool) -> Params {
+        Params {
+            outer: self.outer as u32,
+            channels: self.channels as u32,
+            steps: self.steps as u32,
+            accumulate: accumulate as u32,
+            eps: self.eps,
+            _pad: [0; 3],
+        }
+    }
+
+    fn check(
+        &self,
+        full: &[&Tensor],
+        per_channel: &[&Tensor],
+        per_row: &[&Tensor],
+    ) -> Result<(), GpuError> {
+        full.iter().try_for_each(|t| t.expect_len(self.len()))?;
+        per_channel
+            .iter()
+            .try_for_each(|t| t.expect_len(self.channels))?;
+        per_row.iter().try_for_each(|t| t.expect_len(self.rows()))
+    }
+
+    fn row_grid(&self, gpu: &Gpu) -> [u32; 3] {
+        grid_1d(
+            self.rows(),
+            WORKGROUP,
+            gpu.limits().max_compute_workgroups_per_dimension,
+        )
+    }
+
+    /// `y = γ ⊙ (x − μ)/σ + β`; saves `mean` and `rstd` (`[rows]`) for the backward pass.
+    pub fn forward(
+        &self,
+        gpu: &Gpu,
+        x: &Tensor,
+        gamma: &Tensor,
+        beta: &Tensor,
+        y: &Tensor,
+        mean: &Tensor,
+        rstd: &Tensor,
+    ) -> Result<Dispatch, GpuError> {
+        self.check(&[x, y], &[gamma, beta], &[mean, rstd])?;
+        gpu.dispatch(
+            &FORWARD,
+            &[],
+            &self.params(false),
+            &[x, gamma, beta, y, mean, rstd],
+            self.row_grid(gpu),
+        )
+    }
+
+    /// `dx (+)= ∂L/∂x` from `dy`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn backward_input(
+        &self,
+        gpu: &Gpu,
+        x: &Tensor,
+        gamma: &Tensor,
+        dy: &Tensor,
+        mean: &Tensor,
+        rstd: &Tensor,
+        dx: &Tensor,
+        accumulate: bool,
+    ) -> Result<Dispatch, GpuError> {
+        self.check(&[x, dy, dx], &[gamma], &[mean, rstd])?;
+        gpu.dispatch(
+            &BACKWARD_INPUT,
+            &[],
+            &self.params(accumulate),
+            &[x, gamma, dy, mean, rstd, dx],
+            self.row_grid(gpu),
+        )
+    }
+
+    /// `dγ, dβ (+)=` their gradients from `dy` (one workgroup per channel).
+    #[allow(clippy::too_many_arguments)]
+    pub fn backward_params(
+        &self,
+        gpu: &Gpu,
+        x: &Tensor,
+        dy: &Tensor,
+        mean: &Tensor,
+        rstd: &Tensor,
+        dgamma: &Tensor,
+        dbeta: &Tensor,
+        accumulate: bool,
+    ) -> Result<Dispatch, GpuError> {
+        self.check(&[x, dy], &[dgamma, dbeta], &[mean, rstd])?;
+        gpu.dispatch(
+            &BACKWARD_PARAMS,
+            &[],
+            &self.params(accumulate),
+            &[x, dy, mean, rstd, dgamma, dbeta],
+            [self.channels as u32, 1, 1],
+        )
+    }
+}
+
+/// f64 reference, for tests.
+pub mod cpu {
+    use super::LayerNorm;
+
+    fn at(ln: &LayerNorm, o: usize, c: usize, t: usize) -> usize {
+        (o * ln.channels + c) * ln.steps + t
+    }
+
+    pub fn forward(ln: &LayerNorm, x: &[f64], gamma: &[f64], beta: &[f64]) -> Vec<f64> {
+        let mut y = vec![0.0; ln.len()];
+        let c = ln.channels as f64;
+        for o in 0..ln.outer {
+            for t in 0..ln.steps {
+                let mu = (0..ln.channels).map(|k| x[at(ln, o, k, t)]).sum::<f64>() / c;
+                let var = (0..ln.channels)
+                    .map(|k| (x[at(ln, o, k, t)] - mu).powi(2))
+                    .sum::<f64>()
+                    / c;
+                let r = 1.0 / (var + ln.eps as f64).sqrt();
+                for k in 0..ln.channels {
+                    let i = at(ln, o, k, t);
+                    y[i] = gamma[k] * (x[i] - mu) * r + beta[k];
+                }
+            }
+        }
+        y
+    }
+
+    /// `(dx, dγ, dβ)` for upstream `dy`.
+    pub fn backward(
+        ln: &LayerNorm,
+        x: &[f64],
+        gamma: &[f64],
+        dy: &[f64],
+    ) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+        let mut dx = vec![0.0; ln.len()];
+        let mut dg = vec![0.0; ln.channels];
+        let mut db = vec![0.0; ln.channels];
+        let c = ln.channels as f64;
+        for o in 0..ln.outer {
+            for t in 0..ln.steps {
+                let idx: Vec<usize> = (0..ln.channels).map(|k| at(ln, o, k, t)).collect();
+                let mu = idx.iter().map(|&i| x[i]).sum::<f64>() / c;
+                let var = idx.iter().map(|&i| (x[i] - mu).powi(2)).sum::<f64>() / c;
+                let r = 1.0 / (var + ln.eps as f64).sqrt();
+                let xh: Vec<f64> = idx.iter().map(|&i| (x[i] - mu) * r).collect();
+                let g: Vec<f64> = idx
+                    .iter()
+                    .enumerate()
+                    .map(|(k, &i)| dy[i] * gamma[k])
+                    .collect();
+                let sg: f64 = g.iter().sum();
+                let sgx: f64 = g.iter().zip(&xh).map(|(a, b)| a * b).sum();
+                for (k, &i) in idx.iter().enumerate() {
+                    dx[i] = r / c * (c * g[k] - sg - xh[k] * sgx);
+                    dg[k] += dy[i] * xh[k];
+                    db[k] += dy[i];
+                }
+            }
+        }
+        (dx, dg, db)
+    }
+}

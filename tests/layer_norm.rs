@@ -1,0 +1,154 @@
+//! Channel LayerNorm: forward vs the f64 reference, input and parameter gradients vs the
+//! f64 backward, and the f64 backward vs central differences, on ragged shapes.
+
+use iastgcn::gpu::{DType, Gpu, Tensor};
+use iastgcn::ops::layer_norm::{cpu, LayerNorm};
+use iastgcn::testing::{
+    check_gradient, compare_tensor, dot, gpu, rng, round_f32, to_f32, uniform, Tolerance,
+};
+
+fn upload(g: &Gpu, name: &str, data: &[f64]) -> Tensor {
+    g.upload(name, &[data.len()], &to_f32(data)).unwrap()
+}
+
+/// Ragged shapes, including C = 64 and T not a multiple of anything, and more rows than
+/// one workgroup.
+const SHAPES: [(usize, usize, usize); 4] = [(1, 1, 1), (3, 5, 7), (2, 64, 13), (29, 16, 11)];
+
+#[test]
+fn forward_and_backward_match_reference() {
+    let g = gpu();
+    for (i, &(outer, channels, steps)) in SHAPES.iter().enumerate() {
+        let ln = LayerNorm::new(outer, channels, steps);
+        let mut r = rng(i as u64);
+        let x = round_f32(&uniform(&mut r, ln.len(), -2.0, 3.0));
+        let gamma = round_f32(&uniform(&mut r, channels, 0.5, 1.5));
+        let beta = round_f32(&uniform(&mut r, channels, -0.5, 0.5));
+        let dy = round_f32(&uniform(&mut r, ln.len(), -1.0, 1.0));
+        let (xt, gt, bt, dyt) = (
+            upload(&g, "x", &x),
+            upload(&g, "gamma", &gamma),
+            upload(&g, "beta", &beta),
+            upload(&g, "dy", &dy),
+        );
+        let z = |n: &str, len: usize| g.zeros(n, &[len], DType::F32);
+        let (y, mean, rstd) = (z("y", ln.len()), z("mean", ln.rows()), z("rstd", ln.rows()));
+        let (dx, dg, db) = (
+            z("dx", ln.len()),
+            z("dgamma", channels),
+            z("dbeta", channels),
+        );
+        g.run(&[
+            ln.forward(&g, &xt, &gt, &bt, &y, &mean, &rstd).unwrap(),
+            ln.backward_input(&g, &xt, &gt, &dyt, &mean, &rstd, &dx, false)
+                .unwrap(),
+            ln.backward_params(&g, &xt, &dyt, &mean, &rstd, &dg, &db, false)
+                .unwrap(),
+        ])
+        .unwrap();
+        let what = format!("{ln:?}");
+        // Normalised values are O(1); sums over C of O(1) terms.
+        let tol = Tolerance::new(2e-5, 2e-5);
+        compare_tensor(
+            &g,
+            &format!("{what} y"),
+            &y,
+            &cpu::forward(&ln, &x, &gamma, &beta),
+            tol,
+        )
+        .unwrap();
+        let (dx_ref, dg_ref, db_ref) = cpu::backward(&ln, &x, &gamma, &dy);
+        // With C = 1 every normalised value is 0 and dx is 0: only rounding is left.
+        compare_tensor(
+            &g,
+            &format!("{what} dx"),
+            &dx,
+            &dx_ref,
+            Tolerance::new(5e-5, 5e-5),
+        )
+        .unwrap();
+        let rows = (outer * steps) as f64;
+        let sum_tol = Tolerance::new(2e-6 * rows.sqrt() * 4.0, 1e-4);
+        compare_tensor(&g, &format!("{what} dgamma"), &dg, &dg_ref, sum_tol).unwrap();
+        compare_tensor(&g, &format!("{what} dbeta"), &db, &db_ref, sum_tol).unwrap();
+    }
+}
+
+#[test]
+fn reference_backward_matches_finite_differences() {
+    for (i, &(outer, channels, steps)) in SHAPES.iter().take(3).enumerate() {
+        let ln = LayerNorm::new(outer, channels, steps);
+        let mut r = rng(40 + i as u64);
+        let x = uniform(&mut r, ln.len(), -2.0, 3.0);
+        let gamma = uniform(&mut r, channels, 0.5, 1.5);
+        let beta = uniform(&mut r, channels, -0.5, 0.5);
+        let dy = uniform(&mut r, ln.len(), -1.0, 1.0);
+        let (dx, dg, db) = cpu::backward(&ln, &x, &gamma, &dy);
+        let tol = Tolerance::new(1e-7, 1e-6);
+        let what = format!("{ln:?}");
+        check_gradient(
+            &format!("{what} dx"),
+            &dx,
+            |x| dot(&dy, &cpu::forward(&ln, x, &gamma, &beta)),
+            &x,
+            1e-5,
+            tol,
+        )
+        .unwrap();
+        check_gradient(
+            &format!("{what} dgamma"),
+            &dg,
+            |gm| dot(&dy, &cpu::forward(&ln, &x, gm, &beta)),
+            &gamma,
+            1e-5,
+            tol,
+        )
+        .unwrap();
+        check_gradient(
+            &format!("{what} dbeta"),
+            &db,
+            |b| dot(&dy, &cpu::forward(&ln, &x, &gamma, b)),
+            &beta,
+            1e-5,
+            tol,
+        )
+        .unwrap();
+    }
+}
+
+#[test]
+fn gradients_accumulate_when_asked() {
+    let g = gpu();
+    let ln = LayerNorm::new(4, 8, 5);
+    let mut r = rng(9);
+    let x = round_f32(&uniform(&mut r, ln.len(), -1.0, 1.0));
+    let gamma = round_f32(&uniform(&mut r, 8, 0.5, 1.5));
+    let dy = round_f32(&uniform(&mut r, ln.len(), -1.0, 1.0));
+    let (xt, gt, dyt) = (
+        upload(&g, "x", &x),
+        upload(&g, "gamma", &gamma),
+        upload(&g, "dy", &dy),
+    );
+    let beta = g.zeros("beta", &[8], DType::F32);
+    let z = |n: &str, len: usize| g.zeros(n, &[len], DType::F32);
+    let (y, mean, rstd) = (z("y", ln.len()), z("mean", ln.rows()), z("rstd", ln.rows()));
+    let dx = upload(&g, "dx", &vec![1.0; ln.len()]);
+    let (dg, db) = (
+        upload(&g, "dgamma", &[2.0; 8]),
+        upload(&g, "dbeta", &[3.0; 8]),
+    );
+    g.run(&[
+        ln.forward(&g, &xt, &gt, &beta, &y, &mean, &rstd).unwrap(),
+        ln.backward_input(&g, &xt, &gt, &dyt, &mean, &rstd, &dx, true)
+            .unwrap(),
+        ln.backward_params(&g, &xt, &dyt, &mean, &rstd, &dg, &db, true)
+            .unwrap(),
+    ])
+    .unwrap();
+    let (dx_ref, dg_ref, db_ref) = cpu::backward(&ln, &x, &gamma, &dy);
+    let plus = |v: &[f64], c: f64| v.iter().map(|a| a + c).collect::<Vec<_>>();
+    let tol = Tolerance::new(3e-5, 3e-5);
+    compare_tensor(&g, "dx", &dx, &plus(&dx_ref, 1.0), tol).unwrap();
+    compare_tensor(&g, "dgamma", &dg, &plus(&dg_ref, 2.0), tol).unwrap();
+    compare_tensor(&g, "dbeta", &db, &plus(&db_ref, 3.0), tol).unwrap();
+}
