@@ -1,0 +1,52 @@
+// Inverted dropout with a counter-based RNG (Rust side: src/ops/dropout.rs): element i of
+// training step `step` is kept when hash(i, seed, step) ≥ p·2³², then scaled by 1/(1−p).
+// The mask is never stored: the backward pass recomputes the same bits from the same
+// (seed, step), so forward and backward always agree.
+
+struct DropParams {
+    n: u32,
+    seed: u32,
+    step: u32,
+    threshold: u32,
+    scale: f32,
+    accumulate: u32,
+    _pad0: u32,
+    _pad1: u32,
+}
+
+const DROP_WG: u32 = 256u;
+
+@group(0) @binding(0) var<uniform> p: DropParams;
+@group(0) @binding(1) var<storage, read> src: array<f32>;
+@group(0) @binding(2) var<storage, read_write> dst: array<f32>;
+
+// "lowbias32" integer hash (Chris Wellons): good avalanche, a few operations.
+fn lowbias32(v: u32) -> u32 {
+    var h = v;
+    h ^= h >> 16u;
+    h *= 0x7feb352du;
+    h ^= h >> 15u;
+    h *= 0x846ca68bu;
+    h ^= h >> 16u;
+    return h;
+}
+
+fn keep(i: u32) -> bool {
+    return lowbias32(i ^ lowbias32(p.seed ^ lowbias32(p.step))) >= p.threshold;
+}
+
+// Forward (src = x, dst = y) and backward (src = dy, dst = dx) are the same map.
+@compute @workgroup_size(256)
+fn dropout(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+           @builtin(local_invocation_index) li: u32) {
+    let i = flat_index(wg, nwg, li, DROP_WG);
+    if i >= p.n {
+        return;
+    }
+    let v = select(0.0, src[i] * p.scale, keep(i));
+    if p.accumulate != 0u {
+        dst[i] = dst[i] + v;
+    } else {
+        dst[i] = v;
+    }
+}

@@ -1,0 +1,118 @@
+//! Inverted dropout (MODEL.md step 7) with a counter-based RNG: the mask is a hash of
+//! (element, seed, step), recomputed in the backward pass instead of stored. Forward and
+//! backward are the same kernel (`y = mask·x/(1−p)`, `dx = mask·dy/(1−p)`).
+
+use crate::gpu::{grid_1d, Access, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
+
+pub static SHADER: Shader = Shader {
+    name: "dropout",
+    source: include_str!("../../shaders/dropout.wgsl"),
+};
+
+static KERNEL: Kernel = Kernel {
+    shader: &SHADER,
+    entry: "dropout",
+    bindings: &[
+        Binding {
+            slot: 1,
+            access: Access::Read,
+        },
+        Binding {
+            slot: 2,
+            access: Access::ReadWrite,
+        },
+    ],
+};
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+struct Params {
+    n: u32,
+    seed: u32,
+    step: u32,
+    threshold: u32,
+    scale: f32,
+    accumulate: u32,
+    _pad: [u32; 2],
+}
+
+/// Dropout with probability `p` over `n` elements, seeded.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Dropout {
+    pub n: usize,
+    pub p: f64,
+    pub seed: u32,
+}
+
+impl Dropout {
+    fn params(&self, step: u32, accumulate: bool) -> Params {
+        Params {
+            n: self.n as u32,
+            seed: self.seed,
+            step,
+            threshold: threshold(self.p),
+            scale: (1.0 / (1.0 - self.p)) as f32,
+            accumulate: accumulate as u32,
+            _pad: [0; 2],
+        }
+    }
+
+    /// Applies the mask of training step `step` to `src` into `dst` (forward: x → y;
+    /// backward: dy → dx). Change the step of a built dispatch with [`Dropout::set_step`].
+    pub fn apply(
+        &self,
+        gpu: &Gpu,
+        step: u32,
+        src: &Tensor,
+        dst: &Tensor,
+        accumulate: bool,
+    ) -> Result<Dispatch, GpuError> {
+        src.expect_len(self.n)?;
+        dst.expect_len(self.n)?;
+        let grid = grid_1d(
+            self.n,
+            256,
+            gpu.limits().max_compute_workgroups_per_dimension,
+        );
+        gpu.dispatch(
+            &KERNEL,
+            &[],
+            &self.params(step, accumulate),
+            &[src, dst],
+            grid,
+        )
+    }
+
+    /// Points a dispatch built by [`Dropout::apply`] at another training step (no
+    /// allocation: rewrites its uniform block).
+    pub fn set_step(
+        &self,
+        gpu: &Gpu,
+        dispatch: &Dispatch,
+        step: u32,
+        accumulate: bool,
+    ) -> Result<(), GpuError> {
+        dispatch.write_params(gpu, &self.params(step, accumulate))
+    }
+}
+
+/// Elements whose hash is below `p·2³²` are dropped.
+fn threshold(p: f64) -> u32 {
+    (p.clamp(0.0, 1.0) * 4294967296.0).min(u32::MAX as f64) as u32
+}
+
+/// The shader's hash, bit for bit.
+pub fn lowbias32(v: u32) -> u32 {
+    let mut h = v;
+    h ^= h >> 16;
+    h = h.wrapping_mul(0x7feb_352d);
+    h ^= h >> 15;
+    h = h.wrapping_mul(0x846c_a68b);
+    h ^= h >> 16;
+    h
+}
+
+/// The CPU reference of the mask: `true` where element `i` is kept at `step`.
+pub fn keep(d: &Dropout, step: u32, i: usize) -> bool {
+    lowbias32(i as u32 ^ lowbias32(d.seed ^ lowbias32(step))) >= threshold(d.p)
+}

@@ -1,0 +1,62 @@
+//! Dropout: the GPU mask equals the CPU hash bit for bit, forward and backward use the
+//! same mask, the kept fraction is 1 − p, and steps and seeds change the mask.
+
+use iastgcn::gpu::DType;
+use iastgcn::ops::dropout::{keep, Dropout};
+use iastgcn::testing::gpu;
+
+#[test]
+fn mask_matches_the_cpu_hash_and_scales_kept_values() {
+    let g = gpu();
+    let n = 100_003;
+    let d = Dropout {
+        n,
+        p: 0.2,
+        seed: 1234,
+    };
+    let x: Vec<f32> = (0..n).map(|i| 1.0 + (i % 7) as f32).collect();
+    let xt = g.upload("x", &[n], &x).unwrap();
+    let y = g.zeros("y", &[n], DType::F32);
+    g.run(&[d.apply(&g, 5, &xt, &y, false).unwrap()]).unwrap();
+    let got = g.read_f32(&y).unwrap();
+    let scale = (1.0 / 0.8f64) as f32;
+    let mut kept = 0;
+    for i in 0..n {
+        let want = if keep(&d, 5, i) { x[i] * scale } else { 0.0 };
+        assert_eq!(got[i], want, "element {i}");
+        kept += usize::from(keep(&d, 5, i));
+    }
+    // Kept fraction 0.8 ± 4σ of a binomial.
+    let frac = kept as f64 / n as f64;
+    let sigma = (0.2 * 0.8 / n as f64).sqrt();
+    assert!((frac - 0.8).abs() < 4.0 * sigma, "kept {frac}");
+}
+
+#[test]
+fn backward_uses_the_forward_mask_and_steps_change_it() {
+    let g = gpu();
+    let n = 4096;
+    let d = Dropout { n, p: 0.5, seed: 7 };
+    let ones = g.upload("ones", &[n], &vec![1.0; n]).unwrap();
+    let (y, dx) = (
+        g.zeros("y", &[n], DType::F32),
+        g.zeros("dx", &[n], DType::F32),
+    );
+    let fwd = d.apply(&g, 11, &ones, &y, false).unwrap();
+    let bwd = d.apply(&g, 11, &ones, &dx, false).unwrap();
+    g.run(&[fwd, bwd]).unwrap();
+    let (a, b) = (g.read_f32(&y).unwrap(), g.read_f32(&dx).unwrap());
+    assert_eq!(a, b, "forward and backward masks differ");
+    // The same dispatch pointed at the next step gives another mask.
+    let next = d.apply(&g, 11, &ones, &y, false).unwrap();
+    d.set_step(&g, &next, 12, false).unwrap();
+    g.run(&[next]).unwrap();
+    let c = g.read_f32(&y).unwrap();
+    let same = a.iter().zip(&c).filter(|(p, q)| p == q).count();
+    assert!(
+        (same as f64 / n as f64 - 0.5).abs() < 0.05,
+        "step 12 agrees with step 11 on {same} of {n}"
+    );
+    let other_seed = Dropout { seed: 8, ..d };
+    assert!((0..n).any(|i| keep(&d, 11, i) != keep(&other_seed, 11, i)));
+}
