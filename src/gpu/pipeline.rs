@@ -47,6 +47,24 @@ pub struct Binding {
     pub access: Access,
 }
 
+impl Binding {
+    /// A read-only storage binding at `slot`.
+    pub const fn read(slot: u32) -> Binding {
+        Binding {
+            slot,
+            access: Access::Read,
+        }
+    }
+
+    /// A read-write storage binding at `slot`.
+    pub const fn read_write(slot: u32) -> Binding {
+        Binding {
+            slot,
+            access: Access::ReadWrite,
+        }
+    }
+}
+
 /// A compute entry point together with its bind layout.
 #[derive(Debug)]
 pub struct Kernel {

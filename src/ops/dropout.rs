@@ -2,7 +2,7 @@
 //! (element, seed, step), recomputed in the backward pass instead of stored. Forward and
 //! backward are the same kernel (`y = mask·x/(1−p)`, `dx = mask·dy/(1−p)`).
 
-use crate::gpu::{grid_1d, Access, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
+use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
 
 pub static SHADER: Shader = Shader {
     name: "dropout",
@@ -12,16 +12,7 @@ pub static SHADER: Shader = Shader {
 static KERNEL: Kernel = Kernel {
     shader: &SHADER,
     entry: "dropout",
-    bindings: &[
-        Binding {
-            slot: 1,
-            access: Access::Read,
-        },
-        Binding {
-            slot: 2,
-            access: Access::ReadWrite,
-        },
-    ],
+    bindings: &[Binding::read(1), Binding::read_write(2)],
 };
 
 #[repr(C)]

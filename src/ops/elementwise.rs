@@ -2,7 +2,7 @@
 //! backward, with their CPU reference. Backward kernels can accumulate into an existing
 //! gradient, so a tensor used twice simply receives two dispatches.
 
-use crate::gpu::{grid_1d, Access, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
+use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
 
 pub static SHADER: Shader = Shader {
     name: "elementwise",
@@ -11,18 +11,9 @@ pub static SHADER: Shader = Shader {
 
 const WORKGROUP: u32 = 256;
 
-const IN0: Binding = Binding {
-    slot: 1,
-    access: Access::Read,
-};
-const IN1: Binding = Binding {
-    slot: 2,
-    access: Access::Read,
-};
-const OUT: Binding = Binding {
-    slot: 3,
-    access: Access::ReadWrite,
-};
+const IN0: Binding = Binding::read(1);
+const IN1: Binding = Binding::read(2);
+const OUT: Binding = Binding::read_write(3);
 const UNARY: &[Binding] = &[IN0, OUT];
 const BINARY: &[Binding] = &[IN0, IN1, OUT];
 

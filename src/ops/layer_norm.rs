@@ -1,41 +1,36 @@
 //! LayerNorm over the channel axis of `[B, N, C, T]` (MODEL.md step 6): forward, input and
 //! parameter gradients, and the f64 CPU reference.
 
-use crate::gpu::{grid_1d, Access, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
+use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
 
 pub static SHADER: Shader = Shader {
     name: "layer_norm",
     source: include_str!("../../shaders/layer_norm.wgsl"),
 };
 
-const fn read(slot: u32) -> Binding {
-    Binding {
-        slot,
-        access: Access::Read,
-    }
-}
-
-const fn write(slot: u32) -> Binding {
-    Binding {
-        slot,
-        access: Access::ReadWrite,
-    }
-}
+const R1: Binding = Binding::read(1);
+const R2: Binding = Binding::read(2);
+const R3: Binding = Binding::read(3);
+const R4: Binding = Binding::read(4);
+const R5: Binding = Binding::read(5);
+const W4: Binding = Binding::read_write(4);
+const W5: Binding = Binding::read_write(5);
+const W6: Binding = Binding::read_write(6);
 
 static FORWARD: Kernel = Kernel {
     shader: &SHADER,
     entry: "layer_norm_forward",
-    bindings: &[read(1), read(2), read(3), write(4), write(5), write(6)],
+    bindings: &[R1, R2, R3, W4, W5, W6],
 };
 static BACKWARD_INPUT: Kernel = Kernel {
     shader: &SHADER,
     entry: "layer_norm_backward_input",
-    bindings: &[read(1), read(2), read(3), read(4), read(5), write(6)],
+    bindings: &[R1, R2, R3, R4, R5, W6],
 };
 static BACKWARD_PARAMS: Kernel = Kernel {
     shader: &SHADER,
     entry: "layer_norm_backward_params",
-    bindings: &[read(1), read(2), read(3), read(4), write(5), write(6)],
+    bindings: &[R1, R2, R3, R4, W5, W6],
 };
 
 const WORKGROUP: u32 = 256;

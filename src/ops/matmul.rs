@@ -6,27 +6,14 @@
 //! matrix), so its gradient sums over the batch. The backward pass reuses the forward
 //! kernel on transposed strided views; see `shaders/matmul.wgsl`.
 
-use crate::gpu::{Access, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
+use crate::gpu::{Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
 
 pub static SHADER: Shader = Shader {
     name: "matmul",
     source: include_str!("../../shaders/matmul.wgsl"),
 };
 
-const BINDINGS: &[Binding] = &[
-    Binding {
-        slot: 1,
-        access: Access::Read,
-    },
-    Binding {
-        slot: 2,
-        access: Access::Read,
-    },
-    Binding {
-        slot: 3,
-        access: Access::ReadWrite,
-    },
-];
+const BINDINGS: &[Binding] = &[Binding::read(1), Binding::read(2), Binding::read_write(3)];
 
 /// Scalar loads: any shape and stride.
 static KERNEL: Kernel = Kernel {

@@ -1,7 +1,7 @@
 //! Softmax along one axis (the attention normalisations of MODEL.md), forward and
 //! backward, with the f64 CPU reference.
 
-use crate::gpu::{grid_1d, Access, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
+use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
 
 pub static SHADER: Shader = Shader {
     name: "softmax",
@@ -11,34 +11,12 @@ pub static SHADER: Shader = Shader {
 static FORWARD: Kernel = Kernel {
     shader: &SHADER,
     entry: "softmax_forward",
-    bindings: &[
-        Binding {
-            slot: 1,
-            access: Access::Read,
-        },
-        Binding {
-            slot: 2,
-            access: Access::ReadWrite,
-        },
-    ],
+    bindings: &[Binding::read(1), Binding::read_write(2)],
 };
 static BACKWARD: Kernel = Kernel {
     shader: &SHADER,
     entry: "softmax_backward",
-    bindings: &[
-        Binding {
-            slot: 1,
-            access: Access::Read,
-        },
-        Binding {
-            slot: 2,
-            access: Access::Read,
-        },
-        Binding {
-            slot: 3,
-            access: Access::ReadWrite,
-        },
-    ],
+    bindings: &[Binding::read(1), Binding::read(2), Binding::read_write(3)],
 };
 
 const WORKGROUP: u32 = 256;
