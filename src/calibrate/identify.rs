@@ -9,7 +9,7 @@
 
 use nalgebra::{DMatrix, DVector, Isometry3};
 
-use super::jacobian::twist;
+use super::jacobian::{numeric_columns, twist};
 use crate::robot::{ErrorParams, Joints, PlatformPose, Robot, RobotError};
 
 /// One calibration measurement: joint inputs and the tracker's pad pose (tracker frame).
@@ -123,32 +123,6 @@ pub enum CalibrationError {
         sweep: usize,
         why: String,
     },
-}
-
-/// Columns of the Jacobian of the predicted measurement w.r.t. the parameters `cols`,
-/// central differences of the full error kinematics.
-fn jacobian(
-    robot: &Robot,
-    m: &Measurement,
-    guess: PlatformPose,
-    cols: &[usize],
-) -> Result<DMatrix<f64>, RobotError> {
-    let h = 1e-6;
-    let mut j = DMatrix::zeros(6, cols.len());
-    for (c, &k) in cols.iter().enumerate() {
-        let at = |d: f64| -> Result<Isometry3<f64>, RobotError> {
-            let mut e = robot.errors.clone();
-            e.values[k] += d;
-            let r = robot.with_errors(e);
-            let (_, pose) = r.forward(&m.joints, Some(guess))?;
-            Ok(r.tracker_from_base() * pose)
-        };
-        let d = twist(&at(-h)?, &at(h)?);
-        for (r, v) in d.iter().enumerate() {
-            j[(r, c)] = v / (2.0 * h);
-        }
-    }
-    Ok(j)
 }
 
 /// Predicted measurement and platform pose for each measurement under `robot`.
@@ -350,7 +324,7 @@ fn select(
     predict(&robot, measurements, guesses)?;
     let mut stacked = DMatrix::zeros(6 * measurements.len(), cols.len());
     for (i, m) in measurements.iter().enumerate() {
-        let j = jacobian(&robot, m, guesses[i], cols)?;
+        let j = numeric_columns(&robot, &m.joints, guesses[i], cols)?;
         for c in 0..cols.len() {
             for r in 0..6 {
                 // Rows scaled by the noise, columns by the prior: a dimensionless problem.
@@ -418,7 +392,7 @@ fn ekf_stage(
         let mut x = DVector::zeros(n);
         let mut p = p0.clone();
         for (i, m) in ms.iter().enumerate() {
-            let j = jacobian(&robot, m, guesses[i], params)?;
+            let j = numeric_columns(&robot, &m.joints, guesses[i], params)?;
             let y = DVector::from_row_slice(&twist(&predicted[i], &m.pose));
             p += &q; // eq. 13
             let innovation = y - &j * (&x - &lin);

@@ -39,18 +39,28 @@ pub fn numeric(
     joints: &Joints,
     guess: PlatformPose,
 ) -> Result<DMatrix<f64>, RobotError> {
-    let mut j = DMatrix::zeros(6, N_PARAMS);
-    let base = robot.errors.clone();
-    for k in 0..N_PARAMS {
+    let all: Vec<usize> = (0..N_PARAMS).collect();
+    numeric_columns(robot, joints, guess, &all)
+}
+
+/// The columns `cols` of [`numeric`] (6 × `cols.len()`), for filters that estimate only
+/// some parameters.
+pub fn numeric_columns(
+    robot: &Robot,
+    joints: &Joints,
+    guess: PlatformPose,
+    cols: &[usize],
+) -> Result<DMatrix<f64>, RobotError> {
+    let mut j = DMatrix::zeros(6, cols.len());
+    for (c, &k) in cols.iter().enumerate() {
         let at = |h: f64| -> Result<Isometry3<f64>, RobotError> {
-            let mut e: ErrorParams = base.clone();
+            let mut e: ErrorParams = robot.errors.clone();
             e.values[k] += h;
             measured_pose(&robot.with_errors(e), joints, guess)
         };
-        let (plus, minus) = (at(STEP)?, at(-STEP)?);
-        let d = twist(&minus, &plus);
+        let d = twist(&at(-STEP)?, &at(STEP)?);
         for (r, v) in d.iter().enumerate() {
-            j[(r, k)] = v / (2.0 * STEP);
+            j[(r, c)] = v / (2.0 * STEP);
         }
     }
     Ok(j)

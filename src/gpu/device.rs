@@ -86,6 +86,14 @@ pub fn describe(info: &wgpu::AdapterInfo) -> String {
     )
 }
 
+/// An instance over [`BACKENDS`]; `WGPU_BACKEND` and the debug flags still work for
+/// people who know wgpu.
+fn instance() -> wgpu::Instance {
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+    desc.backends = BACKENDS;
+    wgpu::Instance::new(desc.with_env())
+}
+
 impl Gpu {
     /// Opens the adapter named by `IASTGCN_ADAPTER` if set, else the best one available.
     pub fn new() -> Result<Gpu, GpuError> {
@@ -95,11 +103,7 @@ impl Gpu {
 
     /// Opens the first adapter whose name contains `wanted`, or the best one when `None`.
     pub fn with_adapter(wanted: Option<&str>) -> Result<Gpu, GpuError> {
-        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
-        desc.backends = BACKENDS;
-        // WGPU_BACKEND and the debug flags still work for people who know wgpu.
-        let instance = wgpu::Instance::new(desc.with_env());
-        let adapters = pollster::block_on(instance.enumerate_adapters(BACKENDS));
+        let adapters = pollster::block_on(instance().enumerate_adapters(BACKENDS));
         let infos: Vec<_> = adapters.iter().map(|a| a.get_info()).collect();
         let index = choose_adapter(&infos, wanted)?;
         let adapter = &adapters[index];
@@ -131,10 +135,7 @@ impl Gpu {
 
     /// Lists every adapter the instance can see, without opening any.
     pub fn list_adapters() -> Vec<wgpu::AdapterInfo> {
-        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
-        desc.backends = BACKENDS;
-        let instance = wgpu::Instance::new(desc.with_env());
-        pollster::block_on(instance.enumerate_adapters(BACKENDS))
+        pollster::block_on(instance().enumerate_adapters(BACKENDS))
             .iter()
             .map(|a| a.get_info())
             .collect()
