@@ -117,10 +117,13 @@ pub fn compare(
     let mut worst: Option<Worst> = None;
     for (i, (&a, &e)) in actual.iter().zip(expected).enumerate() {
         let abs_err = (a - e).abs();
-        let ratio = if a.is_finite() {
-            abs_err / (tol.abs + tol.rel * e.abs())
-        } else {
+        let ratio = if !a.is_finite() {
             f64::INFINITY
+        } else if abs_err == 0.0 {
+            // Exact checks use a zero tolerance.
+            0.0
+        } else {
+            abs_err / (tol.abs + tol.rel * e.abs())
         };
         if worst.as_ref().is_none_or(|w| ratio > w.ratio) {
             worst = Some(Worst {

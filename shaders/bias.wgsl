@@ -1,0 +1,69 @@
+// Per-channel bias over a tensor viewed as [outer, channels, inner] (Rust side:
+// src/ops/bias.rs): the convolution biases (outer = B·N, inner = T), the attention
+// score biases be/bs broadcast over the batch (outer = B, channels = T·T or N·N,
+// inner = 1) and the head bias (outer = B, channels = O, inner = 1).
+
+struct BiasParams {
+    outer: u32,
+    channels: u32,
+    inner: u32,
+    accumulate: u32,
+}
+
+const BIAS_WG: u32 = 256u;
+const GRAD_WG: u32 = 64u;
+
+@group(0) @binding(0) var<uniform> p: BiasParams;
+
+// y[o, c, i] += bias[c], in place.
+@group(0) @binding(1) var<storage, read> bias: array<f32>;
+@group(0) @binding(2) var<storage, read_write> y: array<f32>;
+
+@compute @workgroup_size(256)
+fn bias_add(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+            @builtin(local_invocation_index) li: u32) {
+    let i = flat_index(wg, nwg, li, BIAS_WG);
+    if i >= p.outer * p.channels * p.inner {
+        return;
+    }
+    let c = (i / p.inner) % p.channels;
+    y[i] = y[i] + bias[c];
+}
+
+// dbias[c] (+)= Σ_{o,i} dy[o, c, i]: one workgroup per channel, a strided sum per
+// invocation (consecutive invocations read consecutive i), then a tree reduction.
+@group(0) @binding(1) var<storage, read> dy: array<f32>;
+@group(0) @binding(2) var<storage, read_write> dbias: array<f32>;
+
+var<workgroup> partial: array<f32, GRAD_WG>;
+
+@compute @workgroup_size(64)
+fn bias_grad(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+             @builtin(local_invocation_index) li: u32) {
+    let c = wg.y * nwg.x + wg.x;
+    let in_range = c < p.channels;
+    var s = 0.0;
+    if in_range {
+        let count = p.outer * p.inner;
+        for (var j = li; j < count; j += GRAD_WG) {
+            let o = j / p.inner;
+            let i = j - o * p.inner;
+            s += dy[(o * p.channels + c) * p.inner + i];
+        }
+    }
+    partial[li] = s;
+    workgroupBarrier();
+    for (var half = GRAD_WG / 2u; half > 0u; half /= 2u) {
+        if li < half {
+            partial[li] += partial[li + half];
+        }
+        workgroupBarrier();
+    }
+    if in_range && li == 0u {
+        if p.accumulate != 0u {
+            dbias[c] = dbias[c] + partial[0];
+        } else {
+            dbias[c] = partial[0];
+        }
+    }
+}

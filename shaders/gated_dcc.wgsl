@@ -1,0 +1,116 @@
+// Gated dilated causal convolution (MODEL.md step 4; Rust side: src/ops/gated_dcc.rs).
+//
+// The convolution runs as a GEMM over a causal unfolding of its input:
+//   col[r, c, k, t] = x[r, c, t − d·k]   (0 when t − d·k < 0; r = b·N + n)
+// so that G[r] = weight [C, C·K] · col[r] [C·K, T] with the MODEL.md weight layout
+// [o, c, k] read as a [C, C·K] matrix. The GEMMs are ops::matmul; this file holds the
+// unfolding and the gate H = tanh(G_f) ⊙ σ(G_g), forward and backward.
+
+struct UnfoldParams {
+    rows: u32,
+    channels: u32,
+    kernel: u32,
+    steps: u32,
+    dilation: u32,
+    accumulate: u32,
+    _pad0: u32,
+    _pad1: u32,
+}
+
+const DCC_WG: u32 = 256u;
+
+@group(0) @binding(0) var<uniform> u: UnfoldParams;
+
+@group(0) @binding(1) var<storage, read> ux: array<f32>;
+@group(0) @binding(2) var<storage, read_write> ucol: array<f32>;
+
+// One invocation per element of col.
+@compute @workgroup_size(256)
+fn unfold_forward(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                  @builtin(local_invocation_index) li: u32) {
+    let i = flat_index(wg, nwg, li, DCC_WG);
+    if i >= u.rows * u.channels * u.kernel * u.steps {
+        return;
+    }
+    let t = i % u.steps;
+    let rck = i / u.steps;
+    let k = rck % u.kernel;
+    let rc = rck / u.kernel;
+    let lag = u.dilation * k;
+    var v = 0.0;
+    if t >= lag {
+        v = ux[rc * u.steps + t - lag];
+    }
+    ucol[i] = v;
+}
+
+// dx[r, c, t] (+)= Σ_k dcol[r, c, k, t + d·k]: a gather, one invocation per element of x.
+@group(0) @binding(1) var<storage, read> udcol: array<f32>;
+@group(0) @binding(2) var<storage, read_write> udx: array<f32>;
+
+@compute @workgroup_size(256)
+fn unfold_backward(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                   @builtin(local_invocation_index) li: u32) {
+    let i = flat_index(wg, nwg, li, DCC_WG);
+    if i >= u.rows * u.channels * u.steps {
+        return;
+    }
+    let t = i % u.steps;
+    let rc = i / u.steps;
+    var s = 0.0;
+    for (var k = 0u; k < u.kernel; k++) {
+        let src = t + u.dilation * k;
+        if src < u.steps {
+            s += udcol[(rc * u.kernel + k) * u.steps + src];
+        }
+    }
+    if u.accumulate != 0u {
+        udx[i] = udx[i] + s;
+    } else {
+        udx[i] = s;
+    }
+}
+
+// H = tanh(f) ⊙ σ(g), elementwise over n values.
+struct GateParams {
+    n: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+@group(0) @binding(0) var<uniform> gp: GateParams;
+@group(0) @binding(1) var<storage, read> gf: array<f32>;
+@group(0) @binding(2) var<storage, read> gg: array<f32>;
+@group(0) @binding(3) var<storage, read_write> gh: array<f32>;
+
+@compute @workgroup_size(256)
+fn gate_forward(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                @builtin(local_invocation_index) li: u32) {
+    let i = flat_index(wg, nwg, li, DCC_WG);
+    if i >= gp.n {
+        return;
+    }
+    gh[i] = tanh_stable(gf[i]) * sigmoid(gg[i]);
+}
+
+// df = dh · σ(g) · (1 − tanh²f), dg = dh · tanh(f) · σ(g)(1 − σ(g)).
+@group(0) @binding(1) var<storage, read> bf: array<f32>;
+@group(0) @binding(2) var<storage, read> bg: array<f32>;
+@group(0) @binding(3) var<storage, read> bdh: array<f32>;
+@group(0) @binding(4) var<storage, read_write> bdf: array<f32>;
+@group(0) @binding(5) var<storage, read_write> bdg: array<f32>;
+
+@compute @workgroup_size(256)
+fn gate_backward(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                 @builtin(local_invocation_index) li: u32) {
+    let i = flat_index(wg, nwg, li, DCC_WG);
+    if i >= gp.n {
+        return;
+    }
+    let th = tanh_stable(bf[i]);
+    let sg = sigmoid(bg[i]);
+    let d = bdh[i];
+    bdf[i] = d * sg * (1.0 - th * th);
+    bdg[i] = d * th * sg * (1.0 - sg);
+}

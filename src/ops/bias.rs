@@ -1,0 +1,106 @@
+//! Per-channel bias: broadcast add (in place) and the gradient reduction, with the f64
+//! CPU reference.
+
+use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
+
+pub static SHADER: Shader = Shader {
+    name: "bias",
+    source: include_str!("../../shaders/bias.wgsl"),
+};
+
+static ADD: Kernel = Kernel {
+    shader: &SHADER,
+    entry: "bias_add",
+    bindings: &[Binding::read(1), Binding::read_write(2)],
+};
+static GRAD: Kernel = Kernel {
+    shader: &SHADER,
+    entry: "bias_grad",
+    bindings: &[Binding::read(1), Binding::read_write(2)],
+};
+
+/// A bias of `channels` values added along the middle axis of `[outer, channels, inner]`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Bias {
+    pub outer: usize,
+    pub channels: usize,
+    pub inner: usize,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct Params {
+    outer: u32,
+    channels: u32,
+    inner: u32,
+    accumulate: u32,
+}
+
+impl Bias {
+    pub fn numel(&self) -> usize {
+        self.outer * self.channels * self.inner
+    }
+
+    fn params(&self, accumulate: bool) -> Params {
+        Params {
+            outer: self.outer as u32,
+            channels: self.channels as u32,
+            inner: self.inner as u32,
+            accumulate: accumulate as u32,
+        }
+    }
+
+    /// `y += bias` (broadcast), in place.
+    pub fn forward(&self, gpu: &Gpu, bias: &Tensor, y: &Tensor) -> Result<Dispatch, GpuError> {
+        bias.expect_len(self.channels)?;
+        y.expect_len(self.numel())?;
+        let max = gpu.limits().max_compute_workgroups_per_dimension;
+        gpu.dispatch(
+            &ADD,
+            &[],
+            &self.params(false),
+            &[bias, y],
+            grid_1d(self.numel(), 256, max),
+        )
+    }
+
+    /// `dbias (+)= Σ_{outer, inner} dy`.
+    pub fn backward(
+        &self,
+        gpu: &Gpu,
+        dy: &Tensor,
+        dbias: &Tensor,
+        accumulate: bool,
+    ) -> Result<Dispatch, GpuError> {
+        dy.expect_len(self.numel())?;
+        dbias.expect_len(self.channels)?;
+        let max = gpu.limits().max_compute_workgroups_per_dimension;
+        gpu.dispatch(
+            &GRAD,
+            &[],
+            &self.params(accumulate),
+            &[dy, dbias],
+            grid_1d(self.channels, 1, max),
+        )
+    }
+}
+
+/// f64 reference, for tests.
+pub mod cpu {
+    use super::Bias;
+
+    pub fn forward(b: &Bias, bias: &[f64], y: &[f64]) -> Vec<f64> {
+        y.iter()
+            .enumerate()
+            .map(|(i, v)| v + bias[(i / b.inner) % b.channels])
+            .collect()
+    }
+
+    pub fn backward(b: &Bias, dy: &[f64]) -> Vec<f64> {
+        let mut out = vec![0.0; b.channels];
+        for (i, v) in dy.iter().enumerate() {
+            out[(i / b.inner) % b.channels] += v;
+        }
+        out
+    }
+}

@@ -1,0 +1,238 @@
+//! Gated dilated causal convolution (MODEL.md step 4): the causal unfolding that turns
+//! the convolution into one GEMM per row, and the tanh ⊙ σ gate, forward and backward,
+//! with the f64 CPU reference of the whole gated convolution.
+
+use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
+
+pub static SHADER: Shader = Shader {
+    name: "gated_dcc",
+    source: include_str!("../../shaders/gated_dcc.wgsl"),
+};
+
+static UNFOLD_FWD: Kernel = Kernel {
+    shader: &SHADER,
+    entry: "unfold_forward",
+    bindings: &[Binding::read(1), Binding::read_write(2)],
+};
+static UNFOLD_BWD: Kernel = Kernel {
+    shader: &SHADER,
+    entry: "unfold_backward",
+    bindings: &[Binding::read(1), Binding::read_write(2)],
+};
+static GATE_FWD: Kernel = Kernel {
+    shader: &SHADER,
+    entry: "gate_forward",
+    bindings: &[Binding::read(1), Binding::read(2), Binding::read_write(3)],
+};
+static GATE_BWD: Kernel = Kernel {
+    shader: &SHADER,
+    entry: "gate_backward",
+    bindings: &[
+        Binding::read(1),
+        Binding::read(2),
+        Binding::read(3),
+        Binding::read_write(4),
+        Binding::read_write(5),
+    ],
+};
+
+/// Causal unfolding of `x [rows, channels, steps]` into `col [rows, channels, kernel, steps]`
+/// with `col[r, c, k, t] = x[r, c, t − dilation·k]` (zero before the start).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Unfold {
+    pub rows: usize,
+    pub channels: usize,
+    pub kernel: usize,
+    pub steps: usize,
+    pub dilation: usize,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct UnfoldParams {
+    rows: u32,
+    channels: u32,
+    kernel: u32,
+    steps: u32,
+    dilation: u32,
+    accumulate: u32,
+    _pad: [u32; 2],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct GateParams {
+    n: u32,
+    _pad: [u32; 3],
+}
+
+impl Unfold {
+    pub fn input_len(&self) -> usize {
+        self.rows * self.channels * self.steps
+    }
+
+    pub fn col_len(&self) -> usize {
+        self.input_len() * self.kernel
+    }
+
+    fn params(&self, accumulate: bool) -> UnfoldParams {
+        UnfoldParams {
+            rows: self.rows as u32,
+            channels: self.channels as u32,
+            kernel: self.kernel as u32,
+            steps: self.steps as u32,
+            dilation: self.dilation as u32,
+            accumulate: accumulate as u32,
+            _pad: [0; 2],
+        }
+    }
+
+    pub fn forward(&self, gpu: &Gpu, x: &Tensor, col: &Tensor) -> Result<Dispatch, GpuError> {
+        x.expect_len(self.input_len())?;
+        col.expect_len(self.col_len())?;
+        let max = gpu.limits().max_compute_workgroups_per_dimension;
+        gpu.dispatch(
+            &UNFOLD_FWD,
+            &[],
+            &self.params(false),
+            &[x, col],
+            grid_1d(self.col_len(), 256, max),
+        )
+    }
+
+    /// `dx (+)= Σ_k dcol[.., k, t + dilation·k]`.
+    pub fn backward(
+        &self,
+        gpu: &Gpu,
+        dcol: &Tensor,
+        dx: &Tensor,
+        accumulate: bool,
+    ) -> Result<Dispatch, GpuError> {
+        dcol.expect_len(self.col_len())?;
+        dx.expect_len(self.input_len())?;
+        let max = gpu.limits().max_compute_workgroups_per_dimension;
+        gpu.dispatch(
+            &UNFOLD_BWD,
+            &[],
+            &self.params(accumulate),
+            &[dcol, dx],
+            grid_1d(self.input_len(), 256, max),
+        )
+    }
+}
+
+fn gate_params(n: usize) -> GateParams {
+    GateParams {
+        n: n as u32,
+        _pad: [0; 3],
+    }
+}
+
+/// `h = tanh(f) ⊙ σ(g)`.
+pub fn gate_forward(gpu: &Gpu, f: &Tensor, g: &Tensor, h: &Tensor) -> Result<Dispatch, GpuError> {
+    let n = h.numel();
+    f.expect_len(n)?;
+    g.expect_len(n)?;
+    let max = gpu.limits().max_compute_workgroups_per_dimension;
+    gpu.dispatch(
+        &GATE_FWD,
+        &[],
+        &gate_params(n),
+        &[f, g, h],
+        grid_1d(n, 256, max),
+    )
+}
+
+/// `df, dg` from `dh` (both overwritten).
+pub fn gate_backward(
+    gpu: &Gpu,
+    f: &Tensor,
+    g: &Tensor,
+    dh: &Tensor,
+    df: &Tensor,
+    dg: &Tensor,
+) -> Result<Dispatch, GpuError> {
+    let n = dh.numel();
+    for t in [f, g, df, dg] {
+        t.expect_len(n)?;
+    }
+    let max = gpu.limits().max_compute_workgroups_per_dimension;
+    gpu.dispatch(
+        &GATE_BWD,
+        &[],
+        &gate_params(n),
+        &[f, g, dh, df, dg],
+        grid_1d(n, 256, max),
+    )
+}
+
+/// f64 reference, for tests.
+pub mod cpu {
+    use super::Unfold;
+
+    pub fn unfold(u: &Unfold, x: &[f64]) -> Vec<f64> {
+        let mut col = vec![0.0; u.col_len()];
+        for rc in 0..u.rows * u.channels {
+            for k in 0..u.kernel {
+                let lag = u.dilation * k;
+                for t in lag..u.steps {
+                    col[(rc * u.kernel + k) * u.steps + t] = x[rc * u.steps + t - lag];
+                }
+            }
+        }
+        col
+    }
+
+    pub fn unfold_backward(u: &Unfold, dcol: &[f64]) -> Vec<f64> {
+        let mut dx = vec![0.0; u.input_len()];
+        for rc in 0..u.rows * u.channels {
+            for k in 0..u.kernel {
+                let lag = u.dilation * k;
+                for t in lag..u.steps {
+                    dx[rc * u.steps + t - lag] += dcol[(rc * u.kernel + k) * u.steps + t];
+                }
+            }
+        }
+        dx
+    }
+
+    /// `G[r, o, t] = bias[o] + Σ_c Σ_k weight[o, c, k] · x[r, c, t − d·k]` (MODEL.md step 4).
+    pub fn conv(u: &Unfold, outputs: usize, weight: &[f64], bias: &[f64], x: &[f64]) -> Vec<f64> {
+        let col = unfold(u, x);
+        let ck = u.channels * u.kernel;
+        let mut out = vec![0.0; u.rows * outputs * u.steps];
+        for r in 0..u.rows {
+            for o in 0..outputs {
+                let dst = &mut out[(r * outputs + o) * u.steps..][..u.steps];
+                dst.iter_mut().for_each(|v| *v = bias[o]);
+                for j in 0..ck {
+                    let w = weight[o * ck + j];
+                    let src = &col[(r * ck + j) * u.steps..][..u.steps];
+                    for (d, s) in dst.iter_mut().zip(src) {
+                        *d += w * s;
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    pub fn gate(f: &[f64], g: &[f64]) -> Vec<f64> {
+        f.iter()
+            .zip(g)
+            .map(|(f, g)| f.tanh() / (1.0 + (-g).exp()))
+            .collect()
+    }
+
+    pub fn gate_backward(f: &[f64], g: &[f64], dh: &[f64]) -> (Vec<f64>, Vec<f64>) {
+        let mut df = Vec::with_capacity(f.len());
+        let mut dg = Vec::with_capacity(f.len());
+        for ((f, g), d) in f.iter().zip(g).zip(dh) {
+            let th = f.tanh();
+            let sg = 1.0 / (1.0 + (-g).exp());
+            df.push(d * sg * (1.0 - th * th));
+            dg.push(d * th * sg * (1.0 - sg));
+        }
+        (df, dg)
+    }
+}

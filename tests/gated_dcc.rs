@@ -1,0 +1,175 @@
+//! Gated dilated causal convolution: the causal unfolding and the gate vs the f64
+//! reference (forward and backward), the unfolding+GEMM path vs the direct convolution
+//! of MODEL.md step 4, and the reference gradients vs central differences.
+
+use iastgcn::gpu::DType;
+use iastgcn::ops::gated_dcc::{cpu, gate_backward, gate_forward, Unfold};
+use iastgcn::ops::matmul::Matmul;
+use iastgcn::testing::{
+    check_gradient, compare, compare_tensor, dot, gpu, rng, round_f32, to_f32, uniform, Tolerance,
+};
+
+/// rows (B·N), channels, kernel, steps, dilation: the last block of the small shape
+/// (d = 4), a dilation longer than the window, the plain convolution (d = 1).
+const SHAPES: [(usize, usize, usize, usize, usize); 4] = [
+    (28, 16, 3, 48, 4),
+    (3, 5, 3, 7, 8),
+    (6, 4, 2, 16, 1),
+    (1, 1, 1, 1, 1),
+];
+
+fn unfold(
+    &(rows, channels, kernel, steps, dilation): &(usize, usize, usize, usize, usize),
+) -> Unfold {
+    Unfold {
+        rows,
+        channels,
+        kernel,
+        steps,
+        dilation,
+    }
+}
+
+#[test]
+fn unfold_matches_reference() {
+    let g = gpu();
+    for (i, shape) in SHAPES.iter().enumerate() {
+        let u = unfold(shape);
+        let mut r = rng(i as u64);
+        let x = round_f32(&uniform(&mut r, u.input_len(), -1.0, 1.0));
+        let dcol = round_f32(&uniform(&mut r, u.col_len(), -1.0, 1.0));
+        let xt = g.upload("x", &[u.input_len()], &to_f32(&x)).unwrap();
+        let dcolt = g.upload("dcol", &[u.col_len()], &to_f32(&dcol)).unwrap();
+        let col = g.zeros("col", &[u.col_len()], DType::F32);
+        let dx = g.upload("dx", &[u.input_len()], &to_f32(&x)).unwrap();
+        g.run(&[
+            u.forward(&g, &xt, &col).unwrap(),
+            u.backward(&g, &dcolt, &dx, true).unwrap(),
+        ])
+        .unwrap();
+        let exact = Tolerance::new(0.0, 0.0);
+        compare_tensor(&g, &format!("{u:?} col"), &col, &cpu::unfold(&u, &x), exact).unwrap();
+        let expected: Vec<f64> = cpu::unfold_backward(&u, &dcol)
+            .iter()
+            .zip(&x)
+            .map(|(d, x)| d + x)
+            .collect();
+        compare_tensor(
+            &g,
+            &format!("{u:?} dx"),
+            &dx,
+            &expected,
+            Tolerance::new(1e-6, 1e-6),
+        )
+        .unwrap();
+    }
+}
+
+/// The GPU path of the model (unfold, then weight [C, C·K] · col per row) equals the
+/// direct dilated causal convolution.
+#[test]
+fn unfold_then_gemm_is_the_causal_convolution() {
+    let g = gpu();
+    let u = unfold(&SHAPES[0]);
+    let outputs = 8;
+    let mut r = rng(5);
+    let x = round_f32(&uniform(&mut r, u.input_len(), -1.0, 1.0));
+    let w = round_f32(&uniform(&mut r, outputs * u.channels * u.kernel, -0.5, 0.5));
+    let xt = g.upload("x", &[u.input_len()], &to_f32(&x)).unwrap();
+    let wt = g.upload("w", &[w.len()], &to_f32(&w)).unwrap();
+    let col = g.zeros("col", &[u.col_len()], DType::F32);
+    let out = g.zeros("out", &[u.rows * outputs * u.steps], DType::F32);
+    let mm = Matmul::new(outputs, u.steps, u.channels * u.kernel)
+        .batched(u.rows)
+        .share_a(true);
+    g.run(&[
+        u.forward(&g, &xt, &col).unwrap(),
+        mm.forward(&g, &wt, &col, &out, false).unwrap(),
+    ])
+    .unwrap();
+    let expected = cpu::conv(&u, outputs, &w, &vec![0.0; outputs], &x);
+    compare_tensor(&g, "conv", &out, &expected, Tolerance::new(1e-5, 1e-5)).unwrap();
+}
+
+#[test]
+fn gate_matches_reference() {
+    let g = gpu();
+    let n = 5000;
+    let mut r = rng(7);
+    let f = round_f32(&uniform(&mut r, n, -12.0, 12.0));
+    let gg = round_f32(&uniform(&mut r, n, -40.0, 40.0));
+    let dh = round_f32(&uniform(&mut r, n, -1.0, 1.0));
+    let [ft, gt, dht] = [&f, &gg, &dh].map(|v| g.upload("in", &[n], &to_f32(v)).unwrap());
+    let [h, df, dg] = ["h", "df", "dg"].map(|name| g.zeros(name, &[n], DType::F32));
+    g.run(&[
+        gate_forward(&g, &ft, &gt, &h).unwrap(),
+        gate_backward(&g, &ft, &gt, &dht, &df, &dg).unwrap(),
+    ])
+    .unwrap();
+    let tol = Tolerance::new(1e-6, 1e-5);
+    compare_tensor(&g, "h", &h, &cpu::gate(&f, &gg), tol).unwrap();
+    let (edf, edg) = cpu::gate_backward(&f, &gg, &dh);
+    compare_tensor(&g, "df", &df, &edf, tol).unwrap();
+    compare_tensor(&g, "dg", &dg, &edg, tol).unwrap();
+}
+
+#[test]
+fn reference_gradients_match_finite_differences() {
+    let u = unfold(&SHAPES[1]);
+    let mut r = rng(11);
+    let x = uniform(&mut r, u.input_len(), -1.0, 1.0);
+    let dcol = uniform(&mut r, u.col_len(), -1.0, 1.0);
+    check_gradient(
+        "unfold",
+        &cpu::unfold_backward(&u, &dcol),
+        |x| dot(&dcol, &cpu::unfold(&u, x)),
+        &x,
+        1e-5,
+        Tolerance::new(1e-9, 1e-7),
+    )
+    .unwrap();
+    let n = 40;
+    let f = uniform(&mut r, n, -3.0, 3.0);
+    let gg = uniform(&mut r, n, -3.0, 3.0);
+    let dh = uniform(&mut r, n, -1.0, 1.0);
+    let (df, dg) = cpu::gate_backward(&f, &gg, &dh);
+    let tol = Tolerance::new(1e-9, 1e-6);
+    check_gradient(
+        "gate f",
+        &df,
+        |f| dot(&dh, &cpu::gate(f, &gg)),
+        &f,
+        1e-5,
+        tol,
+    )
+    .unwrap();
+    check_gradient(
+        "gate g",
+        &dg,
+        |gg| dot(&dh, &cpu::gate(&f, gg)),
+        &gg,
+        1e-5,
+        tol,
+    )
+    .unwrap();
+    // Causality: the convolution output at step t never depends on x after t.
+    let w = uniform(&mut r, 2 * u.channels * u.kernel, -1.0, 1.0);
+    let base = cpu::conv(&u, 2, &w, &[0.0, 0.0], &x);
+    let mut late = x.clone();
+    for rc in 0..u.rows * u.channels {
+        late[rc * u.steps + u.steps - 1] += 1.0;
+    }
+    let moved = cpu::conv(&u, 2, &w, &[0.0, 0.0], &late);
+    let early = |v: &[f64]| -> Vec<f64> {
+        v.chunks(u.steps)
+            .flat_map(|row| row[..u.steps - 1].to_vec())
+            .collect()
+    };
+    compare(
+        "causal",
+        &early(&moved),
+        &early(&base),
+        Tolerance::new(0.0, 0.0),
+    )
+    .unwrap();
+}
