@@ -12,6 +12,7 @@ pub mod cli;
 pub mod data;
 pub mod gpu;
 pub mod graph;
+pub mod model;
 pub mod ops;
 pub mod plot;
 pub mod robot;

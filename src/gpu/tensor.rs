@@ -67,6 +67,24 @@ impl Tensor {
         })
     }
 
+    /// The first `shape.product()` elements of the buffer seen as a tensor of `shape`
+    /// (scratch buffers sized for the largest user are shared by smaller ones).
+    pub fn prefix(&self, name: &str, shape: &[usize]) -> Result<Tensor, GpuError> {
+        let numel: usize = shape.iter().product();
+        if (numel * self.dtype.size()) as u64 > self.buffer.size() {
+            return Err(GpuError::Shape {
+                tensor: format!("{name} (view of {})", self.name),
+                expected: format!("at most {} bytes", self.buffer.size()),
+                got: format!("{shape:?}"),
+            });
+        }
+        Ok(Tensor {
+            shape: shape.to_vec(),
+            name: name.to_string(),
+            ..self.clone()
+        })
+    }
+
     /// Fails with a message naming the tensor unless it holds exactly `numel` elements.
     pub fn expect_len(&self, numel: usize) -> Result<(), GpuError> {
         if self.numel() == numel {
@@ -180,8 +198,16 @@ impl Readback {
         Ok(())
     }
 
-    /// Waits for submitted work and returns the whole staging buffer as f32.
-    pub fn read_f32(&self, gpu: &Gpu) -> Result<Vec<f32>, GpuError> {
+    /// Waits for submitted work and copies the first `out.len()` floats of the staging
+    /// buffer into `out` (no allocation).
+    pub fn read_into(&self, gpu: &Gpu, out: &mut [f32]) -> Result<(), GpuError> {
+        if (out.len() * 4) as u64 > self.size {
+            return Err(GpuError::Shape {
+                tensor: format!("readback {}", self.name),
+                expected: format!("at most {} floats", self.size / 4),
+                got: format!("{}", out.len()),
+            });
+        }
         let (tx, rx) = std::sync::mpsc::channel();
         self.buffer.map_async(wgpu::MapMode::Read, .., move |r| {
             let _ = tx.send(r);
@@ -190,14 +216,21 @@ impl Readback {
         rx.recv()
             .map_err(|e| GpuError::Readback(format!("{}: {e}", self.name)))?
             .map_err(|e| GpuError::Readback(format!("{}: {e}", self.name)))?;
-        let out = {
+        {
             let view = self
                 .buffer
                 .get_mapped_range(..)
                 .map_err(|e| GpuError::Readback(format!("{}: {e}", self.name)))?;
-            bytemuck::cast_slice::<u8, f32>(&view).to_vec()
-        };
+            out.copy_from_slice(&bytemuck::cast_slice::<u8, f32>(&view)[..out.len()]);
+        }
         self.buffer.unmap();
+        Ok(())
+    }
+
+    /// Waits for submitted work and returns the whole staging buffer as f32.
+    pub fn read_f32(&self, gpu: &Gpu) -> Result<Vec<f32>, GpuError> {
+        let mut out = vec![0.0; (self.size / 4) as usize];
+        self.read_into(gpu, &mut out)?;
         Ok(out)
     }
 }

@@ -72,6 +72,12 @@ impl PoseLoss {
         )
     }
 
+    /// Rewrites the uniforms of a dispatch built by this loss's `forward` or `backward`
+    /// (e.g. a new `penalty`, same batch and outputs).
+    pub fn set_penalty(&self, gpu: &Gpu, dispatch: &Dispatch) -> Result<(), GpuError> {
+        dispatch.write_params(gpu, &self.params())
+    }
+
     /// `dpred = ∂ℒ/∂ŷ` (overwritten).
     pub fn backward(
         &self,

@@ -1,0 +1,632 @@
+//! One ST block on the device (MODEL.md steps 1–7): its activation buffers and the
+//! forward and backward schedules, op by op, in the order of MODEL.md.
+
+use super::config::ModelConfig;
+use super::schedule::{Scratch, Steps};
+use crate::gpu::{DType, Gpu, GpuError, Tensor};
+use crate::ops::bias::Bias;
+use crate::ops::dropout::Dropout;
+use crate::ops::elementwise::{binary_backward, unary_backward, unary_forward, Binary, Unary};
+use crate::ops::gated_dcc::{gate_backward, gate_forward, Unfold};
+use crate::ops::layer_norm::LayerNorm;
+use crate::ops::matmul::Matmul;
+use crate::ops::softmax::Softmax;
+
+/// Device parameters and their gradients, looked up by MODEL.md name.
+pub trait ParamTable {
+    fn param(&self, name: &str) -> &Tensor;
+    fn grad(&self, name: &str) -> &Tensor;
+}
+
+/// The shapes of one block.
+#[derive(Clone, Copy, Debug)]
+struct Dims {
+    b: usize,
+    n: usize,
+    ci: usize,
+    c: usize,
+    t: usize,
+    k: usize,
+    terms: usize,
+}
+
+/// Temporal-attention intermediates (step 1).
+struct Temporal {
+    xu1: Tensor,
+    lhs: Tensor,
+    rhs: Tensor,
+    p: Tensor,
+    sig: Tensor,
+    e: Tensor,
+    ep: Tensor,
+}
+
+/// Spatial-attention intermediates (step 2).
+struct Spatial {
+    xt: Tensor,
+    xw1: Tensor,
+    lhs: Tensor,
+    rhs: Tensor,
+    p: Tensor,
+    sig: Tensor,
+    s: Tensor,
+    sp: Tensor,
+    xs: Tensor,
+}
+
+/// One block's buffers: everything its backward pass reads.
+pub struct Block {
+    index: usize,
+    d: Dims,
+    gated: bool,
+    dilation: usize,
+    eps: f32,
+    dropout: Dropout,
+    input: Tensor,
+    tat: Option<Temporal>,
+    sat: Option<Spatial>,
+    psi: Tensor,
+    m: Tensor,
+    g: Tensor,
+    z: Tensor,
+    col: Tensor,
+    f: Tensor,
+    gg: Tensor,
+    s: Tensor,
+    a: Tensor,
+    y: Tensor,
+    mean: Tensor,
+    rstd: Tensor,
+    /// The block output: `y` after dropout (training) or a copy of it (inference).
+    pub output: Tensor,
+}
+
+/// Indices of a block's dropout dispatch in the forward and backward schedules.
+pub struct DropoutSlots {
+    pub dropout: Dropout,
+    pub forward: usize,
+    pub backward: usize,
+}
+
+impl Block {
+    /// Allocates the buffers of block `index` reading `input` [B, N, C_in, T].
+    pub fn new(
+        gpu: &Gpu,
+        config: &ModelConfig,
+        index: usize,
+        batch: usize,
+        input: &Tensor,
+        dropout_seed: u32,
+    ) -> Block {
+        let d = Dims {
+            b: batch,
+            n: config.nodes,
+            ci: config.block_input(index),
+            c: config.channels,
+            t: config.window,
+            k: config.kernel,
+            terms: config.graph_terms(),
+        };
+        let name = |s: &str| format!("blocks.{index}.{s}");
+        let z = |s: &str, shape: &[usize]| gpu.zeros(&name(s), shape, DType::F32);
+        let (b, n, ci, c, t) = (d.b, d.n, d.ci, d.c, d.t);
+        let (tat, sat) = if config.variant.attention() {
+            let tat = Temporal {
+                xu1: z("tat.xu1", &[b, ci, t]),
+                lhs: z("tat.lhs", &[b, t, n]),
+                rhs: z("tat.rhs", &[b, n, t]),
+                p: z("tat.P", &[b, t, t]),
+                sig: z("tat.sig", &[b, t, t]),
+                e: z("tat.E", &[b, t, t]),
+                ep: z("tat.E'", &[b, t, t]),
+            };
+            let sat = Spatial {
+                xt: z("X_t", &[b, n, ci, t]),
+                xw1: z("sat.xw1", &[b, n, ci]),
+                lhs: z("sat.lhs", &[b, n, t]),
+                rhs: z("sat.rhs", &[b, n, t]),
+                p: z("sat.P", &[b, n, n]),
+                sig: z("sat.sig", &[b, n, n]),
+                s: z("sat.S", &[b, n, n]),
+                sp: z("sat.S'", &[b, n, n]),
+                xs: z("X_s", &[b, n, ci, t]),
+            };
+            (Some(tat), Some(sat))
+        } else {
+            (None, None)
+        };
+        let hidden = [b, n, c, t];
+        Block {
+            index,
+            d,
+            gated: config.variant.gated(),
+            dilation: config.dilation(index),
+            eps: config.eps as f32,
+            dropout: Dropout {
+                n: hidden.iter().product(),
+                p: config.dropout,
+                seed: dropout_seed.wrapping_add(index as u32),
+            },
+            input: input.clone(),
+            tat,
+            sat,
+            psi: z("gwc.Psi", &[n, n]),
+            m: z("gwc.M", &[b, n, ci, t]),
+            g: z("gwc.G", &hidden),
+            z: z("Z", &hidden),
+            col: z("tcn.col", &[b, n, c, d.k, t]),
+            f: z("tcn.G_f", &hidden),
+            gg: z("tcn.G_g", &hidden),
+            s: z("H+R", &hidden),
+            a: z("relu(H+R)", &hidden),
+            y: z("Y", &hidden),
+            mean: z("ln.mean", &[b * n * t]),
+            rstd: z("ln.rstd", &[b * n * t]),
+            output: z("output", &hidden),
+        }
+    }
+
+    fn name(&self, s: &str) -> String {
+        format!("blocks.{}.{s}", self.index)
+    }
+
+    // The products of MODEL.md, named by what they compute.
+
+    /// tat: xu1[b, (c,t)] = Σ_n U1[n] X[b, n, (c,t)].
+    fn mm_u1(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(1, d.ci * d.t, d.n).batched(d.b).share_a(true)
+    }
+    /// tat: lhs[b] = xu1[b]ᵀ [T, C_in] · U2 [C_in, N].
+    fn mm_u2(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.t, d.n, d.ci)
+            .batched(d.b)
+            .transpose_a(true)
+            .share_b(true)
+    }
+    /// tat: rhs[b, n] = U3 [1, C_in] · X[b, n] [C_in, T].
+    fn mm_u3(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(1, d.t, d.ci).batched(d.b * d.n).share_a(true)
+    }
+    /// tat: P[b] = lhs[b] [T, N] · rhs[b] [N, T].
+    fn mm_tp(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.t, d.t, d.n).batched(d.b)
+    }
+    /// tat: E[b] = Ve · σ(P + be)[b].
+    fn mm_ve(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.t, d.t, d.t).batched(d.b).share_a(true)
+    }
+    /// tat: X_t[b] (+)= X[b] [N·C_in, T] · E'[b] [T, T].
+    fn mm_xt(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.n * d.ci, d.t, d.t).batched(d.b)
+    }
+    /// sat: xw1[(b,n,c)] = X_t[(b,n,c), :] · W1.
+    fn mm_w1(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.b * d.n * d.ci, 1, d.t)
+    }
+    /// sat: lhs[(b,n)] = xw1[(b,n), :] · W2 [C_in, T].
+    fn mm_w2(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.b * d.n, d.t, d.ci)
+    }
+    /// sat: rhs[b, m] = W3 [1, C_in] · X_t[b, m] [C_in, T] (stored [B, N, T]).
+    fn mm_w3(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(1, d.t, d.ci).batched(d.b * d.n).share_a(true)
+    }
+    /// sat: P[b] = lhs[b] [N, T] · rhs[b]ᵀ.
+    fn mm_sp(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.n, d.n, d.t).batched(d.b).transpose_b(true)
+    }
+    /// sat: S[b] = Vs · σ(P + bs)[b].
+    fn mm_vs(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.n, d.n, d.n).batched(d.b).share_a(true)
+    }
+    /// sat: X_s[b] (+)= S'[b] [N, N] · X_t[b] [N, C_in·T].
+    fn mm_xs(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.n, d.ci * d.t, d.n).batched(d.b)
+    }
+    /// gwc: Ψ [1, N·N] = θ [1, terms] · basis [terms, N·N].
+    fn mm_psi(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(1, d.n * d.n, d.terms)
+    }
+    /// gwc: M[b] = Ψ [N, N] · X_s[b] [N, C_in·T].
+    fn mm_mix(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.n, d.ci * d.t, d.n).batched(d.b).share_a(true)
+    }
+    /// gwc: G[b, n] = Wᵀ [C, C_in] · M[b, n] [C_in, T] (W stored [C_in, C]).
+    fn mm_w(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.c, d.t, d.ci)
+            .batched(d.b * d.n)
+            .transpose_a(true)
+            .share_a(true)
+    }
+    /// tcn: G[b, n] = weight [C, C·K] · col[b, n] [C·K, T].
+    fn mm_conv(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.c, d.t, d.c * d.k)
+            .batched(d.b * d.n)
+            .share_a(true)
+    }
+    /// res: R[b, n] = res.weight [C, C_in] · X[b, n] [C_in, T].
+    fn mm_res(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.c, d.t, d.ci).batched(d.b * d.n).share_a(true)
+    }
+
+    fn unfold(&self) -> Unfold {
+        let d = self.d;
+        Unfold {
+            rows: d.b * d.n,
+            channels: d.c,
+            kernel: d.k,
+            steps: d.t,
+            dilation: self.dilation,
+        }
+    }
+
+    fn channel_bias(&self) -> Bias {
+        let d = self.d;
+        Bias {
+            outer: d.b * d.n,
+            channels: d.c,
+            inner: d.t,
+        }
+    }
+
+    fn layer_norm(&self) -> LayerNorm {
+        let d = self.d;
+        LayerNorm {
+            eps: self.eps,
+            ..LayerNorm::new(d.b * d.n, d.c, d.t)
+        }
+    }
+
+    /// The forward pass. With `train`, dropout (whose step is set later through the
+    /// returned slot) writes the output; otherwise the output is a copy of Y.
+    pub fn forward(
+        &self,
+        gpu: &Gpu,
+        p: &dyn ParamTable,
+        steps: &mut Steps,
+        train: bool,
+    ) -> Result<Option<usize>, GpuError> {
+        let d = self.d;
+        let w = |s: &str| p.param(&self.name(s));
+        let x = &self.input;
+        let xs = match (&self.tat, &self.sat) {
+            (Some(ta), Some(sa)) => {
+                // 1. Temporal attention.
+                steps.run(self.mm_u1().forward(gpu, w("tat.U1"), x, &ta.xu1, false))?;
+                steps.run(
+                    self.mm_u2()
+                        .forward(gpu, &ta.xu1, w("tat.U2"), &ta.lhs, false),
+                )?;
+                steps.run(self.mm_u3().forward(gpu, w("tat.U3"), x, &ta.rhs, false))?;
+                steps.run(self.mm_tp().forward(gpu, &ta.lhs, &ta.rhs, &ta.p, false))?;
+                let be = Bias {
+                    outer: d.b,
+                    channels: d.t * d.t,
+                    inner: 1,
+                };
+                steps.run(be.forward(gpu, w("tat.be"), &ta.p))?;
+                steps.run(unary_forward(gpu, Unary::Sigmoid, &ta.p, &ta.sig, false))?;
+                steps.run(
+                    self.mm_ve()
+                        .forward(gpu, w("tat.Ve"), &ta.sig, &ta.e, false),
+                )?;
+                steps.run(self.temporal_softmax().forward(gpu, &ta.e, &ta.ep))?;
+                steps.copy(x, &sa.xt);
+                steps.run(self.mm_xt().forward(gpu, x, &ta.ep, &sa.xt, true))?;
+                // 2. Spatial attention.
+                let xt = &sa.xt;
+                steps.run(self.mm_w1().forward(gpu, xt, w("sat.W1"), &sa.xw1, false))?;
+                steps.run(
+                    self.mm_w2()
+                        .forward(gpu, &sa.xw1, w("sat.W2"), &sa.lhs, false),
+                )?;
+                steps.run(self.mm_w3().forward(gpu, w("sat.W3"), xt, &sa.rhs, false))?;
+                steps.run(self.mm_sp().forward(gpu, &sa.lhs, &sa.rhs, &sa.p, false))?;
+                let bs = Bias {
+                    outer: d.b,
+                    channels: d.n * d.n,
+                    inner: 1,
+                };
+                steps.run(bs.forward(gpu, w("sat.bs"), &sa.p))?;
+                steps.run(unary_forward(gpu, Unary::Sigmoid, &sa.p, &sa.sig, false))?;
+                steps.run(
+                    self.mm_vs()
+                        .forward(gpu, w("sat.Vs"), &sa.sig, &sa.s, false),
+                )?;
+                steps.run(self.spatial_softmax().forward(gpu, &sa.s, &sa.sp))?;
+                steps.copy(xt, &sa.xs);
+                steps.run(self.mm_xs().forward(gpu, &sa.sp, xt, &sa.xs, true))?;
+                &sa.xs
+            }
+            _ => x,
+        };
+        // 3. Graph wavelet (or Chebyshev) convolution.
+        steps.run(self.mm_psi().forward(
+            gpu,
+            w("gwc.theta"),
+            p.param("graph.basis"),
+            &self.psi,
+            false,
+        ))?;
+        steps.run(self.mm_mix().forward(gpu, &self.psi, xs, &self.m, false))?;
+        steps.run(
+            self.mm_w()
+                .forward(gpu, w("gwc.W"), &self.m, &self.g, false),
+        )?;
+        steps.run(unary_forward(gpu, Unary::Relu, &self.g, &self.z, false))?;
+        // 4. Gated dilated causal convolution (or the plain one of iastgcn-t).
+        steps.run(self.unfold().forward(gpu, &self.z, &self.col))?;
+        let conv = self.mm_conv();
+        let bias = self.channel_bias();
+        steps.run(conv.forward(gpu, w("tcn.filter.weight"), &self.col, &self.f, false))?;
+        steps.run(bias.forward(gpu, w("tcn.filter.bias"), &self.f))?;
+        if self.gated {
+            steps.run(conv.forward(gpu, w("tcn.gate.weight"), &self.col, &self.gg, false))?;
+            steps.run(bias.forward(gpu, w("tcn.gate.bias"), &self.gg))?;
+            steps.run(gate_forward(gpu, &self.f, &self.gg, &self.s))?;
+        } else {
+            steps.run(unary_forward(gpu, Unary::Relu, &self.f, &self.s, false))?;
+        }
+        // 5. Residual 1×1 convolution, accumulated onto H.
+        steps.run(
+            self.mm_res()
+                .forward(gpu, w("res.weight"), x, &self.s, true),
+        )?;
+        steps.run(bias.forward(gpu, w("res.bias"), &self.s))?;
+        // 6. LayerNorm(ReLU(H + R)).
+        steps.run(unary_forward(gpu, Unary::Relu, &self.s, &self.a, false))?;
+        steps.run(self.layer_norm().forward(
+            gpu,
+            &self.a,
+            w("ln.gamma"),
+            w("ln.beta"),
+            &self.y,
+            &self.mean,
+            &self.rstd,
+        ))?;
+        // 7. Dropout.
+        if train {
+            Ok(Some(steps.run(self.dropout.apply(
+                gpu,
+                0,
+                &self.y,
+                &self.output,
+                false,
+            ))?))
+        } else {
+            steps.copy(&self.y, &self.output);
+            Ok(None)
+        }
+    }
+
+    fn temporal_softmax(&self) -> Softmax {
+        Softmax {
+            outer: self.d.b,
+            len: self.d.t,
+            inner: self.d.t,
+        }
+    }
+
+    fn spatial_softmax(&self) -> Softmax {
+        Softmax {
+            outer: self.d.b * self.d.n,
+            len: self.d.n,
+            inner: 1,
+        }
+    }
+
+    pub fn dropout(&self) -> Dropout {
+        self.dropout
+    }
+
+    /// The backward pass of a training forward: from `d_out` (∂ℒ/∂output) into the
+    /// parameter gradients and `d_in` (∂ℒ/∂input, overwritten). Returns the index of
+    /// the dropout dispatch.
+    pub fn backward(
+        &self,
+        gpu: &Gpu,
+        p: &dyn ParamTable,
+        scratch: &mut Scratch,
+        steps: &mut Steps,
+        d_out: &Tensor,
+        d_in: &Tensor,
+    ) -> Result<usize, GpuError> {
+        let d = self.d;
+        let w = |s: &str| p.param(&self.name(s));
+        let dw = |s: &str| p.grad(&self.name(s));
+        let x = &self.input;
+        let hidden = [d.b, d.n, d.c, d.t];
+        let acts = [d.b, d.n, d.ci, d.t];
+        // 7. Dropout: the same mask as the forward pass.
+        let dy = scratch.get("dY", &hidden)?;
+        let slot = steps.run(self.dropout.apply(gpu, 0, d_out, &dy, false))?;
+        // 6. LayerNorm and ReLU.
+        let ln = self.layer_norm();
+        let da = scratch.get("dA", &hidden)?;
+        steps.run(ln.backward_input(
+            gpu,
+            &self.a,
+            w("ln.gamma"),
+            &dy,
+            &self.mean,
+            &self.rstd,
+            &da,
+            false,
+        ))?;
+        steps.run(ln.backward_params(
+            gpu,
+            &self.a,
+            &dy,
+            &self.mean,
+            &self.rstd,
+            dw("ln.gamma"),
+            dw("ln.beta"),
+            false,
+        ))?;
+        let ds = scratch.get("dS", &hidden)?;
+        steps.run(unary_backward(gpu, Unary::Relu, &self.s, &da, &ds, false))?;
+        // 5. Residual: ∂/∂H = ∂/∂R = dS.
+        let bias = self.channel_bias();
+        let res = self.mm_res();
+        steps.run(bias.backward(gpu, &ds, dw("res.bias"), false))?;
+        steps.run(res.backward_a(gpu, x, &ds, dw("res.weight"), false))?;
+        steps.run(res.backward_b(gpu, w("res.weight"), &ds, d_in, false))?;
+        // 4. Gate and convolutions.
+        let df = scratch.get("dG_f", &hidden)?;
+        let conv = self.mm_conv();
+        let dcol = scratch.get("dcol", &[d.b, d.n, d.c, d.k, d.t])?;
+        if self.gated {
+            let dg = scratch.get("dG_g", &hidden)?;
+            steps.run(gate_backward(gpu, &self.f, &self.gg, &ds, &df, &dg))?;
+            steps.run(bias.backward(gpu, &dg, dw("tcn.gate.bias"), false))?;
+            steps.run(conv.backward_a(gpu, &self.col, &dg, dw("tcn.gate.weight"), false))?;
+            steps.run(conv.backward_b(gpu, w("tcn.gate.weight"), &dg, &dcol, false))?;
+        } else {
+            steps.run(unary_backward(gpu, Unary::Relu, &self.f, &ds, &df, false))?;
+        }
+        steps.run(bias.backward(gpu, &df, dw("tcn.filter.bias"), false))?;
+        steps.run(conv.backward_a(gpu, &self.col, &df, dw("tcn.filter.weight"), false))?;
+        steps.run(conv.backward_b(gpu, w("tcn.filter.weight"), &df, &dcol, self.gated))?;
+        let dz = scratch.get("dZ", &hidden)?;
+        steps.run(self.unfold().backward(gpu, &dcol, &dz, false))?;
+        // 3. Graph convolution.
+        let dg = scratch.get("dG", &hidden)?;
+        steps.run(unary_backward(gpu, Unary::Relu, &self.g, &dz, &dg, false))?;
+        let (mw, mix, mpsi) = (self.mm_w(), self.mm_mix(), self.mm_psi());
+        let dm = scratch.get("dM", &acts)?;
+        steps.run(mw.backward_a(gpu, &self.m, &dg, dw("gwc.W"), false))?;
+        steps.run(mw.backward_b(gpu, w("gwc.W"), &dg, &dm, false))?;
+        let dpsi = scratch.get("dPsi", &[d.n, d.n])?;
+        let attention = self.tat.as_ref().zip(self.sat.as_ref());
+        let xs = attention.map_or(x, |(_, sa)| &sa.xs);
+        steps.run(mix.backward_a(gpu, xs, &dm, &dpsi, false))?;
+        steps.run(mpsi.backward_a(gpu, p.param("graph.basis"), &dpsi, dw("gwc.theta"), false))?;
+        let Some((ta, sa)) = attention else {
+            // X_s = X: accumulate onto the residual's contribution.
+            steps.run(mix.backward_b(gpu, &self.psi, &dm, d_in, true))?;
+            return Ok(slot);
+        };
+        let dxs = scratch.get("dX_s", &acts)?;
+        steps.run(mix.backward_b(gpu, &self.psi, &dm, &dxs, false))?;
+        // 2. Spatial attention: X_s = X_t + S'·X_t.
+        let dxt = scratch.get("dX_t", &acts)?;
+        let xt = &sa.xt;
+        let nn = [d.b, d.n, d.n];
+        let (dsp, dss, dsig, dp) = (
+            scratch.get("sat.dS'", &nn)?,
+            scratch.get("sat.dS", &nn)?,
+            scratch.get("sat.dsig", &nn)?,
+            scratch.get("sat.dP", &nn)?,
+        );
+        steps.copy(&dxs, &dxt);
+        let mxs = self.mm_xs();
+        steps.run(mxs.backward_a(gpu, xt, &dxs, &dsp, false))?;
+        steps.run(mxs.backward_b(gpu, &sa.sp, &dxs, &dxt, true))?;
+        steps.run(
+            self.spatial_softmax()
+                .backward(gpu, &sa.sp, &dsp, &dss, false),
+        )?;
+        let mvs = self.mm_vs();
+        steps.run(mvs.backward_a(gpu, &sa.sig, &dss, dw("sat.Vs"), false))?;
+        steps.run(mvs.backward_b(gpu, w("sat.Vs"), &dss, &dsig, false))?;
+        steps.run(unary_backward(
+            gpu,
+            Unary::Sigmoid,
+            &sa.sig,
+            &dsig,
+            &dp,
+            false,
+        ))?;
+        let bs = Bias {
+            outer: d.b,
+            channels: d.n * d.n,
+            inner: 1,
+        };
+        steps.run(bs.backward(gpu, &dp, dw("sat.bs"), false))?;
+        let msp = self.mm_sp();
+        let (dlhs, drhs) = (
+            scratch.get("sat.dlhs", &[d.b, d.n, d.t])?,
+            scratch.get("sat.drhs", &[d.b, d.n, d.t])?,
+        );
+        steps.run(msp.backward_a(gpu, &sa.rhs, &dp, &dlhs, false))?;
+        steps.run(msp.backward_b(gpu, &sa.lhs, &dp, &drhs, false))?;
+        let mw3 = self.mm_w3();
+        steps.run(mw3.backward_a(gpu, xt, &drhs, dw("sat.W3"), false))?;
+        steps.run(mw3.backward_b(gpu, w("sat.W3"), &drhs, &dxt, true))?;
+        let dxw1 = scratch.get("sat.dxw1", &[d.b, d.n, d.ci])?;
+        let mw2 = self.mm_w2();
+        steps.run(mw2.backward_a(gpu, w("sat.W2"), &dlhs, &dxw1, false))?;
+        steps.run(mw2.backward_b(gpu, &sa.xw1, &dlhs, dw("sat.W2"), false))?;
+        let mw1 = self.mm_w1();
+        steps.run(mw1.backward_b(gpu, xt, &dxw1, dw("sat.W1"), false))?;
+        steps.run(mw1.backward_a(gpu, w("sat.W1"), &dxw1, &dxt, true))?;
+        // 1. Temporal attention: X_t = X + X·E'.
+        steps.run(binary_backward(gpu, Binary::Add, &dxt, &dxt, d_in, true))?;
+        let tt = [d.b, d.t, d.t];
+        let (dep, de, dsig, dp) = (
+            scratch.get("tat.dE'", &tt)?,
+            scratch.get("tat.dE", &tt)?,
+            scratch.get("tat.dsig", &tt)?,
+            scratch.get("tat.dP", &tt)?,
+        );
+        let mxt = self.mm_xt();
+        steps.run(mxt.backward_b(gpu, x, &dxt, &dep, false))?;
+        steps.run(mxt.backward_a(gpu, &ta.ep, &dxt, d_in, true))?;
+        steps.run(
+            self.temporal_softmax()
+                .backward(gpu, &ta.ep, &dep, &de, false),
+        )?;
+        let mve = self.mm_ve();
+        steps.run(mve.backward_a(gpu, &ta.sig, &de, dw("tat.Ve"), false))?;
+        steps.run(mve.backward_b(gpu, w("tat.Ve"), &de, &dsig, false))?;
+        steps.run(unary_backward(
+            gpu,
+            Unary::Sigmoid,
+            &ta.sig,
+            &dsig,
+            &dp,
+            false,
+        ))?;
+        let be = Bias {
+            outer: d.b,
+            channels: d.t * d.t,
+            inner: 1,
+        };
+        steps.run(be.backward(gpu, &dp, dw("tat.be"), false))?;
+        let mtp = self.mm_tp();
+        let (dlhs, drhs) = (
+            scratch.get("tat.dlhs", &[d.b, d.t, d.n])?,
+            scratch.get("tat.drhs", &[d.b, d.n, d.t])?,
+        );
+        steps.run(mtp.backward_a(gpu, &ta.rhs, &dp, &dlhs, false))?;
+        steps.run(mtp.backward_b(gpu, &ta.lhs, &dp, &drhs, false))?;
+        let mu3 = self.mm_u3();
+        steps.run(mu3.backward_a(gpu, x, &drhs, dw("tat.U3"), false))?;
+        steps.run(mu3.backward_b(gpu, w("tat.U3"), &drhs, d_in, true))?;
+        let dxu1 = scratch.get("tat.dxu1", &[d.b, d.ci, d.t])?;
+        let mu2 = self.mm_u2();
+        steps.run(mu2.backward_a(gpu, w("tat.U2"), &dlhs, &dxu1, false))?;
+        steps.run(mu2.backward_b(gpu, &ta.xu1, &dlhs, dw("tat.U2"), false))?;
+        let mu1 = self.mm_u1();
+        steps.run(mu1.backward_a(gpu, x, &dxu1, dw("tat.U1"), false))?;
+        steps.run(mu1.backward_b(gpu, w("tat.U1"), &dxu1, d_in, true))?;
+        Ok(slot)
+    }
+}

@@ -1,0 +1,166 @@
+//! The network's configuration (MODEL.md "Notation") and its variants.
+
+use serde::{Deserialize, Serialize};
+
+/// Which network the engine runs (MODEL.md "Variants"); stored in checkpoint metadata.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Variant {
+    /// The full model.
+    #[serde(rename = "iastgcn")]
+    Iastgcn,
+    /// No attention: steps 1–2 skipped (X_s = X).
+    #[serde(rename = "iastgcn-a")]
+    NoAttention,
+    /// Step 4 is one plain causal convolution (ungated, undilated) with ReLU.
+    #[serde(rename = "iastgcn-t")]
+    PlainTemporal,
+    /// Step 3 uses a Chebyshev graph convolution on the scaled Laplacian.
+    #[serde(rename = "iastgcn-s")]
+    Chebyshev,
+}
+
+impl Variant {
+    pub const ALL: [Variant; 4] = [
+        Variant::Iastgcn,
+        Variant::NoAttention,
+        Variant::PlainTemporal,
+        Variant::Chebyshev,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Variant::Iastgcn => "iastgcn",
+            Variant::NoAttention => "iastgcn-a",
+            Variant::PlainTemporal => "iastgcn-t",
+            Variant::Chebyshev => "iastgcn-s",
+        }
+    }
+
+    pub fn parse(name: &str) -> Option<Variant> {
+        Variant::ALL.into_iter().find(|v| v.name() == name)
+    }
+
+    pub fn attention(self) -> bool {
+        self != Variant::NoAttention
+    }
+
+    pub fn gated(self) -> bool {
+        self != Variant::PlainTemporal
+    }
+}
+
+impl std::fmt::Display for Variant {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Shapes and hyper-parameters of one network. Defaults are MODEL.md's paper shape.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ModelConfig {
+    pub variant: Variant,
+    /// N: graph nodes.
+    pub nodes: usize,
+    /// F: input features per node and step.
+    pub features: usize,
+    /// T: window length.
+    pub window: usize,
+    /// C: hidden channels.
+    pub channels: usize,
+    /// L: stacked ST blocks.
+    pub blocks: usize,
+    /// K: temporal kernel size.
+    pub kernel: usize,
+    /// s: wavelet scale.
+    pub scale: f64,
+    /// Order of the Chebyshev graph convolution of `iastgcn-s` (T_0..T_{order−1}).
+    pub chebyshev_order: usize,
+    /// O: outputs.
+    pub outputs: usize,
+    /// Inverted dropout probability on each block's output (training only).
+    pub dropout: f64,
+    /// LayerNorm ε.
+    pub eps: f64,
+}
+
+impl Default for ModelConfig {
+    fn default() -> ModelConfig {
+        ModelConfig {
+            variant: Variant::Iastgcn,
+            nodes: 14,
+            features: 3,
+            window: 100,
+            channels: 64,
+            blocks: 5,
+            kernel: 3,
+            scale: 1.0,
+            chebyshev_order: 3,
+            outputs: 6,
+            dropout: 0.2,
+            eps: 1e-5,
+        }
+    }
+}
+
+impl ModelConfig {
+    /// C_in of block `l` (0-based): F for the first block, C afterwards.
+    pub fn block_input(&self, l: usize) -> usize {
+        if l == 0 {
+            self.features
+        } else {
+            self.channels
+        }
+    }
+
+    /// Dilation of block `l` (0-based): 2^l, or 1 for the plain temporal convolution.
+    pub fn dilation(&self, l: usize) -> usize {
+        if self.variant.gated() {
+            1 << l
+        } else {
+            1
+        }
+    }
+
+    /// Number of graph basis matrices Ψ is a θ-combination of: N wavelets or the
+    /// Chebyshev order.
+    pub fn graph_terms(&self) -> usize {
+        match self.variant {
+            Variant::Chebyshev => self.chebyshev_order,
+            _ => self.nodes,
+        }
+    }
+
+    /// Checks that the shapes make sense; the message names the field.
+    pub fn validate(&self) -> Result<(), String> {
+        let positive = [
+            ("nodes", self.nodes),
+            ("features", self.features),
+            ("window", self.window),
+            ("channels", self.channels),
+            ("blocks", self.blocks),
+            ("kernel", self.kernel),
+            ("chebyshev_order", self.chebyshev_order),
+            ("outputs", self.outputs),
+        ];
+        if let Some((name, _)) = positive.iter().find(|(_, v)| *v == 0) {
+            return Err(format!("model config: {name} must be positive"));
+        }
+        if self.blocks > 16 {
+            return Err(format!(
+                "model config: blocks = {} (dilation 2^l overflows beyond 16)",
+                self.blocks
+            ));
+        }
+        if !(0.0..1.0).contains(&self.dropout) {
+            return Err(format!(
+                "model config: dropout = {} must be in [0, 1)",
+                self.dropout
+            ));
+        }
+        if self.eps.is_nan() || self.eps <= 0.0 || !self.scale.is_finite() {
+            return Err("model config: eps must be positive and scale finite".into());
+        }
+        Ok(())
+    }
+}

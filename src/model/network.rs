@@ -1,0 +1,437 @@
+//! The whole network on the device: parameters, gradients, activations, and the
+//! forward / backward schedules for one batch size. Nothing is allocated and no
+//! pipeline is created after [`Network::new`]; a training step reads nothing back.
+
+use super::block::{Block, DropoutSlots, ParamTable};
+use super::config::ModelConfig;
+use super::params::{graph_basis, param_specs, ParamSpec, Parameters};
+use super::schedule::{Scratch, Steps};
+use crate::gpu::{DType, Gpu, GpuError, Recorder, Tensor};
+use crate::graph::Graph;
+use crate::ops::bias::Bias;
+use crate::ops::head::LastStep;
+use crate::ops::loss::PoseLoss;
+use crate::ops::matmul::Matmul;
+
+/// What can go wrong building or feeding a network.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    #[error("{0}")]
+    Config(String),
+    #[error("parameter {name}: {message}")]
+    Parameter { name: String, message: String },
+}
+
+/// IASTGCN on one device for a fixed batch size.
+pub struct Network {
+    pub config: ModelConfig,
+    pub batch: usize,
+    /// Built with the training schedules ([`Network::new`]) or for inference only.
+    pub training: bool,
+    pub specs: Vec<ParamSpec>,
+    /// Parameters and their gradients, in [`param_specs`] order.
+    pub params: Vec<Tensor>,
+    pub grads: Vec<Tensor>,
+    /// `x` [B, N, F, T] (write before recording a forward pass).
+    pub input: Tensor,
+    /// `y` [B, O] in standardised label space (for the loss).
+    pub target: Tensor,
+    /// `ŷ` [B, O].
+    pub output: Tensor,
+    /// The loss of the last backward pass, `[1]`.
+    pub loss: Tensor,
+    /// ∂ℒ/∂x [B, N, F, T], written by the backward pass.
+    pub input_grad: Tensor,
+    blocks: Vec<Block>,
+    infer: Steps,
+    train: Steps,
+    backward: Steps,
+    dropout: Vec<DropoutSlots>,
+}
+
+/// Name lookups for the block schedules.
+struct Table<'a> {
+    specs: &'a [ParamSpec],
+    params: &'a [Tensor],
+    grads: &'a [Tensor],
+    basis: &'a Tensor,
+}
+
+impl Table<'_> {
+    fn index(&self, name: &str) -> usize {
+        self.specs
+            .iter()
+            .position(|s| s.name == name)
+            .unwrap_or_else(|| panic!("schedule asks for unknown parameter {name}"))
+    }
+}
+
+impl ParamTable for Table<'_> {
+    fn param(&self, name: &str) -> &Tensor {
+        if name == "graph.basis" {
+            return self.basis;
+        }
+        &self.params[self.index(name)]
+    }
+
+    fn grad(&self, name: &str) -> &Tensor {
+        &self.grads[self.index(name)]
+    }
+}
+
+impl Network {
+    /// Allocates everything for training on `batch` windows and builds the schedules
+    /// (inference, training forward, backward). Parameters start at zero: load them
+    /// with [`Network::load_parameters`].
+    pub fn new(
+        gpu: &Gpu,
+        config: &ModelConfig,
+        graph: &Graph,
+        batch: usize,
+        dropout_seed: u32,
+    ) -> Result<Network, ModelError> {
+        Network::build(gpu, config, graph, batch, dropout_seed, true)
+    }
+
+    /// The inference forward only: no training schedules, gradient scratch or dropout.
+    pub fn for_inference(
+        gpu: &Gpu,
+        config: &ModelConfig,
+        graph: &Graph,
+        batch: usize,
+    ) -> Result<Network, ModelError> {
+        Network::build(gpu, config, graph, batch, 0, false)
+    }
+
+    fn build(
+        gpu: &Gpu,
+        config: &ModelConfig,
+        graph: &Graph,
+        batch: usize,
+        dropout_seed: u32,
+        training: bool,
+    ) -> Result<Network, ModelError> {
+        config.validate().map_err(ModelError::Config)?;
+        if graph.len() != config.nodes {
+            return Err(ModelError::Config(format!(
+                "graph has {} nodes, the model config {}",
+                graph.len(),
+                config.nodes
+            )));
+        }
+        if batch == 0 {
+            return Err(ModelError::Config("batch size must be positive".into()));
+        }
+        let specs = param_specs(config);
+        let params: Vec<Tensor> = specs
+            .iter()
+            .map(|s| gpu.zeros(&s.name, &s.shape, DType::F32))
+            .collect();
+        let grads: Vec<Tensor> = specs
+            .iter()
+            .map(|s| gpu.zeros(&format!("grad {}", s.name), &s.shape, DType::F32))
+            .collect();
+        let (n, t, c, o) = (config.nodes, config.window, config.channels, config.outputs);
+        let basis_data: Vec<f32> = graph_basis(graph, config)
+            .iter()
+            .map(|&v| v as f32)
+            .collect();
+        let basis = gpu.upload("graph.basis", &[config.graph_terms(), n, n], &basis_data)?;
+        let input = gpu.zeros("x", &[batch, n, config.features, t], DType::F32);
+        let input_grad = gpu.zeros("dx", &[batch, n, config.features, t], DType::F32);
+        let target = gpu.zeros("y", &[batch, o], DType::F32);
+        let output = gpu.zeros("y_hat", &[batch, o], DType::F32);
+        let loss = gpu.zeros("loss", &[1], DType::F32);
+
+        let mut blocks: Vec<Block> = Vec::with_capacity(config.blocks);
+        for l in 0..config.blocks {
+            let x = blocks.last().map_or(&input, |b| &b.output).clone();
+            blocks.push(Block::new(gpu, config, l, batch, &x, dropout_seed));
+        }
+        let table = Table {
+            specs: &specs,
+            params: &params,
+            grads: &grads,
+            basis: &basis,
+        };
+        let last = &blocks.last().expect("at least one block").output;
+        let h = gpu.zeros("head.h", &[batch, n * c], DType::F32);
+        let last_step = LastStep {
+            rows: batch * n * c,
+            steps: t,
+        };
+        let head = Matmul::new(batch, o, n * c).transpose_b(true);
+        let head_bias = Bias {
+            outer: batch,
+            channels: o,
+            inner: 1,
+        };
+
+        let mut infer = Steps::default();
+        let mut train = Steps::default();
+        let mut fwd_slots = Vec::new();
+        for block in &blocks {
+            block.forward(gpu, &table, &mut infer, false)?;
+            if training {
+                fwd_slots.push(block.forward(gpu, &table, &mut train, true)?);
+            }
+        }
+        let head_steps = if training {
+            vec![&mut infer, &mut train]
+        } else {
+            vec![&mut infer]
+        };
+        for steps in head_steps {
+            steps.run(last_step.forward(gpu, last, &h))?;
+            steps.run(head.forward(gpu, &h, table.param("head.weight"), &output, false))?;
+            steps.run(head_bias.forward(gpu, table.param("head.bias"), &output))?;
+        }
+
+        let mut backward = Steps::default();
+        let mut dropout = Vec::new();
+        if training {
+            Network::build_backward(
+                gpu,
+                config,
+                &table,
+                &blocks,
+                &fwd_slots,
+                &input_grad,
+                &output,
+                &target,
+                &loss,
+                &h,
+                &mut backward,
+                &mut dropout,
+            )?;
+        }
+        Ok(Network {
+            config: config.clone(),
+            batch,
+            training,
+            specs,
+            params,
+            grads,
+            input,
+            target,
+            output,
+            loss,
+            input_grad,
+            blocks,
+            infer,
+            train,
+            backward,
+            dropout,
+        })
+    }
+
+    /// The loss and the backward schedule (MODEL.md order reversed).
+    #[allow(clippy::too_many_arguments)]
+    fn build_backward(
+        gpu: &Gpu,
+        config: &ModelConfig,
+        table: &Table,
+        blocks: &[Block],
+        fwd_slots: &[Option<usize>],
+        input_grad: &Tensor,
+        output: &Tensor,
+        target: &Tensor,
+        loss: &Tensor,
+        h: &Tensor,
+        backward: &mut Steps,
+        dropout: &mut Vec<DropoutSlots>,
+    ) -> Result<(), ModelError> {
+        let batch = input_grad.shape()[0];
+        let (n, t, c, o) = (config.nodes, config.window, config.channels, config.outputs);
+        let last_step = LastStep {
+            rows: batch * n * c,
+            steps: t,
+        };
+        let head = Matmul::new(batch, o, n * c).transpose_b(true);
+        let head_bias = Bias {
+            outer: batch,
+            channels: o,
+            inner: 1,
+        };
+        let pose = PoseLoss {
+            batch,
+            outputs: o,
+            penalty: 1.0,
+        };
+        let doutput = gpu.zeros("d y_hat", &[batch, o], DType::F32);
+        backward.run(pose.forward(gpu, output, target, loss))?;
+        backward.run(pose.backward(gpu, output, target, &doutput))?;
+        backward.run(head_bias.backward(gpu, &doutput, table.grad("head.bias"), false))?;
+        backward.run(head.backward_b(gpu, h, &doutput, table.grad("head.weight"), false))?;
+        let dh = gpu.zeros("head.dh", &[batch, n * c], DType::F32);
+        backward.run(head.backward_a(gpu, table.param("head.weight"), &doutput, &dh, false))?;
+        let hidden = [batch, n, c, t];
+        let ping = [
+            gpu.zeros("d block output (even)", &hidden, DType::F32),
+            gpu.zeros("d block output (odd)", &hidden, DType::F32),
+        ];
+        let last_index = config.blocks - 1;
+        backward.run(last_step.backward(gpu, &dh, &ping[last_index % 2]))?;
+        let mut scratch = Scratch::new(gpu);
+        for (l, block) in blocks.iter().enumerate().rev() {
+            let d_in = if l == 0 {
+                input_grad
+            } else {
+                &ping[(l + 1) % 2]
+            };
+            let slot = block.backward(gpu, table, &mut scratch, backward, &ping[l % 2], d_in)?;
+            dropout.push(DropoutSlots {
+                dropout: block.dropout(),
+                forward: fwd_slots[l].expect("training forward has dropout"),
+                backward: slot,
+            });
+        }
+        Ok(())
+    }
+
+    /// The attitude penalty P of the loss (default 1).
+    pub fn set_attitude_penalty(&self, gpu: &Gpu, penalty: f64) -> Result<(), GpuError> {
+        let pose = PoseLoss {
+            batch: self.batch,
+            outputs: self.config.outputs,
+            penalty,
+        };
+        // The first two backward steps are the loss forward and backward.
+        for i in [0, 1] {
+            let d = self.backward.dispatch(i).expect("loss dispatch");
+            pose.set_penalty(gpu, d)?;
+        }
+        Ok(())
+    }
+
+    /// Copies host parameters to the device (names and shapes must match).
+    pub fn load_parameters(&self, gpu: &Gpu, p: &Parameters) -> Result<(), ModelError> {
+        if p.specs.len() != self.specs.len() {
+            return Err(ModelError::Config(format!(
+                "{} parameter tensors given, the {} model has {}",
+                p.specs.len(),
+                self.config.variant,
+                self.specs.len()
+            )));
+        }
+        for ((spec, values), (mine, t)) in p
+            .specs
+            .iter()
+            .zip(&p.values)
+            .zip(self.specs.iter().zip(&self.params))
+        {
+            if spec.name != mine.name || spec.shape != mine.shape || values.len() != mine.numel() {
+                return Err(ModelError::Parameter {
+                    name: spec.name.clone(),
+                    message: format!(
+                        "expected {} {:?}, got {} {:?} ({} values)",
+                        mine.name,
+                        mine.shape,
+                        spec.name,
+                        spec.shape,
+                        values.len()
+                    ),
+                });
+            }
+            gpu.write(t, values)?;
+        }
+        Ok(())
+    }
+
+    /// Reads the parameters back.
+    pub fn read_parameters(&self, gpu: &Gpu) -> Result<Parameters, GpuError> {
+        Ok(Parameters {
+            specs: self.specs.clone(),
+            values: self.read_all(gpu, &self.params)?,
+        })
+    }
+
+    /// Reads the gradients of the last backward pass, in [`param_specs`] order.
+    pub fn read_gradients(&self, gpu: &Gpu) -> Result<Vec<Vec<f32>>, GpuError> {
+        self.read_all(gpu, &self.grads)
+    }
+
+    fn read_all(&self, gpu: &Gpu, ts: &[Tensor]) -> Result<Vec<Vec<f32>>, GpuError> {
+        ts.iter()
+            .map(|t| {
+                gpu.read_f32(t).map(|mut v| {
+                    v.truncate(t.numel());
+                    v
+                })
+            })
+            .collect()
+    }
+
+    /// Records the forward pass (inference: no dropout).
+    pub fn record_forward(&self, rec: &mut Recorder) -> Result<(), GpuError> {
+        self.infer.record(rec)
+    }
+
+    /// Records the training forward pass (dropout with the mask of the current step).
+    pub fn record_train_forward(&self, rec: &mut Recorder) -> Result<(), GpuError> {
+        self.expect_training()?;
+        self.train.record(rec)
+    }
+
+    /// Records the loss and the backward pass of the last training forward into
+    /// [`Network::grads`], [`Network::loss`] and [`Network::input_grad`].
+    pub fn record_backward(&self, rec: &mut Recorder) -> Result<(), GpuError> {
+        self.expect_training()?;
+        self.backward.record(rec)
+    }
+
+    fn expect_training(&self) -> Result<(), GpuError> {
+        if self.training {
+            Ok(())
+        } else {
+            Err(GpuError::Device(
+                "this network was built for inference only (Network::for_inference)".into(),
+            ))
+        }
+    }
+
+    /// Points every dropout mask at training step `step` (rewrites uniforms only).
+    pub fn set_step(&self, gpu: &Gpu, step: u32) -> Result<(), GpuError> {
+        for s in &self.dropout {
+            for (steps, i) in [(&self.train, s.forward), (&self.backward, s.backward)] {
+                let d = steps.dispatch(i).expect("dropout slot is a dispatch");
+                s.dropout.set_step(gpu, d, step, false)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Number of dispatches and copies in (inference, training forward, backward).
+    pub fn schedule_sizes(&self) -> (usize, usize, usize) {
+        (self.infer.len(), self.train.len(), self.backward.len())
+    }
+
+    pub fn blocks(&self) -> usize {
+        self.blocks.len()
+    }
+
+    /// Convenience for tests and tools: runs the inference forward on `x` and reads ŷ.
+    pub fn predict(&self, gpu: &Gpu, x: &[f32]) -> Result<Vec<f32>, GpuError> {
+        gpu.write(&self.input, x)?;
+        let mut rec = Recorder::new(gpu);
+        self.record_forward(&mut rec)?;
+        rec.submit();
+        let mut y = gpu.read_f32(&self.output)?;
+        y.truncate(self.output.numel());
+        Ok(y)
+    }
+
+    /// Convenience for tests: training forward + backward at dropout step `step`.
+    pub fn gradients(&self, gpu: &Gpu, x: &[f32], y: &[f32], step: u32) -> Result<(), GpuError> {
+        gpu.write(&self.input, x)?;
+        gpu.write(&self.target, y)?;
+        self.set_step(gpu, step)?;
+        let mut rec = Recorder::new(gpu);
+        self.record_train_forward(&mut rec)?;
+        self.record_backward(&mut rec)?;
+        rec.submit();
+        gpu.wait()
+    }
+}

@@ -1,0 +1,185 @@
+//! The parameter table of MODEL.md: names, shapes, initialisation, weight decay, and the
+//! fixed graph basis that θ combines into Ψ.
+
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::config::{ModelConfig, Variant};
+use crate::graph::Graph;
+
+/// How a parameter starts (MODEL.md "Initialisation").
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Init {
+    /// He uniform U(−√(6/fan_in), √(6/fan_in)).
+    HeUniform {
+        fan_in: usize,
+    },
+    Zeros,
+    Ones,
+}
+
+/// One entry of the table.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ParamSpec {
+    pub name: String,
+    pub shape: Vec<usize>,
+    pub init: Init,
+    /// Counted in the λ‖W‖² term of the loss (weights only).
+    pub decay: bool,
+}
+
+impl ParamSpec {
+    pub fn numel(&self) -> usize {
+        self.shape.iter().product()
+    }
+}
+
+fn spec(name: String, shape: &[usize], init: Init, decay: bool) -> ParamSpec {
+    ParamSpec {
+        name,
+        shape: shape.to_vec(),
+        init,
+        decay,
+    }
+}
+
+fn weight(name: String, shape: &[usize], fan_in: usize) -> ParamSpec {
+    spec(name, shape, Init::HeUniform { fan_in }, true)
+}
+
+fn zeros(name: String, shape: &[usize]) -> ParamSpec {
+    spec(name, shape, Init::Zeros, false)
+}
+
+/// Every parameter of `config`, in the canonical order (blocks in order, then the head).
+pub fn param_specs(config: &ModelConfig) -> Vec<ParamSpec> {
+    let (n, t, c, k, o) = (
+        config.nodes,
+        config.window,
+        config.channels,
+        config.kernel,
+        config.outputs,
+    );
+    let mut out = Vec::new();
+    for l in 0..config.blocks {
+        let ci = config.block_input(l);
+        let p = |s: &str| format!("blocks.{l}.{s}");
+        if config.variant.attention() {
+            out.push(weight(p("tat.U1"), &[n], n));
+            out.push(weight(p("tat.U2"), &[ci, n], ci));
+            out.push(weight(p("tat.U3"), &[ci], ci));
+            out.push(zeros(p("tat.be"), &[t, t]));
+            out.push(weight(p("tat.Ve"), &[t, t], t));
+            out.push(weight(p("sat.W1"), &[t], t));
+            out.push(weight(p("sat.W2"), &[ci, t], ci));
+            out.push(weight(p("sat.W3"), &[ci], ci));
+            out.push(zeros(p("sat.bs"), &[n, n]));
+            out.push(weight(p("sat.Vs"), &[n, n], n));
+        }
+        out.push(spec(
+            p("gwc.theta"),
+            &[config.graph_terms()],
+            Init::Ones,
+            false,
+        ));
+        out.push(weight(p("gwc.W"), &[ci, c], ci));
+        out.push(weight(p("tcn.filter.weight"), &[c, c, k], c * k));
+        out.push(zeros(p("tcn.filter.bias"), &[c]));
+        if config.variant.gated() {
+            out.push(weight(p("tcn.gate.weight"), &[c, c, k], c * k));
+            out.push(zeros(p("tcn.gate.bias"), &[c]));
+        }
+        out.push(weight(p("res.weight"), &[c, ci], ci));
+        out.push(zeros(p("res.bias"), &[c]));
+        out.push(spec(p("ln.gamma"), &[c], Init::Ones, false));
+        out.push(zeros(p("ln.beta"), &[c]));
+    }
+    out.push(weight("head.weight".into(), &[o, n * c], n * c));
+    out.push(zeros("head.bias".into(), &[o]));
+    out
+}
+
+/// Host copy of all parameters (f32, MODEL.md layouts), in [`param_specs`] order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Parameters {
+    pub specs: Vec<ParamSpec>,
+    pub values: Vec<Vec<f32>>,
+}
+
+impl Parameters {
+    /// Fresh parameters drawn from `seed` (reproducible: one ChaCha8 stream, table order).
+    pub fn init(config: &ModelConfig, seed: u64) -> Parameters {
+        let specs = param_specs(config);
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let values = specs
+            .iter()
+            .map(|s| match s.init {
+                Init::Zeros => vec![0.0; s.numel()],
+                Init::Ones => vec![1.0; s.numel()],
+                Init::HeUniform { fan_in } => {
+                    let a = (6.0 / fan_in as f64).sqrt();
+                    (0..s.numel())
+                        .map(|_| rng.random_range(-a..a) as f32)
+                        .collect()
+                }
+            })
+            .collect();
+        Parameters { specs, values }
+    }
+
+    pub fn index(&self, name: &str) -> Option<usize> {
+        self.specs.iter().position(|s| s.name == name)
+    }
+
+    /// The values of parameter `name` (panics on an unknown name: names come from the table).
+    pub fn get(&self, name: &str) -> &[f32] {
+        let i = self
+            .index(name)
+            .unwrap_or_else(|| panic!("no parameter named {name}"));
+        &self.values[i]
+    }
+
+    pub fn get_mut(&mut self, name: &str) -> &mut Vec<f32> {
+        let i = self
+            .index(name)
+            .unwrap_or_else(|| panic!("no parameter named {name}"));
+        &mut self.values[i]
+    }
+
+    /// Total number of scalars.
+    pub fn count(&self) -> usize {
+        self.specs.iter().map(ParamSpec::numel).sum()
+    }
+}
+
+/// The fixed matrices that θ combines into Ψ = Σ_k θ_k · basis_k, as `[terms, N, N]`
+/// row-major f64. For the wavelet variants basis_k = ψ_s[:, k] ψ_s⁻¹[k, :] (so that
+/// Σ_k θ_k basis_k = ψ_s diag(θ) ψ_s⁻¹, MODEL.md step 3); for `iastgcn-s` basis_k = T_k(L̃).
+pub fn graph_basis(graph: &Graph, config: &ModelConfig) -> Vec<f64> {
+    let n = graph.len();
+    let spectral = graph.spectral();
+    let mut out = Vec::with_capacity(config.graph_terms() * n * n);
+    match config.variant {
+        Variant::Chebyshev => {
+            for t in spectral.chebyshev(config.chebyshev_order) {
+                for i in 0..n {
+                    for j in 0..n {
+                        out.push(t[(i, j)]);
+                    }
+                }
+            }
+        }
+        _ => {
+            let psi = spectral.wavelet(config.scale);
+            let inv = spectral.wavelet_inverse(config.scale);
+            for k in 0..n {
+                for i in 0..n {
+                    for j in 0..n {
+                        out.push(psi[(i, k)] * inv[(k, j)]);
+                    }
+                }
+            }
+        }
+    }
+    out
+}

@@ -1,0 +1,208 @@
+//! The whole network on the GPU (`model::Network`) against the f64 reference
+//! (`model::reference`): training forward with dropout, loss, every parameter gradient
+//! and the input gradient in all four variants at small shapes; inference forward; and
+//! the forward pass at the paper's shape. (The reference's own backward is checked
+//! against finite differences in tests/model_reference.rs.)
+
+use iastgcn::graph::Graph;
+use iastgcn::model::reference::{self, DropoutStep, Loss};
+use iastgcn::model::{graph_basis, Init, ModelConfig, Network, Parameters, Variant};
+use iastgcn::testing::{compare, gpu, rng, to_f32, uniform, Tolerance};
+
+const DROPOUT_SEED: u32 = 77;
+
+fn small(variant: Variant) -> ModelConfig {
+    ModelConfig {
+        variant,
+        nodes: 14,
+        features: 3,
+        window: 16,
+        channels: 4,
+        blocks: 2,
+        kernel: 3,
+        dropout: 0.2,
+        ..ModelConfig::default()
+    }
+}
+
+/// He-initialised parameters with biases, be/bs, θ and ln.* moved off their initial
+/// values (so their gradients are generic), rounded to f32.
+fn parameters(config: &ModelConfig, seed: u64) -> Parameters {
+    let mut p = Parameters::init(config, seed);
+    let mut r = rng(seed + 1);
+    for (s, v) in p.specs.iter().zip(p.values.iter_mut()) {
+        let (lo, hi) = match s.init {
+            Init::HeUniform { .. } => continue,
+            Init::Zeros => (-0.3, 0.3),
+            Init::Ones => (0.7, 1.3),
+        };
+        *v = to_f32(&uniform(&mut r, v.len(), lo, hi));
+    }
+    p
+}
+
+fn f64s(v: &[f32]) -> Vec<f64> {
+    v.iter().map(|&x| x as f64).collect()
+}
+
+fn max_abs(v: &[f64]) -> f64 {
+    v.iter().fold(0.0, |m, x| m.max(x.abs()))
+}
+
+/// Per-tensor tolerance: relative to the tensor's largest element (f32 sums of many
+/// terms lose absolute, not relative, precision on small elements).
+fn scaled(expected: &[f64], rel: f64) -> Tolerance {
+    Tolerance::new(rel * max_abs(expected).max(1e-30), rel)
+}
+
+#[test]
+fn gradients_match_reference_in_every_variant() {
+    let g = gpu();
+    let graph = Graph::default_asset();
+    let batch = 2;
+    for (vi, variant) in Variant::ALL.into_iter().enumerate() {
+        let config = small(variant);
+        let p = parameters(&config, 10 + vi as u64);
+        let mut r = rng(100 + vi as u64);
+        let x = to_f32(&uniform(&mut r, batch * 14 * 3 * 16, -1.0, 1.0));
+        let y = to_f32(&uniform(&mut r, batch * 6, -1.0, 1.0));
+        let net = Network::new(&g, &config, &graph, batch, DROPOUT_SEED).unwrap();
+        net.load_parameters(&g, &p).unwrap();
+        let step = 5;
+        net.gradients(&g, &x, &y, step).unwrap();
+
+        let basis = graph_basis(&graph, &config);
+        let params: Vec<Vec<f64>> = p.values.iter().map(|v| f64s(v)).collect();
+        let dropout = Some(DropoutStep {
+            seed: DROPOUT_SEED,
+            step,
+        });
+        let tape = reference::forward(
+            &config,
+            &basis,
+            &p.specs,
+            &params,
+            &f64s(&x),
+            batch,
+            dropout,
+        );
+        // The GPU loss has no weight decay (the optimiser applies it).
+        let loss = Loss {
+            attitude_penalty: 1.0,
+            weight_decay: 0.0,
+        };
+        let (grads, dx) = reference::backward(
+            &config,
+            &basis,
+            &p.specs,
+            &params,
+            &tape,
+            &f64s(&y),
+            batch,
+            &loss,
+        );
+        let expected_loss = reference::loss(
+            &config,
+            &p.specs,
+            &params,
+            &tape.output,
+            &f64s(&y),
+            batch,
+            &loss,
+        );
+
+        let out = f64s(&g.read_f32(&net.output).unwrap()[..batch * 6]);
+        compare(
+            &format!("{variant} y_hat"),
+            &out,
+            &tape.output,
+            scaled(&tape.output, 1e-5),
+        )
+        .unwrap();
+        let l = g.read_f32(&net.loss).unwrap()[0] as f64;
+        compare(
+            &format!("{variant} loss"),
+            &[l],
+            &[expected_loss],
+            Tolerance::new(0.0, 1e-5),
+        )
+        .unwrap();
+        let got = net.read_gradients(&g).unwrap();
+        let mut worst = (0.0, String::new());
+        for ((spec, gpu_grad), cpu_grad) in p.specs.iter().zip(&got).zip(&grads) {
+            let w = compare(
+                &format!("{variant} d{}", spec.name),
+                &f64s(gpu_grad),
+                cpu_grad,
+                scaled(cpu_grad, 1e-4),
+            )
+            .unwrap();
+            if w.ratio > worst.0 {
+                worst = (w.ratio, spec.name.clone());
+            }
+        }
+        let gdx = f64s(&g.read_f32(&net.input_grad).unwrap()[..dx.len()]);
+        compare(&format!("{variant} dx"), &gdx, &dx, scaled(&dx, 1e-4)).unwrap();
+        println!(
+            "{variant}: worst gradient {} at {:.3} of tolerance",
+            worst.1, worst.0
+        );
+    }
+}
+
+#[test]
+fn inference_forward_matches_reference() {
+    let g = gpu();
+    let graph = Graph::default_asset();
+    let batch = 3;
+    for (vi, variant) in Variant::ALL.into_iter().enumerate() {
+        let config = small(variant);
+        let p = parameters(&config, 20 + vi as u64);
+        let mut r = rng(200 + vi as u64);
+        let x = to_f32(&uniform(&mut r, batch * 14 * 3 * 16, -1.0, 1.0));
+        let net = Network::new(&g, &config, &graph, batch, DROPOUT_SEED).unwrap();
+        net.load_parameters(&g, &p).unwrap();
+        let out = f64s(&net.predict(&g, &x).unwrap());
+        let basis = graph_basis(&graph, &config);
+        let params: Vec<Vec<f64>> = p.values.iter().map(|v| f64s(v)).collect();
+        let tape = reference::forward(&config, &basis, &p.specs, &params, &f64s(&x), batch, None);
+        compare(
+            &format!("{variant} y_hat"),
+            &out,
+            &tape.output,
+            scaled(&tape.output, 1e-5),
+        )
+        .unwrap();
+    }
+}
+
+/// MODEL.md's paper shape (B = 64, T = 100, C = 64, L = 5): the inference forward
+/// matches the f64 reference to 1e-4 of the output scale.
+#[test]
+fn paper_shape_forward_matches_reference() {
+    let g = gpu();
+    let graph = Graph::default_asset();
+    let config = ModelConfig::default();
+    let batch = 64;
+    let p = parameters(&config, 3);
+    let mut r = rng(300);
+    let x = to_f32(&uniform(&mut r, batch * 14 * 3 * 100, -1.0, 1.0));
+    let net = Network::new(&g, &config, &graph, batch, DROPOUT_SEED).unwrap();
+    net.load_parameters(&g, &p).unwrap();
+    let t0 = std::time::Instant::now();
+    let out = f64s(&net.predict(&g, &x).unwrap());
+    let gpu_time = t0.elapsed();
+    let basis = graph_basis(&graph, &config);
+    let params: Vec<Vec<f64>> = p.values.iter().map(|v| f64s(v)).collect();
+    let t0 = std::time::Instant::now();
+    let tape = reference::forward(&config, &basis, &p.specs, &params, &f64s(&x), batch, None);
+    let cpu_time = t0.elapsed();
+    let w = compare(
+        "paper y_hat",
+        &out,
+        &tape.output,
+        scaled(&tape.output, 1e-4),
+    )
+    .unwrap();
+    println!("paper shape: {w}; GPU forward {gpu_time:?} (first run, incl. pipeline creation), f64 reference {cpu_time:?}");
+}
