@@ -3,6 +3,7 @@
 mod calibrate;
 mod dataset;
 mod info;
+mod model;
 mod simulate;
 mod smoke;
 
@@ -38,6 +39,10 @@ enum Command {
     Calibrate(calibrate::CalibrateArgs),
     /// Build the dataset (features, labels, splits) from recordings and print its summary.
     Dataset(dataset::DatasetArgs),
+    /// Write a freshly initialised model checkpoint (safetensors).
+    Init(model::InitArgs),
+    /// Run a checkpoint on the tensor `x` [B,N,F,T] of a safetensors file; write `y` [B,6].
+    Forward(model::ForwardArgs),
 }
 
 fn open_gpu(adapter: Option<&str>) -> anyhow::Result<Gpu> {
@@ -66,6 +71,10 @@ pub fn main() -> ExitCode {
         Command::Simulate(args) => simulate::run(&args),
         Command::Calibrate(args) => calibrate::run(&args),
         Command::Dataset(args) => dataset::run(&args),
+        Command::Init(args) => model::init(&args),
+        Command::Forward(args) => {
+            open_gpu(cli.adapter.as_deref()).and_then(|gpu| model::forward(&gpu, &args))
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

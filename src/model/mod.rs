@@ -1,10 +1,13 @@
 //! The IASTGCN network: configuration, parameter table, GPU schedule, f64 reference.
 
+pub mod checkpoint;
 pub mod config;
 pub mod flops;
 pub mod params;
+pub mod predictor;
 pub mod reference;
 
+pub use checkpoint::{Checkpoint, CheckpointError, Normalization};
 pub use config::{ModelConfig, Variant};
 pub use params::{graph_basis, param_specs, Init, ParamSpec, Parameters};
 
@@ -13,3 +16,4 @@ pub mod network;
 pub mod schedule;
 
 pub use network::{ModelError, Network};
+pub use predictor::{Predictor, Residual};

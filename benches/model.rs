@@ -1,0 +1,300 @@
+//! Whole-network throughput: inference forward at B = 1 (latency) and B = 64, and one
+//! training step at B = 64, for the paper shape (C 64, T 100, L 5) and a small shape
+//! (C 16, T 48, L 3), against the project's best matmul measured in the same run.
+//!
+//! Criterion's "thrpt" column is in windows/s (elements = batch) for the model groups and
+//! in FLOP/s for the baseline. Each benchmark also
+//! prints to stderr its FLOPs (`model::flops`: GEMM-like contractions only), the achieved
+//! GFLOP/s and the ratio to the matmul baseline; a summary table ends the run.
+//!
+//! A training step is the training forward + backward (loss and every gradient),
+//! recorded into one command buffer, submitted and waited for. There is no optimiser
+//! yet, so the step updates no parameter.
+
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use criterion::measurement::WallTime;
+use criterion::{
+    criterion_group, criterion_main, BenchmarkGroup, BenchmarkId, Criterion, SamplingMode,
+    Throughput,
+};
+use iastgcn::gpu::{Gpu, Recorder};
+use iastgcn::graph::Graph;
+use iastgcn::model::{flops, ModelConfig, Network, Parameters};
+use iastgcn::ops::matmul::Matmul;
+use iastgcn::testing::{rng, to_f32, uniform};
+
+/// One finished benchmark, for the ratios and the closing table.
+struct Row {
+    name: String,
+    mean: Duration,
+    /// None for the matmul baseline (its throughput is reported in FLOP/s).
+    windows: Option<usize>,
+    flops: f64,
+}
+
+static ROWS: Mutex<Vec<Row>> = Mutex::new(Vec::new());
+/// GFLOP/s of the matmul baseline, once measured.
+static BASELINE: Mutex<Option<f64>> = Mutex::new(None);
+
+const BATCH: usize = 64;
+
+fn gpu() -> Gpu {
+    Gpu::new().expect("a GPU adapter (make bench installs lavapipe)")
+}
+
+fn ratio_text(gflops: f64) -> String {
+    match *BASELINE.lock().unwrap() {
+        Some(base) => format!("{:.2}× the matmul baseline", gflops / base),
+        None => "no matmul baseline in this run".into(),
+    }
+}
+
+/// Benchmarks `run` (one iteration: submit + wait) and prints its GFLOP/s.
+///
+/// `run` is called twice before timing (the first call JIT-compiles every pipeline);
+/// the second call's time sizes criterion's measurement so that a slow benchmark takes
+/// 10 samples of one iteration each (3 s at least for the fast ones). Criterion's own warm-up is then a single iteration
+/// (`warm_up_time` 1 ns), which the mean printed here leaves out.
+fn bench(
+    group: &mut BenchmarkGroup<WallTime>,
+    group_name: &str,
+    name: &str,
+    windows: Option<usize>,
+    flops: f64,
+    mut run: impl FnMut(),
+) {
+    run();
+    let t0 = Instant::now();
+    run();
+    let once = t0.elapsed();
+    group.measurement_time(Duration::from_secs(3).max(once.mul_f64(8.0)));
+    group.throughput(Throughput::Elements(
+        windows.map_or(flops as u64, |w| w as u64),
+    ));
+    let mut calls: Vec<(Duration, u64)> = Vec::new();
+    group.bench_function(BenchmarkId::from_parameter(name), |b| {
+        b.iter_custom(|iters| {
+            let t0 = Instant::now();
+            for _ in 0..iters {
+                run();
+            }
+            let elapsed = t0.elapsed();
+            calls.push((elapsed, iters));
+            elapsed
+        })
+    });
+    // The first call is criterion's warm-up; a filtered-out benchmark made no calls.
+    let (total, iters) = calls
+        .iter()
+        .skip(1)
+        .fold((Duration::ZERO, 0), |(t, n), &(d, i)| (t + d, n + i));
+    if iters == 0 {
+        return;
+    }
+    let mean = total / iters as u32;
+    let gflops = flops / mean.as_secs_f64() / 1e9;
+    let full = format!("{group_name}/{name}");
+    let per_second = windows.map_or(String::new(), |w| {
+        format!(" {:.1} windows/s,", w as f64 / mean.as_secs_f64())
+    });
+    eprintln!(
+        "{full}: mean {mean:.3?} over {iters} iterations,{per_second} {:.3} GFLOP \
+         -> {gflops:.2} GFLOP/s, {}",
+        flops / 1e9,
+        ratio_text(gflops),
+    );
+    ROWS.lock().unwrap().push(Row {
+        name: full,
+        mean,
+        windows,
+        flops,
+    });
+}
+
+fn new_group<'c>(c: &'c mut Criterion, name: &str) -> BenchmarkGroup<'c, WallTime> {
+    let mut group = c.benchmark_group(name);
+    group
+        .sample_size(10)
+        .sampling_mode(SamplingMode::Flat)
+        .warm_up_time(Duration::from_nanos(1));
+    group
+}
+
+/// The vec4 conv-shaped GEMM of the paper shape's temporal convolution,
+/// `[64, 192] · [192, 100]` for each of B·N = 896 rows with the weight shared: the best
+/// GFLOP/s the project's matmul reaches (see benches/matmul.rs).
+fn matmul_baseline(c: &mut Criterion) {
+    let gpu = gpu();
+    let mm = Matmul::new(64, 100, 192).batched(896).share_a(true);
+    let mut g = rng(1);
+    let mut upload = |name: &str, len: usize| {
+        gpu.upload(name, &[len], &to_f32(&uniform(&mut g, len, -1.0, 1.0)))
+            .unwrap()
+    };
+    let (a, b, out) = (
+        upload("a", mm.a_len()),
+        upload("b", mm.b_len()),
+        upload("c", mm.c_len()),
+    );
+    let d = mm.forward(&gpu, &a, &b, &out, false).unwrap();
+    let mut group = new_group(c, "baseline");
+    bench(
+        &mut group,
+        "baseline",
+        "matmul conv 896x[64,192]x[192,100]",
+        None,
+        mm.flops(),
+        || {
+            let mut rec = Recorder::new(&gpu);
+            rec.dispatch(&d);
+            rec.submit();
+            gpu.wait().unwrap();
+        },
+    );
+    group.finish();
+    let rows = ROWS.lock().unwrap();
+    if let Some(row) = rows.iter().find(|r| r.name.starts_with("baseline/")) {
+        *BASELINE.lock().unwrap() = Some(row.flops / row.mean.as_secs_f64() / 1e9);
+    }
+}
+
+/// A network at `batch` with He-initialised parameters and random inputs and targets.
+fn network(gpu: &Gpu, config: &ModelConfig, batch: usize) -> Network {
+    let graph = Graph::default_asset();
+    let net = Network::new(gpu, config, &graph, batch, 7).unwrap();
+    net.load_parameters(gpu, &Parameters::init(config, 1))
+        .unwrap();
+    let mut g = rng(2);
+    let x = uniform(&mut g, net.input.numel(), -1.0, 1.0);
+    let y = uniform(&mut g, net.target.numel(), -1.0, 1.0);
+    gpu.write(&net.input, &to_f32(&x)).unwrap();
+    gpu.write(&net.target, &to_f32(&y)).unwrap();
+    net.set_step(gpu, 1).unwrap();
+    net
+}
+
+fn forward(gpu: &Gpu, net: &Network) {
+    let mut rec = Recorder::new(gpu);
+    net.record_forward(&mut rec).unwrap();
+    rec.submit();
+    gpu.wait().unwrap();
+}
+
+fn training_step(gpu: &Gpu, net: &Network) {
+    let mut rec = Recorder::new(gpu);
+    net.record_train_forward(&mut rec).unwrap();
+    net.record_backward(&mut rec).unwrap();
+    rec.submit();
+    gpu.wait().unwrap();
+}
+
+fn print_breakdown(name: &str, config: &ModelConfig, batch: usize) {
+    let fwd = flops::breakdown(config, batch);
+    let train = flops::training_breakdown(config, batch);
+    let (total_f, total_t) = (
+        flops::forward_flops(config, batch),
+        flops::training_flops(config, batch),
+    );
+    eprintln!("\n{name} (B = {batch}): FLOPs per contraction family");
+    eprintln!(
+        "  {:<36} {:>12} {:>6} {:>12} {:>6}",
+        "family", "forward", "%", "train step", "%"
+    );
+    for ((family, f), (_, t)) in fwd.iter().zip(&train) {
+        if !flops::has_family(config.variant, family) {
+            continue;
+        }
+        eprintln!(
+            "  {family:<36} {:>12.4e} {:>6.2} {:>12.4e} {:>6.2}",
+            f,
+            100.0 * f / total_f,
+            t,
+            100.0 * t / total_t
+        );
+    }
+    eprintln!(
+        "  {:<36} {:>12.4e} {:>6} {:>12.4e}\n",
+        "total", total_f, "", total_t
+    );
+}
+
+fn model_group(c: &mut Criterion, name: &str, config: &ModelConfig) {
+    let gpu = gpu();
+    print_breakdown(name, config, BATCH);
+    let one = network(&gpu, config, 1);
+    let big = network(&gpu, config, BATCH);
+    let mut group = new_group(c, name);
+    bench(
+        &mut group,
+        name,
+        "forward B=1",
+        Some(1),
+        flops::forward_flops(config, 1),
+        || forward(&gpu, &one),
+    );
+    bench(
+        &mut group,
+        name,
+        "forward B=64",
+        Some(BATCH),
+        flops::forward_flops(config, BATCH),
+        || forward(&gpu, &big),
+    );
+    bench(
+        &mut group,
+        name,
+        "train step B=64",
+        Some(BATCH),
+        flops::training_flops(config, BATCH),
+        || training_step(&gpu, &big),
+    );
+    group.finish();
+}
+
+fn small_shape(c: &mut Criterion) {
+    let config = ModelConfig {
+        channels: 16,
+        window: 48,
+        blocks: 3,
+        ..ModelConfig::default()
+    };
+    model_group(c, "small C16 T48 L3", &config);
+}
+
+fn paper_shape(c: &mut Criterion) {
+    model_group(c, "paper C64 T100 L5", &ModelConfig::default());
+}
+
+fn summary(_: &mut Criterion) {
+    let rows = ROWS.lock().unwrap();
+    if rows.is_empty() {
+        return;
+    }
+    let base = *BASELINE.lock().unwrap();
+    eprintln!(
+        "\n{:<52} {:>12} {:>11} {:>9} {:>8}",
+        "benchmark", "mean", "windows/s", "GFLOP/s", "ratio"
+    );
+    for r in rows.iter() {
+        let secs = r.mean.as_secs_f64();
+        let gflops = r.flops / secs / 1e9;
+        let ratio = base.map_or("-".to_string(), |b| format!("{:.2}", gflops / b));
+        let windows = r
+            .windows
+            .map_or("-".to_string(), |w| format!("{:.1}", w as f64 / secs));
+        eprintln!(
+            "{:<52} {:>12.3?} {:>11} {:>9.2} {:>8}",
+            r.name, r.mean, windows, gflops, ratio
+        );
+    }
+}
+
+criterion_group! {
+    name = benches;
+    // No plots: the plotters backend panics for want of a font on this machine.
+    config = Criterion::default().without_plots();
+    targets = matmul_baseline, small_shape, paper_shape, summary
+}
+criterion_main!(benches);

@@ -1,0 +1,262 @@
+//! Checkpoints in safetensors (MODEL.md "Parameter names"): every parameter as an f32
+//! tensor under its MODEL.md name, and as metadata (JSON strings) the format, the
+//! variant, the config, the graph and the normalisation statistics. Written atomically;
+//! loading checks names, shapes, dtypes, values and metadata and says what is wrong.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use safetensors::tensor::{Dtype, SafeTensors, TensorView};
+use serde::{Deserialize, Serialize};
+
+use super::config::ModelConfig;
+use super::params::{param_specs, Parameters};
+use crate::graph::Graph;
+
+/// The value of the `format` metadata key.
+pub const FORMAT: &str = "iastgcn-checkpoint/1";
+
+/// Feature and label standardisation of the training split (MODEL.md "Features and
+/// labels"): x' = (x − mean)/std per node and feature; ŷ is de-standardised as
+/// ŷ·std + mean per output (µm, mdeg).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Normalization {
+    /// `[N][F]`.
+    pub feature_mean: Vec<Vec<f64>>,
+    pub feature_std: Vec<Vec<f64>>,
+    /// `[O]`.
+    pub label_mean: Vec<f64>,
+    pub label_std: Vec<f64>,
+}
+
+impl Normalization {
+    /// No standardisation (mean 0, std 1), for freshly initialised models.
+    pub fn identity(config: &ModelConfig) -> Normalization {
+        Normalization {
+            feature_mean: vec![vec![0.0; config.features]; config.nodes],
+            feature_std: vec![vec![1.0; config.features]; config.nodes],
+            label_mean: vec![0.0; config.outputs],
+            label_std: vec![1.0; config.outputs],
+        }
+    }
+
+    fn check(&self, config: &ModelConfig) -> Result<(), String> {
+        let rows_ok = |v: &[Vec<f64>]| {
+            v.len() == config.nodes && v.iter().all(|r| r.len() == config.features)
+        };
+        if !rows_ok(&self.feature_mean) || !rows_ok(&self.feature_std) {
+            return Err(format!(
+                "feature statistics must be [{}][{}]",
+                config.nodes, config.features
+            ));
+        }
+        if self.label_mean.len() != config.outputs || self.label_std.len() != config.outputs {
+            return Err(format!(
+                "label statistics must have {} values",
+                config.outputs
+            ));
+        }
+        let stds = self.feature_std.iter().flatten().chain(&self.label_std);
+        if stds.clone().any(|s| !(s.is_finite() && *s > 0.0)) {
+            return Err("standard deviations must be finite and positive".into());
+        }
+        Ok(())
+    }
+}
+
+/// The graph as stored in the metadata.
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct GraphMeta {
+    nodes: Vec<String>,
+    edges: Vec<(usize, usize)>,
+}
+
+/// A bad checkpoint: the file and what is wrong with it.
+#[derive(Debug, thiserror::Error)]
+#[error("{file}: {message}")]
+pub struct CheckpointError {
+    pub file: String,
+    pub message: String,
+}
+
+/// Everything needed to run a trained network.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Checkpoint {
+    pub config: ModelConfig,
+    pub graph: Graph,
+    pub parameters: Parameters,
+    pub normalization: Normalization,
+}
+
+impl Checkpoint {
+    /// The safetensors bytes.
+    pub fn to_bytes(&self) -> Result<Vec<u8>, String> {
+        let bytes: Vec<&[u8]> = self
+            .parameters
+            .values
+            .iter()
+            .map(|v| bytemuck::cast_slice::<f32, u8>(v))
+            .collect();
+        let views = self
+            .parameters
+            .specs
+            .iter()
+            .zip(&bytes)
+            .map(|(s, b)| {
+                TensorView::new(Dtype::F32, s.shape.clone(), b)
+                    .map(|v| (s.name.clone(), v))
+                    .map_err(|e| format!("tensor {}: {e}", s.name))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let graph = GraphMeta {
+            nodes: self.graph.nodes.clone(),
+            edges: self.graph.edges.clone(),
+        };
+        let metadata = HashMap::from([
+            ("format".to_string(), FORMAT.to_string()),
+            (
+                "variant".to_string(),
+                self.config.variant.name().to_string(),
+            ),
+            ("config".to_string(), json(&self.config)?),
+            ("graph".to_string(), json(&graph)?),
+            ("normalization".to_string(), json(&self.normalization)?),
+        ]);
+        safetensors::serialize(views, Some(metadata)).map_err(|e| e.to_string())
+    }
+
+    /// Writes the checkpoint atomically (temporary file, then rename).
+    pub fn save(&self, path: &Path) -> Result<(), CheckpointError> {
+        let err = |message: String| CheckpointError {
+            file: path.display().to_string(),
+            message,
+        };
+        let bytes = self.to_bytes().map_err(err)?;
+        crate::atomic::write(path, &bytes).map_err(|e| err(e.to_string()))
+    }
+
+    pub fn load(path: &Path) -> Result<Checkpoint, CheckpointError> {
+        let bytes = std::fs::read(path).map_err(|e| CheckpointError {
+            file: path.display().to_string(),
+            message: e.to_string(),
+        })?;
+        Checkpoint::from_bytes(&bytes, &path.display().to_string())
+    }
+
+    /// Parses and validates safetensors bytes; `file` names the source in errors.
+    pub fn from_bytes(bytes: &[u8], file: &str) -> Result<Checkpoint, CheckpointError> {
+        let err = |message: String| CheckpointError {
+            file: file.to_string(),
+            message,
+        };
+        let st = SafeTensors::deserialize(bytes)
+            .map_err(|e| err(format!("not a valid safetensors file: {e}")))?;
+        let (_, header) = SafeTensors::read_metadata(bytes)
+            .map_err(|e| err(format!("not a valid safetensors file: {e}")))?;
+        let meta = header
+            .metadata()
+            .clone()
+            .ok_or_else(|| err("no metadata (is this an iastgcn checkpoint?)".into()))?;
+        let field = |key: &str| {
+            meta.get(key)
+                .ok_or_else(|| err(format!("metadata has no \"{key}\"")))
+        };
+        let format = field("format")?;
+        if format != FORMAT {
+            return Err(err(format!(
+                "metadata format is {format:?}, this engine reads {FORMAT:?}"
+            )));
+        }
+        let config: ModelConfig = serde_json::from_str(field("config")?)
+            .map_err(|e| err(format!("metadata \"config\": {e}")))?;
+        config
+            .validate()
+            .map_err(|e| err(format!("metadata \"config\": {e}")))?;
+        let variant = field("variant")?;
+        if variant != config.variant.name() {
+            return Err(err(format!(
+                "metadata variant {variant:?} disagrees with the config's {:?}",
+                config.variant.name()
+            )));
+        }
+        let graph: GraphMeta = serde_json::from_str(field("graph")?)
+            .map_err(|e| err(format!("metadata \"graph\": {e}")))?;
+        if graph.nodes.len() != config.nodes
+            || graph
+                .edges
+                .iter()
+                .any(|&(a, b)| a >= config.nodes || b >= config.nodes)
+        {
+            return Err(err(format!(
+                "metadata \"graph\": {} nodes (config says {}) or an edge to a missing node",
+                graph.nodes.len(),
+                config.nodes
+            )));
+        }
+        let normalization: Normalization = serde_json::from_str(field("normalization")?)
+            .map_err(|e| err(format!("metadata \"normalization\": {e}")))?;
+        normalization
+            .check(&config)
+            .map_err(|e| err(format!("metadata \"normalization\": {e}")))?;
+
+        let specs = param_specs(&config);
+        let mut values = Vec::with_capacity(specs.len());
+        for s in &specs {
+            let t = st.tensor(&s.name).map_err(|_| {
+                err(format!(
+                    "tensor {} (shape {:?}) is missing for the {} config",
+                    s.name, s.shape, config.variant
+                ))
+            })?;
+            if t.dtype() != Dtype::F32 {
+                return Err(err(format!(
+                    "tensor {}: dtype {:?}, expected F32",
+                    s.name,
+                    t.dtype()
+                )));
+            }
+            if t.shape() != s.shape.as_slice() {
+                return Err(err(format!(
+                    "tensor {}: shape {:?}, expected {:?}",
+                    s.name,
+                    t.shape(),
+                    s.shape
+                )));
+            }
+            let v: Vec<f32> = t
+                .data()
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect();
+            if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+                return Err(err(format!("tensor {}: element {i} is {}", s.name, v[i])));
+            }
+            values.push(v);
+        }
+        if let Some(extra) = st
+            .names()
+            .into_iter()
+            .find(|n| !specs.iter().any(|s| s.name == *n))
+        {
+            return Err(err(format!(
+                "unexpected tensor {extra} for the {} config",
+                config.variant
+            )));
+        }
+        Ok(Checkpoint {
+            config,
+            graph: Graph {
+                nodes: graph.nodes,
+                edges: graph.edges,
+            },
+            parameters: Parameters { specs, values },
+            normalization,
+        })
+    }
+}
+
+fn json<T: Serialize>(value: &T) -> Result<String, String> {
+    serde_json::to_string(value).map_err(|e| e.to_string())
+}

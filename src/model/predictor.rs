@@ -1,0 +1,202 @@
+//! The embeddable forward pass: load a checkpoint, create a predictor on any adapter,
+//! feed windows (one, many, or one step at a time through a ring buffer) and get the
+//! 6-D pose residual in µm and mdeg.
+//!
+//! Inputs are the model's per-node features *before* standardisation (MODEL.md
+//! "Features and labels": filtered signal, difference, scaled entropy per node and
+//! step); the predictor standardises them with the checkpoint's statistics and
+//! de-standardises the output. After [`Predictor::new`] no call allocates host
+//! memory, buffers or pipelines.
+
+use std::sync::Arc;
+
+use super::checkpoint::{Checkpoint, Normalization};
+use super::config::ModelConfig;
+use super::network::{ModelError, Network};
+use crate::gpu::{Gpu, Readback, Recorder};
+
+/// A residual prediction: dx, dy, dz in µm, rx, ry, rz in mdeg (base frame).
+pub type Residual = [f64; 6];
+
+/// The forward pass of one checkpoint on one device, for up to `capacity` windows
+/// per submit.
+pub struct Predictor {
+    gpu: Arc<Gpu>,
+    net: Network,
+    config: ModelConfig,
+    normalization: Normalization,
+    readback: Readback,
+    /// `[capacity, N, F, T]` standardised input, reused.
+    staging: Vec<f32>,
+    /// `[capacity, O]` output, reused.
+    output: Vec<f32>,
+    /// The last T steps `[T][N·F]` (raw), oldest at `head`.
+    ring: Vec<f32>,
+    head: usize,
+    filled: usize,
+}
+
+impl Predictor {
+    /// Builds the inference schedule for `capacity` windows per submit and uploads
+    /// the weights. Compiles every pipeline (the warm-up).
+    pub fn new(
+        gpu: Arc<Gpu>,
+        checkpoint: &Checkpoint,
+        capacity: usize,
+    ) -> Result<Predictor, ModelError> {
+        let config = checkpoint.config.clone();
+        if config.outputs != 6 {
+            return Err(ModelError::Config(format!(
+                "the predictor returns 6-D residuals; this model has {} outputs",
+                config.outputs
+            )));
+        }
+        let net = Network::for_inference(&gpu, &config, &checkpoint.graph, capacity)?;
+        net.load_parameters(&gpu, &checkpoint.parameters)?;
+        let readback = Readback::new(&gpu, "y_hat", net.output.byte_len());
+        let window = config.nodes * config.features * config.window;
+        Ok(Predictor {
+            staging: vec![0.0; capacity * window],
+            output: vec![0.0; capacity * config.outputs],
+            ring: vec![0.0; window],
+            head: 0,
+            filled: 0,
+            gpu,
+            net,
+            normalization: checkpoint.normalization.clone(),
+            config,
+            readback,
+        })
+    }
+
+    pub fn config(&self) -> &ModelConfig {
+        &self.config
+    }
+
+    /// Windows per submit.
+    pub fn capacity(&self) -> usize {
+        self.net.batch
+    }
+
+    /// Floats in one window `[N, F, T]`.
+    pub fn window_len(&self) -> usize {
+        self.config.nodes * self.config.features * self.config.window
+    }
+
+    /// Standardises window `w` of `windows` (`[.., N, F, T]`) into staging slot `slot`.
+    fn stage(&mut self, slot: usize, window: &[f32]) {
+        let (f, t) = (self.config.features, self.config.window);
+        let len = self.window_len();
+        let dst = &mut self.staging[slot * len..][..len];
+        for (row, (src, dst)) in window.chunks(t).zip(dst.chunks_mut(t)).enumerate() {
+            let (n, k) = (row / f, row % f);
+            let mean = self.normalization.feature_mean[n][k] as f32;
+            let inv = (1.0 / self.normalization.feature_std[n][k]) as f32;
+            for (d, s) in dst.iter_mut().zip(src) {
+                *d = (s - mean) * inv;
+            }
+        }
+    }
+
+    fn run(&mut self) -> Result<(), ModelError> {
+        self.gpu.write(&self.net.input, &self.staging)?;
+        let mut rec = Recorder::new(&self.gpu);
+        self.net.record_forward(&mut rec)?;
+        rec.read_into(&self.net.output, &self.readback)?;
+        rec.submit();
+        self.readback.read_into(&self.gpu, &mut self.output)?;
+        Ok(())
+    }
+
+    fn residual(&self, slot: usize) -> Residual {
+        let o = &self.output[slot * 6..][..6];
+        std::array::from_fn(|m| {
+            o[m] as f64 * self.normalization.label_std[m] + self.normalization.label_mean[m]
+        })
+    }
+
+    fn check_len(&self, what: &str, got: usize, unit: usize) -> Result<usize, ModelError> {
+        if unit == 0 || !got.is_multiple_of(unit) {
+            return Err(ModelError::Config(format!(
+                "{what}: {got} floats is not a whole number of windows [N={}, F={}, T={}] ({unit} floats each)",
+                self.config.nodes, self.config.features, self.config.window
+            )));
+        }
+        Ok(got / unit)
+    }
+
+    /// The residual of one window `[N, F, T]` (raw features, oldest step first).
+    pub fn predict(&mut self, window: &[f32]) -> Result<Residual, ModelError> {
+        if self.check_len("window", window.len(), self.window_len())? != 1 {
+            return Err(ModelError::Config(format!(
+                "window: expected {} floats, got {}",
+                self.window_len(),
+                window.len()
+            )));
+        }
+        self.stage(0, window);
+        self.run()?;
+        Ok(self.residual(0))
+    }
+
+    /// The residuals of many windows `[W, N, F, T]`, `capacity` per submit, written to
+    /// `out` (cleared first).
+    pub fn predict_batch(
+        &mut self,
+        windows: &[f32],
+        out: &mut Vec<Residual>,
+    ) -> Result<(), ModelError> {
+        let count = self.check_len("windows", windows.len(), self.window_len())?;
+        out.clear();
+        let len = self.window_len();
+        for chunk in windows.chunks(self.capacity() * len) {
+            let n = chunk.len() / len;
+            for (slot, w) in chunk.chunks(len).enumerate() {
+                self.stage(slot, w);
+            }
+            self.run()?;
+            out.extend((0..n).map(|slot| self.residual(slot)));
+        }
+        debug_assert_eq!(out.len(), count);
+        Ok(())
+    }
+
+    /// Pushes one step of raw features `[N, F]`; once T steps have been pushed, returns
+    /// the residual of the window ending at this step.
+    pub fn push(&mut self, step: &[f32]) -> Result<Option<Residual>, ModelError> {
+        let (n, f, t) = (self.config.nodes, self.config.features, self.config.window);
+        if step.len() != n * f {
+            return Err(ModelError::Config(format!(
+                "step: expected N·F = {} floats, got {}",
+                n * f,
+                step.len()
+            )));
+        }
+        self.ring[self.head * n * f..][..n * f].copy_from_slice(step);
+        self.head = (self.head + 1) % t;
+        self.filled = (self.filled + 1).min(t);
+        if self.filled < t {
+            return Ok(None);
+        }
+        // Unroll the ring (oldest at `head`) into window layout [N, F, T], standardised.
+        let len = self.window_len();
+        let dst = &mut self.staging[..len];
+        for age in 0..t {
+            let src = &self.ring[((self.head + age) % t) * n * f..][..n * f];
+            for (row, &v) in src.iter().enumerate() {
+                let (node, k) = (row / f, row % f);
+                let mean = self.normalization.feature_mean[node][k] as f32;
+                let inv = (1.0 / self.normalization.feature_std[node][k]) as f32;
+                dst[row * t + age] = (v - mean) * inv;
+            }
+        }
+        self.run()?;
+        Ok(Some(self.residual(0)))
+    }
+
+    /// Forgets the pushed steps (e.g. after a pause in the trajectory).
+    pub fn reset(&mut self) {
+        self.head = 0;
+        self.filled = 0;
+    }
+}
