@@ -231,6 +231,7 @@ fn predictor_matches_network_in_every_mode() {
     };
 
     let mut p = Predictor::new(g.clone(), &ck, 2).unwrap();
+    let pipelines = g.pipeline_count();
     for w in 0..windows {
         let r = p.predict(&raw[w * len..][..len]).unwrap();
         close(&r, &expected[w], &format!("predict window {w}"));
@@ -257,6 +258,7 @@ fn predictor_matches_network_in_every_mode() {
         p.push(&step(0)).unwrap().is_none(),
         "a reset ring waits for T steps"
     );
+    assert_eq!(g.pipeline_count(), pipelines, "a predictor call created a pipeline");
     let err = p.predict(&raw[..len - 1]).unwrap_err().to_string();
     assert!(err.contains("window"), "{err}");
 }
