@@ -32,6 +32,9 @@ demo: vulkan
 	    --recordings $(DEMO_DIR)/grid.csv $(DEMO_DIR)/fermat.csv $(DEMO_DIR)/hilbert.csv
 	./target/release/iastgcn dataset --calibration $(DEMO_DIR)/calibration.toml \
 	    --recordings $(DEMO_DIR)/grid.csv $(DEMO_DIR)/fermat.csv $(DEMO_DIR)/hilbert.csv
+	printf 'window = 48\nchannels = 16\nblocks = 3\n' > $(DEMO_DIR)/small.toml
+	./target/release/iastgcn init --config $(DEMO_DIR)/small.toml --seed 1 --out $(DEMO_DIR)/untrained.safetensors
+	$(CARGO) run --release --example predict -- $(DEMO_DIR)/untrained.safetensors
 
 ## Criterion benchmarks (matmul GFLOP/s, dispatch and submit costs).
 bench: vulkan

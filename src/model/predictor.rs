@@ -22,7 +22,11 @@ pub type Residual = [f64; 6];
 /// per submit.
 pub struct Predictor {
     gpu: Arc<Gpu>,
+    /// `capacity` windows per submit, for batches.
     net: Network,
+    /// One window per submit (the latency path of `predict` and `push`), when the
+    /// capacity is larger than one.
+    single: Option<Network>,
     config: ModelConfig,
     normalization: Normalization,
     readback: Readback,
@@ -53,6 +57,13 @@ impl Predictor {
         }
         let net = Network::for_inference(&gpu, &config, &checkpoint.graph, capacity)?;
         net.load_parameters(&gpu, &checkpoint.parameters)?;
+        let single = if capacity > 1 {
+            let single = Network::for_inference(&gpu, &config, &checkpoint.graph, 1)?;
+            single.load_parameters(&gpu, &checkpoint.parameters)?;
+            Some(single)
+        } else {
+            None
+        };
         let readback = Readback::new(&gpu, "y_hat", net.output.byte_len());
         let window = config.nodes * config.features * config.window;
         Ok(Predictor {
@@ -63,6 +74,7 @@ impl Predictor {
             filled: 0,
             gpu,
             net,
+            single,
             normalization: checkpoint.normalization.clone(),
             config,
             readback,
@@ -98,13 +110,21 @@ impl Predictor {
         }
     }
 
-    fn run(&mut self) -> Result<(), ModelError> {
-        self.gpu.write(&self.net.input, &self.staging)?;
+    /// Runs the forward pass on the first `windows` staged windows.
+    fn run(&mut self, windows: usize) -> Result<(), ModelError> {
+        let net = match &self.single {
+            Some(single) if windows == 1 => single,
+            _ => &self.net,
+        };
+        let len = net.input.numel();
+        self.gpu.write(&net.input, &self.staging[..len])?;
         let mut rec = Recorder::new(&self.gpu);
-        self.net.record_forward(&mut rec)?;
-        rec.read_into(&self.net.output, &self.readback)?;
+        net.record_forward(&mut rec)?;
+        rec.read_into(&net.output, &self.readback)?;
         rec.submit();
-        self.readback.read_into(&self.gpu, &mut self.output)?;
+        let outputs = net.output.numel();
+        self.readback
+            .read_into(&self.gpu, &mut self.output[..outputs])?;
         Ok(())
     }
 
@@ -135,7 +155,7 @@ impl Predictor {
             )));
         }
         self.stage(0, window);
-        self.run()?;
+        self.run(1)?;
         Ok(self.residual(0))
     }
 
@@ -154,7 +174,9 @@ impl Predictor {
             for (slot, w) in chunk.chunks(len).enumerate() {
                 self.stage(slot, w);
             }
-            self.run()?;
+            // A partial last chunk still runs the full-capacity network (stale slots
+            // are ignored) unless it is a single window.
+            self.run(if n == 1 { 1 } else { self.capacity() })?;
             out.extend((0..n).map(|slot| self.residual(slot)));
         }
         debug_assert_eq!(out.len(), count);
@@ -190,7 +212,7 @@ impl Predictor {
                 dst[row * t + age] = (v - mean) * inv;
             }
         }
-        self.run()?;
+        self.run(1)?;
         Ok(Some(self.residual(0)))
     }
 
