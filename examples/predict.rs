@@ -67,7 +67,11 @@ fn main() -> anyhow::Result<()> {
     let batch: Vec<f32> = (0..20).flat_map(|i| window_at(t - 1 + i)).collect();
     let mut residuals = Vec::new();
     predictor.predict_batch(&batch, &mut residuals)?;
-    println!("batch of {}: first {}", residuals.len(), show(&residuals[0]));
+    println!(
+        "batch of {}: first {}",
+        residuals.len(),
+        show(&residuals[0])
+    );
 
     // A controller tick: push the newest step [N, F]; a residual comes once T steps are in.
     let mut step = vec![0.0f32; n * f];

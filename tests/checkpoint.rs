@@ -258,7 +258,11 @@ fn predictor_matches_network_in_every_mode() {
         p.push(&step(0)).unwrap().is_none(),
         "a reset ring waits for T steps"
     );
-    assert_eq!(g.pipeline_count(), pipelines, "a predictor call created a pipeline");
+    assert_eq!(
+        g.pipeline_count(),
+        pipelines,
+        "a predictor call created a pipeline"
+    );
     let err = p.predict(&raw[..len - 1]).unwrap_err().to_string();
     assert!(err.contains("window"), "{err}");
 }
