@@ -158,16 +158,7 @@ impl Network {
         };
         let last = &blocks.last().expect("at least one block").output;
         let h = gpu.zeros("head.h", &[batch, n * c], DType::F32);
-        let last_step = LastStep {
-            rows: batch * n * c,
-            steps: t,
-        };
-        let head = Matmul::new(batch, o, n * c).transpose_b(true);
-        let head_bias = Bias {
-            outer: batch,
-            channels: o,
-            inner: 1,
-        };
+        let (last_step, head, head_bias) = head_ops(config, batch);
 
         let mut infer = Steps::default();
         let mut train = Steps::default();
@@ -245,16 +236,7 @@ impl Network {
     ) -> Result<(), ModelError> {
         let batch = input_grad.shape()[0];
         let (n, t, c, o) = (config.nodes, config.window, config.channels, config.outputs);
-        let last_step = LastStep {
-            rows: batch * n * c,
-            steps: t,
-        };
-        let head = Matmul::new(batch, o, n * c).transpose_b(true);
-        let head_bias = Bias {
-            outer: batch,
-            channels: o,
-            inner: 1,
-        };
+        let (last_step, head, head_bias) = head_ops(config, batch);
         let pose = PoseLoss {
             batch,
             outputs: o,
@@ -434,4 +416,20 @@ impl Network {
         rec.submit();
         gpu.wait()
     }
+}
+
+/// The head's ops for `batch` windows: last-step gather, `h · head.weightᵀ`, bias.
+fn head_ops(config: &ModelConfig, batch: usize) -> (LastStep, Matmul, Bias) {
+    let (n, c, o) = (config.nodes, config.channels, config.outputs);
+    let last_step = LastStep {
+        rows: batch * n * c,
+        steps: config.window,
+    };
+    let head = Matmul::new(batch, o, n * c).transpose_b(true);
+    let bias = Bias {
+        outer: batch,
+        channels: o,
+        inner: 1,
+    };
+    (last_step, head, bias)
 }

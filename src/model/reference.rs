@@ -332,6 +332,39 @@ impl<'a> BlockParams<'a> {
 // ---------------------------------------------------------------------------------------
 // Softmaxes of the attention steps.
 
+/// Backward of the attention scores `S[b] = V · σ(P[b] + bias)` (`[len, len]` per batch
+/// item, both attentions): returns (dV, dP, dbias) from dS and the saved σ.
+fn score_gate_backward(
+    v: &[f64],
+    sig: &[f64],
+    dscores: &[f64],
+    nb: usize,
+    len: usize,
+) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let mut dv = vec![0.0; len * len];
+    let mut dpre = vec![0.0; nb * len * len];
+    for b in 0..nb {
+        for i in 0..len {
+            let dr = row(dscores, b * len + i, len);
+            for k in 0..len {
+                dv[i * len + k] += dot(dr, row(sig, b * len + k, len));
+                axpy(row_mut(&mut dpre, b * len + k, len), v[i * len + k], dr);
+            }
+        }
+    }
+    let mut dbias = vec![0.0; len * len];
+    for (dm, sm) in dpre
+        .chunks_exact_mut(len * len)
+        .zip(sig.chunks_exact(len * len))
+    {
+        for ((g, s), db) in dm.iter_mut().zip(sm).zip(dbias.iter_mut()) {
+            *g *= s * (1.0 - s);
+            *db += *g;
+        }
+    }
+    (dv, dpre, dbias)
+}
+
 /// Softmax over the first index of each `[T,T]` matrix (columns sum to one, step 1).
 fn softmax_columns(e: &[f64], nb: usize, nt: usize) -> Vec<f64> {
     let mut w = e.to_vec();
@@ -531,27 +564,7 @@ fn temporal_attention_backward(
     }
     let de = softmax_columns_backward(&a.weights, &dw, nb, nt);
     // E = Ve·σ(P + be).
-    let mut dve = vec![0.0; nt * nt];
-    let mut dpre = vec![0.0; nb * nt * nt];
-    for b in 0..nb {
-        for t in 0..nt {
-            let der = row(&de, b * nt + t, nt);
-            for k in 0..nt {
-                dve[t * nt + k] += dot(der, row(&a.sig, b * nt + k, nt));
-                axpy(row_mut(&mut dpre, b * nt + k, nt), p.ve[t * nt + k], der);
-            }
-        }
-    }
-    let mut dbe = vec![0.0; nt * nt];
-    for (dm, sm) in dpre
-        .chunks_exact_mut(nt * nt)
-        .zip(a.sig.chunks_exact(nt * nt))
-    {
-        for ((g, s), db) in dm.iter_mut().zip(sm).zip(dbe.iter_mut()) {
-            *g *= s * (1.0 - s);
-            *db += *g;
-        }
-    }
+    let (dve, dpre, dbe) = score_gate_backward(p.ve, &a.sig, &de, nb, nt);
     // P = lhs·rhs (dpre is now dP).
     let mut dlhs = vec![0.0; nb * nt * nn];
     let mut drhs = vec![0.0; nb * nn * nt];
@@ -707,27 +720,7 @@ fn spatial_attention_backward(
     }
     let ds = softmax_rows_backward(&a.weights, &dw, nn);
     // S = Vs·σ(P + bs).
-    let mut dvs = vec![0.0; nn * nn];
-    let mut dpre = vec![0.0; nb * nn * nn];
-    for b in 0..nb {
-        for i in 0..nn {
-            let dr = row(&ds, b * nn + i, nn);
-            for k in 0..nn {
-                dvs[i * nn + k] += dot(dr, row(&a.sig, b * nn + k, nn));
-                axpy(row_mut(&mut dpre, b * nn + k, nn), p.vs[i * nn + k], dr);
-            }
-        }
-    }
-    let mut dbs = vec![0.0; nn * nn];
-    for (dm, sm) in dpre
-        .chunks_exact_mut(nn * nn)
-        .zip(a.sig.chunks_exact(nn * nn))
-    {
-        for ((g, s), db) in dm.iter_mut().zip(sm).zip(dbs.iter_mut()) {
-            *g *= s * (1.0 - s);
-            *db += *g;
-        }
-    }
+    let (dvs, dpre, dbs) = score_gate_backward(p.vs, &a.sig, &ds, nb, nn);
     // P[b,n,m] = Σ_t lhs[b,n,t]·rhs[b,m,t] (dpre is now dP).
     let mut dlhs = vec![0.0; nb * nn * nt];
     let mut drhs = vec![0.0; nb * nn * nt];
