@@ -12,17 +12,7 @@ use iastgcn::testing::{compare, gpu, rng, to_f32, uniform, Tolerance};
 const DROPOUT_SEED: u32 = 77;
 
 fn small(variant: Variant) -> ModelConfig {
-    ModelConfig {
-        variant,
-        nodes: 14,
-        features: 3,
-        window: 16,
-        channels: 4,
-        blocks: 2,
-        kernel: 3,
-        dropout: 0.2,
-        ..ModelConfig::default()
-    }
+    ModelConfig::gradient_check(variant)
 }
 
 /// He-initialised parameters with biases, be/bs, θ and ln.* moved off their initial

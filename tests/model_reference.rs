@@ -15,17 +15,7 @@ use rand::seq::index::sample;
 const BATCH: usize = 2;
 
 fn config(variant: Variant) -> ModelConfig {
-    ModelConfig {
-        variant,
-        nodes: 14,
-        features: 3,
-        window: 16,
-        channels: 4,
-        blocks: 2,
-        kernel: 3,
-        dropout: 0.2,
-        ..ModelConfig::default()
-    }
+    ModelConfig::gradient_check(variant)
 }
 
 /// A network, a batch and its labels.

@@ -104,6 +104,18 @@ impl Default for ModelConfig {
 }
 
 impl ModelConfig {
+    /// The small shape of the whole-model gradient checks (MODEL.md defaults otherwise):
+    /// F = 3, T = 16, C = 4, L = 2, K = 3 on the 14-node graph, dropout 0.2.
+    pub fn gradient_check(variant: Variant) -> ModelConfig {
+        ModelConfig {
+            variant,
+            window: 16,
+            channels: 4,
+            blocks: 2,
+            ..ModelConfig::default()
+        }
+    }
+
     /// C_in of block `l` (0-based): F for the first block, C afterwards.
     pub fn block_input(&self, l: usize) -> usize {
         if l == 0 {
