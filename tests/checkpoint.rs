@@ -75,6 +75,10 @@ fn save_load_round_trip_gives_identical_outputs() {
         let run = |c: &Checkpoint| {
             let net = Network::for_inference(&g, &c.config, &c.graph, 2).unwrap();
             net.load_parameters(&g, &c.parameters).unwrap();
+            assert!(
+                net.set_attitude_penalty(&g, 2.0).is_err(),
+                "inference has no loss"
+            );
             net.predict(&g, &x).unwrap()
         };
         let (a, b) = (run(&ck), run(&back));

@@ -10,10 +10,8 @@ use iastgcn::model::{graph_basis, Init, ModelConfig, Network, Parameters, Varian
 use iastgcn::testing::{compare, gpu, rng, to_f32, uniform, Tolerance};
 
 const DROPOUT_SEED: u32 = 77;
-
-fn small(variant: Variant) -> ModelConfig {
-    ModelConfig::gradient_check(variant)
-}
+/// A non-default attitude penalty P, set through `Network::set_attitude_penalty`.
+const PENALTY: f64 = 1.7;
 
 /// He-initialised parameters with biases, be/bs, θ and ln.* moved off their initial
 /// values (so their gradients are generic), rounded to f32.
@@ -51,13 +49,14 @@ fn gradients_match_reference_in_every_variant() {
     let graph = Graph::default_asset();
     let batch = 2;
     for (vi, variant) in Variant::ALL.into_iter().enumerate() {
-        let config = small(variant);
+        let config = ModelConfig::gradient_check(variant);
         let p = parameters(&config, 10 + vi as u64);
         let mut r = rng(100 + vi as u64);
         let x = to_f32(&uniform(&mut r, batch * 14 * 3 * 16, -1.0, 1.0));
         let y = to_f32(&uniform(&mut r, batch * 6, -1.0, 1.0));
         let net = Network::new(&g, &config, &graph, batch, DROPOUT_SEED).unwrap();
         net.load_parameters(&g, &p).unwrap();
+        net.set_attitude_penalty(&g, PENALTY).unwrap();
         let step = 5;
         net.gradients(&g, &x, &y, step).unwrap();
 
@@ -78,7 +77,7 @@ fn gradients_match_reference_in_every_variant() {
         );
         // The GPU loss has no weight decay (the optimiser applies it).
         let loss = Loss {
-            attitude_penalty: 1.0,
+            attitude_penalty: PENALTY,
             weight_decay: 0.0,
         };
         let (grads, dx) = reference::backward(
@@ -146,7 +145,7 @@ fn inference_forward_matches_reference() {
     let graph = Graph::default_asset();
     let batch = 3;
     for (vi, variant) in Variant::ALL.into_iter().enumerate() {
-        let config = small(variant);
+        let config = ModelConfig::gradient_check(variant);
         let p = parameters(&config, 20 + vi as u64);
         let mut r = rng(200 + vi as u64);
         let x = to_f32(&uniform(&mut r, batch * 14 * 3 * 16, -1.0, 1.0));

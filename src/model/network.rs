@@ -49,6 +49,8 @@ pub struct Network {
     train: Steps,
     backward: Steps,
     dropout: Vec<DropoutSlots>,
+    /// Indices of the loss forward and backward dispatches in `backward`.
+    loss_slots: [usize; 2],
 }
 
 /// Name lookups for the block schedules.
@@ -182,8 +184,9 @@ impl Network {
 
         let mut backward = Steps::default();
         let mut dropout = Vec::new();
+        let mut loss_slots = [0; 2];
         if training {
-            Network::build_backward(
+            loss_slots = Network::build_backward(
                 gpu,
                 config,
                 &table,
@@ -215,6 +218,7 @@ impl Network {
             train,
             backward,
             dropout,
+            loss_slots,
         })
     }
 
@@ -233,7 +237,7 @@ impl Network {
         h: &Tensor,
         backward: &mut Steps,
         dropout: &mut Vec<DropoutSlots>,
-    ) -> Result<(), ModelError> {
+    ) -> Result<[usize; 2], ModelError> {
         let batch = input_grad.shape()[0];
         let (n, t, c, o) = (config.nodes, config.window, config.channels, config.outputs);
         let (last_step, head, head_bias) = head_ops(config, batch);
@@ -243,8 +247,10 @@ impl Network {
             penalty: 1.0,
         };
         let doutput = gpu.zeros("d y_hat", &[batch, o], DType::F32);
-        backward.run(pose.forward(gpu, output, target, loss))?;
-        backward.run(pose.backward(gpu, output, target, &doutput))?;
+        let loss_slots = [
+            backward.run(pose.forward(gpu, output, target, loss))?,
+            backward.run(pose.backward(gpu, output, target, &doutput))?,
+        ];
         backward.run(head_bias.backward(gpu, &doutput, table.grad("head.bias"), false))?;
         backward.run(head.backward_b(gpu, h, &doutput, table.grad("head.weight"), false))?;
         let dh = gpu.zeros("head.dh", &[batch, n * c], DType::F32);
@@ -270,7 +276,7 @@ impl Network {
                 backward: slot,
             });
         }
-        Ok(())
+        Ok(loss_slots)
     }
 
     /// The attitude penalty P of the loss (default 1).
@@ -280,9 +286,9 @@ impl Network {
             outputs: self.config.outputs,
             penalty,
         };
-        // The first two backward steps are the loss forward and backward.
-        for i in [0, 1] {
-            let d = self.backward.dispatch(i).expect("loss dispatch");
+        self.expect_training()?;
+        for i in self.loss_slots {
+            let d = self.backward.dispatch(i).expect("loss slot is a dispatch");
             pose.set_penalty(gpu, d)?;
         }
         Ok(())
