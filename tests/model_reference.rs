@@ -14,10 +14,6 @@ use rand::seq::index::sample;
 /// Small shapes with the real 14-node graph: B = 2, F = 3, T = 16, C = 4, L = 2, K = 3.
 const BATCH: usize = 2;
 
-fn config(variant: Variant) -> ModelConfig {
-    ModelConfig::gradient_check(variant)
-}
-
 /// A network, a batch and its labels.
 struct Case {
     config: ModelConfig,
@@ -37,7 +33,7 @@ const LOSS: Loss = Loss {
 /// He-initialised parameters, with the zero/one-initialised ones (biases, be, bs, θ,
 /// ln.*) moved off their initial values so that their gradients are generic.
 fn case(variant: Variant, seed: u64) -> Case {
-    let config = config(variant);
+    let config = ModelConfig::gradient_check(variant);
     let graph = Graph::default_asset();
     assert_eq!(graph.len(), config.nodes);
     let basis = graph_basis(&graph, &config);

@@ -7,8 +7,9 @@ use anyhow::{bail, Context};
 use clap::Args;
 use safetensors::tensor::{Dtype, SafeTensors, TensorView};
 
-use crate::gpu::{Gpu, Recorder};
+use crate::gpu::{Gpu, Readback, Recorder};
 use crate::graph::Graph;
+use crate::model::checkpoint::f32_values;
 use crate::model::{Checkpoint, ModelConfig, Network, Normalization, Parameters, Variant};
 
 #[derive(Args)]
@@ -117,12 +118,7 @@ fn read_tensor(path: &Path, name: &str) -> anyhow::Result<(Vec<usize>, Vec<f32>)
             t.dtype()
         );
     }
-    let values = t
-        .data()
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect();
-    Ok((t.shape().to_vec(), values))
+    Ok((t.shape().to_vec(), f32_values(&t)))
 }
 
 pub fn forward(gpu: &Gpu, args: &ForwardArgs) -> anyhow::Result<()> {
@@ -152,14 +148,17 @@ pub fn forward(gpu: &Gpu, args: &ForwardArgs) -> anyhow::Result<()> {
     let len = expected.iter().product::<usize>();
     let mut y = Vec::with_capacity(windows * config.outputs);
     let mut staging = vec![0.0f32; capacity * len];
+    let readback = Readback::new(gpu, "y", net.output.byte_len());
+    let mut out = vec![0.0f32; net.output.numel()];
     for chunk in x.chunks(capacity * len) {
         staging[..chunk.len()].copy_from_slice(chunk);
         staging[chunk.len()..].fill(0.0);
         gpu.write(&net.input, &staging)?;
         let mut rec = Recorder::new(gpu);
         net.record_forward(&mut rec)?;
+        rec.read_into(&net.output, &readback)?;
         rec.submit();
-        let out = gpu.read_f32(&net.output)?;
+        readback.read_into(gpu, &mut out)?;
         y.extend_from_slice(&out[..chunk.len() / len * config.outputs]);
     }
     let bytes: &[u8] = bytemuck::cast_slice(&y);

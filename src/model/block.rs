@@ -286,6 +286,24 @@ impl Block {
         }
     }
 
+    /// tat: be [T, T] added to P over the batch.
+    fn temporal_score_bias(&self) -> Bias {
+        Bias {
+            outer: self.d.b,
+            channels: self.d.t * self.d.t,
+            inner: 1,
+        }
+    }
+
+    /// sat: bs [N, N] added to P over the batch.
+    fn spatial_score_bias(&self) -> Bias {
+        Bias {
+            outer: self.d.b,
+            channels: self.d.n * self.d.n,
+            inner: 1,
+        }
+    }
+
     fn layer_norm(&self) -> LayerNorm {
         let d = self.d;
         LayerNorm {
@@ -303,7 +321,6 @@ impl Block {
         steps: &mut Steps,
         train: bool,
     ) -> Result<Option<usize>, GpuError> {
-        let d = self.d;
         let w = |s: &str| p.param(&self.name(s));
         let x = &self.input;
         let xs = match (&self.tat, &self.sat) {
@@ -316,11 +333,7 @@ impl Block {
                 )?;
                 steps.run(self.mm_u3().forward(gpu, w("tat.U3"), x, &ta.rhs, false))?;
                 steps.run(self.mm_tp().forward(gpu, &ta.lhs, &ta.rhs, &ta.p, false))?;
-                let be = Bias {
-                    outer: d.b,
-                    channels: d.t * d.t,
-                    inner: 1,
-                };
+                let be = self.temporal_score_bias();
                 steps.run(be.forward(gpu, w("tat.be"), &ta.p))?;
                 steps.run(unary_forward(gpu, Unary::Sigmoid, &ta.p, &ta.sig, false))?;
                 steps.run(
@@ -339,11 +352,7 @@ impl Block {
                 )?;
                 steps.run(self.mm_w3().forward(gpu, w("sat.W3"), xt, &sa.rhs, false))?;
                 steps.run(self.mm_sp().forward(gpu, &sa.lhs, &sa.rhs, &sa.p, false))?;
-                let bs = Bias {
-                    outer: d.b,
-                    channels: d.n * d.n,
-                    inner: 1,
-                };
+                let bs = self.spatial_score_bias();
                 steps.run(bs.forward(gpu, w("sat.bs"), &sa.p))?;
                 steps.run(unary_forward(gpu, Unary::Sigmoid, &sa.p, &sa.sig, false))?;
                 steps.run(
@@ -554,11 +563,7 @@ impl Block {
             &dp,
             false,
         ))?;
-        let bs = Bias {
-            outer: d.b,
-            channels: d.n * d.n,
-            inner: 1,
-        };
+        let bs = self.spatial_score_bias();
         steps.run(bs.backward(gpu, &dp, dw("sat.bs"), false))?;
         let msp = self.mm_sp();
         let (dlhs, drhs) = (
@@ -604,11 +609,7 @@ impl Block {
             &dp,
             false,
         ))?;
-        let be = Bias {
-            outer: d.b,
-            channels: d.t * d.t,
-            inner: 1,
-        };
+        let be = self.temporal_score_bias();
         steps.run(be.backward(gpu, &dp, dw("tat.be"), false))?;
         let mtp = self.mm_tp();
         let (dlhs, drhs) = (

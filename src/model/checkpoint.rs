@@ -225,11 +225,7 @@ impl Checkpoint {
                     s.shape
                 )));
             }
-            let v: Vec<f32> = t
-                .data()
-                .chunks_exact(4)
-                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                .collect();
+            let v = f32_values(&t);
             if let Some(i) = v.iter().position(|x| !x.is_finite()) {
                 return Err(err(format!("tensor {}: element {i} is {}", s.name, v[i])));
             }
@@ -255,6 +251,14 @@ impl Checkpoint {
             normalization,
         })
     }
+}
+
+/// The values of an F32 safetensors tensor (stored little-endian).
+pub fn f32_values(view: &TensorView) -> Vec<f32> {
+    view.data()
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
 }
 
 fn json<T: Serialize>(value: &T) -> Result<String, String> {

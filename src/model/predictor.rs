@@ -95,18 +95,19 @@ impl Predictor {
         self.config.nodes * self.config.features * self.config.window
     }
 
-    /// Standardises window `w` of `windows` (`[.., N, F, T]`) into staging slot `slot`.
+    /// `(v − mean)/std` of feature `k` of node `node`.
+    fn standardise(&self, node: usize, k: usize, v: f32) -> f32 {
+        let nz = &self.normalization;
+        ((v as f64 - nz.feature_mean[node][k]) / nz.feature_std[node][k]) as f32
+    }
+
+    /// Standardises one window `[N, F, T]` into staging slot `slot`.
     fn stage(&mut self, slot: usize, window: &[f32]) {
         let (f, t) = (self.config.features, self.config.window);
         let len = self.window_len();
-        let dst = &mut self.staging[slot * len..][..len];
-        for (row, (src, dst)) in window.chunks(t).zip(dst.chunks_mut(t)).enumerate() {
-            let (n, k) = (row / f, row % f);
-            let mean = self.normalization.feature_mean[n][k] as f32;
-            let inv = (1.0 / self.normalization.feature_std[n][k]) as f32;
-            for (d, s) in dst.iter_mut().zip(src) {
-                *d = (s - mean) * inv;
-            }
+        for (i, &v) in window.iter().enumerate() {
+            let row = i / t;
+            self.staging[slot * len + i] = self.standardise(row / f, row % f, v);
         }
     }
 
@@ -135,21 +136,11 @@ impl Predictor {
         })
     }
 
-    fn check_len(&self, what: &str, got: usize, unit: usize) -> Result<usize, ModelError> {
-        if unit == 0 || !got.is_multiple_of(unit) {
-            return Err(ModelError::Config(format!(
-                "{what}: {got} floats is not a whole number of windows [N={}, F={}, T={}] ({unit} floats each)",
-                self.config.nodes, self.config.features, self.config.window
-            )));
-        }
-        Ok(got / unit)
-    }
-
     /// The residual of one window `[N, F, T]` (raw features, oldest step first).
     pub fn predict(&mut self, window: &[f32]) -> Result<Residual, ModelError> {
-        if self.check_len("window", window.len(), self.window_len())? != 1 {
+        if window.len() != self.window_len() {
             return Err(ModelError::Config(format!(
-                "window: expected {} floats, got {}",
+                "window: expected N·F·T = {} floats, got {}",
                 self.window_len(),
                 window.len()
             )));
@@ -166,9 +157,14 @@ impl Predictor {
         windows: &[f32],
         out: &mut Vec<Residual>,
     ) -> Result<(), ModelError> {
-        let count = self.check_len("windows", windows.len(), self.window_len())?;
-        out.clear();
         let len = self.window_len();
+        if !windows.len().is_multiple_of(len) {
+            return Err(ModelError::Config(format!(
+                "windows: {} floats is not a whole number of windows of N·F·T = {len}",
+                windows.len()
+            )));
+        }
+        out.clear();
         for chunk in windows.chunks(self.capacity() * len) {
             let n = chunk.len() / len;
             for (slot, w) in chunk.chunks(len).enumerate() {
@@ -179,7 +175,6 @@ impl Predictor {
             self.run(if n == 1 { 1 } else { self.capacity() })?;
             out.extend((0..n).map(|slot| self.residual(slot)));
         }
-        debug_assert_eq!(out.len(), count);
         Ok(())
     }
 
@@ -201,15 +196,11 @@ impl Predictor {
             return Ok(None);
         }
         // Unroll the ring (oldest at `head`) into window layout [N, F, T], standardised.
-        let len = self.window_len();
-        let dst = &mut self.staging[..len];
         for age in 0..t {
-            let src = &self.ring[((self.head + age) % t) * n * f..][..n * f];
-            for (row, &v) in src.iter().enumerate() {
-                let (node, k) = (row / f, row % f);
-                let mean = self.normalization.feature_mean[node][k] as f32;
-                let inv = (1.0 / self.normalization.feature_std[node][k]) as f32;
-                dst[row * t + age] = (v - mean) * inv;
+            let at = ((self.head + age) % t) * n * f;
+            for row in 0..n * f {
+                let v = self.standardise(row / f, row % f, self.ring[at + row]);
+                self.staging[row * t + age] = v;
             }
         }
         self.run(1)?;
