@@ -18,6 +18,7 @@ pub mod plot;
 pub mod robot;
 pub mod stats;
 pub mod testing;
+pub mod train;
 pub mod twin;
 
 /// The README's Rust examples, compiled and run as doc tests so they stay true.

@@ -6,6 +6,7 @@ mod info;
 mod model;
 mod simulate;
 mod smoke;
+mod train;
 
 use std::process::ExitCode;
 
@@ -43,6 +44,12 @@ enum Command {
     Init(model::InitArgs),
     /// Run a checkpoint on the tensor `x` [B,N,F,T] of a safetensors file; write `y` [B,6].
     Forward(model::ForwardArgs),
+    /// Train a model (core stage: Adam, inverse-time decay, early stopping) on recordings.
+    Train(train::TrainArgs),
+    /// Refine a trained model on ensembles of consecutive windows (Algorithm 2).
+    Refine(train::RefineArgs),
+    /// Predict residuals per window end of recordings; metrics where labels exist.
+    Predict(train::PredictArgs),
 }
 
 fn open_gpu(adapter: Option<&str>) -> anyhow::Result<Gpu> {
@@ -75,6 +82,14 @@ pub fn main() -> ExitCode {
         Command::Forward(args) => {
             open_gpu(cli.adapter.as_deref()).and_then(|gpu| model::forward(&gpu, &args))
         }
+        Command::Train(args) => {
+            open_gpu(cli.adapter.as_deref()).and_then(|gpu| train::train(&gpu, &args))
+        }
+        Command::Refine(args) => {
+            open_gpu(cli.adapter.as_deref()).and_then(|gpu| train::refine(&gpu, &args))
+        }
+        Command::Predict(args) => open_gpu(cli.adapter.as_deref())
+            .and_then(|gpu| train::predict(std::sync::Arc::new(gpu), &args)),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

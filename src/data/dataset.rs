@@ -52,10 +52,25 @@ pub struct Dataset {
     pub normalization: Normalization,
 }
 
-struct Prepared {
-    /// `[N][F][rows]`.
-    features: Vec<[Vec<f64>; FEATURES]>,
-    labels: Vec<Option<[f64; OUTPUTS]>>,
+/// One recording turned into raw (not yet standardised) features and labels.
+#[derive(Clone, Debug)]
+pub struct Prepared {
+    /// `[N][F][rows]`, in the graph's node order.
+    pub features: Vec<[Vec<f64>; FEATURES]>,
+    /// Per row: the residual (µm, mdeg) where the tracker measured, else `None`.
+    pub labels: Vec<Option<[f64; OUTPUTS]>>,
+}
+
+impl Prepared {
+    /// The raw window `[N, F, T]` (row-major, f32) ending at row `end`.
+    pub fn window(&self, end: usize, length: usize, out: &mut Vec<f32>) {
+        out.clear();
+        for node in &self.features {
+            for f in node {
+                out.extend(f[end + 1 - length..=end].iter().map(|&v| v as f32));
+            }
+        }
+    }
 }
 
 fn err(file: &str, message: impl Into<String>) -> DatasetError {
@@ -84,7 +99,10 @@ fn control_period(name: &str, rec: &Recording) -> Result<f64, DatasetError> {
     Ok(dt)
 }
 
-fn prepare(
+/// Features and labels of one recording (`name` labels errors): the hold, filter,
+/// difference and entropy steps per graph node, and eq. 19 under `model` where the
+/// tracker measured.
+pub fn prepare(
     name: &str,
     rec: &Recording,
     graph: &Graph,
@@ -161,6 +179,20 @@ impl Dataset {
         window: &WindowConfig,
         mode: SplitMode,
     ) -> Result<Dataset, DatasetError> {
+        Dataset::build_normalized(recordings, graph, model, features, window, mode, None)
+    }
+
+    /// [`Dataset::build`], standardising with `fixed` statistics (a trained model's) instead
+    /// of the training split's when given.
+    pub fn build_normalized(
+        recordings: &[(String, Recording)],
+        graph: &Graph,
+        model: &Robot,
+        features: &FeatureConfig,
+        window: &WindowConfig,
+        mode: SplitMode,
+        fixed: Option<&Normalization>,
+    ) -> Result<Dataset, DatasetError> {
         let prepared: Vec<Prepared> = recordings
             .iter()
             .map(|(name, rec)| prepare(name, rec, graph, model, features))
@@ -215,6 +247,21 @@ impl Dataset {
         let mut label_std = [1.0; OUTPUTS];
         for k in 0..OUTPUTS {
             (label_mean[k], label_std[k]) = mean_std(splits.train.iter().map(|w| label_of(w)[k]));
+        }
+        if let Some(n) = fixed {
+            if n.feature_mean.len() != n_nodes {
+                return Err(err(
+                    "dataset",
+                    format!(
+                        "the given statistics cover {} nodes, the graph has {n_nodes}",
+                        n.feature_mean.len()
+                    ),
+                ));
+            }
+            feature_mean.clone_from(&n.feature_mean);
+            feature_std.clone_from(&n.feature_std);
+            label_mean = n.label_mean;
+            label_std = n.label_std;
         }
         let windows: Vec<Window> = splits
             .train

@@ -6,7 +6,7 @@ pub mod features;
 pub mod recording;
 pub mod windows;
 
-pub use dataset::{Dataset, DatasetError, Normalization, FEATURES, OUTPUTS};
+pub use dataset::{prepare, Dataset, DatasetError, Normalization, Prepared, FEATURES, OUTPUTS};
 pub use features::FeatureConfig;
 pub use recording::{
     expected_channels, read_calibration_set, tracker_columns, tracker_pose, write_calibration_set,

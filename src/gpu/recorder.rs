@@ -111,6 +111,38 @@ impl<'g> Recorder<'g> {
         Ok(())
     }
 
+    /// Records a copy of `count` f32 elements from `src[src_at..]` to `dst[dst_at..]`
+    /// (e.g. one step's loss into a per-epoch log, one chunk's outputs into a table).
+    pub fn copy_f32(
+        &mut self,
+        src: &Tensor,
+        src_at: usize,
+        dst: &Tensor,
+        dst_at: usize,
+        count: usize,
+    ) -> Result<(), GpuError> {
+        for (t, at) in [(src, src_at), (dst, dst_at)] {
+            if at + count > t.numel() {
+                return Err(GpuError::Shape {
+                    tensor: t.name().to_string(),
+                    expected: format!("at least {} elements", at + count),
+                    got: format!("{} elements", t.numel()),
+                });
+            }
+        }
+        self.end_pass();
+        if count > 0 {
+            self.encoder.copy_buffer_to_buffer(
+                &src.buffer,
+                (src_at * 4) as u64,
+                &dst.buffer,
+                (dst_at * 4) as u64,
+                (count * 4) as u64,
+            );
+        }
+        Ok(())
+    }
+
     /// Records zero-filling of `t`.
     pub fn zero(&mut self, t: &Tensor) {
         self.end_pass();

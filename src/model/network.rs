@@ -28,6 +28,8 @@ pub enum ModelError {
 pub struct Network {
     pub config: ModelConfig,
     pub batch: usize,
+    /// Windows per ensemble of the loss (MODEL.md "Refinement"); 1 = the plain loss.
+    pub group: usize,
     /// Built with the training schedules ([`Network::new`]) or for inference only.
     pub training: bool,
     pub specs: Vec<ParamSpec>,
@@ -94,7 +96,19 @@ impl Network {
         batch: usize,
         dropout_seed: u32,
     ) -> Result<Network, ModelError> {
-        Network::build(gpu, config, graph, batch, dropout_seed, true)
+        Network::build(gpu, config, graph, batch, 1, dropout_seed, true)
+    }
+
+    /// Training on ensembles (MODEL.md refinement): `batch` windows = batch/group ensembles of `group` consecutive windows; the loss is the ensemble loss.
+    pub fn for_ensembles(
+        gpu: &Gpu,
+        config: &ModelConfig,
+        graph: &Graph,
+        batch: usize,
+        group: usize,
+        dropout_seed: u32,
+    ) -> Result<Network, ModelError> {
+        Network::build(gpu, config, graph, batch, group, dropout_seed, true)
     }
 
     /// The inference forward only: no training schedules, gradient scratch or dropout.
@@ -104,7 +118,7 @@ impl Network {
         graph: &Graph,
         batch: usize,
     ) -> Result<Network, ModelError> {
-        Network::build(gpu, config, graph, batch, 0, false)
+        Network::build(gpu, config, graph, batch, 1, 0, false)
     }
 
     fn build(
@@ -112,6 +126,7 @@ impl Network {
         config: &ModelConfig,
         graph: &Graph,
         batch: usize,
+        group: usize,
         dropout_seed: u32,
         training: bool,
     ) -> Result<Network, ModelError> {
@@ -125,6 +140,11 @@ impl Network {
         }
         if batch == 0 {
             return Err(ModelError::Config("batch size must be positive".into()));
+        }
+        if group == 0 || !batch.is_multiple_of(group) {
+            return Err(ModelError::Config(format!(
+                "batch of {batch} windows does not split into ensembles of {group}"
+            )));
         }
         let specs = param_specs(config);
         let params: Vec<Tensor> = specs
@@ -189,6 +209,7 @@ impl Network {
             loss_slots = Network::build_backward(
                 gpu,
                 config,
+                group,
                 &table,
                 &blocks,
                 &fwd_slots,
@@ -204,6 +225,7 @@ impl Network {
         Ok(Network {
             config: config.clone(),
             batch,
+            group,
             training,
             specs,
             params,
@@ -227,6 +249,7 @@ impl Network {
     fn build_backward(
         gpu: &Gpu,
         config: &ModelConfig,
+        group: usize,
         table: &Table,
         blocks: &[Block],
         fwd_slots: &[Option<usize>],
@@ -245,6 +268,7 @@ impl Network {
             batch,
             outputs: o,
             penalty: 1.0,
+            group,
         };
         let doutput = gpu.zeros("d y_hat", &[batch, o], DType::F32);
         let loss_slots = [
@@ -285,6 +309,7 @@ impl Network {
             batch: self.batch,
             outputs: self.config.outputs,
             penalty,
+            group: self.group,
         };
         self.expect_training()?;
         for i in self.loss_slots {

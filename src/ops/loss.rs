@@ -1,6 +1,7 @@
 //! The weighted squared error of MODEL.md eq. 39 (without weight decay, which the
-//! optimiser applies): forward into a one-element tensor and backward, with the f64
-//! CPU reference.
+//! optimiser applies), optionally over ensembles of consecutive windows (MODEL.md
+//! "Refinement"): forward into a one-element tensor and backward, with the f64 CPU
+//! reference.
 
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
 
@@ -20,13 +21,20 @@ static BACKWARD: Kernel = Kernel {
     bindings: &[Binding::read(1), Binding::read(2), Binding::read_write(3)],
 };
 
-/// `ℒ = (1/B) Σ_b Σ_m w_m (ŷ − y)²` with `w_m = 1` for the first three outputs
-/// (position) and `penalty` (P) for the rest (attitude).
+/// `ℒ = (1/B) Σ_b ℓ(ŷ_b, y_b)` with `ℓ(a, b) = Σ_m w_m (a_m − b_m)²`, `w_m = 1` for the
+/// first three outputs (position) and `penalty` (P) for the rest (attitude).
+///
+/// With `group` = M > 1 the batch holds G = B/M ensembles of M consecutive windows
+/// (rows g·M .. g·M + M − 1) and the loss is the ensemble loss of MODEL.md
+/// "Refinement": `ℒ = (1/G) Σ_g [ (1/M) Σ_k ℓ(ŷ_gk, y_gk) + ℓ(mean_k ŷ_gk, mean_k y_gk) ]`.
+/// `group` = 1 is the plain loss (no ensemble term: the formula with M = 1 would count
+/// every window twice).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PoseLoss {
     pub batch: usize,
     pub outputs: usize,
     pub penalty: f64,
+    pub group: usize,
 }
 
 #[repr(C)]
@@ -35,7 +43,7 @@ struct Params {
     batch: u32,
     outputs: u32,
     penalty: f32,
-    _pad: u32,
+    group: u32,
 }
 
 impl PoseLoss {
@@ -44,11 +52,18 @@ impl PoseLoss {
             batch: self.batch as u32,
             outputs: self.outputs as u32,
             penalty: self.penalty as f32,
-            _pad: 0,
+            group: self.group as u32,
         }
     }
 
     fn check(&self, pred: &Tensor, target: &Tensor) -> Result<(), GpuError> {
+        if self.group == 0 || !self.batch.is_multiple_of(self.group) {
+            return Err(GpuError::Shape {
+                tensor: "pose loss batch".into(),
+                expected: format!("a positive multiple of the ensemble size {}", self.group),
+                got: format!("{} windows", self.batch),
+            });
+        }
         pred.expect_len(self.batch * self.outputs)?;
         target.expect_len(self.batch * self.outputs)
     }
@@ -73,7 +88,7 @@ impl PoseLoss {
     }
 
     /// Rewrites the uniforms of a dispatch built by this loss's `forward` or `backward`
-    /// (e.g. a new `penalty`, same batch and outputs).
+    /// (e.g. a new `penalty`, same batch, outputs and group).
     pub fn set_penalty(&self, gpu: &Gpu, dispatch: &Dispatch) -> Result<(), GpuError> {
         dispatch.write_params(gpu, &self.params())
     }
@@ -111,21 +126,55 @@ pub mod cpu {
         }
     }
 
+    /// `mean_k (ŷ_gk − y_gk)` per ensemble g, `[G, outputs]` (empty for group 1).
+    fn group_mean_errors(l: &PoseLoss, pred: &[f64], target: &[f64]) -> Vec<f64> {
+        assert!(
+            l.group > 0 && l.batch.is_multiple_of(l.group),
+            "pose loss reference: batch {} is not a multiple of group {}",
+            l.batch,
+            l.group
+        );
+        if l.group == 1 {
+            return Vec::new();
+        }
+        let (m, o) = (l.group, l.outputs);
+        let mut mean = vec![0.0; l.batch / m * o];
+        for (i, (p, t)) in pred.iter().zip(target).enumerate() {
+            mean[i / o / m * o + i % o] += (p - t) / m as f64;
+        }
+        mean
+    }
+
     pub fn forward(l: &PoseLoss, pred: &[f64], target: &[f64]) -> f64 {
-        let s: f64 = pred
+        let windows: f64 = pred
             .iter()
             .zip(target)
             .enumerate()
             .map(|(i, (p, t))| weight(l, i % l.outputs) * (p - t) * (p - t))
             .sum();
-        s / l.batch as f64
+        let ensembles: f64 = group_mean_errors(l, pred, target)
+            .iter()
+            .enumerate()
+            .map(|(i, e)| weight(l, i % l.outputs) * e * e)
+            .sum();
+        // (1/G)(1/M) = 1/B for the per-window terms.
+        windows / l.batch as f64 + ensembles / (l.batch / l.group) as f64
     }
 
     pub fn backward(l: &PoseLoss, pred: &[f64], target: &[f64]) -> Vec<f64> {
+        let mean = group_mean_errors(l, pred, target);
+        let o = l.outputs;
         pred.iter()
             .zip(target)
             .enumerate()
-            .map(|(i, (p, t))| 2.0 / l.batch as f64 * weight(l, i % l.outputs) * (p - t))
+            .map(|(i, (p, t))| {
+                let ensemble = if l.group > 1 {
+                    mean[i / o / l.group * o + i % o]
+                } else {
+                    0.0
+                };
+                2.0 / l.batch as f64 * weight(l, i % o) * (p - t + ensemble)
+            })
             .collect()
     }
 }

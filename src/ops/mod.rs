@@ -1,6 +1,7 @@
 //! One module per op family: the dispatch of its WGSL forward/backward kernels next to
 //! its f64 CPU reference. Ops see tensors only.
 
+pub mod adam;
 pub mod bias;
 pub mod dropout;
 pub mod elementwise;
@@ -14,8 +15,9 @@ pub mod softmax;
 use crate::gpu::Shader;
 
 /// Every op shader, for validation and for the pipeline warm-up.
-pub fn shaders() -> [&'static Shader; 9] {
+pub fn shaders() -> [&'static Shader; 10] {
     [
+        &adam::SHADER,
         &bias::SHADER,
         &dropout::SHADER,
         &elementwise::SHADER,

@@ -1,0 +1,619 @@
+//! `iastgcn train`, `iastgcn refine` and `iastgcn predict`: the training stages with
+//! progress bars, logs, plots, resumable states and atomic checkpoints, and prediction
+//! on recordings with the metrics of Table IV.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context};
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::calibrate::file;
+use crate::data::{
+    expected_channels, prepare, split, window_ends, Dataset, FeatureConfig, Recording, SplitMode,
+    Window, WindowConfig,
+};
+use crate::gpu::Gpu;
+use crate::graph::Graph;
+use crate::model::{Checkpoint, Parameters, Predictor, Variant};
+use crate::plot::{self, Panel, Series};
+use crate::robot::{Geometry, Robot};
+use crate::train::{
+    self, accumulated_error, consecutive_runs, core_stage, log, refine_stages, Metrics, RunConfig,
+    TrainError, TrainState, Trainer,
+};
+
+/// Where the data comes from (shared by train, refine and predict).
+#[derive(Args, Clone)]
+pub struct DataArgs {
+    /// Recordings (CSV, TWIN.md format).
+    #[arg(long, num_args = 1.., required = true)]
+    pub data: Vec<PathBuf>,
+    /// Calibration file from `iastgcn calibrate` (labels are residuals under it).
+    #[arg(long)]
+    pub calibration: PathBuf,
+    /// Sensor graph asset (default: the embedded assets/graph.toml).
+    #[arg(long)]
+    pub graph: Option<PathBuf>,
+    /// Robot geometry asset (default: the embedded assets/robot.toml).
+    #[arg(long)]
+    pub robot: Option<PathBuf>,
+}
+
+#[derive(Args)]
+pub struct TrainArgs {
+    #[command(flatten)]
+    pub data: DataArgs,
+    /// Run config (TOML: [model], [data], [train], [refine]); the paper's values when absent.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Override the config's variant: iastgcn, iastgcn-a, iastgcn-t, iastgcn-s.
+    #[arg(long)]
+    pub variant: Option<String>,
+    /// Override train.max_epochs (e.g. to continue a resumed run further).
+    #[arg(long)]
+    pub max_epochs: Option<usize>,
+    /// Best checkpoint (written atomically whenever the validation loss improves). Beside
+    /// it: `<stem>.state.safetensors` (resumable state), `<stem>.log.csv`, `<stem>.loss.png`.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Continue from a training state written by an earlier run.
+    #[arg(long)]
+    pub resume: Option<PathBuf>,
+}
+
+#[derive(Args)]
+pub struct RefineArgs {
+    #[command(flatten)]
+    pub data: DataArgs,
+    /// Trained checkpoint to warm-start from.
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Run config ([refine] and [train] tables are used; [model] must match the checkpoint's shape).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Refined checkpoint; beside it `<stem>.log.csv`, `<stem>.loss.png`,
+    /// `<stem>.accumulated.csv` and `<stem>.accumulated.png` (Fig. 9b).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+#[derive(Args)]
+pub struct PredictArgs {
+    #[command(flatten)]
+    pub data: DataArgs,
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Output CSV: one row per window end with the predicted and (where the tracker
+    /// measured) the true residual.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Steps between window ends.
+    #[arg(long, default_value_t = 20)]
+    pub stride: usize,
+    /// Only windows of this contiguous split (70/20/10 of each recording): all, train,
+    /// validation, test.
+    #[arg(long, default_value = "all", value_parser = ["all", "train", "validation", "test"])]
+    pub split: String,
+    /// Windows per submit.
+    #[arg(long, default_value_t = 64)]
+    pub batch: usize,
+}
+
+/// The sibling of `out` with `suffix` in place of its extension (`m.safetensors` →
+/// `m.state.safetensors`).
+pub fn sibling(out: &Path, suffix: &str) -> PathBuf {
+    let stem = out
+        .file_stem()
+        .map_or("model".into(), |s| s.to_string_lossy().into_owned());
+    out.with_file_name(format!("{stem}{suffix}"))
+}
+
+/// The sensor graph, the calibrated robot and the named recordings.
+pub type Inputs = (Graph, Robot, Vec<(String, Recording)>);
+
+/// Graph, calibrated robot and the recordings read with the graph's channels.
+pub fn load_inputs(args: &DataArgs, window: usize) -> anyhow::Result<Inputs> {
+    let graph = match &args.graph {
+        Some(p) => Graph::load(p)?,
+        None => Graph::default_asset(),
+    };
+    let geometry = match &args.robot {
+        Some(p) => Geometry::load(p)?,
+        None => Geometry::default_asset(),
+    };
+    let cal = file::load(&args.calibration)?;
+    let robot = Robot::new(geometry, cal.errors);
+    let channels = expected_channels(&graph.nodes);
+    let channels: Vec<&str> = channels.iter().map(String::as_str).collect();
+    let recordings = args
+        .data
+        .iter()
+        .map(|p| {
+            Ok((
+                p.display().to_string(),
+                Recording::read(p, &channels, window)?,
+            ))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok((graph, robot, recordings))
+}
+
+/// The dataset of a run config (optionally standardised with a model's statistics).
+pub fn build_dataset(
+    args: &DataArgs,
+    config: &RunConfig,
+    fixed: Option<&crate::data::Normalization>,
+) -> anyhow::Result<(Graph, Dataset)> {
+    let (graph, robot, recordings) = load_inputs(args, config.model.window)?;
+    let window = WindowConfig {
+        length: config.model.window,
+        stride: config.data.stride,
+        ..WindowConfig::default()
+    };
+    let mode = if config.data.split == "random" {
+        SplitMode::Random {
+            seed: config.data.split_seed,
+        }
+    } else {
+        SplitMode::Contiguous
+    };
+    let ds = Dataset::build_normalized(
+        &recordings,
+        &graph,
+        &robot,
+        &FeatureConfig::default(),
+        &window,
+        mode,
+        fixed,
+    )?;
+    if graph.len() != config.model.nodes {
+        bail!(
+            "the graph has {} nodes, the config {}",
+            graph.len(),
+            config.model.nodes
+        );
+    }
+    Ok((graph, ds))
+}
+
+fn epoch_bar(len: usize, what: &str) -> ProgressBar {
+    let bar = ProgressBar::new(len as u64);
+    bar.set_style(
+        ProgressStyle::with_template(&format!(
+            "{what} epoch {{pos}}/{{len}} {{bar:30}} {{elapsed}} {{msg}}"
+        ))
+        .expect("valid progress template"),
+    );
+    bar
+}
+
+fn read_run_config(path: Option<&Path>, variant: Option<&str>) -> anyhow::Result<RunConfig> {
+    let mut config = match path {
+        Some(p) => RunConfig::load(p)?,
+        None => RunConfig::default(),
+    };
+    if let Some(v) = variant {
+        config.model.variant = Variant::parse(v).with_context(|| {
+            format!("unknown variant {v:?} (iastgcn, iastgcn-a, iastgcn-t, iastgcn-s)")
+        })?;
+    }
+    Ok(config)
+}
+
+/// Every setting that must match for a resumed run (the epoch limit and patience may change).
+fn resumable(a: &RunConfig, b: &RunConfig) -> bool {
+    let strip = |c: &RunConfig| {
+        let mut c = c.clone();
+        c.train.max_epochs = 0;
+        c.train.patience = 0;
+        c.refine = Default::default();
+        c
+    };
+    strip(a) == strip(b)
+}
+
+/// Test-split metrics per recording: the model, and predicting the training mean.
+pub fn test_metrics(
+    trainer: &Trainer,
+    data: &Dataset,
+) -> Result<Vec<(String, Metrics, Metrics)>, TrainError> {
+    let [_, _, test] = data.split_ranges();
+    let positions: Vec<usize> = test.collect();
+    let pred = train::to_physical(&trainer.predict(&positions)?, &data.normalization);
+    let mean = data.normalization.label_mean;
+    Ok(data
+        .recordings
+        .iter()
+        .enumerate()
+        .map(|(r, name)| {
+            let idx: Vec<usize> = (0..positions.len())
+                .filter(|&i| data.windows[positions[i]].recording == r)
+                .collect();
+            let truth: Vec<[f64; 6]> = idx.iter().map(|&i| data.labels[positions[i]]).collect();
+            let model: Vec<[f64; 6]> = idx.iter().map(|&i| pred[i]).collect();
+            let baseline = vec![mean; idx.len()];
+            (
+                name.clone(),
+                Metrics::of(&model, &truth),
+                Metrics::of(&baseline, &truth),
+            )
+        })
+        .collect())
+}
+
+fn print_metrics(rows: &[(String, Metrics, Metrics)]) {
+    println!("test split (per recording)          model MAE µm/mdeg   training-mean MAE µm/mdeg   windows");
+    for (name, m, b) in rows {
+        println!(
+            "  {name:<34} {:>7.3} / {:<8.3}   {:>7.3} / {:<8.3}        {}",
+            m.pos_mae, m.att_mae, b.pos_mae, b.att_mae, m.count
+        );
+    }
+}
+
+/// Runs one stage to its end with a bar, saving through `on_epoch`; restores the best weights.
+pub fn fit(
+    trainer: &mut Trainer,
+    label: &str,
+    mut on_epoch: impl FnMut(&Trainer, bool) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    let bar = epoch_bar(trainer.stage.max_epochs, label);
+    bar.set_position(trainer.progress.epoch as u64);
+    while !trainer.finished() {
+        let (r, improved) = trainer.run_epoch()?;
+        bar.set_position(r.epoch as u64);
+        bar.set_message(format!(
+            "loss {:.4} val {:.4} lr {:.2e} {:.0} win/s{}",
+            r.train_loss,
+            r.val_loss,
+            r.lr,
+            r.windows_per_s,
+            if improved { " *" } else { "" }
+        ));
+        on_epoch(trainer, improved)?;
+    }
+    bar.finish();
+    trainer.restore_best()?;
+    Ok(())
+}
+
+pub fn train(gpu: &Gpu, args: &TrainArgs) -> anyhow::Result<()> {
+    let mut config = read_run_config(args.config.as_deref(), args.variant.as_deref())?;
+    if let Some(n) = args.max_epochs {
+        config.train.max_epochs = n;
+    }
+    config.validate().map_err(anyhow::Error::msg)?;
+    let (graph, data) = build_dataset(&args.data, &config, None)?;
+    print!("{}", data.summary());
+    let state_path = sibling(&args.out, ".state.safetensors");
+    let init = Parameters::init(&config.model, config.train.seed);
+    let mut trainer = Trainer::new(
+        gpu,
+        &data,
+        &graph,
+        &config.model,
+        &config.train,
+        core_stage(&config),
+        &init,
+    )?;
+    if let Some(p) = &args.resume {
+        let state = TrainState::load(p)?;
+        if !resumable(&state.run, &config) {
+            bail!(
+                "{}: the state was written by a run with another config or variant (only train.max_epochs and train.patience may change)",
+                p.display()
+            );
+        }
+        if state.normalization != train::normalization(&data.normalization) {
+            bail!(
+                "{}: the state was trained on other data (its normalisation statistics differ from these recordings')",
+                p.display()
+            );
+        }
+        trainer.restore(&state.snapshot)?;
+        trainer.set_limits(config.train.max_epochs, config.train.patience);
+        println!(
+            "resumed {} at epoch {} (step {}, best validation loss {:.5} at epoch {})",
+            p.display(),
+            trainer.progress.epoch,
+            trainer.progress.step,
+            trainer.progress.best_val,
+            trainer.progress.best_epoch
+        );
+    }
+    println!(
+        "training {} on {}: {} windows per step, {} steps per epoch",
+        config.model.variant,
+        gpu.info().name,
+        trainer.batch(),
+        trainer.steps_per_epoch()
+    );
+    let log_path = sibling(&args.out, ".log.csv");
+    let png_path = sibling(&args.out, ".loss.png");
+    let result = fit(&mut trainer, config.model.variant.name(), |t, improved| {
+        if improved {
+            train::checkpoint(&config.model, &graph, &t.best, &data.normalization)
+                .save(&args.out)?;
+        }
+        TrainState {
+            run: config.clone(),
+            normalization: train::normalization(&data.normalization),
+            snapshot: t.snapshot().clone(),
+        }
+        .save(&state_path)?;
+        log::write_csv(&log_path, &t.progress.history)?;
+        log::plot_losses(&png_path, config.model.variant.name(), &t.progress.history)?;
+        Ok(())
+    });
+    if let Err(e) = result {
+        return Err(diverged(e, &trainer, &config, &graph, &data, &args.out));
+    }
+    let p = &trainer.progress;
+    println!(
+        "best validation loss {:.5} at epoch {} of {}; saved {}",
+        p.best_val,
+        p.best_epoch,
+        p.epoch,
+        args.out.display()
+    );
+    print_metrics(&test_metrics(&trainer, &data)?);
+    Ok(())
+}
+
+/// On divergence: keep the best checkpoint, or write the last good weights when no epoch
+/// finished; say where they are.
+fn diverged(
+    e: anyhow::Error,
+    trainer: &Trainer,
+    config: &RunConfig,
+    graph: &Graph,
+    data: &Dataset,
+    out: &Path,
+) -> anyhow::Error {
+    let Some(TrainError::Diverged { last_good, .. }) = e.downcast_ref::<TrainError>() else {
+        return e;
+    };
+    if trainer.progress.best_epoch > 0 {
+        return e.context(format!(
+            "stopped; {} keeps the best weights (epoch {})",
+            out.display(),
+            trainer.progress.best_epoch
+        ));
+    }
+    match train::checkpoint(&config.model, graph, last_good, &data.normalization).save(out) {
+        Ok(()) => e.context(format!(
+            "stopped; the last good weights (before the bad step) are in {}",
+            out.display()
+        )),
+        Err(w) => e.context(format!(
+            "stopped, and the last good weights could not be saved: {w}"
+        )),
+    }
+}
+
+/// Accumulated error curve (Fig. 9b) of the held-out runs with the trainer's weights.
+fn accumulated(
+    trainer: &Trainer,
+    data: &Dataset,
+    horizon: usize,
+) -> anyhow::Result<Vec<(usize, f64, f64)>> {
+    let [_, _, test] = data.split_ranges();
+    let runs = consecutive_runs(data, test);
+    let positions: Vec<usize> = runs.iter().flatten().copied().collect();
+    let pred = train::to_physical(&trainer.predict(&positions)?, &data.normalization);
+    let mut i = 0;
+    let pairs: Vec<Vec<([f64; 6], [f64; 6])>> = runs
+        .iter()
+        .map(|run| {
+            run.iter()
+                .map(|&p| {
+                    i += 1;
+                    (pred[i - 1], data.labels[p])
+                })
+                .collect()
+        })
+        .collect();
+    Ok(accumulated_error(&pairs, horizon))
+}
+
+pub fn refine(gpu: &Gpu, args: &RefineArgs) -> anyhow::Result<()> {
+    let ck = Checkpoint::load(&args.model)?;
+    let mut config = read_run_config(args.config.as_deref(), None)?;
+    config.model = ck.config.clone();
+    let fixed = train::data_normalization(&ck.normalization)
+        .context("the checkpoint's normalisation is not N×3 features and 6 labels")?;
+    let (graph, data) = build_dataset(&args.data, &config, Some(&fixed))?;
+    let horizon = config.refine.horizon;
+    let mut params = ck.parameters.clone();
+    let mut history = Vec::new();
+    let mut before = None;
+    let mut last: Option<Trainer> = None;
+    for stage in refine_stages(&config) {
+        let mut trainer = Trainer::new(
+            gpu,
+            &data,
+            &graph,
+            &config.model,
+            &config.train,
+            stage.clone(),
+            &params,
+        )?;
+        if before.is_none() {
+            before = Some((
+                accumulated(&trainer, &data, horizon)?,
+                test_metrics(&trainer, &data)?,
+            ));
+        }
+        println!(
+            "{}: ensembles of {} windows, {} per step, {} steps per epoch, lr0 {:.1e}",
+            stage.name,
+            stage.group,
+            trainer.batch(),
+            trainer.steps_per_epoch(),
+            stage.lr0
+        );
+        fit(&mut trainer, &stage.name, |_, _| Ok(()))?;
+        history.extend(trainer.progress.history.iter().cloned());
+        params = trainer.best.clone();
+        last = Some(trainer);
+    }
+    let Some(trainer) = last else {
+        bail!("refine.magnifications is empty: nothing to refine");
+    };
+    let (acc_before, metrics_before) = before.expect("set with the first stage");
+    let acc_after = accumulated(&trainer, &data, horizon)?;
+    let metrics_after = test_metrics(&trainer, &data)?;
+    Checkpoint {
+        parameters: params,
+        ..ck
+    }
+    .save(&args.out)?;
+    log::write_csv(&sibling(&args.out, ".log.csv"), &history)?;
+    log::plot_losses(&sibling(&args.out, ".loss.png"), "refine", &history)?;
+    write_accumulated(&args.out, &acc_before, &acc_after)?;
+    println!("accumulated error over consecutive held-out windows |Σ(ŷ−y)|, position µm / attitude mdeg:");
+    println!("  k    before              after");
+    for ((k, pb, ab), (_, pa, aa)) in acc_before.iter().zip(&acc_after) {
+        println!("  {k:<4} {pb:>8.3} / {ab:<8.3}  {pa:>8.3} / {aa:<8.3}");
+    }
+    println!("before refinement:");
+    print_metrics(&metrics_before);
+    println!("after refinement:");
+    print_metrics(&metrics_after);
+    println!("saved {}", args.out.display());
+    Ok(())
+}
+
+fn write_accumulated(
+    out: &Path,
+    before: &[(usize, f64, f64)],
+    after: &[(usize, f64, f64)],
+) -> anyhow::Result<()> {
+    let mut csv =
+        String::from("horizon,pos_before_um,att_before_mdeg,pos_after_um,att_after_mdeg\n");
+    for ((k, pb, ab), (_, pa, aa)) in before.iter().zip(after) {
+        csv += &format!("{k},{pb:.6},{ab:.6},{pa:.6},{aa:.6}\n");
+    }
+    let path = sibling(out, ".accumulated.csv");
+    crate::atomic::write(&path, csv.as_bytes()).with_context(|| path.display().to_string())?;
+    let series = |v: &[(usize, f64, f64)], pick: fn(&(usize, f64, f64)) -> f64, name: &str| {
+        Series::new(name, v.iter().map(|r| (r.0 as f64, pick(r))).collect())
+    };
+    let panel = |title: &str, unit: &str, pick: fn(&(usize, f64, f64)) -> f64| Panel {
+        title: title.into(),
+        x_label: "consecutive windows k".into(),
+        y_label: format!("mean |Σ(ŷ−y)| ({unit})"),
+        series: vec![
+            series(before, pick, "before refinement"),
+            series(after, pick, "after"),
+        ],
+        equal_aspect: false,
+    };
+    plot::draw(
+        &sibling(out, ".accumulated.png"),
+        &[
+            panel("accumulated position error", "µm", |r| r.1),
+            panel("accumulated attitude error", "mdeg", |r| r.2),
+        ],
+        1,
+        2,
+        (1100, 420),
+    )?;
+    Ok(())
+}
+
+pub fn predict(gpu: std::sync::Arc<Gpu>, args: &PredictArgs) -> anyhow::Result<()> {
+    let ck = Checkpoint::load(&args.model)?;
+    let t_len = ck.config.window;
+    let (graph, robot, recordings) = load_inputs(&args.data, t_len)?;
+    if graph.nodes != ck.graph.nodes {
+        bail!(
+            "the model was trained on the graph {:?}, the data uses {:?}",
+            ck.graph.nodes,
+            graph.nodes
+        );
+    }
+    let mut predictor = Predictor::new(gpu, &ck, args.batch.max(1))?;
+    let window = WindowConfig {
+        length: t_len,
+        stride: args.stride.max(1),
+        ..WindowConfig::default()
+    };
+    let mut csv = String::from("recording,row,t,pred_dx_um,pred_dy_um,pred_dz_um,pred_rx_mdeg,pred_ry_mdeg,pred_rz_mdeg,true_dx_um,true_dy_um,true_dz_um,true_rx_mdeg,true_ry_mdeg,true_rz_mdeg\n");
+    let mut all = (Vec::new(), Vec::new());
+    let mut rows = Vec::new();
+    println!("recording                           windows  labelled  pos MAE/RMSE/MAPE           att MAE/RMSE/MAPE");
+    for (r, (name, rec)) in recordings.iter().enumerate() {
+        let prepared = prepare(name, rec, &graph, &robot, &FeatureConfig::default())?;
+        let ends: Vec<Window> = window_ends(rec.rows.len(), &window, |_| true)
+            .into_iter()
+            .map(|end| Window { recording: r, end })
+            .collect();
+        let chosen: Vec<Window> = if args.split == "all" {
+            ends
+        } else {
+            let s = split(&ends, &[rec.rows.len()], &window, SplitMode::Contiguous);
+            match args.split.as_str() {
+                "train" => s.train,
+                "validation" => s.validation,
+                _ => s.test,
+            }
+        };
+        let mut x = Vec::with_capacity(chosen.len() * predictor.window_len());
+        let mut buf = Vec::new();
+        for w in &chosen {
+            prepared.window(w.end, t_len, &mut buf);
+            x.extend_from_slice(&buf);
+        }
+        let mut out = Vec::new();
+        predictor.predict_batch(&x, &mut out)?;
+        let (mut pred, mut truth) = (Vec::new(), Vec::new());
+        for (w, y) in chosen.iter().zip(&out) {
+            let label = prepared.labels[w.end];
+            csv += &format!("{name},{},{:.4}", w.end, rec.rows[w.end].t);
+            for v in y {
+                csv += &format!(",{v:.4}");
+            }
+            for k in 0..6 {
+                match label {
+                    Some(l) => csv += &format!(",{:.4}", l[k]),
+                    None => csv += ",",
+                }
+            }
+            csv.push('\n');
+            if let Some(l) = label {
+                pred.push(*y);
+                truth.push(l);
+            }
+        }
+        let m = Metrics::of(&pred, &truth);
+        println!(
+            "  {name:<34} {:>6}  {:>8}  {:.3}/{:.3}/{:.2}%   {:.3}/{:.3}/{:.2}%",
+            chosen.len(),
+            truth.len(),
+            m.pos_mae,
+            m.pos_rmse,
+            m.pos_mape,
+            m.att_mae,
+            m.att_rmse,
+            m.att_mape
+        );
+        all.0.extend(pred);
+        all.1.extend(truth);
+        rows.push((name.clone(), m));
+    }
+    let m = Metrics::of(&all.0, &all.1);
+    println!(
+        "  {:<34} {:>6}  {:>8}  {:.3}/{:.3}/{:.2}%   {:.3}/{:.3}/{:.2}%",
+        "all", "", m.count, m.pos_mae, m.pos_rmse, m.pos_mape, m.att_mae, m.att_rmse, m.att_mape
+    );
+    crate::atomic::write(&args.out, csv.as_bytes())
+        .with_context(|| args.out.display().to_string())?;
+    println!(
+        "wrote {} (µm, mdeg; MAPE guard: {}% of the mean label norm)",
+        args.out.display(),
+        100.0 * train::metrics::MAPE_GUARD
+    );
+    Ok(())
+}

@@ -1,0 +1,247 @@
+//! Run configuration (`assets/demo.toml`, `assets/paper.toml`): the model shape, the
+//! windowing of the data, the core training schedule (MODEL.md "Optimiser and schedule")
+//! and the refinement stages (MODEL.md "Refinement"). Every field has a default (the
+//! paper's values) and a check whose message names the field.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::model::ModelConfig;
+
+/// Windowing of the recordings (the window length is the model's `window`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DataConfig {
+    /// Steps between consecutive window ends.
+    pub stride: usize,
+    /// `contiguous` (leakage-free blocks, the default) or `random` (the paper's protocol,
+    /// labelled as such in every report).
+    pub split: String,
+    /// Seed of the `random` split.
+    pub split_seed: u64,
+}
+
+impl Default for DataConfig {
+    fn default() -> DataConfig {
+        DataConfig {
+            stride: 20,
+            split: "contiguous".into(),
+            split_seed: 7,
+        }
+    }
+}
+
+/// The core stage (MODEL.md "Loss", "Optimiser and schedule").
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrainConfig {
+    /// Windows per mini-batch.
+    pub batch: usize,
+    /// lr0 of the inverse-time decay.
+    pub lr: f64,
+    /// r of lr(step) = lr0 / (1 + r · step / steps_per_epoch).
+    pub lr_decay: f64,
+    pub beta1: f64,
+    pub beta2: f64,
+    pub adam_eps: f64,
+    /// λ of eq. 39 (on weights only).
+    pub weight_decay: f64,
+    /// P of eq. 39.
+    pub attitude_penalty: f64,
+    pub max_epochs: usize,
+    /// Epochs without a better validation loss before stopping.
+    pub patience: usize,
+    /// Seed of the initial weights, the shuffling and the dropout masks.
+    pub seed: u64,
+}
+
+impl Default for TrainConfig {
+    fn default() -> TrainConfig {
+        TrainConfig {
+            batch: 64,
+            lr: 1e-3,
+            lr_decay: 0.1,
+            beta1: 0.9,
+            beta2: 0.999,
+            adam_eps: 1e-8,
+            weight_decay: 1e-4,
+            attitude_penalty: 1.0,
+            max_epochs: 150,
+            patience: 10,
+            seed: 1,
+        }
+    }
+}
+
+/// The refinement stages (Algorithm 2): warm start at `lr_scale · lr0` on ensembles of
+/// `magnifications[i]` consecutive windows, one stage per entry.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RefineConfig {
+    pub magnifications: Vec<usize>,
+    pub lr_scale: f64,
+    pub max_epochs: usize,
+    pub patience: usize,
+    /// Longest run of consecutive held-out windows in the accumulated-error check.
+    pub horizon: usize,
+}
+
+impl Default for RefineConfig {
+    fn default() -> RefineConfig {
+        RefineConfig {
+            magnifications: vec![10, 5],
+            lr_scale: 0.1,
+            max_epochs: 30,
+            patience: 5,
+            horizon: 10,
+        }
+    }
+}
+
+/// One run: `[model]`, `[data]`, `[train]`, `[refine]` tables.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RunConfig {
+    pub model: ModelConfig,
+    pub data: DataConfig,
+    pub train: TrainConfig,
+    pub refine: RefineConfig,
+}
+
+/// A config file that cannot be used; the message names the file and the field.
+#[derive(Debug, thiserror::Error)]
+#[error("{file}: {message}")]
+pub struct ConfigError {
+    pub file: String,
+    pub message: String,
+}
+
+fn check(ok: bool, field: &str, value: impl std::fmt::Display, rule: &str) -> Result<(), String> {
+    if ok {
+        Ok(())
+    } else {
+        Err(format!("{field} = {value}: {rule}"))
+    }
+}
+
+impl RunConfig {
+    /// The embedded `assets/demo.toml`.
+    pub fn demo() -> RunConfig {
+        RunConfig::parse(include_str!("../../assets/demo.toml"), "assets/demo.toml")
+            .expect("the embedded demo config is valid")
+    }
+
+    /// Reads and checks a TOML file.
+    pub fn load(path: &Path) -> Result<RunConfig, ConfigError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+            file: file.clone(),
+            message: e.to_string(),
+        })?;
+        RunConfig::parse(&text, &file)
+    }
+
+    /// Parses and checks TOML text (`file` names it in errors).
+    pub fn parse(text: &str, file: &str) -> Result<RunConfig, ConfigError> {
+        let err = |message: String| ConfigError {
+            file: file.to_string(),
+            message,
+        };
+        let config: RunConfig = toml::from_str(text).map_err(|e| err(e.to_string()))?;
+        config.validate().map_err(err)?;
+        Ok(config)
+    }
+
+    /// Checks every field; the message names the first bad one.
+    pub fn validate(&self) -> Result<(), String> {
+        self.model.validate()?;
+        let d = &self.data;
+        check(d.stride > 0, "data.stride", d.stride, "must be positive")?;
+        check(
+            d.split == "contiguous" || d.split == "random",
+            "data.split",
+            &d.split,
+            "must be \"contiguous\" or \"random\"",
+        )?;
+        let t = &self.train;
+        check(t.batch > 0, "train.batch", t.batch, "must be positive")?;
+        check(
+            t.lr > 0.0 && t.lr.is_finite(),
+            "train.lr",
+            t.lr,
+            "must be positive",
+        )?;
+        check(
+            t.lr_decay >= 0.0 && t.lr_decay.is_finite(),
+            "train.lr_decay",
+            t.lr_decay,
+            "must be ≥ 0",
+        )?;
+        for (name, b) in [("train.beta1", t.beta1), ("train.beta2", t.beta2)] {
+            check((0.0..1.0).contains(&b), name, b, "must be in [0, 1)")?;
+        }
+        check(
+            t.adam_eps > 0.0,
+            "train.adam_eps",
+            t.adam_eps,
+            "must be positive",
+        )?;
+        check(
+            t.weight_decay >= 0.0 && t.weight_decay.is_finite(),
+            "train.weight_decay",
+            t.weight_decay,
+            "must be ≥ 0",
+        )?;
+        check(
+            t.attitude_penalty >= 0.0 && t.attitude_penalty.is_finite(),
+            "train.attitude_penalty",
+            t.attitude_penalty,
+            "must be ≥ 0",
+        )?;
+        check(
+            t.max_epochs > 0,
+            "train.max_epochs",
+            t.max_epochs,
+            "must be positive",
+        )?;
+        check(
+            t.patience > 0,
+            "train.patience",
+            t.patience,
+            "must be positive",
+        )?;
+        let r = &self.refine;
+        check(
+            r.magnifications.iter().all(|&m| m >= 2),
+            "refine.magnifications",
+            format!("{:?}", r.magnifications),
+            "each must be ≥ 2 windows",
+        )?;
+        check(
+            r.lr_scale > 0.0 && r.lr_scale.is_finite(),
+            "refine.lr_scale",
+            r.lr_scale,
+            "must be positive",
+        )?;
+        check(
+            r.max_epochs > 0,
+            "refine.max_epochs",
+            r.max_epochs,
+            "must be positive",
+        )?;
+        check(
+            r.patience > 0,
+            "refine.patience",
+            r.patience,
+            "must be positive",
+        )?;
+        check(
+            r.horizon >= 1,
+            "refine.horizon",
+            r.horizon,
+            "must be positive",
+        )?;
+        Ok(())
+    }
+}

@@ -1,0 +1,143 @@
+//! Accuracy metrics of Table IV on residuals in physical units, the loss bracket of
+//! eq. 39 evaluated on the host, and the accumulated long-horizon error of Fig. 9b.
+//!
+//! Position and attitude are scored as vectors: the error of one window is the Euclidean
+//! norm of ŷ − y over dx, dy, dz (µm) or over rx, ry, rz (mdeg).
+//! MAE = mean ‖ŷ − y‖, RMSE = √(mean ‖ŷ − y‖²), and
+//! MAPE = 100 · mean ‖ŷ − y‖ / max(‖y‖, g) %, with the guard g = 5% of the mean label
+//! norm of the evaluated set, so a label that happens to pass near zero cannot blow
+//! the percentage up (it is scored against g instead).
+
+use serde::Serialize;
+
+/// The share of the mean label norm below which MAPE divides by the guard instead.
+pub const MAPE_GUARD: f64 = 0.05;
+
+/// MAE, RMSE, MAPE for position (µm) and attitude (mdeg) over `count` windows.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct Metrics {
+    pub count: usize,
+    pub pos_mae: f64,
+    pub pos_rmse: f64,
+    pub pos_mape: f64,
+    pub att_mae: f64,
+    pub att_rmse: f64,
+    pub att_mape: f64,
+}
+
+fn norm3(v: &[f64; 6], from: usize) -> f64 {
+    (v[from].powi(2) + v[from + 1].powi(2) + v[from + 2].powi(2)).sqrt()
+}
+
+fn diff(a: &[f64; 6], b: &[f64; 6]) -> [f64; 6] {
+    std::array::from_fn(|k| a[k] - b[k])
+}
+
+impl Metrics {
+    /// Scores predictions against labels (both in µm / mdeg).
+    pub fn of(pred: &[[f64; 6]], truth: &[[f64; 6]]) -> Metrics {
+        assert_eq!(pred.len(), truth.len(), "one prediction per label");
+        let n = pred.len();
+        if n == 0 {
+            return Metrics::default();
+        }
+        let part = |from: usize| {
+            let guard = MAPE_GUARD * truth.iter().map(|y| norm3(y, from)).sum::<f64>() / n as f64;
+            let (mut abs, mut sq, mut pct) = (0.0, 0.0, 0.0);
+            for (p, y) in pred.iter().zip(truth) {
+                let e = norm3(&diff(p, y), from);
+                abs += e;
+                sq += e * e;
+                pct += e / norm3(y, from).max(guard).max(f64::MIN_POSITIVE);
+            }
+            let nf = n as f64;
+            (abs / nf, (sq / nf).sqrt(), 100.0 * pct / nf)
+        };
+        let (pos_mae, pos_rmse, pos_mape) = part(0);
+        let (att_mae, att_rmse, att_mape) = part(3);
+        Metrics {
+            count: n,
+            pos_mae,
+            pos_rmse,
+            pos_mape,
+            att_mae,
+            att_rmse,
+            att_mape,
+        }
+    }
+}
+
+/// ℓ of eq. 39 for one window: Σ_j w_j (ŷ_j − y_j)², w = 1 (position), P (attitude).
+pub fn window_loss(pred: &[f32], truth: &[f32], penalty: f64) -> f64 {
+    pred.iter()
+        .zip(truth)
+        .enumerate()
+        .map(|(j, (p, y))| {
+            let e = (*p as f64) - (*y as f64);
+            if j < 3 {
+                e * e
+            } else {
+                penalty * e * e
+            }
+        })
+        .sum()
+}
+
+/// The loss of MODEL.md "Refinement" for one ensemble of m windows (rows of `pred`,
+/// `truth`, `outputs` values each): mean per-window ℓ plus ℓ of the means. For m = 1 it
+/// is the plain ℓ.
+pub fn ensemble_loss(pred: &[f32], truth: &[f32], outputs: usize, penalty: f64) -> f64 {
+    let m = pred.len() / outputs;
+    let per: f64 = pred
+        .chunks(outputs)
+        .zip(truth.chunks(outputs))
+        .map(|(p, y)| window_loss(p, y, penalty))
+        .sum::<f64>()
+        / m as f64;
+    if m == 1 {
+        return per;
+    }
+    let mean = |v: &[f32]| -> Vec<f32> {
+        (0..outputs)
+            .map(|j| {
+                (v.iter()
+                    .skip(j)
+                    .step_by(outputs)
+                    .map(|&x| x as f64)
+                    .sum::<f64>()
+                    / m as f64) as f32
+            })
+            .collect()
+    };
+    per + window_loss(&mean(pred), &mean(truth), penalty)
+}
+
+/// Accumulated error of Fig. 9b: for horizons k = 1..=`horizon`, the mean over every run
+/// of consecutive windows and every start in it of ‖Σ_{j<k} (ŷ − y)‖, position (µm)
+/// and attitude (mdeg). Horizons no run is long enough for are left out.
+pub fn accumulated_error(
+    runs: &[Vec<([f64; 6], [f64; 6])>],
+    horizon: usize,
+) -> Vec<(usize, f64, f64)> {
+    let mut out = Vec::new();
+    for k in 1..=horizon {
+        let (mut pos, mut att, mut n) = (0.0, 0.0, 0usize);
+        for run in runs.iter().filter(|r| r.len() >= k) {
+            for start in 0..=run.len() - k {
+                let mut s = [0.0; 6];
+                for (p, y) in &run[start..start + k] {
+                    for j in 0..6 {
+                        s[j] += p[j] - y[j];
+                    }
+                }
+                pos += norm3(&s, 0);
+                att += norm3(&s, 3);
+                n += 1;
+            }
+        }
+        if n > 0 {
+            out.push((k, pos / n as f64, att / n as f64));
+        }
+    }
+    out
+}

@@ -1,0 +1,169 @@
+//! Resumable training state: the current and best parameters, the Adam moments, the
+//! stage and its progress (epoch, step, early-stopping counters, history), and the run
+//! config and normalisation it belongs to. One safetensors file, written atomically at
+//! the end of every epoch.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use safetensors::tensor::{Dtype, SafeTensors, TensorView};
+
+use super::config::RunConfig;
+use super::trainer::{Progress, Snapshot, Stage};
+use crate::model::checkpoint::f32_values;
+use crate::model::{param_specs, Normalization, Parameters};
+
+/// The value of the `format` metadata key.
+pub const FORMAT: &str = "iastgcn-train-state/1";
+
+/// A state file that cannot be used; the message names the file and what is wrong.
+#[derive(Debug, thiserror::Error)]
+#[error("{file}: {message}")]
+pub struct StateError {
+    pub file: String,
+    pub message: String,
+}
+
+/// A snapshot with the run it belongs to.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrainState {
+    pub run: RunConfig,
+    pub normalization: Normalization,
+    pub snapshot: Snapshot,
+}
+
+const GROUPS: [&str; 4] = ["param", "best", "adam.m", "adam.v"];
+
+impl TrainState {
+    pub fn save(&self, path: &Path) -> Result<(), StateError> {
+        let err = |message: String| StateError {
+            file: path.display().to_string(),
+            message,
+        };
+        let s = &self.snapshot;
+        let specs = &s.params.specs;
+        let sets: [&Vec<Vec<f32>>; 4] = [&s.params.values, &s.best.values, &s.adam_m, &s.adam_v];
+        let mut views = Vec::new();
+        for (group, values) in GROUPS.iter().zip(sets) {
+            for (spec, v) in specs.iter().zip(values) {
+                let view = TensorView::new(Dtype::F32, spec.shape.clone(), bytemuck::cast_slice(v))
+                    .map_err(|e| err(format!("tensor {group}.{}: {e}", spec.name)))?;
+                views.push((format!("{group}.{}", spec.name), view));
+            }
+        }
+        let json = |v: &dyn erased::Json| v.json().map_err(|e| err(e.to_string()));
+        let metadata = HashMap::from([
+            ("format".to_string(), FORMAT.to_string()),
+            ("run".to_string(), json(&self.run)?),
+            ("normalization".to_string(), json(&self.normalization)?),
+            ("stage".to_string(), json(&s.stage)?),
+            ("progress".to_string(), json(&s.progress)?),
+        ]);
+        let bytes =
+            safetensors::serialize(views, Some(metadata)).map_err(|e| err(e.to_string()))?;
+        crate::atomic::write(path, &bytes).map_err(|e| err(e.to_string()))
+    }
+
+    pub fn load(path: &Path) -> Result<TrainState, StateError> {
+        let file = path.display().to_string();
+        let err = |message: String| StateError {
+            file: file.clone(),
+            message,
+        };
+        let bytes = std::fs::read(path).map_err(|e| err(e.to_string()))?;
+        let st = SafeTensors::deserialize(&bytes)
+            .map_err(|e| err(format!("not a valid safetensors file: {e}")))?;
+        let (_, header) = SafeTensors::read_metadata(&bytes)
+            .map_err(|e| err(format!("not a valid safetensors file: {e}")))?;
+        let meta = header
+            .metadata()
+            .clone()
+            .ok_or_else(|| err("no metadata (is this a training state?)".into()))?;
+        let field = |key: &str| {
+            meta.get(key)
+                .ok_or_else(|| err(format!("metadata has no \"{key}\"")))
+        };
+        let format = field("format")?;
+        if format != FORMAT {
+            return Err(err(format!(
+                "metadata format is {format:?}, expected {FORMAT:?} (a model checkpoint is not a training state)"
+            )));
+        }
+        let parse = |key: &str| -> Result<serde_json::Value, StateError> {
+            serde_json::from_str(field(key)?).map_err(|e| err(format!("metadata \"{key}\": {e}")))
+        };
+        let run: RunConfig = typed("run", parse("run")?).map_err(&err)?;
+        run.validate()
+            .map_err(|e| err(format!("metadata \"run\": {e}")))?;
+        let normalization: Normalization =
+            typed("normalization", parse("normalization")?).map_err(&err)?;
+        let stage: Stage = typed("stage", parse("stage")?).map_err(&err)?;
+        let progress: Progress = typed("progress", parse("progress")?).map_err(&err)?;
+        let specs = param_specs(&run.model);
+        let mut sets: Vec<Vec<Vec<f32>>> = Vec::new();
+        for group in GROUPS {
+            let mut values = Vec::new();
+            for spec in &specs {
+                let name = format!("{group}.{}", spec.name);
+                let t = st
+                    .tensor(&name)
+                    .map_err(|_| err(format!("tensor {name} is missing")))?;
+                if t.dtype() != Dtype::F32 || t.shape() != spec.shape.as_slice() {
+                    return Err(err(format!(
+                        "tensor {name}: {:?} {:?}, expected F32 {:?}",
+                        t.dtype(),
+                        t.shape(),
+                        spec.shape
+                    )));
+                }
+                values.push(f32_values(&t));
+            }
+            sets.push(values);
+        }
+        let expected = GROUPS.len() * specs.len();
+        if st.len() != expected {
+            return Err(err(format!(
+                "{} tensors, expected {expected} for the {} config",
+                st.len(),
+                run.model.variant
+            )));
+        }
+        let [params, best, adam_m, adam_v]: [Vec<Vec<f32>>; 4] =
+            sets.try_into().expect("one set per group");
+        Ok(TrainState {
+            snapshot: Snapshot {
+                stage,
+                progress,
+                params: Parameters {
+                    specs: specs.clone(),
+                    values: params,
+                },
+                best: Parameters {
+                    specs,
+                    values: best,
+                },
+                adam_m,
+                adam_v,
+            },
+            run,
+            normalization,
+        })
+    }
+}
+
+fn typed<T: serde::de::DeserializeOwned>(key: &str, v: serde_json::Value) -> Result<T, String> {
+    serde_json::from_value(v).map_err(|e| format!("metadata \"{key}\": {e}"))
+}
+
+mod erased {
+    /// JSON text of any serialisable value (for the metadata map).
+    pub trait Json {
+        fn json(&self) -> serde_json::Result<String>;
+    }
+
+    impl<T: serde::Serialize> Json for T {
+        fn json(&self) -> serde_json::Result<String> {
+            serde_json::to_string(self)
+        }
+    }
+}

@@ -1,0 +1,570 @@
+//! One training stage on the device: seeded shuffled mini-batches (single windows, or
+//! ensembles of consecutive windows for refinement), forward + loss + backward + Adam in
+//! one submit per step with no readback, the step losses copied into a per-epoch log on
+//! the device and read once per epoch, validation, early stopping with the best weights
+//! kept, and a divergence guard that replays the failing epoch step by step to say which
+//! step and which tensor went bad.
+
+use std::time::Instant;
+
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use serde::{Deserialize, Serialize};
+
+use super::config::TrainConfig;
+use super::metrics::ensemble_loss;
+use super::optimizer::{learning_rate, Optimizer};
+use crate::data::{Dataset, OUTPUTS};
+use crate::gpu::{DType, Gpu, GpuError, Readback, Recorder, Tensor};
+use crate::graph::Graph;
+use crate::model::{ModelConfig, ModelError, Network, Parameters};
+
+/// What stops a training run.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    #[error("{0}")]
+    Data(String),
+    /// A non-finite loss or parameter. `last_good` holds the parameters just before the
+    /// step that went bad.
+    #[error("training diverged at step {step} (epoch {epoch}, batch {batch}): {what}")]
+    Diverged {
+        step: u64,
+        epoch: usize,
+        batch: usize,
+        what: String,
+        last_good: Box<Parameters>,
+    },
+}
+
+/// One stage's schedule.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Stage {
+    /// `core`, or `refine-m10` … (names the stage in logs and states).
+    pub name: String,
+    /// Windows per ensemble: 1 for the core stage.
+    pub group: usize,
+    pub lr0: f64,
+    pub max_epochs: usize,
+    pub patience: usize,
+}
+
+/// One finished epoch.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EpochRecord {
+    pub stage: String,
+    /// 1-based.
+    pub epoch: usize,
+    /// Optimiser steps taken so far in this stage.
+    pub step: u64,
+    /// Mean of the step losses (eq. 39 without the λ term; the ensemble loss when
+    /// refining), standardised label space.
+    pub train_loss: f64,
+    /// The same loss on the validation split.
+    pub val_loss: f64,
+    /// Learning rate of the epoch's last step.
+    pub lr: f64,
+    /// Wall time of the training steps (validation excluded).
+    pub seconds: f64,
+    pub windows_per_s: f64,
+}
+
+/// Where a stage stands; saved with the training state so a run can resume.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Progress {
+    /// Epochs completed.
+    pub epoch: usize,
+    pub step: u64,
+    pub best_val: f64,
+    /// 0 until an epoch has finished.
+    pub best_epoch: usize,
+    pub bad_epochs: usize,
+    pub history: Vec<EpochRecord>,
+}
+
+impl Progress {
+    fn new() -> Progress {
+        Progress {
+            epoch: 0,
+            step: 0,
+            best_val: f64::INFINITY,
+            best_epoch: 0,
+            bad_epochs: 0,
+            history: Vec::new(),
+        }
+    }
+}
+
+/// Training state at an epoch boundary: everything [`Trainer::restore`] needs to
+/// continue exactly where the run stopped.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Snapshot {
+    pub stage: Stage,
+    pub progress: Progress,
+    pub params: Parameters,
+    pub best: Parameters,
+    pub adam_m: Vec<Vec<f32>>,
+    pub adam_v: Vec<Vec<f32>>,
+}
+
+/// Positions (in `data.windows`) of `range`, grouped into ensembles of `m` consecutive
+/// windows of one recording: each run of consecutive windows cut into disjoint blocks of
+/// m (a short tail is left out), so an epoch sees every window about once, as in the
+/// core stage.
+pub fn ensembles(data: &Dataset, range: std::ops::Range<usize>, m: usize) -> Vec<Vec<usize>> {
+    consecutive_runs(data, range)
+        .iter()
+        .flat_map(|run| {
+            run.chunks_exact(m)
+                .map(<[usize]>::to_vec)
+                .collect::<Vec<_>>()
+        })
+        .collect()
+}
+
+/// The positions of `range` split into maximal runs of consecutive windows of one
+/// recording (neighbours among all of that recording's windows, whatever their split),
+/// in time order.
+pub fn consecutive_runs(data: &Dataset, range: std::ops::Range<usize>) -> Vec<Vec<usize>> {
+    let key = |p: usize| (data.windows[p].recording, data.windows[p].end);
+    let mut all: Vec<(usize, usize)> = (0..data.windows.len()).map(key).collect();
+    all.sort_unstable();
+    let rank = |p: usize| all.binary_search(&key(p)).expect("every window is listed");
+    let mut order: Vec<usize> = range.collect();
+    order.sort_by_key(|&p| key(p));
+    let mut runs: Vec<Vec<usize>> = Vec::new();
+    for p in order {
+        match runs.last_mut() {
+            Some(run)
+                if {
+                    let last = *run.last().expect("runs are never empty");
+                    key(last).0 == key(p).0 && rank(last) + 1 == rank(p)
+                } =>
+            {
+                run.push(p)
+            }
+            _ => runs.push(vec![p]),
+        }
+    }
+    runs
+}
+
+fn epoch_seed(seed: u64, stage: &str, epoch: usize) -> u64 {
+    let tag = stage.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
+        (h ^ b as u64).wrapping_mul(0x100_0000_01b3)
+    });
+    seed ^ tag ^ (epoch as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15)
+}
+
+/// A training stage bound to one network on one device.
+pub struct Trainer<'a> {
+    gpu: &'a Gpu,
+    data: &'a Dataset,
+    config: TrainConfig,
+    pub stage: Stage,
+    pub net: Network,
+    opt: Optimizer,
+    train_groups: Vec<Vec<usize>>,
+    val_groups: Vec<Vec<usize>>,
+    groups_per_batch: usize,
+    steps_per_epoch: usize,
+    loss_log: Tensor,
+    loss_rb: Readback,
+    /// ŷ of up to `table_rows` windows per readback.
+    table: Tensor,
+    table_rb: Readback,
+    table_rows: usize,
+    pub progress: Progress,
+    pub best: Parameters,
+    /// Parameters and moments at the start of the current epoch (for the replay).
+    start: Snapshot,
+}
+
+impl<'a> Trainer<'a> {
+    /// A fresh stage starting from `init` with zero Adam moments.
+    pub fn new(
+        gpu: &'a Gpu,
+        data: &'a Dataset,
+        graph: &Graph,
+        model: &ModelConfig,
+        config: &TrainConfig,
+        stage: Stage,
+        init: &Parameters,
+    ) -> Result<Trainer<'a>, TrainError> {
+        if data.window.length != model.window || data.nodes.len() != model.nodes {
+            return Err(TrainError::Data(format!(
+                "the dataset has windows of {} steps over {} nodes, the model expects {} over {}",
+                data.window.length,
+                data.nodes.len(),
+                model.window,
+                model.nodes
+            )));
+        }
+        let m = stage.group.max(1);
+        let [train, val, _] = data.split_ranges();
+        let (train_groups, val_groups) = if m == 1 {
+            let single = |r: std::ops::Range<usize>| r.map(|p| vec![p]).collect::<Vec<_>>();
+            (single(train), single(val))
+        } else {
+            (ensembles(data, train, m), ensembles(data, val, m))
+        };
+        if train_groups.is_empty() {
+            return Err(TrainError::Data(format!(
+                "stage {}: no training sample of {m} consecutive windows",
+                stage.name
+            )));
+        }
+        if val_groups.is_empty() {
+            return Err(TrainError::Data(format!(
+                "stage {}: no validation sample of {m} consecutive windows (the validation split is too short)",
+                stage.name
+            )));
+        }
+        let groups_per_batch = (config.batch / m).max(1).min(train_groups.len());
+        let steps_per_epoch = train_groups.len().div_ceil(groups_per_batch);
+        let batch = groups_per_batch * m;
+        let seed32 = (config.seed as u32) ^ ((config.seed >> 32) as u32);
+        let net = if m == 1 {
+            Network::new(gpu, model, graph, batch, seed32)?
+        } else {
+            Network::for_ensembles(gpu, model, graph, batch, m, seed32)?
+        };
+        net.set_attitude_penalty(gpu, config.attitude_penalty)?;
+        net.load_parameters(gpu, init)?;
+        let opt = Optimizer::new(gpu, &net, config)?;
+        let loss_log = gpu.zeros("loss log", &[steps_per_epoch], DType::F32);
+        let loss_rb = Readback::new(gpu, "loss log", loss_log.byte_len());
+        let table_rows = batch * 16;
+        let table = gpu.zeros("predictions", &[table_rows, model.outputs], DType::F32);
+        let table_rb = Readback::new(gpu, "predictions", table.byte_len());
+        let (adam_m, adam_v) = opt.read_state(gpu)?;
+        let start = Snapshot {
+            stage: stage.clone(),
+            progress: Progress::new(),
+            params: init.clone(),
+            best: init.clone(),
+            adam_m,
+            adam_v,
+        };
+        Ok(Trainer {
+            gpu,
+            data,
+            config: config.clone(),
+            stage,
+            net,
+            opt,
+            train_groups,
+            val_groups,
+            groups_per_batch,
+            steps_per_epoch,
+            loss_log,
+            loss_rb,
+            table,
+            table_rb,
+            table_rows,
+            progress: Progress::new(),
+            best: init.clone(),
+            start,
+        })
+    }
+
+    /// Continues from a saved state (same data, config and stage).
+    pub fn restore(&mut self, s: &Snapshot) -> Result<(), TrainError> {
+        if s.stage != self.stage {
+            return Err(TrainError::Data(format!(
+                "the saved state is of stage {:?} (group {}, lr0 {}), this run is {:?} (group {}, lr0 {})",
+                s.stage.name, s.stage.group, s.stage.lr0, self.stage.name, self.stage.group, self.stage.lr0
+            )));
+        }
+        self.net.load_parameters(self.gpu, &s.params)?;
+        self.opt.load_state(self.gpu, &s.adam_m, &s.adam_v)?;
+        self.progress = s.progress.clone();
+        self.best = s.best.clone();
+        self.start = s.clone();
+        Ok(())
+    }
+
+    /// The state at the end of the last finished epoch.
+    pub fn snapshot(&self) -> &Snapshot {
+        &self.start
+    }
+
+    pub fn steps_per_epoch(&self) -> usize {
+        self.steps_per_epoch
+    }
+
+    /// Windows per optimiser step.
+    pub fn batch(&self) -> usize {
+        self.net.batch
+    }
+
+    /// Sets the epoch limit and patience (e.g. a resumed run allowed more epochs).
+    pub fn set_limits(&mut self, max_epochs: usize, patience: usize) {
+        self.stage.max_epochs = max_epochs;
+        self.stage.patience = patience;
+        self.start.stage = self.stage.clone();
+    }
+
+    /// True when the stage is over (epoch limit or patience).
+    pub fn finished(&self) -> bool {
+        self.progress.epoch >= self.stage.max_epochs
+            || self.progress.bad_epochs >= self.stage.patience
+    }
+
+    fn lr(&self, step: u64) -> f64 {
+        learning_rate(
+            self.stage.lr0,
+            self.config.lr_decay,
+            step,
+            self.steps_per_epoch,
+        )
+    }
+
+    fn epoch_order(&self, epoch: usize) -> Vec<usize> {
+        let mut order: Vec<usize> = (0..self.train_groups.len()).collect();
+        let seed = epoch_seed(self.config.seed, &self.stage.name, epoch);
+        order.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(seed));
+        order
+    }
+
+    /// The windows of step `s` of an epoch: consecutive groups of the shuffled order,
+    /// wrapping around to fill the last batch (every window is seen each epoch).
+    fn step_positions(&self, order: &[usize], s: usize) -> Vec<usize> {
+        (0..self.groups_per_batch)
+            .flat_map(|g| &self.train_groups[order[(s * self.groups_per_batch + g) % order.len()]])
+            .copied()
+            .collect()
+    }
+
+    /// Writes one step's inputs and submits forward + loss + backward + Adam (no wait).
+    fn submit_step(&self, positions: &[usize], s: usize) -> Result<(), TrainError> {
+        let (x, y) = self.data.gather(positions);
+        self.gpu.write(&self.net.input, &x)?;
+        self.gpu.write(&self.net.target, &y)?;
+        let step = self.progress.step;
+        self.net.set_step(self.gpu, step as u32)?;
+        self.opt.set_step(self.gpu, self.lr(step), step + 1)?;
+        let mut rec = Recorder::new(self.gpu);
+        self.net.record_train_forward(&mut rec)?;
+        self.net.record_backward(&mut rec)?;
+        rec.copy_f32(&self.net.loss, 0, &self.loss_log, s, 1)?;
+        self.opt.record(&mut rec);
+        rec.submit();
+        Ok(())
+    }
+
+    /// Trains one epoch, validates, and updates the early-stopping state; true when the
+    /// validation loss improved (the best weights were updated).
+    pub fn run_epoch(&mut self) -> Result<(EpochRecord, bool), TrainError> {
+        let epoch = self.progress.epoch + 1;
+        let order = self.epoch_order(epoch);
+        let began = Instant::now();
+        let first_step = self.progress.step;
+        for s in 0..self.steps_per_epoch {
+            let positions = self.step_positions(&order, s);
+            self.submit_step(&positions, s)?;
+            self.progress.step += 1;
+        }
+        let mut losses = vec![0f32; self.steps_per_epoch];
+        self.read_log(&mut losses)?;
+        let seconds = began.elapsed().as_secs_f64();
+        if let Some(bad) = losses.iter().position(|l| !l.is_finite()) {
+            return Err(self.diagnose(epoch, &order, bad, first_step));
+        }
+        let val_loss = self.validation_loss()?;
+        let params = self.net.read_parameters(self.gpu)?;
+        if first_non_finite(&params.specs, &params.values).is_some() {
+            // The replay names the step and the tensor.
+            let last = self.steps_per_epoch - 1;
+            return Err(self.diagnose(epoch, &order, last, first_step));
+        }
+        let record = EpochRecord {
+            stage: self.stage.name.clone(),
+            epoch,
+            step: self.progress.step,
+            train_loss: losses.iter().map(|&l| l as f64).sum::<f64>() / losses.len() as f64,
+            val_loss,
+            lr: self.lr(self.progress.step - 1),
+            seconds,
+            windows_per_s: (self.steps_per_epoch * self.net.batch) as f64 / seconds,
+        };
+        self.progress.epoch = epoch;
+        self.progress.history.push(record.clone());
+        let improved = val_loss < self.progress.best_val;
+        if improved {
+            self.progress.best_val = val_loss;
+            self.progress.best_epoch = epoch;
+            self.progress.bad_epochs = 0;
+            self.best = params.clone();
+        } else {
+            self.progress.bad_epochs += 1;
+        }
+        let (adam_m, adam_v) = self.opt.read_state(self.gpu)?;
+        self.start = Snapshot {
+            stage: self.stage.clone(),
+            progress: self.progress.clone(),
+            params,
+            best: self.best.clone(),
+            adam_m,
+            adam_v,
+        };
+        Ok((record, improved))
+    }
+
+    fn read_log(&self, out: &mut [f32]) -> Result<(), TrainError> {
+        let mut rec = Recorder::new(self.gpu);
+        rec.read_into(&self.loss_log, &self.loss_rb)?;
+        rec.submit();
+        let mut all = vec![0f32; self.loss_log.numel()];
+        self.loss_rb.read_into(self.gpu, &mut all)?;
+        out.copy_from_slice(&all[..out.len()]);
+        Ok(())
+    }
+
+    /// Replays the failing epoch from its start, one step at a time with readbacks, to
+    /// find the first step whose loss or updated parameters are not finite.
+    fn diagnose(
+        &mut self,
+        epoch: usize,
+        order: &[usize],
+        bad: usize,
+        first_step: u64,
+    ) -> TrainError {
+        let fallback = |what: String, last_good: Parameters| TrainError::Diverged {
+            step: first_step + bad as u64,
+            epoch,
+            batch: bad + 1,
+            what,
+            last_good: Box::new(last_good),
+        };
+        let start = self.start.clone();
+        let replay = (|| -> Result<TrainError, TrainError> {
+            self.net.load_parameters(self.gpu, &start.params)?;
+            self.opt
+                .load_state(self.gpu, &start.adam_m, &start.adam_v)?;
+            self.progress.step = first_step;
+            let mut before = start.params.clone();
+            for s in 0..=bad {
+                let positions = self.step_positions(order, s);
+                self.submit_step(&positions, s)?;
+                self.progress.step += 1;
+                let mut loss = [0f32];
+                self.read_log_at(s, &mut loss)?;
+                let step = first_step + s as u64;
+                let fail = |what: String, last_good: Parameters| TrainError::Diverged {
+                    step,
+                    epoch,
+                    batch: s + 1,
+                    what,
+                    last_good: Box::new(last_good),
+                };
+                if !loss[0].is_finite() {
+                    let grads = self.net.read_gradients(self.gpu)?;
+                    let what = match first_non_finite(&self.net.specs, &grads) {
+                        Some((name, i)) => format!(
+                            "the loss is {}; first non-finite gradient: {name} (element {i})",
+                            loss[0]
+                        ),
+                        None => format!("the loss is {} with finite gradients", loss[0]),
+                    };
+                    return Ok(fail(what, before));
+                }
+                let after = self.net.read_parameters(self.gpu)?;
+                if let Some((name, i)) = first_non_finite(&after.specs, &after.values) {
+                    let what = format!(
+                        "the Adam update made parameter {name} (element {i}) non-finite (loss {})",
+                        loss[0]
+                    );
+                    return Ok(fail(what, before));
+                }
+                before = after;
+            }
+            Ok(fallback(
+                "a non-finite loss that the step-by-step replay did not reproduce".into(),
+                start.params.clone(),
+            ))
+        })();
+        replay.unwrap_or_else(|e| e)
+    }
+
+    fn read_log_at(&self, s: usize, out: &mut [f32]) -> Result<(), TrainError> {
+        let mut all = vec![0f32; self.steps_per_epoch];
+        self.read_log(&mut all)?;
+        out[0] = all[s];
+        Ok(())
+    }
+
+    /// ŷ (standardised) of the windows at `positions`, `[len, O]` row-major, with the
+    /// current parameters (inference: no dropout).
+    pub fn predict(&self, positions: &[usize]) -> Result<Vec<f32>, TrainError> {
+        let b = self.net.batch;
+        let o = self.net.config.outputs;
+        let len = self.data.window_len();
+        let mut out = Vec::with_capacity(positions.len() * o);
+        let mut buf = vec![0f32; self.table.numel()];
+        for segment in positions.chunks(self.table_rows) {
+            for (c, chunk) in segment.chunks(b).enumerate() {
+                let (mut x, _) = self.data.gather(chunk);
+                x.resize(b * len, 0.0);
+                self.gpu.write(&self.net.input, &x)?;
+                let mut rec = Recorder::new(self.gpu);
+                self.net.record_forward(&mut rec)?;
+                rec.copy_f32(&self.net.output, 0, &self.table, c * b * o, b * o)?;
+                rec.submit();
+            }
+            let mut rec = Recorder::new(self.gpu);
+            rec.read_into(&self.table, &self.table_rb)?;
+            rec.submit();
+            self.table_rb.read_into(self.gpu, &mut buf)?;
+            out.extend_from_slice(&buf[..segment.len() * o]);
+        }
+        Ok(out)
+    }
+
+    /// The stage's loss on the validation split (ensemble loss when refining).
+    pub fn validation_loss(&self) -> Result<f64, TrainError> {
+        let mut positions: Vec<usize> = self.val_groups.iter().flatten().copied().collect();
+        positions.sort_unstable();
+        positions.dedup();
+        let pred = self.predict(&positions)?;
+        let o = OUTPUTS;
+        let row = |p: usize| {
+            positions
+                .binary_search(&p)
+                .expect("group members were predicted")
+        };
+        let mut total = 0.0;
+        for g in &self.val_groups {
+            let pg: Vec<f32> = g
+                .iter()
+                .flat_map(|&p| pred[row(p) * o..(row(p) + 1) * o].to_vec())
+                .collect();
+            let yg: Vec<f32> = g
+                .iter()
+                .flat_map(|&p| self.data.y[p * o..(p + 1) * o].to_vec())
+                .collect();
+            total += ensemble_loss(&pg, &yg, o, self.config.attitude_penalty);
+        }
+        Ok(total / self.val_groups.len() as f64)
+    }
+
+    /// Loads the best weights into the network (at the end of a stage).
+    pub fn restore_best(&self) -> Result<(), TrainError> {
+        self.net.load_parameters(self.gpu, &self.best)?;
+        Ok(())
+    }
+}
+
+fn first_non_finite(
+    specs: &[crate::model::ParamSpec],
+    values: &[Vec<f32>],
+) -> Option<(String, usize)> {
+    specs.iter().zip(values).find_map(|(s, v)| {
+        v.iter()
+            .position(|x| !x.is_finite())
+            .map(|i| (s.name.clone(), i))
+    })
+}

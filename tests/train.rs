@@ -1,0 +1,385 @@
+//! Training on twin data (tiny shapes on lavapipe): the losses fall and beat predicting
+//! the training mean, the same seed gives the same losses bit for bit, a resumed run
+//! reproduces the uninterrupted run's next epoch, a diverging run stops naming the step
+//! and tensor and keeps finite weights, and refinement trains on ensembles.
+
+use std::path::PathBuf;
+use std::sync::OnceLock;
+
+use iastgcn::data::{Dataset, FeatureConfig, Recording, SplitMode, WindowConfig};
+use iastgcn::graph::Graph;
+use iastgcn::model::{ModelConfig, Parameters, Variant};
+use iastgcn::robot::{Geometry, Robot};
+use iastgcn::testing::gpu;
+use iastgcn::train::{
+    self, consecutive_runs, ensembles, Metrics, RunConfig, Stage, TrainConfig, TrainError,
+    TrainState, Trainer,
+};
+
+fn model() -> ModelConfig {
+    ModelConfig {
+        variant: Variant::Iastgcn,
+        window: 16,
+        channels: 6,
+        blocks: 2,
+        ..ModelConfig::default()
+    }
+}
+
+fn train_config() -> TrainConfig {
+    TrainConfig {
+        batch: 32,
+        lr: 3e-3,
+        max_epochs: 3,
+        patience: 10,
+        ..TrainConfig::default()
+    }
+}
+
+/// Forty seconds of the grid and Fermat paths, labelled under the EKF calibration of a
+/// simulated measurement set (as `make demo` does), once per test binary.
+fn dataset() -> &'static Dataset {
+    static DS: OnceLock<Dataset> = OnceLock::new();
+    DS.get_or_init(|| {
+        let dir = std::env::temp_dir().join(format!("iastgcn-train-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let cli = |args: &[&str], out: &std::path::Path| {
+            let o = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
+                .args(args)
+                .arg(out)
+                .output()
+                .unwrap();
+            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        };
+        let set = dir.join("set.csv");
+        let cal = dir.join("cal.toml");
+        cli(
+            &[
+                "simulate",
+                "--trajectory",
+                "calibration",
+                "--poses",
+                "60",
+                "--out",
+            ],
+            &set,
+        );
+        cli(
+            &[
+                "calibrate",
+                "--measurements",
+                set.to_str().unwrap(),
+                "--out",
+            ],
+            &cal,
+        );
+        let errors = iastgcn::calibrate::file::load(&cal).unwrap().errors;
+        let graph = Graph::default_asset();
+        let channels = iastgcn::data::expected_channels(&graph.nodes);
+        let channels: Vec<&str> = channels.iter().map(String::as_str).collect();
+        let recordings: Vec<(String, Recording)> = ["grid", "fermat"]
+            .iter()
+            .map(|path| {
+                let out: PathBuf = dir.join(format!("{path}.csv"));
+                cli(
+                    &[
+                        "simulate",
+                        "--trajectory",
+                        path,
+                        "--minutes",
+                        "0.67",
+                        "--seed",
+                        "5",
+                        "--out",
+                    ],
+                    &out,
+                );
+                (
+                    format!("{path}.csv"),
+                    Recording::read(&out, &channels, 16).unwrap(),
+                )
+            })
+            .collect();
+        std::fs::remove_dir_all(&dir).unwrap();
+        Dataset::build(
+            &recordings,
+            &graph,
+            &Robot::new(Geometry::default_asset(), errors),
+            &FeatureConfig::default(),
+            &WindowConfig {
+                length: 16,
+                stride: 5,
+                ..WindowConfig::default()
+            },
+            SplitMode::Contiguous,
+        )
+        .unwrap()
+    })
+}
+
+fn stage(config: &TrainConfig) -> Stage {
+    Stage {
+        name: "core".into(),
+        group: 1,
+        lr0: config.lr,
+        max_epochs: config.max_epochs,
+        patience: config.patience,
+    }
+}
+
+fn trainer<'a>(g: &'a iastgcn::gpu::Gpu, config: &TrainConfig) -> Trainer<'a> {
+    let m = model();
+    Trainer::new(
+        g,
+        dataset(),
+        &Graph::default_asset(),
+        &m,
+        config,
+        stage(config),
+        &Parameters::init(&m, config.seed),
+    )
+    .unwrap()
+}
+
+#[test]
+fn losses_fall_beat_the_mean_and_repeat_bit_for_bit() {
+    let g = gpu();
+    let config = TrainConfig {
+        max_epochs: 6,
+        ..train_config()
+    };
+    let run = || {
+        let mut t = trainer(&g, &config);
+        let before = t.validation_loss().unwrap();
+        while !t.finished() {
+            t.run_epoch().unwrap();
+        }
+        t.restore_best().unwrap();
+        (t.progress.clone(), before, t.best.clone(), test_metrics(&t))
+    };
+    let (a, before, best, metrics) = run();
+    let h = &a.history;
+    eprintln!("untrained validation loss {before:.4}");
+    for r in h {
+        eprintln!(
+            "epoch {} train {:.4} val {:.4} lr {:.2e}",
+            r.epoch, r.train_loss, r.val_loss, r.lr
+        );
+    }
+    assert!(
+        h.last().unwrap().train_loss < 0.8 * h[0].train_loss,
+        "training loss falls"
+    );
+    assert!(
+        a.best_val < 0.8 * before,
+        "validation loss falls from the untrained model's"
+    );
+    for (name, model, mean) in &metrics {
+        eprintln!(
+            "{name}: model MAE {:.2} µm / {:.2} mdeg, training mean {:.2} / {:.2}",
+            model.pos_mae, model.att_mae, mean.pos_mae, mean.att_mae
+        );
+        assert!(model.count > 0);
+        assert!(
+            model.pos_mae < 0.8 * mean.pos_mae,
+            "{name}: test position MAE must beat predicting the training mean"
+        );
+    }
+    // Same seed, same device: identical epoch by epoch, and identical weights.
+    let (b, before_b, best_b, _) = run();
+    assert_eq!(before.to_bits(), before_b.to_bits());
+    for (x, y) in a.history.iter().zip(&b.history) {
+        assert_eq!(
+            x.train_loss.to_bits(),
+            y.train_loss.to_bits(),
+            "epoch {}",
+            x.epoch
+        );
+        assert_eq!(
+            x.val_loss.to_bits(),
+            y.val_loss.to_bits(),
+            "epoch {}",
+            x.epoch
+        );
+    }
+    assert_eq!(best, best_b);
+}
+
+fn test_metrics(t: &Trainer) -> Vec<(String, Metrics, Metrics)> {
+    let data = dataset();
+    let [_, _, test] = data.split_ranges();
+    let positions: Vec<usize> = test.collect();
+    let pred = train::to_physical(&t.predict(&positions).unwrap(), &data.normalization);
+    (0..data.recordings.len())
+        .map(|r| {
+            let idx: Vec<usize> = (0..positions.len())
+                .filter(|&i| data.windows[positions[i]].recording == r)
+                .collect();
+            let truth: Vec<[f64; 6]> = idx.iter().map(|&i| data.labels[positions[i]]).collect();
+            let model: Vec<[f64; 6]> = idx.iter().map(|&i| pred[i]).collect();
+            let mean = vec![data.normalization.label_mean; idx.len()];
+            (
+                data.recordings[r].clone(),
+                Metrics::of(&model, &truth),
+                Metrics::of(&mean, &truth),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn resume_reproduces_the_uninterrupted_next_epoch() {
+    let g = gpu();
+    let config = train_config();
+    let mut straight = trainer(&g, &config);
+    for _ in 0..3 {
+        straight.run_epoch().unwrap();
+    }
+    // Interrupted after two epochs: the state goes through a file.
+    let mut first = trainer(&g, &config);
+    first.run_epoch().unwrap();
+    first.run_epoch().unwrap();
+    let path =
+        std::env::temp_dir().join(format!("iastgcn-resume-{}.safetensors", std::process::id()));
+    let state = TrainState {
+        run: RunConfig {
+            model: model(),
+            train: config.clone(),
+            ..RunConfig::default()
+        },
+        normalization: train::normalization(&dataset().normalization),
+        snapshot: first.snapshot().clone(),
+    };
+    state.save(&path).unwrap();
+    let loaded = TrainState::load(&path).unwrap();
+    std::fs::remove_file(&path).unwrap();
+    assert_eq!(loaded, state, "the state survives the file bit for bit");
+    drop(first);
+    let mut resumed = trainer(&g, &config);
+    resumed.restore(&loaded.snapshot).unwrap();
+    let (r, _) = resumed.run_epoch().unwrap();
+    let s = &straight.progress.history[2];
+    assert_eq!(r.epoch, 3);
+    assert_eq!(r.step, s.step);
+    assert_eq!(r.train_loss.to_bits(), s.train_loss.to_bits());
+    assert_eq!(r.val_loss.to_bits(), s.val_loss.to_bits());
+    assert_eq!(resumed.snapshot().params, straight.snapshot().params);
+    assert_eq!(resumed.snapshot().adam_m, straight.snapshot().adam_m);
+    let timeless = |p: &iastgcn::train::Progress| {
+        let mut p = p.clone();
+        for r in &mut p.history {
+            (r.seconds, r.windows_per_s) = (0.0, 0.0);
+        }
+        p
+    };
+    assert_eq!(timeless(&resumed.progress), timeless(&straight.progress));
+}
+
+#[test]
+fn divergence_stops_at_the_bad_step_and_keeps_finite_weights() {
+    let g = gpu();
+    let config = TrainConfig {
+        lr: 1e30,
+        ..train_config()
+    };
+    let mut t = trainer(&g, &config);
+    match t.run_epoch() {
+        Err(TrainError::Diverged {
+            step,
+            epoch,
+            batch,
+            what,
+            last_good,
+        }) => {
+            eprintln!("step {step} epoch {epoch} batch {batch}: {what}");
+            assert_eq!(epoch, 1);
+            assert!(step >= 1, "the first step starts from finite weights");
+            assert_eq!(batch as u64, step + 1);
+            assert!(
+                what.contains("non-finite") && what.contains('.'),
+                "names a tensor: {what}"
+            );
+            assert!(last_good.values.iter().flatten().all(|v| v.is_finite()));
+        }
+        other => panic!("expected a divergence, got {:?}", other.map(|r| r.0)),
+    }
+}
+
+#[test]
+fn ensembles_are_consecutive_windows_of_one_recording() {
+    let data = dataset();
+    let [train, val, test] = data.split_ranges();
+    for range in [train.clone(), val, test] {
+        for run in consecutive_runs(data, range.clone()) {
+            for pair in run.windows(2) {
+                let (a, b) = (data.windows[pair[0]], data.windows[pair[1]]);
+                assert_eq!(a.recording, b.recording);
+                assert_eq!(b.end, a.end + data.window.stride);
+            }
+        }
+    }
+    let groups = ensembles(data, train.clone(), 5);
+    let per_recording: Vec<usize> = (0..data.recordings.len())
+        .map(|r| {
+            data.splits
+                .train
+                .iter()
+                .filter(|w| w.recording == r)
+                .count()
+        })
+        .collect();
+    // Contiguous split: each recording's training windows form one run of n, cut into
+    // ⌊n/5⌋ disjoint blocks.
+    assert_eq!(
+        groups.len(),
+        per_recording.iter().map(|n| n / 5).sum::<usize>()
+    );
+    let mut seen: Vec<usize> = groups.iter().flatten().copied().collect();
+    seen.sort_unstable();
+    seen.dedup();
+    assert_eq!(seen.len(), 5 * groups.len(), "blocks are disjoint");
+    assert!(groups
+        .iter()
+        .all(|g| g.len() == 5 && g.iter().all(|p| train.contains(p))));
+}
+
+#[test]
+fn refinement_stage_trains_on_ensembles_and_lowers_its_loss() {
+    let g = gpu();
+    let config = train_config();
+    let mut core = trainer(&g, &config);
+    core.run_epoch().unwrap();
+    core.run_epoch().unwrap();
+    core.restore_best().unwrap();
+    let m = model();
+    let refine = Stage {
+        name: "refine-m5".into(),
+        group: 5,
+        lr0: config.lr * 0.1,
+        max_epochs: 2,
+        patience: 5,
+    };
+    let mut t = Trainer::new(
+        &g,
+        dataset(),
+        &Graph::default_asset(),
+        &m,
+        &config,
+        refine,
+        &core.best,
+    )
+    .unwrap();
+    assert_eq!(t.batch() % 5, 0);
+    let before = t.validation_loss().unwrap();
+    let (r1, _) = t.run_epoch().unwrap();
+    let (r2, _) = t.run_epoch().unwrap();
+    eprintln!(
+        "ensemble val loss {before:.4} → {:.4} → {:.4}",
+        r1.val_loss, r2.val_loss
+    );
+    assert!(
+        t.progress.best_val < before,
+        "the ensemble loss falls on held-out ensembles"
+    );
+    assert!(r1.train_loss.is_finite() && r2.train_loss.is_finite());
+}
