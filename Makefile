@@ -17,7 +17,9 @@ DEMO_DIR ?= report
 
 ## Main job on what exists so far: the adapter and its kernels checked against the CPU,
 ## then the twin's calibration set and three polishing recordings, the EKF calibration
-## with its before/after report, and the dataset summary. Outputs land in $(DEMO_DIR)/.
+## with its before/after report, the dataset summary, IASTGCN trained with the demo
+## config, refined (Algorithm 2), run on the held-out split and through the Predictor
+## example. Outputs land in $(DEMO_DIR)/.
 demo: vulkan
 	$(CARGO) build --release
 	./target/release/iastgcn info
@@ -30,11 +32,17 @@ demo: vulkan
 	./target/release/iastgcn calibrate --measurements $(DEMO_DIR)/calibration_set.csv \
 	    --out $(DEMO_DIR)/calibration.toml \
 	    --recordings $(DEMO_DIR)/grid.csv $(DEMO_DIR)/fermat.csv $(DEMO_DIR)/hilbert.csv
-	./target/release/iastgcn dataset --calibration $(DEMO_DIR)/calibration.toml \
-	    --recordings $(DEMO_DIR)/grid.csv $(DEMO_DIR)/fermat.csv $(DEMO_DIR)/hilbert.csv
-	printf 'window = 48\nchannels = 16\nblocks = 3\n' > $(DEMO_DIR)/small.toml
-	./target/release/iastgcn init --config $(DEMO_DIR)/small.toml --seed 1 --out $(DEMO_DIR)/untrained.safetensors
-	$(CARGO) run --release --example predict -- $(DEMO_DIR)/untrained.safetensors
+	./target/release/iastgcn train --config assets/demo.toml --calibration $(DEMO_DIR)/calibration.toml \
+	    --data $(DEMO_DIR)/grid.csv $(DEMO_DIR)/fermat.csv $(DEMO_DIR)/hilbert.csv \
+	    --out $(DEMO_DIR)/iastgcn.safetensors
+	./target/release/iastgcn refine --config assets/demo.toml --calibration $(DEMO_DIR)/calibration.toml \
+	    --data $(DEMO_DIR)/grid.csv $(DEMO_DIR)/fermat.csv $(DEMO_DIR)/hilbert.csv \
+	    --model $(DEMO_DIR)/iastgcn.safetensors --out $(DEMO_DIR)/iastgcn-refined.safetensors
+	./target/release/iastgcn predict --model $(DEMO_DIR)/iastgcn-refined.safetensors \
+	    --calibration $(DEMO_DIR)/calibration.toml --split test \
+	    --data $(DEMO_DIR)/grid.csv $(DEMO_DIR)/fermat.csv $(DEMO_DIR)/hilbert.csv \
+	    --out $(DEMO_DIR)/residuals.csv
+	$(CARGO) run --release --example predict -- $(DEMO_DIR)/iastgcn-refined.safetensors
 
 ## Criterion benchmarks (matmul GFLOP/s, dispatch and submit costs).
 bench: vulkan

@@ -277,7 +277,7 @@ fn cli_init_and_forward_round_trip() {
     let config = temp("small.toml");
     std::fs::write(
         &config,
-        "variant = \"iastgcn-t\"\nwindow = 16\nchannels = 8\nblocks = 2\n",
+        "[model]\nvariant = \"iastgcn-t\"\nwindow = 16\nchannels = 8\nblocks = 2\n",
     )
     .unwrap();
     let model = temp("cli.safetensors");

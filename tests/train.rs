@@ -3,7 +3,8 @@
 //! reproduces the uninterrupted run's next epoch, a diverging run stops naming the step
 //! and tensor and keeps finite weights, and refinement trains on ensembles.
 
-use std::path::PathBuf;
+mod common;
+
 use std::sync::OnceLock;
 
 use iastgcn::data::{Dataset, FeatureConfig, Recording, SplitMode, WindowConfig};
@@ -42,62 +43,16 @@ fn dataset() -> &'static Dataset {
     static DS: OnceLock<Dataset> = OnceLock::new();
     DS.get_or_init(|| {
         let dir = std::env::temp_dir().join(format!("iastgcn-train-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let cli = |args: &[&str], out: &std::path::Path| {
-            let o = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
-                .args(args)
-                .arg(out)
-                .output()
-                .unwrap();
-            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        };
-        let set = dir.join("set.csv");
-        let cal = dir.join("cal.toml");
-        cli(
-            &[
-                "simulate",
-                "--trajectory",
-                "calibration",
-                "--poses",
-                "60",
-                "--out",
-            ],
-            &set,
-        );
-        cli(
-            &[
-                "calibrate",
-                "--measurements",
-                set.to_str().unwrap(),
-                "--out",
-            ],
-            &cal,
-        );
+        let (cal, paths) = common::twin_session(&dir, &["grid", "fermat"], 40.0);
         let errors = iastgcn::calibrate::file::load(&cal).unwrap().errors;
         let graph = Graph::default_asset();
         let channels = iastgcn::data::expected_channels(&graph.nodes);
         let channels: Vec<&str> = channels.iter().map(String::as_str).collect();
-        let recordings: Vec<(String, Recording)> = ["grid", "fermat"]
+        let recordings: Vec<(String, Recording)> = paths
             .iter()
-            .map(|path| {
-                let out: PathBuf = dir.join(format!("{path}.csv"));
-                cli(
-                    &[
-                        "simulate",
-                        "--trajectory",
-                        path,
-                        "--minutes",
-                        "0.67",
-                        "--seed",
-                        "5",
-                        "--out",
-                    ],
-                    &out,
-                );
-                (
-                    format!("{path}.csv"),
-                    Recording::read(&out, &channels, 16).unwrap(),
-                )
+            .map(|p| {
+                let name = p.file_name().unwrap().to_string_lossy().into_owned();
+                (name, Recording::read(p, &channels, 16).unwrap())
             })
             .collect();
         std::fs::remove_dir_all(&dir).unwrap();

@@ -14,8 +14,8 @@ use crate::model::{Checkpoint, ModelConfig, Network, Normalization, Parameters, 
 
 #[derive(Args)]
 pub struct InitArgs {
-    /// Model config (TOML with the fields of MODEL.md's notation table:
-    /// variant, nodes, features, window, channels, blocks, kernel, scale, …); the
+    /// Run config (TOML); its `[model]` table holds the fields of MODEL.md's notation
+    /// table: variant, nodes, features, window, channels, blocks, kernel, scale, …; the
     /// paper shape when absent.
     #[arg(long)]
     pub config: Option<PathBuf>,
@@ -47,16 +47,10 @@ pub struct ForwardArgs {
     pub batch: usize,
 }
 
-/// Reads a model config TOML; errors name the file and field.
+/// The `[model]` table of a run config TOML (assets/demo.toml, assets/paper.toml);
+/// errors name the file and field.
 pub fn read_config(path: &Path) -> anyhow::Result<ModelConfig> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let config: ModelConfig = toml::from_str(&text)
-        .with_context(|| format!("{}: invalid model config", path.display()))?;
-    config
-        .validate()
-        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    Ok(config)
+    Ok(crate::train::RunConfig::load(path)?.model)
 }
 
 pub fn init(args: &InitArgs) -> anyhow::Result<()> {

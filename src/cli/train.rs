@@ -544,11 +544,11 @@ pub fn predict(gpu: std::sync::Arc<Gpu>, args: &PredictArgs) -> anyhow::Result<(
     let mut all = (Vec::new(), Vec::new());
     let mut rows = Vec::new();
     println!("recording                           windows  labelled  pos MAE/RMSE/MAPE           att MAE/RMSE/MAPE");
-    for (r, (name, rec)) in recordings.iter().enumerate() {
+    for (name, rec) in &recordings {
         let prepared = prepare(name, rec, &graph, &robot, &FeatureConfig::default())?;
         let ends: Vec<Window> = window_ends(rec.rows.len(), &window, |_| true)
             .into_iter()
-            .map(|end| Window { recording: r, end })
+            .map(|end| Window { recording: 0, end })
             .collect();
         let chosen: Vec<Window> = if args.split == "all" {
             ends

@@ -271,9 +271,11 @@ impl<'a> Trainer<'a> {
         })
     }
 
-    /// Continues from a saved state (same data, config and stage).
+    /// Continues from a saved state (same data, config and stage; the epoch limit and
+    /// patience stay this trainer's).
     pub fn restore(&mut self, s: &Snapshot) -> Result<(), TrainError> {
-        if s.stage != self.stage {
+        let same = |a: &Stage, b: &Stage| a.name == b.name && a.group == b.group && a.lr0 == b.lr0;
+        if !same(&s.stage, &self.stage) {
             return Err(TrainError::Data(format!(
                 "the saved state is of stage {:?} (group {}, lr0 {}), this run is {:?} (group {}, lr0 {})",
                 s.stage.name, s.stage.group, s.stage.lr0, self.stage.name, self.stage.group, self.stage.lr0
@@ -284,6 +286,7 @@ impl<'a> Trainer<'a> {
         self.progress = s.progress.clone();
         self.best = s.best.clone();
         self.start = s.clone();
+        self.start.stage = self.stage.clone();
         Ok(())
     }
 

@@ -1,0 +1,56 @@
+//! Shared fixture of the training tests: a short twin session written by the CLI (a
+//! calibration measurement set, its EKF calibration and short polishing recordings).
+
+use std::path::{Path, PathBuf};
+
+/// Runs the `iastgcn` binary with `args`; panics with its stderr on failure; returns stdout.
+pub fn cli(args: &[&str]) -> String {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success(),
+        "iastgcn {args:?} failed:\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// In `dir`: `cal.toml` (EKF on 60 simulated poses) and `<path>.csv` recordings of
+/// `seconds` each (seed 5). Returns (calibration, recordings).
+pub fn twin_session(dir: &Path, paths: &[&str], seconds: f64) -> (PathBuf, Vec<PathBuf>) {
+    std::fs::create_dir_all(dir).unwrap();
+    let p = |name: &str| dir.join(name).to_str().unwrap().to_string();
+    let (set, cal) = (p("set.csv"), p("cal.toml"));
+    cli(&[
+        "simulate",
+        "--trajectory",
+        "calibration",
+        "--poses",
+        "60",
+        "--out",
+        &set,
+    ]);
+    cli(&["calibrate", "--measurements", &set, "--out", &cal]);
+    let minutes = format!("{}", seconds / 60.0);
+    let recordings = paths
+        .iter()
+        .map(|path| {
+            let out = p(&format!("{path}.csv"));
+            cli(&[
+                "simulate",
+                "--trajectory",
+                path,
+                "--minutes",
+                &minutes,
+                "--seed",
+                "5",
+                "--out",
+                &out,
+            ]);
+            PathBuf::from(out)
+        })
+        .collect();
+    (PathBuf::from(cal), recordings)
+}

@@ -1,0 +1,186 @@
+//! The training CLI end to end on a short twin session: `train` writes the checkpoint,
+//! state, CSV log and loss plot; `--resume` continues to the same losses as an
+//! uninterrupted run; `predict` writes residuals with metrics; `refine` writes the
+//! refined model and the accumulated-error table; configs are checked field by field.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::cli;
+use iastgcn::train::RunConfig;
+
+const TINY: &str = "[model]\nwindow = 16\nchannels = 4\nblocks = 2\n\n[data]\nstride = 5\n\n\
+[train]\nbatch = 32\nlr = 3e-3\nmax_epochs = 2\n\n[refine]\nmagnifications = [5]\nmax_epochs = 1\n";
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// The `train_loss,val_loss` columns of a log.
+fn losses(log: &Path) -> Vec<String> {
+    std::fs::read_to_string(log)
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').skip(3).take(2).collect::<Vec<_>>().join(","))
+        .collect()
+}
+
+#[test]
+fn train_resume_predict_refine() {
+    let dir: PathBuf = std::env::temp_dir().join(format!("iastgcn-cli-{}", std::process::id()));
+    let (cal, recs) = common::twin_session(&dir, &["grid", "hilbert"], 40.0);
+    let config = dir.join("tiny.toml");
+    std::fs::write(&config, TINY).unwrap();
+    let f = |name: &str| dir.join(name);
+    let data: Vec<&str> = recs.iter().map(|p| s(p)).collect();
+    let train = |out: &Path, extra: &[&str]| {
+        let mut args = vec!["train", "--config", s(&config), "--calibration", s(&cal)];
+        args.extend(["--out", s(out), "--data"]);
+        args.extend(&data);
+        args.extend(extra);
+        cli(&args)
+    };
+
+    // Uninterrupted: two epochs.
+    let straight = f("straight.safetensors");
+    let text = train(&straight, &[]);
+    assert!(text.contains("test split"), "{text}");
+    for suffix in [
+        ".safetensors",
+        ".state.safetensors",
+        ".log.csv",
+        ".loss.png",
+    ] {
+        assert!(f(&format!("straight{suffix}")).exists(), "straight{suffix}");
+    }
+    let want = losses(&f("straight.log.csv"));
+    assert_eq!(want.len(), 2);
+
+    // Interrupted after one epoch, then resumed to two.
+    let m = f("m.safetensors");
+    train(&m, &["--max-epochs", "1"]);
+    assert_eq!(losses(&f("m.log.csv")), want[..1]);
+    let text = train(
+        &m,
+        &[
+            "--max-epochs",
+            "2",
+            "--resume",
+            s(&f("m.state.safetensors")),
+        ],
+    );
+    assert!(text.contains("resumed"), "{text}");
+    assert_eq!(
+        losses(&f("m.log.csv")),
+        want,
+        "the resumed run repeats the uninterrupted one"
+    );
+
+    // A state from another config is refused, naming the file.
+    std::fs::write(&config, TINY.replace("channels = 4", "channels = 5")).unwrap();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
+        .args([
+            "train",
+            "--config",
+            s(&config),
+            "--calibration",
+            s(&cal),
+            "--out",
+        ])
+        .arg(f("other.safetensors"))
+        .args(["--resume", s(&f("m.state.safetensors")), "--data"])
+        .args(&data)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success()
+            && err.contains("m.state.safetensors")
+            && err.contains("another config"),
+        "{err}"
+    );
+    std::fs::write(&config, TINY).unwrap();
+
+    // Predict on the test split: one row per window end, labels where the tracker measured.
+    let res = f("res.csv");
+    let mut args = vec![
+        "predict",
+        "--model",
+        s(&m),
+        "--calibration",
+        s(&cal),
+        "--out",
+        s(&res),
+    ];
+    args.extend(["--split", "test", "--stride", "5", "--data"]);
+    args.extend(&data);
+    let text = cli(&args);
+    assert!(text.contains("all") && text.contains('%'), "{text}");
+    let csv = std::fs::read_to_string(&res).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    assert_eq!(header.len(), 15);
+    assert_eq!(&header[..4], ["recording", "row", "t", "pred_dx_um"]);
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert!(rows.len() > 10);
+    assert!(rows
+        .iter()
+        .all(|r| r.len() == 15 && r[3].parse::<f64>().is_ok()));
+    assert!(
+        rows.iter().any(|r| r[9].parse::<f64>().is_ok()),
+        "some windows are labelled"
+    );
+
+    // Refine: one stage of ensembles of 5.
+    let refined = f("refined.safetensors");
+    let mut args = vec![
+        "refine",
+        "--model",
+        s(&m),
+        "--config",
+        s(&config),
+        "--calibration",
+        s(&cal),
+    ];
+    args.extend(["--out", s(&refined), "--data"]);
+    args.extend(&data);
+    let text = cli(&args);
+    assert!(text.contains("accumulated error"), "{text}");
+    let acc = std::fs::read_to_string(f("refined.accumulated.csv")).unwrap();
+    assert!(acc.starts_with("horizon,pos_before_um"));
+    assert!(acc.lines().count() > 5);
+    assert!(f("refined.accumulated.png").exists());
+    iastgcn::model::Checkpoint::load(&refined).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn run_configs_have_defaults_and_checks() {
+    let demo = RunConfig::demo();
+    assert_eq!(demo.model.window, 48);
+    let paper = RunConfig::parse(include_str!("../assets/paper.toml"), "paper.toml").unwrap();
+    assert_eq!(
+        paper,
+        RunConfig::default(),
+        "paper.toml spells out the defaults"
+    );
+    let empty = RunConfig::parse("", "empty.toml").unwrap();
+    assert_eq!(empty, RunConfig::default());
+    for (text, needle) in [
+        ("[train]\nlr = -1.0\n", "train.lr"),
+        ("[train]\nbatch = 0\n", "train.batch"),
+        ("[data]\nsplit = \"shuffled\"\n", "data.split"),
+        ("[refine]\nmagnifications = [1]\n", "refine.magnifications"),
+        ("[model]\nchannels = 0\n", "channels"),
+        ("[train]\nlearning_rate = 1e-3\n", "learning_rate"),
+        ("[training]\n", "training"),
+    ] {
+        let e = RunConfig::parse(text, "bad.toml").unwrap_err().to_string();
+        assert!(
+            e.starts_with("bad.toml") && e.contains(needle),
+            "{text:?}: {e}"
+        );
+    }
+}
