@@ -13,8 +13,8 @@ mod truth;
 pub use mirror::Mirror;
 pub use sensors::{SensorNoise, SensorRates, CHANNELS, CHANNEL_UNITS};
 pub use simulate::{
-    measure_calibration, Actual, CalibrationMeasurement, Hidden, Machine, Sample, SimConfig,
-    Simulation,
+    measure_calibration, pose_error, Actual, CalibrationMeasurement, Correction, Hidden, Machine,
+    Sample, SimConfig, Simulation,
 };
 pub use trajectory::{calibration_configurations, Path, PathKind, PathParams};
 pub use truth::{draw_errors, draw_machine, draw_nongeometric, gaussian, ErrorScales};

@@ -159,7 +159,7 @@ impl SimConfig {
 /// never written to a recording.
 #[derive(Clone, Copy, Debug)]
 pub struct Hidden {
-    /// Where the path wanted the pad.
+    /// Where the path wanted the pad (before any [`Correction`]).
     pub target: ToolTarget,
     /// Pad pose the controller's model expects for its command.
     pub commanded: Isometry3<f64>,
@@ -192,6 +192,46 @@ fn noisy_pose(
     )
 }
 
+/// A pose correction the controller subtracts from the target before inverse kinematics:
+/// the position moves by −dp (mm, base frame) and the tool axis turns by the rotation −dr
+/// (rotation vector, rad, base frame). A residual dp = p_actual − p_target with dr the
+/// rotation taking the target axis to the actual one is thus cancelled to first order.
+/// The component of dr along the tool axis has no effect: a [`ToolTarget`] leaves the
+/// spin about the axis free.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Correction {
+    pub dp: Vector3<f64>,
+    pub dr: Vector3<f64>,
+}
+
+impl Correction {
+    /// The target the controller solves for: `target` moved by −dp, its axis turned by −dr.
+    /// A zero correction returns `target` bit for bit.
+    pub fn apply(&self, target: &ToolTarget) -> ToolTarget {
+        let axis = if self.dr == Vector3::zeros() {
+            target.axis
+        } else {
+            UnitQuaternion::from_scaled_axis(-self.dr) * target.axis
+        };
+        ToolTarget {
+            position: target.position - self.dp,
+            axis,
+        }
+    }
+}
+
+/// How far `actual` is from `target`: the pad-centre distance ‖p_actual − p_target‖ in µm
+/// and the angle between the actual tool axis (the pose's z axis, as
+/// [`Robot::solve_tool`] and [`Robot::tool_pose`] define it) and the target axis in mdeg.
+pub fn pose_error(target: &ToolTarget, actual: &Isometry3<f64>) -> (f64, f64) {
+    let position = (actual.translation.vector - target.position).norm() * 1e3;
+    let axis = actual.rotation * Vector3::z();
+    let goal = target.axis.normalize();
+    // atan2 keeps full precision for small angles, where acos of the dot product does not.
+    let angle = axis.cross(&goal).norm().atan2(axis.dot(&goal));
+    (position, angle.to_degrees() * 1e3)
+}
+
 /// A polishing run: call [`Simulation::step`] until it returns `None`.
 pub struct Simulation<'a> {
     machine: &'a Machine,
@@ -208,6 +248,7 @@ pub struct Simulation<'a> {
     command: Configuration,
     platform: PlatformPose,
     last_target: Option<Vector3<f64>>,
+    correction: Correction,
 }
 
 impl<'a> Simulation<'a> {
@@ -242,6 +283,7 @@ impl<'a> Simulation<'a> {
             command,
             platform: command.platform,
             last_target: None,
+            correction: Correction::default(),
             config,
         })
     }
@@ -252,6 +294,17 @@ impl<'a> Simulation<'a> {
 
     pub fn config(&self) -> &SimConfig {
         &self.config
+    }
+
+    /// The correction applied from the next tick on (until set again): the controller
+    /// solves its inverse kinematics for `c.apply(target)` instead of the path target.
+    /// [`Hidden::target`] stays the path target, so errors are measured against it;
+    /// [`Hidden::commanded`] is the pose the controller expects for its corrected command.
+    /// The polishing force still presses along the path target's axis and feeds along the
+    /// path. [`Correction::default`] (the start) leaves the run bit-identical to an
+    /// uncorrected one.
+    pub fn set_correction(&mut self, c: Correction) {
+        self.correction = c;
     }
 
     /// Advances one control tick.
@@ -282,7 +335,9 @@ impl<'a> Simulation<'a> {
             + gaussian(&mut self.rng, c.force_sd * (1.0 - a * a).sqrt());
         let [x, y] = self.path.at(self.arc);
         let target = self.mirror.target(x, y);
-        let (command, lengths) = self.controller.solve_tool(&target, &self.command)?;
+        let (command, lengths) = self
+            .controller
+            .solve_tool(&self.correction.apply(&target), &self.command)?;
         self.command = command;
         let encoders = Joints {
             limbs: lengths,
