@@ -9,6 +9,7 @@
 pub mod atomic;
 pub mod calibrate;
 pub mod cli;
+pub mod compensate;
 pub mod data;
 pub mod gpu;
 pub mod graph;

@@ -1,5 +1,6 @@
-//! PNG line charts for people who would rather look than read: loss curves, residual
-//! traces, paths. Pure Rust (the font is embedded), so it works on a bare CI machine.
+//! PNG charts for people who would rather look than read: loss curves, residual traces,
+//! paths, scatter clouds and bar charts. Pure Rust (the font is embedded), so it works on
+//! a bare CI machine.
 
 use std::path::Path;
 use std::sync::Once;
@@ -23,19 +24,76 @@ pub struct PlotError {
     pub message: String,
 }
 
-/// One line of a chart.
+/// How a series is drawn.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Style {
+    /// A polyline through the points, in order.
+    #[default]
+    Line,
+    /// One small translucent dot per point (a scatter cloud).
+    Points,
+    /// One bar per point, from y = 0 to y, [`BAR_WIDTH`] x-units wide and centred on x
+    /// (put the bars at x = 0, 1, 2, …). In a panel made only of bars, the x-axis is
+    /// labelled at each bar with the name of its series instead of numbers.
+    Bars,
+}
+
+/// Width of a [`Style::Bars`] bar in x-units.
+pub const BAR_WIDTH: f64 = 0.8;
+
+/// One series of a chart: a line (the default), a scatter cloud or bars.
 #[derive(Clone, Debug)]
 pub struct Series {
     pub name: String,
     pub points: Vec<(f64, f64)>,
+    pub style: Style,
 }
 
 impl Series {
+    /// A line through `points`.
     pub fn new(name: impl Into<String>, points: Vec<(f64, f64)>) -> Series {
         Series {
             name: name.into(),
             points,
+            style: Style::Line,
         }
+    }
+
+    /// A scatter cloud of `points`.
+    pub fn scatter(name: impl Into<String>, points: Vec<(f64, f64)>) -> Series {
+        Series {
+            style: Style::Points,
+            ..Series::new(name, points)
+        }
+    }
+
+    /// Bars at `points` (x = position of the bar's centre, y = its height).
+    pub fn bars(name: impl Into<String>, points: Vec<(f64, f64)>) -> Series {
+        Series {
+            style: Style::Bars,
+            ..Series::new(name, points)
+        }
+    }
+
+    /// The x values the chart must show: bars take their width, the rest their points.
+    fn x_extent(&self) -> Vec<f64> {
+        match self.style {
+            Style::Bars => self
+                .points
+                .iter()
+                .flat_map(|p| [p.0 - 0.5 * BAR_WIDTH, p.0 + 0.5 * BAR_WIDTH])
+                .collect(),
+            _ => self.points.iter().map(|p| p.0).collect(),
+        }
+    }
+
+    /// The y values the chart must show: bars also need their base at 0.
+    fn y_extent(&self) -> Vec<f64> {
+        let mut ys: Vec<f64> = self.points.iter().map(|p| p.1).collect();
+        if self.style == Style::Bars && !ys.is_empty() {
+            ys.push(0.0);
+        }
+        ys
     }
 }
 
@@ -91,16 +149,8 @@ pub fn draw(
         root.fill(&WHITE).map_err(|e| err(&e))?;
         let areas = root.split_evenly((rows, cols));
         for (panel, area) in panels.iter().zip(areas.iter()) {
-            let mut xs = panel
-                .series
-                .iter()
-                .flat_map(|s| s.points.iter().map(|p| p.0));
-            let mut ys = panel
-                .series
-                .iter()
-                .flat_map(|s| s.points.iter().map(|p| p.1));
-            let (mut x0, mut x1) = range(&mut xs);
-            let (mut y0, mut y1) = range(&mut ys);
+            let (mut x0, mut x1) = range(panel.series.iter().flat_map(Series::x_extent));
+            let (mut y0, mut y1) = range(panel.series.iter().flat_map(Series::y_extent));
             if panel.equal_aspect {
                 let (w, h) = area.dim_in_pixel();
                 let (sx, sy) = ((x1 - x0) / w as f64, (y1 - y0) / h as f64);
@@ -116,25 +166,64 @@ pub fn draw(
                 .y_label_area_size(60)
                 .build_cartesian_2d(x0..x1, y0..y1)
                 .map_err(|e| err(&e))?;
-            chart
-                .configure_mesh()
-                .x_desc(&panel.x_label)
+            // A panel of bars only is categorical: name each bar on the x-axis.
+            let bars: Vec<(f64, &str)> = panel
+                .series
+                .iter()
+                .filter(|s| s.style == Style::Bars)
+                .flat_map(|s| s.points.iter().map(move |p| (p.0, s.name.as_str())))
+                .collect();
+            let categorical =
+                !bars.is_empty() && panel.series.iter().all(|s| s.style == Style::Bars);
+            let bar_label = |v: &f64| -> String {
+                bars.iter()
+                    .find(|b| (b.0 - v).abs() < 1e-6)
+                    .map_or(String::new(), |b| b.1.to_string())
+            };
+            let mut mesh = chart.configure_mesh();
+            mesh.x_desc(&panel.x_label)
                 .y_desc(&panel.y_label)
-                .label_style(("sans-serif", 12))
-                .draw()
-                .map_err(|e| err(&e))?;
+                .label_style(("sans-serif", 12));
+            if categorical {
+                mesh.x_labels(bars.len() + 1)
+                    .x_label_formatter(&bar_label)
+                    .disable_x_mesh();
+            }
+            mesh.draw().map_err(|e| err(&e))?;
             for (i, s) in panel.series.iter().enumerate() {
                 let color = Palette99::pick(i).to_rgba();
-                chart
-                    .draw_series(LineSeries::new(
-                        s.points.iter().copied(),
-                        color.stroke_width(1),
-                    ))
-                    .map_err(|e| err(&e))?
-                    .label(&s.name)
-                    .legend(move |(x, y)| {
-                        PathElement::new(vec![(x, y), (x + 16, y)], color.stroke_width(2))
-                    });
+                let finite = s
+                    .points
+                    .iter()
+                    .copied()
+                    .filter(|p| p.0.is_finite() && p.1.is_finite());
+                let anno = match s.style {
+                    Style::Line => chart
+                        .draw_series(LineSeries::new(
+                            s.points.iter().copied(),
+                            color.stroke_width(1),
+                        ))
+                        .map_err(|e| err(&e))?
+                        .legend(move |(x, y)| {
+                            PathElement::new(vec![(x, y), (x + 16, y)], color.stroke_width(2))
+                        }),
+                    Style::Points => chart
+                        .draw_series(finite.map(|p| Circle::new(p, 2, color.mix(0.45).filled())))
+                        .map_err(|e| err(&e))?
+                        .legend(move |(x, y)| Circle::new((x + 8, y), 3, color.filled())),
+                    Style::Bars => chart
+                        .draw_series(finite.map(|(x, y)| {
+                            Rectangle::new(
+                                [(x - 0.5 * BAR_WIDTH, 0.0), (x + 0.5 * BAR_WIDTH, y)],
+                                color.mix(0.85).filled(),
+                            )
+                        }))
+                        .map_err(|e| err(&e))?
+                        .legend(move |(x, y)| {
+                            Rectangle::new([(x + 2, y - 5), (x + 14, y + 5)], color.filled())
+                        }),
+                };
+                anno.label(&s.name);
             }
             if panel.series.len() > 1 {
                 chart

@@ -184,3 +184,73 @@ fn run_configs_have_defaults_and_checks() {
         );
     }
 }
+
+/// `iastgcn demo` end to end at a tiny size: every stage runs and the report folder has
+/// the two tables with the promised columns and rows.
+#[test]
+fn demo_writes_the_report() {
+    let dir: PathBuf = std::env::temp_dir().join(format!("iastgcn-demo-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("tiny.toml");
+    std::fs::write(
+        &config,
+        TINY.replace("max_epochs = 2\n", "max_epochs = 1\n")
+            .replace("magnifications = [5]", "magnifications = [3]"),
+    )
+    .unwrap();
+    let out = dir.join("report");
+    let text = cli(&[
+        "demo",
+        "--config",
+        s(&config),
+        "--minutes",
+        "0.5",
+        "--held-out-minutes",
+        "0.1",
+        "--out",
+        s(&out),
+    ]);
+    assert!(text.contains("demo finished"), "{text}");
+    let table_v = std::fs::read_to_string(out.join("table_v.csv")).unwrap();
+    let mut lines = table_v.lines();
+    assert_eq!(
+        lines.next().unwrap(),
+        "trajectory,stage,model,pos_mean_um,pos_sd_um,pos_max_um,att_mean_mdeg,att_sd_mdeg,att_max_mdeg"
+    );
+    let rows: Vec<Vec<String>> = lines
+        .map(|l| l.split(',').map(str::to_string).collect())
+        .collect();
+    // Per path: initial, calibrated, and 5 compensated (4 core models + the refined one).
+    assert_eq!(rows.len(), 3 * 7);
+    for path in ["grid", "fermat", "hilbert"] {
+        let of = |stage: &str| {
+            rows.iter()
+                .filter(|r| r[0] == path && r[1] == stage)
+                .count()
+        };
+        assert_eq!(
+            (of("initial"), of("calibrated"), of("compensated")),
+            (1, 1, 5),
+            "{path}"
+        );
+    }
+    assert!(rows
+        .iter()
+        .all(|r| r[3..].iter().all(|v| v.parse::<f64>().unwrap().is_finite())));
+    let table_iii = std::fs::read_to_string(out.join("table_iii.csv")).unwrap();
+    assert!(table_iii.starts_with(
+        "trajectory,model,pos_mae_um,pos_rmse_um,pos_mape_pct,att_mae_mdeg,att_rmse_mdeg,att_mape_pct\n"
+    ));
+    assert!(table_iii.contains("hilbert,iastgcn-s,") && table_iii.contains("training mean"));
+    for f in [
+        "report.md",
+        "fig11_hilbert.png",
+        "fig10_timings.png",
+        "losses.png",
+        "accumulated.png",
+    ] {
+        assert!(out.join(f).exists(), "{f}");
+    }
+    assert!(out.join("models/iastgcn-refined.safetensors").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}

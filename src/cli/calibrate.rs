@@ -18,19 +18,19 @@ use crate::stats::Summary;
 pub struct CalibrateArgs {
     /// Calibration measurement set (CSV: q1..q5, x,y,z,rx,ry,rz).
     #[arg(long)]
-    measurements: PathBuf,
+    pub measurements: PathBuf,
     /// Output calibration file (TOML).
     #[arg(long)]
-    out: PathBuf,
+    pub out: PathBuf,
     /// Robot geometry asset (default: the embedded assets/robot.toml).
     #[arg(long)]
-    robot: Option<PathBuf>,
+    pub robot: Option<PathBuf>,
     /// Every how many measurements one is held out for the report (0: none).
     #[arg(long, default_value_t = 5)]
-    hold_out_every: usize,
+    pub hold_out_every: usize,
     /// Polishing recordings to report the error on before and after calibration.
     #[arg(long, num_args = 1..)]
-    recordings: Vec<PathBuf>,
+    pub recordings: Vec<PathBuf>,
 }
 
 /// Position (µm) and attitude (mdeg) errors of `model`'s prediction of each measurement.

@@ -1,7 +1,9 @@
 //! Command line: clap commands, and every error turned into one readable message.
 
 mod calibrate;
+mod compensate;
 mod dataset;
+mod demo;
 mod info;
 mod model;
 mod simulate;
@@ -50,6 +52,13 @@ enum Command {
     Refine(train::RefineArgs),
     /// Predict residuals per window end of recordings; metrics where labels exist.
     Predict(train::PredictArgs),
+    /// Run a held-out path in the twin: nominal, calibrated, and compensated online by each model.
+    Compensate(compensate::CompensateArgs),
+    /// Tables III and V and the report folder for trained models.
+    Evaluate(demo::EvaluateArgs),
+    /// The main job end to end on the embedded twin: simulate, calibrate, train the four
+    /// variants, refine, compensate, report.
+    Demo(demo::DemoArgs),
 }
 
 fn open_gpu(adapter: Option<&str>) -> anyhow::Result<Gpu> {
@@ -90,6 +99,15 @@ pub fn main() -> ExitCode {
         }
         Command::Predict(args) => open_gpu(cli.adapter.as_deref())
             .and_then(|gpu| train::predict(std::sync::Arc::new(gpu), &args)),
+        Command::Compensate(args) => {
+            open_gpu(cli.adapter.as_deref()).and_then(|gpu| compensate::run(gpu, &args))
+        }
+        Command::Evaluate(args) => {
+            open_gpu(cli.adapter.as_deref()).and_then(|gpu| demo::evaluate(gpu, &args))
+        }
+        Command::Demo(args) => {
+            open_gpu(cli.adapter.as_deref()).and_then(|gpu| demo::demo(gpu, &args))
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

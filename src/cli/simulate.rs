@@ -18,29 +18,29 @@ use crate::twin::{
 pub struct SimulateArgs {
     /// Path to polish (grid, fermat, hilbert) or `calibration` for static measurement poses.
     #[arg(long, value_parser = ["grid", "fermat", "hilbert", "calibration"])]
-    trajectory: String,
+    pub trajectory: String,
     /// Length of a polishing run, minutes.
     #[arg(long, default_value_t = 5.0)]
-    minutes: f64,
+    pub minutes: f64,
     /// Seed of the run (sensor noise, force, feed modulation, calibration poses).
     #[arg(long, default_value_t = 7)]
-    seed: u64,
+    pub seed: u64,
     /// Seed of the machine: its geometric errors and non-geometric sources (the twin's
     /// default machine is 1).
     #[arg(long, default_value_t = 1)]
-    machine_seed: u64,
+    pub machine_seed: u64,
     /// Robot geometry asset (default: the embedded assets/robot.toml).
     #[arg(long)]
-    robot: Option<PathBuf>,
+    pub robot: Option<PathBuf>,
     /// Number of measurement poses for `--trajectory calibration`.
     #[arg(long, default_value_t = 80)]
-    poses: usize,
+    pub poses: usize,
     /// Output CSV.
     #[arg(long)]
-    out: PathBuf,
+    pub out: PathBuf,
     /// PNG of the path and error traces (default: the output path with `.png`).
     #[arg(long)]
-    plot: Option<PathBuf>,
+    pub plot: Option<PathBuf>,
 }
 
 fn progress(len: u64, what: &str) -> ProgressBar {

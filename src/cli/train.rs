@@ -188,7 +188,7 @@ fn epoch_bar(len: usize, what: &str) -> ProgressBar {
     bar
 }
 
-fn read_run_config(path: Option<&Path>, variant: Option<&str>) -> anyhow::Result<RunConfig> {
+pub fn read_run_config(path: Option<&Path>, variant: Option<&str>) -> anyhow::Result<RunConfig> {
     let mut config = match path {
         Some(p) => RunConfig::load(p)?,
         None => RunConfig::default(),
@@ -242,7 +242,7 @@ pub fn test_metrics(
         .collect())
 }
 
-fn print_metrics(rows: &[(String, Metrics, Metrics)]) {
+pub fn print_metrics(rows: &[(String, Metrics, Metrics)]) {
     println!("test split (per recording)          model MAE µm/mdeg   training-mean MAE µm/mdeg   windows");
     for (name, m, b) in rows {
         println!(
@@ -417,23 +417,35 @@ fn accumulated(
     Ok(accumulated_error(&pairs, horizon))
 }
 
-pub fn refine(gpu: &Gpu, args: &RefineArgs) -> anyhow::Result<()> {
-    let ck = Checkpoint::load(&args.model)?;
-    let mut config = read_run_config(args.config.as_deref(), None)?;
-    config.model = ck.config.clone();
-    let fixed = train::data_normalization(&ck.normalization)
-        .context("the checkpoint's normalisation is not N×3 features and 6 labels")?;
-    let (graph, data) = build_dataset(&args.data, &config, Some(&fixed))?;
+/// What a refinement produced.
+pub struct Refined {
+    pub params: Parameters,
+    pub history: Vec<crate::train::EpochRecord>,
+    /// Fig. 9b before and after: (k, position µm, attitude mdeg).
+    pub before: Vec<(usize, f64, f64)>,
+    pub after: Vec<(usize, f64, f64)>,
+    pub metrics_before: Vec<(String, Metrics, Metrics)>,
+    pub metrics_after: Vec<(String, Metrics, Metrics)>,
+}
+
+/// Runs the refinement stages of `config` from `init` (Algorithm 2).
+pub fn refine_params(
+    gpu: &Gpu,
+    data: &Dataset,
+    graph: &Graph,
+    config: &RunConfig,
+    init: &Parameters,
+) -> anyhow::Result<Refined> {
     let horizon = config.refine.horizon;
-    let mut params = ck.parameters.clone();
+    let mut params = init.clone();
     let mut history = Vec::new();
     let mut before = None;
     let mut last: Option<Trainer> = None;
-    for stage in refine_stages(&config) {
+    for stage in refine_stages(config) {
         let mut trainer = Trainer::new(
             gpu,
-            &data,
-            &graph,
+            data,
+            graph,
             &config.model,
             &config.train,
             stage.clone(),
@@ -441,8 +453,8 @@ pub fn refine(gpu: &Gpu, args: &RefineArgs) -> anyhow::Result<()> {
         )?;
         if before.is_none() {
             before = Some((
-                accumulated(&trainer, &data, horizon)?,
-                test_metrics(&trainer, &data)?,
+                accumulated(&trainer, data, horizon)?,
+                test_metrics(&trainer, data)?,
             ));
         }
         println!(
@@ -461,26 +473,47 @@ pub fn refine(gpu: &Gpu, args: &RefineArgs) -> anyhow::Result<()> {
     let Some(trainer) = last else {
         bail!("refine.magnifications is empty: nothing to refine");
     };
-    let (acc_before, metrics_before) = before.expect("set with the first stage");
-    let acc_after = accumulated(&trainer, &data, horizon)?;
-    let metrics_after = test_metrics(&trainer, &data)?;
+    let (before, metrics_before) = before.expect("set with the first stage");
+    Ok(Refined {
+        after: accumulated(&trainer, data, horizon)?,
+        metrics_after: test_metrics(&trainer, data)?,
+        params,
+        history,
+        before,
+        metrics_before,
+    })
+}
+
+/// Prints the accumulated-error table of a refinement.
+pub fn print_accumulated(before: &[(usize, f64, f64)], after: &[(usize, f64, f64)]) {
+    println!("accumulated error over consecutive held-out windows |Σ(ŷ−y)|, position µm / attitude mdeg:");
+    println!("  k    before              after");
+    for ((k, pb, ab), (_, pa, aa)) in before.iter().zip(after) {
+        println!("  {k:<4} {pb:>8.3} / {ab:<8.3}  {pa:>8.3} / {aa:<8.3}");
+    }
+}
+
+pub fn refine(gpu: &Gpu, args: &RefineArgs) -> anyhow::Result<()> {
+    let ck = Checkpoint::load(&args.model)?;
+    let mut config = read_run_config(args.config.as_deref(), None)?;
+    config.model = ck.config.clone();
+    let fixed = train::data_normalization(&ck.normalization)
+        .context("the checkpoint's normalisation is not N×3 features and 6 labels")?;
+    let (graph, data) = build_dataset(&args.data, &config, Some(&fixed))?;
+    let r = refine_params(gpu, &data, &graph, &config, &ck.parameters)?;
     Checkpoint {
-        parameters: params,
+        parameters: r.params.clone(),
         ..ck
     }
     .save(&args.out)?;
-    log::write_csv(&sibling(&args.out, ".log.csv"), &history)?;
-    log::plot_losses(&sibling(&args.out, ".loss.png"), "refine", &history)?;
-    write_accumulated(&args.out, &acc_before, &acc_after)?;
-    println!("accumulated error over consecutive held-out windows |Σ(ŷ−y)|, position µm / attitude mdeg:");
-    println!("  k    before              after");
-    for ((k, pb, ab), (_, pa, aa)) in acc_before.iter().zip(&acc_after) {
-        println!("  {k:<4} {pb:>8.3} / {ab:<8.3}  {pa:>8.3} / {aa:<8.3}");
-    }
+    log::write_csv(&sibling(&args.out, ".log.csv"), &r.history)?;
+    log::plot_losses(&sibling(&args.out, ".loss.png"), "refine", &r.history)?;
+    write_accumulated(&args.out, &r.before, &r.after)?;
+    print_accumulated(&r.before, &r.after);
     println!("before refinement:");
-    print_metrics(&metrics_before);
+    print_metrics(&r.metrics_before);
     println!("after refinement:");
-    print_metrics(&metrics_after);
+    print_metrics(&r.metrics_after);
     println!("saved {}", args.out.display());
     Ok(())
 }

@@ -181,6 +181,13 @@ impl Predictor {
     /// Pushes one step of raw features `[N, F]`; once T steps have been pushed, returns
     /// the residual of the window ending at this step.
     pub fn push(&mut self, step: &[f32]) -> Result<Option<Residual>, ModelError> {
+        self.push_step(step)?;
+        self.predict_latest()
+    }
+
+    /// Pushes one step of raw features `[N, F]` into the ring without predicting (for a
+    /// controller that predicts every k-th tick); true once T steps are in.
+    pub fn push_step(&mut self, step: &[f32]) -> Result<bool, ModelError> {
         let (n, f, t) = (self.config.nodes, self.config.features, self.config.window);
         if step.len() != n * f {
             return Err(ModelError::Config(format!(
@@ -192,6 +199,13 @@ impl Predictor {
         self.ring[self.head * n * f..][..n * f].copy_from_slice(step);
         self.head = (self.head + 1) % t;
         self.filled = (self.filled + 1).min(t);
+        Ok(self.filled == t)
+    }
+
+    /// The residual of the window ending at the last pushed step; `None` until T steps
+    /// have been pushed.
+    pub fn predict_latest(&mut self) -> Result<Option<Residual>, ModelError> {
+        let (n, f, t) = (self.config.nodes, self.config.features, self.config.window);
         if self.filled < t {
             return Ok(None);
         }

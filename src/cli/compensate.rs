@@ -1,0 +1,135 @@
+//! `iastgcn compensate`: run a held-out polishing path in the twin three ways (nominal
+//! controller, calibrated controller, calibrated controller compensating online with each
+//! model) and print the Table V rows.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::Context;
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::calibrate::file;
+use crate::compensate::evaluate::{predictors, table_v, HeldOut};
+use crate::compensate::online::Online;
+use crate::compensate::report::TableVRow;
+use crate::gpu::Gpu;
+use crate::model::Checkpoint;
+use crate::robot::{Geometry, Robot};
+use crate::twin::{draw_machine, PathKind, SimConfig};
+
+#[derive(clap::Args)]
+pub struct CompensateArgs {
+    /// Checkpoints to compensate with (each gets its own run).
+    #[arg(long, num_args = 1.., required = true)]
+    pub model: Vec<PathBuf>,
+    /// Calibration file (the controller's model).
+    #[arg(long)]
+    pub calibration: PathBuf,
+    /// Path to run: grid, fermat, hilbert.
+    #[arg(long, default_value = "hilbert", value_parser = ["grid", "fermat", "hilbert"])]
+    pub trajectory: String,
+    /// Length of the run, minutes.
+    #[arg(long, default_value_t = 1.0)]
+    pub minutes: f64,
+    /// Seed of the run (use one the training recordings did not).
+    #[arg(long, default_value_t = 12)]
+    pub seed: u64,
+    /// Seed of the machine (the twin's default machine is 1).
+    #[arg(long, default_value_t = 1)]
+    pub machine_seed: u64,
+    /// Predict every this many control ticks (the correction is held in between).
+    #[arg(long, default_value_t = 1)]
+    pub every: usize,
+    /// Robot geometry asset (default: the embedded assets/robot.toml).
+    #[arg(long)]
+    pub robot: Option<PathBuf>,
+}
+
+/// A progress bar over control ticks.
+pub fn tick_bar(len: usize, what: &str) -> ProgressBar {
+    let bar = ProgressBar::new(len as u64);
+    bar.set_style(
+        ProgressStyle::with_template(&format!(
+            "{what} {{bar:40}} {{pos}}/{{len}} ticks {{elapsed}}"
+        ))
+        .expect("valid progress template"),
+    );
+    bar
+}
+
+/// Prints Table V rows.
+pub fn print_table_v(rows: &[TableVRow]) {
+    println!(
+        "{:<10} {:<12} {:<14} {:>9} {:>8} {:>9}   {:>8} {:>7} {:>8}",
+        "path", "stage", "model", "pos mean", "SD", "max", "att mean", "SD", "max"
+    );
+    println!("{:<38} {:>28}   {:>25}", "", "(µm)", "(mdeg)");
+    for r in rows {
+        let (p, a) = (r.errors.position, r.errors.attitude);
+        println!(
+            "{:<10} {:<12} {:<14} {:>9.1} {:>8.1} {:>9.1}   {:>8.2} {:>7.2} {:>8.2}",
+            r.trajectory, r.stage, r.model, p.mean, p.sd, p.max, a.mean, a.sd, a.max
+        );
+    }
+}
+
+pub fn run(gpu: Gpu, args: &CompensateArgs) -> anyhow::Result<()> {
+    let geometry = match &args.robot {
+        Some(p) => Geometry::load(p)?,
+        None => Geometry::default_asset(),
+    };
+    let cal = file::load(&args.calibration)?;
+    let machine = draw_machine(geometry.clone(), args.machine_seed);
+    let nominal = Robot::nominal(geometry.clone());
+    let calibrated = Robot::new(geometry, cal.errors);
+    let path: PathKind = args.trajectory.parse().map_err(anyhow::Error::msg)?;
+    anyhow::ensure!(
+        args.minutes.is_finite() && args.minutes > 0.0,
+        "--minutes must be positive, got {}",
+        args.minutes
+    );
+    let checkpoints = args
+        .model
+        .iter()
+        .map(|p| {
+            let ck = Checkpoint::load(p)?;
+            let name = p
+                .file_stem()
+                .map_or("model".into(), |s| s.to_string_lossy().into_owned());
+            Ok((name, ck))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let graph = checkpoints[0].1.graph.clone();
+    let gpu = Arc::new(gpu);
+    let mut models = predictors(&gpu, &checkpoints)?;
+    let run = HeldOut {
+        path,
+        seconds: args.minutes * 60.0,
+        seed: args.seed,
+    };
+    let ticks = SimConfig::new(path, run.seconds, run.seed).steps();
+    let bar = tick_bar(
+        ticks * (2 + models.len()),
+        &format!("compensating {}", path.name()),
+    );
+    let (rows, _, latency) = table_v(
+        &machine,
+        &nominal,
+        &calibrated,
+        &graph,
+        &mut models,
+        run,
+        Online { every: args.every },
+        |_| bar.inc(1),
+    )
+    .context("compensation run")?;
+    bar.finish_and_clear();
+    print_table_v(&rows);
+    for (m, ms) in latency {
+        println!(
+            "{m}: {ms:.2} ms per online prediction on {}",
+            gpu.info().name
+        );
+    }
+    Ok(())
+}

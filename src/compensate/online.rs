@@ -1,0 +1,146 @@
+//! Online compensation in the twin (TWIN.md "Compensation", section IV-E): at each
+//! control tick the controller streams the sensor values into the causal features, the
+//! [`Predictor`] predicts the residual of the window ending at that tick, and the
+//! predicted residual is subtracted from the commanded pose of the next tick before
+//! inverse kinematics. The tracker measures the pad throughout; the error of a tick is
+//! the measured pose (mapped to the base frame with the controller's registration)
+//! against the path target: position in µm, tool-axis angle in mdeg.
+
+use std::time::Instant;
+
+use anyhow::Context;
+
+use super::report::{ErrorStats, Trace};
+use crate::data::features::Stream;
+use crate::data::FeatureConfig;
+use crate::graph::Graph;
+use crate::model::Predictor;
+use crate::robot::Robot;
+use crate::stats::Summary;
+use crate::twin::{
+    pose_error, Correction, Machine, Mirror, PathKind, SimConfig, Simulation, CHANNELS,
+};
+
+/// What a compensated (or plain) run measured.
+#[derive(Clone, Debug)]
+pub struct RunResult {
+    pub errors: ErrorStats,
+    /// Per tracker sample: (t, ex, ey, ez) in µm, base frame.
+    pub trace: Vec<(f64, f64, f64, f64)>,
+    /// Predictions made and their mean latency (ms); 0 without a model.
+    pub predictions: usize,
+    pub predict_ms: f64,
+}
+
+/// Online compensation settings.
+#[derive(Clone, Copy, Debug)]
+pub struct Online {
+    /// Predict every `every` ticks and hold the correction in between (1 = every tick).
+    pub every: usize,
+}
+
+impl Default for Online {
+    fn default() -> Online {
+        Online { every: 1 }
+    }
+}
+
+/// Indices into the twin's [`CHANNELS`] of the graph's nodes.
+fn node_channels(graph: &Graph) -> anyhow::Result<Vec<usize>> {
+    graph
+        .nodes
+        .iter()
+        .map(|n| {
+            CHANNELS
+                .iter()
+                .position(|c| c == n)
+                .with_context(|| format!("graph node {n:?} is not a twin sensor channel"))
+        })
+        .collect()
+}
+
+/// Runs one polishing path on `machine` driven by `controller`, compensating online with
+/// `model` when given; `on_tick` sees the progress (ticks done).
+pub fn run(
+    machine: &Machine,
+    controller: &Robot,
+    config: SimConfig,
+    model: Option<(&mut Predictor, &Graph, Online)>,
+    mut on_tick: impl FnMut(usize),
+) -> anyhow::Result<RunResult> {
+    let dt = config.dt;
+    let registration = controller.tracker_from_base().inverse();
+    let mut sim = Simulation::new(machine, controller, Mirror::default(), config)?;
+    let mut online = match model {
+        Some((predictor, graph, settings)) => {
+            predictor.reset();
+            let nodes = node_channels(graph)?;
+            let stream = Stream::new(nodes.len(), dt, &FeatureConfig::default());
+            Some((predictor, nodes, stream, settings))
+        }
+        None => None,
+    };
+    let n = online.as_ref().map_or(0, |o| o.1.len());
+    let mut values = vec![None; n];
+    let mut features = vec![0f64; n * 3];
+    let mut step = vec![0f32; n * 3];
+    let (mut pos, mut att, mut trace) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut predictions, mut predict_time) = (0usize, 0f64);
+    let mut tick = 0usize;
+    while let Some(sample) = sim.step() {
+        let s = sample.with_context(|| format!("twin at t = {:.2} s", tick as f64 * dt))?;
+        if let Some(m) = &s.tracker {
+            let base = registration * m;
+            let (p, a) = pose_error(&s.hidden.target, &base);
+            let e = (base.translation.vector - s.hidden.target.position) * 1e3;
+            pos.push(p);
+            att.push(a);
+            trace.push((s.t, e.x, e.y, e.z));
+        }
+        if let Some((predictor, nodes, stream, settings)) = online.as_mut() {
+            for (v, &c) in values.iter_mut().zip(nodes.iter()) {
+                *v = s.channels[c];
+            }
+            stream.push(&values, &mut features);
+            for (o, f) in step.iter_mut().zip(&features) {
+                *o = *f as f32;
+            }
+            let full = predictor.push_step(&step)?;
+            if full && tick.is_multiple_of(settings.every.max(1)) {
+                let began = Instant::now();
+                let r = predictor.predict_latest()?.expect("the ring is full");
+                predict_time += began.elapsed().as_secs_f64();
+                predictions += 1;
+                sim.set_correction(Correction {
+                    dp: nalgebra::Vector3::new(r[0], r[1], r[2]) * 1e-3,
+                    dr: nalgebra::Vector3::new(r[3], r[4], r[5]).map(|v| (v * 1e-3).to_radians()),
+                });
+            }
+        }
+        tick += 1;
+        on_tick(tick);
+    }
+    let summary = |v: &[f64]| Summary::of(v).context("the tracker measured nothing in this run");
+    Ok(RunResult {
+        errors: ErrorStats {
+            position: summary(&pos)?,
+            attitude: summary(&att)?,
+        },
+        trace,
+        predictions,
+        predict_ms: if predictions > 0 {
+            1e3 * predict_time / predictions as f64
+        } else {
+            0.0
+        },
+    })
+}
+
+/// A trace for the report.
+pub fn trace(trajectory: PathKind, label: &str, r: &RunResult) -> Trace {
+    Trace {
+        trajectory: trajectory.name().to_string(),
+        label: label.to_string(),
+        points: r.trace.clone(),
+    }
+}

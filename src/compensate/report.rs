@@ -1,0 +1,773 @@
+//! The report folder of `iastgcn demo` / `iastgcn evaluate`: Markdown, the machine-readable
+//! tables (`table_v.csv`, `table_iii.csv`), timings, and PNGs (loss curves, Fig. 10
+//! timings, Fig. 11 residual projection, Fig. 9b accumulated error).
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context as _;
+
+use crate::plot::{self, Panel, Series};
+use crate::stats::Summary;
+use crate::train::{EpochRecord, Metrics};
+
+/// Mean / SD / max of the position (µm) and attitude (mdeg) pose errors of one run.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ErrorStats {
+    pub position: Summary,
+    pub attitude: Summary,
+}
+
+/// One row of the Table V analog.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TableVRow {
+    pub trajectory: String,
+    /// `initial`, `calibrated` or `compensated`.
+    pub stage: String,
+    /// The compensating model (`-` for the initial and calibrated stages).
+    pub model: String,
+    pub errors: ErrorStats,
+}
+
+/// One row of the Table III analog (test-split prediction accuracy).
+#[derive(Clone, Debug, PartialEq)]
+pub struct TableIIIRow {
+    pub trajectory: String,
+    pub model: String,
+    pub metrics: Metrics,
+}
+
+/// The Fig. 10 analog for one model.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Timing {
+    pub model: String,
+    /// Mean wall time of a training epoch (core stage).
+    pub epoch_seconds: f64,
+    /// Latency of one online prediction (B = 1, `Predictor::push`), milliseconds.
+    pub infer_ms: f64,
+    pub adapter: String,
+}
+
+/// Per-tracker-sample pose error of one compensation run (for Fig. 11).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Trace {
+    pub trajectory: String,
+    /// e.g. `calibrated`, `compensated (iastgcn)`.
+    pub label: String,
+    /// (t s, ex µm, ey µm, ez µm): measured minus target position, base frame.
+    pub points: Vec<(f64, f64, f64, f64)>,
+}
+
+/// Fig. 9b curve: (k, mean accumulated position error µm, attitude error mdeg) per horizon.
+pub type AccumulatedCurve = Vec<(usize, f64, f64)>;
+
+/// Everything the report shows.
+#[derive(Clone, Debug, Default)]
+pub struct Report {
+    pub title: String,
+    pub adapter: String,
+    /// What produced it (config file, recordings, split mode).
+    pub setup: Vec<String>,
+    pub wall_seconds: f64,
+    pub table_v: Vec<TableVRow>,
+    pub table_iii: Vec<TableIIIRow>,
+    pub timings: Vec<Timing>,
+    /// Training history per model.
+    pub histories: Vec<(String, Vec<EpochRecord>)>,
+    pub traces: Vec<Trace>,
+    /// Fig. 9b: (k, position µm, attitude mdeg) before and after refinement.
+    pub accumulated: Option<(AccumulatedCurve, AccumulatedCurve)>,
+    /// Free-text findings appended to the Markdown.
+    pub notes: Vec<String>,
+}
+
+/// Header of `table_v.csv`.
+pub const TABLE_V_HEADER: &str =
+    "trajectory,stage,model,pos_mean_um,pos_sd_um,pos_max_um,att_mean_mdeg,att_sd_mdeg,att_max_mdeg";
+/// Header of `table_iii.csv`.
+pub const TABLE_III_HEADER: &str =
+    "trajectory,model,pos_mae_um,pos_rmse_um,pos_mape_pct,att_mae_mdeg,att_rmse_mdeg,att_mape_pct";
+/// Header of `timings.csv`.
+pub const TIMINGS_HEADER: &str = "model,epoch_seconds,infer_ms,adapter";
+
+/// What one file of the report folder is.
+#[derive(Clone, Debug, PartialEq)]
+enum Kind {
+    Markdown,
+    TableV,
+    TableIII,
+    Timings,
+    Fig10,
+    /// The trajectory whose traces it shows.
+    Fig11(String),
+    Losses,
+    Accumulated,
+    AccumulatedCsv,
+}
+
+struct Entry {
+    name: String,
+    what: String,
+    kind: Kind,
+}
+
+/// Distinct values in order of first appearance.
+fn distinct<'a>(values: impl Iterator<Item = &'a str>) -> Vec<&'a str> {
+    let mut out: Vec<&str> = Vec::new();
+    for v in values {
+        if !out.contains(&v) {
+            out.push(v);
+        }
+    }
+    out
+}
+
+/// A file-name-safe form of a trajectory name.
+fn slug(name: &str) -> String {
+    let s: String = name
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                c.to_ascii_lowercase()
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    if s.is_empty() {
+        "trajectory".into()
+    } else {
+        s
+    }
+}
+
+/// The files of the report folder for `r`, in the order they are written (report.md last).
+fn plan(r: &Report) -> Vec<Entry> {
+    let entry = |name: &str, what: String, kind: Kind| Entry {
+        name: name.into(),
+        what,
+        kind,
+    };
+    let mut out = vec![
+        entry(
+            "table_v.csv",
+            "Table V analog, machine-readable: mean/SD/max position (µm) and attitude (mdeg) \
+             error per trajectory and stage (initial, calibrated, compensated per model)."
+                .into(),
+            Kind::TableV,
+        ),
+        entry(
+            "table_iii.csv",
+            "Table III analog, machine-readable: test-split MAE/RMSE/MAPE of the predicted \
+             residuals, position (µm) and attitude (mdeg), per trajectory and model."
+                .into(),
+            Kind::TableIII,
+        ),
+        entry(
+            "timings.csv",
+            "Fig. 10 analog, machine-readable: training seconds per epoch and inference \
+             milliseconds per window for each model, with the adapter."
+                .into(),
+            Kind::Timings,
+        ),
+    ];
+    if !r.timings.is_empty() {
+        out.push(entry(
+            "fig10_timings.png",
+            "Fig. 10 analog: training time per epoch (left) and inference time per window \
+             (right) for each model."
+                .into(),
+            Kind::Fig10,
+        ));
+    }
+    let mut used: Vec<String> = Vec::new();
+    for trajectory in distinct(r.traces.iter().map(|t| t.trajectory.as_str())) {
+        let mut name = format!("fig11_{}.png", slug(trajectory));
+        let mut k = 2;
+        while used.contains(&name) {
+            name = format!("fig11_{}_{k}.png", slug(trajectory));
+            k += 1;
+        }
+        used.push(name.clone());
+        out.push(entry(
+            &name,
+            format!(
+                "Fig. 11 analog for the {trajectory} trajectory: XY projection of the position \
+                 residual (µm) before and after compensation (left) and its magnitude over \
+                 time (right)."
+            ),
+            Kind::Fig11(trajectory.into()),
+        ));
+    }
+    if r.histories.iter().any(|(_, h)| !h.is_empty()) {
+        out.push(entry(
+            "losses.png",
+            "Training and validation loss per epoch (standardised), one panel per model.".into(),
+            Kind::Losses,
+        ));
+    }
+    if r.accumulated.is_some() {
+        out.push(entry(
+            "accumulated.csv",
+            "Fig. 9b analog, machine-readable: accumulated error over k consecutive windows \
+             before and after refinement."
+                .into(),
+            Kind::AccumulatedCsv,
+        ));
+        out.push(entry(
+            "accumulated.png",
+            "Fig. 9b analog: mean accumulated position and attitude error over k consecutive \
+             windows, before and after refinement."
+                .into(),
+            Kind::Accumulated,
+        ));
+    }
+    out.push(entry("report.md", "This report.".into(), Kind::Markdown));
+    out
+}
+
+fn csv_text(header: &str, rows: Vec<Vec<String>>) -> String {
+    let mut w = csv::WriterBuilder::new()
+        .terminator(csv::Terminator::Any(b'\n'))
+        .from_writer(Vec::new());
+    // Writing to a Vec cannot fail.
+    w.write_record(header.split(',')).expect("in-memory CSV");
+    for row in rows {
+        w.write_record(&row).expect("in-memory CSV");
+    }
+    String::from_utf8(w.into_inner().expect("in-memory CSV")).expect("UTF-8 fields")
+}
+
+/// `table_v.csv`: one line per row, in the given order; µm and mdeg with 4 decimals.
+pub fn table_v_csv(rows: &[TableVRow]) -> String {
+    csv_text(
+        TABLE_V_HEADER,
+        rows.iter()
+            .map(|r| {
+                let (p, a) = (&r.errors.position, &r.errors.attitude);
+                let mut v = vec![r.trajectory.clone(), r.stage.clone(), r.model.clone()];
+                v.extend([p.mean, p.sd, p.max, a.mean, a.sd, a.max].map(|x| format!("{x:.4}")));
+                v
+            })
+            .collect(),
+    )
+}
+
+/// `table_iii.csv`: one line per row, in the given order; µm and mdeg with 4 decimals,
+/// percentages with 3.
+pub fn table_iii_csv(rows: &[TableIIIRow]) -> String {
+    csv_text(
+        TABLE_III_HEADER,
+        rows.iter()
+            .map(|r| {
+                let m = &r.metrics;
+                vec![
+                    r.trajectory.clone(),
+                    r.model.clone(),
+                    format!("{:.4}", m.pos_mae),
+                    format!("{:.4}", m.pos_rmse),
+                    format!("{:.3}", m.pos_mape),
+                    format!("{:.4}", m.att_mae),
+                    format!("{:.4}", m.att_rmse),
+                    format!("{:.3}", m.att_mape),
+                ]
+            })
+            .collect(),
+    )
+}
+
+/// `timings.csv`: seconds per epoch and milliseconds per window with 4 decimals.
+pub fn timings_csv(rows: &[Timing]) -> String {
+    csv_text(
+        TIMINGS_HEADER,
+        rows.iter()
+            .map(|t| {
+                vec![
+                    t.model.clone(),
+                    format!("{:.4}", t.epoch_seconds),
+                    format!("{:.4}", t.infer_ms),
+                    t.adapter.clone(),
+                ]
+            })
+            .collect(),
+    )
+}
+
+fn accumulated_csv(before: &[(usize, f64, f64)], after: &[(usize, f64, f64)]) -> String {
+    let mut ks: Vec<usize> = before.iter().chain(after).map(|r| r.0).collect();
+    ks.sort_unstable();
+    ks.dedup();
+    let cell = |v: &[(usize, f64, f64)], k: usize, pick: fn(&(usize, f64, f64)) -> f64| {
+        v.iter()
+            .find(|r| r.0 == k)
+            .map_or(String::new(), |r| format!("{:.4}", pick(r)))
+    };
+    csv_text(
+        "horizon,pos_before_um,att_before_mdeg,pos_after_um,att_after_mdeg",
+        ks.into_iter()
+            .map(|k| {
+                vec![
+                    k.to_string(),
+                    cell(before, k, |r| r.1),
+                    cell(before, k, |r| r.2),
+                    cell(after, k, |r| r.1),
+                    cell(after, k, |r| r.2),
+                ]
+            })
+            .collect(),
+    )
+}
+
+/// A Markdown table cell: pipes escaped, line breaks flattened.
+fn md(s: &str) -> String {
+    s.replace('|', "\\|").replace(['\n', '\r'], " ")
+}
+
+fn num(x: f64, decimals: usize) -> String {
+    if x.is_finite() {
+        format!("{x:.decimals$}")
+    } else {
+        "n/a".into()
+    }
+}
+
+fn duration(seconds: f64) -> String {
+    if !seconds.is_finite() || seconds < 60.0 {
+        return format!("{} s", num(seconds, 1));
+    }
+    let total = seconds.round() as u64;
+    let (h, m, s) = (total / 3600, total / 60 % 60, total % 60);
+    if h > 0 {
+        format!("{seconds:.1} s ({h} h {m:02} min {s:02} s)")
+    } else {
+        format!("{seconds:.1} s ({m} min {s:02} s)")
+    }
+}
+
+/// Reduction of `after` relative to `before`, percent (positive: smaller after).
+fn reduction(before: f64, after: f64) -> Option<f64> {
+    let r = 100.0 * (before - after) / before;
+    (before > 0.0 && r.is_finite()).then_some(r)
+}
+
+const STAGE_ORDER: [&str; 3] = ["initial", "calibrated", "compensated"];
+
+/// Table V rows of one trajectory: initial, calibrated, compensated (input order), then
+/// any other stage.
+fn table_v_group<'a>(rows: &'a [TableVRow], trajectory: &str) -> Vec<&'a TableVRow> {
+    let of = rows.iter().filter(|r| r.trajectory == trajectory);
+    let mut out: Vec<&TableVRow> = Vec::new();
+    for stage in STAGE_ORDER {
+        out.extend(of.clone().filter(|r| r.stage == stage));
+    }
+    out.extend(of.filter(|r| !STAGE_ORDER.contains(&r.stage.as_str())));
+    out
+}
+
+fn markdown_table_v(out: &mut String, rows: &[TableVRow]) {
+    out.push_str("## Table V analog: pose error along the trajectories\n\n");
+    if rows.is_empty() {
+        out.push_str("_No rows._\n\n");
+        return;
+    }
+    out.push_str(
+        "| Trajectory | Stage | Model | Pos. mean (µm) | Pos. SD (µm) | Pos. max (µm) \
+         | Att. mean (mdeg) | Att. SD (mdeg) | Att. max (mdeg) |\n\
+         |---|---|---|---:|---:|---:|---:|---:|---:|\n",
+    );
+    let trajectories = distinct(rows.iter().map(|r| r.trajectory.as_str()));
+    for &t in &trajectories {
+        for r in table_v_group(rows, t) {
+            let (p, a) = (&r.errors.position, &r.errors.attitude);
+            let _ = writeln!(
+                out,
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+                md(&r.trajectory),
+                md(&r.stage),
+                md(&r.model),
+                num(p.mean, 3),
+                num(p.sd, 3),
+                num(p.max, 3),
+                num(a.mean, 3),
+                num(a.sd, 3),
+                num(a.max, 3),
+            );
+        }
+    }
+    out.push('\n');
+    // Reduction of the mean error by each compensating model against calibration alone.
+    let mut lines = String::new();
+    for &t in &trajectories {
+        let Some(cal) = rows
+            .iter()
+            .find(|r| r.trajectory == t && r.stage == "calibrated")
+        else {
+            continue;
+        };
+        for c in rows
+            .iter()
+            .filter(|r| r.trajectory == t && r.stage == "compensated")
+        {
+            let pct = |before: f64, after: f64| {
+                reduction(before, after).map_or("n/a".into(), |x| format!("{x:.1} %"))
+            };
+            let (cp, ca) = (&cal.errors, &c.errors);
+            let _ = writeln!(
+                lines,
+                "| {} | {} | {} | {} | {} | {} | {} | {} |",
+                md(t),
+                md(&c.model),
+                num(cp.position.mean, 3),
+                num(ca.position.mean, 3),
+                pct(cp.position.mean, ca.position.mean),
+                num(cp.attitude.mean, 3),
+                num(ca.attitude.mean, 3),
+                pct(cp.attitude.mean, ca.attitude.mean),
+            );
+        }
+    }
+    if !lines.is_empty() {
+        out.push_str(
+            "Reduction of the mean error by compensation, relative to calibration alone \
+             (100 · (calibrated − compensated) / calibrated):\n\n\
+             | Trajectory | Model | Calibrated pos. mean (µm) | Compensated pos. mean (µm) \
+             | Pos. reduction | Calibrated att. mean (mdeg) | Compensated att. mean (mdeg) \
+             | Att. reduction |\n\
+             |---|---|---:|---:|---:|---:|---:|---:|\n",
+        );
+        out.push_str(&lines);
+        out.push('\n');
+    }
+}
+
+/// The indices of the smallest finite values (ties all count); none for fewer than two.
+fn best(values: &[f64]) -> Vec<usize> {
+    if values.len() < 2 {
+        return Vec::new();
+    }
+    let min = values
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite())
+        .fold(f64::INFINITY, f64::min);
+    if !min.is_finite() {
+        return Vec::new();
+    }
+    (0..values.len()).filter(|&i| values[i] == min).collect()
+}
+
+fn markdown_table_iii(out: &mut String, rows: &[TableIIIRow]) {
+    out.push_str("## Table III analog: prediction accuracy on the test split\n\n");
+    if rows.is_empty() {
+        out.push_str("_No rows._\n\n");
+        return;
+    }
+    out.push_str(
+        "Cells are position / attitude; position in µm, attitude in mdeg, MAPE in %. \
+         The best model of each row is in bold.\n\n",
+    );
+    type Pick = fn(&Metrics) -> f64;
+    let metric_rows: [(&str, Pick, Pick, usize); 3] = [
+        ("MAE (µm / mdeg)", |m| m.pos_mae, |m| m.att_mae, 3),
+        ("RMSE (µm / mdeg)", |m| m.pos_rmse, |m| m.att_rmse, 3),
+        ("MAPE (% / %)", |m| m.pos_mape, |m| m.att_mape, 2),
+    ];
+    for t in distinct(rows.iter().map(|r| r.trajectory.as_str())) {
+        let of: Vec<&TableIIIRow> = rows.iter().filter(|r| r.trajectory == t).collect();
+        let _ = writeln!(out, "### {t}\n");
+        out.push_str("| Metric |");
+        for r in &of {
+            let _ = write!(out, " {} |", md(&r.model));
+        }
+        out.push_str("\n|---|");
+        out.push_str(&"---:|".repeat(of.len()));
+        out.push('\n');
+        for (label, pos, att, decimals) in metric_rows {
+            let p: Vec<f64> = of.iter().map(|r| pos(&r.metrics)).collect();
+            let a: Vec<f64> = of.iter().map(|r| att(&r.metrics)).collect();
+            let (bp, ba) = (best(&p), best(&a));
+            let _ = write!(out, "| {label} |");
+            for i in 0..of.len() {
+                let cell = |v: f64, bold: bool| {
+                    let s = num(v, decimals);
+                    if bold {
+                        format!("**{s}**")
+                    } else {
+                        s
+                    }
+                };
+                let _ = write!(
+                    out,
+                    " {} / {} |",
+                    cell(p[i], bp.contains(&i)),
+                    cell(a[i], ba.contains(&i))
+                );
+            }
+            out.push('\n');
+        }
+        out.push_str("| Test windows |");
+        for r in &of {
+            let _ = write!(out, " {} |", r.metrics.count);
+        }
+        out.push_str("\n\n");
+    }
+}
+
+fn markdown_timings(out: &mut String, timings: &[Timing]) {
+    out.push_str("## Fig. 10 analog: training and inference time\n\n");
+    if timings.is_empty() {
+        out.push_str("_No timings._\n\n");
+        return;
+    }
+    out.push_str(
+        "| Model | Training (s/epoch) | Inference (ms/window) | Adapter |\n\
+         |---|---:|---:|---|\n",
+    );
+    for t in timings {
+        let _ = writeln!(
+            out,
+            "| {} | {} | {} | {} |",
+            md(&t.model),
+            num(t.epoch_seconds, 3),
+            num(t.infer_ms, 3),
+            md(&t.adapter)
+        );
+    }
+    out.push('\n');
+}
+
+/// The Markdown text of the report.
+pub fn markdown(r: &Report) -> String {
+    let mut out = String::new();
+    let title = if r.title.trim().is_empty() {
+        "IASTGCN evaluation report"
+    } else {
+        r.title.trim()
+    };
+    let _ = writeln!(out, "# {title}\n");
+    for line in &r.setup {
+        let _ = writeln!(out, "- {line}");
+    }
+    let adapter = if r.adapter.is_empty() {
+        "unknown"
+    } else {
+        &r.adapter
+    };
+    let _ = writeln!(out, "- Adapter: {adapter}");
+    let _ = writeln!(out, "- Wall time: {}\n", duration(r.wall_seconds));
+    markdown_table_v(&mut out, &r.table_v);
+    markdown_table_iii(&mut out, &r.table_iii);
+    markdown_timings(&mut out, &r.timings);
+    if !r.notes.is_empty() {
+        out.push_str("## Notes\n\n");
+        for n in &r.notes {
+            let _ = writeln!(out, "- {n}");
+        }
+        out.push('\n');
+    }
+    out.push_str("## Files\n\n");
+    for e in plan(r) {
+        let _ = writeln!(out, "- `{}`: {}", e.name, e.what);
+        if e.name.ends_with(".png") {
+            let _ = writeln!(out, "\n  ![{}]({})\n", e.name, e.name);
+        }
+    }
+    out
+}
+
+/// Fig. 11 for one trajectory: the (ex, ey) cloud of each trace, equal aspect, with the
+/// origin marked, and |e_xy| over time.
+fn plot_fig11(path: &Path, trajectory: &str, traces: &[&Trace]) -> Result<(), plot::PlotError> {
+    let mut cloud: Vec<Series> = traces
+        .iter()
+        .map(|t| Series::scatter(&t.label, t.points.iter().map(|p| (p.1, p.2)).collect()))
+        .collect();
+    cloud.push(Series::scatter("target (0, 0)", vec![(0.0, 0.0)]));
+    let magnitude: Vec<Series> = traces
+        .iter()
+        .map(|t| {
+            Series::new(
+                &t.label,
+                t.points.iter().map(|p| (p.0, p.1.hypot(p.2))).collect(),
+            )
+        })
+        .collect();
+    let panels = [
+        Panel {
+            title: format!("{trajectory}: XY position residual"),
+            x_label: "ex (µm)".into(),
+            y_label: "ey (µm)".into(),
+            series: cloud,
+            equal_aspect: true,
+        },
+        Panel {
+            title: format!("{trajectory}: |e_xy| over time"),
+            x_label: "t (s)".into(),
+            y_label: "|e_xy| (µm)".into(),
+            series: magnitude,
+            equal_aspect: false,
+        },
+    ];
+    plot::draw(path, &panels, 1, 2, (1300, 600))
+}
+
+fn plot_fig10(path: &Path, timings: &[Timing]) -> Result<(), plot::PlotError> {
+    let adapters = distinct(timings.iter().map(|t| t.adapter.as_str())).join(", ");
+    let bars = |pick: fn(&Timing) -> f64| -> Vec<Series> {
+        timings
+            .iter()
+            .enumerate()
+            .map(|(i, t)| Series::bars(&t.model, vec![(i as f64, pick(t))]))
+            .collect()
+    };
+    let panels = [
+        Panel {
+            title: format!("training time per epoch ({adapters})"),
+            x_label: "model".into(),
+            y_label: "s / epoch".into(),
+            series: bars(|t| t.epoch_seconds),
+            equal_aspect: false,
+        },
+        Panel {
+            title: format!("inference time per window ({adapters})"),
+            x_label: "model".into(),
+            y_label: "ms / window".into(),
+            series: bars(|t| t.infer_ms),
+            equal_aspect: false,
+        },
+    ];
+    let width = (260 + 110 * timings.len() as u32).clamp(520, 900);
+    plot::draw(path, &panels, 1, 2, (2 * width, 440))
+}
+
+/// Train/validation loss per epoch, one panel per model; epochs count on across stages,
+/// one pair of series per stage.
+fn plot_losses(
+    path: &Path,
+    histories: &[(String, Vec<EpochRecord>)],
+) -> Result<(), plot::PlotError> {
+    let panels: Vec<Panel> = histories
+        .iter()
+        .filter(|(_, h)| !h.is_empty())
+        .map(|(model, history)| {
+            let stages = distinct(history.iter().map(|r| r.stage.as_str()));
+            let mut series = Vec::new();
+            for stage in &stages {
+                let points = |f: fn(&EpochRecord) -> f64| -> Vec<(f64, f64)> {
+                    history
+                        .iter()
+                        .enumerate()
+                        .filter(|(_, r)| r.stage == *stage)
+                        .map(|(i, r)| ((i + 1) as f64, f(r)))
+                        .collect()
+                };
+                let (train, val) = if stages.len() == 1 {
+                    ("train".to_string(), "validation".to_string())
+                } else {
+                    (format!("{stage} train"), format!("{stage} validation"))
+                };
+                series.push(Series::new(train, points(|r| r.train_loss)));
+                series.push(Series::new(val, points(|r| r.val_loss)));
+            }
+            Panel {
+                title: format!("{model}: loss"),
+                x_label: if stages.len() == 1 {
+                    "epoch".into()
+                } else {
+                    "epoch (all stages)".into()
+                },
+                y_label: "loss (standardised)".into(),
+                series,
+                equal_aspect: false,
+            }
+        })
+        .collect();
+    let n = panels.len().max(1);
+    let cols = n.min(3);
+    let rows = n.div_ceil(cols);
+    plot::draw(
+        path,
+        &panels,
+        rows,
+        cols,
+        (520 * cols as u32, 420 * rows as u32),
+    )
+}
+
+fn plot_accumulated(
+    path: &Path,
+    before: &[(usize, f64, f64)],
+    after: &[(usize, f64, f64)],
+) -> Result<(), plot::PlotError> {
+    type Pick = fn(&(usize, f64, f64)) -> f64;
+    let series = |v: &[(usize, f64, f64)], pick: Pick, name: &str| {
+        Series::new(name, v.iter().map(|r| (r.0 as f64, pick(r))).collect())
+    };
+    let panel = |title: &str, unit: &str, pick: Pick| Panel {
+        title: title.into(),
+        x_label: "consecutive windows k".into(),
+        y_label: format!("mean |Σ(ŷ−y)| ({unit})"),
+        series: vec![
+            series(before, pick, "before refinement"),
+            series(after, pick, "after refinement"),
+        ],
+        equal_aspect: false,
+    };
+    plot::draw(
+        path,
+        &[
+            panel("accumulated position error", "µm", |r| r.1),
+            panel("accumulated attitude error", "mdeg", |r| r.2),
+        ],
+        1,
+        2,
+        (1100, 420),
+    )
+}
+
+/// Writes the report folder `dir` (created if missing): `report.md`, `table_v.csv`,
+/// `table_iii.csv`, `timings.csv`, `fig10_timings.png` (when there are timings),
+/// `fig11_<trajectory>.png` for every trajectory that has traces (Fig. 11 for the Hilbert
+/// one is the one the paper shows), `losses.png` (train/val loss per epoch, one panel per
+/// model; when some model has a history), and `accumulated.png` plus `accumulated.csv`
+/// when `accumulated` is Some. Every file is written atomically; `report.md` is written
+/// last. Returns the paths written.
+pub fn write(dir: &Path, r: &Report) -> anyhow::Result<Vec<PathBuf>> {
+    std::fs::create_dir_all(dir).with_context(|| format!("create {}", dir.display()))?;
+    let text = |path: &Path, s: &str| {
+        crate::atomic::write(path, s.as_bytes())
+            .with_context(|| format!("write {}", path.display()))
+    };
+    let mut written = Vec::new();
+    for e in plan(r) {
+        let path = dir.join(&e.name);
+        match &e.kind {
+            Kind::Markdown => text(&path, &markdown(r))?,
+            Kind::TableV => text(&path, &table_v_csv(&r.table_v))?,
+            Kind::TableIII => text(&path, &table_iii_csv(&r.table_iii))?,
+            Kind::Timings => text(&path, &timings_csv(&r.timings))?,
+            Kind::Fig10 => plot_fig10(&path, &r.timings)?,
+            Kind::Fig11(trajectory) => {
+                let traces: Vec<&Trace> = r
+                    .traces
+                    .iter()
+                    .filter(|t| &t.trajectory == trajectory)
+                    .collect();
+                plot_fig11(&path, trajectory, &traces)?
+            }
+            Kind::Losses => plot_losses(&path, &r.histories)?,
+            Kind::Accumulated => {
+                if let Some((before, after)) = &r.accumulated {
+                    plot_accumulated(&path, before, after)?
+                }
+            }
+            Kind::AccumulatedCsv => {
+                if let Some((before, after)) = &r.accumulated {
+                    text(&path, &accumulated_csv(before, after))?
+                }
+            }
+        }
+        written.push(path);
+    }
+    Ok(written)
+}
