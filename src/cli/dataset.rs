@@ -3,10 +3,9 @@
 
 use std::path::PathBuf;
 
-use crate::calibrate::file;
-use crate::data::{expected_channels, Dataset, FeatureConfig, Recording, SplitMode, WindowConfig};
-use crate::graph::Graph;
-use crate::robot::{Geometry, Robot};
+use super::train::{build_dataset, DataArgs};
+use crate::model::ModelConfig;
+use crate::train::{DataConfig, RunConfig};
 
 #[derive(clap::Args)]
 pub struct DatasetArgs {
@@ -35,46 +34,25 @@ pub struct DatasetArgs {
 }
 
 pub fn run(args: &DatasetArgs) -> anyhow::Result<()> {
-    let graph = match &args.graph {
-        Some(p) => Graph::load(p)?,
-        None => Graph::default_asset(),
+    let config = RunConfig {
+        model: ModelConfig {
+            window: args.window,
+            ..ModelConfig::default()
+        },
+        data: DataConfig {
+            stride: args.stride,
+            split: args.split.clone(),
+            split_seed: args.seed,
+        },
+        ..RunConfig::default()
     };
-    let geometry = match &args.robot {
-        Some(p) => Geometry::load(p)?,
-        None => Geometry::default_asset(),
+    let data = DataArgs {
+        data: args.recordings.clone(),
+        calibration: args.calibration.clone(),
+        graph: args.graph.clone(),
+        robot: args.robot.clone(),
     };
-    let cal = file::load(&args.calibration)?;
-    let model = Robot::new(geometry, cal.errors);
-    let channels = expected_channels(&graph.nodes);
-    let channels: Vec<&str> = channels.iter().map(String::as_str).collect();
-    let window = WindowConfig {
-        length: args.window,
-        stride: args.stride,
-        ..WindowConfig::default()
-    };
-    let recordings = args
-        .recordings
-        .iter()
-        .map(|p| {
-            Ok((
-                p.display().to_string(),
-                Recording::read(p, &channels, args.window)?,
-            ))
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    let mode = if args.split == "random" {
-        SplitMode::Random { seed: args.seed }
-    } else {
-        SplitMode::Contiguous
-    };
-    let ds = Dataset::build(
-        &recordings,
-        &graph,
-        &model,
-        &FeatureConfig::default(),
-        &window,
-        mode,
-    )?;
+    let (_, ds) = build_dataset(&data, &config, None)?;
     print!("{}", ds.summary());
     Ok(())
 }

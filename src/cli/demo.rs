@@ -172,7 +172,19 @@ fn evaluate_into(
         bar.finish_and_clear();
         print_table_v(&rows);
         report.table_v.extend(rows);
-        report.traces.extend(traces);
+        // Fig. 11 shows before/after: calibration only, and the main model.
+        let main = models
+            .iter()
+            .find(|(n, _)| n == "iastgcn")
+            .unwrap_or(&models[0])
+            .0
+            .clone();
+        let keep = format!("compensated ({main})");
+        report.traces.extend(
+            traces
+                .into_iter()
+                .filter(|t| t.label == "calibrated" || t.label == keep),
+        );
         for (slot, (_, ms)) in latency.iter_mut().zip(lat) {
             slot.0 += ms;
             slot.1 += 1;
