@@ -402,7 +402,9 @@ pub fn demo(gpu: Gpu, args: &DemoArgs) -> anyhow::Result<()> {
         parameters: r.params.clone(),
         ..core
     };
-    refined.save(&model_dir.join("iastgcn-refined.safetensors"))?;
+    let refined_path = model_dir.join("iastgcn-refined.safetensors");
+    refined.save(&refined_path)?;
+    log::write_csv(&super::train::sibling(&refined_path, ".log.csv"), &r.history)?;
     histories.push(("iastgcn-refined".into(), r.history.clone()));
     // Table III compares the core models and the refined one; Table V compensates with
     // the refined IASTGCN and the ablations.
