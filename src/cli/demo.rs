@@ -228,15 +228,21 @@ fn models_from(paths: &[PathBuf]) -> anyhow::Result<(Named, Vec<f64>)> {
     Ok((models, secs))
 }
 
-/// Mean `seconds` of the core epochs in a training log, if it exists.
+/// Mean `seconds` of the core epochs in a training log (of every epoch when it has no
+/// core stage), if it exists.
 fn read_epoch_seconds(log: &Path) -> Option<f64> {
     let text = std::fs::read_to_string(log).ok()?;
-    let v: Vec<f64> = text
-        .lines()
-        .skip(1)
-        .filter(|l| l.starts_with("core,"))
-        .filter_map(|l| l.split(',').nth(6)?.parse().ok())
-        .collect();
+    let seconds = |core: bool| -> Vec<f64> {
+        text.lines()
+            .skip(1)
+            .filter(|l| !core || l.starts_with("core,"))
+            .filter_map(|l| l.split(',').nth(6)?.parse().ok())
+            .collect()
+    };
+    // A refined model's log has only refinement epochs.
+    let v = Some(seconds(true))
+        .filter(|v| !v.is_empty())
+        .unwrap_or_else(|| seconds(false));
     (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
 }
 
@@ -404,7 +410,10 @@ pub fn demo(gpu: Gpu, args: &DemoArgs) -> anyhow::Result<()> {
     };
     let refined_path = model_dir.join("iastgcn-refined.safetensors");
     refined.save(&refined_path)?;
-    log::write_csv(&super::train::sibling(&refined_path, ".log.csv"), &r.history)?;
+    log::write_csv(
+        &super::train::sibling(&refined_path, ".log.csv"),
+        &r.history,
+    )?;
     histories.push(("iastgcn-refined".into(), r.history.clone()));
     // Table III compares the core models and the refined one; Table V compensates with
     // the refined IASTGCN and the ablations.

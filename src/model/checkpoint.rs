@@ -151,14 +151,7 @@ impl Checkpoint {
             file: file.to_string(),
             message,
         };
-        let st = SafeTensors::deserialize(bytes)
-            .map_err(|e| err(format!("not a valid safetensors file: {e}")))?;
-        let (_, header) = SafeTensors::read_metadata(bytes)
-            .map_err(|e| err(format!("not a valid safetensors file: {e}")))?;
-        let meta = header
-            .metadata()
-            .clone()
-            .ok_or_else(|| err("no metadata (is this an iastgcn checkpoint?)".into()))?;
+        let (st, meta) = open_safetensors(bytes, "is this an iastgcn checkpoint?").map_err(err)?;
         let field = |key: &str| {
             meta.get(key)
                 .ok_or_else(|| err(format!("metadata has no \"{key}\"")))
@@ -251,6 +244,23 @@ impl Checkpoint {
             normalization,
         })
     }
+}
+
+/// Parses safetensors bytes into its tensors and its metadata map; the message of a
+/// failure says what is wrong (`hint` is added when there is no metadata).
+pub fn open_safetensors<'b>(
+    bytes: &'b [u8],
+    hint: &str,
+) -> Result<(SafeTensors<'b>, HashMap<String, String>), String> {
+    let st = SafeTensors::deserialize(bytes)
+        .map_err(|e| format!("not a valid safetensors file: {e}"))?;
+    let (_, header) = SafeTensors::read_metadata(bytes)
+        .map_err(|e| format!("not a valid safetensors file: {e}"))?;
+    let meta = header
+        .metadata()
+        .clone()
+        .ok_or_else(|| format!("no metadata ({hint})"))?;
+    Ok((st, meta))
 }
 
 /// The values of an F32 safetensors tensor (stored little-endian).

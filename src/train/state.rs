@@ -6,11 +6,11 @@
 use std::collections::HashMap;
 use std::path::Path;
 
-use safetensors::tensor::{Dtype, SafeTensors, TensorView};
+use safetensors::tensor::{Dtype, TensorView};
 
 use super::config::RunConfig;
 use super::trainer::{Progress, Snapshot, Stage};
-use crate::model::checkpoint::f32_values;
+use crate::model::checkpoint::{f32_values, open_safetensors};
 use crate::model::{param_specs, Normalization, Parameters};
 
 /// The value of the `format` metadata key.
@@ -71,14 +71,7 @@ impl TrainState {
             message,
         };
         let bytes = std::fs::read(path).map_err(|e| err(e.to_string()))?;
-        let st = SafeTensors::deserialize(&bytes)
-            .map_err(|e| err(format!("not a valid safetensors file: {e}")))?;
-        let (_, header) = SafeTensors::read_metadata(&bytes)
-            .map_err(|e| err(format!("not a valid safetensors file: {e}")))?;
-        let meta = header
-            .metadata()
-            .clone()
-            .ok_or_else(|| err("no metadata (is this a training state?)".into()))?;
+        let (st, meta) = open_safetensors(&bytes, "is this a training state?").map_err(&err)?;
         let field = |key: &str| {
             meta.get(key)
                 .ok_or_else(|| err(format!("metadata has no \"{key}\"")))
