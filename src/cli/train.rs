@@ -16,7 +16,6 @@ use crate::data::{
 use crate::gpu::Gpu;
 use crate::graph::Graph;
 use crate::model::{Checkpoint, Parameters, Predictor, Variant};
-use crate::plot::{self, Panel, Series};
 use crate::robot::{Geometry, Robot};
 use crate::train::{
     self, accumulated_error, consecutive_runs, core_stage, log, refine_stages, Metrics, RunConfig,
@@ -512,41 +511,16 @@ pub fn refine(gpu: &Gpu, args: &RefineArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `<stem>.accumulated.csv` and `.png` (Fig. 9b) beside `out`.
 fn write_accumulated(
     out: &Path,
     before: &[(usize, f64, f64)],
     after: &[(usize, f64, f64)],
 ) -> anyhow::Result<()> {
-    let mut csv =
-        String::from("horizon,pos_before_um,att_before_mdeg,pos_after_um,att_after_mdeg\n");
-    for ((k, pb, ab), (_, pa, aa)) in before.iter().zip(after) {
-        csv += &format!("{k},{pb:.6},{ab:.6},{pa:.6},{aa:.6}\n");
-    }
     let path = sibling(out, ".accumulated.csv");
+    let csv = crate::compensate::report::accumulated_csv(before, after);
     crate::atomic::write(&path, csv.as_bytes()).with_context(|| path.display().to_string())?;
-    let series = |v: &[(usize, f64, f64)], pick: fn(&(usize, f64, f64)) -> f64, name: &str| {
-        Series::new(name, v.iter().map(|r| (r.0 as f64, pick(r))).collect())
-    };
-    let panel = |title: &str, unit: &str, pick: fn(&(usize, f64, f64)) -> f64| Panel {
-        title: title.into(),
-        x_label: "consecutive windows k".into(),
-        y_label: format!("mean |Σ(ŷ−y)| ({unit})"),
-        series: vec![
-            series(before, pick, "before refinement"),
-            series(after, pick, "after"),
-        ],
-        equal_aspect: false,
-    };
-    plot::draw(
-        &sibling(out, ".accumulated.png"),
-        &[
-            panel("accumulated position error", "µm", |r| r.1),
-            panel("accumulated attitude error", "mdeg", |r| r.2),
-        ],
-        1,
-        2,
-        (1100, 420),
-    )?;
+    crate::compensate::report::plot_accumulated(&sibling(out, ".accumulated.png"), before, after)?;
     Ok(())
 }
 

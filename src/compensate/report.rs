@@ -293,7 +293,8 @@ pub fn timings_csv(rows: &[Timing]) -> String {
     )
 }
 
-fn accumulated_csv(before: &[(usize, f64, f64)], after: &[(usize, f64, f64)]) -> String {
+/// The Fig. 9b table: horizon, position and attitude before and after refinement.
+pub fn accumulated_csv(before: &[(usize, f64, f64)], after: &[(usize, f64, f64)]) -> String {
     let mut ks: Vec<usize> = before.iter().chain(after).map(|r| r.0).collect();
     ks.sort_unstable();
     ks.dedup();
@@ -694,7 +695,8 @@ fn plot_losses(
     )
 }
 
-fn plot_accumulated(
+/// The Fig. 9b chart: accumulated position and attitude error before and after refinement.
+pub fn plot_accumulated(
     path: &Path,
     before: &[(usize, f64, f64)],
     after: &[(usize, f64, f64)],

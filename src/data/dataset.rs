@@ -335,14 +335,21 @@ impl Dataset {
     /// The windows at `positions` as contiguous buffers ready for upload:
     /// `x` `[B, N, F, T]` and `y` `[B, 6]`.
     pub fn gather(&self, positions: &[usize]) -> (Vec<f32>, Vec<f32>) {
+        let (mut x, mut y) = (Vec::new(), Vec::new());
+        self.gather_into(positions, &mut x, &mut y);
+        (x, y)
+    }
+
+    /// [`Dataset::gather`] into buffers that are cleared first (no allocation once they
+    /// have grown to a batch).
+    pub fn gather_into(&self, positions: &[usize], x: &mut Vec<f32>, y: &mut Vec<f32>) {
         let len = self.window_len();
-        let mut x = Vec::with_capacity(positions.len() * len);
-        let mut y = Vec::with_capacity(positions.len() * OUTPUTS);
+        x.clear();
+        y.clear();
         for &p in positions {
             x.extend_from_slice(&self.x[p * len..(p + 1) * len]);
             y.extend_from_slice(&self.y[p * OUTPUTS..(p + 1) * OUTPUTS]);
         }
-        (x, y)
     }
 
     /// Elements of one window in `x`: N·F·T.

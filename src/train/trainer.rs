@@ -177,6 +177,10 @@ pub struct Trainer<'a> {
     table: Tensor,
     table_rb: Readback,
     table_rows: usize,
+    /// The current step's windows and their gathered tensors (reused across steps).
+    positions: Vec<usize>,
+    batch_x: Vec<f32>,
+    batch_y: Vec<f32>,
     pub progress: Progress,
     pub best: Parameters,
     /// Parameters and moments at the start of the current epoch (for the replay).
@@ -265,6 +269,9 @@ impl<'a> Trainer<'a> {
             table,
             table_rb,
             table_rows,
+            positions: Vec::with_capacity(batch),
+            batch_x: Vec::with_capacity(batch * data.window_len()),
+            batch_y: Vec::with_capacity(batch * OUTPUTS),
             progress: Progress::new(),
             best: init.clone(),
             start,
@@ -333,20 +340,20 @@ impl<'a> Trainer<'a> {
         order
     }
 
-    /// The windows of step `s` of an epoch: consecutive groups of the shuffled order,
-    /// wrapping around to fill the last batch (every window is seen each epoch).
-    fn step_positions(&self, order: &[usize], s: usize) -> Vec<usize> {
-        (0..self.groups_per_batch)
-            .flat_map(|g| &self.train_groups[order[(s * self.groups_per_batch + g) % order.len()]])
-            .copied()
-            .collect()
-    }
-
-    /// Writes one step's inputs and submits forward + loss + backward + Adam (no wait).
-    fn submit_step(&self, positions: &[usize], s: usize) -> Result<(), TrainError> {
-        let (x, y) = self.data.gather(positions);
-        self.gpu.write(&self.net.input, &x)?;
-        self.gpu.write(&self.net.target, &y)?;
+    /// Writes the inputs of step `s` of an epoch and submits forward + loss + backward +
+    /// Adam (no wait). The step's windows are consecutive groups of the shuffled `order`,
+    /// wrapping around to fill the last batch (every window is seen each epoch); they are
+    /// gathered into buffers kept across steps.
+    fn submit_step(&mut self, order: &[usize], s: usize) -> Result<(), TrainError> {
+        self.positions.clear();
+        for g in 0..self.groups_per_batch {
+            let group = order[(s * self.groups_per_batch + g) % order.len()];
+            self.positions.extend_from_slice(&self.train_groups[group]);
+        }
+        let data = self.data;
+        data.gather_into(&self.positions, &mut self.batch_x, &mut self.batch_y);
+        self.gpu.write(&self.net.input, &self.batch_x)?;
+        self.gpu.write(&self.net.target, &self.batch_y)?;
         let step = self.progress.step;
         self.net.set_step(self.gpu, step as u32)?;
         self.opt.set_step(self.gpu, self.lr(step), step + 1)?;
@@ -367,8 +374,7 @@ impl<'a> Trainer<'a> {
         let began = Instant::now();
         let first_step = self.progress.step;
         for s in 0..self.steps_per_epoch {
-            let positions = self.step_positions(&order, s);
-            self.submit_step(&positions, s)?;
+            self.submit_step(&order, s)?;
             self.progress.step += 1;
         }
         let mut losses = vec![0f32; self.steps_per_epoch];
@@ -451,8 +457,7 @@ impl<'a> Trainer<'a> {
             self.progress.step = first_step;
             let mut before = start.params.clone();
             for s in 0..=bad {
-                let positions = self.step_positions(order, s);
-                self.submit_step(&positions, s)?;
+                self.submit_step(order, s)?;
                 self.progress.step += 1;
                 let mut loss = [0f32];
                 self.read_log_at(s, &mut loss)?;
