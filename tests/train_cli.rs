@@ -114,7 +114,7 @@ fn train_resume_predict_refine() {
         "--out",
         s(&res),
     ];
-    args.extend(["--split", "test", "--stride", "5", "--data"]);
+    args.extend(["--split", "test", "--stride", "7", "--data"]);
     args.extend(&data);
     let text = cli(&args);
     assert!(text.contains("all") && text.contains('%'), "{text}");

@@ -16,6 +16,7 @@ use crate::data::{
 use crate::gpu::Gpu;
 use crate::graph::Graph;
 use crate::model::{Checkpoint, Parameters, Predictor, Variant};
+use crate::plot::{self, Panel, Series};
 use crate::robot::{Geometry, Robot};
 use crate::train::{
     self, accumulated_error, consecutive_runs, core_stage, log, refine_stages, Metrics, RunConfig,
@@ -84,10 +85,11 @@ pub struct PredictArgs {
     #[arg(long)]
     pub model: PathBuf,
     /// Output CSV: one row per window end with the predicted and (where the tracker
-    /// measured) the true residual.
+    /// measured) the true residual; beside it a PNG of the position residual traces.
     #[arg(long)]
     pub out: PathBuf,
-    /// Steps between window ends.
+    /// Steps between window ends (window ends fall on rows the tracker measured when the
+    /// recording has tracker data, so every window has a label).
     #[arg(long, default_value_t = 20)]
     pub stride: usize,
     /// Only windows of this contiguous split (70/20/10 of each recording): all, train,
@@ -543,14 +545,19 @@ pub fn predict(gpu: std::sync::Arc<Gpu>, args: &PredictArgs) -> anyhow::Result<(
     };
     let mut csv = String::from("recording,row,t,pred_dx_um,pred_dy_um,pred_dz_um,pred_rx_mdeg,pred_ry_mdeg,pred_rz_mdeg,true_dx_um,true_dy_um,true_dz_um,true_rx_mdeg,true_ry_mdeg,true_rz_mdeg\n");
     let mut all = (Vec::new(), Vec::new());
-    let mut rows = Vec::new();
+    let mut panels = Vec::new();
     println!("recording                           windows  labelled  pos MAE/RMSE/MAPE           att MAE/RMSE/MAPE");
     for (name, rec) in &recordings {
         let prepared = prepare(name, rec, &graph, &robot, &FeatureConfig::default())?;
-        let ends: Vec<Window> = window_ends(rec.rows.len(), &window, |_| true)
-            .into_iter()
-            .map(|end| Window { recording: 0, end })
-            .collect();
+        // On rows the tracker measured when there are any (so windows have labels), as
+        // the dataset does; every `stride` rows otherwise.
+        let tracked = prepared.labels.iter().any(Option::is_some);
+        let ends: Vec<Window> = window_ends(rec.rows.len(), &window, |e| {
+            !tracked || prepared.labels[e].is_some()
+        })
+        .into_iter()
+        .map(|end| Window { recording: 0, end })
+        .collect();
         let chosen: Vec<Window> = if args.split == "all" {
             ends
         } else {
@@ -600,9 +607,29 @@ pub fn predict(gpu: std::sync::Arc<Gpu>, args: &PredictArgs) -> anyhow::Result<(
             m.att_rmse,
             m.att_mape
         );
+        let times: Vec<f64> = chosen
+            .iter()
+            .filter(|w| prepared.labels[w.end].is_some())
+            .map(|w| rec.rows[w.end].t)
+            .collect();
+        let short = Path::new(name)
+            .file_stem()
+            .map_or(name.clone(), |s| s.to_string_lossy().into_owned());
+        for (k, axis) in ["dx", "dy", "dz"].iter().enumerate() {
+            let line = |v: &[[f64; 6]]| times.iter().zip(v).map(|(t, r)| (*t, r[k])).collect();
+            panels.push(Panel {
+                title: format!("{short}: {axis}"),
+                x_label: "t (s)".into(),
+                y_label: "µm".into(),
+                series: vec![
+                    Series::new("true", line(&truth)),
+                    Series::new("predicted", line(&pred)),
+                ],
+                equal_aspect: false,
+            });
+        }
         all.0.extend(pred);
         all.1.extend(truth);
-        rows.push((name.clone(), m));
     }
     let m = Metrics::of(&all.0, &all.1);
     println!(
@@ -611,10 +638,20 @@ pub fn predict(gpu: std::sync::Arc<Gpu>, args: &PredictArgs) -> anyhow::Result<(
     );
     crate::atomic::write(&args.out, csv.as_bytes())
         .with_context(|| args.out.display().to_string())?;
+    let png = args.out.with_extension("png");
+    let rows = panels.len() / 3;
+    plot::draw(
+        &png,
+        &panels,
+        rows.max(1),
+        3,
+        (1500, 330 * rows.max(1) as u32),
+    )?;
     println!(
-        "wrote {} (µm, mdeg; MAPE guard: {}% of the mean label norm)",
+        "wrote {} (µm, mdeg; MAPE guard: {}% of the mean label norm) and {} (position residual traces, true vs predicted)",
         args.out.display(),
-        100.0 * train::metrics::MAPE_GUARD
+        100.0 * train::metrics::MAPE_GUARD,
+        png.display()
     );
     Ok(())
 }
