@@ -165,20 +165,10 @@ fn test_metrics(t: &Trainer) -> Vec<(String, Metrics, Metrics)> {
     let [_, _, test] = data.split_ranges();
     let positions: Vec<usize> = test.collect();
     let pred = train::to_physical(&t.predict(&positions).unwrap(), &data.normalization);
-    (0..data.recordings.len())
-        .map(|r| {
-            let idx: Vec<usize> = (0..positions.len())
-                .filter(|&i| data.windows[positions[i]].recording == r)
-                .collect();
-            let truth: Vec<[f64; 6]> = idx.iter().map(|&i| data.labels[positions[i]]).collect();
-            let model: Vec<[f64; 6]> = idx.iter().map(|&i| pred[i]).collect();
-            let mean = vec![data.normalization.label_mean; idx.len()];
-            (
-                data.recordings[r].clone(),
-                Metrics::of(&model, &truth),
-                Metrics::of(&mean, &truth),
-            )
-        })
+    data.recordings
+        .iter()
+        .zip(train::metrics::per_recording(data, &positions, &pred))
+        .map(|(name, (model, mean))| (name.clone(), model, mean))
         .collect()
 }
 

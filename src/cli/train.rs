@@ -216,24 +216,11 @@ pub fn test_metrics(
     let [_, _, test] = data.split_ranges();
     let positions: Vec<usize> = test.collect();
     let pred = train::to_physical(&trainer.predict(&positions)?, &data.normalization);
-    let mean = data.normalization.label_mean;
     Ok(data
         .recordings
         .iter()
-        .enumerate()
-        .map(|(r, name)| {
-            let idx: Vec<usize> = (0..positions.len())
-                .filter(|&i| data.windows[positions[i]].recording == r)
-                .collect();
-            let truth: Vec<[f64; 6]> = idx.iter().map(|&i| data.labels[positions[i]]).collect();
-            let model: Vec<[f64; 6]> = idx.iter().map(|&i| pred[i]).collect();
-            let baseline = vec![mean; idx.len()];
-            (
-                name.clone(),
-                Metrics::of(&model, &truth),
-                Metrics::of(&baseline, &truth),
-            )
-        })
+        .zip(train::metrics::per_recording(data, &positions, &pred))
+        .map(|(name, (model, mean))| (name.clone(), model, mean))
         .collect())
 }
 

@@ -11,11 +11,13 @@ use crate::gpu::{Gpu, Recorder};
 use crate::graph::Graph;
 use crate::model::{Checkpoint, ModelError, Network, Predictor};
 use crate::robot::Robot;
-use crate::train::Metrics;
+use crate::train::metrics::per_recording;
+use crate::train::to_physical;
 use crate::twin::{Machine, PathKind, SimConfig};
 
 /// Predictions (µm, mdeg) of a checkpoint for the windows at `positions` of a dataset
-/// standardised with the checkpoint's own statistics.
+/// standardised with the checkpoint's own statistics (so the dataset's label statistics
+/// are the checkpoint's).
 pub fn predict_windows(
     gpu: &Gpu,
     ck: &Checkpoint,
@@ -26,7 +28,6 @@ pub fn predict_windows(
     let net = Network::for_inference(gpu, &ck.config, &ck.graph, batch)?;
     net.load_parameters(gpu, &ck.parameters)?;
     let len = data.window_len();
-    let n = &ck.normalization;
     let mut out = Vec::with_capacity(positions.len());
     for chunk in positions.chunks(batch) {
         let (mut x, _) = data.gather(chunk);
@@ -36,11 +37,10 @@ pub fn predict_windows(
         net.record_forward(&mut rec)?;
         rec.submit();
         let y = gpu.read_f32(&net.output)?;
-        out.extend(
-            y.chunks(OUTPUTS)
-                .take(chunk.len())
-                .map(|r| std::array::from_fn(|k| r[k] as f64 * n.label_std[k] + n.label_mean[k])),
-        );
+        out.extend(to_physical(
+            &y[..chunk.len() * OUTPUTS],
+            &data.normalization,
+        ));
     }
     Ok(out)
 }
@@ -60,23 +60,17 @@ pub fn table_iii(
     let positions: Vec<usize> = test.collect();
     let pred = predict_windows(gpu, ck, data, &positions)?;
     let mut rows = Vec::new();
-    for (r, name) in names.iter().enumerate() {
-        let idx: Vec<usize> = (0..positions.len())
-            .filter(|&i| data.windows[positions[i]].recording == r)
-            .collect();
-        let truth: Vec<[f64; 6]> = idx.iter().map(|&i| data.labels[positions[i]]).collect();
-        let p: Vec<[f64; 6]> = idx.iter().map(|&i| pred[i]).collect();
+    for (name, (metrics, mean)) in names.iter().zip(per_recording(data, &positions, &pred)) {
         rows.push(TableIIIRow {
             trajectory: name.clone(),
             model: model.to_string(),
-            metrics: Metrics::of(&p, &truth),
+            metrics,
         });
         if baseline {
-            let mean = vec![data.normalization.label_mean; idx.len()];
             rows.push(TableIIIRow {
                 trajectory: name.clone(),
                 model: "training mean".into(),
-                metrics: Metrics::of(&mean, &truth),
+                metrics: mean,
             });
         }
     }

@@ -10,6 +10,8 @@
 
 use serde::Serialize;
 
+use crate::data::Dataset;
+
 /// The share of the mean label norm below which MAPE divides by the guard instead.
 pub const MAPE_GUARD: f64 = 0.05;
 
@@ -65,6 +67,26 @@ impl Metrics {
             att_mape,
         }
     }
+}
+
+/// Per recording of `data` (index = recording): the metrics of `pred` (µm, mdeg, one per
+/// entry of `positions`) against the labels, and those of predicting the training mean.
+pub fn per_recording(
+    data: &Dataset,
+    positions: &[usize],
+    pred: &[[f64; 6]],
+) -> Vec<(Metrics, Metrics)> {
+    (0..data.recordings.len())
+        .map(|r| {
+            let idx: Vec<usize> = (0..positions.len())
+                .filter(|&i| data.windows[positions[i]].recording == r)
+                .collect();
+            let truth: Vec<[f64; 6]> = idx.iter().map(|&i| data.labels[positions[i]]).collect();
+            let model: Vec<[f64; 6]> = idx.iter().map(|&i| pred[i]).collect();
+            let mean = vec![data.normalization.label_mean; idx.len()];
+            (Metrics::of(&model, &truth), Metrics::of(&mean, &truth))
+        })
+        .collect()
 }
 
 /// ℓ of eq. 39 for one window: Σ_j w_j (ŷ_j − y_j)², w = 1 (position), P (attitude).
