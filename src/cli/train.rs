@@ -325,7 +325,13 @@ pub fn train(gpu: &Gpu, args: &TrainArgs) -> anyhow::Result<()> {
         }
         .save(&state_path)?;
         log::write_csv(&log_path, &t.progress.history)?;
-        log::plot_losses(&png_path, config.model.variant.name(), &t.progress.history)?;
+        log::plot_losses(
+            &png_path,
+            &[(
+                config.model.variant.name().to_string(),
+                t.progress.history.clone(),
+            )],
+        )?;
         Ok(())
     });
     if let Err(e) = result {
@@ -489,7 +495,10 @@ pub fn refine(gpu: &Gpu, args: &RefineArgs) -> anyhow::Result<()> {
     }
     .save(&args.out)?;
     log::write_csv(&sibling(&args.out, ".log.csv"), &r.history)?;
-    log::plot_losses(&sibling(&args.out, ".loss.png"), "refine", &r.history)?;
+    log::plot_losses(
+        &sibling(&args.out, ".loss.png"),
+        &[("refine".to_string(), r.history.clone())],
+    )?;
     write_accumulated(&args.out, &r.before, &r.after)?;
     print_accumulated(&r.before, &r.after);
     println!("before refinement:");

@@ -9,6 +9,7 @@ use anyhow::Context as _;
 
 use crate::plot::{self, Panel, Series};
 use crate::stats::Summary;
+use crate::train::log::distinct;
 use crate::train::{EpochRecord, Metrics};
 
 /// Mean / SD / max of the position (µm) and attitude (mdeg) pose errors of one run.
@@ -109,17 +110,6 @@ struct Entry {
     name: String,
     what: String,
     kind: Kind,
-}
-
-/// Distinct values in order of first appearance.
-fn distinct<'a>(values: impl Iterator<Item = &'a str>) -> Vec<&'a str> {
-    let mut out: Vec<&str> = Vec::new();
-    for v in values {
-        if !out.contains(&v) {
-            out.push(v);
-        }
-    }
-    out
 }
 
 /// A file-name-safe form of a trajectory name.
@@ -641,60 +631,6 @@ fn plot_fig10(path: &Path, timings: &[Timing]) -> Result<(), plot::PlotError> {
     plot::draw(path, &panels, 1, 2, (2 * width, 440))
 }
 
-/// Train/validation loss per epoch, one panel per model; epochs count on across stages,
-/// one pair of series per stage.
-fn plot_losses(
-    path: &Path,
-    histories: &[(String, Vec<EpochRecord>)],
-) -> Result<(), plot::PlotError> {
-    let panels: Vec<Panel> = histories
-        .iter()
-        .filter(|(_, h)| !h.is_empty())
-        .map(|(model, history)| {
-            let stages = distinct(history.iter().map(|r| r.stage.as_str()));
-            let mut series = Vec::new();
-            for stage in &stages {
-                let points = |f: fn(&EpochRecord) -> f64| -> Vec<(f64, f64)> {
-                    history
-                        .iter()
-                        .enumerate()
-                        .filter(|(_, r)| r.stage == *stage)
-                        .map(|(i, r)| ((i + 1) as f64, f(r)))
-                        .collect()
-                };
-                let (train, val) = if stages.len() == 1 {
-                    ("train".to_string(), "validation".to_string())
-                } else {
-                    (format!("{stage} train"), format!("{stage} validation"))
-                };
-                series.push(Series::new(train, points(|r| r.train_loss)));
-                series.push(Series::new(val, points(|r| r.val_loss)));
-            }
-            Panel {
-                title: format!("{model}: loss"),
-                x_label: if stages.len() == 1 {
-                    "epoch".into()
-                } else {
-                    "epoch (all stages)".into()
-                },
-                y_label: "loss (standardised)".into(),
-                series,
-                equal_aspect: false,
-            }
-        })
-        .collect();
-    let n = panels.len().max(1);
-    let cols = n.min(3);
-    let rows = n.div_ceil(cols);
-    plot::draw(
-        path,
-        &panels,
-        rows,
-        cols,
-        (520 * cols as u32, 420 * rows as u32),
-    )
-}
-
 /// The Fig. 9b chart: accumulated position and attitude error before and after refinement.
 pub fn plot_accumulated(
     path: &Path,
@@ -757,7 +693,7 @@ pub fn write(dir: &Path, r: &Report) -> anyhow::Result<Vec<PathBuf>> {
                     .collect();
                 plot_fig11(&path, trajectory, &traces)?
             }
-            Kind::Losses => plot_losses(&path, &r.histories)?,
+            Kind::Losses => crate::train::log::plot_losses(&path, &r.histories)?,
             Kind::Accumulated => {
                 if let Some((before, after)) = &r.accumulated {
                     plot_accumulated(&path, before, after)?

@@ -34,35 +34,64 @@ pub fn write_csv(path: &Path, history: &[EpochRecord]) -> anyhow::Result<()> {
     crate::atomic::write(path, &bytes).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
-/// Training and validation loss per epoch, one panel per stage (log-free linear axes).
-pub fn plot_losses(path: &Path, title: &str, history: &[EpochRecord]) -> Result<(), PlotError> {
-    let mut stages: Vec<&str> = Vec::new();
-    for r in history {
-        if !stages.contains(&r.stage.as_str()) {
-            stages.push(&r.stage);
+/// Distinct values in order of first appearance.
+pub fn distinct<'a>(values: impl Iterator<Item = &'a str>) -> Vec<&'a str> {
+    let mut out: Vec<&str> = Vec::new();
+    for v in values {
+        if !out.contains(&v) {
+            out.push(v);
         }
     }
-    let panels: Vec<Panel> = stages
+    out
+}
+
+/// Train/validation loss per epoch, one panel per model; epochs count on across stages,
+/// one pair of series per stage.
+pub fn plot_losses(path: &Path, histories: &[(String, Vec<EpochRecord>)]) -> Result<(), PlotError> {
+    let panels: Vec<Panel> = histories
         .iter()
-        .map(|stage| {
-            let rows = history.iter().filter(|r| r.stage == *stage);
-            let points = |f: fn(&EpochRecord) -> f64| {
-                rows.clone()
-                    .map(|r| (r.epoch as f64, f(r)))
-                    .collect::<Vec<_>>()
-            };
+        .filter(|(_, h)| !h.is_empty())
+        .map(|(model, history)| {
+            let stages = distinct(history.iter().map(|r| r.stage.as_str()));
+            let mut series = Vec::new();
+            for stage in &stages {
+                let points = |f: fn(&EpochRecord) -> f64| -> Vec<(f64, f64)> {
+                    history
+                        .iter()
+                        .enumerate()
+                        .filter(|(_, r)| r.stage == *stage)
+                        .map(|(i, r)| ((i + 1) as f64, f(r)))
+                        .collect()
+                };
+                let (train, val) = if stages.len() == 1 {
+                    ("train".to_string(), "validation".to_string())
+                } else {
+                    (format!("{stage} train"), format!("{stage} validation"))
+                };
+                series.push(Series::new(train, points(|r| r.train_loss)));
+                series.push(Series::new(val, points(|r| r.val_loss)));
+            }
             Panel {
-                title: format!("{title}: {stage}"),
-                x_label: "epoch".into(),
+                title: format!("{model}: loss"),
+                x_label: if stages.len() == 1 {
+                    "epoch".into()
+                } else {
+                    "epoch (all stages)".into()
+                },
                 y_label: "loss (standardised)".into(),
-                series: vec![
-                    Series::new("train", points(|r| r.train_loss)),
-                    Series::new("validation", points(|r| r.val_loss)),
-                ],
+                series,
                 equal_aspect: false,
             }
         })
         .collect();
     let n = panels.len().max(1);
-    plot::draw(path, &panels, 1, n, (520 * n as u32, 420))
+    let cols = n.min(3);
+    let rows = n.div_ceil(cols);
+    plot::draw(
+        path,
+        &panels,
+        rows,
+        cols,
+        (520 * cols as u32, 420 * rows as u32),
+    )
 }
