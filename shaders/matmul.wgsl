@@ -1,6 +1,7 @@
 // Batched matrix multiply, the workhorse of every layer (Rust side: src/ops/matmul.rs).
 //
-//   C[z] = alpha * sum_r op(A)[z, r] . op(B)[z, r]   (+ C[z] when accumulate = 1)
+//   C[z] = alpha * sum_r op(A)[z, r] . op(B)[z, r]   (+ bias) (+ C[z] when accumulate = 1)
+//   then optionally C[z] = max(0, C[z])
 //
 // Operands are strided views, so one kernel covers every transpose: element (i, kk) of
 // op(A) is a[z*a_batch + r*a_reduce + i*a_row + kk*a_col], element (kk, j) of op(B) is
@@ -8,8 +9,13 @@
 // The backward pass is this kernel again on transposed views (see ops/matmul.rs), and
 // `reduce` sums over a batch axis when a shared operand's gradient is wanted.
 //
-// Each invocation computes a 4x4 block of C in registers (register blocking is what pays
-// on lavapipe, shared-memory tiling buys nothing there).
+// Each invocation of `matmul` computes a 4x4 block of C in registers (register blocking
+// is what pays on lavapipe, shared-memory tiling buys nothing there); `matmul_row`, for
+// products with a single output row (the host turns a single column into one), computes
+// four outputs of that row. Loads: an operand contiguous along one axis whose strides are
+// multiples of 4 is read four floats at a time (override constants below, chosen per
+// operand by ops/matmul.rs), any other through scalar loads; a K that is not a multiple
+// of 4 ends in a scalar tail.
 
 struct MatmulParams {
     m: u32,
@@ -34,6 +40,23 @@ struct MatmulParams {
 @group(0) @binding(1) var<storage, read> a: array<f32>;
 @group(0) @binding(2) var<storage, read> b: array<f32>;
 @group(0) @binding(3) var<storage, read_write> c: array<f32>;
+// The same buffers as `a` and `b`, seen as vectors.
+@group(0) @binding(4) var<storage, read> a4: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read> b4: array<vec4<f32>>;
+// A bias added to every output (any read-only buffer when BIAS = 0).
+@group(0) @binding(6) var<storage, read> bias: array<f32>;
+
+// 0: no bias; 1: bias[i] added to row i of C; 2: bias[j] added to column j.
+override BIAS: u32 = 0u;
+// max(0, .) of the final value (after the bias and the accumulation).
+override RELU: bool = false;
+
+// op(A) is read as vectors, along k (A stored untransposed) or else along m.
+override A_VEC: bool = false;
+override A_ALONG_K: bool = true;
+// op(B) is read as vectors, along n (B stored untransposed) or else along k.
+override B_VEC: bool = false;
+override B_ALONG_N: bool = true;
 
 // Four consecutive k of one row of op(A), starting at flat offset `o`.
 fn a_k4(o: u32) -> vec4<f32> {
@@ -46,6 +69,38 @@ fn b_n4(o: u32, cols: vec4<u32>) -> vec4<f32> {
     return vec4<f32>(b[o + cols.x], b[o + cols.y], b[o + cols.z], b[o + cols.w]);
 }
 
+// The 4x4 block of op(A) at k = kk..kk+3: column i holds row i of the block (over k).
+// `ra` are the clamped row offsets, `row0` the first row (used unclamped only along m,
+// which the host allows only when m is a multiple of 4).
+fn a_block(abase: u32, kk: u32, row0: u32, ra: vec4<u32>) -> mat4x4<f32> {
+    if A_VEC && A_ALONG_K {
+        let o = abase + kk;
+        return mat4x4<f32>(a4[(o + ra.x) >> 2u], a4[(o + ra.y) >> 2u], a4[(o + ra.z) >> 2u], a4[(o + ra.w) >> 2u]);
+    }
+    if A_VEC {
+        let o = abase + kk * p.a_col + row0;
+        let s = p.a_col;
+        return transpose(mat4x4<f32>(a4[o >> 2u], a4[(o + s) >> 2u], a4[(o + 2u * s) >> 2u], a4[(o + 3u * s) >> 2u]));
+    }
+    let o = abase + kk * p.a_col;
+    return mat4x4<f32>(a_k4(o + ra.x), a_k4(o + ra.y), a_k4(o + ra.z), a_k4(o + ra.w));
+}
+
+// The 4x4 block of op(B) at k = kk..kk+3: column i holds row kk+i of the block (over n).
+fn b_block(bbase: u32, kk: u32, col0: u32, cb: vec4<u32>) -> mat4x4<f32> {
+    let s = p.b_row;
+    if B_VEC && B_ALONG_N {
+        let o = bbase + kk * s + col0;
+        return mat4x4<f32>(b4[o >> 2u], b4[(o + s) >> 2u], b4[(o + 2u * s) >> 2u], b4[(o + 3u * s) >> 2u]);
+    }
+    if B_VEC {
+        let o = bbase + kk;
+        return transpose(mat4x4<f32>(b4[(o + cb.x) >> 2u], b4[(o + cb.y) >> 2u], b4[(o + cb.z) >> 2u], b4[(o + cb.w) >> 2u]));
+    }
+    let o = bbase + kk * s;
+    return mat4x4<f32>(b_n4(o, cb), b_n4(o + s, cb), b_n4(o + 2u * s, cb), b_n4(o + 3u * s, cb));
+}
+
 fn store_row(row: u32, col0: u32, base: u32, v: vec4<f32>) {
     if row >= p.m {
         return;
@@ -54,8 +109,16 @@ fn store_row(row: u32, col0: u32, base: u32, v: vec4<f32>) {
     for (var j = 0u; j < 4u; j++) {
         if col0 + j < p.n {
             var x = p.alpha * v[j];
+            if BIAS == 1u {
+                x += bias[row];
+            } else if BIAS == 2u {
+                x += bias[col0 + j];
+            }
             if p.accumulate != 0u {
                 x += c[o + j];
+            }
+            if RELU {
+                x = relu(x);
             }
             c[o + j] = x;
         }
@@ -76,15 +139,12 @@ fn col_offsets(col0: u32) -> vec4<u32> {
     return vec4<u32>(min(col0, nl), min(col0 + 1u, nl), min(col0 + 2u, nl), min(col0 + 3u, nl)) * p.b_col;
 }
 
-fn store_tile(row0: u32, col0: u32, z: u32, acc0: vec4<f32>, acc1: vec4<f32>, acc2: vec4<f32>, acc3: vec4<f32>) {
-    let cbase = z * p.c_batch;
-    store_row(row0, col0, cbase, acc0);
-    store_row(row0 + 1u, col0, cbase, acc1);
-    store_row(row0 + 2u, col0, cbase, acc2);
-    store_row(row0 + 3u, col0, cbase, acc3);
-}
+// Workgroup shape: 8x8 (32x32 outputs) in general, 64x1 (4 rows of 256 outputs) when M is
+// small, so that few invocations of a workgroup fall past the last row.
+override GROUP_X: u32 = 8u;
+override GROUP_Y: u32 = 8u;
 
-@compute @workgroup_size(8, 8, 1)
+@compute @workgroup_size(GROUP_X, GROUP_Y, 1)
 fn matmul(@builtin(global_invocation_id) gid: vec3<u32>) {
     let row0 = gid.y * 4u;
     let col0 = gid.x * 4u;
@@ -104,20 +164,12 @@ fn matmul(@builtin(global_invocation_id) gid: vec3<u32>) {
         let bbase = z * p.b_batch + r * p.b_reduce;
         var kk = 0u;
         for (; kk < k4; kk += 4u) {
-            let ak = abase + kk * p.a_col;
-            let a0 = a_k4(ak + ra.x);
-            let a1 = a_k4(ak + ra.y);
-            let a2 = a_k4(ak + ra.z);
-            let a3 = a_k4(ak + ra.w);
-            let bk = bbase + kk * p.b_row;
-            let b0 = b_n4(bk, cb);
-            let b1 = b_n4(bk + p.b_row, cb);
-            let b2 = b_n4(bk + 2u * p.b_row, cb);
-            let b3 = b_n4(bk + 3u * p.b_row, cb);
-            acc0 += a0.x * b0 + a0.y * b1 + a0.z * b2 + a0.w * b3;
-            acc1 += a1.x * b0 + a1.y * b1 + a1.z * b2 + a1.w * b3;
-            acc2 += a2.x * b0 + a2.y * b1 + a2.z * b2 + a2.w * b3;
-            acc3 += a3.x * b0 + a3.y * b1 + a3.z * b2 + a3.w * b3;
+            let x = a_block(abase, kk, row0, ra);
+            let y = b_block(bbase, kk, col0, cb);
+            acc0 += y * x[0];
+            acc1 += y * x[1];
+            acc2 += y * x[2];
+            acc3 += y * x[3];
         }
         for (; kk < p.k; kk++) {
             let ak = abase + kk * p.a_col;
@@ -128,92 +180,40 @@ fn matmul(@builtin(global_invocation_id) gid: vec3<u32>) {
             acc3 += a[ak + ra.w] * bv;
         }
     }
-    store_tile(row0, col0, z, acc0, acc1, acc2, acc3);
+    let cbase = z * p.c_batch;
+    store_row(row0, col0, cbase, acc0);
+    store_row(row0 + 1u, col0, cbase, acc1);
+    store_row(row0 + 2u, col0, cbase, acc2);
+    store_row(row0 + 3u, col0, cbase, acc3);
 }
 
-// ---- vector-load variant ----------------------------------------------------------------
-// Same contract, for operands whose contiguous axis, strides and K are multiples of 4:
-// every load fetches four floats at once, which is what lavapipe (and real GPUs) reward.
-// The override constants say along which axis each operand is contiguous; the host
-// (ops/matmul.rs) picks this entry point only when the alignment holds.
-
-@group(0) @binding(1) var<storage, read> a4: array<vec4<f32>>;
-@group(0) @binding(2) var<storage, read> b4: array<vec4<f32>>;
-
-// op(A) is contiguous along k (A stored untransposed); else along m.
-override A_ALONG_K: bool = true;
-// op(B) is contiguous along n (B stored untransposed); else along k.
-override B_ALONG_N: bool = true;
-
-@compute @workgroup_size(8, 8, 1)
-fn matmul_vec4(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let row0 = gid.y * 4u;
+// m = 1: four columns of the single row per invocation, 64 invocations per workgroup.
+@compute @workgroup_size(64, 1, 1)
+fn matmul_row(@builtin(global_invocation_id) gid: vec3<u32>) {
     let col0 = gid.x * 4u;
-    if row0 >= p.m || col0 >= p.n {
+    if col0 >= p.n {
         return;
     }
     let z = gid.z;
-    // Along a contiguous axis the four rows (columns) are loaded as one vector from
-    // row0 (col0) instead: that axis is a multiple of 4, so they need no clamping.
-    let ra = row_offsets(row0);
     let cb = col_offsets(col0);
-    var acc0 = vec4<f32>(0.0);
-    var acc1 = vec4<f32>(0.0);
-    var acc2 = vec4<f32>(0.0);
-    var acc3 = vec4<f32>(0.0);
+    var acc = vec4<f32>(0.0);
+    let k4 = p.k & ~3u;
     for (var r = 0u; r < p.reduce; r++) {
         let abase = z * p.a_batch + r * p.a_reduce;
         let bbase = z * p.b_batch + r * p.b_reduce;
-        for (var kk = 0u; kk < p.k; kk += 4u) {
-            // x0..x3: rows of the 4x4 block of op(A) (each over k).
-            var x0: vec4<f32>;
-            var x1: vec4<f32>;
-            var x2: vec4<f32>;
-            var x3: vec4<f32>;
-            if A_ALONG_K {
-                let o = abase + kk;
-                x0 = a4[(o + ra.x) >> 2u];
-                x1 = a4[(o + ra.y) >> 2u];
-                x2 = a4[(o + ra.z) >> 2u];
-                x3 = a4[(o + ra.w) >> 2u];
+        var kk = 0u;
+        for (; kk < k4; kk += 4u) {
+            var x: vec4<f32>;
+            if A_VEC {
+                x = a4[(abase + kk) >> 2u];
             } else {
-                let o = abase + kk * p.a_col + row0;
-                let c0 = a4[o >> 2u];
-                let c1 = a4[(o + p.a_col) >> 2u];
-                let c2 = a4[(o + 2u * p.a_col) >> 2u];
-                let c3 = a4[(o + 3u * p.a_col) >> 2u];
-                x0 = vec4<f32>(c0.x, c1.x, c2.x, c3.x);
-                x1 = vec4<f32>(c0.y, c1.y, c2.y, c3.y);
-                x2 = vec4<f32>(c0.z, c1.z, c2.z, c3.z);
-                x3 = vec4<f32>(c0.w, c1.w, c2.w, c3.w);
+                x = a_k4(abase + kk * p.a_col);
             }
-            // y0..y3: rows of the 4x4 block of op(B) (each over n).
-            var y0: vec4<f32>;
-            var y1: vec4<f32>;
-            var y2: vec4<f32>;
-            var y3: vec4<f32>;
-            if B_ALONG_N {
-                let o = bbase + kk * p.b_row + col0;
-                y0 = b4[o >> 2u];
-                y1 = b4[(o + p.b_row) >> 2u];
-                y2 = b4[(o + 2u * p.b_row) >> 2u];
-                y3 = b4[(o + 3u * p.b_row) >> 2u];
-            } else {
-                let o = bbase + kk;
-                let w0 = b4[(o + cb.x) >> 2u];
-                let w1 = b4[(o + cb.y) >> 2u];
-                let w2 = b4[(o + cb.z) >> 2u];
-                let w3 = b4[(o + cb.w) >> 2u];
-                y0 = vec4<f32>(w0.x, w1.x, w2.x, w3.x);
-                y1 = vec4<f32>(w0.y, w1.y, w2.y, w3.y);
-                y2 = vec4<f32>(w0.z, w1.z, w2.z, w3.z);
-                y3 = vec4<f32>(w0.w, w1.w, w2.w, w3.w);
-            }
-            acc0 += x0.x * y0 + x0.y * y1 + x0.z * y2 + x0.w * y3;
-            acc1 += x1.x * y0 + x1.y * y1 + x1.z * y2 + x1.w * y3;
-            acc2 += x2.x * y0 + x2.y * y1 + x2.z * y2 + x2.w * y3;
-            acc3 += x3.x * y0 + x3.y * y1 + x3.z * y2 + x3.w * y3;
+            acc += b_block(bbase, kk, col0, cb) * x;
+        }
+        for (; kk < p.k; kk++) {
+            acc += a[abase + kk * p.a_col] * b_n4(bbase + kk * p.b_row, cb);
         }
     }
-    store_tile(row0, col0, z, acc0, acc1, acc2, acc3);
+    store_row(0u, col0, z * p.c_batch, acc);
 }

@@ -2,7 +2,7 @@
 //! f64 backward vs central differences, on ragged shapes and every transpose/sharing mode.
 
 use iastgcn::gpu::{DType, Gpu, Tensor};
-use iastgcn::ops::matmul::{cpu, Matmul};
+use iastgcn::ops::matmul::{cpu, plan, Epilogue, Loads, Matmul};
 use iastgcn::testing::{
     check_gradient, compare_tensor, dot, gpu, rng, round_f32, to_f32, uniform, Tolerance,
 };
@@ -13,9 +13,28 @@ fn cases() -> Vec<Matmul> {
         Matmul::new(1, 1, 1),
         Matmul::new(5, 7, 3),
         Matmul::new(70, 9, 130),
+        // One operand aligned for vector loads, the other not, K ragged (S'·X_t).
+        Matmul::new(14, 24, 14).batched(3),
+        Matmul::new(14, 24, 14).batched(2).share_a(true),
+        // Aligned operands with a ragged K: vector loads, then the scalar tail.
+        Matmul::new(8, 12, 10).batched(2).share_a(true),
+        // One output row or column (the row kernel), aligned and ragged.
+        Matmul::new(1, 24, 14).batched(3).share_a(true),
+        Matmul::new(1, 40, 12).batched(2),
+        Matmul::new(20, 1, 12).batched(2).share_b(true),
+        Matmul::new(7, 1, 5),
+        Matmul::new(16, 12, 1).batched(2),
     ];
     for (ta, tb) in [(false, false), (true, false), (false, true), (true, true)] {
         v.push(Matmul::new(33, 31, 37).transpose_a(ta).transpose_b(tb));
+        // Aligned: vector loads along every axis combination.
+        v.push(
+            Matmul::new(12, 20, 16)
+                .batched(2)
+                .share_b(true)
+                .transpose_a(ta)
+                .transpose_b(tb),
+        );
         v.push(
             Matmul::new(6, 13, 10)
                 .batched(3)
@@ -139,6 +158,75 @@ fn reference_backward_matches_finite_differences() {
 }
 
 #[test]
+fn epilogue_adds_one_bias_per_output_row_then_relu() {
+    let g = gpu();
+    // 4×4 blocks (both workgroup shapes), one row, and one column (the swapped row kernel).
+    let shapes = [
+        Matmul::new(36, 20, 16).batched(3).share_a(true),
+        Matmul::new(14, 24, 14).batched(2),
+        Matmul::new(1, 40, 12).batched(2),
+        Matmul::new(20, 1, 12).batched(2).share_b(true),
+    ];
+    for (i, mm) in shapes.into_iter().enumerate() {
+        let x = inputs(&mm, 400 + i as u64);
+        let bias: Vec<f64> = (0..mm.m).map(|r| 0.5 - r as f64 * 0.125).collect();
+        let c0: Vec<f64> = (0..mm.c_len()).map(|j| j as f64 * 0.01).collect();
+        let (a, b, tb) = (
+            upload(&g, "a", &x.a),
+            upload(&g, "b", &x.b),
+            upload(&g, "bias", &bias),
+        );
+        for (accumulate, relu) in [(false, false), (true, false), (true, true)] {
+            let c = upload(&g, "c", &c0);
+            let epilogue = Epilogue {
+                bias: Some(&tb),
+                relu,
+            };
+            g.run(&[mm
+                .forward_with(&g, &a, &b, &c, accumulate, epilogue)
+                .unwrap()])
+                .unwrap();
+            let want: Vec<f64> = cpu::forward(&mm, &x.a, &x.b)
+                .iter()
+                .enumerate()
+                .map(|(j, v)| {
+                    let row = (j / mm.n) % mm.m;
+                    let v = v + bias[row] + if accumulate { c0[j] } else { 0.0 };
+                    if relu {
+                        v.max(0.0)
+                    } else {
+                        v
+                    }
+                })
+                .collect();
+            compare_tensor(
+                &g,
+                &format!("{mm:?} accumulate={accumulate}"),
+                &c,
+                &want,
+                gpu_tol(mm.k),
+            )
+            .unwrap();
+        }
+    }
+    let mm = Matmul::new(4, 4, 4);
+    let t = |n: &str, len: usize| g.zeros(n, &[len], DType::F32);
+    let bias = t("bias", 3);
+    let epilogue = Epilogue {
+        bias: Some(&bias),
+        relu: false,
+    };
+    let err = mm
+        .forward_with(&g, &t("a", 16), &t("b", 16), &t("c", 16), false, epilogue)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("tensor bias") && err.contains("4 elements"),
+        "{err}"
+    );
+}
+
+#[test]
 fn accumulate_adds_to_existing_values() {
     let g = gpu();
     let mm = Matmul::new(9, 6, 5)
@@ -204,41 +292,42 @@ fn model_sized_product_matches_reference() {
 }
 
 #[test]
-fn aligned_shapes_take_the_vector_kernel_and_ragged_ones_the_scalar_kernel() {
-    let g = gpu();
-    let kernel = |mm: Matmul| {
-        let a = g.zeros("a", &[mm.a_len()], DType::F32);
-        let b = g.zeros("b", &[mm.b_len()], DType::F32);
-        let c = g.zeros("c", &[mm.c_len()], DType::F32);
-        let da = g.zeros("da", &[mm.a_len()], DType::F32);
-        let db = g.zeros("db", &[mm.b_len()], DType::F32);
-        [
-            mm.forward(&g, &a, &b, &c, false)
-                .unwrap()
-                .label()
-                .to_string(),
-            mm.backward_a(&g, &b, &c, &da, false)
-                .unwrap()
-                .label()
-                .to_string(),
-            mm.backward_b(&g, &a, &c, &db, false)
-                .unwrap()
-                .label()
-                .to_string(),
-        ]
-    };
+fn aligned_operands_take_vector_loads_and_single_rows_the_row_kernel() {
+    let vec = |p: (&'static str, Loads)| (p.0, p.1.a_vec, p.1.b_vec);
     for (ta, tb) in [(false, false), (true, false), (false, true), (true, true)] {
         let mm = Matmul::new(12, 20, 16)
             .batched(2)
             .share_b(true)
             .transpose_a(ta)
             .transpose_b(tb);
-        assert_eq!(kernel(mm), ["matmul::matmul_vec4"; 3], "{mm:?}");
+        assert_eq!(plan(&mm).map(vec), [("matmul", true, true); 3], "{mm:?}");
     }
     // Row count 13 is fine when A is contiguous along k (forward), not for dA's layout.
-    assert_eq!(kernel(Matmul::new(13, 8, 12))[0], "matmul::matmul_vec4");
-    assert_eq!(kernel(Matmul::new(5, 7, 3)), ["matmul::matmul"; 3]);
-    assert_eq!(kernel(Matmul::new(12, 8, 14))[0], "matmul::matmul");
+    assert_eq!(
+        vec(plan(&Matmul::new(13, 8, 12))[0]),
+        ("matmul", true, true)
+    );
+    assert_eq!(
+        plan(&Matmul::new(5, 7, 3)).map(vec),
+        [("matmul", false, false); 3]
+    );
+    // A ragged K no longer rules out vector loads of an aligned operand.
+    assert_eq!(
+        vec(plan(&Matmul::new(12, 8, 14))[0]),
+        ("matmul", false, true)
+    );
+    // S'·X_t: S' [14, 14] is scalar, X_t [14, C·T] vector along n.
+    let sx = Matmul::new(14, 6400, 14).batched(64);
+    assert_eq!(vec(plan(&sx)[0]), ("matmul", false, true));
+    // xw1 = X_t · W1 has one output column: the row kernel on the transposed views,
+    // reading X_t along T.
+    let xw1 = plan(&Matmul::new(57344, 1, 100))[0];
+    assert_eq!(xw1.0, "matmul_row");
+    assert!(xw1.1.b_vec && !xw1.1.b_along_n, "{xw1:?}");
+    assert_eq!(
+        plan(&Matmul::new(1, 6400, 14).batched(64).share_a(true))[0].0,
+        "matmul_row"
+    );
 }
 
 #[test]

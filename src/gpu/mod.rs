@@ -113,6 +113,10 @@ impl Gpu {
             params,
             workgroups,
             label,
+            target: tensors
+                .last()
+                .map_or_else(String::new, |t| t.name().to_string()),
+            flops: 0.0,
         })
     }
 

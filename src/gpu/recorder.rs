@@ -15,6 +15,10 @@ pub struct Dispatch {
     pub(crate) params: wgpu::Buffer,
     pub(crate) workgroups: [u32; 3],
     pub(crate) label: String,
+    /// Name of the tensor bound last (by convention the one the kernel writes).
+    pub(crate) target: String,
+    /// Multiply-adds × 2 of a contraction (set by the matmul op), 0 for other kernels.
+    pub(crate) flops: f64,
 }
 
 impl Dispatch {
@@ -24,6 +28,22 @@ impl Dispatch {
 
     pub fn workgroups(&self) -> [u32; 3] {
         self.workgroups
+    }
+
+    /// Name of the tensor this dispatch writes (its last binding).
+    pub fn target(&self) -> &str {
+        &self.target
+    }
+
+    /// FLOPs of a contraction (2 per multiply-add), 0 for elementwise kernels: what a
+    /// profile divides by the time to get GFLOP/s.
+    pub fn flops(&self) -> f64 {
+        self.flops
+    }
+
+    pub(crate) fn with_flops(mut self, flops: f64) -> Dispatch {
+        self.flops = flops;
+        self
     }
 
     /// Replaces the uniform parameters (same type as at creation), e.g. a learning rate.

@@ -9,7 +9,7 @@ use crate::ops::dropout::Dropout;
 use crate::ops::elementwise::{binary_backward, unary_backward, unary_forward, Binary, Unary};
 use crate::ops::gated_dcc::{gate_backward, gate_forward, Unfold};
 use crate::ops::layer_norm::LayerNorm;
-use crate::ops::matmul::Matmul;
+use crate::ops::matmul::{Epilogue, Matmul};
 use crate::ops::softmax::Softmax;
 
 /// Device parameters and their gradients, looked up by MODEL.md name.
@@ -67,13 +67,13 @@ pub struct Block {
     sat: Option<Spatial>,
     psi: Tensor,
     m: Tensor,
-    g: Tensor,
+    /// ReLU(G): the graph convolution's product applies it in its epilogue.
     z: Tensor,
     col: Tensor,
     f: Tensor,
     gg: Tensor,
+    /// H, then ReLU(H + R + bias) once the residual product has accumulated onto it.
     s: Tensor,
-    a: Tensor,
     y: Tensor,
     mean: Tensor,
     rstd: Tensor,
@@ -152,13 +152,11 @@ impl Block {
             sat,
             psi: z("gwc.Psi", &[n, n]),
             m: z("gwc.M", &[b, n, ci, t]),
-            g: z("gwc.G", &hidden),
             z: z("Z", &hidden),
             col: z("tcn.col", &[b, n, c, d.k, t]),
             f: z("tcn.G_f", &hidden),
             gg: z("tcn.G_g", &hidden),
-            s: z("H+R", &hidden),
-            a: z("relu(H+R)", &hidden),
+            s: z("relu(H+R)", &hidden),
             y: z("Y", &hidden),
             mean: z("ln.mean", &[b * n * t]),
             rstd: z("ln.rstd", &[b * n * t]),
@@ -375,35 +373,43 @@ impl Block {
             false,
         ))?;
         steps.run(self.mm_mix().forward(gpu, &self.psi, xs, &self.m, false))?;
-        steps.run(
-            self.mm_w()
-                .forward(gpu, w("gwc.W"), &self.m, &self.g, false),
-        )?;
-        steps.run(unary_forward(gpu, Unary::Relu, &self.g, &self.z, false))?;
+        let relu = Epilogue {
+            bias: None,
+            relu: true,
+        };
+        let mw = self.mm_w();
+        steps.run(mw.forward_with(gpu, w("gwc.W"), &self.m, &self.z, false, relu))?;
         // 4. Gated dilated causal convolution (or the plain one of iastgcn-t).
         steps.run(self.unfold().forward(gpu, &self.z, &self.col))?;
+        // The channel biases are added by the products themselves.
         let conv = self.mm_conv();
-        let bias = self.channel_bias();
-        steps.run(conv.forward(gpu, w("tcn.filter.weight"), &self.col, &self.f, false))?;
-        steps.run(bias.forward(gpu, w("tcn.filter.bias"), &self.f))?;
+        let (col, f) = (&self.col, &self.f);
+        let bias = |name: &str| Epilogue {
+            bias: Some(w(name)),
+            relu: false,
+        };
+        let filter = bias("tcn.filter.bias");
+        steps.run(conv.forward_with(gpu, w("tcn.filter.weight"), col, f, false, filter))?;
         if self.gated {
-            steps.run(conv.forward(gpu, w("tcn.gate.weight"), &self.col, &self.gg, false))?;
-            steps.run(bias.forward(gpu, w("tcn.gate.bias"), &self.gg))?;
-            steps.run(gate_forward(gpu, &self.f, &self.gg, &self.s))?;
+            let (gg, gate) = (&self.gg, bias("tcn.gate.bias"));
+            steps.run(conv.forward_with(gpu, w("tcn.gate.weight"), col, gg, false, gate))?;
+            steps.run(gate_forward(gpu, f, gg, &self.s))?;
         } else {
-            steps.run(unary_forward(gpu, Unary::Relu, &self.f, &self.s, false))?;
+            steps.run(unary_forward(gpu, Unary::Relu, f, &self.s, false))?;
         }
-        // 5. Residual 1×1 convolution, accumulated onto H.
+        // 5–6. Residual 1×1 convolution (+ bias) accumulated onto H, with the ReLU in the
+        // product's epilogue; then LayerNorm.
+        let residual = Epilogue {
+            bias: Some(w("res.bias")),
+            relu: true,
+        };
         steps.run(
             self.mm_res()
-                .forward(gpu, w("res.weight"), x, &self.s, true),
+                .forward_with(gpu, w("res.weight"), x, &self.s, true, residual),
         )?;
-        steps.run(bias.forward(gpu, w("res.bias"), &self.s))?;
-        // 6. LayerNorm(ReLU(H + R)).
-        steps.run(unary_forward(gpu, Unary::Relu, &self.s, &self.a, false))?;
         steps.run(self.layer_norm().forward(
             gpu,
-            &self.a,
+            &self.s,
             w("ln.gamma"),
             w("ln.beta"),
             &self.y,
@@ -471,7 +477,7 @@ impl Block {
         let da = scratch.get("dA", &hidden)?;
         steps.run(ln.backward_input(
             gpu,
-            &self.a,
+            &self.s,
             w("ln.gamma"),
             &dy,
             &self.mean,
@@ -481,7 +487,7 @@ impl Block {
         ))?;
         steps.run(ln.backward_params(
             gpu,
-            &self.a,
+            &self.s,
             &dy,
             &self.mean,
             &self.rstd,
@@ -517,7 +523,7 @@ impl Block {
         steps.run(self.unfold().backward(gpu, &dcol, &dz, false))?;
         // 3. Graph convolution.
         let dg = scratch.get("dG", &hidden)?;
-        steps.run(unary_backward(gpu, Unary::Relu, &self.g, &dz, &dg, false))?;
+        steps.run(unary_backward(gpu, Unary::Relu, &self.z, &dz, &dg, false))?;
         let (mw, mix, mpsi) = (self.mm_w(), self.mm_mix(), self.mm_psi());
         let dm = scratch.get("dM", &acts)?;
         steps.run(mw.backward_a(gpu, &self.m, &dg, dw("gwc.W"), false))?;

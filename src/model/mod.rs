@@ -15,5 +15,6 @@ mod block;
 pub mod network;
 pub mod schedule;
 
-pub use network::{ModelError, Network};
+pub use network::{ModelError, Network, Pass};
 pub use predictor::{Predictor, Residual};
+pub use schedule::StepTime;

@@ -5,7 +5,7 @@
 use super::block::{Block, DropoutSlots, ParamTable};
 use super::config::ModelConfig;
 use super::params::{graph_basis, param_specs, ParamSpec, Parameters};
-use super::schedule::{Scratch, Steps};
+use super::schedule::{Scratch, StepTime, Steps};
 use crate::gpu::{DType, Gpu, GpuError, Recorder, Tensor};
 use crate::graph::Graph;
 use crate::ops::bias::Bias;
@@ -22,6 +22,15 @@ pub enum ModelError {
     Config(String),
     #[error("parameter {name}: {message}")]
     Parameter { name: String, message: String },
+}
+
+/// Which schedule [`Network::profile`] times.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Pass {
+    /// The inference forward.
+    Inference,
+    /// The training forward, the loss and the backward.
+    Train,
 }
 
 /// IASTGCN on one device for a fixed batch size.
@@ -414,6 +423,25 @@ impl Network {
             }
         }
         Ok(())
+    }
+
+    /// Times each step of a schedule on its own ([`Steps::profile`]): `Pass::Train`
+    /// profiles the training forward then the backward. For benchmarks.
+    pub fn profile(
+        &self,
+        gpu: &Gpu,
+        pass: Pass,
+        repeats: usize,
+    ) -> Result<Vec<StepTime>, GpuError> {
+        match pass {
+            Pass::Inference => self.infer.profile(gpu, repeats),
+            Pass::Train => {
+                self.expect_training()?;
+                let mut times = self.train.profile(gpu, repeats)?;
+                times.extend(self.backward.profile(gpu, repeats)?);
+                Ok(times)
+            }
+        }
     }
 
     /// Number of dispatches and copies in (inference, training forward, backward).

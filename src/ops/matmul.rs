@@ -13,23 +13,35 @@ pub static SHADER: Shader = Shader {
     source: include_str!("../../shaders/matmul.wgsl"),
 };
 
-const BINDINGS: &[Binding] = &[Binding::read(1), Binding::read(2), Binding::read_write(3)];
+/// `a`, `b`, `a` and `b` again as vectors (`a4`, `b4` in the shader), the bias, `c`.
+const BINDINGS: &[Binding] = &[
+    Binding::read(1),
+    Binding::read(2),
+    Binding::read(4),
+    Binding::read(5),
+    Binding::read(6),
+    Binding::read_write(3),
+];
 
-/// Scalar loads: any shape and stride.
+/// 4×4 blocks of C per invocation.
 static KERNEL: Kernel = Kernel {
     shader: &SHADER,
     entry: "matmul",
     bindings: BINDINGS,
 };
 
-/// Four-float loads: operands aligned to 4 along their contiguous axis (see [`Gemm::vec4`]).
-static KERNEL_VEC4: Kernel = Kernel {
+/// Four outputs of a single-row C per invocation.
+static KERNEL_ROW: Kernel = Kernel {
     shader: &SHADER,
-    entry: "matmul_vec4",
+    entry: "matmul_row",
     bindings: BINDINGS,
 };
 
-/// Outputs per invocation along each axis, and invocations per workgroup axis.
+/// Invocations per workgroup of [`KERNEL_ROW`].
+const ROW_WORKGROUP: usize = 64;
+
+/// Outputs per invocation along each axis, and invocations per workgroup axis (8×8
+/// unless [`Gemm::group`] says otherwise).
 const BLOCK: usize = 4;
 const WORKGROUP: usize = 8;
 
@@ -184,7 +196,33 @@ impl Matmul {
         a.expect_len(self.a_len())?;
         b.expect_len(self.b_len())?;
         c.expect_len(self.c_len())?;
-        let gemm = Gemm {
+        self.forward_gemm().dispatch(gpu, a, b, c, accumulate)
+    }
+
+    /// `c = op(a) · op(b) (+ bias) (+ c)`, then ReLU if asked: the epilogue's bias `[m]` is
+    /// added to row i of every batch item. Fusing a channel bias or an activation into the
+    /// product saves a pass over `c`.
+    pub fn forward_with(
+        &self,
+        gpu: &Gpu,
+        a: &Tensor,
+        b: &Tensor,
+        c: &Tensor,
+        accumulate: bool,
+        epilogue: Epilogue,
+    ) -> Result<Dispatch, GpuError> {
+        a.expect_len(self.a_len())?;
+        b.expect_len(self.b_len())?;
+        if let Some(bias) = epilogue.bias {
+            bias.expect_len(self.m)?;
+        }
+        c.expect_len(self.c_len())?;
+        self.forward_gemm()
+            .dispatch_with(gpu, a, b, c, accumulate, epilogue)
+    }
+
+    fn forward_gemm(&self) -> Gemm {
+        Gemm {
             m: self.m,
             n: self.n,
             k: self.k,
@@ -192,8 +230,7 @@ impl Matmul {
             rhs: self.view_b(),
             out_shared: false,
             batch: self.batch,
-        };
-        gemm.dispatch(gpu, a, b, c, accumulate)
+        }
     }
 
     /// `da (+)= ∂L/∂a` given `dc = ∂L/∂c` (needs `b`).
@@ -208,9 +245,16 @@ impl Matmul {
         b.expect_len(self.b_len())?;
         dc.expect_len(self.c_len())?;
         da.expect_len(self.a_len())?;
+        let (gemm, b_first) = self.backward_a_gemm();
+        let (lhs, rhs) = if b_first { (b, dc) } else { (dc, b) };
+        gemm.dispatch(gpu, lhs, rhs, da, accumulate)
+    }
+
+    /// The product giving dA, and whether its left operand is B (else dC).
+    fn backward_a_gemm(&self) -> (Gemm, bool) {
         let (dcv, bv) = (self.view_c(), self.view_b());
         // op(A) grad = dC · op(B)ᵀ, stored as its transpose when A is.
-        let (gemm, lhs, rhs) = if self.trans_a {
+        if self.trans_a {
             let gemm = Gemm {
                 m: self.k,
                 n: self.m,
@@ -220,7 +264,7 @@ impl Matmul {
                 out_shared: self.shared_a,
                 batch: self.batch,
             };
-            (gemm, b, dc)
+            (gemm, true)
         } else {
             let gemm = Gemm {
                 m: self.m,
@@ -231,9 +275,8 @@ impl Matmul {
                 out_shared: self.shared_a,
                 batch: self.batch,
             };
-            (gemm, dc, b)
-        };
-        gemm.dispatch(gpu, lhs, rhs, da, accumulate)
+            (gemm, false)
+        }
     }
 
     /// `db (+)= ∂L/∂b` given `dc = ∂L/∂c` (needs `a`).
@@ -248,9 +291,16 @@ impl Matmul {
         a.expect_len(self.a_len())?;
         dc.expect_len(self.c_len())?;
         db.expect_len(self.b_len())?;
+        let (gemm, dc_first) = self.backward_b_gemm();
+        let (lhs, rhs) = if dc_first { (dc, a) } else { (a, dc) };
+        gemm.dispatch(gpu, lhs, rhs, db, accumulate)
+    }
+
+    /// The product giving dB, and whether its left operand is dC (else A).
+    fn backward_b_gemm(&self) -> (Gemm, bool) {
         let (av, dcv) = (self.view_a(), self.view_c());
         // op(B) grad = op(A)ᵀ · dC, stored as its transpose when B is.
-        let (gemm, lhs, rhs) = if self.trans_b {
+        if self.trans_b {
             let gemm = Gemm {
                 m: self.n,
                 n: self.k,
@@ -260,7 +310,7 @@ impl Matmul {
                 out_shared: self.shared_b,
                 batch: self.batch,
             };
-            (gemm, dc, a)
+            (gemm, true)
         } else {
             let gemm = Gemm {
                 m: self.k,
@@ -271,9 +321,8 @@ impl Matmul {
                 out_shared: self.shared_b,
                 batch: self.batch,
             };
-            (gemm, a, dc)
-        };
-        gemm.dispatch(gpu, lhs, rhs, db, accumulate)
+            (gemm, false)
+        }
     }
 }
 
@@ -290,33 +339,101 @@ struct Gemm {
     batch: usize,
 }
 
+/// What a forward product does to each output before storing it.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Epilogue<'t> {
+    /// `[m]`, added to row i.
+    pub bias: Option<&'t Tensor>,
+    /// max(0, ·) of the final value (after the bias and any accumulation).
+    pub relu: bool,
+}
+
+/// How `matmul.wgsl` loads each operand (its override constants).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Loads {
+    /// op(A) read four floats at a time...
+    pub a_vec: bool,
+    /// ...along k (else along m).
+    pub a_along_k: bool,
+    /// op(B) read four floats at a time...
+    pub b_vec: bool,
+    /// ...along n (else along k).
+    pub b_along_n: bool,
+}
+
+impl Loads {
+    fn constants(self) -> [(&'static str, f64); 4] {
+        let f = |x: bool| f64::from(u8::from(x));
+        [
+            ("A_VEC", f(self.a_vec)),
+            ("A_ALONG_K", f(self.a_along_k)),
+            ("B_VEC", f(self.b_vec)),
+            ("B_ALONG_N", f(self.b_along_n)),
+        ]
+    }
+}
+
 impl Gemm {
-    /// The override constants of `matmul_vec4` when every vector load is aligned: each
-    /// operand contiguous along one axis, that axis, K, the other stride and the batch
-    /// strides all multiples of 4. `None` means the scalar kernel.
-    fn vec4(&self) -> Option<[(&'static str, f64); 2]> {
-        let aligned = |xs: &[usize]| xs.iter().all(|x| x % 4 == 0);
-        if !aligned(&[self.k, self.lhs.batch, self.rhs.batch]) {
-            return None;
+    /// A product with one output column is the product with one output row of the
+    /// transposed views (`Cᵀ = op(B)ᵀ · op(A)ᵀ`, the same memory since C is a vector per
+    /// batch item), which the row kernel computes without wasting 3/4 of a 4×4 block.
+    fn canonical(self) -> (Gemm, bool) {
+        if self.n == 1 && self.m > 1 {
+            let t = Gemm {
+                m: 1,
+                n: self.m,
+                k: self.k,
+                lhs: self.rhs.t(),
+                rhs: self.lhs.t(),
+                ..self
+            };
+            (t, true)
+        } else {
+            (self, false)
         }
-        let a_along_k = if self.lhs.col == 1 && aligned(&[self.lhs.row]) {
-            true
-        } else if self.lhs.row == 1 && aligned(&[self.lhs.col, self.m]) {
-            false
-        } else {
-            return None;
+    }
+
+    /// Vector loads for each operand that allows them: contiguous along one axis, with
+    /// that axis (where blocks read it unclamped), the other stride and the batch stride
+    /// multiples of 4, so every vector starts on a 16-byte boundary. Loads within the
+    /// k-loop step by 4 from there; a ragged K ends in scalar loads.
+    fn loads(&self) -> Loads {
+        let aligned = |xs: &[usize]| xs.iter().all(|x| x % 4 == 0);
+        let (l, r) = (self.lhs, self.rhs);
+        // One row reads no row stride.
+        let a_k = l.col == 1 && aligned(&[l.batch]) && (self.m == 1 || aligned(&[l.row]));
+        let a_m = self.m > 1 && l.row == 1 && aligned(&[l.batch, l.col, self.m]);
+        let b_n = r.col == 1 && aligned(&[r.batch, r.row, self.n]);
+        let b_k = r.row == 1 && aligned(&[r.batch, r.col]);
+        Loads {
+            a_vec: a_k || a_m,
+            a_along_k: !a_m,
+            b_vec: b_n || b_k,
+            b_along_n: !b_k,
+        }
+    }
+
+    /// Invocations per workgroup along n and m for the 4×4-block kernel: 8×8 (32×32
+    /// outputs), unless a wider, flatter group (16×4, 64×1) covers the product with at
+    /// least 20% fewer padded outputs: a group past the edge of C still costs its
+    /// invocations (e.g. 14 rows of a 32-row group, or 48 columns of 64). A product with
+    /// few groups (a weight gradient summed over the batch) keeps 8×8: fewer, larger groups
+    /// would leave threads idle.
+    fn group(&self, batches: usize) -> [usize; 2] {
+        let tiles = |[x, y]: [usize; 2]| (self.n.div_ceil(BLOCK * x), self.m.div_ceil(BLOCK * y));
+        let padded = |shape: [usize; 2]| {
+            let (nx, ny) = tiles(shape);
+            nx * ny * shape[0] * shape[1]
         };
-        let b_along_n = if self.rhs.col == 1 && aligned(&[self.rhs.row, self.n]) {
-            true
-        } else if self.rhs.row == 1 && aligned(&[self.rhs.col]) {
-            false
-        } else {
-            return None;
-        };
-        Some([
-            ("A_ALONG_K", f64::from(u8::from(a_along_k))),
-            ("B_ALONG_N", f64::from(u8::from(b_along_n))),
-        ])
+        let mut best = [WORKGROUP, WORKGROUP];
+        for shape in [[16, 4], [64, 1]] {
+            let (nx, ny) = tiles(shape);
+            let many = nx * ny * batches >= 64;
+            if many && (padded(shape) as f64) < 0.8 * padded(best) as f64 {
+                best = shape;
+            }
+        }
+        best
     }
 
     fn dispatch(
@@ -327,7 +444,21 @@ impl Gemm {
         out: &Tensor,
         accumulate: bool,
     ) -> Result<Dispatch, GpuError> {
-        for t in [lhs, rhs] {
+        self.dispatch_with(gpu, lhs, rhs, out, accumulate, Epilogue::default())
+    }
+
+    /// The launch, with what the epilogue adds or applies to the outputs.
+    fn dispatch_with(
+        self,
+        gpu: &Gpu,
+        lhs: &Tensor,
+        rhs: &Tensor,
+        out: &Tensor,
+        accumulate: bool,
+        epilogue: Epilogue,
+    ) -> Result<Dispatch, GpuError> {
+        let bias = epilogue.bias;
+        for t in [Some(lhs), Some(rhs), bias].into_iter().flatten() {
             if t.buffer() == out.buffer() {
                 return Err(GpuError::Shape {
                     tensor: out.name().to_string(),
@@ -336,52 +467,87 @@ impl Gemm {
                 });
             }
         }
-        let (out_batches, reduce) = if self.out_shared {
-            (1, self.batch)
+        let flops = 2.0 * (self.batch * self.m * self.n * self.k) as f64;
+        let (gemm, swapped) = self.canonical();
+        let (lhs, rhs) = if swapped { (rhs, lhs) } else { (lhs, rhs) };
+        let (out_batches, reduce) = if gemm.out_shared {
+            (1, gemm.batch)
         } else {
-            (self.batch, 1)
+            (gemm.batch, 1)
         };
-        let (lb, lr) = if self.out_shared {
-            (0, self.lhs.batch)
+        let (lb, lr) = if gemm.out_shared {
+            (0, gemm.lhs.batch)
         } else {
-            (self.lhs.batch, 0)
+            (gemm.lhs.batch, 0)
         };
-        let (rb, rr) = if self.out_shared {
-            (0, self.rhs.batch)
+        let (rb, rr) = if gemm.out_shared {
+            (0, gemm.rhs.batch)
         } else {
-            (self.rhs.batch, 0)
+            (gemm.rhs.batch, 0)
         };
         let params = Params {
-            m: self.m as u32,
-            n: self.n as u32,
-            k: self.k as u32,
+            m: gemm.m as u32,
+            n: gemm.n as u32,
+            k: gemm.k as u32,
             reduce: reduce as u32,
-            a_row: self.lhs.row as u32,
-            a_col: self.lhs.col as u32,
-            b_row: self.rhs.row as u32,
-            b_col: self.rhs.col as u32,
+            a_row: gemm.lhs.row as u32,
+            a_col: gemm.lhs.col as u32,
+            b_row: gemm.rhs.row as u32,
+            b_col: gemm.rhs.col as u32,
             a_batch: lb as u32,
             b_batch: rb as u32,
-            c_batch: (self.m * self.n) as u32,
+            c_batch: (gemm.m * gemm.n) as u32,
             accumulate: accumulate as u32,
             a_reduce: lr as u32,
             b_reduce: rr as u32,
             alpha: 1.0,
             _pad: 0,
         };
-        let tile = BLOCK * WORKGROUP;
-        let groups = [
-            self.n.div_ceil(tile).max(1) as u32,
-            self.m.div_ceil(tile).max(1) as u32,
-            out_batches as u32,
-        ];
-        match self.vec4() {
-            Some(constants) => {
-                gpu.dispatch(&KERNEL_VEC4, &constants, &params, &[lhs, rhs, out], groups)
-            }
-            None => gpu.dispatch(&KERNEL, &[], &params, &[lhs, rhs, out], groups),
-        }
+        let mut constants = gemm.loads().constants().to_vec();
+        // Rows of C are columns of the swapped product.
+        let bias_mode = match (bias, swapped) {
+            (None, _) => 0,
+            (Some(_), false) => 1,
+            (Some(_), true) => 2,
+        };
+        constants.push(("BIAS", f64::from(bias_mode)));
+        constants.push(("RELU", f64::from(u8::from(epilogue.relu))));
+        let (kernel, groups) = if gemm.m == 1 {
+            let per_group = BLOCK * ROW_WORKGROUP;
+            let groups = [
+                gemm.n.div_ceil(per_group).max(1) as u32,
+                1,
+                out_batches as u32,
+            ];
+            (&KERNEL_ROW, groups)
+        } else {
+            let [x, y] = gemm.group(out_batches);
+            constants.extend([("GROUP_X", x as f64), ("GROUP_Y", y as f64)]);
+            let groups = [
+                gemm.n.div_ceil(BLOCK * x).max(1) as u32,
+                gemm.m.div_ceil(BLOCK * y).max(1) as u32,
+                out_batches as u32,
+            ];
+            (&KERNEL, groups)
+        };
+        let tensors = [lhs, rhs, lhs, rhs, bias.unwrap_or(lhs), out];
+        let d = gpu.dispatch(kernel, &constants, &params, &tensors, groups)?;
+        Ok(d.with_flops(flops))
     }
+}
+
+/// The kernel entry and load modes `matmul.wgsl` uses for `mm`'s forward, dA and dB
+/// products (in that order), for tests and profiles.
+pub fn plan(mm: &Matmul) -> [(&'static str, Loads); 3] {
+    let describe = |g: Gemm| {
+        let (g, _) = g.canonical();
+        (if g.m == 1 { "matmul_row" } else { "matmul" }, g.loads())
+    };
+    [
+        describe(mm.forward_gemm()),
+        describe(mm.backward_a_gemm().0),
+        describe(mm.backward_b_gemm().0),
+    ]
 }
 
 /// Plain f64 reference of the same contract, written from the definition (no strides

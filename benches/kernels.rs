@@ -1,0 +1,195 @@
+//! Per-kernel profile of the network: every step of a schedule timed on its own
+//! (`Network::profile`), grouped across blocks, with its share of the pass, its GFLOP/s
+//! and its ratio to the project's best matmul measured in the same run. This is the
+//! "every heavy kernel at ≥ 70 % of the best matmul" check of the GPU issue.
+//!
+//! `cargo bench --bench kernels` profiles the training step (forward + loss + backward)
+//! and the inference forward at B = 64 for the paper shape (C 64, T 100, L 5) and the
+//! small shape (C 16, T 48, L 3). Arguments pick a subset: `-- paper`, `-- small`,
+//! `-- train`, `-- infer`. Each step is submitted alone and waited for (~0.5 ms of
+//! overhead on lavapipe), twice, keeping the faster; a heavy step is one that takes at
+//! least 2 % of its pass. About 2 minutes for everything on the 2-core lavapipe machine.
+
+use std::collections::BTreeMap;
+use std::time::{Duration, Instant};
+
+use iastgcn::gpu::{Gpu, Recorder};
+use iastgcn::graph::Graph;
+use iastgcn::model::{ModelConfig, Network, Parameters, Pass, StepTime};
+use iastgcn::ops::matmul::Matmul;
+use iastgcn::testing::{rng, to_f32, uniform};
+
+const BATCH: usize = 64;
+/// A step taking at least this share of its pass is "heavy".
+const HEAVY: f64 = 0.02;
+
+/// GFLOP/s of the vec4 conv GEMM `896 × [64,192]·[192,100]` (benches/model.rs's
+/// baseline), best of 8 after a warm-up.
+fn baseline(gpu: &Gpu) -> f64 {
+    let mm = Matmul::new(64, 100, 192).batched(896).share_a(true);
+    let mut g = rng(1);
+    let mut upload = |name: &str, len: usize| {
+        gpu.upload(name, &[len], &to_f32(&uniform(&mut g, len, -1.0, 1.0)))
+            .unwrap()
+    };
+    let (a, b, c) = (
+        upload("a", mm.a_len()),
+        upload("b", mm.b_len()),
+        upload("c", mm.c_len()),
+    );
+    let d = mm.forward(gpu, &a, &b, &c, false).unwrap();
+    let mut best = Duration::MAX;
+    for i in 0..9 {
+        let mut rec = Recorder::new(gpu);
+        rec.dispatch(&d);
+        let t0 = Instant::now();
+        rec.submit();
+        gpu.wait().unwrap();
+        if i > 0 {
+            best = best.min(t0.elapsed());
+        }
+    }
+    mm.flops() / best.as_secs_f64() / 1e9
+}
+
+/// A network with He-initialised parameters, random inputs and targets.
+fn network(gpu: &Gpu, config: &ModelConfig, batch: usize) -> Network {
+    let graph = Graph::default_asset();
+    let net = Network::new(gpu, config, &graph, batch, 7).unwrap();
+    net.load_parameters(gpu, &Parameters::init(config, 1))
+        .unwrap();
+    let mut g = rng(2);
+    let x = uniform(&mut g, net.input.numel(), -1.0, 1.0);
+    let y = uniform(&mut g, net.target.numel(), -1.0, 1.0);
+    gpu.write(&net.input, &to_f32(&x)).unwrap();
+    gpu.write(&net.target, &to_f32(&y)).unwrap();
+    net.set_step(gpu, 1).unwrap();
+    net
+}
+
+/// `blocks.3.tcn.G_f` → `blocks.*.tcn.G_f`, so one row sums a role over the blocks.
+fn role(target: &str) -> String {
+    let mut parts: Vec<&str> = target.split('.').collect();
+    if parts.len() > 2 && parts[0].ends_with("blocks") && parts[1].parse::<usize>().is_ok() {
+        parts[1] = "*";
+    }
+    parts.join(".")
+}
+
+#[derive(Default)]
+struct Row {
+    steps: usize,
+    time: Duration,
+    flops: f64,
+}
+
+fn report(title: &str, times: &[StepTime], base: f64) {
+    let total: Duration = times.iter().map(|t| t.time).sum();
+    let mut rows: BTreeMap<(String, String), Row> = BTreeMap::new();
+    for t in times {
+        let kernel = t
+            .kernel
+            .rsplit("::")
+            .next()
+            .unwrap_or(&t.kernel)
+            .to_string();
+        let row = rows.entry((kernel, role(&t.target))).or_default();
+        row.steps += 1;
+        row.time += t.time;
+        row.flops += t.flops;
+    }
+    let mut rows: Vec<_> = rows.into_iter().collect();
+    rows.sort_by_key(|r| std::cmp::Reverse(r.1.time));
+    let gemm_time: Duration = times.iter().filter(|t| t.flops > 0.0).map(|t| t.time).sum();
+    let flops: f64 = times.iter().map(|t| t.flops).sum();
+    eprintln!(
+        "\n{title}: {} steps, {total:.3?} when each is timed alone; contractions {:.1}% of it \
+         at {:.2} GFLOP/s overall ({:.2}× the baseline)",
+        times.len(),
+        100.0 * gemm_time.as_secs_f64() / total.as_secs_f64(),
+        flops / gemm_time.as_secs_f64() / 1e9,
+        flops / gemm_time.as_secs_f64() / 1e9 / base,
+    );
+    eprintln!(
+        "  {:<14} {:<34} {:>5} {:>10} {:>6} {:>8} {:>6}",
+        "kernel", "writes", "steps", "time", "%", "GFLOP/s", "ratio"
+    );
+    let mut shown = Duration::ZERO;
+    for ((kernel, target), r) in &rows {
+        let share = r.time.as_secs_f64() / total.as_secs_f64();
+        if share < 0.005 {
+            continue;
+        }
+        shown += r.time;
+        let (gflops, ratio) = if r.flops > 0.0 {
+            let g = r.flops / r.time.as_secs_f64() / 1e9;
+            (format!("{g:.2}"), format!("{:.2}", g / base))
+        } else {
+            ("-".into(), "-".into())
+        };
+        let mark = if share >= HEAVY && r.flops > 0.0 && gflops_ratio(r, base) < 0.7 {
+            "  < 70%"
+        } else {
+            ""
+        };
+        eprintln!(
+            "  {kernel:<14} {target:<34} {:>5} {:>10.3?} {:>6.2} {gflops:>8} {ratio:>6}{mark}",
+            r.steps,
+            r.time,
+            100.0 * share,
+        );
+    }
+    eprintln!(
+        "  (rows under 0.5% left out: {:.2?} in all)",
+        total.saturating_sub(shown)
+    );
+}
+
+fn gflops_ratio(r: &Row, base: f64) -> f64 {
+    r.flops / r.time.as_secs_f64() / 1e9 / base
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| !a.starts_with('-'))
+        .collect();
+    let wants = |what: &str, all: &[&str]| {
+        let named = args.iter().any(|a| all.contains(&a.as_str()));
+        !named || args.iter().any(|a| a == what)
+    };
+    let gpu = Gpu::new().expect("a GPU adapter (make bench installs lavapipe)");
+    let base = baseline(&gpu);
+    eprintln!("baseline matmul 896x[64,192]x[192,100]: {base:.2} GFLOP/s");
+    let shapes = [
+        ("paper C64 T100 L5", "paper", ModelConfig::default()),
+        (
+            "small C16 T48 L3",
+            "small",
+            ModelConfig {
+                channels: 16,
+                window: 48,
+                blocks: 3,
+                ..ModelConfig::default()
+            },
+        ),
+    ];
+    for (name, key, config) in shapes {
+        if !wants(key, &["paper", "small"]) {
+            continue;
+        }
+        let net = network(&gpu, &config, BATCH);
+        for (pass, pass_key, label) in [
+            (Pass::Train, "train", "training step"),
+            (Pass::Inference, "infer", "inference forward"),
+        ] {
+            if !wants(pass_key, &["train", "infer"]) {
+                continue;
+            }
+            // Untimed once: the first dispatch of each pipeline JIT-compiles it.
+            net.profile(&gpu, pass, 1).unwrap();
+            let times = net.profile(&gpu, pass, 2).unwrap();
+            report(&format!("{name} {label} B={BATCH}"), &times, base);
+        }
+    }
+}
