@@ -33,7 +33,8 @@ struct MatmulParams {
     a_reduce: u32,
     b_reduce: u32,
     alpha: f32,
-    _pad: u32,
+    // Batch items of C (the z extent; a workgroup may span several).
+    batches: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: MatmulParams;
@@ -69,10 +70,11 @@ fn b_n4(o: u32, cols: vec4<u32>) -> vec4<f32> {
     return vec4<f32>(b[o + cols.x], b[o + cols.y], b[o + cols.z], b[o + cols.w]);
 }
 
-// The 4x4 block of op(A) at k = kk..kk+3: column i holds row i of the block (over k).
-// `ra` are the clamped row offsets, `row0` the first row (used unclamped only along m,
-// which the host allows only when m is a multiple of 4).
-fn a_block(abase: u32, kk: u32, row0: u32, ra: vec4<u32>) -> mat4x4<f32> {
+// Rows of op(A) for k = kk..kk+3, four at a time: column i of the result holds row
+// `rows[i]` (over k). `rows` are clamped row indices; `row0` (a multiple of 4, used only
+// along m, which the host allows only when m is a multiple of 4) is the first of them.
+fn a_rows(abase: u32, kk: u32, row0: u32, rows: vec4<u32>) -> mat4x4<f32> {
+    let ra = rows * p.a_row;
     if A_VEC && A_ALONG_K {
         let o = abase + kk;
         return mat4x4<f32>(a4[(o + ra.x) >> 2u], a4[(o + ra.y) >> 2u], a4[(o + ra.z) >> 2u], a4[(o + ra.w) >> 2u]);
@@ -86,9 +88,12 @@ fn a_block(abase: u32, kk: u32, row0: u32, ra: vec4<u32>) -> mat4x4<f32> {
     return mat4x4<f32>(a_k4(o + ra.x), a_k4(o + ra.y), a_k4(o + ra.z), a_k4(o + ra.w));
 }
 
-// The 4x4 block of op(B) at k = kk..kk+3: column i holds row kk+i of the block (over n).
-fn b_block(bbase: u32, kk: u32, col0: u32, cb: vec4<u32>) -> mat4x4<f32> {
+// Four columns of op(B) for k = kk..kk+3: column i of the result holds row kk+i (over
+// the columns `cols`, clamped indices; `col0` their first, used along n, which the host
+// allows only when n is a multiple of 4).
+fn b_cols(bbase: u32, kk: u32, col0: u32, cols: vec4<u32>) -> mat4x4<f32> {
     let s = p.b_row;
+    let cb = cols * p.b_col;
     if B_VEC && B_ALONG_N {
         let o = bbase + kk * s + col0;
         return mat4x4<f32>(b4[o >> 2u], b4[(o + s) >> 2u], b4[(o + 2u * s) >> 2u], b4[(o + 3u * s) >> 2u]);
@@ -125,66 +130,103 @@ fn store_row(row: u32, col0: u32, base: u32, v: vec4<f32>) {
     }
 }
 
-// Offsets of the four rows of op(A) (times a_row) and the four columns of op(B) (times
-// b_col) of this invocation's block. Rows/columns past the edge are clamped so every load
-// stays in bounds; their results are computed but never stored, which keeps the inner
-// loops branch-free.
-fn row_offsets(row0: u32) -> vec4<u32> {
-    let ml = p.m - 1u;
-    return vec4<u32>(min(row0, ml), min(row0 + 1u, ml), min(row0 + 2u, ml), min(row0 + 3u, ml)) * p.a_row;
+// Indices of four rows of op(A) (columns of op(B)) from `i0`, clamped to the last one so
+// every load stays in bounds; results past the edge are computed but never stored, which
+// keeps the inner loops branch-free.
+fn clamp4(i0: u32, len: u32) -> vec4<u32> {
+    return min(vec4<u32>(i0, i0 + 1u, i0 + 2u, i0 + 3u), vec4<u32>(len - 1u));
 }
 
-fn col_offsets(col0: u32) -> vec4<u32> {
-    let nl = p.n - 1u;
-    return vec4<u32>(min(col0, nl), min(col0 + 1u, nl), min(col0 + 2u, nl), min(col0 + 3u, nl)) * p.b_col;
+// The first of four consecutive rows (columns) read as one vector, moved back so that all
+// four exist (the axis is a multiple of 4 when vectors are read along it).
+fn vec_start(i0: u32, len: u32) -> u32 {
+    return min(i0, len - 4u);
 }
 
-// Workgroup shape: 8x8 (32x32 outputs) in general, 64x1 (4 rows of 256 outputs) when M is
-// small, so that few invocations of a workgroup fall past the last row.
+// Workgroup shape, chosen per product by ops/matmul.rs: 8x8x1 (64x64 outputs) in general,
+// flatter when M is small, and spanning several batch items when each item's C is small.
 override GROUP_X: u32 = 8u;
 override GROUP_Y: u32 = 8u;
+override GROUP_Z: u32 = 1u;
 
-@compute @workgroup_size(GROUP_X, GROUP_Y, 1)
+// An 8x8 block of C per invocation: rows row0..row0+7 in two halves (lo, hi) of four, and
+// columns col0..col0+7 in two halves (l, r). acc_<rows><cols>[i] is row i of that quarter.
+@compute @workgroup_size(GROUP_X, GROUP_Y, GROUP_Z)
 fn matmul(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let row0 = gid.y * 4u;
-    let col0 = gid.x * 4u;
-    if row0 >= p.m || col0 >= p.n {
+    let row0 = gid.y * 8u;
+    let col0 = gid.x * 8u;
+    if row0 >= p.m || col0 >= p.n || gid.z >= p.batches {
         return;
     }
     let z = gid.z;
-    let ra = row_offsets(row0);
-    let cb = col_offsets(col0);
-    var acc0 = vec4<f32>(0.0);
-    var acc1 = vec4<f32>(0.0);
-    var acc2 = vec4<f32>(0.0);
-    var acc3 = vec4<f32>(0.0);
+    let rows_lo = clamp4(row0, p.m);
+    let rows_hi = clamp4(row0 + 4u, p.m);
+    let cols_l = clamp4(col0, p.n);
+    let cols_r = clamp4(col0 + 4u, p.n);
+    var r0 = 0u;
+    var r1 = 0u;
+    var c0 = 0u;
+    var c1 = 0u;
+    if A_VEC && !A_ALONG_K {
+        r0 = vec_start(row0, p.m);
+        r1 = vec_start(row0 + 4u, p.m);
+    }
+    if B_VEC && B_ALONG_N {
+        c0 = vec_start(col0, p.n);
+        c1 = vec_start(col0 + 4u, p.n);
+    }
+    var acc_lo_l = mat4x4<f32>();
+    var acc_lo_r = mat4x4<f32>();
+    var acc_hi_l = mat4x4<f32>();
+    var acc_hi_r = mat4x4<f32>();
     let k4 = p.k & ~3u;
     for (var r = 0u; r < p.reduce; r++) {
         let abase = z * p.a_batch + r * p.a_reduce;
         let bbase = z * p.b_batch + r * p.b_reduce;
         var kk = 0u;
         for (; kk < k4; kk += 4u) {
-            let x = a_block(abase, kk, row0, ra);
-            let y = b_block(bbase, kk, col0, cb);
-            acc0 += y * x[0];
-            acc1 += y * x[1];
-            acc2 += y * x[2];
-            acc3 += y * x[3];
+            let xl = a_rows(abase, kk, r0, rows_lo);
+            let xh = a_rows(abase, kk, r1, rows_hi);
+            let yl = b_cols(bbase, kk, c0, cols_l);
+            let yr = b_cols(bbase, kk, c1, cols_r);
+            acc_lo_l += yl * xl;
+            acc_lo_r += yr * xl;
+            acc_hi_l += yl * xh;
+            acc_hi_r += yr * xh;
         }
         for (; kk < p.k; kk++) {
             let ak = abase + kk * p.a_col;
-            let bv = b_n4(bbase + kk * p.b_row, cb);
-            acc0 += a[ak + ra.x] * bv;
-            acc1 += a[ak + ra.y] * bv;
-            acc2 += a[ak + ra.z] * bv;
-            acc3 += a[ak + ra.w] * bv;
+            let bk = bbase + kk * p.b_row;
+            let bl = b_n4(bk, cols_l * p.b_col);
+            let br = b_n4(bk, cols_r * p.b_col);
+            let al = rows_lo * p.a_row;
+            let ah = rows_hi * p.a_row;
+            let xl = vec4<f32>(a[ak + al.x], a[ak + al.y], a[ak + al.z], a[ak + al.w]);
+            let xh = vec4<f32>(a[ak + ah.x], a[ak + ah.y], a[ak + ah.z], a[ak + ah.w]);
+            acc_lo_l += outer4(bl, xl);
+            acc_lo_r += outer4(br, xl);
+            acc_hi_l += outer4(bl, xh);
+            acc_hi_r += outer4(br, xh);
         }
     }
+    // Constant indices only: a dynamically indexed matrix would live in memory.
     let cbase = z * p.c_batch;
-    store_row(row0, col0, cbase, acc0);
-    store_row(row0 + 1u, col0, cbase, acc1);
-    store_row(row0 + 2u, col0, cbase, acc2);
-    store_row(row0 + 3u, col0, cbase, acc3);
+    store_quarter(row0, col0, cbase, acc_lo_l);
+    store_quarter(row0, col0 + 4u, cbase, acc_lo_r);
+    store_quarter(row0 + 4u, col0, cbase, acc_hi_l);
+    store_quarter(row0 + 4u, col0 + 4u, cbase, acc_hi_r);
+}
+
+fn store_quarter(row: u32, col: u32, base: u32, q: mat4x4<f32>) {
+    store_row(row, col, base, q[0]);
+    store_row(row + 1u, col, base, q[1]);
+    store_row(row + 2u, col, base, q[2]);
+    store_row(row + 3u, col, base, q[3]);
+}
+
+// The matrix whose column i is x[i] * y: one k step of a 4x4 quarter.
+fn outer4(y: vec4<f32>, x: vec4<f32>) -> mat4x4<f32> {
+    return mat4x4<f32>(x.x * y, x.y * y, x.z * y, x.w * y);
 }
 
 // m = 1: four columns of the single row per invocation, 64 invocations per workgroup.
@@ -195,7 +237,8 @@ fn matmul_row(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let z = gid.z;
-    let cb = col_offsets(col0);
+    let cols = clamp4(col0, p.n);
+    let cb = cols * p.b_col;
     var acc = vec4<f32>(0.0);
     let k4 = p.k & ~3u;
     for (var r = 0u; r < p.reduce; r++) {
@@ -209,7 +252,7 @@ fn matmul_row(@builtin(global_invocation_id) gid: vec3<u32>) {
             } else {
                 x = a_k4(abase + kk * p.a_col);
             }
-            acc += b_block(bbase, kk, col0, cb) * x;
+            acc += b_cols(bbase, kk, col0, cols) * x;
         }
         for (; kk < p.k; kk++) {
             acc += a[abase + kk * p.a_col] * b_n4(bbase + kk * p.b_row, cb);
