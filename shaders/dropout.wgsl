@@ -10,8 +10,10 @@ struct DropParams {
     threshold: u32,
     scale: f32,
     accumulate: u32,
-    _pad0: u32,
-    _pad1: u32,
+    // Element i draws the bit of index i·stride + offset (a strided subset of a larger
+    // tensor gets the bits it has in the whole one).
+    stride: u32,
+    offset: u32,
 }
 
 const DROP_WG: u32 = 256u;
@@ -43,7 +45,7 @@ fn dropout(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: v
     if i >= p.n {
         return;
     }
-    let v = select(0.0, src[i] * p.scale, keep(i));
+    let v = select(0.0, src[i] * p.scale, keep(i * p.stride + p.offset));
     if p.accumulate != 0u {
         dst[i] = dst[i] + v;
     } else {

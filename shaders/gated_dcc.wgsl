@@ -3,7 +3,8 @@
 // The convolution runs as a GEMM over a causal unfolding of its input:
 //   col[r, c, k, t] = x[r, c, t − d·k]   (0 when t − d·k < 0; r = b·N + n)
 // so that G[r] = weight [C, C·K] · col[r] [C·K, T] with the MODEL.md weight layout
-// [o, c, k] read as a [C, C·K] matrix. The GEMMs are ops::matmul; this file holds the
+// [o, c, k] read as a [C, C·K] matrix. `outputs` keeps only the last steps of col
+// (t ≥ T − outputs): the last block computes its convolution only where the head reads. The GEMMs are ops::matmul; this file holds the
 // unfolding and the gate H = tanh(G_f) ⊙ σ(G_g), forward and backward.
 
 struct UnfoldParams {
@@ -13,7 +14,7 @@ struct UnfoldParams {
     steps: u32,
     dilation: u32,
     accumulate: u32,
-    _pad0: u32,
+    outputs: u32,
     _pad1: u32,
 }
 
@@ -29,11 +30,11 @@ const DCC_WG: u32 = 256u;
 fn unfold_forward(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                   @builtin(local_invocation_index) li: u32) {
     let i = flat_index(wg, nwg, li, DCC_WG);
-    if i >= u.rows * u.channels * u.kernel * u.steps {
+    if i >= u.rows * u.channels * u.kernel * u.outputs {
         return;
     }
-    let t = i % u.steps;
-    let rck = i / u.steps;
+    let t = u.steps - u.outputs + i % u.outputs;
+    let rck = i / u.outputs;
     let k = rck % u.kernel;
     let rc = rck / u.kernel;
     let lag = u.dilation * k;
@@ -44,7 +45,8 @@ fn unfold_forward(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups)
     ucol[i] = v;
 }
 
-// dx[r, c, t] (+)= Σ_k dcol[r, c, k, t + d·k]: a gather, one invocation per element of x.
+// dx[r, c, t] (+)= Σ_k dcol[r, c, k, t + d·k] over the kept steps: a gather, one
+// invocation per element of x.
 @group(0) @binding(1) var<storage, read> udcol: array<f32>;
 @group(0) @binding(2) var<storage, read_write> udx: array<f32>;
 
@@ -57,11 +59,12 @@ fn unfold_backward(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups
     }
     let t = i % u.steps;
     let rc = i / u.steps;
+    let first = u.steps - u.outputs;
     var s = 0.0;
     for (var k = 0u; k < u.kernel; k++) {
         let src = t + u.dilation * k;
-        if src < u.steps {
-            s += udcol[(rc * u.kernel + k) * u.steps + src];
+        if src >= first && src < u.steps {
+            s += udcol[(rc * u.kernel + k) * u.outputs + src - first];
         }
     }
     if u.accumulate != 0u {

@@ -9,11 +9,7 @@ use iastgcn::testing::gpu;
 fn mask_matches_the_cpu_hash_and_scales_kept_values() {
     let g = gpu();
     let n = 100_003;
-    let d = Dropout {
-        n,
-        p: 0.2,
-        seed: 1234,
-    };
+    let d = Dropout::new(n, 0.2, 1234);
     let x: Vec<f32> = (0..n).map(|i| 1.0 + (i % 7) as f32).collect();
     let xt = g.upload("x", &[n], &x).unwrap();
     let y = g.zeros("y", &[n], DType::F32);
@@ -36,7 +32,7 @@ fn mask_matches_the_cpu_hash_and_scales_kept_values() {
 fn backward_uses_the_forward_mask_and_steps_change_it() {
     let g = gpu();
     let n = 4096;
-    let d = Dropout { n, p: 0.5, seed: 7 };
+    let d = Dropout::new(n, 0.5, 7);
     let ones = g.upload("ones", &[n], &vec![1.0; n]).unwrap();
     let (y, dx) = (
         g.zeros("y", &[n], DType::F32),
@@ -59,4 +55,34 @@ fn backward_uses_the_forward_mask_and_steps_change_it() {
     );
     let other_seed = Dropout { seed: 8, ..d };
     assert!((0..n).any(|i| keep(&d, 11, i) != keep(&other_seed, 11, i)));
+}
+
+#[test]
+fn a_strided_subset_gets_the_bits_of_the_whole_tensor() {
+    let g = gpu();
+    // The last of 48 steps of [rows, 48]: what the trimmed last block drops.
+    let (rows, steps) = (300, 48);
+    let whole = Dropout::new(rows * steps, 0.3, 99);
+    let last = whole.strided(rows, steps, steps - 1);
+    let x: Vec<f32> = (0..rows * steps).map(|i| 1.0 + (i % 5) as f32).collect();
+    let xt = g.upload("x", &[x.len()], &x).unwrap();
+    let tail: Vec<f32> = (0..rows).map(|r| x[r * steps + steps - 1]).collect();
+    let tt = g.upload("x last", &[rows], &tail).unwrap();
+    let (y, yl) = (
+        g.zeros("y", &[x.len()], DType::F32),
+        g.zeros("y last", &[rows], DType::F32),
+    );
+    g.run(&[
+        whole.apply(&g, 3, &xt, &y, false).unwrap(),
+        last.apply(&g, 3, &tt, &yl, false).unwrap(),
+    ])
+    .unwrap();
+    let (y, yl) = (g.read_f32(&y).unwrap(), g.read_f32(&yl).unwrap());
+    let mut dropped = 0;
+    for r in 0..rows {
+        assert_eq!(yl[r], y[r * steps + steps - 1], "row {r}");
+        assert_eq!(keep(&last, 3, r), keep(&whole, 3, r * steps + steps - 1));
+        dropped += usize::from(yl[r] == 0.0);
+    }
+    assert!(dropped > 0 && dropped < rows, "{dropped} of {rows} dropped");
 }

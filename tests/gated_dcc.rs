@@ -27,14 +27,19 @@ fn unfold(
         kernel,
         steps,
         dilation,
+        outputs: steps,
     }
 }
 
 #[test]
 fn unfold_matches_reference() {
     let g = gpu();
-    for (i, shape) in SHAPES.iter().enumerate() {
+    // The whole unfolding, and only its last steps (the last block's, down to one).
+    let windows = SHAPES.iter().flat_map(|shape| {
         let u = unfold(shape);
+        [u.steps, u.steps.div_ceil(2), 1].map(|outputs| Unfold { outputs, ..u })
+    });
+    for (i, u) in windows.enumerate() {
         let mut r = rng(i as u64);
         let x = round_f32(&uniform(&mut r, u.input_len(), -1.0, 1.0));
         let dcol = round_f32(&uniform(&mut r, u.col_len(), -1.0, 1.0));
@@ -63,6 +68,29 @@ fn unfold_matches_reference() {
         )
         .unwrap();
     }
+}
+
+#[test]
+fn trimmed_unfolding_is_the_tail_of_the_whole_one() {
+    let u = unfold(&SHAPES[0]);
+    let last = Unfold { outputs: 5, ..u };
+    let x = uniform(&mut rng(9), u.input_len(), -1.0, 1.0);
+    let (full, tail) = (cpu::unfold(&u, &x), cpu::unfold(&last, &x));
+    for (row, chunk) in tail.chunks(last.outputs).enumerate() {
+        assert_eq!(
+            chunk,
+            &full[row * u.steps + u.steps - last.outputs..][..last.outputs]
+        );
+    }
+    let g = gpu();
+    let bad = Unfold {
+        outputs: u.steps + 1,
+        ..u
+    };
+    let x = g.zeros("x", &[u.input_len()], DType::F32);
+    let col = g.zeros("col", &[bad.col_len()], DType::F32);
+    let err = bad.forward(&g, &x, &col).unwrap_err().to_string();
+    assert!(err.contains("unfold outputs"), "{err}");
 }
 
 /// The GPU path of the model (unfold, then weight [C, C·K] · col per row) equals the

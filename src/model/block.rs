@@ -8,6 +8,7 @@ use crate::ops::bias::Bias;
 use crate::ops::dropout::Dropout;
 use crate::ops::elementwise::{binary_backward, unary_backward, unary_forward, Binary, Unary};
 use crate::ops::gated_dcc::{gate_backward, gate_forward, Unfold};
+use crate::ops::head::LastStep;
 use crate::ops::layer_norm::LayerNorm;
 use crate::ops::matmul::{Epilogue, Matmul};
 use crate::ops::softmax::Softmax;
@@ -26,6 +27,9 @@ struct Dims {
     ci: usize,
     c: usize,
     t: usize,
+    /// Steps the block computes its convolution, residual, norm and dropout for: T, or 1
+    /// for the last block (the head reads only its last step).
+    to: usize,
     k: usize,
     terms: usize,
 }
@@ -77,7 +81,10 @@ pub struct Block {
     y: Tensor,
     mean: Tensor,
     rstd: Tensor,
-    /// The block output: `y` after dropout (training) or a copy of it (inference).
+    /// The input's last step `[B, N, C_in]`, for the residual of a trimmed block.
+    x_last: Option<Tensor>,
+    /// The block output `[B, N, C, to]`: `y` after dropout (training) or a copy of it
+    /// (inference).
     pub output: Tensor,
 }
 
@@ -89,7 +96,11 @@ pub struct DropoutSlots {
 }
 
 impl Block {
-    /// Allocates the buffers of block `index` reading `input` [B, N, C_in, T].
+    /// Allocates the buffers of block `index` reading `input` [B, N, C_in, T]. A `trimmed`
+    /// block (the last one) computes steps 4–7 only at the last step, which is all the
+    /// head reads: its output is `[B, N, C, 1]`, the same values as the last step of the
+    /// whole computation (the attention and graph convolution still run on all T steps,
+    /// which the attention needs).
     pub fn new(
         gpu: &Gpu,
         config: &ModelConfig,
@@ -97,6 +108,7 @@ impl Block {
         batch: usize,
         input: &Tensor,
         dropout_seed: u32,
+        trimmed: bool,
     ) -> Block {
         let d = Dims {
             b: batch,
@@ -104,6 +116,7 @@ impl Block {
             ci: config.block_input(index),
             c: config.channels,
             t: config.window,
+            to: if trimmed { 1 } else { config.window },
             k: config.kernel,
             terms: config.graph_terms(),
         };
@@ -136,16 +149,23 @@ impl Block {
             (None, None)
         };
         let hidden = [b, n, c, t];
+        let out = [b, n, c, d.to];
+        let whole = Dropout::new(
+            hidden.iter().product(),
+            config.dropout,
+            dropout_seed.wrapping_add(index as u32),
+        );
         Block {
             index,
             d,
             gated: config.variant.gated(),
             dilation: config.dilation(index),
             eps: config.eps as f32,
-            dropout: Dropout {
-                n: hidden.iter().product(),
-                p: config.dropout,
-                seed: dropout_seed.wrapping_add(index as u32),
+            // Element (b, n, c) of a trimmed block is element (b, n, c, T − 1) of the whole.
+            dropout: if trimmed {
+                whole.strided(b * n * c, t, t - 1)
+            } else {
+                whole
             },
             input: input.clone(),
             tat,
@@ -153,14 +173,15 @@ impl Block {
             psi: z("gwc.Psi", &[n, n]),
             m: z("gwc.M", &[b, n, ci, t]),
             z: z("Z", &hidden),
-            col: z("tcn.col", &[b, n, c, d.k, t]),
-            f: z("tcn.G_f", &hidden),
-            gg: z("tcn.G_g", &hidden),
-            s: z("relu(H+R)", &hidden),
-            y: z("Y", &hidden),
-            mean: z("ln.mean", &[b * n * t]),
-            rstd: z("ln.rstd", &[b * n * t]),
-            output: z("output", &hidden),
+            col: z("tcn.col", &[b, n, c, d.k, d.to]),
+            f: z("tcn.G_f", &out),
+            gg: z("tcn.G_g", &out),
+            s: z("relu(H+R)", &out),
+            y: z("Y", &out),
+            mean: z("ln.mean", &[b * n * d.to]),
+            rstd: z("ln.rstd", &[b * n * d.to]),
+            x_last: trimmed.then(|| z("x_last", &[b, n, ci])),
+            output: z("output", &out),
         }
     }
 
@@ -254,14 +275,25 @@ impl Block {
     /// tcn: G[b, n] = weight [C, C·K] · col[b, n] [C·K, T].
     fn mm_conv(&self) -> Matmul {
         let d = self.d;
-        Matmul::new(d.c, d.t, d.c * d.k)
+        Matmul::new(d.c, d.to, d.c * d.k)
             .batched(d.b * d.n)
             .share_a(true)
     }
     /// res: R[b, n] = res.weight [C, C_in] · X[b, n] [C_in, T].
     fn mm_res(&self) -> Matmul {
         let d = self.d;
-        Matmul::new(d.c, d.t, d.ci).batched(d.b * d.n).share_a(true)
+        Matmul::new(d.c, d.to, d.ci)
+            .batched(d.b * d.n)
+            .share_a(true)
+    }
+
+    /// The input's last step, read by the residual of a trimmed block.
+    fn input_last_step(&self) -> LastStep {
+        let d = self.d;
+        LastStep {
+            rows: d.b * d.n * d.ci,
+            steps: d.t,
+        }
     }
 
     fn unfold(&self) -> Unfold {
@@ -272,6 +304,7 @@ impl Block {
             kernel: d.k,
             steps: d.t,
             dilation: self.dilation,
+            outputs: d.to,
         }
     }
 
@@ -280,7 +313,7 @@ impl Block {
         Bias {
             outer: d.b * d.n,
             channels: d.c,
-            inner: d.t,
+            inner: d.to,
         }
     }
 
@@ -306,7 +339,7 @@ impl Block {
         let d = self.d;
         LayerNorm {
             eps: self.eps,
-            ..LayerNorm::new(d.b * d.n, d.c, d.t)
+            ..LayerNorm::new(d.b * d.n, d.c, d.to)
         }
     }
 
@@ -403,10 +436,21 @@ impl Block {
             bias: Some(w("res.bias")),
             relu: true,
         };
-        steps.run(
-            self.mm_res()
-                .forward_with(gpu, w("res.weight"), x, &self.s, true, residual),
-        )?;
+        let x_res = match &self.x_last {
+            Some(x_last) => {
+                steps.run(self.input_last_step().forward(gpu, x, x_last))?;
+                x_last
+            }
+            None => x,
+        };
+        steps.run(self.mm_res().forward_with(
+            gpu,
+            w("res.weight"),
+            x_res,
+            &self.s,
+            true,
+            residual,
+        ))?;
         steps.run(self.layer_norm().forward(
             gpu,
             &self.s,
@@ -468,13 +512,14 @@ impl Block {
         let dw = |s: &str| p.grad(&self.name(s));
         let x = &self.input;
         let hidden = [d.b, d.n, d.c, d.t];
+        let out = [d.b, d.n, d.c, d.to];
         let acts = [d.b, d.n, d.ci, d.t];
         // 7. Dropout: the same mask as the forward pass.
-        let dy = scratch.get("dY", &hidden)?;
+        let dy = scratch.get("dY", &out)?;
         let slot = steps.run(self.dropout.apply(gpu, 0, d_out, &dy, false))?;
         // 6. LayerNorm and ReLU.
         let ln = self.layer_norm();
-        let da = scratch.get("dA", &hidden)?;
+        let da = scratch.get("dA", &out)?;
         steps.run(ln.backward_input(
             gpu,
             &self.s,
@@ -495,20 +540,32 @@ impl Block {
             dw("ln.beta"),
             false,
         ))?;
-        let ds = scratch.get("dS", &hidden)?;
+        let ds = scratch.get("dS", &out)?;
         steps.run(unary_backward(gpu, Unary::Relu, &self.s, &da, &ds, false))?;
         // 5. Residual: ∂/∂H = ∂/∂R = dS.
         let bias = self.channel_bias();
         let res = self.mm_res();
         steps.run(bias.backward(gpu, &ds, dw("res.bias"), false))?;
-        steps.run(res.backward_a(gpu, x, &ds, dw("res.weight"), false))?;
-        steps.run(res.backward_b(gpu, w("res.weight"), &ds, d_in, false))?;
+        match &self.x_last {
+            Some(x_last) => {
+                // Only the last step of the input reached the residual: its gradient
+                // there, zero elsewhere (this writes all of d_in).
+                let dx_last = scratch.get("dx_last", &[d.b, d.n, d.ci])?;
+                steps.run(res.backward_a(gpu, x_last, &ds, dw("res.weight"), false))?;
+                steps.run(res.backward_b(gpu, w("res.weight"), &ds, &dx_last, false))?;
+                steps.run(self.input_last_step().backward(gpu, &dx_last, d_in))?;
+            }
+            None => {
+                steps.run(res.backward_a(gpu, x, &ds, dw("res.weight"), false))?;
+                steps.run(res.backward_b(gpu, w("res.weight"), &ds, d_in, false))?;
+            }
+        }
         // 4. Gate and convolutions.
-        let df = scratch.get("dG_f", &hidden)?;
+        let df = scratch.get("dG_f", &out)?;
         let conv = self.mm_conv();
-        let dcol = scratch.get("dcol", &[d.b, d.n, d.c, d.k, d.t])?;
+        let dcol = scratch.get("dcol", &[d.b, d.n, d.c, d.k, d.to])?;
         if self.gated {
-            let dg = scratch.get("dG_g", &hidden)?;
+            let dg = scratch.get("dG_g", &out)?;
             steps.run(gate_backward(gpu, &self.f, &self.gg, &ds, &df, &dg))?;
             steps.run(bias.backward(gpu, &dg, dw("tcn.gate.bias"), false))?;
             steps.run(conv.backward_a(gpu, &self.col, &dg, dw("tcn.gate.weight"), false))?;

@@ -10,7 +10,9 @@
 //!
 //! The convolutions are counted as the schedule runs them: one dense GEMM over the
 //! unfolded input, `[C, C·K] · [C·K, T]` per (b, n), so the taps that fall before t = 0
-//! (zeros, MODEL.md step 4) are counted as the GPU multiplies them too.
+//! (zeros, MODEL.md step 4) are counted as the GPU multiplies them too. The last block
+//! computes its convolutions and residual only at the last step (all the head reads;
+//! `model::block`), and is counted so.
 //!
 //! Training = forward + backward. A contraction's backward computes the gradients with
 //! respect to both of its operands, each as costly as the forward, so it costs 2× the
@@ -68,12 +70,13 @@ fn families(config: &ModelConfig, batch: usize) -> Vec<Family> {
         fam[4] = 2.0 * f(config.graph_terms()) * n * n;
         fam[5] = 2.0 * b * n * ci * t * n;
         fam[6] = 2.0 * b * n * c * t * ci;
-        let conv = 2.0 * b * n * c * t * c * k;
+        let steps = if l + 1 == config.blocks { 1.0 } else { t };
+        let conv = 2.0 * b * n * c * steps * c * k;
         fam[7] = conv;
         if config.variant.gated() {
             fam[8] = conv;
         }
-        fam[9] = 2.0 * b * n * c * t * ci;
+        fam[9] = 2.0 * b * n * c * steps * ci;
         for (s, v) in sums.iter_mut().zip(fam) {
             *s += v;
         }
@@ -164,16 +167,18 @@ mod tests {
     //   sat: W1 24, W2 24, W3 24, P 2·2·(2·2)·3 = 48, Vs 2·2·8 = 32 → 152; S'·X 2·2·(2·1·3)·2 = 48
     //   Ψ 2·2·4 = 16 (N = 2 wavelets), mix 48, W 2·2·(2·2·3)·1 = 48,
     //   filter 2·2·(2·2·3)·(2·2) = 192, gate 192, res 48     → block 0: 1068
-    // Block 1 (C_in = 2): tat 48·3 + 72 + 108 = 324, X·E' 144, sat 48·3 + 48 + 32 = 224,
-    //   S'·X 96, Ψ 16, mix 96, W 96, filter 192, gate 192, res 96 → block 1: 1476
+    // Block 1 (C_in = 2, the last: convolutions and residual at the last step only):
+    //   tat 48·3 + 72 + 108 = 324, X·E' 144, sat 48·3 + 48 + 32 = 224, S'·X 96, Ψ 16,
+    //   mix 96, W 96, filter 2·2·(2·2·1)·(2·2) = 64, gate 64, res 2·2·(2·2·1)·2 = 32
+    //   → block 1: 1156
     // Head 2·2·1·(2·2) = 16.
-    const FORWARD: f64 = 1068.0 + 1476.0 + 16.0;
+    const FORWARD: f64 = 1068.0 + 1156.0 + 16.0;
 
     #[test]
     fn tiny_forward_matches_hand_count() {
         let c = tiny(Variant::Iastgcn);
-        assert_eq!(forward_flops(&c, 2), 2560.0);
-        assert_eq!(FORWARD, 2560.0);
+        assert_eq!(forward_flops(&c, 2), 2240.0);
+        assert_eq!(FORWARD, 2240.0);
         assert_eq!(
             family(&c, "tat scores (U1,U2,U3,lhs·rhs,Ve)"),
             252.0 + 324.0
@@ -187,31 +192,31 @@ mod tests {
         assert_eq!(family(&c, "gwc Psi = theta·basis"), 32.0);
         assert_eq!(family(&c, "gwc mix Psi·X_s"), 48.0 + 96.0);
         assert_eq!(family(&c, "gwc W"), 48.0 + 96.0);
-        assert_eq!(family(&c, "tcn filter conv"), 384.0);
-        assert_eq!(family(&c, "tcn gate conv"), 384.0);
-        assert_eq!(family(&c, "res 1x1 conv"), 48.0 + 96.0);
+        assert_eq!(family(&c, "tcn filter conv"), 192.0 + 64.0);
+        assert_eq!(family(&c, "tcn gate conv"), 192.0 + 64.0);
+        assert_eq!(family(&c, "res 1x1 conv"), 48.0 + 32.0);
         assert_eq!(family(&c, "head"), 16.0);
     }
 
     #[test]
     fn tiny_training_is_three_forwards_but_psi() {
-        // Backward 2× everywhere except Ψ (∂θ only): 3·2560 − 32 = 7648.
-        assert_eq!(training_flops(&tiny(Variant::Iastgcn), 2), 7648.0);
+        // Backward 2× everywhere except Ψ (∂θ only): 3·2240 − 32 = 6688.
+        assert_eq!(training_flops(&tiny(Variant::Iastgcn), 2), 6688.0);
     }
 
     #[test]
     fn tiny_variants() {
         // iastgcn-a: no tat/sat (block 0: 524, block 1: 788).
         let a = tiny(Variant::NoAttention);
-        assert_eq!(forward_flops(&a, 2), 2560.0 - 524.0 - 788.0);
-        assert_eq!(training_flops(&a, 2), 3.0 * 1248.0 - 32.0);
-        // iastgcn-t: no gate convolution (2 × 192).
+        assert_eq!(forward_flops(&a, 2), 2240.0 - 524.0 - 788.0);
+        assert_eq!(training_flops(&a, 2), 3.0 * 928.0 - 32.0);
+        // iastgcn-t: no gate convolution (192 + 64).
         let t = tiny(Variant::PlainTemporal);
-        assert_eq!(forward_flops(&t, 2), 2560.0 - 384.0);
+        assert_eq!(forward_flops(&t, 2), 2240.0 - 256.0);
         // iastgcn-s: Ψ from 3 Chebyshev terms: 2·3·4 = 24 per block instead of 16.
         let s = tiny(Variant::Chebyshev);
-        assert_eq!(forward_flops(&s, 2), 2560.0 + 16.0);
-        assert_eq!(training_flops(&s, 2), 3.0 * 2576.0 - 48.0);
+        assert_eq!(forward_flops(&s, 2), 2240.0 + 16.0);
+        assert_eq!(training_flops(&s, 2), 3.0 * 2256.0 - 48.0);
         for v in Variant::ALL {
             for (name, value) in breakdown(&tiny(v), 2) {
                 assert_eq!(value > 0.0, has_family(v, name), "{v} {name}");
@@ -225,8 +230,9 @@ mod tests {
         let psi = 2.0 * 5.0 * 14.0 * 14.0 * 14.0;
         let one = forward_flops(&c, 1) - psi;
         assert_eq!(forward_flops(&c, 64) - psi, 64.0 * one);
-        // The paper shape's biggest term: 5 blocks × 2 convs × 2·B·N·C·T·C·K.
-        let convs = 5.0 * 2.0 * 2.0 * 64.0 * 14.0 * 64.0 * 100.0 * 64.0 * 3.0;
+        // The paper shape's biggest term: 2 convs × 2·B·N·C·C·K × steps, the steps being
+        // T in four blocks and 1 in the last.
+        let convs = 2.0 * 2.0 * 64.0 * 14.0 * 64.0 * 64.0 * 3.0 * (4.0 * 100.0 + 1.0);
         let bd = breakdown(&c, 64);
         assert_eq!(bd[7].1 + bd[8].1, convs);
     }

@@ -9,7 +9,6 @@ use super::schedule::{Scratch, StepTime, Steps};
 use crate::gpu::{DType, Gpu, GpuError, Recorder, Tensor};
 use crate::graph::Graph;
 use crate::ops::bias::Bias;
-use crate::ops::head::LastStep;
 use crate::ops::loss::PoseLoss;
 use crate::ops::matmul::Matmul;
 
@@ -164,7 +163,7 @@ impl Network {
             .iter()
             .map(|s| gpu.zeros(&format!("grad {}", s.name), &s.shape, DType::F32))
             .collect();
-        let (n, t, c, o) = (config.nodes, config.window, config.channels, config.outputs);
+        let (n, t, o) = (config.nodes, config.window, config.outputs);
         let basis_data: Vec<f32> = graph_basis(graph, config)
             .iter()
             .map(|&v| v as f32)
@@ -177,9 +176,11 @@ impl Network {
         let loss = gpu.zeros("loss", &[1], DType::F32);
 
         let mut blocks: Vec<Block> = Vec::with_capacity(config.blocks);
+        // The last block is trimmed to the last step, which is all the head reads.
         for l in 0..config.blocks {
             let x = blocks.last().map_or(&input, |b| &b.output).clone();
-            blocks.push(Block::new(gpu, config, l, batch, &x, dropout_seed));
+            let last = l + 1 == config.blocks;
+            blocks.push(Block::new(gpu, config, l, batch, &x, dropout_seed, last));
         }
         let table = Table {
             specs: &specs,
@@ -187,9 +188,9 @@ impl Network {
             grads: &grads,
             basis: &basis,
         };
-        let last = &blocks.last().expect("at least one block").output;
-        let h = gpu.zeros("head.h", &[batch, n * c], DType::F32);
-        let (last_step, head, head_bias) = head_ops(config, batch);
+        // The trimmed last block's output [B, N, C, 1] is the head's input h [B, N·C].
+        let h = blocks.last().expect("at least one block").output.clone();
+        let (head, head_bias) = head_ops(config, batch);
 
         let mut infer = Steps::default();
         let mut train = Steps::default();
@@ -206,7 +207,6 @@ impl Network {
             vec![&mut infer]
         };
         for steps in head_steps {
-            steps.run(last_step.forward(gpu, last, &h))?;
             steps.run(head.forward(gpu, &h, table.param("head.weight"), &output, false))?;
             steps.run(head_bias.forward(gpu, table.param("head.bias"), &output))?;
         }
@@ -272,7 +272,7 @@ impl Network {
     ) -> Result<[usize; 2], ModelError> {
         let batch = input_grad.shape()[0];
         let (n, t, c, o) = (config.nodes, config.window, config.channels, config.outputs);
-        let (last_step, head, head_bias) = head_ops(config, batch);
+        let (head, head_bias) = head_ops(config, batch);
         let pose = PoseLoss {
             batch,
             outputs: o,
@@ -293,8 +293,6 @@ impl Network {
             gpu.zeros("d block output (even)", &hidden, DType::F32),
             gpu.zeros("d block output (odd)", &hidden, DType::F32),
         ];
-        let last_index = config.blocks - 1;
-        backward.run(last_step.backward(gpu, &dh, &ping[last_index % 2]))?;
         let mut scratch = Scratch::new(gpu);
         for (l, block) in blocks.iter().enumerate().rev() {
             let d_in = if l == 0 {
@@ -302,7 +300,13 @@ impl Network {
             } else {
                 &ping[(l + 1) % 2]
             };
-            let slot = block.backward(gpu, table, &mut scratch, backward, &ping[l % 2], d_in)?;
+            // The trimmed last block's output gradient is dh itself.
+            let d_out = if l + 1 == blocks.len() {
+                &dh
+            } else {
+                &ping[l % 2]
+            };
+            let slot = block.backward(gpu, table, &mut scratch, backward, d_out, d_in)?;
             dropout.push(DropoutSlots {
                 dropout: block.dropout(),
                 forward: fwd_slots[l].expect("training forward has dropout"),
@@ -477,18 +481,15 @@ impl Network {
     }
 }
 
-/// The head's ops for `batch` windows: last-step gather, `h · head.weightᵀ`, bias.
-fn head_ops(config: &ModelConfig, batch: usize) -> (LastStep, Matmul, Bias) {
+/// The head's ops for `batch` windows: `h · head.weightᵀ` and its bias (h is the trimmed
+/// last block's output, its last step).
+fn head_ops(config: &ModelConfig, batch: usize) -> (Matmul, Bias) {
     let (n, c, o) = (config.nodes, config.channels, config.outputs);
-    let last_step = LastStep {
-        rows: batch * n * c,
-        steps: config.window,
-    };
     let head = Matmul::new(batch, o, n * c).transpose_b(true);
     let bias = Bias {
         outer: batch,
         channels: o,
         inner: 1,
     };
-    (last_step, head, bias)
+    (head, bias)
 }

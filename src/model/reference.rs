@@ -25,11 +25,11 @@ pub struct DropoutStep {
 impl DropoutStep {
     /// The mask generator of block `l`: seed + l, p = `config.dropout`.
     pub fn block(&self, config: &ModelConfig, batch: usize, l: usize) -> Dropout {
-        Dropout {
-            n: batch * config.nodes * config.channels * config.window,
-            p: config.dropout,
-            seed: self.seed.wrapping_add(l as u32),
-        }
+        Dropout::new(
+            batch * config.nodes * config.channels * config.window,
+            config.dropout,
+            self.seed.wrapping_add(l as u32),
+        )
     }
 }
 

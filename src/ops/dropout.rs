@@ -24,18 +24,44 @@ struct Params {
     threshold: u32,
     scale: f32,
     accumulate: u32,
-    _pad: [u32; 2],
+    stride: u32,
+    offset: u32,
 }
 
-/// Dropout with probability `p` over `n` elements, seeded.
+/// Dropout with probability `p` over `n` elements, seeded. Element `i` draws the mask
+/// bit of index `i·stride + offset`: a strided subset of a larger tensor (the last
+/// block's last step) gets exactly the bits it has in the whole one.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Dropout {
     pub n: usize,
     pub p: f64,
     pub seed: u32,
+    pub stride: usize,
+    pub offset: usize,
 }
 
 impl Dropout {
+    /// Dropout over all of `n` elements.
+    pub fn new(n: usize, p: f64, seed: u32) -> Dropout {
+        Dropout {
+            n,
+            p,
+            seed,
+            stride: 1,
+            offset: 0,
+        }
+    }
+
+    /// The same bits for the `n` elements `i·stride + offset` of a larger tensor.
+    pub fn strided(self, n: usize, stride: usize, offset: usize) -> Dropout {
+        Dropout {
+            n,
+            stride,
+            offset,
+            ..self
+        }
+    }
+
     fn params(&self, step: u32, accumulate: bool) -> Params {
         Params {
             n: self.n as u32,
@@ -44,7 +70,8 @@ impl Dropout {
             threshold: threshold(self.p),
             scale: (1.0 / (1.0 - self.p)) as f32,
             accumulate: accumulate as u32,
-            _pad: [0; 2],
+            stride: self.stride as u32,
+            offset: self.offset as u32,
         }
     }
 
@@ -105,5 +132,6 @@ pub fn lowbias32(v: u32) -> u32 {
 
 /// The CPU reference of the mask: `true` where element `i` is kept at `step`.
 pub fn keep(d: &Dropout, step: u32, i: usize) -> bool {
-    lowbias32(i as u32 ^ lowbias32(d.seed ^ lowbias32(step))) >= threshold(d.p)
+    let index = (i * d.stride + d.offset) as u32;
+    lowbias32(index ^ lowbias32(d.seed ^ lowbias32(step))) >= threshold(d.p)
 }

@@ -45,6 +45,9 @@ pub struct Unfold {
     pub kernel: usize,
     pub steps: usize,
     pub dilation: usize,
+    /// Output steps kept, the last ones (`steps` for the whole unfolding): col is
+    /// `[rows, channels, kernel, outputs]` and holds steps `steps − outputs ..`.
+    pub outputs: usize,
 }
 
 #[repr(C)]
@@ -56,7 +59,8 @@ struct UnfoldParams {
     steps: u32,
     dilation: u32,
     accumulate: u32,
-    _pad: [u32; 2],
+    outputs: u32,
+    _pad: u32,
 }
 
 #[repr(C)]
@@ -72,7 +76,23 @@ impl Unfold {
     }
 
     pub fn col_len(&self) -> usize {
-        self.input_len() * self.kernel
+        self.rows * self.channels * self.kernel * self.outputs
+    }
+
+    /// The first step col holds.
+    pub fn first_output(&self) -> usize {
+        self.steps - self.outputs
+    }
+
+    fn check(&self) -> Result<(), GpuError> {
+        if self.outputs == 0 || self.outputs > self.steps {
+            return Err(GpuError::Shape {
+                tensor: "unfold outputs".into(),
+                expected: format!("1..={} steps", self.steps),
+                got: self.outputs.to_string(),
+            });
+        }
+        Ok(())
     }
 
     fn params(&self, accumulate: bool) -> UnfoldParams {
@@ -83,11 +103,13 @@ impl Unfold {
             steps: self.steps as u32,
             dilation: self.dilation as u32,
             accumulate: accumulate as u32,
-            _pad: [0; 2],
+            outputs: self.outputs as u32,
+            _pad: 0,
         }
     }
 
     pub fn forward(&self, gpu: &Gpu, x: &Tensor, col: &Tensor) -> Result<Dispatch, GpuError> {
+        self.check()?;
         x.expect_len(self.input_len())?;
         col.expect_len(self.col_len())?;
         let max = gpu.limits().max_compute_workgroups_per_dimension;
@@ -108,6 +130,7 @@ impl Unfold {
         dx: &Tensor,
         accumulate: bool,
     ) -> Result<Dispatch, GpuError> {
+        self.check()?;
         dcol.expect_len(self.col_len())?;
         dx.expect_len(self.input_len())?;
         let max = gpu.limits().max_compute_workgroups_per_dimension;
@@ -172,11 +195,12 @@ pub mod cpu {
 
     pub fn unfold(u: &Unfold, x: &[f64]) -> Vec<f64> {
         let mut col = vec![0.0; u.col_len()];
+        let first = u.first_output();
         for rc in 0..u.rows * u.channels {
             for k in 0..u.kernel {
                 let lag = u.dilation * k;
-                for t in lag..u.steps {
-                    col[(rc * u.kernel + k) * u.steps + t] = x[rc * u.steps + t - lag];
+                for t in lag.max(first)..u.steps {
+                    col[(rc * u.kernel + k) * u.outputs + t - first] = x[rc * u.steps + t - lag];
                 }
             }
         }
@@ -185,29 +209,37 @@ pub mod cpu {
 
     pub fn unfold_backward(u: &Unfold, dcol: &[f64]) -> Vec<f64> {
         let mut dx = vec![0.0; u.input_len()];
+        let first = u.first_output();
         for rc in 0..u.rows * u.channels {
             for k in 0..u.kernel {
                 let lag = u.dilation * k;
-                for t in lag..u.steps {
-                    dx[rc * u.steps + t - lag] += dcol[(rc * u.kernel + k) * u.steps + t];
+                for t in lag.max(first)..u.steps {
+                    dx[rc * u.steps + t - lag] += dcol[(rc * u.kernel + k) * u.outputs + t - first];
                 }
             }
         }
         dx
     }
 
-    /// `G[r, o, t] = bias[o] + Σ_c Σ_k weight[o, c, k] · x[r, c, t − d·k]` (MODEL.md step 4).
-    pub fn conv(u: &Unfold, outputs: usize, weight: &[f64], bias: &[f64], x: &[f64]) -> Vec<f64> {
+    /// `G[r, o, t] = bias[o] + Σ_c Σ_k weight[o, c, k] · x[r, c, t − d·k]` (MODEL.md step 4)
+    /// over the kept steps: `[rows, out_channels, u.outputs]`.
+    pub fn conv(
+        u: &Unfold,
+        out_channels: usize,
+        weight: &[f64],
+        bias: &[f64],
+        x: &[f64],
+    ) -> Vec<f64> {
         let col = unfold(u, x);
-        let ck = u.channels * u.kernel;
-        let mut out = vec![0.0; u.rows * outputs * u.steps];
+        let (ck, steps) = (u.channels * u.kernel, u.outputs);
+        let mut out = vec![0.0; u.rows * out_channels * steps];
         for r in 0..u.rows {
-            for o in 0..outputs {
-                let dst = &mut out[(r * outputs + o) * u.steps..][..u.steps];
+            for o in 0..out_channels {
+                let dst = &mut out[(r * out_channels + o) * steps..][..steps];
                 dst.iter_mut().for_each(|v| *v = bias[o]);
                 for j in 0..ck {
                     let w = weight[o * ck + j];
-                    let src = &col[(r * ck + j) * u.steps..][..u.steps];
+                    let src = &col[(r * ck + j) * steps..][..steps];
                     for (d, s) in dst.iter_mut().zip(src) {
                         *d += w * s;
                     }
