@@ -74,6 +74,65 @@ fn unfold_backward(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups
     }
 }
 
+// The same two maps four steps at a time, when the kept steps and T are multiples of 4:
+// one vector store per invocation instead of four scalar ones (2-3x faster on lavapipe).
+@group(0) @binding(2) var<storage, read_write> ucol4: array<vec4<f32>>;
+
+fn ux_or_zero(rc: u32, t: u32, lag: u32) -> f32 {
+    if t >= lag {
+        return ux[rc * u.steps + t - lag];
+    }
+    return 0.0;
+}
+
+@compute @workgroup_size(256)
+fn unfold_forward4(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                   @builtin(local_invocation_index) li: u32) {
+    let i = flat_index(wg, nwg, li, DCC_WG);
+    let quads = u.outputs / 4u;
+    if i >= u.rows * u.channels * u.kernel * quads {
+        return;
+    }
+    let t = u.steps - u.outputs + 4u * (i % quads);
+    let rck = i / quads;
+    let lag = u.dilation * (rck % u.kernel);
+    let rc = rck / u.kernel;
+    ucol4[i] = vec4<f32>(ux_or_zero(rc, t, lag), ux_or_zero(rc, t + 1u, lag),
+                         ux_or_zero(rc, t + 2u, lag), ux_or_zero(rc, t + 3u, lag));
+}
+
+@group(0) @binding(2) var<storage, read_write> udx4: array<vec4<f32>>;
+
+fn dcol_at(rc: u32, k: u32, src: u32) -> f32 {
+    let first = u.steps - u.outputs;
+    if src >= first && src < u.steps {
+        return udcol[(rc * u.kernel + k) * u.outputs + src - first];
+    }
+    return 0.0;
+}
+
+@compute @workgroup_size(256)
+fn unfold_backward4(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                    @builtin(local_invocation_index) li: u32) {
+    let i = flat_index(wg, nwg, li, DCC_WG);
+    let quads = u.steps / 4u;
+    if i >= u.rows * u.channels * quads {
+        return;
+    }
+    let t = 4u * (i % quads);
+    let rc = i / quads;
+    var s = vec4<f32>(0.0);
+    for (var k = 0u; k < u.kernel; k++) {
+        let src = t + u.dilation * k;
+        s += vec4<f32>(dcol_at(rc, k, src), dcol_at(rc, k, src + 1u), dcol_at(rc, k, src + 2u),
+                       dcol_at(rc, k, src + 3u));
+    }
+    if u.accumulate != 0u {
+        s += udx4[i];
+    }
+    udx4[i] = s;
+}
+
 // H = tanh(f) ⊙ σ(g), elementwise over n values.
 struct GateParams {
     n: u32,

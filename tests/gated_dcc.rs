@@ -39,7 +39,10 @@ fn unfold_matches_reference() {
         let u = unfold(shape);
         [u.steps, u.steps.div_ceil(2), 1].map(|outputs| Unfold { outputs, ..u })
     });
-    for (i, u) in windows.enumerate() {
+    let windows: Vec<Unfold> = windows.collect();
+    // Both kernels: four steps per invocation, and one.
+    assert!(windows.iter().any(|u| u.quads()) && windows.iter().any(|u| !u.quads()));
+    for (i, u) in windows.into_iter().enumerate() {
         let mut r = rng(i as u64);
         let x = round_f32(&uniform(&mut r, u.input_len(), -1.0, 1.0));
         let dcol = round_f32(&uniform(&mut r, u.col_len(), -1.0, 1.0));

@@ -19,6 +19,16 @@ static UNFOLD_BWD: Kernel = Kernel {
     entry: "unfold_backward",
     bindings: &[Binding::read(1), Binding::read_write(2)],
 };
+static UNFOLD_FWD4: Kernel = Kernel {
+    shader: &SHADER,
+    entry: "unfold_forward4",
+    bindings: &[Binding::read(1), Binding::read_write(2)],
+};
+static UNFOLD_BWD4: Kernel = Kernel {
+    shader: &SHADER,
+    entry: "unfold_backward4",
+    bindings: &[Binding::read(1), Binding::read_write(2)],
+};
 static GATE_FWD: Kernel = Kernel {
     shader: &SHADER,
     entry: "gate_forward",
@@ -84,6 +94,11 @@ impl Unfold {
         self.steps - self.outputs
     }
 
+    /// Four steps per invocation (vector stores) when both step counts allow it.
+    pub fn quads(&self) -> bool {
+        self.steps.is_multiple_of(4) && self.outputs.is_multiple_of(4)
+    }
+
     fn check(&self) -> Result<(), GpuError> {
         if self.outputs == 0 || self.outputs > self.steps {
             return Err(GpuError::Shape {
@@ -113,12 +128,17 @@ impl Unfold {
         x.expect_len(self.input_len())?;
         col.expect_len(self.col_len())?;
         let max = gpu.limits().max_compute_workgroups_per_dimension;
+        let (kernel, threads) = if self.quads() {
+            (&UNFOLD_FWD4, self.col_len() / 4)
+        } else {
+            (&UNFOLD_FWD, self.col_len())
+        };
         gpu.dispatch(
-            &UNFOLD_FWD,
+            kernel,
             &[],
             &self.params(false),
             &[x, col],
-            grid_1d(self.col_len(), 256, max),
+            grid_1d(threads, 256, max),
         )
     }
 
@@ -134,12 +154,17 @@ impl Unfold {
         dcol.expect_len(self.col_len())?;
         dx.expect_len(self.input_len())?;
         let max = gpu.limits().max_compute_workgroups_per_dimension;
+        let (kernel, threads) = if self.quads() {
+            (&UNFOLD_BWD4, self.input_len() / 4)
+        } else {
+            (&UNFOLD_BWD, self.input_len())
+        };
         gpu.dispatch(
-            &UNFOLD_BWD,
+            kernel,
             &[],
             &self.params(accumulate),
             &[dcol, dx],
-            grid_1d(self.input_len(), 256, max),
+            grid_1d(threads, 256, max),
         )
     }
 }
