@@ -101,6 +101,86 @@ fn layer_norm_backward_input(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_
     }
 }
 
+// The forward and input-gradient maps four rows (t .. t+3) per invocation, when T is a
+// multiple of 4: vector loads and stores along t (about 2x faster on lavapipe).
+@group(0) @binding(1) var<storage, read> x4: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read_write> y4: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read_write> mean4: array<vec4<f32>>;
+@group(0) @binding(6) var<storage, read_write> rstd4: array<vec4<f32>>;
+
+// Vector index of channel 0 of quad `q` (rows 4q .. 4q+3), and the channel stride.
+fn quad_base(q: u32) -> u32 {
+    let quads = p.steps / 4u;
+    let o = q / quads;
+    return o * p.channels * quads + (q - o * quads);
+}
+
+@compute @workgroup_size(256)
+fn layer_norm_forward4(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                       @builtin(local_invocation_index) li: u32) {
+    let q = flat_index(wg, nwg, li, LN_WG);
+    let quads = p.steps / 4u;
+    if q >= p.outer * quads {
+        return;
+    }
+    let base = quad_base(q);
+    let c = f32(p.channels);
+    var s = vec4<f32>(0.0);
+    for (var k = 0u; k < p.channels; k++) {
+        s += x4[base + k * quads];
+    }
+    let mu = s / c;
+    var v = vec4<f32>(0.0);
+    for (var k = 0u; k < p.channels; k++) {
+        let d = x4[base + k * quads] - mu;
+        v += d * d;
+    }
+    let r = 1.0 / sqrt(v / c + p.eps);
+    mean4[q] = mu;
+    rstd4[q] = r;
+    for (var k = 0u; k < p.channels; k++) {
+        let i = base + k * quads;
+        y4[i] = gamma[k] * (x4[i] - mu) * r + beta[k];
+    }
+}
+
+@group(0) @binding(1) var<storage, read> bx4: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> bdy4: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read> bmean4: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read> brstd4: array<vec4<f32>>;
+@group(0) @binding(6) var<storage, read_write> dx4: array<vec4<f32>>;
+
+@compute @workgroup_size(256)
+fn layer_norm_backward_input4(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                              @builtin(local_invocation_index) li: u32) {
+    let q = flat_index(wg, nwg, li, LN_WG);
+    let quads = p.steps / 4u;
+    if q >= p.outer * quads {
+        return;
+    }
+    let base = quad_base(q);
+    let mu = bmean4[q];
+    let r = brstd4[q];
+    var sg = vec4<f32>(0.0);
+    var sgx = vec4<f32>(0.0);
+    for (var k = 0u; k < p.channels; k++) {
+        let i = base + k * quads;
+        let g = bdy4[i] * bgamma[k];
+        sg += g;
+        sgx += g * (bx4[i] - mu) * r;
+    }
+    let c = f32(p.channels);
+    for (var k = 0u; k < p.channels; k++) {
+        let i = base + k * quads;
+        let xh = (bx4[i] - mu) * r;
+        var v = r / c * (c * bdy4[i] * bgamma[k] - sg - xh * sgx);
+        if p.accumulate != 0u {
+            v += dx4[i];
+        }
+        dx4[i] = v;
+    }
+}
+
 // Parameter gradients: dγ[c] = Σ dy·x̂, dβ[c] = Σ dy over all rows. One workgroup per
 // channel; its threads stride over the rows and reduce in workgroup memory.
 

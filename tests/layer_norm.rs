@@ -12,12 +12,22 @@ fn upload(g: &Gpu, name: &str, data: &[f64]) -> Tensor {
 }
 
 /// Ragged shapes, including C = 64 and T not a multiple of anything, and more rows than
-/// one workgroup.
-const SHAPES: [(usize, usize, usize); 4] = [(1, 1, 1), (3, 5, 7), (2, 64, 13), (29, 16, 11)];
+/// one workgroup; then T multiples of 4 (four rows per invocation), again past one
+/// workgroup.
+const SHAPES: [(usize, usize, usize); 6] = [
+    (1, 1, 1),
+    (3, 5, 7),
+    (2, 64, 13),
+    (29, 16, 11),
+    (3, 16, 8),
+    (100, 8, 16),
+];
 
 #[test]
 fn forward_and_backward_match_reference() {
     let g = gpu();
+    let quads = SHAPES.map(|(o, c, t)| LayerNorm::new(o, c, t).quads());
+    assert!(quads.contains(&true) && quads.contains(&false));
     for (i, &(outer, channels, steps)) in SHAPES.iter().enumerate() {
         let ln = LayerNorm::new(outer, channels, steps);
         let mut r = rng(i as u64);

@@ -22,9 +22,19 @@ static FORWARD: Kernel = Kernel {
     entry: "layer_norm_forward",
     bindings: &[R1, R2, R3, W4, W5, W6],
 };
+static FORWARD4: Kernel = Kernel {
+    shader: &SHADER,
+    entry: "layer_norm_forward4",
+    bindings: &[R1, R2, R3, W4, W5, W6],
+};
 static BACKWARD_INPUT: Kernel = Kernel {
     shader: &SHADER,
     entry: "layer_norm_backward_input",
+    bindings: &[R1, R2, R3, R4, R5, W6],
+};
+static BACKWARD_INPUT4: Kernel = Kernel {
+    shader: &SHADER,
+    entry: "layer_norm_backward_input4",
     bindings: &[R1, R2, R3, R4, R5, W6],
 };
 static BACKWARD_PARAMS: Kernel = Kernel {
@@ -103,9 +113,16 @@ impl LayerNorm {
         per_row.iter().try_for_each(|t| t.expect_len(self.rows()))
     }
 
+    /// Four rows per invocation (vector loads along t) when T allows it.
+    pub fn quads(&self) -> bool {
+        self.steps.is_multiple_of(4)
+    }
+
+    /// The grid of a per-row kernel: one invocation per row, or per four rows.
     fn row_grid(&self, gpu: &Gpu) -> [u32; 3] {
+        let per = if self.quads() { 4 } else { 1 };
         grid_1d(
-            self.rows(),
+            self.rows() / per,
             WORKGROUP,
             gpu.limits().max_compute_workgroups_per_dimension,
         )
@@ -127,7 +144,7 @@ impl LayerNorm {
     ) -> Result<Dispatch, GpuError> {
         self.check(&[x, y], &[gamma, beta], &[mean, rstd])?;
         gpu.dispatch(
-            &FORWARD,
+            if self.quads() { &FORWARD4 } else { &FORWARD },
             &[],
             &self.params(false),
             &[x, gamma, beta, y, mean, rstd],
@@ -150,7 +167,11 @@ impl LayerNorm {
     ) -> Result<Dispatch, GpuError> {
         self.check(&[x, dy, dx], &[gamma], &[mean, rstd])?;
         gpu.dispatch(
-            &BACKWARD_INPUT,
+            if self.quads() {
+                &BACKWARD_INPUT4
+            } else {
+                &BACKWARD_INPUT
+            },
             &[],
             &self.params(accumulate),
             &[x, gamma, dy, mean, rstd, dx],
