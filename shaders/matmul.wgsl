@@ -47,7 +47,8 @@ struct MatmulParams {
 // A bias added to every output (any read-only buffer when BIAS = 0).
 @group(0) @binding(6) var<storage, read> bias: array<f32>;
 
-// 0: no bias; 1: bias[i] added to row i of C; 2: bias[j] added to column j.
+// 0: no bias; 1: bias[i] added to row i of C; 2: bias[j] added to column j; 3: a whole
+// [M, N] matrix added to every batch item's C.
 override BIAS: u32 = 0u;
 // max(0, .) of the final value (after the bias and the accumulation).
 override RELU: bool = false;
@@ -118,6 +119,8 @@ fn store_row(row: u32, col0: u32, base: u32, v: vec4<f32>) {
                 x += bias[row];
             } else if BIAS == 2u {
                 x += bias[col0 + j];
+            } else if BIAS == 3u {
+                x += bias[row * p.n + col0 + j];
             }
             if p.accumulate != 0u {
                 x += c[o + j];

@@ -181,6 +181,7 @@ fn epilogue_adds_one_bias_per_output_row_then_relu() {
             let epilogue = Epilogue {
                 bias: Some(&tb),
                 relu,
+                ..Epilogue::default()
             };
             g.run(&[mm
                 .forward_with(&g, &a, &b, &c, accumulate, epilogue)
@@ -209,12 +210,42 @@ fn epilogue_adds_one_bias_per_output_row_then_relu() {
             .unwrap();
         }
     }
+    // A whole [m, n] matrix added to every batch item (Ψ + Ψ·S' in the model).
+    for (i, mm) in [
+        Matmul::new(14, 14, 14).batched(3).share_a(true),
+        Matmul::new(36, 20, 16).batched(2),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let x = inputs(&mm, 500 + i as u64);
+        let add: Vec<f64> = (0..mm.m * mm.n).map(|j| 0.25 - j as f64 * 0.01).collect();
+        let (a, b, ta) = (
+            upload(&g, "a", &x.a),
+            upload(&g, "b", &x.b),
+            upload(&g, "add", &add),
+        );
+        let c = upload(&g, "c", &vec![0.0; mm.c_len()]);
+        let epilogue = Epilogue {
+            matrix: Some(&ta),
+            ..Epilogue::default()
+        };
+        g.run(&[mm.forward_with(&g, &a, &b, &c, false, epilogue).unwrap()])
+            .unwrap();
+        let want: Vec<f64> = cpu::forward(&mm, &x.a, &x.b)
+            .iter()
+            .enumerate()
+            .map(|(j, v)| v + add[j % (mm.m * mm.n)])
+            .collect();
+        compare_tensor(&g, &format!("{mm:?} + matrix"), &c, &want, gpu_tol(mm.k)).unwrap();
+    }
     let mm = Matmul::new(4, 4, 4);
     let t = |n: &str, len: usize| g.zeros(n, &[len], DType::F32);
     let bias = t("bias", 3);
     let epilogue = Epilogue {
         bias: Some(&bias),
         relu: false,
+        ..Epilogue::default()
     };
     let err = mm
         .forward_with(&g, &t("a", 16), &t("b", 16), &t("c", 16), false, epilogue)

@@ -55,7 +55,9 @@ struct Spatial {
     sig: Tensor,
     s: Tensor,
     sp: Tensor,
-    xs: Tensor,
+    /// Q[b] = Ψ·(I + S'[b]): the spatial attention and the graph mix in one matrix, so
+    /// that M = Ψ·X_s = Q·X_t takes one small-K product instead of two.
+    q: Tensor,
 }
 
 /// One block's buffers: everything its backward pass reads.
@@ -142,7 +144,7 @@ impl Block {
                 sig: z("sat.sig", &[b, n, n]),
                 s: z("sat.S", &[b, n, n]),
                 sp: z("sat.S'", &[b, n, n]),
-                xs: z("X_s", &[b, n, ci, t]),
+                q: z("gwc.Q", &[b, n, n]),
             };
             (Some(tat), Some(sat))
         } else {
@@ -249,17 +251,30 @@ impl Block {
         let d = self.d;
         Matmul::new(d.n, d.n, d.n).batched(d.b).share_a(true)
     }
-    /// sat: X_s[b] (+)= S'[b] [N, N] · X_t[b] [N, C_in·T].
-    fn mm_xs(&self) -> Matmul {
+    /// sat + gwc: Q[b] = Ψ [N, N] · S'[b] [N, N] (+ Ψ, in the epilogue).
+    fn mm_q(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.n, d.n, d.n).batched(d.b).share_a(true)
+    }
+    /// gwc with attention: M[b] = Q[b] [N, N] · X_t[b] [N, C_in·T].
+    fn mm_qx(&self) -> Matmul {
         let d = self.d;
         Matmul::new(d.n, d.ci * d.t, d.n).batched(d.b)
+    }
+    /// The batch sum of dQ, the gradient of Ψ's direct term in Q = Ψ + Ψ·S'.
+    fn batch_sum_nn(&self) -> Bias {
+        Bias {
+            outer: self.d.b,
+            channels: self.d.n * self.d.n,
+            inner: 1,
+        }
     }
     /// gwc: Ψ [1, N·N] = θ [1, terms] · basis [terms, N·N].
     fn mm_psi(&self) -> Matmul {
         let d = self.d;
         Matmul::new(1, d.n * d.n, d.terms)
     }
-    /// gwc: M[b] = Ψ [N, N] · X_s[b] [N, C_in·T].
+    /// gwc without attention: M[b] = Ψ [N, N] · X[b] [N, C_in·T].
     fn mm_mix(&self) -> Matmul {
         let d = self.d;
         Matmul::new(d.n, d.ci * d.t, d.n).batched(d.b).share_a(true)
@@ -354,7 +369,7 @@ impl Block {
     ) -> Result<Option<usize>, GpuError> {
         let w = |s: &str| p.param(&self.name(s));
         let x = &self.input;
-        let xs = match (&self.tat, &self.sat) {
+        let attention = match (&self.tat, &self.sat) {
             (Some(ta), Some(sa)) => {
                 // 1. Temporal attention.
                 steps.run(self.mm_u1().forward(gpu, w("tat.U1"), x, &ta.xu1, false))?;
@@ -391,13 +406,12 @@ impl Block {
                         .forward(gpu, w("sat.Vs"), &sa.sig, &sa.s, false),
                 )?;
                 steps.run(self.spatial_softmax().forward(gpu, &sa.s, &sa.sp))?;
-                steps.copy(xt, &sa.xs);
-                steps.run(self.mm_xs().forward(gpu, &sa.sp, xt, &sa.xs, true))?;
-                &sa.xs
+                Some(sa)
             }
-            _ => x,
+            _ => None,
         };
-        // 3. Graph wavelet (or Chebyshev) convolution.
+        // 3. Graph wavelet (or Chebyshev) convolution of X_s = X_t + S'·X_t (eq. 28–29 after
+        // 32–34): M = Ψ·X_s = Q·X_t with Q = Ψ + Ψ·S'.
         steps.run(self.mm_psi().forward(
             gpu,
             w("gwc.theta"),
@@ -405,10 +419,24 @@ impl Block {
             &self.psi,
             false,
         ))?;
-        steps.run(self.mm_mix().forward(gpu, &self.psi, xs, &self.m, false))?;
+        match attention {
+            Some(sa) => {
+                let plus_psi = Epilogue {
+                    matrix: Some(&self.psi),
+                    ..Epilogue::default()
+                };
+                let mq = self.mm_q();
+                steps.run(mq.forward_with(gpu, &self.psi, &sa.sp, &sa.q, false, plus_psi))?;
+                steps.run(self.mm_qx().forward(gpu, &sa.q, &sa.xt, &self.m, false))?;
+            }
+            None => {
+                steps.run(self.mm_mix().forward(gpu, &self.psi, x, &self.m, false))?;
+            }
+        }
         let relu = Epilogue {
             bias: None,
             relu: true,
+            ..Epilogue::default()
         };
         let mw = self.mm_w();
         steps.run(mw.forward_with(gpu, w("gwc.W"), &self.m, &self.z, false, relu))?;
@@ -420,6 +448,7 @@ impl Block {
         let bias = |name: &str| Epilogue {
             bias: Some(w(name)),
             relu: false,
+            ..Epilogue::default()
         };
         let filter = bias("tcn.filter.bias");
         steps.run(conv.forward_with(gpu, w("tcn.filter.weight"), col, f, false, filter))?;
@@ -435,6 +464,7 @@ impl Block {
         let residual = Epilogue {
             bias: Some(w("res.bias")),
             relu: true,
+            ..Epilogue::default()
         };
         let x_res = match &self.x_last {
             Some(x_last) => {
@@ -586,31 +616,34 @@ impl Block {
         steps.run(mw.backward_a(gpu, &self.m, &dg, dw("gwc.W"), false))?;
         steps.run(mw.backward_b(gpu, w("gwc.W"), &dg, &dm, false))?;
         let dpsi = scratch.get("dPsi", &[d.n, d.n])?;
-        let attention = self.tat.as_ref().zip(self.sat.as_ref());
-        let xs = attention.map_or(x, |(_, sa)| &sa.xs);
-        steps.run(mix.backward_a(gpu, xs, &dm, &dpsi, false))?;
-        steps.run(mpsi.backward_a(gpu, p.param("graph.basis"), &dpsi, dw("gwc.theta"), false))?;
-        let Some((ta, sa)) = attention else {
-            // X_s = X: accumulate onto the residual's contribution.
+        let basis = p.param("graph.basis");
+        let Some((ta, sa)) = self.tat.as_ref().zip(self.sat.as_ref()) else {
+            // M = Ψ·X: dΨ, then dX accumulated onto the residual's contribution.
+            steps.run(mix.backward_a(gpu, x, &dm, &dpsi, false))?;
+            steps.run(mpsi.backward_a(gpu, basis, &dpsi, dw("gwc.theta"), false))?;
             steps.run(mix.backward_b(gpu, &self.psi, &dm, d_in, true))?;
             return Ok(slot);
         };
-        let dxs = scratch.get("dX_s", &acts)?;
-        steps.run(mix.backward_b(gpu, &self.psi, &dm, &dxs, false))?;
-        // 2. Spatial attention: X_s = X_t + S'·X_t.
-        let dxt = scratch.get("dX_t", &acts)?;
-        let xt = &sa.xt;
+        // M = Q·X_t, Q = Ψ + Ψ·S': dQ, dX_t = Qᵀ·dM (its first term), dΨ = Σ_b dQ·(I + S')ᵀ,
+        // dS' = Ψᵀ·dQ.
         let nn = [d.b, d.n, d.n];
-        let (dsp, dss, dsig, dp) = (
+        let (dq, dsp, dss, dsig, dp) = (
+            scratch.get("gwc.dQ", &nn)?,
             scratch.get("sat.dS'", &nn)?,
             scratch.get("sat.dS", &nn)?,
             scratch.get("sat.dsig", &nn)?,
             scratch.get("sat.dP", &nn)?,
         );
-        steps.copy(&dxs, &dxt);
-        let mxs = self.mm_xs();
-        steps.run(mxs.backward_a(gpu, xt, &dxs, &dsp, false))?;
-        steps.run(mxs.backward_b(gpu, &sa.sp, &dxs, &dxt, true))?;
+        let dxt = scratch.get("dX_t", &acts)?;
+        let xt = &sa.xt;
+        let (mq, mqx) = (self.mm_q(), self.mm_qx());
+        steps.run(mqx.backward_a(gpu, xt, &dm, &dq, false))?;
+        steps.run(mqx.backward_b(gpu, &sa.q, &dm, &dxt, false))?;
+        steps.run(mq.backward_a(gpu, &sa.sp, &dq, &dpsi, false))?;
+        steps.run(self.batch_sum_nn().backward(gpu, &dq, &dpsi, true))?;
+        steps.run(mpsi.backward_a(gpu, basis, &dpsi, dw("gwc.theta"), false))?;
+        steps.run(mq.backward_b(gpu, &self.psi, &dq, &dsp, false))?;
+        // 2. Spatial attention.
         steps.run(
             self.spatial_softmax()
                 .backward(gpu, &sa.sp, &dsp, &dss, false),

@@ -2,11 +2,15 @@
 //!
 //! What is counted: the GEMM-like contractions only, a multiply-add being 2 FLOPs —
 //! the attention score products (U1, U2, U3, lhs·rhs, Ve; W1, W2, W3, lhs·rhsᵀ, Vs),
-//! the attention applications X·E' and S'·X_t, Ψ = Σ θ_i basis_i, the graph mix Ψ·X_s,
+//! the temporal attention application X·E', Ψ = Σ θ_i basis_i, the graph mix Ψ·X_s,
 //! the channel mix W, the K-tap causal convolutions (filter and gate), the residual 1×1
 //! convolution and the head. Elementwise work (biases, σ, tanh, ReLU, softmax,
 //! LayerNorm, dropout, the loss, the causal unfold and the copies) is **not** counted:
 //! it is O(B·N·C·T) against the O(B·N·C²·K·T) of the convolutions.
+//!
+//! The spatial attention's application and the graph mix run as M = Ψ·X_s = Q·X_t with
+//! Q = Ψ·(I + S') (`model::block`): the family "sat Q = Psi·S'" counts Ψ·S' (N³ per
+//! window) and "gwc mix" the one product Q·X_t, so S'·X_t (N²·C·T) is not computed.
 //!
 //! The convolutions are counted as the schedule runs them: one dense GEMM over the
 //! unfolded input, `[C, C·K] · [C·K, T]` per (b, n), so the taps that fall before t = 0
@@ -34,7 +38,7 @@ pub const FAMILIES: [&str; 11] = [
     "tat scores (U1,U2,U3,lhs·rhs,Ve)",
     "tat apply X·E'",
     "sat scores (W1,W2,W3,lhs·rhsT,Vs)",
-    "sat apply S'·X_t",
+    "sat Q = Psi·S'",
     "gwc Psi = theta·basis",
     "gwc mix Psi·X_s",
     "gwc W",
@@ -63,7 +67,7 @@ fn families(config: &ModelConfig, batch: usize) -> Vec<Family> {
             fam[1] = 2.0 * b * n * ci * t * t;
             // xw1 = X_t·W1, lhs = xw1·W2, rhs = W3·X_t, P = lhs·rhsᵀ, S = Vs·σ(P + bs).
             fam[2] = 2.0 * b * (n * ci * t + n * t * ci + n * t * ci + n * n * t + n * n * n);
-            fam[3] = 2.0 * b * n * ci * t * n;
+            fam[3] = 2.0 * b * n * n * n;
         }
         // Ψ [N, N] from the graph_terms() basis matrices (N wavelets or the Chebyshev
         // order): the same for every batch size.
@@ -164,21 +168,21 @@ mod tests {
     // Block 0 (C_in = 1):
     //   tat: U1 2·2·(1·3)·2 = 24, U2 2·2·(3·2)·1 = 24, U3 2·2·(2·3)·1 = 24,
     //        P 2·2·(3·3)·2 = 72, Ve 2·2·27 = 108            → 252; X·E' 2·2·(2·1·3)·3 = 72
-    //   sat: W1 24, W2 24, W3 24, P 2·2·(2·2)·3 = 48, Vs 2·2·8 = 32 → 152; S'·X 2·2·(2·1·3)·2 = 48
+    //   sat: W1 24, W2 24, W3 24, P 2·2·(2·2)·3 = 48, Vs 2·2·8 = 32 → 152; Ψ·S' 2·2·8 = 32
     //   Ψ 2·2·4 = 16 (N = 2 wavelets), mix 48, W 2·2·(2·2·3)·1 = 48,
-    //   filter 2·2·(2·2·3)·(2·2) = 192, gate 192, res 48     → block 0: 1068
+    //   filter 2·2·(2·2·3)·(2·2) = 192, gate 192, res 48     → block 0: 1052
     // Block 1 (C_in = 2, the last: convolutions and residual at the last step only):
-    //   tat 48·3 + 72 + 108 = 324, X·E' 144, sat 48·3 + 48 + 32 = 224, S'·X 96, Ψ 16,
+    //   tat 48·3 + 72 + 108 = 324, X·E' 144, sat 48·3 + 48 + 32 = 224, Ψ·S' 32, Ψ 16,
     //   mix 96, W 96, filter 2·2·(2·2·1)·(2·2) = 64, gate 64, res 2·2·(2·2·1)·2 = 32
-    //   → block 1: 1156
+    //   → block 1: 1092
     // Head 2·2·1·(2·2) = 16.
-    const FORWARD: f64 = 1068.0 + 1156.0 + 16.0;
+    const FORWARD: f64 = 1052.0 + 1092.0 + 16.0;
 
     #[test]
     fn tiny_forward_matches_hand_count() {
         let c = tiny(Variant::Iastgcn);
-        assert_eq!(forward_flops(&c, 2), 2240.0);
-        assert_eq!(FORWARD, 2240.0);
+        assert_eq!(forward_flops(&c, 2), 2160.0);
+        assert_eq!(FORWARD, 2160.0);
         assert_eq!(
             family(&c, "tat scores (U1,U2,U3,lhs·rhs,Ve)"),
             252.0 + 324.0
@@ -188,7 +192,7 @@ mod tests {
             family(&c, "sat scores (W1,W2,W3,lhs·rhsT,Vs)"),
             152.0 + 224.0
         );
-        assert_eq!(family(&c, "sat apply S'·X_t"), 48.0 + 96.0);
+        assert_eq!(family(&c, "sat Q = Psi·S'"), 32.0 + 32.0);
         assert_eq!(family(&c, "gwc Psi = theta·basis"), 32.0);
         assert_eq!(family(&c, "gwc mix Psi·X_s"), 48.0 + 96.0);
         assert_eq!(family(&c, "gwc W"), 48.0 + 96.0);
@@ -200,23 +204,23 @@ mod tests {
 
     #[test]
     fn tiny_training_is_three_forwards_but_psi() {
-        // Backward 2× everywhere except Ψ (∂θ only): 3·2240 − 32 = 6688.
-        assert_eq!(training_flops(&tiny(Variant::Iastgcn), 2), 6688.0);
+        // Backward 2× everywhere except Ψ (∂θ only): 3·2160 − 32 = 6448.
+        assert_eq!(training_flops(&tiny(Variant::Iastgcn), 2), 6448.0);
     }
 
     #[test]
     fn tiny_variants() {
-        // iastgcn-a: no tat/sat (block 0: 524, block 1: 788).
+        // iastgcn-a: no tat/sat (block 0: 508, block 1: 724).
         let a = tiny(Variant::NoAttention);
-        assert_eq!(forward_flops(&a, 2), 2240.0 - 524.0 - 788.0);
+        assert_eq!(forward_flops(&a, 2), 2160.0 - 508.0 - 724.0);
         assert_eq!(training_flops(&a, 2), 3.0 * 928.0 - 32.0);
         // iastgcn-t: no gate convolution (192 + 64).
         let t = tiny(Variant::PlainTemporal);
-        assert_eq!(forward_flops(&t, 2), 2240.0 - 256.0);
+        assert_eq!(forward_flops(&t, 2), 2160.0 - 256.0);
         // iastgcn-s: Ψ from 3 Chebyshev terms: 2·3·4 = 24 per block instead of 16.
         let s = tiny(Variant::Chebyshev);
-        assert_eq!(forward_flops(&s, 2), 2240.0 + 16.0);
-        assert_eq!(training_flops(&s, 2), 3.0 * 2256.0 - 48.0);
+        assert_eq!(forward_flops(&s, 2), 2160.0 + 16.0);
+        assert_eq!(training_flops(&s, 2), 3.0 * 2176.0 - 48.0);
         for v in Variant::ALL {
             for (name, value) in breakdown(&tiny(v), 2) {
                 assert_eq!(value > 0.0, has_family(v, name), "{v} {name}");

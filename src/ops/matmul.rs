@@ -219,6 +219,16 @@ impl Matmul {
         if let Some(bias) = epilogue.bias {
             bias.expect_len(self.m)?;
         }
+        if let Some(matrix) = epilogue.matrix {
+            matrix.expect_len(self.m * self.n)?;
+            if epilogue.bias.is_some() || self.n == 1 {
+                return Err(GpuError::Shape {
+                    tensor: matrix.name().to_string(),
+                    expected: "a matrix added alone, to a product with more than one column".into(),
+                    got: format!("{self:?} with a row bias too: {}", epilogue.bias.is_some()),
+                });
+            }
+        }
         c.expect_len(self.c_len())?;
         self.forward_gemm()
             .dispatch_with(gpu, a, b, c, accumulate, epilogue)
@@ -347,6 +357,8 @@ struct Gemm {
 pub struct Epilogue<'t> {
     /// `[m]`, added to row i.
     pub bias: Option<&'t Tensor>,
+    /// `[m, n]`, added to every batch item (instead of `bias`).
+    pub matrix: Option<&'t Tensor>,
     /// max(0, ·) of the final value (after the bias and any accumulation).
     pub relu: bool,
 }
@@ -456,7 +468,7 @@ impl Gemm {
         accumulate: bool,
         epilogue: Epilogue,
     ) -> Result<Dispatch, GpuError> {
-        let bias = epilogue.bias;
+        let bias = epilogue.bias.or(epilogue.matrix);
         for t in [Some(lhs), Some(rhs), bias].into_iter().flatten() {
             if t.buffer() == out.buffer() {
                 return Err(GpuError::Shape {
@@ -504,10 +516,11 @@ impl Gemm {
         };
         let mut constants = gemm.loads().constants().to_vec();
         // Rows of C are columns of the swapped product.
-        let bias_mode = match (bias, swapped) {
-            (None, _) => 0,
-            (Some(_), false) => 1,
-            (Some(_), true) => 2,
+        let bias_mode = match (epilogue.bias, epilogue.matrix, swapped) {
+            (Some(_), _, false) => 1,
+            (Some(_), _, true) => 2,
+            (None, Some(_), _) => 3,
+            (None, None, _) => 0,
         };
         constants.push(("BIAS", f64::from(bias_mode)));
         constants.push(("RELU", f64::from(u8::from(epilogue.relu))));
