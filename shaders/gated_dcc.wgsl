@@ -15,7 +15,8 @@ struct UnfoldParams {
     dilation: u32,
     accumulate: u32,
     outputs: u32,
-    _pad1: u32,
+    // Backward: x was a ReLU's output, and the gradient wanted is its input's: (x > 0)·dx.
+    relu_input: u32,
 }
 
 const DCC_WG: u32 = 256u;
@@ -46,9 +47,10 @@ fn unfold_forward(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups)
 }
 
 // dx[r, c, t] (+)= Σ_k dcol[r, c, k, t + d·k] over the kept steps: a gather, one
-// invocation per element of x.
+// invocation per element of x. With relu_input, masked by x > 0 (binding 3, x).
 @group(0) @binding(1) var<storage, read> udcol: array<f32>;
 @group(0) @binding(2) var<storage, read_write> udx: array<f32>;
+@group(0) @binding(3) var<storage, read> ufx: array<f32>;
 
 @compute @workgroup_size(256)
 fn unfold_backward(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
@@ -66,6 +68,9 @@ fn unfold_backward(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups
         if src >= first && src < u.steps {
             s += udcol[(rc * u.kernel + k) * u.outputs + src - first];
         }
+    }
+    if u.relu_input != 0u && ufx[i] <= 0.0 {
+        s = 0.0;
     }
     if u.accumulate != 0u {
         udx[i] = udx[i] + s;
@@ -102,6 +107,7 @@ fn unfold_forward4(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups
 }
 
 @group(0) @binding(2) var<storage, read_write> udx4: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> ufx4: array<vec4<f32>>;
 
 fn dcol_at(rc: u32, k: u32, src: u32) -> f32 {
     let first = u.steps - u.outputs;
@@ -126,6 +132,9 @@ fn unfold_backward4(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroup
         let src = t + u.dilation * k;
         s += vec4<f32>(dcol_at(rc, k, src), dcol_at(rc, k, src + 1u), dcol_at(rc, k, src + 2u),
                        dcol_at(rc, k, src + 3u));
+    }
+    if u.relu_input != 0u {
+        s = select(vec4<f32>(0.0), s, ufx4[i] > vec4<f32>(0.0));
     }
     if u.accumulate != 0u {
         s += udx4[i];

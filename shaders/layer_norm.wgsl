@@ -10,7 +10,9 @@ struct LnParams {
     steps: u32,
     accumulate: u32,
     eps: f32,
-    _pad0: u32,
+    // Backward input: x is a ReLU's output and the gradient wanted is its input's,
+    // (x > 0)·dx.
+    relu_input: u32,
     _pad1: u32,
     _pad2: u32,
 }
@@ -92,7 +94,10 @@ fn layer_norm_backward_input(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_
     for (var k = 0u; k < p.channels; k++) {
         let i = base + k * p.steps;
         let xh = (bx[i] - mu) * r;
-        let v = r / c * (c * bdy[i] * bgamma[k] - sg - xh * sgx);
+        var v = r / c * (c * bdy[i] * bgamma[k] - sg - xh * sgx);
+        if p.relu_input != 0u && bx[i] <= 0.0 {
+            v = 0.0;
+        }
         if p.accumulate != 0u {
             dx[i] = dx[i] + v;
         } else {
@@ -174,6 +179,9 @@ fn layer_norm_backward_input4(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num
         let i = base + k * quads;
         let xh = (bx4[i] - mu) * r;
         var v = r / c * (c * bdy4[i] * bgamma[k] - sg - xh * sgx);
+        if p.relu_input != 0u {
+            v = select(vec4<f32>(0.0), v, bx4[i] > vec4<f32>(0.0));
+        }
         if p.accumulate != 0u {
             v += dx4[i];
         }

@@ -9,17 +9,28 @@ use iastgcn::testing::{
 
 /// (outer, channels, inner): conv bias over B·N rows and T steps, be broadcast over the
 /// batch (T·T channels), the head bias, ragged.
-const SHAPES: [(usize, usize, usize); 5] = [
+const SHAPES: [(usize, usize, usize); 6] = [
     (28, 16, 48),
     (4, 10000, 1),
     (64, 6, 1),
     (1, 1, 1),
     (3, 7, 5),
+    (5, 300, 3),
 ];
 
 #[test]
 fn forward_and_backward_match_reference() {
     let g = gpu();
+    // Both gradient kernels: a workgroup per channel, and an invocation per channel.
+    let columns = SHAPES.map(|(outer, channels, inner)| {
+        Bias {
+            outer,
+            channels,
+            inner,
+        }
+        .per_channel_invocations()
+    });
+    assert!(columns.contains(&true) && columns.contains(&false));
     for (i, &(outer, channels, inner)) in SHAPES.iter().enumerate() {
         let b = Bias {
             outer,

@@ -3,7 +3,7 @@
 //! of MODEL.md step 4, and the reference gradients vs central differences.
 
 use iastgcn::gpu::DType;
-use iastgcn::ops::gated_dcc::{cpu, gate_backward, gate_forward, Unfold};
+use iastgcn::ops::gated_dcc::{cpu, gate_backward, gate_forward, ReluOutput, Unfold};
 use iastgcn::ops::matmul::Matmul;
 use iastgcn::testing::{
     check_gradient, compare, compare_tensor, dot, gpu, rng, round_f32, to_f32, uniform, Tolerance,
@@ -94,6 +94,36 @@ fn trimmed_unfolding_is_the_tail_of_the_whole_one() {
     let col = g.zeros("col", &[bad.col_len()], DType::F32);
     let err = bad.forward(&g, &x, &col).unwrap_err().to_string();
     assert!(err.contains("unfold outputs"), "{err}");
+}
+
+#[test]
+fn backward_through_relu_masks_by_the_unfolded_relu_output() {
+    let g = gpu();
+    for u in [unfold(&SHAPES[0]), unfold(&SHAPES[1])] {
+        let mut r = rng(31);
+        let z: Vec<f64> = round_f32(&uniform(&mut r, u.input_len(), -1.0, 1.0))
+            .iter()
+            .map(|v| v.max(0.0))
+            .collect();
+        let dcol = round_f32(&uniform(&mut r, u.col_len(), -1.0, 1.0));
+        let (zt, dcolt) = (
+            g.upload("z", &[z.len()], &to_f32(&z)).unwrap(),
+            g.upload("dcol", &[dcol.len()], &to_f32(&dcol)).unwrap(),
+        );
+        let dg = g.zeros("dg", &[u.input_len()], DType::F32);
+        g.run(&[u
+            .backward_through_relu(&g, &dcolt, ReluOutput(&zt), &dg)
+            .unwrap()])
+            .unwrap();
+        let want: Vec<f64> = cpu::unfold_backward(&u, &dcol)
+            .iter()
+            .zip(&z)
+            .map(|(d, z)| if *z > 0.0 { *d } else { 0.0 })
+            .collect();
+        assert!(want.contains(&0.0) && want.iter().any(|v| *v != 0.0));
+        let tol = Tolerance::new(1e-6, 1e-6);
+        compare_tensor(&g, &format!("{u:?} dG"), &dg, &want, tol).unwrap();
+    }
 }
 
 /// The GPU path of the model (unfold, then weight [C, C·K] · col per row) equals the

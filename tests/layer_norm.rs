@@ -162,3 +162,50 @@ fn gradients_accumulate_when_asked() {
     compare_tensor(&g, "dgamma", &dg, &plus(&dg_ref, 2.0), tol).unwrap();
     compare_tensor(&g, "dbeta", &db, &plus(&db_ref, 3.0), tol).unwrap();
 }
+
+#[test]
+fn relu_input_masks_the_input_gradient() {
+    let g = gpu();
+    // Four rows per invocation and one.
+    for (outer, channels, steps) in [(6, 16, 8), (5, 7, 3)] {
+        let ln = LayerNorm {
+            relu_input: true,
+            ..LayerNorm::new(outer, channels, steps)
+        };
+        let mut r = rng(77 + steps as u64);
+        // A ReLU's output: about half exact zeros.
+        let x: Vec<f64> = round_f32(&uniform(&mut r, ln.len(), -1.0, 1.0))
+            .iter()
+            .map(|v| v.max(0.0))
+            .collect();
+        let gamma = round_f32(&uniform(&mut r, channels, 0.5, 1.5));
+        let dy = round_f32(&uniform(&mut r, ln.len(), -1.0, 1.0));
+        let (xt, gt, dyt) = (
+            upload(&g, "x", &x),
+            upload(&g, "gamma", &gamma),
+            upload(&g, "dy", &dy),
+        );
+        let z = |n: &str, len: usize| g.zeros(n, &[len], DType::F32);
+        let beta = z("beta", channels);
+        let (y, mean, rstd, dx) = (
+            z("y", ln.len()),
+            z("mean", ln.rows()),
+            z("rstd", ln.rows()),
+            z("dx", ln.len()),
+        );
+        g.run(&[
+            ln.forward(&g, &xt, &gt, &beta, &y, &mean, &rstd).unwrap(),
+            ln.backward_input(&g, &xt, &gt, &dyt, &mean, &rstd, &dx, false)
+                .unwrap(),
+        ])
+        .unwrap();
+        let (dx_ref, _, _) = cpu::backward(&ln, &x, &gamma, &dy);
+        let masked: Vec<f64> = dx_ref
+            .iter()
+            .zip(&x)
+            .map(|(d, x)| if *x > 0.0 { *d } else { 0.0 })
+            .collect();
+        assert!(masked.iter().zip(&dx_ref).any(|(m, d)| m != d));
+        compare_tensor(&g, "dx masked", &dx, &masked, Tolerance::new(3e-5, 3e-5)).unwrap();
+    }
+}

@@ -7,7 +7,7 @@ use crate::gpu::{DType, Gpu, GpuError, Tensor};
 use crate::ops::bias::Bias;
 use crate::ops::dropout::Dropout;
 use crate::ops::elementwise::{binary_backward, unary_backward, unary_forward, Binary, Unary};
-use crate::ops::gated_dcc::{gate_backward, gate_forward, Unfold};
+use crate::ops::gated_dcc::{gate_backward, gate_forward, ReluOutput, Unfold};
 use crate::ops::head::LastStep;
 use crate::ops::layer_norm::LayerNorm;
 use crate::ops::matmul::{Epilogue, Matmul};
@@ -547,9 +547,13 @@ impl Block {
         // 7. Dropout: the same mask as the forward pass.
         let dy = scratch.get("dY", &out)?;
         let slot = steps.run(self.dropout.apply(gpu, 0, d_out, &dy, false))?;
-        // 6. LayerNorm and ReLU.
-        let ln = self.layer_norm();
-        let da = scratch.get("dA", &out)?;
+        // 6. LayerNorm and the ReLU before it (its input was the ReLU's output; the mask
+        // is applied by the LayerNorm backward).
+        let ln = LayerNorm {
+            relu_input: true,
+            ..self.layer_norm()
+        };
+        let ds = scratch.get("dS", &out)?;
         steps.run(ln.backward_input(
             gpu,
             &self.s,
@@ -557,7 +561,7 @@ impl Block {
             &dy,
             &self.mean,
             &self.rstd,
-            &da,
+            &ds,
             false,
         ))?;
         steps.run(ln.backward_params(
@@ -570,8 +574,6 @@ impl Block {
             dw("ln.beta"),
             false,
         ))?;
-        let ds = scratch.get("dS", &out)?;
-        steps.run(unary_backward(gpu, Unary::Relu, &self.s, &da, &ds, false))?;
         // 5. Residual: ∂/∂H = ∂/∂R = dS.
         let bias = self.channel_bias();
         let res = self.mm_res();
@@ -606,11 +608,10 @@ impl Block {
         steps.run(bias.backward(gpu, &df, dw("tcn.filter.bias"), false))?;
         steps.run(conv.backward_a(gpu, &self.col, &df, dw("tcn.filter.weight"), false))?;
         steps.run(conv.backward_b(gpu, w("tcn.filter.weight"), &df, &dcol, self.gated))?;
-        let dz = scratch.get("dZ", &hidden)?;
-        steps.run(self.unfold().backward(gpu, &dcol, &dz, false))?;
-        // 3. Graph convolution.
+        // 3. Graph convolution: Z = ReLU(G), masked by the unfolding's backward.
         let dg = scratch.get("dG", &hidden)?;
-        steps.run(unary_backward(gpu, Unary::Relu, &self.z, &dz, &dg, false))?;
+        let z = ReluOutput(&self.z);
+        steps.run(self.unfold().backward_through_relu(gpu, &dcol, z, &dg))?;
         let (mw, mix, mpsi) = (self.mm_w(), self.mm_mix(), self.mm_psi());
         let dm = scratch.get("dM", &acts)?;
         steps.run(mw.backward_a(gpu, &self.m, &dg, dw("gwc.W"), false))?;

@@ -18,6 +18,11 @@ static GRAD: Kernel = Kernel {
     entry: "bias_grad",
     bindings: &[Binding::read(1), Binding::read_write(2)],
 };
+static GRAD_COLUMNS: Kernel = Kernel {
+    shader: &SHADER,
+    entry: "bias_grad_columns",
+    bindings: &[Binding::read(1), Binding::read_write(2)],
+};
 
 /// A bias of `channels` values added along the middle axis of `[outer, channels, inner]`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -64,6 +69,12 @@ impl Bias {
         )
     }
 
+    /// Whether the gradient sums each channel in one invocation (many channels with few
+    /// terms each) rather than in one workgroup (few channels, many terms).
+    pub fn per_channel_invocations(&self) -> bool {
+        self.channels >= 64 && self.outer * self.inner <= 1024
+    }
+
     /// `dbias (+)= Σ_{outer, inner} dy`.
     pub fn backward(
         &self,
@@ -75,13 +86,23 @@ impl Bias {
         dy.expect_len(self.numel())?;
         dbias.expect_len(self.channels)?;
         let max = gpu.limits().max_compute_workgroups_per_dimension;
-        gpu.dispatch(
-            &GRAD,
-            &[],
-            &self.params(accumulate),
-            &[dy, dbias],
-            grid_1d(self.channels, 1, max),
-        )
+        if self.per_channel_invocations() {
+            gpu.dispatch(
+                &GRAD_COLUMNS,
+                &[],
+                &self.params(accumulate),
+                &[dy, dbias],
+                grid_1d(self.channels, 64, max),
+            )
+        } else {
+            gpu.dispatch(
+                &GRAD,
+                &[],
+                &self.params(accumulate),
+                &[dy, dbias],
+                grid_1d(self.channels, 1, max),
+            )
+        }
     }
 }
 

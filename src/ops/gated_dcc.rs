@@ -14,10 +14,11 @@ static UNFOLD_FWD: Kernel = Kernel {
     entry: "unfold_forward",
     bindings: &[Binding::read(1), Binding::read_write(2)],
 };
+/// dcol, x (read only with `relu_input`), dx.
 static UNFOLD_BWD: Kernel = Kernel {
     shader: &SHADER,
     entry: "unfold_backward",
-    bindings: &[Binding::read(1), Binding::read_write(2)],
+    bindings: &[Binding::read(1), Binding::read(3), Binding::read_write(2)],
 };
 static UNFOLD_FWD4: Kernel = Kernel {
     shader: &SHADER,
@@ -27,7 +28,7 @@ static UNFOLD_FWD4: Kernel = Kernel {
 static UNFOLD_BWD4: Kernel = Kernel {
     shader: &SHADER,
     entry: "unfold_backward4",
-    bindings: &[Binding::read(1), Binding::read_write(2)],
+    bindings: &[Binding::read(1), Binding::read(3), Binding::read_write(2)],
 };
 static GATE_FWD: Kernel = Kernel {
     shader: &SHADER,
@@ -60,6 +61,9 @@ pub struct Unfold {
     pub outputs: usize,
 }
 
+/// What [`Unfold::backward_through_relu`] masks by: the unfolded input, a ReLU's output.
+pub struct ReluOutput<'t>(pub &'t Tensor);
+
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 struct UnfoldParams {
@@ -70,7 +74,7 @@ struct UnfoldParams {
     dilation: u32,
     accumulate: u32,
     outputs: u32,
-    _pad: u32,
+    relu_input: u32,
 }
 
 #[repr(C)]
@@ -119,7 +123,7 @@ impl Unfold {
             dilation: self.dilation as u32,
             accumulate: accumulate as u32,
             outputs: self.outputs as u32,
-            _pad: 0,
+            relu_input: 0,
         }
     }
 
@@ -150,6 +154,30 @@ impl Unfold {
         dx: &Tensor,
         accumulate: bool,
     ) -> Result<Dispatch, GpuError> {
+        self.backward_masked(gpu, dcol, dx, None, accumulate)
+    }
+
+    /// The gradient before the ReLU whose output `x` was unfolded: `(x > 0) ·` what
+    /// [`Unfold::backward`] gives (overwrites `dx`; one elementwise pass fewer).
+    pub fn backward_through_relu(
+        &self,
+        gpu: &Gpu,
+        dcol: &Tensor,
+        x: ReluOutput,
+        dx: &Tensor,
+    ) -> Result<Dispatch, GpuError> {
+        x.0.expect_len(self.input_len())?;
+        self.backward_masked(gpu, dcol, dx, Some(x.0), false)
+    }
+
+    fn backward_masked(
+        &self,
+        gpu: &Gpu,
+        dcol: &Tensor,
+        dx: &Tensor,
+        mask: Option<&Tensor>,
+        accumulate: bool,
+    ) -> Result<Dispatch, GpuError> {
         self.check()?;
         dcol.expect_len(self.col_len())?;
         dx.expect_len(self.input_len())?;
@@ -159,11 +187,15 @@ impl Unfold {
         } else {
             (&UNFOLD_BWD, self.input_len())
         };
+        let params = UnfoldParams {
+            relu_input: u32::from(mask.is_some()),
+            ..self.params(accumulate)
+        };
         gpu.dispatch(
             kernel,
             &[],
-            &self.params(accumulate),
-            &[dcol, dx],
+            &params,
+            &[dcol, mask.unwrap_or(dcol), dx],
             grid_1d(threads, 256, max),
         )
     }

@@ -52,6 +52,9 @@ pub struct LayerNorm {
     pub channels: usize,
     pub steps: usize,
     pub eps: f32,
+    /// x is the output of a ReLU: [`LayerNorm::backward_input`] returns the gradient with
+    /// respect to the ReLU's input, `(x > 0) · ∂L/∂x` (one elementwise pass fewer).
+    pub relu_input: bool,
 }
 
 #[repr(C)]
@@ -62,7 +65,8 @@ struct Params {
     steps: u32,
     accumulate: u32,
     eps: f32,
-    _pad: [u32; 3],
+    relu_input: u32,
+    _pad: [u32; 2],
 }
 
 impl LayerNorm {
@@ -73,6 +77,7 @@ impl LayerNorm {
             channels,
             steps,
             eps: 1e-5,
+            relu_input: false,
         }
     }
 
@@ -96,7 +101,8 @@ impl LayerNorm {
             steps: self.steps as u32,
             accumulate: accumulate as u32,
             eps: self.eps,
-            _pad: [0; 3],
+            relu_input: self.relu_input as u32,
+            _pad: [0; 2],
         }
     }
 
