@@ -145,7 +145,8 @@ fn unfold_backward4(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroup
 // H = tanh(f) ⊙ σ(g), elementwise over n values.
 struct GateParams {
     n: u32,
-    _pad0: u32,
+    // gate_backward_stacked: elements per item (C·T) of f, g and dh.
+    block: u32,
     _pad1: u32,
     _pad2: u32,
 }
@@ -184,4 +185,25 @@ fn gate_backward(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
     let d = bdh[i];
     bdf[i] = d * sg * (1.0 - th * th);
     bdg[i] = d * th * sg * (1.0 - sg);
+}
+
+// The same gradients written stacked per item: [df; dg] as [2C, T] for each (b, n), so that
+// the filter and gate convolutions' backward run as one product with twice the rows
+// (ops/gated_dcc.rs).
+@group(0) @binding(4) var<storage, read_write> bdfg: array<f32>;
+
+@compute @workgroup_size(256)
+fn gate_backward_stacked(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                         @builtin(local_invocation_index) li: u32) {
+    let i = flat_index(wg, nwg, li, DCC_WG);
+    if i >= gp.n {
+        return;
+    }
+    let th = tanh_stable(bf[i]);
+    let sg = sigmoid(bg[i]);
+    let d = bdh[i];
+    let item = i / gp.block;
+    let j = i + item * gp.block;
+    bdfg[j] = d * sg * (1.0 - th * th);
+    bdfg[j + gp.block] = d * th * sg * (1.0 - sg);
 }

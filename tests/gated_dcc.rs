@@ -3,7 +3,9 @@
 //! of MODEL.md step 4, and the reference gradients vs central differences.
 
 use iastgcn::gpu::DType;
-use iastgcn::ops::gated_dcc::{cpu, gate_backward, gate_forward, ReluOutput, Unfold};
+use iastgcn::ops::gated_dcc::{
+    cpu, gate_backward, gate_backward_stacked, gate_forward, ReluOutput, Unfold,
+};
 use iastgcn::ops::matmul::Matmul;
 use iastgcn::testing::{
     check_gradient, compare, compare_tensor, dot, gpu, rng, round_f32, to_f32, uniform, Tolerance,
@@ -172,6 +174,15 @@ fn gate_matches_reference() {
     let (edf, edg) = cpu::gate_backward(&f, &gg, &dh);
     compare_tensor(&g, "df", &df, &edf, tol).unwrap();
     compare_tensor(&g, "dg", &dg, &edg, tol).unwrap();
+    // Stacked per item of 250 elements: [df; dg] for each, as the model's backward reads it.
+    let dfg = g.zeros("dfg", &[2 * n], DType::F32);
+    g.run(&[gate_backward_stacked(&g, &ft, &gt, &dht, &dfg, 250).unwrap()])
+        .unwrap();
+    let stacked = cpu::stack(&edf, &edg, 250);
+    assert_eq!(stacked[250..500], edg[..250]);
+    compare_tensor(&g, "[df; dg]", &dfg, &stacked, tol).unwrap();
+    let err = gate_backward_stacked(&g, &ft, &gt, &dht, &dfg, 3).unwrap_err();
+    assert!(err.to_string().contains("items of 3 elements"), "{err}");
 }
 
 #[test]

@@ -7,7 +7,7 @@ use crate::gpu::{DType, Gpu, GpuError, Tensor};
 use crate::ops::bias::Bias;
 use crate::ops::dropout::Dropout;
 use crate::ops::elementwise::{binary_backward, unary_backward, unary_forward, Binary, Unary};
-use crate::ops::gated_dcc::{gate_backward, gate_forward, ReluOutput, Unfold};
+use crate::ops::gated_dcc::{gate_backward_stacked, gate_forward, ReluOutput, Unfold};
 use crate::ops::head::LastStep;
 use crate::ops::layer_norm::LayerNorm;
 use crate::ops::matmul::{Epilogue, Matmul};
@@ -85,6 +85,9 @@ pub struct Block {
     rstd: Tensor,
     /// The input's last step `[B, N, C_in]`, for the residual of a trimmed block.
     x_last: Option<Tensor>,
+    /// `[tcn.filter.weight; tcn.gate.weight]` as one `[2C, C·K]` matrix (gated variants),
+    /// copied in each backward pass: the two convolutions' backward is one product.
+    w_fg: Option<Tensor>,
     /// The block output `[B, N, C, to]`: `y` after dropout (training) or a copy of it
     /// (inference).
     pub output: Tensor,
@@ -183,6 +186,10 @@ impl Block {
             mean: z("ln.mean", &[b * n * d.to]),
             rstd: z("ln.rstd", &[b * n * d.to]),
             x_last: trimmed.then(|| z("x_last", &[b, n, ci])),
+            w_fg: config
+                .variant
+                .gated()
+                .then(|| z("tcn.W_fg", &[2 * c, c * d.k])),
             output: z("output", &out),
         }
     }
@@ -298,6 +305,15 @@ impl Block {
     fn mm_res(&self) -> Matmul {
         let d = self.d;
         Matmul::new(d.c, d.to, d.ci)
+            .batched(d.b * d.n)
+            .share_a(true)
+    }
+
+    /// tcn backward, filter and gate stacked: [dG_f; dG_g][b, n] [2C, to] from
+    /// [W_f; W_g] [2C, C·K] · col[b, n] [C·K, to].
+    fn mm_conv_fg(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(2 * d.c, d.to, d.c * d.k)
             .batched(d.b * d.n)
             .share_a(true)
     }
@@ -593,21 +609,41 @@ impl Block {
             }
         }
         // 4. Gate and convolutions.
-        let df = scratch.get("dG_f", &out)?;
         let conv = self.mm_conv();
         let dcol = scratch.get("dcol", &[d.b, d.n, d.c, d.k, d.to])?;
-        if self.gated {
-            let dg = scratch.get("dG_g", &out)?;
-            steps.run(gate_backward(gpu, &self.f, &self.gg, &ds, &df, &dg))?;
-            steps.run(bias.backward(gpu, &dg, dw("tcn.gate.bias"), false))?;
-            steps.run(conv.backward_a(gpu, &self.col, &dg, dw("tcn.gate.weight"), false))?;
-            steps.run(conv.backward_b(gpu, w("tcn.gate.weight"), &dg, &dcol, false))?;
+        if let Some(w_fg) = &self.w_fg {
+            // Filter and gate stacked: one product each for the weights' gradient and
+            // dcol, with twice the rows (K = 2C for dcol).
+            let (c, ck) = (d.c, d.c * d.k);
+            steps.copy_range((w("tcn.filter.weight"), 0), (w_fg, 0), c * ck);
+            steps.copy_range((w("tcn.gate.weight"), 0), (w_fg, c * ck), c * ck);
+            let dfg = scratch.get("dG_fg", &[d.b, d.n, 2 * c, d.to])?;
+            let block = c * d.to;
+            steps.run(gate_backward_stacked(
+                gpu, &self.f, &self.gg, &ds, &dfg, block,
+            ))?;
+            let stacked_bias = Bias {
+                channels: 2 * c,
+                ..self.channel_bias()
+            };
+            let dbias = scratch.get("dbias_fg", &[2 * c])?;
+            steps.run(stacked_bias.backward(gpu, &dfg, &dbias, false))?;
+            steps.copy_range((&dbias, 0), (dw("tcn.filter.bias"), 0), c);
+            steps.copy_range((&dbias, c), (dw("tcn.gate.bias"), 0), c);
+            let fg = self.mm_conv_fg();
+            let dw_fg = scratch.get("dW_fg", &[2 * c, ck])?;
+            steps.run(fg.backward_a(gpu, &self.col, &dfg, &dw_fg, false))?;
+            steps.copy_range((&dw_fg, 0), (dw("tcn.filter.weight"), 0), c * ck);
+            steps.copy_range((&dw_fg, c * ck), (dw("tcn.gate.weight"), 0), c * ck);
+            steps.run(fg.backward_b(gpu, w_fg, &dfg, &dcol, false))?;
         } else {
+            let df = scratch.get("dG_f", &out)?;
             steps.run(unary_backward(gpu, Unary::Relu, &self.f, &ds, &df, false))?;
+            steps.run(bias.backward(gpu, &df, dw("tcn.filter.bias"), false))?;
+            let weight = dw("tcn.filter.weight");
+            steps.run(conv.backward_a(gpu, &self.col, &df, weight, false))?;
+            steps.run(conv.backward_b(gpu, w("tcn.filter.weight"), &df, &dcol, false))?;
         }
-        steps.run(bias.backward(gpu, &df, dw("tcn.filter.bias"), false))?;
-        steps.run(conv.backward_a(gpu, &self.col, &df, dw("tcn.filter.weight"), false))?;
-        steps.run(conv.backward_b(gpu, w("tcn.filter.weight"), &df, &dcol, self.gated))?;
         // 3. Graph convolution: Z = ReLU(G), masked by the unfolding's backward.
         let dg = scratch.get("dG", &hidden)?;
         let z = ReluOutput(&self.z);

@@ -10,7 +10,18 @@ use crate::gpu::{DType, Dispatch, Gpu, GpuError, Recorder, Tensor};
 #[derive(Debug)]
 pub enum Step {
     Run(Dispatch),
-    Copy { src: Tensor, dst: Tensor },
+    Copy {
+        src: Tensor,
+        dst: Tensor,
+    },
+    /// `count` f32 elements from `src[src_at..]` to `dst[dst_at..]`.
+    CopyRange {
+        src: Tensor,
+        src_at: usize,
+        dst: Tensor,
+        dst_at: usize,
+        count: usize,
+    },
 }
 
 /// An ordered list of steps.
@@ -27,6 +38,22 @@ impl Steps {
         self.0.push(Step::Copy {
             src: src.clone(),
             dst: dst.clone(),
+        });
+    }
+
+    /// Copies `count` elements of `src` from `src_at` into `dst` at `dst_at`.
+    pub fn copy_range(
+        &mut self,
+        (src, src_at): (&Tensor, usize),
+        (dst, dst_at): (&Tensor, usize),
+        count: usize,
+    ) {
+        self.0.push(Step::CopyRange {
+            src: src.clone(),
+            src_at,
+            dst: dst.clone(),
+            dst_at,
+            count,
         });
     }
 
@@ -56,6 +83,13 @@ impl Steps {
         match step {
             Step::Run(d) => rec.dispatch(d),
             Step::Copy { src, dst } => rec.copy(src, dst)?,
+            Step::CopyRange {
+                src,
+                src_at,
+                dst,
+                dst_at,
+                count,
+            } => rec.copy_f32(src, *src_at, dst, *dst_at, *count)?,
         }
         Ok(())
     }
@@ -83,7 +117,7 @@ impl Steps {
                     flops: d.flops(),
                     time: best,
                 },
-                Step::Copy { src, dst } => StepTime {
+                Step::Copy { src, dst } | Step::CopyRange { src, dst, .. } => StepTime {
                     kernel: "copy".into(),
                     target: format!("{} <- {}", dst.name(), src.name()),
                     flops: 0.0,

@@ -35,6 +35,16 @@ static GATE_FWD: Kernel = Kernel {
     entry: "gate_forward",
     bindings: &[Binding::read(1), Binding::read(2), Binding::read_write(3)],
 };
+static GATE_BWD_STACKED: Kernel = Kernel {
+    shader: &SHADER,
+    entry: "gate_backward_stacked",
+    bindings: &[
+        Binding::read(1),
+        Binding::read(2),
+        Binding::read(3),
+        Binding::read_write(4),
+    ],
+};
 static GATE_BWD: Kernel = Kernel {
     shader: &SHADER,
     entry: "gate_backward",
@@ -81,7 +91,8 @@ struct UnfoldParams {
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 struct GateParams {
     n: u32,
-    _pad: [u32; 3],
+    block: u32,
+    _pad: [u32; 2],
 }
 
 impl Unfold {
@@ -204,7 +215,8 @@ impl Unfold {
 fn gate_params(n: usize) -> GateParams {
     GateParams {
         n: n as u32,
-        _pad: [0; 3],
+        block: 0,
+        _pad: [0; 2],
     }
 }
 
@@ -242,6 +254,42 @@ pub fn gate_backward(
         &[],
         &gate_params(n),
         &[f, g, dh, df, dg],
+        grid_1d(n, 256, max),
+    )
+}
+
+/// `df, dg` from `dh`, written stacked per item into `dfg`: item r (of `block` = C·T
+/// elements each) holds `[df_r; dg_r]`, `[2C, T]` (overwritten).
+pub fn gate_backward_stacked(
+    gpu: &Gpu,
+    f: &Tensor,
+    g: &Tensor,
+    dh: &Tensor,
+    dfg: &Tensor,
+    block: usize,
+) -> Result<Dispatch, GpuError> {
+    let n = dh.numel();
+    for t in [f, g] {
+        t.expect_len(n)?;
+    }
+    dfg.expect_len(2 * n)?;
+    if block == 0 || !n.is_multiple_of(block) {
+        return Err(GpuError::Shape {
+            tensor: dh.name().to_string(),
+            expected: format!("a whole number of items of {block} elements"),
+            got: format!("{n} elements"),
+        });
+    }
+    let max = gpu.limits().max_compute_workgroups_per_dimension;
+    let params = GateParams {
+        block: block as u32,
+        ..gate_params(n)
+    };
+    gpu.dispatch(
+        &GATE_BWD_STACKED,
+        &[],
+        &params,
+        &[f, g, dh, dfg],
         grid_1d(n, 256, max),
     )
 }
@@ -310,6 +358,14 @@ pub mod cpu {
         f.iter()
             .zip(g)
             .map(|(f, g)| f.tanh() / (1.0 + (-g).exp()))
+            .collect()
+    }
+
+    /// `[a_r; b_r]` for each item r of `block` elements: the stacked layout.
+    pub fn stack(a: &[f64], b: &[f64], block: usize) -> Vec<f64> {
+        a.chunks(block)
+            .zip(b.chunks(block))
+            .flat_map(|(x, y)| x.iter().chain(y).copied())
             .collect()
     }
 
