@@ -23,7 +23,7 @@ const BINDINGS: &[Binding] = &[
     Binding::read_write(3),
 ];
 
-/// 4×4 blocks of C per invocation.
+/// 8×8 blocks of C per invocation.
 static KERNEL: Kernel = Kernel {
     shader: &SHADER,
     entry: "matmul",
@@ -42,7 +42,7 @@ const ROW_WORKGROUP: usize = 64;
 
 /// Outputs per invocation along each axis of the block kernel (8×8: large blocks are what
 /// pays on lavapipe, 2× the GFLOP/s of 4×4 blocks), and invocations per workgroup axis
-/// (8×8 unless [`Gemm::group`] says otherwise).
+/// (chosen per product by [`Gemm::group`]).
 const BLOCK: usize = 8;
 const WORKGROUP: usize = 8;
 /// Outputs per invocation of the row kernel.
@@ -391,7 +391,7 @@ impl Loads {
 impl Gemm {
     /// A product with one output column is the product with one output row of the
     /// transposed views (`Cᵀ = op(B)ᵀ · op(A)ᵀ`, the same memory since C is a vector per
-    /// batch item), which the row kernel computes without wasting 3/4 of a 4×4 block.
+    /// batch item), which the row kernel computes without wasting 7/8 of an 8×8 block.
     fn canonical(self) -> (Gemm, bool) {
         if self.n == 1 && self.m > 1 {
             let t = Gemm {
