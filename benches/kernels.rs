@@ -13,31 +13,19 @@
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
+use common::network;
 use iastgcn::gpu::{Gpu, Recorder};
-use iastgcn::graph::Graph;
-use iastgcn::model::{ModelConfig, Network, Parameters, Pass, StepTime};
-use iastgcn::ops::matmul::Matmul;
-use iastgcn::testing::{rng, to_f32, uniform};
+use iastgcn::model::{ModelConfig, Pass, StepTime};
+
+mod common;
 
 const BATCH: usize = 64;
 /// A step taking at least this share of its pass is "heavy".
 const HEAVY: f64 = 0.02;
 
-/// GFLOP/s of the vec4 conv GEMM `896 × [64,192]·[192,100]` (benches/model.rs's
-/// baseline), best of 8 after a warm-up.
+/// GFLOP/s of the baseline product (`common::baseline`), best of 8 after a warm-up.
 fn baseline(gpu: &Gpu) -> f64 {
-    let mm = Matmul::new(64, 100, 192).batched(896).share_a(true);
-    let mut g = rng(1);
-    let mut upload = |name: &str, len: usize| {
-        gpu.upload(name, &[len], &to_f32(&uniform(&mut g, len, -1.0, 1.0)))
-            .unwrap()
-    };
-    let (a, b, c) = (
-        upload("a", mm.a_len()),
-        upload("b", mm.b_len()),
-        upload("c", mm.c_len()),
-    );
-    let d = mm.forward(gpu, &a, &b, &c, false).unwrap();
+    let (mm, d) = common::baseline(gpu);
     let mut best = Duration::MAX;
     for i in 0..9 {
         let mut rec = Recorder::new(gpu);
@@ -50,21 +38,6 @@ fn baseline(gpu: &Gpu) -> f64 {
         }
     }
     mm.flops() / best.as_secs_f64() / 1e9
-}
-
-/// A network with He-initialised parameters, random inputs and targets.
-fn network(gpu: &Gpu, config: &ModelConfig, batch: usize) -> Network {
-    let graph = Graph::default_asset();
-    let net = Network::new(gpu, config, &graph, batch, 7).unwrap();
-    net.load_parameters(gpu, &Parameters::init(config, 1))
-        .unwrap();
-    let mut g = rng(2);
-    let x = uniform(&mut g, net.input.numel(), -1.0, 1.0);
-    let y = uniform(&mut g, net.target.numel(), -1.0, 1.0);
-    gpu.write(&net.input, &to_f32(&x)).unwrap();
-    gpu.write(&net.target, &to_f32(&y)).unwrap();
-    net.set_step(gpu, 1).unwrap();
-    net
 }
 
 /// `blocks.3.tcn.G_f` → `blocks.*.tcn.G_f`, so one row sums a role over the blocks.
@@ -163,16 +136,7 @@ fn main() {
     eprintln!("baseline matmul 896x[64,192]x[192,100]: {base:.2} GFLOP/s");
     let shapes = [
         ("paper C64 T100 L5", "paper", ModelConfig::default()),
-        (
-            "small C16 T48 L3",
-            "small",
-            ModelConfig {
-                channels: 16,
-                window: 48,
-                blocks: 3,
-                ..ModelConfig::default()
-            },
-        ),
+        ("small C16 T48 L3", "small", common::small_config()),
     ];
     for (name, key, config) in shapes {
         if !wants(key, &["paper", "small"]) {

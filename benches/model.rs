@@ -18,16 +18,16 @@
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
+use common::network;
 use criterion::measurement::WallTime;
 use criterion::{
     criterion_group, criterion_main, BenchmarkGroup, BenchmarkId, Criterion, SamplingMode,
     Throughput,
 };
 use iastgcn::gpu::{Gpu, Recorder};
-use iastgcn::graph::Graph;
-use iastgcn::model::{flops, ModelConfig, Network, Parameters};
-use iastgcn::ops::matmul::Matmul;
-use iastgcn::testing::{rng, to_f32, uniform};
+use iastgcn::model::{flops, ModelConfig, Network};
+
+mod common;
 
 /// One finished benchmark, for the ratios and the closing table.
 struct Row {
@@ -134,23 +134,10 @@ fn new_group<'c>(c: &'c mut Criterion, name: &str) -> BenchmarkGroup<'c, WallTim
     group
 }
 
-/// The vec4 conv-shaped GEMM of the paper shape's temporal convolution,
-/// `[64, 192] · [192, 100]` for each of B·N = 896 rows with the weight shared: the best
-/// GFLOP/s the project's matmul reaches (see benches/matmul.rs).
+/// The baseline product (`common::baseline`), timed like the models.
 fn matmul_baseline(c: &mut Criterion) {
     let gpu = gpu();
-    let mm = Matmul::new(64, 100, 192).batched(896).share_a(true);
-    let mut g = rng(1);
-    let mut upload = |name: &str, len: usize| {
-        gpu.upload(name, &[len], &to_f32(&uniform(&mut g, len, -1.0, 1.0)))
-            .unwrap()
-    };
-    let (a, b, out) = (
-        upload("a", mm.a_len()),
-        upload("b", mm.b_len()),
-        upload("c", mm.c_len()),
-    );
-    let d = mm.forward(&gpu, &a, &b, &out, false).unwrap();
+    let (mm, d) = common::baseline(&gpu);
     let mut group = new_group(c, "baseline");
     bench(
         &mut group,
@@ -170,21 +157,6 @@ fn matmul_baseline(c: &mut Criterion) {
     if let Some(row) = rows.iter().find(|r| r.name.starts_with("baseline/")) {
         *BASELINE.lock().unwrap() = Some(row.flops / row.mean.as_secs_f64() / 1e9);
     }
-}
-
-/// A network at `batch` with He-initialised parameters and random inputs and targets.
-fn network(gpu: &Gpu, config: &ModelConfig, batch: usize) -> Network {
-    let graph = Graph::default_asset();
-    let net = Network::new(gpu, config, &graph, batch, 7).unwrap();
-    net.load_parameters(gpu, &Parameters::init(config, 1))
-        .unwrap();
-    let mut g = rng(2);
-    let x = uniform(&mut g, net.input.numel(), -1.0, 1.0);
-    let y = uniform(&mut g, net.target.numel(), -1.0, 1.0);
-    gpu.write(&net.input, &to_f32(&x)).unwrap();
-    gpu.write(&net.target, &to_f32(&y)).unwrap();
-    net.set_step(gpu, 1).unwrap();
-    net
 }
 
 fn forward(gpu: &Gpu, net: &Network) {
@@ -266,13 +238,7 @@ fn model_group(c: &mut Criterion, name: &str, config: &ModelConfig) {
 }
 
 fn small_shape(c: &mut Criterion) {
-    let config = ModelConfig {
-        channels: 16,
-        window: 48,
-        blocks: 3,
-        ..ModelConfig::default()
-    };
-    model_group(c, "small C16 T48 L3", &config);
+    model_group(c, "small C16 T48 L3", &common::small_config());
 }
 
 fn paper_shape(c: &mut Criterion) {

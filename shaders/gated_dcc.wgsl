@@ -173,6 +173,14 @@ fn gate_forward(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) n
 @group(0) @binding(4) var<storage, read_write> bdf: array<f32>;
 @group(0) @binding(5) var<storage, read_write> bdg: array<f32>;
 
+// (df, dg) of element i.
+fn gate_grads(i: u32) -> vec2<f32> {
+    let th = tanh_stable(bf[i]);
+    let sg = sigmoid(bg[i]);
+    let d = bdh[i];
+    return vec2<f32>(d * sg * (1.0 - th * th), d * th * sg * (1.0 - sg));
+}
+
 @compute @workgroup_size(256)
 fn gate_backward(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                  @builtin(local_invocation_index) li: u32) {
@@ -180,11 +188,9 @@ fn gate_backward(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
     if i >= gp.n {
         return;
     }
-    let th = tanh_stable(bf[i]);
-    let sg = sigmoid(bg[i]);
-    let d = bdh[i];
-    bdf[i] = d * sg * (1.0 - th * th);
-    bdg[i] = d * th * sg * (1.0 - sg);
+    let d = gate_grads(i);
+    bdf[i] = d.x;
+    bdg[i] = d.y;
 }
 
 // The same gradients written stacked per item: [df; dg] as [2C, T] for each (b, n), so that
@@ -199,11 +205,8 @@ fn gate_backward_stacked(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_work
     if i >= gp.n {
         return;
     }
-    let th = tanh_stable(bf[i]);
-    let sg = sigmoid(bg[i]);
-    let d = bdh[i];
-    let item = i / gp.block;
-    let j = i + item * gp.block;
-    bdfg[j] = d * sg * (1.0 - th * th);
-    bdfg[j + gp.block] = d * th * sg * (1.0 - sg);
+    let d = gate_grads(i);
+    let j = i + (i / gp.block) * gp.block;
+    bdfg[j] = d.x;
+    bdfg[j + gp.block] = d.y;
 }

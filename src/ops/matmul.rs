@@ -196,10 +196,7 @@ impl Matmul {
         c: &Tensor,
         accumulate: bool,
     ) -> Result<Dispatch, GpuError> {
-        a.expect_len(self.a_len())?;
-        b.expect_len(self.b_len())?;
-        c.expect_len(self.c_len())?;
-        self.forward_gemm().dispatch(gpu, a, b, c, accumulate)
+        self.forward_with(gpu, a, b, c, accumulate, Epilogue::default())
     }
 
     /// `c = op(a) · op(b) (+ bias) (+ c)`, then ReLU if asked: the epilogue's bias `[m]` is
