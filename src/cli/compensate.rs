@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::Context;
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
 
 use crate::calibrate::file;
 use crate::compensate::evaluate::{predictors, table_v, HeldOut};
@@ -47,14 +47,10 @@ pub struct CompensateArgs {
 
 /// A progress bar over control ticks.
 pub fn tick_bar(len: usize, what: &str) -> ProgressBar {
-    let bar = ProgressBar::new(len as u64);
-    bar.set_style(
-        ProgressStyle::with_template(&format!(
-            "{what} {{bar:40}} {{pos}}/{{len}} ticks {{elapsed}}"
-        ))
-        .expect("valid progress template"),
-    );
-    bar
+    super::progress_bar(
+        len as u64,
+        &format!("{what} {{bar:40}} {{pos}}/{{len}} ticks {{elapsed}}"),
+    )
 }
 
 /// Prints Table V rows.

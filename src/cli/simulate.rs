@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
 
 use crate::data::{tracker_columns, write_calibration_set, CalibrationRow, Recording, Row};
 use crate::plot::{self, Panel, Series};
@@ -44,14 +44,10 @@ pub struct SimulateArgs {
 }
 
 fn progress(len: u64, what: &str) -> ProgressBar {
-    let bar = ProgressBar::new(len);
-    bar.set_style(
-        ProgressStyle::with_template(&format!(
-            "{what} {{bar:40}} {{pos}}/{{len}} {{per_sec}} eta {{eta}}"
-        ))
-        .expect("valid progress template"),
-    );
-    bar
+    super::progress_bar(
+        len,
+        &format!("{what} {{bar:40}} {{pos}}/{{len}} {{per_sec}} eta {{eta}}"),
+    )
 }
 
 pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
 
 use crate::calibrate::file;
 use crate::data::{
@@ -173,14 +173,10 @@ pub fn build_dataset(
 }
 
 fn epoch_bar(len: usize, what: &str) -> ProgressBar {
-    let bar = ProgressBar::new(len as u64);
-    bar.set_style(
-        ProgressStyle::with_template(&format!(
-            "{what} epoch {{pos}}/{{len}} {{bar:30}} {{elapsed}} {{msg}}"
-        ))
-        .expect("valid progress template"),
-    );
-    bar
+    super::progress_bar(
+        len as u64,
+        &format!("{what} epoch {{pos}}/{{len}} {{bar:30}} {{elapsed}} {{msg}}"),
+    )
 }
 
 pub fn read_run_config(path: Option<&Path>, variant: Option<&str>) -> anyhow::Result<RunConfig> {

@@ -152,30 +152,20 @@ impl Checkpoint {
             message,
         };
         let (st, meta) = open_safetensors(bytes, "is this an iastgcn checkpoint?").map_err(err)?;
-        let field = |key: &str| {
-            meta.get(key)
-                .ok_or_else(|| err(format!("metadata has no \"{key}\"")))
-        };
-        let format = field("format")?;
-        if format != FORMAT {
-            return Err(err(format!(
-                "metadata format is {format:?}, this engine reads {FORMAT:?}"
-            )));
-        }
-        let config: ModelConfig = serde_json::from_str(field("config")?)
-            .map_err(|e| err(format!("metadata \"config\": {e}")))?;
+        meta.expect_format(FORMAT, &format!("this engine reads {FORMAT:?}"))
+            .map_err(err)?;
+        let config: ModelConfig = meta.json("config").map_err(err)?;
         config
             .validate()
             .map_err(|e| err(format!("metadata \"config\": {e}")))?;
-        let variant = field("variant")?;
+        let variant = meta.field("variant").map_err(err)?;
         if variant != config.variant.name() {
             return Err(err(format!(
                 "metadata variant {variant:?} disagrees with the config's {:?}",
                 config.variant.name()
             )));
         }
-        let graph: GraphMeta = serde_json::from_str(field("graph")?)
-            .map_err(|e| err(format!("metadata \"graph\": {e}")))?;
+        let graph: GraphMeta = meta.json("graph").map_err(err)?;
         if graph.nodes.len() != config.nodes
             || graph
                 .edges
@@ -188,8 +178,7 @@ impl Checkpoint {
                 config.nodes
             )));
         }
-        let normalization: Normalization = serde_json::from_str(field("normalization")?)
-            .map_err(|e| err(format!("metadata \"normalization\": {e}")))?;
+        let normalization: Normalization = meta.json("normalization").map_err(err)?;
         normalization
             .check(&config)
             .map_err(|e| err(format!("metadata \"normalization\": {e}")))?;
@@ -251,7 +240,7 @@ impl Checkpoint {
 pub fn open_safetensors<'b>(
     bytes: &'b [u8],
     hint: &str,
-) -> Result<(SafeTensors<'b>, HashMap<String, String>), String> {
+) -> Result<(SafeTensors<'b>, Metadata), String> {
     let st = SafeTensors::deserialize(bytes)
         .map_err(|e| format!("not a valid safetensors file: {e}"))?;
     let (_, header) = SafeTensors::read_metadata(bytes)
@@ -260,7 +249,34 @@ pub fn open_safetensors<'b>(
         .metadata()
         .clone()
         .ok_or_else(|| format!("no metadata ({hint})"))?;
-    Ok((st, meta))
+    Ok((st, Metadata(meta)))
+}
+
+/// A safetensors file's metadata, read with errors that name the field.
+pub struct Metadata(HashMap<String, String>);
+
+impl Metadata {
+    pub fn field(&self, key: &str) -> Result<&str, String> {
+        self.0
+            .get(key)
+            .map(String::as_str)
+            .ok_or_else(|| format!("metadata has no \"{key}\""))
+    }
+
+    /// Field `key` parsed as JSON.
+    pub fn json<T: serde::de::DeserializeOwned>(&self, key: &str) -> Result<T, String> {
+        serde_json::from_str(self.field(key)?).map_err(|e| format!("metadata \"{key}\": {e}"))
+    }
+
+    /// Checks the `format` field; `otherwise` ends the message when it differs.
+    pub fn expect_format(&self, expected: &str, otherwise: &str) -> Result<(), String> {
+        let format = self.field("format")?;
+        if format == expected {
+            Ok(())
+        } else {
+            Err(format!("metadata format is {format:?}, {otherwise}"))
+        }
+    }
 }
 
 /// The values of an F32 safetensors tensor (stored little-endian).

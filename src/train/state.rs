@@ -72,26 +72,14 @@ impl TrainState {
         };
         let bytes = std::fs::read(path).map_err(|e| err(e.to_string()))?;
         let (st, meta) = open_safetensors(&bytes, "is this a training state?").map_err(&err)?;
-        let field = |key: &str| {
-            meta.get(key)
-                .ok_or_else(|| err(format!("metadata has no \"{key}\"")))
-        };
-        let format = field("format")?;
-        if format != FORMAT {
-            return Err(err(format!(
-                "metadata format is {format:?}, expected {FORMAT:?} (a model checkpoint is not a training state)"
-            )));
-        }
-        let parse = |key: &str| -> Result<serde_json::Value, StateError> {
-            serde_json::from_str(field(key)?).map_err(|e| err(format!("metadata \"{key}\": {e}")))
-        };
-        let run: RunConfig = typed("run", parse("run")?).map_err(&err)?;
+        let otherwise = format!("expected {FORMAT:?} (a model checkpoint is not a training state)");
+        meta.expect_format(FORMAT, &otherwise).map_err(&err)?;
+        let run: RunConfig = meta.json("run").map_err(&err)?;
         run.validate()
             .map_err(|e| err(format!("metadata \"run\": {e}")))?;
-        let normalization: Normalization =
-            typed("normalization", parse("normalization")?).map_err(&err)?;
-        let stage: Stage = typed("stage", parse("stage")?).map_err(&err)?;
-        let progress: Progress = typed("progress", parse("progress")?).map_err(&err)?;
+        let normalization: Normalization = meta.json("normalization").map_err(&err)?;
+        let stage: Stage = meta.json("stage").map_err(&err)?;
+        let progress: Progress = meta.json("progress").map_err(&err)?;
         let specs = param_specs(&run.model);
         let mut sets: Vec<Vec<Vec<f32>>> = Vec::new();
         for group in GROUPS {
@@ -142,10 +130,6 @@ impl TrainState {
             normalization,
         })
     }
-}
-
-fn typed<T: serde::de::DeserializeOwned>(key: &str, v: serde_json::Value) -> Result<T, String> {
-    serde_json::from_value(v).map_err(|e| format!("metadata \"{key}\": {e}"))
 }
 
 mod erased {
