@@ -170,8 +170,6 @@ fn gate_forward(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) n
 @group(0) @binding(1) var<storage, read> bf: array<f32>;
 @group(0) @binding(2) var<storage, read> bg: array<f32>;
 @group(0) @binding(3) var<storage, read> bdh: array<f32>;
-@group(0) @binding(4) var<storage, read_write> bdf: array<f32>;
-@group(0) @binding(5) var<storage, read_write> bdg: array<f32>;
 
 // (df, dg) of element i.
 fn gate_grads(i: u32) -> vec2<f32> {
@@ -181,21 +179,8 @@ fn gate_grads(i: u32) -> vec2<f32> {
     return vec2<f32>(d * sg * (1.0 - th * th), d * th * sg * (1.0 - sg));
 }
 
-@compute @workgroup_size(256)
-fn gate_backward(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
-                 @builtin(local_invocation_index) li: u32) {
-    let i = flat_index(wg, nwg, li, DCC_WG);
-    if i >= gp.n {
-        return;
-    }
-    let d = gate_grads(i);
-    bdf[i] = d.x;
-    bdg[i] = d.y;
-}
-
-// The same gradients written stacked per item: [df; dg] as [2C, T] for each (b, n), so that
-// the filter and gate convolutions' backward run as one product with twice the rows
-// (ops/gated_dcc.rs).
+// Written stacked per item: [df; dg] as [2C, T] for each (b, n), so that the filter and
+// gate convolutions' backward run as one product with twice the rows (ops/gated_dcc.rs).
 @group(0) @binding(4) var<storage, read_write> bdfg: array<f32>;
 
 @compute @workgroup_size(256)

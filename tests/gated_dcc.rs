@@ -3,9 +3,7 @@
 //! of MODEL.md step 4, and the reference gradients vs central differences.
 
 use iastgcn::gpu::DType;
-use iastgcn::ops::gated_dcc::{
-    cpu, gate_backward, gate_backward_stacked, gate_forward, ReluOutput, Unfold,
-};
+use iastgcn::ops::gated_dcc::{cpu, gate_backward_stacked, gate_forward, ReluOutput, Unfold};
 use iastgcn::ops::matmul::Matmul;
 use iastgcn::testing::{
     check_gradient, compare, compare_tensor, dot, gpu, rng, round_f32, to_f32, uniform, Tolerance,
@@ -163,21 +161,33 @@ fn gate_matches_reference() {
     let gg = round_f32(&uniform(&mut r, n, -40.0, 40.0));
     let dh = round_f32(&uniform(&mut r, n, -1.0, 1.0));
     let [ft, gt, dht] = [&f, &gg, &dh].map(|v| g.upload("in", &[n], &to_f32(v)).unwrap());
-    let [h, df, dg] = ["h", "df", "dg"].map(|name| g.zeros(name, &[n], DType::F32));
+    let h = g.zeros("h", &[n], DType::F32);
+    // The gradients stacked per item of 250 elements, [df; dg] for each, as the model's
+    // backward reads them.
+    let dfg = g.zeros("dfg", &[2 * n], DType::F32);
     g.run(&[
         gate_forward(&g, &ft, &gt, &h).unwrap(),
-        gate_backward(&g, &ft, &gt, &dht, &df, &dg).unwrap(),
+        gate_backward_stacked(&g, &ft, &gt, &dht, &dfg, 250).unwrap(),
     ])
     .unwrap();
     let tol = Tolerance::new(1e-6, 1e-5);
     compare_tensor(&g, "h", &h, &cpu::gate(&f, &gg), tol).unwrap();
     let (edf, edg) = cpu::gate_backward(&f, &gg, &dh);
-    compare_tensor(&g, "df", &df, &edf, tol).unwrap();
-    compare_tensor(&g, "dg", &dg, &edg, tol).unwrap();
-    // Stacked per item of 250 elements: [df; dg] for each, as the model's backward reads it.
-    let dfg = g.zeros("dfg", &[2 * n], DType::F32);
-    g.run(&[gate_backward_stacked(&g, &ft, &gt, &dht, &dfg, 250).unwrap()])
-        .unwrap();
+    let got: Vec<f64> = g.read_f32(&dfg).unwrap()[..2 * n]
+        .iter()
+        .map(|&v| v as f64)
+        .collect();
+    let (df, dg): (Vec<f64>, Vec<f64>) = (
+        got.chunks(250).step_by(2).flatten().copied().collect(),
+        got.chunks(250)
+            .skip(1)
+            .step_by(2)
+            .flatten()
+            .copied()
+            .collect(),
+    );
+    compare("df", &df, &edf, tol).unwrap();
+    compare("dg", &dg, &edg, tol).unwrap();
     let stacked = cpu::stack(&edf, &edg, 250);
     assert_eq!(stacked[250..500], edg[..250]);
     compare_tensor(&g, "[df; dg]", &dfg, &stacked, tol).unwrap();

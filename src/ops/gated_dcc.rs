@@ -45,17 +45,6 @@ static GATE_BWD_STACKED: Kernel = Kernel {
         Binding::read_write(4),
     ],
 };
-static GATE_BWD: Kernel = Kernel {
-    shader: &SHADER,
-    entry: "gate_backward",
-    bindings: &[
-        Binding::read(1),
-        Binding::read(2),
-        Binding::read(3),
-        Binding::read_write(4),
-        Binding::read_write(5),
-    ],
-};
 
 /// Causal unfolding of `x [rows, channels, steps]` into `col [rows, channels, kernel, steps]`
 /// with `col[r, c, k, t] = x[r, c, t − dilation·k]` (zero before the start).
@@ -235,30 +224,7 @@ pub fn gate_forward(gpu: &Gpu, f: &Tensor, g: &Tensor, h: &Tensor) -> Result<Dis
     )
 }
 
-/// `df, dg` from `dh` (both overwritten).
-pub fn gate_backward(
-    gpu: &Gpu,
-    f: &Tensor,
-    g: &Tensor,
-    dh: &Tensor,
-    df: &Tensor,
-    dg: &Tensor,
-) -> Result<Dispatch, GpuError> {
-    let n = dh.numel();
-    for t in [f, g, df, dg] {
-        t.expect_len(n)?;
-    }
-    let max = gpu.limits().max_compute_workgroups_per_dimension;
-    gpu.dispatch(
-        &GATE_BWD,
-        &[],
-        &gate_params(n),
-        &[f, g, dh, df, dg],
-        grid_1d(n, 256, max),
-    )
-}
-
-/// `df, dg` from `dh`, written stacked per item into `dfg`: item r (of `block` = C·T
+/// The gate's backward: `df, dg` from `dh`, written stacked per item into `dfg`: item r (of `block` = C·T
 /// elements each) holds `[df_r; dg_r]`, `[2C, T]` (overwritten).
 pub fn gate_backward_stacked(
     gpu: &Gpu,
