@@ -36,6 +36,9 @@ struct MatmulParams {
     alpha: f32,
     // Batch items of C (the z extent; a workgroup may span several).
     batches: u32,
+    // Split reduction: when nonzero, item z of C is the partial sum over reduction items
+    // z*chunk .. (z+1)*chunk (see `sum_partials`).
+    chunk: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: MatmulParams;
@@ -184,7 +187,13 @@ fn matmul(@builtin(global_invocation_id) gid: vec3<u32>) {
     var acc_hi_l = mat4x4<f32>();
     var acc_hi_r = mat4x4<f32>();
     let k4 = p.k & ~3u;
-    for (var r = 0u; r < p.reduce; r++) {
+    var r_begin = 0u;
+    var r_end = p.reduce;
+    if p.chunk != 0u {
+        r_begin = z * p.chunk;
+        r_end = min(p.reduce, r_begin + p.chunk);
+    }
+    for (var r = r_begin; r < r_end; r++) {
         let abase = z * p.a_batch + r * p.a_reduce;
         let bbase = z * p.b_batch + r * p.b_reduce;
         var kk = 0u;
@@ -231,6 +240,25 @@ fn store_quarter(row: u32, col: u32, base: u32, q: mat4x4<f32>) {
 // The matrix whose column i is x[i] * y: one k step of a 4x4 quarter.
 fn outer4(y: vec4<f32>, x: vec4<f32>) -> mat4x4<f32> {
     return mat4x4<f32>(x.x * y, x.y * y, x.z * y, x.w * y);
+}
+
+// The second launch of a split reduction: c[i] (+)= sum over z of a[z * n + i], the
+// `batches` partial results of a `matmul` launch with `chunk` set, summed in order (the
+// result does not depend on the grid). A 1-D grid folded into x and y.
+@compute @workgroup_size(64, 1, 1)
+fn sum_partials(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    let i = gid.y * groups.x * 64u + gid.x;
+    if i >= p.n {
+        return;
+    }
+    var s = 0.0;
+    for (var z = 0u; z < p.batches; z++) {
+        s += a[z * p.n + i];
+    }
+    if p.accumulate != 0u {
+        s += c[i];
+    }
+    c[i] = s;
 }
 
 // m = 1: four columns of the single row per invocation, 64 invocations per workgroup.

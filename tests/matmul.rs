@@ -294,6 +294,65 @@ fn accumulate_adds_to_existing_values() {
 }
 
 #[test]
+fn split_weight_gradients_match_reference() {
+    // Shared operands whose per-item operands are large enough that the batch-summed
+    // gradient is split into chunks (~1 MiB of operands each, the last one short) and
+    // summed by a second launch; ragged output blocks, every transpose, with and without
+    // accumulation into the gradient.
+    let g = gpu();
+    for (i, (ta, tb)) in [(false, false), (true, false), (false, true), (true, true)]
+        .into_iter()
+        .enumerate()
+    {
+        let shared_a = i % 2 == 0;
+        // The gradient's own reduction per item (n for dA, m for dB) is the long one.
+        let (m, n, k) = if shared_a {
+            (12, 600, 20)
+        } else {
+            (600, 20, 12)
+        };
+        let mm = Matmul::new(m, n, k)
+            .batched(30)
+            .transpose_a(ta)
+            .transpose_b(tb)
+            .share_a(shared_a)
+            .share_b(!shared_a);
+        let x = inputs(&mm, 500 + i as u64);
+        let (a, b, dc) = (
+            upload(&g, "a", &x.a),
+            upload(&g, "b", &x.b),
+            upload(&g, "dc", &x.dc),
+        );
+        let (da_ref, db_ref) = cpu::backward(&mm, &x.a, &x.b, &x.dc);
+        let (grad_ref, len, k) = if shared_a {
+            (da_ref, mm.a_len(), mm.n * mm.batch)
+        } else {
+            (db_ref, mm.b_len(), mm.m * mm.batch)
+        };
+        for accumulate in [false, true] {
+            let g0: Vec<f64> = (0..len).map(|j| 0.5 - j as f64 * 0.01).collect();
+            let grad = upload(&g, "dw", &g0);
+            let d = if shared_a {
+                mm.backward_a(&g, &b, &dc, &grad, accumulate)
+            } else {
+                mm.backward_b(&g, &a, &dc, &grad, accumulate)
+            }
+            .unwrap();
+            assert_eq!(d.launches(), 2, "{mm:?} was not split");
+            assert_eq!(d.target(), "dw");
+            g.run(&[d]).unwrap();
+            let want: Vec<f64> = grad_ref
+                .iter()
+                .zip(&g0)
+                .map(|(r, g0)| r + if accumulate { *g0 } else { 0.0 })
+                .collect();
+            let what = format!("{mm:?} split gradient, accumulate {accumulate}");
+            compare_tensor(&g, &what, &grad, &want, gpu_tol(k)).unwrap();
+        }
+    }
+}
+
+#[test]
 fn model_sized_product_matches_reference() {
     // One window of the 1×1 residual convolution: [14·100, 64] × [64, 64], plus dW.
     let g = gpu();

@@ -117,6 +117,7 @@ impl Gpu {
                 .last()
                 .map_or_else(String::new, |t| t.name().to_string()),
             flops: 0.0,
+            next: None,
         })
     }
 

@@ -19,6 +19,9 @@ pub struct Dispatch {
     pub(crate) target: String,
     /// Multiply-adds × 2 of a contraction (set by the matmul op), 0 for other kernels.
     pub(crate) flops: f64,
+    /// A launch that must follow this one and belongs to the same operation (the sum of
+    /// a split product's partial results): recorded, profiled and counted with it.
+    pub(crate) next: Option<Box<Dispatch>>,
 }
 
 impl Dispatch {
@@ -44,6 +47,21 @@ impl Dispatch {
     pub(crate) fn with_flops(mut self, flops: f64) -> Dispatch {
         self.flops = flops;
         self
+    }
+
+    /// This launch followed by `next`, as one operation that writes what `next` writes.
+    pub(crate) fn then(mut self, next: Dispatch) -> Dispatch {
+        self.target = next.target.clone();
+        match self.next.take() {
+            Some(first) => self.next = Some(Box::new(first.then(next))),
+            None => self.next = Some(Box::new(next)),
+        }
+        self
+    }
+
+    /// Launches recorded for this operation (1, or more when it is split).
+    pub fn launches(&self) -> usize {
+        1 + self.next.as_ref().map_or(0, |n| n.launches())
     }
 
     /// Replaces the uniform parameters (same type as at creation), e.g. a learning rate.
@@ -86,7 +104,7 @@ impl<'g> Recorder<'g> {
         }
     }
 
-    /// Records one dispatch.
+    /// Records one dispatch (with the launches chained to it).
     pub fn dispatch(&mut self, d: &Dispatch) {
         let pass = self.pass.get_or_insert_with(|| {
             self.encoder
@@ -101,6 +119,9 @@ impl<'g> Recorder<'g> {
         let [x, y, z] = d.workgroups;
         pass.dispatch_workgroups(x, y, z);
         self.dispatches += 1;
+        if let Some(next) = &d.next {
+            self.dispatch(next);
+        }
     }
 
     /// Records every dispatch of `ds` in order.
