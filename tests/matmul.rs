@@ -24,6 +24,10 @@ fn cases() -> Vec<Matmul> {
         Matmul::new(20, 1, 12).batched(2).share_b(true),
         Matmul::new(7, 1, 5),
         Matmul::new(16, 12, 1).batched(2),
+        // Batched with whole groups of column blocks per item (the grid's z axis), and
+        // ragged ones over more than one group of rows (the flat x axis).
+        Matmul::new(9, 64, 10).batched(3),
+        Matmul::new(70, 20, 9).batched(2).share_a(true),
     ];
     for (ta, tb) in [(false, false), (true, false), (false, true), (true, true)] {
         v.push(Matmul::new(33, 31, 37).transpose_a(ta).transpose_b(tb));
