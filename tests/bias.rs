@@ -8,8 +8,11 @@ use iastgcn::testing::{
 };
 
 /// (outer, channels, inner): conv bias over B·N rows and T steps, be broadcast over the
-/// batch (T·T channels), the head bias, ragged.
-const SHAPES: [(usize, usize, usize); 6] = [
+/// batch (T·T channels), the head bias, ragged; steps longer than, equal to and
+/// shorter than the 64 invocations of a channel's workgroup.
+const SHAPES: [(usize, usize, usize); 8] = [
+    (9, 5, 100),
+    (6, 3, 64),
     (28, 16, 48),
     (4, 10000, 1),
     (64, 6, 1),

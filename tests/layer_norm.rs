@@ -14,8 +14,11 @@ fn upload(g: &Gpu, name: &str, data: &[f64]) -> Tensor {
 /// Ragged shapes, including C = 64 and T not a multiple of anything, and more rows than
 /// one workgroup; then T multiples of 4 (four rows per invocation), again past one
 /// workgroup.
-const SHAPES: [(usize, usize, usize); 6] = [
+const SHAPES: [(usize, usize, usize); 8] = [
     (1, 1, 1),
+    // Steps longer than, and equal to, the 256 rows a parameter-gradient group strides by.
+    (3, 6, 300),
+    (2, 5, 256),
     (3, 5, 7),
     (2, 64, 13),
     (29, 16, 11),
