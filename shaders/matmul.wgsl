@@ -50,12 +50,17 @@ struct MatmulParams {
 @group(0) @binding(5) var<storage, read> b4: array<vec4<f32>>;
 // A bias added to every output (any read-only buffer when BIAS = 0).
 @group(0) @binding(6) var<storage, read> bias: array<f32>;
+// With GATE: a tensor laid out like C (any read-only buffer otherwise).
+@group(0) @binding(7) var<storage, read> gate_f: array<f32>;
 
 // 0: no bias; 1: bias[i] added to row i of C; 2: bias[j] added to column j; 3: a whole
 // [M, N] matrix added to every batch item's C.
 override BIAS: u32 = 0u;
 // max(0, .) of the final value (after the bias and the accumulation).
 override RELU: bool = false;
+// The gated activation: C = tanh(gate_f) * sigmoid(C) elementwise (after the bias), the
+// gate of the gated convolution fused into the gate product (gated_dcc.wgsl has it alone).
+override GATE: bool = false;
 
 // op(A) is read as vectors, along k (A stored untransposed) or else along m.
 override A_VEC: bool = false;
@@ -128,6 +133,9 @@ fn store_row(row: u32, col0: u32, base: u32, v: vec4<f32>) {
             }
             if p.accumulate != 0u {
                 x += c[o + j];
+            }
+            if GATE {
+                x = tanh_stable(gate_f[o + j]) * sigmoid(x);
             }
             if RELU {
                 x = relu(x);

@@ -2,6 +2,7 @@
 //! f64 backward vs central differences, on ragged shapes and every transpose/sharing mode.
 
 use iastgcn::gpu::{DType, Gpu, Tensor};
+use iastgcn::ops::gated_dcc;
 use iastgcn::ops::matmul::{cpu, plan, Epilogue, Loads, Matmul};
 use iastgcn::testing::{
     check_gradient, compare_tensor, dot, gpu, rng, round_f32, to_f32, uniform, Tolerance,
@@ -259,6 +260,54 @@ fn epilogue_adds_one_bias_per_output_row_then_relu() {
         err.contains("tensor bias") && err.contains("4 elements"),
         "{err}"
     );
+}
+
+#[test]
+fn gate_epilogue_applies_tanh_of_the_filter_times_sigmoid() {
+    // The gated convolution's gate product with the gate fused: C = tanh(F) ⊙ σ(A·B + b),
+    // on the flat grid (n = 20 per item) and the 8×8 groups (n = 64 per item).
+    let g = gpu();
+    for (i, mm) in [
+        Matmul::new(12, 20, 16).batched(3).share_a(true),
+        Matmul::new(9, 64, 10).batched(2).share_a(true),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let x = inputs(&mm, 450 + i as u64);
+        let mut r = rng(460 + i as u64);
+        let f = round_f32(&uniform(&mut r, mm.c_len(), -2.0, 2.0));
+        let bias: Vec<f64> = (0..mm.m).map(|row| 0.25 - row as f64 * 0.0625).collect();
+        let (a, b, tf, tb) = (
+            upload(&g, "a", &x.a),
+            upload(&g, "b", &x.b),
+            upload(&g, "f", &f),
+            upload(&g, "bias", &bias),
+        );
+        let c = g.zeros("h", &[mm.c_len()], DType::F32);
+        let epilogue = Epilogue {
+            bias: Some(&tb),
+            gate: Some(&tf),
+            ..Epilogue::default()
+        };
+        g.run(&[mm.forward_with(&g, &a, &b, &c, false, epilogue).unwrap()])
+            .unwrap();
+        let pre: Vec<f64> = cpu::forward(&mm, &x.a, &x.b)
+            .iter()
+            .enumerate()
+            .map(|(j, v)| v + bias[(j / mm.n) % mm.m])
+            .collect();
+        let want = gated_dcc::cpu::gate(&f, &pre);
+        compare_tensor(&g, &format!("{mm:?} gated"), &c, &want, gpu_tol(mm.k)).unwrap();
+        // The gate input must be laid out like C.
+        let short = g.zeros("f short", &[mm.c_len() - 1], DType::F32);
+        let bad = Epilogue {
+            gate: Some(&short),
+            ..Epilogue::default()
+        };
+        let err = mm.forward_with(&g, &a, &b, &c, false, bad).unwrap_err().to_string();
+        assert!(err.contains("f short"), "{err}");
+    }
 }
 
 #[test]

@@ -375,7 +375,8 @@ impl Block {
     }
 
     /// The forward pass. With `train`, dropout (whose step is set later through the
-    /// returned slot) writes the output; otherwise the output is a copy of Y.
+    /// returned slot) writes the output and G_g and Y are kept for the backward pass;
+    /// otherwise the gate is fused into the gate product and LayerNorm writes the output.
     pub fn forward(
         &self,
         gpu: &Gpu,
@@ -468,7 +469,15 @@ impl Block {
         };
         let filter = bias("tcn.filter.bias");
         steps.run(conv.forward_with(gpu, w("tcn.filter.weight"), col, f, false, filter))?;
-        if self.gated {
+        if self.gated && !train {
+            // Inference keeps no G_g: the gate product applies tanh(G_f) ⊙ σ(·) itself.
+            let gated = Epilogue {
+                gate: Some(f),
+                ..bias("tcn.gate.bias")
+            };
+            let gate_weight = w("tcn.gate.weight");
+            steps.run(conv.forward_with(gpu, gate_weight, col, &self.s, false, gated))?;
+        } else if self.gated {
             let (gg, gate) = (&self.gg, bias("tcn.gate.bias"));
             steps.run(conv.forward_with(gpu, w("tcn.gate.weight"), col, gg, false, gate))?;
             steps.run(gate_forward(gpu, f, gg, &self.s))?;
@@ -497,12 +506,14 @@ impl Block {
             true,
             residual,
         ))?;
+        // Inference has no dropout: LayerNorm writes the block output itself.
+        let y = if train { &self.y } else { &self.output };
         steps.run(self.layer_norm().forward(
             gpu,
             &self.s,
             w("ln.gamma"),
             w("ln.beta"),
-            &self.y,
+            y,
             &self.mean,
             &self.rstd,
         ))?;
@@ -516,7 +527,6 @@ impl Block {
                 false,
             ))?))
         } else {
-            steps.copy(&self.y, &self.output);
             Ok(None)
         }
     }

@@ -13,13 +13,15 @@ pub static SHADER: Shader = Shader {
     source: include_str!("../../shaders/matmul.wgsl"),
 };
 
-/// `a`, `b`, `a` and `b` again as vectors (`a4`, `b4` in the shader), the bias, `c`.
+/// `a`, `b`, `a` and `b` again as vectors (`a4`, `b4` in the shader), the bias, the
+/// gate's other input, `c`.
 const BINDINGS: &[Binding] = &[
     Binding::read(1),
     Binding::read(2),
     Binding::read(4),
     Binding::read(5),
     Binding::read(6),
+    Binding::read(7),
     Binding::read_write(3),
 ];
 
@@ -239,6 +241,9 @@ impl Matmul {
                 });
             }
         }
+        if let Some(gate) = epilogue.gate {
+            gate.expect_len(self.c_len())?;
+        }
         c.expect_len(self.c_len())?;
         self.forward_gemm()
             .dispatch_with(gpu, a, b, c, accumulate, epilogue)
@@ -371,6 +376,9 @@ pub struct Epilogue<'t> {
     pub matrix: Option<&'t Tensor>,
     /// max(0, ·) of the final value (after the bias and any accumulation).
     pub relu: bool,
+    /// Laid out like C: the output becomes `tanh(gate) ⊙ σ(product + bias)`, the gated
+    /// activation fused into the gate product.
+    pub gate: Option<&'t Tensor>,
 }
 
 /// How `matmul.wgsl` loads each operand (its override constants).
@@ -536,7 +544,7 @@ impl Gemm {
         let mut constants = self.loads().constants().to_vec();
         constants.extend([("BIAS", 0.0), ("RELU", 0.0)]);
         let groups = self.block_grid(chunks, &mut constants);
-        let tensors = [lhs, rhs, lhs, rhs, lhs, &partials];
+        let tensors = [lhs, rhs, lhs, rhs, lhs, lhs, &partials];
         let first = gpu.dispatch(&KERNEL, &constants, &part, &tensors, groups)?;
         let sum = Params {
             n: len as u32,
@@ -545,7 +553,7 @@ impl Gemm {
         };
         let limit = gpu.limits().max_compute_workgroups_per_dimension;
         let groups = grid_1d(len, 64, limit);
-        let tensors = [&partials, &partials, &partials, &partials, &partials, out];
+        let tensors = [&partials; 6].into_iter().chain([out]).collect::<Vec<_>>();
         let sum = gpu.dispatch(&KERNEL_SUM, &[], &sum, &tensors, groups)?;
         Ok(first.then(sum).with_flops(flops))
     }
@@ -572,7 +580,7 @@ impl Gemm {
         epilogue: Epilogue,
     ) -> Result<Dispatch, GpuError> {
         let bias = epilogue.bias.or(epilogue.matrix);
-        for t in [Some(lhs), Some(rhs), bias].into_iter().flatten() {
+        for t in [Some(lhs), Some(rhs), bias, epilogue.gate].into_iter().flatten() {
             if t.buffer() == out.buffer() {
                 return Err(GpuError::Shape {
                     tensor: out.name().to_string(),
@@ -618,7 +626,10 @@ impl Gemm {
             batches: out_batches as u32,
             chunk: 0,
         };
-        let plain = epilogue.bias.is_none() && epilogue.matrix.is_none() && !epilogue.relu;
+        let plain = epilogue.bias.is_none()
+            && epilogue.matrix.is_none()
+            && epilogue.gate.is_none()
+            && !epilogue.relu;
         if let Some(chunk) = gemm.split_chunk(reduce).filter(|_| plain) {
             return gemm.dispatch_split(gpu, [lhs, rhs, out], params, chunk, flops);
         }
@@ -632,6 +643,7 @@ impl Gemm {
         };
         constants.push(("BIAS", f64::from(bias_mode)));
         constants.push(("RELU", f64::from(u8::from(epilogue.relu))));
+        constants.push(("GATE", f64::from(u8::from(epilogue.gate.is_some()))));
         let (kernel, groups) = if gemm.m == 1 {
             let per_group = ROW_BLOCK * ROW_WORKGROUP;
             let groups = [
@@ -643,7 +655,8 @@ impl Gemm {
         } else {
             (&KERNEL, gemm.block_grid(out_batches, &mut constants))
         };
-        let tensors = [lhs, rhs, lhs, rhs, bias.unwrap_or(lhs), out];
+        let gate = epilogue.gate.unwrap_or(lhs);
+        let tensors = [lhs, rhs, lhs, rhs, bias.unwrap_or(lhs), gate, out];
         let d = gpu.dispatch(kernel, &constants, &params, &tensors, groups)?;
         Ok(d.with_flops(flops))
     }
