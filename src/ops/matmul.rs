@@ -475,6 +475,7 @@ impl Gemm {
         // Lanes along x over (item, column block) pairs when an item's blocks would leave
         // lanes of its last group idle: 1.04–1.2× on the model's n = 100 and n = 48
         // products (FLAT_X in the shader).
+        // (At most 65535 groups along x: the WebGPU default limit per dimension.)
         let flat_groups = (nx * batches).div_ceil(WORKGROUP);
         if batches > 1 && nx % WORKGROUP != 0 && flat_groups <= u16::MAX as usize {
             let y = ny.min(WORKGROUP);
