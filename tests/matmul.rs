@@ -305,7 +305,10 @@ fn gate_epilogue_applies_tanh_of_the_filter_times_sigmoid() {
             gate: Some(&short),
             ..Epilogue::default()
         };
-        let err = mm.forward_with(&g, &a, &b, &c, false, bad).unwrap_err().to_string();
+        let err = mm
+            .forward_with(&g, &a, &b, &c, false, bad)
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("f short"), "{err}");
     }
 }

@@ -581,7 +581,10 @@ impl Gemm {
         epilogue: Epilogue,
     ) -> Result<Dispatch, GpuError> {
         let bias = epilogue.bias.or(epilogue.matrix);
-        for t in [Some(lhs), Some(rhs), bias, epilogue.gate].into_iter().flatten() {
+        for t in [Some(lhs), Some(rhs), bias, epilogue.gate]
+            .into_iter()
+            .flatten()
+        {
             if t.buffer() == out.buffer() {
                 return Err(GpuError::Shape {
                     tensor: out.name().to_string(),
