@@ -16,7 +16,8 @@
 // four outputs of that row. Loads: an operand contiguous along one axis whose strides are
 // multiples of 4 is read four floats at a time (override constants below, chosen per
 // operand by ops/matmul.rs), any other through scalar loads; a K that is not a multiple
-// of 4 ends in a scalar tail.
+// of 4 ends in a scalar tail. Stores (with the epilogue) go four floats at a time when N
+// is a multiple of 4 (C_VEC): 1.05-1.24x on the model's products, most on small K.
 
 struct MatmulParams {
     m: u32,
@@ -52,12 +53,17 @@ struct MatmulParams {
 @group(0) @binding(6) var<storage, read> bias: array<f32>;
 // With GATE: a tensor laid out like C (any read-only buffer otherwise).
 @group(0) @binding(7) var<storage, read> gate_f: array<f32>;
+// The same buffer as `c`, seen as vectors (stores with C_VEC).
+@group(0) @binding(8) var<storage, read_write> c4: array<vec4<f32>>;
 
 // 0: no bias; 1: bias[i] added to row i of C; 2: bias[j] added to column j; 3: a whole
 // [M, N] matrix added to every batch item's C.
 override BIAS: u32 = 0u;
 // max(0, .) of the final value (after the bias and the accumulation).
 override RELU: bool = false;
+// N is a multiple of 4: each group of four outputs of a row is stored (and, when
+// accumulating, read) as one vector, a quarter of the memory operations per lane.
+override C_VEC: bool = false;
 // The gated activation: C = tanh(gate_f) * sigmoid(C) elementwise (after the bias), the
 // gate of the gated convolution fused into the gate product (gated_dcc.wgsl has it alone).
 override GATE: bool = false;
@@ -121,6 +127,34 @@ fn store_row(row: u32, col0: u32, base: u32, v: vec4<f32>) {
         return;
     }
     let o = base + row * p.n + col0;
+    if C_VEC {
+        // All four columns exist or none does (n and col0 are multiples of 4).
+        if col0 >= p.n {
+            return;
+        }
+        var x = p.alpha * v;
+        if BIAS == 1u {
+            x += vec4<f32>(bias[row]);
+        } else if BIAS == 2u {
+            x += vec4<f32>(bias[col0], bias[col0 + 1u], bias[col0 + 2u], bias[col0 + 3u]);
+        } else if BIAS == 3u {
+            let b = row * p.n + col0;
+            x += vec4<f32>(bias[b], bias[b + 1u], bias[b + 2u], bias[b + 3u]);
+        }
+        if p.accumulate != 0u {
+            x += c4[o >> 2u];
+        }
+        if GATE {
+            let f = vec4<f32>(tanh_stable(gate_f[o]), tanh_stable(gate_f[o + 1u]),
+                              tanh_stable(gate_f[o + 2u]), tanh_stable(gate_f[o + 3u]));
+            x = f * vec4<f32>(sigmoid(x.x), sigmoid(x.y), sigmoid(x.z), sigmoid(x.w));
+        }
+        if RELU {
+            x = vec4<f32>(relu(x.x), relu(x.y), relu(x.z), relu(x.w));
+        }
+        c4[o >> 2u] = x;
+        return;
+    }
     for (var j = 0u; j < 4u; j++) {
         if col0 + j < p.n {
             var x = p.alpha * v[j];

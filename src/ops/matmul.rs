@@ -14,7 +14,7 @@ pub static SHADER: Shader = Shader {
 };
 
 /// `a`, `b`, `a` and `b` again as vectors (`a4`, `b4` in the shader), the bias, the
-/// gate's other input, `c`.
+/// gate's other input, `c` as vectors (`c4`), `c`.
 const BINDINGS: &[Binding] = &[
     Binding::read(1),
     Binding::read(2),
@@ -22,6 +22,7 @@ const BINDINGS: &[Binding] = &[
     Binding::read(5),
     Binding::read(6),
     Binding::read(7),
+    Binding::read_write(8),
     Binding::read_write(3),
 ];
 
@@ -468,6 +469,12 @@ impl Gemm {
         }
     }
 
+    /// Whether C is stored four floats at a time (the C_VEC constant): every row of C
+    /// then starts on a 16-byte boundary and ends with a whole vector.
+    fn c_vec(&self) -> f64 {
+        f64::from(u8::from(self.n.is_multiple_of(4)))
+    }
+
     /// The block kernel's workgroup shape (pushed onto `constants`) and grid for
     /// `batches` items of C.
     fn block_grid(&self, batches: usize, constants: &mut Vec<(&'static str, f64)>) -> [u32; 3] {
@@ -543,9 +550,9 @@ impl Gemm {
             ..params
         };
         let mut constants = self.loads().constants().to_vec();
-        constants.extend([("BIAS", 0.0), ("RELU", 0.0)]);
+        constants.extend([("BIAS", 0.0), ("RELU", 0.0), ("C_VEC", self.c_vec())]);
         let groups = self.block_grid(chunks, &mut constants);
-        let tensors = [lhs, rhs, lhs, rhs, lhs, lhs, &partials];
+        let tensors = [lhs, rhs, lhs, rhs, lhs, lhs, &partials, &partials];
         let first = gpu.dispatch(&KERNEL, &constants, &part, &tensors, groups)?;
         let sum = Params {
             n: len as u32,
@@ -554,7 +561,10 @@ impl Gemm {
         };
         let limit = gpu.limits().max_compute_workgroups_per_dimension;
         let groups = grid_1d(len, 64, limit);
-        let tensors = [&partials; 6].into_iter().chain([out]).collect::<Vec<_>>();
+        let tensors = [&partials; 6]
+            .into_iter()
+            .chain([out, out])
+            .collect::<Vec<_>>();
         let sum = gpu.dispatch(&KERNEL_SUM, &[], &sum, &tensors, groups)?;
         Ok(first.then(sum).with_flops(flops))
     }
@@ -648,6 +658,7 @@ impl Gemm {
         constants.push(("BIAS", f64::from(bias_mode)));
         constants.push(("RELU", f64::from(u8::from(epilogue.relu))));
         constants.push(("GATE", f64::from(u8::from(epilogue.gate.is_some()))));
+        constants.push(("C_VEC", gemm.c_vec()));
         let (kernel, groups) = if gemm.m == 1 {
             let per_group = ROW_BLOCK * ROW_WORKGROUP;
             let groups = [
@@ -660,7 +671,7 @@ impl Gemm {
             (&KERNEL, gemm.block_grid(out_batches, &mut constants))
         };
         let gate = epilogue.gate.unwrap_or(lhs);
-        let tensors = [lhs, rhs, lhs, rhs, bias.unwrap_or(lhs), gate, out];
+        let tensors = [lhs, rhs, lhs, rhs, bias.unwrap_or(lhs), gate, out, out];
         let d = gpu.dispatch(kernel, &constants, &params, &tensors, groups)?;
         Ok(d.with_flops(flops))
     }
