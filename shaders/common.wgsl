@@ -22,3 +22,29 @@ fn tanh_stable(x: f32) -> f32 {
     let e = exp(-2.0 * abs(x));
     return sign(x) * (1.0 - e) / (1.0 + e);
 }
+
+// A strided walk over flat indices j = o * inner + i (j = first, first + stride, ...) that
+// keeps (o, i) up to date by a fixed step instead of dividing every j: an integer
+// division per term, unvectorised, costs more than the loads on lavapipe.
+struct FlatWalk {
+    o: u32,
+    i: u32,
+    step_o: u32,
+    step_i: u32,
+    inner: u32,
+}
+
+fn flat_walk(first: u32, stride: u32, inner: u32) -> FlatWalk {
+    return FlatWalk(first / inner, first % inner, stride / inner, stride % inner, inner);
+}
+
+fn flat_walk_next(w: FlatWalk) -> FlatWalk {
+    var n = w;
+    n.o += w.step_o;
+    n.i += w.step_i;
+    if n.i >= w.inner {
+        n.i -= w.inner;
+        n.o += 1u;
+    }
+    return n;
+}

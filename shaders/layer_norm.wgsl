@@ -208,23 +208,14 @@ fn layer_norm_backward_params(@builtin(workgroup_id) wg: vec3<u32>, @builtin(loc
     let rows = p.outer * p.steps;
     var sg = 0.0;
     var sb = 0.0;
-    // row = o * steps + t from li by LN_WG: (o, t) advance by a fixed step rather than
-    // being divided out of every row index (a division per term is slow on lavapipe).
-    let step_o = LN_WG / p.steps;
-    let step_t = LN_WG % p.steps;
-    var o = li / p.steps;
-    var t = li % p.steps;
+    // row = o * steps + t from li by LN_WG, (o, t) kept by `flat_walk`.
+    var at = flat_walk(li, LN_WG, p.steps);
     for (var row = li; row < rows; row += LN_WG) {
-        let i = (o * p.channels + k) * p.steps + t;
+        let i = (at.o * p.channels + k) * p.steps + at.i;
         let g = pdy[i];
         sg += g * (px[i] - pmean[row]) * prstd[row];
         sb += g;
-        o += step_o;
-        t += step_t;
-        if t >= p.steps {
-            t -= p.steps;
-            o += 1u;
-        }
+        at = flat_walk_next(at);
     }
     red_g[li] = sg;
     red_b[li] = sb;

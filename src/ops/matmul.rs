@@ -469,10 +469,25 @@ impl Gemm {
         }
     }
 
-    /// Whether C is stored four floats at a time (the C_VEC constant): every row of C
-    /// then starts on a 16-byte boundary and ends with a whole vector.
-    fn c_vec(&self) -> f64 {
-        f64::from(u8::from(self.n.is_multiple_of(4)))
+    /// `matmul.wgsl`'s override constants for the loads and the epilogue (`swapped`: rows
+    /// of C are columns of this product). C is stored four floats at a time (C_VEC) when
+    /// every row of C starts on a 16-byte boundary and ends with a whole vector.
+    fn constants(&self, epilogue: &Epilogue, swapped: bool) -> Vec<(&'static str, f64)> {
+        let flag = |x: bool| f64::from(u8::from(x));
+        let bias_mode = match (epilogue.bias, epilogue.matrix, swapped) {
+            (Some(_), _, false) => 1,
+            (Some(_), _, true) => 2,
+            (None, Some(_), _) => 3,
+            (None, None, _) => 0,
+        };
+        let mut constants = self.loads().constants().to_vec();
+        constants.extend([
+            ("BIAS", f64::from(bias_mode)),
+            ("RELU", flag(epilogue.relu)),
+            ("GATE", flag(epilogue.gate.is_some())),
+            ("C_VEC", flag(self.n.is_multiple_of(4))),
+        ]);
+        constants
     }
 
     /// The block kernel's workgroup shape (pushed onto `constants`) and grid for
@@ -549,8 +564,7 @@ impl Gemm {
             accumulate: 0,
             ..params
         };
-        let mut constants = self.loads().constants().to_vec();
-        constants.extend([("BIAS", 0.0), ("RELU", 0.0), ("C_VEC", self.c_vec())]);
+        let mut constants = self.constants(&Epilogue::default(), false);
         let groups = self.block_grid(chunks, &mut constants);
         let tensors = [lhs, rhs, lhs, rhs, lhs, lhs, &partials, &partials];
         let first = gpu.dispatch(&KERNEL, &constants, &part, &tensors, groups)?;
@@ -647,18 +661,7 @@ impl Gemm {
         if let Some(chunk) = gemm.split_chunk(reduce).filter(|_| plain) {
             return gemm.dispatch_split(gpu, [lhs, rhs, out], params, chunk, flops);
         }
-        let mut constants = gemm.loads().constants().to_vec();
-        // Rows of C are columns of the swapped product.
-        let bias_mode = match (epilogue.bias, epilogue.matrix, swapped) {
-            (Some(_), _, false) => 1,
-            (Some(_), _, true) => 2,
-            (None, Some(_), _) => 3,
-            (None, None, _) => 0,
-        };
-        constants.push(("BIAS", f64::from(bias_mode)));
-        constants.push(("RELU", f64::from(u8::from(epilogue.relu))));
-        constants.push(("GATE", f64::from(u8::from(epilogue.gate.is_some()))));
-        constants.push(("C_VEC", gemm.c_vec()));
+        let mut constants = gemm.constants(&epilogue, swapped);
         let (kernel, groups) = if gemm.m == 1 {
             let per_group = ROW_BLOCK * ROW_WORKGROUP;
             let groups = [
