@@ -1,7 +1,8 @@
 // Batched matrix multiply, the workhorse of every layer (Rust side: src/ops/matmul.rs).
 //
 //   C[z] = alpha * sum_r op(A)[z, r] . op(B)[z, r]   (+ bias) (+ C[z] when accumulate = 1)
-//   then optionally C[z] = max(0, C[z])
+//   then optionally C[z] = max(0, C[z]); with PLUS_I, one operand has an identity added
+//   (op(A) or op(B) itself is added to the product)
 //
 // Operands are strided views, so one kernel covers every transpose: element (i, kk) of
 // op(A) is a[z*a_batch + r*a_reduce + i*a_row + kk*a_col], element (kk, j) of op(B) is
@@ -67,6 +68,10 @@ override C_VEC: bool = false;
 // The gated activation: C = tanh(gate_f) * sigmoid(C) elementwise (after the bias), the
 // gate of the gated convolution fused into the gate product (gated_dcc.wgsl has it alone).
 override GATE: bool = false;
+// The product with an identity added to one operand, the identity's term added here:
+// 1: C = op(A)·(op(B) + I), element (i, j) of op(A) added (k = n); 2: C = (op(A) + I)·op(B),
+// element (i, j) of op(B) added (k = m). Never with a reduction over a batch axis.
+override PLUS_I: u32 = 0u;
 
 // op(A) is read as vectors, along k (A stored untransposed) or else along m.
 override A_VEC: bool = false;
@@ -122,17 +127,40 @@ fn b_cols(bbase: u32, kk: u32, col0: u32, cols: vec4<u32>) -> mat4x4<f32> {
     return mat4x4<f32>(b_n4(o, cb), b_n4(o + s, cb), b_n4(o + 2u * s, cb), b_n4(o + 3u * s, cb));
 }
 
-fn store_row(row: u32, col0: u32, base: u32, v: vec4<f32>) {
+// Element (row, col) of the operand PLUS_I adds, for batch item z.
+fn plus_at(z: u32, row: u32, col: u32) -> f32 {
+    if PLUS_I == 1u {
+        return a[z * p.a_batch + row * p.a_row + col * p.a_col];
+    }
+    return b[z * p.b_batch + row * p.b_row + col * p.b_col];
+}
+
+// Elements (row, col0..col0+3) of that operand, all of which exist (C_VEC).
+fn plus4(z: u32, row: u32, col0: u32) -> vec4<f32> {
+    if PLUS_I == 1u && A_VEC && A_ALONG_K {
+        return a4[(z * p.a_batch + row * p.a_row + col0) >> 2u];
+    }
+    if PLUS_I == 2u && B_VEC && B_ALONG_N {
+        return b4[(z * p.b_batch + row * p.b_row + col0) >> 2u];
+    }
+    return vec4<f32>(plus_at(z, row, col0), plus_at(z, row, col0 + 1u),
+                     plus_at(z, row, col0 + 2u), plus_at(z, row, col0 + 3u));
+}
+
+fn store_row(z: u32, row: u32, col0: u32, v: vec4<f32>) {
     if row >= p.m {
         return;
     }
-    let o = base + row * p.n + col0;
+    let o = z * p.c_batch + row * p.n + col0;
     if C_VEC {
         // All four columns exist or none does (n and col0 are multiples of 4).
         if col0 >= p.n {
             return;
         }
         var x = p.alpha * v;
+        if PLUS_I != 0u {
+            x += p.alpha * plus4(z, row, col0);
+        }
         if BIAS == 1u {
             x += vec4<f32>(bias[row]);
         } else if BIAS == 2u {
@@ -158,6 +186,9 @@ fn store_row(row: u32, col0: u32, base: u32, v: vec4<f32>) {
     for (var j = 0u; j < 4u; j++) {
         if col0 + j < p.n {
             var x = p.alpha * v[j];
+            if PLUS_I != 0u {
+                x += p.alpha * plus_at(z, row, col0 + j);
+            }
             if BIAS == 1u {
                 x += bias[row];
             } else if BIAS == 2u {
@@ -275,18 +306,17 @@ fn matmul(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
     }
     // Constant indices only: a dynamically indexed matrix would live in memory.
-    let cbase = z * p.c_batch;
-    store_quarter(row0, col0, cbase, acc_lo_l);
-    store_quarter(row0, col0 + 4u, cbase, acc_lo_r);
-    store_quarter(row0 + 4u, col0, cbase, acc_hi_l);
-    store_quarter(row0 + 4u, col0 + 4u, cbase, acc_hi_r);
+    store_quarter(z, row0, col0, acc_lo_l);
+    store_quarter(z, row0, col0 + 4u, acc_lo_r);
+    store_quarter(z, row0 + 4u, col0, acc_hi_l);
+    store_quarter(z, row0 + 4u, col0 + 4u, acc_hi_r);
 }
 
-fn store_quarter(row: u32, col: u32, base: u32, q: mat4x4<f32>) {
-    store_row(row, col, base, q[0]);
-    store_row(row + 1u, col, base, q[1]);
-    store_row(row + 2u, col, base, q[2]);
-    store_row(row + 3u, col, base, q[3]);
+fn store_quarter(z: u32, row: u32, col: u32, q: mat4x4<f32>) {
+    store_row(z, row, col, q[0]);
+    store_row(z, row + 1u, col, q[1]);
+    store_row(z, row + 2u, col, q[2]);
+    store_row(z, row + 3u, col, q[3]);
 }
 
 // The matrix whose column i is x[i] * y: one k step of a 4x4 quarter.
@@ -342,5 +372,5 @@ fn matmul_row(@builtin(global_invocation_id) gid: vec3<u32>) {
             acc += a[abase + kk * p.a_col] * b_n4(bbase + kk * p.b_row, cb);
         }
     }
-    store_row(0u, col0, z * p.c_batch, acc);
+    store_row(z, 0u, col0, acc);
 }

@@ -29,6 +29,22 @@ fn cases() -> Vec<Matmul> {
         // ragged ones over more than one group of rows (the flat x axis).
         Matmul::new(9, 64, 10).batched(3),
         Matmul::new(70, 20, 9).batched(2).share_a(true),
+        // op(A)·(op(B) + I): the identity's term added in the epilogue from op(A) (forward,
+        // dA of an untransposed A) or from dC (dA of a transposed A), read as vectors
+        // (aligned) or scalars (ragged), on the block and the row kernels.
+        Matmul::new(9, 12, 12).batched(2).plus_identity(true),
+        Matmul::new(7, 5, 5).plus_identity(true),
+        Matmul::new(16, 8, 8)
+            .batched(3)
+            .transpose_a(true)
+            .plus_identity(true),
+        Matmul::new(13, 9, 9)
+            .batched(2)
+            .transpose_b(true)
+            .share_b(true)
+            .plus_identity(true),
+        Matmul::new(1, 8, 8).batched(2).plus_identity(true),
+        Matmul::new(1, 6, 6).transpose_a(true).plus_identity(true),
     ];
     for (ta, tb) in [(false, false), (true, false), (false, true), (true, true)] {
         v.push(Matmul::new(33, 31, 37).transpose_a(ta).transpose_b(tb));
@@ -488,4 +504,73 @@ fn wrong_lengths_name_the_tensor() {
         err.contains("tensor activations") && err.contains("16 elements"),
         "{err}"
     );
+}
+
+/// The temporal attention's use: X_t = X·(E' + I) written fresh, and dX accumulated with
+/// dX_t·(E' + I)ᵀ onto an existing gradient, with the model's n = 100 (flat grid, vector
+/// stores and loads) and a ragged n = 7 (scalar path).
+#[test]
+fn identity_term_accumulates_onto_existing_gradient() {
+    let g = gpu();
+    for (i, mm) in [
+        Matmul::new(24, 100, 100).batched(2),
+        Matmul::new(10, 7, 7).batched(3),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let mm = mm.plus_identity(true);
+        let x = inputs(&mm, 400 + i as u64);
+        let (a, b, dc) = (
+            upload(&g, "a", &x.a),
+            upload(&g, "b", &x.b),
+            upload(&g, "dc", &x.dc),
+        );
+        let da0: Vec<f64> = (0..mm.a_len()).map(|i| (i % 7) as f64 - 3.0).collect();
+        let da = upload(&g, "da", &da0);
+        let c = g.zeros("c", &[mm.c_len()], DType::F32);
+        g.run(&[
+            mm.forward(&g, &a, &b, &c, false).unwrap(),
+            mm.backward_a(&g, &b, &dc, &da, true).unwrap(),
+        ])
+        .unwrap();
+        // The identity's term by hand: C = A·B + A, dA = dC·Bᵀ + dC.
+        let plain = Matmul {
+            plus_identity: false,
+            ..mm
+        };
+        let c_ref: Vec<f64> = cpu::forward(&plain, &x.a, &x.b)
+            .iter()
+            .zip(&x.a)
+            .map(|(p, q)| p + q)
+            .collect();
+        let (da_plain, _) = cpu::backward(&plain, &x.a, &x.b, &x.dc);
+        let da_ref: Vec<f64> = (0..mm.a_len())
+            .map(|i| da_plain[i] + x.dc[i] + da0[i])
+            .collect();
+        compare_tensor(&g, &format!("{mm:?} C"), &c, &c_ref, gpu_tol(mm.k)).unwrap();
+        compare_tensor(&g, &format!("{mm:?} dA"), &da, &da_ref, gpu_tol(mm.n)).unwrap();
+    }
+}
+
+#[test]
+fn identity_term_needs_a_square_operand() {
+    let g = gpu();
+    let mm = Matmul::new(4, 6, 5).plus_identity(true);
+    let a = g.zeros("x", &[20], DType::F32);
+    let b = g.zeros("e", &[30], DType::F32);
+    let c = g.zeros("x_t", &[24], DType::F32);
+    let err = mm.forward(&g, &a, &b, &c, false).unwrap_err().to_string();
+    assert!(err.contains("x_t") && err.contains("square"), "{err}");
+    let shared = Matmul::new(4, 5, 5).share_a(true).plus_identity(true);
+    let (e, dc) = (
+        g.zeros("e", &[25], DType::F32),
+        g.zeros("dc", &[20], DType::F32),
+    );
+    let dx = g.zeros("dx", &[20], DType::F32);
+    let err = shared
+        .backward_a(&g, &e, &dc, &dx, false)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("unshared"), "{err}");
 }

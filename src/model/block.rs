@@ -6,11 +6,12 @@ use super::schedule::{Scratch, Steps};
 use crate::gpu::{DType, Gpu, GpuError, Tensor};
 use crate::ops::bias::Bias;
 use crate::ops::dropout::Dropout;
-use crate::ops::elementwise::{binary_backward, unary_backward, unary_forward, Binary, Unary};
+use crate::ops::elementwise::{unary_backward, unary_forward, Unary};
 use crate::ops::gated_dcc::{gate_backward_stacked, gate_forward, ReluOutput, Unfold};
 use crate::ops::head::LastStep;
 use crate::ops::layer_norm::LayerNorm;
 use crate::ops::matmul::{Epilogue, Matmul};
+use crate::ops::outer::OuterPair;
 use crate::ops::softmax::Softmax;
 
 /// Device parameters and their gradients, looked up by MODEL.md name.
@@ -228,10 +229,13 @@ impl Block {
         let d = self.d;
         Matmul::new(d.t, d.t, d.t).batched(d.b).share_a(true)
     }
-    /// tat: X_t[b] (+)= X[b] [N·C_in, T] · E'[b] [T, T].
+    /// tat: X_t[b] = X[b] [N·C_in, T] · (E'[b] [T, T] + I), the identity's term (X) added
+    /// in the product's epilogue (and dX_t in that of dX).
     fn mm_xt(&self) -> Matmul {
         let d = self.d;
-        Matmul::new(d.n * d.ci, d.t, d.t).batched(d.b)
+        Matmul::new(d.n * d.ci, d.t, d.t)
+            .batched(d.b)
+            .plus_identity(true)
     }
     /// sat: xw1[(b,n,c)] = X_t[(b,n,c), :] · W1.
     fn mm_w1(&self) -> Matmul {
@@ -404,8 +408,7 @@ impl Block {
                         .forward(gpu, w("tat.Ve"), &ta.sig, &ta.e, false),
                 )?;
                 steps.run(self.temporal_softmax().forward(gpu, &ta.e, &ta.ep))?;
-                steps.copy(x, &sa.xt);
-                steps.run(self.mm_xt().forward(gpu, x, &ta.ep, &sa.xt, true))?;
+                steps.run(self.mm_xt().forward(gpu, x, &ta.ep, &sa.xt, false))?;
                 // 2. Spatial attention.
                 let xt = &sa.xt;
                 steps.run(self.mm_w1().forward(gpu, xt, w("sat.W1"), &sa.xw1, false))?;
@@ -671,8 +674,8 @@ impl Block {
             steps.run(mix.backward_b(gpu, &self.psi, &dm, d_in, true))?;
             return Ok(slot);
         };
-        // M = Q·X_t, Q = Ψ + Ψ·S': dQ, dX_t = Qᵀ·dM (its first term), dΨ = Σ_b dQ·(I + S')ᵀ,
-        // dS' = Ψᵀ·dQ.
+        // M = Q·X_t, Q = Ψ + Ψ·S': dQ, dΨ = Σ_b dQ·(I + S')ᵀ, dS' = Ψᵀ·dQ (dX_t = Qᵀ·dM + the
+        // attention's terms, at the end).
         let nn = [d.b, d.n, d.n];
         let (dq, dsp, dss, dsig, dp) = (
             scratch.get("gwc.dQ", &nn)?,
@@ -685,7 +688,6 @@ impl Block {
         let xt = &sa.xt;
         let (mq, mqx) = (self.mm_q(), self.mm_qx());
         steps.run(mqx.backward_a(gpu, xt, &dm, &dq, false))?;
-        steps.run(mqx.backward_b(gpu, &sa.q, &dm, &dxt, false))?;
         steps.run(mq.backward_a(gpu, &sa.sp, &dq, &dpsi, false))?;
         steps.run(self.batch_sum_nn().backward(gpu, &dq, &dpsi, true))?;
         steps.run(mpsi.backward_a(gpu, basis, &dpsi, dw("gwc.theta"), false))?;
@@ -717,16 +719,23 @@ impl Block {
         steps.run(msp.backward_b(gpu, &sa.lhs, &dp, &drhs, false))?;
         let mw3 = self.mm_w3();
         steps.run(mw3.backward_a(gpu, xt, &drhs, dw("sat.W3"), false))?;
-        steps.run(mw3.backward_b(gpu, w("sat.W3"), &drhs, &dxt, true))?;
         let dxw1 = scratch.get("sat.dxw1", &[d.b, d.n, d.ci])?;
         let mw2 = self.mm_w2();
         steps.run(mw2.backward_a(gpu, w("sat.W2"), &dlhs, &dxw1, false))?;
         steps.run(mw2.backward_b(gpu, &sa.xw1, &dlhs, dw("sat.W2"), false))?;
         let mw1 = self.mm_w1();
         steps.run(mw1.backward_b(gpu, xt, &dxw1, dw("sat.W1"), false))?;
-        steps.run(mw1.backward_a(gpu, w("sat.W1"), &dxw1, &dxt, true))?;
-        // 1. Temporal attention: X_t = X + X·E'.
-        steps.run(binary_backward(gpu, Binary::Add, &dxt, &dxt, d_in, true))?;
+        // dX_t: the projections' two rank-1 terms (W3 ⊗ d rhs + d xw1 ⊗ W1) in one pass, then
+        // Qᵀ·dM accumulated onto them.
+        let pair = OuterPair {
+            items: d.b * d.n,
+            rows: d.ci,
+            cols: d.t,
+        };
+        let factors = [w("sat.W3"), &drhs, &dxw1, w("sat.W1")];
+        steps.run(pair.apply(gpu, factors, &dxt, false))?;
+        steps.run(mqx.backward_b(gpu, &sa.q, &dm, &dxt, true))?;
+        // 1. Temporal attention: X_t = X·(E' + I), so dX += dX_t·(E' + I)ᵀ.
         let tt = [d.b, d.t, d.t];
         let (dep, de, dsig, dp) = (
             scratch.get("tat.dE'", &tt)?,

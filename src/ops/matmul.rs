@@ -78,6 +78,10 @@ pub struct Matmul {
     pub shared_a: bool,
     /// B has no batch axis.
     pub shared_b: bool,
+    /// `C = op(A) · (op(B) + I)` (k = n): the identity's term, op(A) itself, is added in
+    /// the epilogue of the forward and dA products, saving a copy of A into C before an
+    /// accumulating product and an extra pass adding dC into dA. dB is unchanged.
+    pub plus_identity: bool,
 }
 
 /// A strided 2-D view with a batch stride (0 when shared).
@@ -149,6 +153,7 @@ impl Matmul {
             trans_b: false,
             shared_a: false,
             shared_b: false,
+            plus_identity: false,
         }
     }
 
@@ -170,6 +175,27 @@ impl Matmul {
 
     pub fn share_b(self, shared_b: bool) -> Matmul {
         Matmul { shared_b, ..self }
+    }
+
+    pub fn plus_identity(self, plus_identity: bool) -> Matmul {
+        Matmul {
+            plus_identity,
+            ..self
+        }
+    }
+
+    /// `plus_identity` needs a square op(B) of more than one row, and dA per batch item
+    /// (a shared A's gradient would need the batch sum of dC as well).
+    fn check_identity(&self, tensor: &Tensor) -> Result<(), GpuError> {
+        if self.plus_identity && (self.k != self.n || self.n < 2 || self.shared_a) {
+            return Err(GpuError::Shape {
+                tensor: tensor.name().to_string(),
+                expected: "a square op(B) (k = n > 1) and an unshared A for op(A)·(op(B) + I)"
+                    .into(),
+                got: format!("{self:?}"),
+            });
+        }
+        Ok(())
     }
 
     pub fn a_len(&self) -> usize {
@@ -246,6 +272,7 @@ impl Matmul {
             gate.expect_len(self.c_len())?;
         }
         c.expect_len(self.c_len())?;
+        self.check_identity(c)?;
         self.forward_gemm()
             .dispatch_with(gpu, a, b, c, accumulate, epilogue)
     }
@@ -259,6 +286,11 @@ impl Matmul {
             rhs: self.view_b(),
             out_shared: false,
             batch: self.batch,
+            plus: if self.plus_identity {
+                Plus::Lhs
+            } else {
+                Plus::None
+            },
         }
     }
 
@@ -274,6 +306,7 @@ impl Matmul {
         b.expect_len(self.b_len())?;
         dc.expect_len(self.c_len())?;
         da.expect_len(self.a_len())?;
+        self.check_identity(da)?;
         let (gemm, b_first) = self.backward_a_gemm();
         let (lhs, rhs) = if b_first { (b, dc) } else { (dc, b) };
         gemm.dispatch(gpu, lhs, rhs, da, accumulate)
@@ -282,7 +315,9 @@ impl Matmul {
     /// The product giving dA, and whether its left operand is B (else dC).
     fn backward_a_gemm(&self) -> (Gemm, bool) {
         let (dcv, bv) = (self.view_c(), self.view_b());
-        // op(A) grad = dC · op(B)ᵀ, stored as its transpose when A is.
+        // op(A) grad = dC · op(B)ᵀ, stored as its transpose when A is; with the identity,
+        // dC · (op(B) + I)ᵀ adds dC itself (the operand beside op(B)).
+        let plus = |side| if self.plus_identity { side } else { Plus::None };
         if self.trans_a {
             let gemm = Gemm {
                 m: self.k,
@@ -292,6 +327,7 @@ impl Matmul {
                 rhs: dcv.t(),
                 out_shared: self.shared_a,
                 batch: self.batch,
+                plus: plus(Plus::Rhs),
             };
             (gemm, true)
         } else {
@@ -303,6 +339,7 @@ impl Matmul {
                 rhs: bv.t(),
                 out_shared: self.shared_a,
                 batch: self.batch,
+                plus: plus(Plus::Lhs),
             };
             (gemm, false)
         }
@@ -338,6 +375,7 @@ impl Matmul {
                 rhs: av,
                 out_shared: self.shared_b,
                 batch: self.batch,
+                plus: Plus::None,
             };
             (gemm, true)
         } else {
@@ -349,6 +387,7 @@ impl Matmul {
                 rhs: dcv,
                 out_shared: self.shared_b,
                 batch: self.batch,
+                plus: Plus::None,
             };
             (gemm, false)
         }
@@ -366,6 +405,37 @@ struct Gemm {
     /// The output has no batch axis: sum the products of all batch items into it.
     out_shared: bool,
     batch: usize,
+    /// An operand added to the product in the epilogue (never with `out_shared`).
+    plus: Plus,
+}
+
+/// Which operand, if any, the epilogue adds to C: `lhs · (rhs + I)` adds element (i, j)
+/// of lhs (k = n), `(lhs + I) · rhs` adds element (i, j) of rhs (k = m).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Plus {
+    None,
+    Lhs,
+    Rhs,
+}
+
+impl Plus {
+    /// The value of `matmul.wgsl`'s PLUS_I.
+    fn mode(self) -> u8 {
+        match self {
+            Plus::None => 0,
+            Plus::Lhs => 1,
+            Plus::Rhs => 2,
+        }
+    }
+
+    /// The same term after the operands are swapped and transposed.
+    fn swapped(self) -> Plus {
+        match self {
+            Plus::None => Plus::None,
+            Plus::Lhs => Plus::Rhs,
+            Plus::Rhs => Plus::Lhs,
+        }
+    }
 }
 
 /// What a forward product does to each output before storing it.
@@ -419,6 +489,7 @@ impl Gemm {
                 k: self.k,
                 lhs: self.rhs.t(),
                 rhs: self.lhs.t(),
+                plus: self.plus.swapped(),
                 ..self
             };
             (t, true)
@@ -486,6 +557,7 @@ impl Gemm {
             ("RELU", flag(epilogue.relu)),
             ("GATE", flag(epilogue.gate.is_some())),
             ("C_VEC", flag(self.n.is_multiple_of(4))),
+            ("PLUS_I", f64::from(self.plus.mode())),
         ]);
         constants
     }
@@ -657,7 +729,8 @@ impl Gemm {
         let plain = epilogue.bias.is_none()
             && epilogue.matrix.is_none()
             && epilogue.gate.is_none()
-            && !epilogue.relu;
+            && !epilogue.relu
+            && gemm.plus == Plus::None;
         if let Some(chunk) = gemm.split_chunk(reduce).filter(|_| plain) {
             return gemm.dispatch_split(gpu, [lhs, rhs, out], params, chunk, flops);
         }
@@ -709,13 +782,20 @@ pub mod cpu {
         }
     }
 
+    /// Element `(kk, j)` of `op(B)`, plus the identity's when `plus_identity`.
     fn b_at(mm: &Matmul, b: &[f64], z: usize, kk: usize, j: usize) -> f64 {
         let base = if mm.shared_b { 0 } else { z * mm.k * mm.n };
-        if mm.trans_b {
-            b[base + j * mm.k + kk]
+        let identity = if mm.plus_identity && kk == j {
+            1.0
         } else {
-            b[base + kk * mm.n + j]
-        }
+            0.0
+        };
+        identity
+            + if mm.trans_b {
+                b[base + j * mm.k + kk]
+            } else {
+                b[base + kk * mm.n + j]
+            }
     }
 
     pub fn forward(mm: &Matmul, a: &[f64], b: &[f64]) -> Vec<f64> {

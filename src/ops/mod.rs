@@ -10,12 +10,13 @@ pub mod head;
 pub mod layer_norm;
 pub mod loss;
 pub mod matmul;
+pub mod outer;
 pub mod softmax;
 
 use crate::gpu::Shader;
 
 /// Every op shader, for validation and for the pipeline warm-up.
-pub fn shaders() -> [&'static Shader; 10] {
+pub fn shaders() -> [&'static Shader; 11] {
     [
         &adam::SHADER,
         &bias::SHADER,
@@ -26,6 +27,7 @@ pub fn shaders() -> [&'static Shader; 10] {
         &layer_norm::SHADER,
         &loss::SHADER,
         &matmul::SHADER,
+        &outer::SHADER,
         &softmax::SHADER,
     ]
 }
