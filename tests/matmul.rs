@@ -29,6 +29,9 @@ fn cases() -> Vec<Matmul> {
         // ragged ones over more than one group of rows (the flat x axis).
         Matmul::new(9, 64, 10).batched(3),
         Matmul::new(70, 20, 9).batched(2).share_a(true),
+        // Flat grid with more row blocks than one group holds (34 > 32): several groups
+        // along y.
+        Matmul::new(270, 12, 5).batched(2),
         // op(A)·(op(B) + I): the identity's term added in the epilogue from op(A) (forward,
         // dA of an untransposed A) or from dC (dA of a transposed A), read as vectors
         // (aligned) or scalars (ragged), on the block and the row kernels.
