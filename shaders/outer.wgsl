@@ -1,11 +1,15 @@
 // Two outer products per batch item, each with one shared factor (Rust side: src/ops/outer.rs):
 //
-//   out[z, i, j] (+)= u[i] * v[z, j] + w[z, i] * q[j]
+//   out[z, i, j] (+)= u[i] * v[z, j] + w[z, i] * q[j]                     (NODE_MATRIX off)
+//   out[z, i, j] (+)= u[i] * v[z, j] + w[z % nodes] * q[z / nodes, i, j]  (NODE_MATRIX on)
 //
-// with u [rows] and q [cols] shared, v [items, cols] and w [items, rows] per item. This is
-// the gradient reaching X_t through the spatial attention's two projections,
-// rhs = W3·X_t and xw1 = X_t·W1 (u = W3, v = d rhs, w = d xw1, q = W1), in one pass over
-// the output instead of two read-modify-write rank-1 products.
+// with u [rows] shared and v [items, cols] per item; then w [items, rows] and q [cols] shared,
+// or w [nodes] shared and q [items / nodes, rows, cols]. The first form is the gradient
+// reaching X_t through the spatial attention's projections rhs = W3·X_t and xw1 = X_t·W1
+// (u = W3, v = d rhs, w = d xw1, q = W1); the second the gradient reaching X through the
+// temporal attention's rhs = U3·X and xu1 = U1·X (u = U3, v = d rhs, w = U1, q = d xu1,
+// items = B·N, nodes = N). One pass over the output instead of two read-modify-write rank-1
+// products.
 //
 // One invocation per row (z, i), sweeping its columns four at a time when cols is a
 // multiple of 4 (VEC, every row then starts on a 16-byte boundary), one at a time
@@ -16,6 +20,10 @@ struct OuterParams {
     rows: u32,
     cols: u32,
     accumulate: u32,
+    nodes: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: OuterParams;
@@ -30,6 +38,7 @@ struct OuterParams {
 @group(0) @binding(8) var<storage, read_write> out4: array<vec4<f32>>;
 
 override VEC: bool = false;
+override NODE_MATRIX: bool = false;
 
 const OUTER_WG: u32 = 64u;
 
@@ -41,13 +50,23 @@ fn outer_pair(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg
         return;
     }
     let z = row / p.rows;
-    let a = u[row - z * p.rows];
-    let s = w[row];
+    let i = row - z * p.rows;
+    let a = u[i];
     let vo = z * p.cols;
     let o = row * p.cols;
+    // The second term's scalar and where its row of q starts.
+    var s: f32;
+    var qo = 0u;
+    if NODE_MATRIX {
+        let b = z / p.nodes;
+        s = w[z - b * p.nodes];
+        qo = (b * p.rows + i) * p.cols;
+    } else {
+        s = w[row];
+    }
     if VEC {
         for (var j = 0u; j < p.cols; j += 4u) {
-            var x = a * v4[(vo + j) >> 2u] + s * q4[j >> 2u];
+            var x = a * v4[(vo + j) >> 2u] + s * q4[(qo + j) >> 2u];
             if p.accumulate != 0u {
                 x += out4[(o + j) >> 2u];
             }
@@ -56,7 +75,7 @@ fn outer_pair(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg
         return;
     }
     for (var j = 0u; j < p.cols; j++) {
-        var x = a * v[vo + j] + s * q[j];
+        var x = a * v[vo + j] + s * q[qo + j];
         if p.accumulate != 0u {
             x += out[o + j];
         }

@@ -4,7 +4,7 @@
 
 use iastgcn::gpu::{Gpu, Tensor};
 use iastgcn::ops::matmul::{self, Matmul};
-use iastgcn::ops::outer::{cpu, OuterPair};
+use iastgcn::ops::outer::{cpu, OuterPair, Second};
 use iastgcn::testing::{compare, compare_tensor, gpu, rng, round_f32, to_f32, uniform, Tolerance};
 
 /// One product and one sum of f32 values in [-1, 1]: a few ulps.
@@ -24,28 +24,45 @@ struct Inputs {
 fn inputs(op: &OuterPair, seed: u64) -> Inputs {
     let mut g = rng(seed);
     let mut draw = |n| round_f32(&uniform(&mut g, n, -1.0, 1.0));
+    let (w, q) = match op.second {
+        Second::RowsByCols => (op.items * op.rows, op.cols),
+        Second::NodeByMatrix { nodes } => (nodes, op.items / nodes * op.rows * op.cols),
+    };
     Inputs {
         u: draw(op.rows),
         v: draw(op.items * op.cols),
-        w: draw(op.items * op.rows),
-        q: draw(op.cols),
+        w: draw(w),
+        q: draw(q),
     }
 }
 
 #[test]
 fn matches_reference_with_and_without_accumulation() {
     let g = gpu();
-    // cols a multiple of 4 (vector path) or not; rows·items around the 64-wide workgroup.
+    // cols a multiple of 4 (vector path) or not; rows·items around the 64-wide workgroup;
+    // both forms of the second term (by node where items divide into batches of 7 or 2).
     let shapes = [
         (3, 5, 8),
         (2, 7, 9),
-        (13, 5, 100),
+        (14, 5, 100),
         (1, 1, 1),
         (9, 7, 12),
         (4, 16, 6),
     ];
-    for (s, &(items, rows, cols)) in shapes.iter().enumerate() {
-        let op = OuterPair { items, rows, cols };
+    let mut cases = Vec::new();
+    for (items, rows, cols) in shapes {
+        cases.push((items, rows, cols, Second::RowsByCols));
+        for nodes in [7, 2].into_iter().filter(|n| items % n == 0) {
+            cases.push((items, rows, cols, Second::NodeByMatrix { nodes }));
+        }
+    }
+    for (s, &(items, rows, cols, second)) in cases.iter().enumerate() {
+        let op = OuterPair {
+            items,
+            rows,
+            cols,
+            second,
+        };
         let x = inputs(&op, s as u64);
         let reference = cpu::apply(&op, &x.u, &x.v, &x.w, &x.q);
         let (u, v, w, q) = (
@@ -73,12 +90,13 @@ fn matches_reference_with_and_without_accumulation() {
 /// What the model relies on: for rhs[b, n] = W3·X_t[b, n] and xw1 = X_t·W1, the pair
 /// with u = W3, v = d rhs, w = d xw1, q = W1 is the sum of the two products' dX_t.
 #[test]
-fn reference_equals_the_two_projections_backward() {
+fn reference_equals_the_spatial_projections_backward() {
     let (b, n, c, t) = (2, 3, 4, 5);
     let op = OuterPair {
         items: b * n,
         rows: c,
         cols: t,
+        second: Second::RowsByCols,
     };
     let x = inputs(&op, 77);
     let xt = round_f32(&uniform(&mut rng(78), b * n * c * t, -1.0, 1.0));
@@ -97,6 +115,34 @@ fn reference_equals_the_two_projections_backward() {
     .unwrap();
 }
 
+/// And for the temporal attention's rhs[b, n] = U3·X[b, n] and xu1[b] = U1·X[b] (over the
+/// nodes), the pair with u = U3, v = d rhs, w = U1, q = d xu1 is the sum of their dX.
+#[test]
+fn reference_equals_the_temporal_projections_backward() {
+    let (b, n, c, t) = (2, 3, 4, 5);
+    let op = OuterPair {
+        items: b * n,
+        rows: c,
+        cols: t,
+        second: Second::NodeByMatrix { nodes: n },
+    };
+    let x = inputs(&op, 79);
+    let xs = round_f32(&uniform(&mut rng(80), b * n * c * t, -1.0, 1.0));
+    let u3 = Matmul::new(1, t, c).batched(b * n).share_a(true);
+    let u1 = Matmul::new(1, c * t, n).batched(b).share_a(true);
+    let (_, from_rhs) = matmul::cpu::backward(&u3, &x.u, &xs, &x.v);
+    let (_, from_xu1) = matmul::cpu::backward(&u1, &x.w, &xs, &x.q);
+    let sum: Vec<f64> = from_rhs.iter().zip(&from_xu1).map(|(p, q)| p + q).collect();
+    let got = cpu::apply(&op, &x.u, &x.v, &x.w, &x.q);
+    compare(
+        "pair vs projections' dX",
+        &got,
+        &sum,
+        Tolerance::new(1e-12, 1e-12),
+    )
+    .unwrap();
+}
+
 #[test]
 fn wrong_lengths_and_aliasing_name_the_tensor() {
     let g = gpu();
@@ -104,6 +150,7 @@ fn wrong_lengths_and_aliasing_name_the_tensor() {
         items: 2,
         rows: 3,
         cols: 4,
+        second: Second::RowsByCols,
     };
     let zeros = |name, n| upload(&g, name, &vec![0.0; n]);
     let (u, v, w, q) = (
@@ -118,4 +165,12 @@ fn wrong_lengths_and_aliasing_name_the_tensor() {
     let w = zeros("d xw1", 6);
     let err = op.apply(&g, [&u, &v, &w, &q], &v, false).unwrap_err();
     assert!(err.to_string().contains("d rhs"), "{err}");
+    let by_node = OuterPair {
+        second: Second::NodeByMatrix { nodes: 3 },
+        ..op
+    };
+    let err = by_node
+        .apply(&g, [&u, &v, &w, &q], &out, false)
+        .unwrap_err();
+    assert!(err.to_string().contains("nodes"), "{err}");
 }

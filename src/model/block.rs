@@ -11,7 +11,7 @@ use crate::ops::gated_dcc::{gate_backward_stacked, gate_forward, ReluOutput, Unf
 use crate::ops::head::LastStep;
 use crate::ops::layer_norm::LayerNorm;
 use crate::ops::matmul::{Epilogue, Matmul};
-use crate::ops::outer::OuterPair;
+use crate::ops::outer::{OuterPair, Second};
 use crate::ops::softmax::Softmax;
 
 /// Device parameters and their gradients, looked up by MODEL.md name.
@@ -731,6 +731,7 @@ impl Block {
             items: d.b * d.n,
             rows: d.ci,
             cols: d.t,
+            second: Second::RowsByCols,
         };
         let factors = [w("sat.W3"), &drhs, &dxw1, w("sat.W1")];
         steps.run(pair.apply(gpu, factors, &dxt, false))?;
@@ -772,14 +773,21 @@ impl Block {
         steps.run(mtp.backward_b(gpu, &ta.lhs, &dp, &drhs, false))?;
         let mu3 = self.mm_u3();
         steps.run(mu3.backward_a(gpu, x, &drhs, dw("tat.U3"), false))?;
-        steps.run(mu3.backward_b(gpu, w("tat.U3"), &drhs, d_in, true))?;
         let dxu1 = scratch.get("tat.dxu1", &[d.b, d.ci, d.t])?;
         let mu2 = self.mm_u2();
         steps.run(mu2.backward_a(gpu, w("tat.U2"), &dlhs, &dxu1, false))?;
         steps.run(mu2.backward_b(gpu, &ta.xu1, &dlhs, dw("tat.U2"), false))?;
         let mu1 = self.mm_u1();
         steps.run(mu1.backward_a(gpu, x, &dxu1, dw("tat.U1"), false))?;
-        steps.run(mu1.backward_b(gpu, w("tat.U1"), &dxu1, d_in, true))?;
+        // dX += U3 ⊗ d rhs + U1 ⊗ d xu1, the projections' two rank-1 terms in one pass.
+        let pair = OuterPair {
+            items: d.b * d.n,
+            rows: d.ci,
+            cols: d.t,
+            second: Second::NodeByMatrix { nodes: d.n },
+        };
+        let factors = [w("tat.U3"), &drhs, w("tat.U1"), &dxu1];
+        steps.run(pair.apply(gpu, factors, d_in, true))?;
         Ok(slot)
     }
 }

@@ -1,9 +1,12 @@
 //! Two outer products per batch item, each with one shared factor, summed into one tensor:
-//! `out[z, i, j] (+)= u[i]·v[z, j] + w[z, i]·q[j]`. The model uses it for the gradient that
-//! reaches X_t through the spatial attention's projections `rhs = W3·X_t` and
-//! `xw1 = X_t·W1`: one pass over `[B, N, C, T]` where two rank-1 matmul backward products
-//! each read and wrote it. The kernel is itself a backward step (of two products whose own
-//! backward is the matmul's), so it has no backward of its own.
+//! `out[z, i, j] (+)= u[i]·v[z, j] + second term`, the second term being `w[z, i]·q[j]`
+//! ([`Second::RowsByCols`]) or `w[z mod nodes]·q[z / nodes, i, j]` ([`Second::NodeByMatrix`]).
+//! The model uses them for the gradients that reach a block's input through the rank-1
+//! projections of its attentions: `rhs = W3·X_t` and `xw1 = X_t·W1` (spatial, first form),
+//! `rhs = U3·X` and `xu1 = U1·X` (temporal, second form). One pass over `[B, N, C, T]` where
+//! two rank-1 matmul backward products each read and wrote it. The kernel is itself a
+//! backward step (of products whose own backward is the matmul's), so it has no backward
+//! of its own.
 
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
 
@@ -38,15 +41,28 @@ struct Params {
     rows: u32,
     cols: u32,
     accumulate: u32,
+    nodes: u32,
+    _pad: [u32; 3],
 }
 
-/// The shape: `out` is `[items, rows, cols]`, `u` `[rows]`, `v` `[items, cols]`,
-/// `w` `[items, rows]`, `q` `[cols]`.
+/// The second outer product of each item `z` of `out [items, rows, cols]`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Second {
+    /// `w[z, i]·q[j]`: `w [items, rows]`, `q [cols]`.
+    RowsByCols,
+    /// `w[z mod nodes]·q[z / nodes, i, j]`: `w [nodes]`, `q [items / nodes, rows, cols]`
+    /// (items run over (batch, node) pairs).
+    NodeByMatrix { nodes: usize },
+}
+
+/// The shape: `out` is `[items, rows, cols]`, `u` `[rows]`, `v` `[items, cols]`; `w` and
+/// `q` as [`Second`] says.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct OuterPair {
     pub items: usize,
     pub rows: usize,
     pub cols: usize,
+    pub second: Second,
 }
 
 impl OuterPair {
@@ -59,7 +75,20 @@ impl OuterPair {
         accumulate: bool,
     ) -> Result<Dispatch, GpuError> {
         let (z, r, c) = (self.items, self.rows, self.cols);
-        for (t, len) in [(u, r), (v, z * c), (w, z * r), (q, c), (out, z * r * c)] {
+        let (w_len, q_len, nodes) = match self.second {
+            Second::RowsByCols => (z * r, c, 1),
+            Second::NodeByMatrix { nodes } => {
+                if nodes == 0 || !z.is_multiple_of(nodes) {
+                    return Err(GpuError::Shape {
+                        tensor: out.name().to_string(),
+                        expected: format!("items ({z}) a whole number of batches of nodes"),
+                        got: format!("{nodes} nodes"),
+                    });
+                }
+                (nodes, z * r * c / nodes, nodes)
+            }
+        };
+        for (t, len) in [(u, r), (v, z * c), (w, w_len), (q, q_len), (out, z * r * c)] {
             t.expect_len(len)?;
         }
         for t in [u, v, w, q] {
@@ -76,25 +105,39 @@ impl OuterPair {
             rows: r as u32,
             cols: c as u32,
             accumulate: accumulate as u32,
+            nodes: nodes as u32,
+            _pad: [0; 3],
         };
-        let vec = f64::from(u8::from(c.is_multiple_of(4)));
+        let flag = |x: bool| f64::from(u8::from(x));
+        let node_matrix = matches!(self.second, Second::NodeByMatrix { .. });
+        let constants = [
+            ("VEC", flag(c.is_multiple_of(4))),
+            ("NODE_MATRIX", flag(node_matrix)),
+        ];
         let limit = gpu.limits().max_compute_workgroups_per_dimension;
         let groups = grid_1d(z * r, WORKGROUP, limit);
         let tensors = [u, v, w, q, v, q, out, out];
-        gpu.dispatch(&KERNEL, &[("VEC", vec)], &params, &tensors, groups)
+        gpu.dispatch(&KERNEL, &constants, &params, &tensors, groups)
     }
 }
 
 /// f64 reference, for tests.
 pub mod cpu {
-    use super::OuterPair;
+    use super::{OuterPair, Second};
 
     pub fn apply(op: &OuterPair, u: &[f64], v: &[f64], w: &[f64], q: &[f64]) -> Vec<f64> {
-        let mut out = Vec::with_capacity(op.items * op.rows * op.cols);
+        let (rows, cols) = (op.rows, op.cols);
+        let mut out = Vec::with_capacity(op.items * rows * cols);
         for z in 0..op.items {
-            for i in 0..op.rows {
-                for j in 0..op.cols {
-                    out.push(u[i] * v[z * op.cols + j] + w[z * op.rows + i] * q[j]);
+            for i in 0..rows {
+                for j in 0..cols {
+                    let second = match op.second {
+                        Second::RowsByCols => w[z * rows + i] * q[j],
+                        Second::NodeByMatrix { nodes } => {
+                            w[z % nodes] * q[((z / nodes) * rows + i) * cols + j]
+                        }
+                    };
+                    out.push(u[i] * v[z * cols + j] + second);
                 }
             }
         }
