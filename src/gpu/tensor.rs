@@ -97,6 +97,22 @@ impl Tensor {
             })
         }
     }
+
+    /// An output must not share its buffer with any input of the same dispatch (wgpu
+    /// forbids a buffer bound both read-only and read-write); the error names both.
+    pub fn expect_distinct<'t>(
+        &self,
+        inputs: impl IntoIterator<Item = &'t Tensor>,
+    ) -> Result<(), GpuError> {
+        match inputs.into_iter().find(|t| t.buffer() == self.buffer()) {
+            None => Ok(()),
+            Some(t) => Err(GpuError::Shape {
+                tensor: self.name.clone(),
+                expected: format!("a buffer distinct from input {}", t.name()),
+                got: "the same buffer".to_string(),
+            }),
+        }
+    }
 }
 
 impl Gpu {

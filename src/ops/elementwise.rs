@@ -93,14 +93,8 @@ fn launch(
     let n = out.numel();
     for t in inputs {
         t.expect_len(n)?;
-        if t.buffer() == out.buffer() {
-            return Err(GpuError::Shape {
-                tensor: out.name().to_string(),
-                expected: format!("a buffer distinct from input {}", t.name()),
-                got: "the same buffer".to_string(),
-            });
-        }
     }
+    out.expect_distinct(inputs.iter().copied())?;
     let params = Params {
         n: n as u32,
         accumulate: accumulate as u32,

@@ -684,18 +684,11 @@ impl Gemm {
         epilogue: Epilogue,
     ) -> Result<Dispatch, GpuError> {
         let bias = epilogue.bias.or(epilogue.matrix);
-        for t in [Some(lhs), Some(rhs), bias, epilogue.gate]
-            .into_iter()
-            .flatten()
-        {
-            if t.buffer() == out.buffer() {
-                return Err(GpuError::Shape {
-                    tensor: out.name().to_string(),
-                    expected: format!("a buffer distinct from input {}", t.name()),
-                    got: "the same buffer".to_string(),
-                });
-            }
-        }
+        out.expect_distinct(
+            [Some(lhs), Some(rhs), bias, epilogue.gate]
+                .into_iter()
+                .flatten(),
+        )?;
         let flops = 2.0 * (self.batch * self.m * self.n * self.k) as f64;
         let (gemm, swapped) = self.canonical();
         let (lhs, rhs) = if swapped { (rhs, lhs) } else { (lhs, rhs) };

@@ -91,15 +91,7 @@ impl OuterPair {
         for (t, len) in [(u, r), (v, z * c), (w, w_len), (q, q_len), (out, z * r * c)] {
             t.expect_len(len)?;
         }
-        for t in [u, v, w, q] {
-            if t.buffer() == out.buffer() {
-                return Err(GpuError::Shape {
-                    tensor: out.name().to_string(),
-                    expected: format!("a buffer distinct from input {}", t.name()),
-                    got: "the same buffer".to_string(),
-                });
-            }
-        }
+        out.expect_distinct([u, v, w, q])?;
         let params = Params {
             items: z as u32,
             rows: r as u32,
