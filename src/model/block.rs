@@ -272,6 +272,17 @@ impl Block {
         let d = self.d;
         Matmul::new(d.n, d.ci * d.t, d.n).batched(d.b)
     }
+    /// The input gradient of an attention's two rank-1 projections (W3, W1 on X_t or U3,
+    /// U1 on X), over `[B·N, C_in, T]`.
+    fn rank_one_pair(&self, second: Second) -> OuterPair {
+        let d = self.d;
+        OuterPair {
+            items: d.b * d.n,
+            rows: d.ci,
+            cols: d.t,
+            second,
+        }
+    }
     /// The batch sum of dQ, the gradient of Ψ's direct term in Q = Ψ + Ψ·S'.
     fn batch_sum_nn(&self) -> Bias {
         Bias {
@@ -727,12 +738,7 @@ impl Block {
         steps.run(mw1.backward_b(gpu, xt, &dxw1, dw("sat.W1"), false))?;
         // dX_t: the projections' two rank-1 terms (W3 ⊗ d rhs + d xw1 ⊗ W1) in one pass, then
         // Qᵀ·dM accumulated onto them.
-        let pair = OuterPair {
-            items: d.b * d.n,
-            rows: d.ci,
-            cols: d.t,
-            second: Second::RowsByCols,
-        };
+        let pair = self.rank_one_pair(Second::RowsByCols);
         let factors = [w("sat.W3"), &drhs, &dxw1, w("sat.W1")];
         steps.run(pair.apply(gpu, factors, &dxt, false))?;
         steps.run(mqx.backward_b(gpu, &sa.q, &dm, &dxt, true))?;
@@ -780,12 +786,7 @@ impl Block {
         let mu1 = self.mm_u1();
         steps.run(mu1.backward_a(gpu, x, &dxu1, dw("tat.U1"), false))?;
         // dX += U3 ⊗ d rhs + U1 ⊗ d xu1, the projections' two rank-1 terms in one pass.
-        let pair = OuterPair {
-            items: d.b * d.n,
-            rows: d.ci,
-            cols: d.t,
-            second: Second::NodeByMatrix { nodes: d.n },
-        };
+        let pair = self.rank_one_pair(Second::NodeByMatrix { nodes: self.d.n });
         let factors = [w("tat.U3"), &drhs, w("tat.U1"), &dxu1];
         steps.run(pair.apply(gpu, factors, d_in, true))?;
         Ok(slot)

@@ -10,10 +10,6 @@ use crate::gpu::{DType, Dispatch, Gpu, GpuError, Recorder, Tensor};
 #[derive(Debug)]
 pub enum Step {
     Run(Dispatch),
-    Copy {
-        src: Tensor,
-        dst: Tensor,
-    },
     /// `count` f32 elements from `src[src_at..]` to `dst[dst_at..]`.
     CopyRange {
         src: Tensor,
@@ -32,13 +28,6 @@ impl Steps {
     pub fn run(&mut self, d: Result<Dispatch, GpuError>) -> Result<usize, GpuError> {
         self.0.push(Step::Run(d?));
         Ok(self.0.len() - 1)
-    }
-
-    pub fn copy(&mut self, src: &Tensor, dst: &Tensor) {
-        self.0.push(Step::Copy {
-            src: src.clone(),
-            dst: dst.clone(),
-        });
     }
 
     /// Copies `count` elements of `src` from `src_at` into `dst` at `dst_at`.
@@ -82,7 +71,6 @@ impl Steps {
     fn record_step(step: &Step, rec: &mut Recorder) -> Result<(), GpuError> {
         match step {
             Step::Run(d) => rec.dispatch(d),
-            Step::Copy { src, dst } => rec.copy(src, dst)?,
             Step::CopyRange {
                 src,
                 src_at,
@@ -117,7 +105,7 @@ impl Steps {
                     flops: d.flops(),
                     time: best,
                 },
-                Step::Copy { src, dst } | Step::CopyRange { src, dst, .. } => StepTime {
+                Step::CopyRange { src, dst, .. } => StepTime {
                     kernel: "copy".into(),
                     target: format!("{} <- {}", dst.name(), src.name()),
                     flops: 0.0,

@@ -289,11 +289,16 @@ impl Matmul {
             rhs: self.view_b(),
             out_shared: false,
             batch: self.batch,
-            plus: if self.plus_identity {
-                Plus::Lhs
-            } else {
-                Plus::None
-            },
+            plus: self.identity_on(Plus::Lhs),
+        }
+    }
+
+    /// The operand a product's epilogue adds for `plus_identity`: `side`, or none.
+    fn identity_on(&self, side: Plus) -> Plus {
+        if self.plus_identity {
+            side
+        } else {
+            Plus::None
         }
     }
 
@@ -320,7 +325,6 @@ impl Matmul {
         let (dcv, bv) = (self.view_c(), self.view_b());
         // op(A) grad = dC · op(B)ᵀ, stored as its transpose when A is; with the identity,
         // dC · (op(B) + I)ᵀ adds dC itself (the operand beside op(B)).
-        let plus = |side| if self.plus_identity { side } else { Plus::None };
         if self.trans_a {
             let gemm = Gemm {
                 m: self.k,
@@ -330,7 +334,7 @@ impl Matmul {
                 rhs: dcv.t(),
                 out_shared: self.shared_a,
                 batch: self.batch,
-                plus: plus(Plus::Rhs),
+                plus: self.identity_on(Plus::Rhs),
             };
             (gemm, true)
         } else {
@@ -342,7 +346,7 @@ impl Matmul {
                 rhs: bv.t(),
                 out_shared: self.shared_a,
                 batch: self.batch,
-                plus: plus(Plus::Lhs),
+                plus: self.identity_on(Plus::Lhs),
             };
             (gemm, false)
         }
