@@ -1,8 +1,9 @@
 //! Adapter choice (pure logic, no driver needed) and the device layer on the real adapter:
 //! tensors, the pipeline cache, the recorder and explicit readback.
 
-use iastgcn::gpu::{choose_adapter, DType, GpuError, Readback, Recorder};
+use iastgcn::gpu::{choose_adapter, DType, GpuError, Readback, Recorder, SUBGROUPS_ENV};
 use iastgcn::ops::elementwise::{self, Unary};
+use iastgcn::ops::matmul;
 use iastgcn::testing::gpu;
 
 fn info(name: &str, device_type: wgpu::DeviceType) -> wgpu::AdapterInfo {
@@ -144,4 +145,33 @@ fn mismatched_or_aliased_tensors_are_rejected_by_name() {
     let view = x.reshaped(&[2, 5]).unwrap();
     assert_eq!(view.shape(), &[2, 5]);
     assert!(x.reshaped(&[3, 3]).is_err());
+}
+
+#[test]
+fn subgroup_matmul_follows_the_device_and_can_be_switched_off() {
+    let g = gpu();
+    let info = |subgroups: Option<&str>| {
+        let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"));
+        cmd.arg("info").env_remove(SUBGROUPS_ENV);
+        if let Some(v) = subgroups {
+            cmd.env(SUBGROUPS_ENV, v);
+        }
+        let out = cmd.output().unwrap();
+        assert!(out.status.success(), "{out:?}");
+        String::from_utf8(out.stdout).unwrap()
+    };
+    let default = info(None);
+    let expected = if matmul::subgroup_kernel_available(&g) {
+        "matmul_subgroup"
+    } else {
+        "(matmul)"
+    };
+    assert!(default.contains(expected), "{default}");
+    // Lavapipe on 256-bit vectors (CI) has 8-lane subgroups: the kernel must be in use.
+    if g.info().name.contains("llvmpipe") && g.info().name.contains("256 bits") {
+        assert_eq!(g.subgroup_size(), Some(8));
+        assert!(default.contains("matmul_subgroup"), "{default}");
+    }
+    let off = info(Some("0"));
+    assert!(off.contains("8x8 blocks per invocation (matmul)"), "{off}");
 }

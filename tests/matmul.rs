@@ -3,7 +3,7 @@
 
 use iastgcn::gpu::{DType, Gpu, Tensor};
 use iastgcn::ops::gated_dcc;
-use iastgcn::ops::matmul::{cpu, plan, Epilogue, Loads, Matmul};
+use iastgcn::ops::matmul::{cpu, plan, Epilogue, Loads, Matmul, Tiling};
 use iastgcn::testing::{
     check_gradient, compare_tensor, dot, gpu, rng, round_f32, to_f32, uniform, Tolerance,
 };
@@ -83,6 +83,25 @@ fn cases() -> Vec<Matmul> {
     v
 }
 
+/// The kernels for products of more than one row this device runs: the block kernel,
+/// and the subgroup kernel where subgroups have 8 lanes (lavapipe).
+fn tilings(g: &Gpu) -> Vec<Tiling> {
+    let mut t = vec![Tiling::Block];
+    if g.subgroup_size() == Some(8) {
+        t.push(Tiling::Subgroup);
+    }
+    t
+}
+
+/// Each shape on each kernel.
+fn on_every_kernel(g: &Gpu, shapes: impl IntoIterator<Item = Matmul>) -> Vec<Matmul> {
+    let t = tilings(g);
+    shapes
+        .into_iter()
+        .flat_map(|mm| t.iter().map(move |&k| mm.tiling(k)))
+        .collect()
+}
+
 /// f32 sums of `k` products of values in [-1, 1]: √k·few ulps absolute, far below the
 /// O(1) error of any indexing bug.
 fn gpu_tol(k: usize) -> Tolerance {
@@ -111,7 +130,7 @@ fn upload(g: &Gpu, name: &str, data: &[f64]) -> Tensor {
 #[test]
 fn forward_matches_reference() {
     let g = gpu();
-    for (i, mm) in cases().into_iter().enumerate() {
+    for (i, mm) in on_every_kernel(&g, cases()).into_iter().enumerate() {
         let x = inputs(&mm, i as u64);
         let (a, b) = (upload(&g, "a", &x.a), upload(&g, "b", &x.b));
         let c = g.zeros("c", &[mm.c_len()], DType::F32);
@@ -131,7 +150,7 @@ fn forward_matches_reference() {
 #[test]
 fn backward_matches_reference() {
     let g = gpu();
-    for (i, mm) in cases().into_iter().enumerate() {
+    for (i, mm) in on_every_kernel(&g, cases()).into_iter().enumerate() {
         let x = inputs(&mm, 100 + i as u64);
         let (a, b, dc) = (
             upload(&g, "a", &x.a),
@@ -191,7 +210,7 @@ fn epilogue_adds_one_bias_per_output_row_then_relu() {
         Matmul::new(1, 40, 12).batched(2),
         Matmul::new(20, 1, 12).batched(2).share_b(true),
     ];
-    for (i, mm) in shapes.into_iter().enumerate() {
+    for (i, mm) in on_every_kernel(&g, shapes).into_iter().enumerate() {
         let x = inputs(&mm, 400 + i as u64);
         let bias: Vec<f64> = (0..mm.m).map(|r| 0.5 - r as f64 * 0.125).collect();
         let c0: Vec<f64> = (0..mm.c_len()).map(|j| j as f64 * 0.01).collect();
@@ -235,13 +254,11 @@ fn epilogue_adds_one_bias_per_output_row_then_relu() {
         }
     }
     // A whole [m, n] matrix added to every batch item (Ψ + Ψ·S' in the model).
-    for (i, mm) in [
+    let shapes = [
         Matmul::new(14, 14, 14).batched(3).share_a(true),
         Matmul::new(36, 20, 16).batched(2),
-    ]
-    .into_iter()
-    .enumerate()
-    {
+    ];
+    for (i, mm) in on_every_kernel(&g, shapes).into_iter().enumerate() {
         let x = inputs(&mm, 500 + i as u64);
         let add: Vec<f64> = (0..mm.m * mm.n).map(|j| 0.25 - j as f64 * 0.01).collect();
         let (a, b, ta) = (
@@ -286,13 +303,11 @@ fn gate_epilogue_applies_tanh_of_the_filter_times_sigmoid() {
     // The gated convolution's gate product with the gate fused: C = tanh(F) ⊙ σ(A·B + b),
     // on the flat grid (n = 20 per item) and the 8×8 groups (n = 64 per item).
     let g = gpu();
-    for (i, mm) in [
+    let shapes = [
         Matmul::new(12, 20, 16).batched(3).share_a(true),
         Matmul::new(9, 64, 10).batched(2).share_a(true),
-    ]
-    .into_iter()
-    .enumerate()
-    {
+    ];
+    for (i, mm) in on_every_kernel(&g, shapes).into_iter().enumerate() {
         let x = inputs(&mm, 450 + i as u64);
         let mut r = rng(460 + i as u64);
         let f = round_f32(&uniform(&mut r, mm.c_len(), -2.0, 2.0));
@@ -335,37 +350,46 @@ fn gate_epilogue_applies_tanh_of_the_filter_times_sigmoid() {
 #[test]
 fn accumulate_adds_to_existing_values() {
     let g = gpu();
-    let mm = Matmul::new(9, 6, 5)
+    let shape = Matmul::new(9, 6, 5)
         .batched(2)
         .share_b(true)
         .transpose_b(true);
-    let x = inputs(&mm, 300);
-    let (a, b, dc) = (
-        upload(&g, "a", &x.a),
-        upload(&g, "b", &x.b),
-        upload(&g, "dc", &x.dc),
-    );
-    let c0: Vec<f64> = (0..mm.c_len()).map(|i| i as f64 * 0.25).collect();
-    let db0: Vec<f64> = (0..mm.b_len()).map(|i| 1.0 - i as f64 * 0.5).collect();
-    let (c, db) = (upload(&g, "c", &c0), upload(&g, "db", &db0));
-    g.run(&[
-        mm.forward(&g, &a, &b, &c, true).unwrap(),
-        mm.backward_b(&g, &a, &dc, &db, true).unwrap(),
-    ])
-    .unwrap();
-    let c_ref: Vec<f64> = cpu::forward(&mm, &x.a, &x.b)
-        .iter()
-        .zip(&c0)
-        .map(|(p, q)| p + q)
-        .collect();
-    let db_ref: Vec<f64> = cpu::backward(&mm, &x.a, &x.b, &x.dc)
-        .1
-        .iter()
-        .zip(&db0)
-        .map(|(p, q)| p + q)
-        .collect();
-    compare_tensor(&g, "accumulated C", &c, &c_ref, gpu_tol(5)).unwrap();
-    compare_tensor(&g, "accumulated dB", &db, &db_ref, gpu_tol(18)).unwrap();
+    for mm in on_every_kernel(&g, [shape]) {
+        let x = inputs(&mm, 300);
+        let (a, b, dc) = (
+            upload(&g, "a", &x.a),
+            upload(&g, "b", &x.b),
+            upload(&g, "dc", &x.dc),
+        );
+        let c0: Vec<f64> = (0..mm.c_len()).map(|i| i as f64 * 0.25).collect();
+        let db0: Vec<f64> = (0..mm.b_len()).map(|i| 1.0 - i as f64 * 0.5).collect();
+        let (c, db) = (upload(&g, "c", &c0), upload(&g, "db", &db0));
+        g.run(&[
+            mm.forward(&g, &a, &b, &c, true).unwrap(),
+            mm.backward_b(&g, &a, &dc, &db, true).unwrap(),
+        ])
+        .unwrap();
+        let c_ref: Vec<f64> = cpu::forward(&mm, &x.a, &x.b)
+            .iter()
+            .zip(&c0)
+            .map(|(p, q)| p + q)
+            .collect();
+        let db_ref: Vec<f64> = cpu::backward(&mm, &x.a, &x.b, &x.dc)
+            .1
+            .iter()
+            .zip(&db0)
+            .map(|(p, q)| p + q)
+            .collect();
+        compare_tensor(&g, &format!("{mm:?} accumulated C"), &c, &c_ref, gpu_tol(5)).unwrap();
+        compare_tensor(
+            &g,
+            &format!("{mm:?} accumulated dB"),
+            &db,
+            &db_ref,
+            gpu_tol(18),
+        )
+        .unwrap();
+    }
 }
 
 #[test]
@@ -386,43 +410,45 @@ fn split_weight_gradients_match_reference() {
         } else {
             (600, 20, 12)
         };
-        let mm = Matmul::new(m, n, k)
+        let shape = Matmul::new(m, n, k)
             .batched(30)
             .transpose_a(ta)
             .transpose_b(tb)
             .share_a(shared_a)
             .share_b(!shared_a);
-        let x = inputs(&mm, 500 + i as u64);
-        let (a, b, dc) = (
-            upload(&g, "a", &x.a),
-            upload(&g, "b", &x.b),
-            upload(&g, "dc", &x.dc),
-        );
-        let (da_ref, db_ref) = cpu::backward(&mm, &x.a, &x.b, &x.dc);
-        let (grad_ref, len, k) = if shared_a {
-            (da_ref, mm.a_len(), mm.n * mm.batch)
-        } else {
-            (db_ref, mm.b_len(), mm.m * mm.batch)
-        };
-        for accumulate in [false, true] {
-            let g0: Vec<f64> = (0..len).map(|j| 0.5 - j as f64 * 0.01).collect();
-            let grad = upload(&g, "dw", &g0);
-            let d = if shared_a {
-                mm.backward_a(&g, &b, &dc, &grad, accumulate)
+        for mm in on_every_kernel(&g, [shape]) {
+            let x = inputs(&mm, 500 + i as u64);
+            let (a, b, dc) = (
+                upload(&g, "a", &x.a),
+                upload(&g, "b", &x.b),
+                upload(&g, "dc", &x.dc),
+            );
+            let (da_ref, db_ref) = cpu::backward(&mm, &x.a, &x.b, &x.dc);
+            let (grad_ref, len, k) = if shared_a {
+                (da_ref, mm.a_len(), mm.n * mm.batch)
             } else {
-                mm.backward_b(&g, &a, &dc, &grad, accumulate)
+                (db_ref, mm.b_len(), mm.m * mm.batch)
+            };
+            for accumulate in [false, true] {
+                let g0: Vec<f64> = (0..len).map(|j| 0.5 - j as f64 * 0.01).collect();
+                let grad = upload(&g, "dw", &g0);
+                let d = if shared_a {
+                    mm.backward_a(&g, &b, &dc, &grad, accumulate)
+                } else {
+                    mm.backward_b(&g, &a, &dc, &grad, accumulate)
+                }
+                .unwrap();
+                assert_eq!(d.launches(), 2, "{mm:?} was not split");
+                assert_eq!(d.target(), "dw");
+                g.run(&[d]).unwrap();
+                let want: Vec<f64> = grad_ref
+                    .iter()
+                    .zip(&g0)
+                    .map(|(r, g0)| r + if accumulate { *g0 } else { 0.0 })
+                    .collect();
+                let what = format!("{mm:?} split gradient, accumulate {accumulate}");
+                compare_tensor(&g, &what, &grad, &want, gpu_tol(k)).unwrap();
             }
-            .unwrap();
-            assert_eq!(d.launches(), 2, "{mm:?} was not split");
-            assert_eq!(d.target(), "dw");
-            g.run(&[d]).unwrap();
-            let want: Vec<f64> = grad_ref
-                .iter()
-                .zip(&g0)
-                .map(|(r, g0)| r + if accumulate { *g0 } else { 0.0 })
-                .collect();
-            let what = format!("{mm:?} split gradient, accumulate {accumulate}");
-            compare_tensor(&g, &what, &grad, &want, gpu_tol(k)).unwrap();
         }
     }
 }
@@ -431,29 +457,30 @@ fn split_weight_gradients_match_reference() {
 fn model_sized_product_matches_reference() {
     // One window of the 1×1 residual convolution: [14·100, 64] × [64, 64], plus dW.
     let g = gpu();
-    let mm = Matmul::new(1400, 64, 64);
-    let x = inputs(&mm, 400);
-    let (a, b, dc) = (
-        upload(&g, "x", &x.a),
-        upload(&g, "w", &x.b),
-        upload(&g, "dy", &x.dc),
-    );
-    let c = g.zeros("y", &[mm.c_len()], DType::F32);
-    let db = g.zeros("dw", &[mm.b_len()], DType::F32);
-    g.run(&[
-        mm.forward(&g, &a, &b, &c, false).unwrap(),
-        mm.backward_b(&g, &a, &dc, &db, false).unwrap(),
-    ])
-    .unwrap();
-    compare_tensor(&g, "y", &c, &cpu::forward(&mm, &x.a, &x.b), gpu_tol(64)).unwrap();
-    compare_tensor(
-        &g,
-        "dw",
-        &db,
-        &cpu::backward(&mm, &x.a, &x.b, &x.dc).1,
-        gpu_tol(1400),
-    )
-    .unwrap();
+    for mm in on_every_kernel(&g, [Matmul::new(1400, 64, 64)]) {
+        let x = inputs(&mm, 400);
+        let (a, b, dc) = (
+            upload(&g, "x", &x.a),
+            upload(&g, "w", &x.b),
+            upload(&g, "dy", &x.dc),
+        );
+        let c = g.zeros("y", &[mm.c_len()], DType::F32);
+        let db = g.zeros("dw", &[mm.b_len()], DType::F32);
+        g.run(&[
+            mm.forward(&g, &a, &b, &c, false).unwrap(),
+            mm.backward_b(&g, &a, &dc, &db, false).unwrap(),
+        ])
+        .unwrap();
+        compare_tensor(&g, "y", &c, &cpu::forward(&mm, &x.a, &x.b), gpu_tol(64)).unwrap();
+        compare_tensor(
+            &g,
+            "dw",
+            &db,
+            &cpu::backward(&mm, &x.a, &x.b, &x.dc).1,
+            gpu_tol(1400),
+        )
+        .unwrap();
+    }
 }
 
 #[test]
@@ -515,14 +542,12 @@ fn wrong_lengths_name_the_tensor() {
 #[test]
 fn identity_term_accumulates_onto_existing_gradient() {
     let g = gpu();
-    for (i, mm) in [
+    let shapes = [
         Matmul::new(24, 100, 100).batched(2),
         Matmul::new(10, 7, 7).batched(3),
-    ]
-    .into_iter()
-    .enumerate()
-    {
-        let mm = mm.plus_identity(true);
+    ];
+    let shapes = shapes.map(|mm| mm.plus_identity(true));
+    for (i, mm) in on_every_kernel(&g, shapes).into_iter().enumerate() {
         let x = inputs(&mm, 400 + i as u64);
         let (a, b, dc) = (
             upload(&g, "a", &x.a),

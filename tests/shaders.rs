@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use iastgcn::gpu::validate_wgsl;
+use iastgcn::gpu::{validate_wgsl, Shader};
 use iastgcn::ops;
 
 fn shader_files() -> Vec<(String, String)> {
@@ -28,10 +28,12 @@ fn every_shader_file_validates() {
         files.len() >= 3,
         "expected common, elementwise and matmul shaders"
     );
-    let failures: Vec<String> = files
+    // Through the registry, so that a shader compiled after a base one (the subgroup
+    // matmul after matmul.wgsl) is validated with it; the next test ties the registry to
+    // the files.
+    let failures: Vec<String> = ops::shaders()
         .iter()
-        .filter(|(name, _)| name != "common")
-        .filter_map(|(name, src)| validate_wgsl(name, src).err().map(|e| e.to_string()))
+        .filter_map(|s| s.validate().err().map(|e| e.to_string()))
         .collect();
     assert!(
         failures.is_empty(),
@@ -69,6 +71,23 @@ fn validation_error_names_file_and_line() {
     assert!(err.starts_with("shaders/typed.wgsl:"), "{err}");
     let line: usize = err.split(':').nth(1).unwrap().parse().unwrap();
     assert!((3..=4).contains(&line), "{err}");
+}
+
+#[test]
+fn error_after_a_base_shader_names_its_own_file_and_line() {
+    // Uses the base's parameters (`p`), then breaks on line 4 of its own text.
+    let derived = Shader {
+        name: "derived",
+        source: "fn ok() -> u32 {\n    return p.m;\n}\nfn broken( -> u32 { return 2u; }\n",
+        base: Some(&ops::matmul::SHADER),
+    };
+    let err = derived.validate().unwrap_err().to_string();
+    assert!(err.starts_with("shaders/derived.wgsl:4:"), "{err}");
+    let fixed = Shader {
+        source: "fn ok() -> u32 {\n    return p.m;\n}\n",
+        ..derived
+    };
+    fixed.validate().unwrap();
 }
 
 #[test]

@@ -1,6 +1,7 @@
 //! `iastgcn info`: what the engine will run on.
 
 use crate::gpu::{describe, Gpu};
+use crate::ops::matmul;
 
 pub fn run(adapter: Option<&str>) -> anyhow::Result<()> {
     let all = Gpu::list_adapters();
@@ -22,6 +23,14 @@ pub fn run(adapter: Option<&str>) -> anyhow::Result<()> {
     println!(
         "subgroups    {}..{} lanes",
         i.subgroup_min_size, i.subgroup_max_size
+    );
+    println!(
+        "matmul       {}",
+        if matmul::subgroup_kernel_available(&gpu) {
+            "32x16 tiles per 8-lane subgroup (matmul_subgroup)"
+        } else {
+            "8x8 blocks per invocation (matmul)"
+        }
     );
     let l = gpu.limits();
     println!("compute limits");

@@ -9,6 +9,11 @@ use super::GpuError;
 /// e.g. `IASTGCN_ADAPTER=llvmpipe` or `IASTGCN_ADAPTER=nvidia`.
 pub const ADAPTER_ENV: &str = "IASTGCN_ADAPTER";
 
+/// Environment variable that, set to `0`, opens the device without subgroup operations,
+/// so that every product runs on the portable block kernel (to compare the two, or to
+/// work around a driver's subgroup bug).
+pub const SUBGROUPS_ENV: &str = "IASTGCN_SUBGROUPS";
+
 /// The backends we ask for. GL is left out on purpose: it only adds a second
 /// llvmpipe adapter and 30-300 ms of EGL probing (see shared/notes/lavapipe.md).
 pub const BACKENDS: wgpu::Backends = wgpu::Backends::VULKAN
@@ -109,9 +114,17 @@ impl Gpu {
         let adapter = &adapters[index];
         let limits = adapter.limits();
         let adapter_features = adapter.features();
+        let subgroups = std::env::var(SUBGROUPS_ENV).map_or(true, |v| v.trim() != "0");
+        let wanted_features = if subgroups {
+            adapter_features & wgpu::Features::SUBGROUP
+        } else {
+            wgpu::Features::empty()
+        };
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("iastgcn"),
-            required_features: wgpu::Features::empty(),
+            // Subgroup operations where offered: the matmul's lavapipe kernel shares
+            // operand loads across a subgroup's lanes (ops/matmul.rs picks it).
+            required_features: wanted_features,
             // wgpu's defaults are far below what compute needs (256 MiB buffers, 16 KiB
             // workgroup memory); ask for everything the adapter offers.
             required_limits: limits.clone(),
@@ -161,6 +174,14 @@ impl Gpu {
 
     pub fn queue(&self) -> &wgpu::Queue {
         &self.queue
+    }
+
+    /// The lanes of every subgroup when the device runs subgroup operations and its
+    /// subgroups have one fixed size (8 on lavapipe with 256-bit vectors); else `None`.
+    pub fn subgroup_size(&self) -> Option<u32> {
+        let fixed = self.info.subgroup_min_size == self.info.subgroup_max_size;
+        let enabled = self.device.features().contains(wgpu::Features::SUBGROUP);
+        (enabled && fixed).then_some(self.info.subgroup_min_size)
     }
 
     /// True when the adapter is a CPU implementation (lavapipe, WARP, ...).

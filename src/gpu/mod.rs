@@ -7,7 +7,9 @@ mod pipeline;
 mod recorder;
 mod tensor;
 
-pub use device::{choose_adapter, describe, Gpu, ADAPTER_ENV, BACKENDS, INSTALL_HINT};
+pub use device::{
+    choose_adapter, describe, Gpu, ADAPTER_ENV, BACKENDS, INSTALL_HINT, SUBGROUPS_ENV,
+};
 pub use pipeline::{validate_wgsl, Access, Binding, Kernel, PipelineCache, Shader, COMMON_WGSL};
 pub use recorder::{Dispatch, Recorder};
 pub use tensor::{DType, Readback, Tensor};

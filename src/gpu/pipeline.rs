@@ -18,17 +18,26 @@ pub struct Shader {
     /// File stem: `matmul` for `shaders/matmul.wgsl`.
     pub name: &'static str,
     pub source: &'static str,
+    /// A shader whose declarations this one uses, compiled before it (after the common
+    /// prelude): an entry point that needs a device feature lives in its own module, so
+    /// that a device without the feature still compiles the base.
+    pub base: Option<&'static Shader>,
 }
 
 impl Shader {
-    /// The text handed to the compiler: common helpers, then this file.
+    /// The text handed to the compiler: common helpers, the base shader, then this file.
     pub fn full_source(&self) -> String {
-        format!("{COMMON_WGSL}\n{}", self.source)
+        let base = self.base.map_or("", |b| b.source);
+        format!("{COMMON_WGSL}\n{base}\n{}", self.source)
     }
 
-    /// Parses and validates the shader (with the common prelude) with naga.
+    /// Parses and validates the shader (with the common prelude and its base) with naga.
     pub fn validate(&self) -> Result<naga::Module, GpuError> {
-        validate_wgsl(self.name, self.source)
+        validate_with_base(
+            self.name,
+            self.source,
+            self.base.map(|b| (b.name, b.source)),
+        )
     }
 }
 
@@ -77,23 +86,33 @@ pub struct Kernel {
 /// Validates `source` (with the common prelude) and maps error positions back to
 /// `shaders/<name>.wgsl:line:col` (or `shaders/common.wgsl`).
 pub fn validate_wgsl(name: &str, source: &str) -> Result<naga::Module, GpuError> {
-    let full = format!("{COMMON_WGSL}\n{source}");
-    // Lines up to and including the separator newline belong to the prelude.
-    let prelude_lines = COMMON_WGSL.matches('\n').count() + 1;
+    validate_with_base(name, source, None)
+}
+
+/// [`validate_wgsl`] for a shader compiled after a base shader (`(name, source)`).
+fn validate_with_base(
+    name: &str,
+    source: &str,
+    base: Option<(&str, &str)>,
+) -> Result<naga::Module, GpuError> {
+    let (base_name, base_source) = base.unwrap_or(("", ""));
+    let full = format!("{COMMON_WGSL}\n{base_source}\n{source}");
+    // Each part ends at the separator newline after it: (file, its last line in `full`).
+    let common_end = COMMON_WGSL.matches('\n').count() + 1;
+    let base_end = common_end + base_source.matches('\n').count() + 1;
     let locate = |span: Option<naga::Span>| -> String {
         match span.filter(|s| s.is_defined()) {
             Some(s) => {
                 let loc = s.location(&full);
                 let line = loc.line_number as usize;
-                if line <= prelude_lines {
-                    format!("shaders/common.wgsl:{}:{}", line, loc.line_position)
+                let (file, first) = if line <= common_end {
+                    ("common", 0)
+                } else if line <= base_end {
+                    (base_name, common_end)
                 } else {
-                    format!(
-                        "shaders/{name}.wgsl:{}:{}",
-                        line - prelude_lines,
-                        loc.line_position
-                    )
-                }
+                    (name, base_end)
+                };
+                format!("shaders/{file}.wgsl:{}:{}", line - first, loc.line_position)
             }
             None => format!("shaders/{name}.wgsl"),
         }

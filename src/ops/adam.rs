@@ -7,6 +7,7 @@ use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tens
 pub static SHADER: Shader = Shader {
     name: "adam",
     source: include_str!("../../shaders/adam.wgsl"),
+    base: None,
 };
 
 static STEP: Kernel = Kernel {

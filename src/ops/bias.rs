@@ -6,6 +6,7 @@ use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tens
 pub static SHADER: Shader = Shader {
     name: "bias",
     source: include_str!("../../shaders/bias.wgsl"),
+    base: None,
 };
 
 static ADD: Kernel = Kernel {

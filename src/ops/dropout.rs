@@ -7,6 +7,7 @@ use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tens
 pub static SHADER: Shader = Shader {
     name: "dropout",
     source: include_str!("../../shaders/dropout.wgsl"),
+    base: None,
 };
 
 static KERNEL: Kernel = Kernel {

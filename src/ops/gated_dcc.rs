@@ -7,6 +7,7 @@ use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tens
 pub static SHADER: Shader = Shader {
     name: "gated_dcc",
     source: include_str!("../../shaders/gated_dcc.wgsl"),
+    base: None,
 };
 
 static UNFOLD_FWD: Kernel = Kernel {

@@ -6,6 +6,7 @@ use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tens
 pub static SHADER: Shader = Shader {
     name: "head",
     source: include_str!("../../shaders/head.wgsl"),
+    base: None,
 };
 
 static FORWARD: Kernel = Kernel {

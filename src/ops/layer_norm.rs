@@ -6,6 +6,7 @@ use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tens
 pub static SHADER: Shader = Shader {
     name: "layer_norm",
     source: include_str!("../../shaders/layer_norm.wgsl"),
+    base: None,
 };
 
 const R1: Binding = Binding::read(1);

@@ -8,6 +8,7 @@ use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tens
 pub static SHADER: Shader = Shader {
     name: "loss",
     source: include_str!("../../shaders/loss.wgsl"),
+    base: None,
 };
 
 static FORWARD: Kernel = Kernel {

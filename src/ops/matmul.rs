@@ -11,6 +11,15 @@ use crate::gpu::{grid_1d, Binding, DType, Dispatch, Gpu, GpuError, Kernel, Shade
 pub static SHADER: Shader = Shader {
     name: "matmul",
     source: include_str!("../../shaders/matmul.wgsl"),
+    base: None,
+};
+
+/// The subgroup kernel, in its own module so that a device without subgroup operations
+/// still compiles `matmul.wgsl`.
+pub static SUBGROUP_SHADER: Shader = Shader {
+    name: "matmul_subgroup",
+    source: include_str!("../../shaders/matmul_subgroup.wgsl"),
+    base: Some(&SHADER),
 };
 
 /// `a`, `b`, `a` and `b` again as vectors (`a4`, `b4` in the shader), the bias, the
@@ -30,6 +39,13 @@ const BINDINGS: &[Binding] = &[
 static KERNEL: Kernel = Kernel {
     shader: &SHADER,
     entry: "matmul",
+    bindings: BINDINGS,
+};
+
+/// 32×16 tiles of C per subgroup of 8 lanes, op(B) loaded once per subgroup.
+static KERNEL_SUBGROUP: Kernel = Kernel {
+    shader: &SUBGROUP_SHADER,
+    entry: "matmul_subgroup",
     bindings: BINDINGS,
 };
 
@@ -60,6 +76,34 @@ const WORKGROUP: usize = 8;
 const MAX_GROUP_Y: usize = 32;
 /// Outputs per invocation of the row kernel.
 const ROW_BLOCK: usize = 4;
+/// The subgroup kernel: lanes per subgroup it is written for, the rows and columns of C
+/// per subgroup, and the most subgroups per workgroup.
+const SUBGROUP_LANES: u32 = 8;
+const TILE_ROWS: usize = 32;
+const TILE_COLS: usize = 16;
+const MAX_TILES: usize = 8;
+/// The subgroup kernel wastes most of a tile on fewer rows (a lane owns 4 of 32): below
+/// this, the block kernel.
+const SUBGROUP_MIN_M: usize = 16;
+
+/// True when `gpu` runs the subgroup kernel: subgroup operations enabled (see
+/// [`crate::gpu::SUBGROUPS_ENV`]) and subgroups of exactly 8 lanes.
+pub fn subgroup_kernel_available(gpu: &Gpu) -> bool {
+    gpu.subgroup_size() == Some(SUBGROUP_LANES)
+}
+
+/// Which kernel computes a product of more than one row of C.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Tiling {
+    /// The subgroup kernel where the device has 8-lane subgroups and the product at least
+    /// 16 rows, else the block kernel.
+    #[default]
+    Auto,
+    /// 8×8 blocks of C per invocation (`matmul`), on any device.
+    Block,
+    /// 32×16 tiles per 8-lane subgroup (`matmul_subgroup`); an error on other devices.
+    Subgroup,
+}
 
 /// Operand bytes per chunk of a split reduction (about one core's L2), and the most
 /// scratch its partial results may take (see [`Gemm::split_chunk`]).
@@ -85,6 +129,9 @@ pub struct Matmul {
     /// the epilogue of the forward and dA products, saving a copy of A into C before an
     /// accumulating product and an extra pass adding dC into dA. dB is unchanged.
     pub plus_identity: bool,
+    /// The kernel for products of more than one row ([`Tiling::Auto`] unless a test or a
+    /// benchmark wants one).
+    pub tiling: Tiling,
 }
 
 /// A strided 2-D view with a batch stride (0 when shared).
@@ -157,6 +204,7 @@ impl Matmul {
             shared_a: false,
             shared_b: false,
             plus_identity: false,
+            tiling: Tiling::Auto,
         }
     }
 
@@ -185,6 +233,10 @@ impl Matmul {
             plus_identity,
             ..self
         }
+    }
+
+    pub fn tiling(self, tiling: Tiling) -> Matmul {
+        Matmul { tiling, ..self }
     }
 
     /// `plus_identity` needs a square op(B) of more than one row, and dA per batch item
@@ -290,6 +342,7 @@ impl Matmul {
             out_shared: false,
             batch: self.batch,
             plus: self.identity_on(Plus::Lhs),
+            tiling: self.tiling,
         }
     }
 
@@ -335,6 +388,7 @@ impl Matmul {
                 out_shared: self.shared_a,
                 batch: self.batch,
                 plus: self.identity_on(Plus::Rhs),
+                tiling: self.tiling,
             };
             (gemm, true)
         } else {
@@ -347,6 +401,7 @@ impl Matmul {
                 out_shared: self.shared_a,
                 batch: self.batch,
                 plus: self.identity_on(Plus::Lhs),
+                tiling: self.tiling,
             };
             (gemm, false)
         }
@@ -383,6 +438,7 @@ impl Matmul {
                 out_shared: self.shared_b,
                 batch: self.batch,
                 plus: Plus::None,
+                tiling: self.tiling,
             };
             (gemm, true)
         } else {
@@ -395,6 +451,7 @@ impl Matmul {
                 out_shared: self.shared_b,
                 batch: self.batch,
                 plus: Plus::None,
+                tiling: self.tiling,
             };
             (gemm, false)
         }
@@ -414,6 +471,7 @@ struct Gemm {
     batch: usize,
     /// An operand added to the product in the epilogue (never with `out_shared`).
     plus: Plus,
+    tiling: Tiling,
 }
 
 /// Which operand, if any, the epilogue adds to C: `lhs · (rhs + I)` adds element (i, j)
@@ -605,6 +663,61 @@ impl Gemm {
         ]
     }
 
+    /// The subgroup kernel's grid for `batches` items of C (its workgroup size pushed onto
+    /// `constants`), or `None` where the block kernel runs instead: x over (item, block of
+    /// 16 columns) pairs, y over groups of 32-row tiles (all of a column block's tiles in
+    /// one group where they fit, so the subgroups running together share its op(B) in
+    /// cache).
+    fn subgroup_grid(
+        &self,
+        gpu: &Gpu,
+        batches: usize,
+        constants: &mut Vec<(&'static str, f64)>,
+    ) -> Result<Option<[u32; 3]>, GpuError> {
+        let usable = subgroup_kernel_available(gpu);
+        let x = batches * self.n.div_ceil(TILE_COLS);
+        let fits = x <= gpu.limits().max_compute_workgroups_per_dimension as usize;
+        match self.tiling {
+            Tiling::Block => return Ok(None),
+            Tiling::Auto if !usable || !fits || self.m < SUBGROUP_MIN_M => return Ok(None),
+            Tiling::Subgroup if !usable => {
+                return Err(GpuError::Device(format!(
+                    "matmul_subgroup needs {SUBGROUP_LANES}-lane subgroups; {} has {:?}",
+                    gpu.info().name,
+                    gpu.subgroup_size()
+                )))
+            }
+            _ => {}
+        }
+        let tiles = self.m.div_ceil(TILE_ROWS);
+        // More tiles than fit: the largest group that divides them evenly, if not too
+        // small, so that no subgroup idles.
+        let per_group = if tiles <= MAX_TILES {
+            tiles
+        } else {
+            (MAX_TILES / 2..=MAX_TILES)
+                .rev()
+                .find(|&d| tiles.is_multiple_of(d))
+                .unwrap_or(MAX_TILES)
+        };
+        constants.push(("SG_TILES", per_group as f64));
+        Ok(Some([x as u32, tiles.div_ceil(per_group) as u32, 1]))
+    }
+
+    /// The kernel and grid for a product of more than one row: the subgroup kernel where
+    /// [`Gemm::subgroup_grid`] allows it, else the block kernel.
+    fn tiled_grid(
+        &self,
+        gpu: &Gpu,
+        batches: usize,
+        constants: &mut Vec<(&'static str, f64)>,
+    ) -> Result<(&'static Kernel, [u32; 3]), GpuError> {
+        Ok(match self.subgroup_grid(gpu, batches, constants)? {
+            Some(groups) => (&KERNEL_SUBGROUP, groups),
+            None => (&KERNEL, self.block_grid(batches, constants)),
+        })
+    }
+
     /// Reduction items per chunk when a batch-summed product (a weight gradient) is better
     /// split: each chunk's sum goes to its own slice of a scratch buffer, and a second
     /// launch adds the slices in order. A single launch sweeps all items in every
@@ -648,9 +761,9 @@ impl Gemm {
             ..params
         };
         let mut constants = self.constants(&Epilogue::default(), false);
-        let groups = self.block_grid(chunks, &mut constants);
+        let (kernel, groups) = self.tiled_grid(gpu, chunks, &mut constants)?;
         let tensors = [lhs, rhs, lhs, rhs, lhs, lhs, &partials, &partials];
-        let first = gpu.dispatch(&KERNEL, &constants, &part, &tensors, groups)?;
+        let first = gpu.dispatch(kernel, &constants, &part, &tensors, groups)?;
         let sum = Params {
             n: len as u32,
             batches: chunks as u32,
@@ -748,7 +861,7 @@ impl Gemm {
             ];
             (&KERNEL_ROW, groups)
         } else {
-            (&KERNEL, gemm.block_grid(out_batches, &mut constants))
+            gemm.tiled_grid(gpu, out_batches, &mut constants)?
         };
         let gate = epilogue.gate.unwrap_or(lhs);
         let tensors = [lhs, rhs, lhs, rhs, bias.unwrap_or(lhs), gate, out, out];

@@ -16,7 +16,7 @@ pub mod softmax;
 use crate::gpu::Shader;
 
 /// Every op shader, for validation and for the pipeline warm-up.
-pub fn shaders() -> [&'static Shader; 11] {
+pub fn shaders() -> [&'static Shader; 12] {
     [
         &adam::SHADER,
         &bias::SHADER,
@@ -27,6 +27,7 @@ pub fn shaders() -> [&'static Shader; 11] {
         &layer_norm::SHADER,
         &loss::SHADER,
         &matmul::SHADER,
+        &matmul::SUBGROUP_SHADER,
         &outer::SHADER,
         &softmax::SHADER,
     ]

@@ -13,6 +13,7 @@ use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tens
 pub static SHADER: Shader = Shader {
     name: "outer",
     source: include_str!("../../shaders/outer.wgsl"),
+    base: None,
 };
 
 /// `u`, `v`, `w`, `q`, then `v` and `q` as vectors, `out` as vectors, `out`.

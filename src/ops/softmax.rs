@@ -6,6 +6,7 @@ use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tens
 pub static SHADER: Shader = Shader {
     name: "softmax",
     source: include_str!("../../shaders/softmax.wgsl"),
+    base: None,
 };
 
 static FORWARD: Kernel = Kernel {
