@@ -52,13 +52,8 @@ fn matmul_subgroup(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup_id) 
     var acc_2 = mat4x4<f32>();
     var acc_3 = mat4x4<f32>();
     let k4 = p.k & ~3u;
-    var r_begin = 0u;
-    var r_end = p.reduce;
-    if p.chunk != 0u {
-        r_begin = z * p.chunk;
-        r_end = min(p.reduce, r_begin + p.chunk);
-    }
-    for (var r = r_begin; r < r_end; r++) {
+    let rr = reduce_range(z);
+    for (var r = rr.x; r < rr.y; r++) {
         let abase = z * p.a_batch + r * p.a_reduce;
         let bbase = z * p.b_batch + r * p.b_reduce;
         var kk = 0u;

@@ -761,6 +761,7 @@ impl Gemm {
             ..params
         };
         let mut constants = self.constants(&Epilogue::default(), false);
+        constants.push(("REDUCE", 1.0));
         let (kernel, groups) = self.tiled_grid(gpu, chunks, &mut constants)?;
         let tensors = [lhs, rhs, lhs, rhs, lhs, lhs, &partials, &partials];
         let first = gpu.dispatch(kernel, &constants, &part, &tensors, groups)?;
@@ -852,6 +853,7 @@ impl Gemm {
             return gemm.dispatch_split(gpu, [lhs, rhs, out], params, chunk, flops);
         }
         let mut constants = gemm.constants(&epilogue, swapped);
+        constants.push(("REDUCE", f64::from(u8::from(reduce > 1))));
         let (kernel, groups) = if gemm.m == 1 {
             let per_group = ROW_BLOCK * ROW_WORKGROUP;
             let groups = [
