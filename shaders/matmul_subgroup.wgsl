@@ -10,8 +10,9 @@
 // 4 rows x 16 columns (64 accumulators, as in the block kernel) and loads its own 4 rows
 // of op(A), while op(B)'s 16 columns are loaded once for the whole subgroup, two vectors
 // per lane per 4 k, and handed to every lane by subgroupBroadcast (a register shuffle).
-// Six vector loads per lane per 4 k instead of sixteen: 1.9-2.1x the block kernel on
-// the paper's convolution.
+// Six vector loads per lane per 4 k instead of sixteen: 1.5-2.4x the block kernel on
+// the model's products. `matmul_subgroup_cols` (at the end) splits by column instead,
+// for products of at most 16 rows.
 
 // Subgroups per workgroup, one 32-row tile each, stacked along the rows of C.
 override SG_TILES: u32 = 2u;
@@ -110,4 +111,87 @@ fn matmul_subgroup(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup_id) 
     store_quarter(z, row0, col0 + 4u, acc_1);
     store_quarter(z, row0, col0 + 8u, acc_2);
     store_quarter(z, row0, col0 + 12u, acc_3);
+}
+
+// Products of at most 16 rows (the graph mix Q·X_t over 14 nodes, and its input gradient
+// Qᵀ·dM) would leave most of a 32-row tile idle. Here the lanes split the columns
+// instead: each owns all 16 rows x 4 columns (64 accumulators) and loads its own columns
+// of op(B), while op(A)'s 16 rows are loaded once per subgroup, two rows per lane, and
+// broadcast.
+
+// Subgroups per workgroup, one block of 32 columns each.
+override SG_COL_TILES: u32 = 4u;
+
+// Four consecutive k (kk..kk+3) of row offset `ra` (row x a_row) of op(A).
+fn a_k4_at(abase: u32, kk: u32, ra: u32) -> vec4<f32> {
+    if A_VEC && A_ALONG_K {
+        return a4[(abase + kk + ra) >> 2u];
+    }
+    return a_k4(abase + kk * p.a_col + ra);
+}
+
+@compute @workgroup_size(8u * SG_COL_TILES, 1, 1)
+fn matmul_subgroup_cols(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup_id) sg: u32,
+                        @builtin(subgroup_invocation_id) lane: u32) {
+    // Subgroups run over (batch item, block of 32 columns) pairs.
+    let col_blocks = (p.n + 31u) / 32u;
+    let flat = wid.x * SG_COL_TILES + sg;
+    let z = flat / col_blocks;
+    // The same on every lane of the subgroup: it leaves as a whole.
+    if z >= p.batches {
+        return;
+    }
+    let col0 = (flat - z * col_blocks) * 32u + 4u * lane;
+    let cols = clamp4(col0, p.n);
+    var c0 = 0u;
+    if B_VEC && B_ALONG_N {
+        c0 = vec_start(col0, p.n);
+    }
+    // This lane's rows of op(A): 2 lane and 2 lane + 1 (clamped), so that rows
+    // 4g..4g+3 are held by lanes 2g and 2g + 1.
+    let ra0 = min(2u * lane, p.m - 1u) * p.a_row;
+    let ra1 = min(2u * lane + 1u, p.m - 1u) * p.a_row;
+    // acc_<g>: column i is row 4g + i over this lane's four columns.
+    var acc_0 = mat4x4<f32>();
+    var acc_1 = mat4x4<f32>();
+    var acc_2 = mat4x4<f32>();
+    var acc_3 = mat4x4<f32>();
+    let k4 = p.k & ~3u;
+    let rr = reduce_range(z);
+    for (var r = rr.x; r < rr.y; r++) {
+        let abase = z * p.a_batch + r * p.a_reduce;
+        let bbase = z * p.b_batch + r * p.b_reduce;
+        var kk = 0u;
+        for (; kk < k4; kk += 4u) {
+            let y = b_cols(bbase, kk, c0, cols);
+            let x0 = a_k4_at(abase, kk, ra0);
+            let x1 = a_k4_at(abase, kk, ra1);
+            acc_0 += y * mat4x4<f32>(subgroupBroadcast(x0, 0u), subgroupBroadcast(x1, 0u),
+                                     subgroupBroadcast(x0, 1u), subgroupBroadcast(x1, 1u));
+            acc_1 += y * mat4x4<f32>(subgroupBroadcast(x0, 2u), subgroupBroadcast(x1, 2u),
+                                     subgroupBroadcast(x0, 3u), subgroupBroadcast(x1, 3u));
+            acc_2 += y * mat4x4<f32>(subgroupBroadcast(x0, 4u), subgroupBroadcast(x1, 4u),
+                                     subgroupBroadcast(x0, 5u), subgroupBroadcast(x1, 5u));
+            acc_3 += y * mat4x4<f32>(subgroupBroadcast(x0, 6u), subgroupBroadcast(x1, 6u),
+                                     subgroupBroadcast(x0, 7u), subgroupBroadcast(x1, 7u));
+        }
+        for (; kk < p.k; kk++) {
+            let y = b_n4(bbase + kk * p.b_row, cols * p.b_col);
+            let ak = abase + kk * p.a_col;
+            let x0 = a[ak + ra0];
+            let x1 = a[ak + ra1];
+            acc_0 += outer4(y, vec4<f32>(subgroupBroadcast(x0, 0u), subgroupBroadcast(x1, 0u),
+                                         subgroupBroadcast(x0, 1u), subgroupBroadcast(x1, 1u)));
+            acc_1 += outer4(y, vec4<f32>(subgroupBroadcast(x0, 2u), subgroupBroadcast(x1, 2u),
+                                         subgroupBroadcast(x0, 3u), subgroupBroadcast(x1, 3u)));
+            acc_2 += outer4(y, vec4<f32>(subgroupBroadcast(x0, 4u), subgroupBroadcast(x1, 4u),
+                                         subgroupBroadcast(x0, 5u), subgroupBroadcast(x1, 5u)));
+            acc_3 += outer4(y, vec4<f32>(subgroupBroadcast(x0, 6u), subgroupBroadcast(x1, 6u),
+                                         subgroupBroadcast(x0, 7u), subgroupBroadcast(x1, 7u)));
+        }
+    }
+    store_quarter(z, 0u, col0, acc_0);
+    store_quarter(z, 4u, col0, acc_1);
+    store_quarter(z, 8u, col0, acc_2);
+    store_quarter(z, 12u, col0, acc_3);
 }

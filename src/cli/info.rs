@@ -27,7 +27,7 @@ pub fn run(adapter: Option<&str>) -> anyhow::Result<()> {
     println!(
         "matmul       {}",
         if matmul::subgroup_kernel_available(&gpu) {
-            "32x16 tiles per 8-lane subgroup (matmul_subgroup)"
+            "operands shared across 8-lane subgroups (matmul_subgroup, matmul_subgroup_cols)"
         } else {
             "8x8 blocks per invocation (matmul)"
         }

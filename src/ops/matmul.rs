@@ -49,6 +49,14 @@ static KERNEL_SUBGROUP: Kernel = Kernel {
     bindings: BINDINGS,
 };
 
+/// 16 rows × 32 columns per subgroup of 8 lanes (products of at most 16 rows), op(A)
+/// loaded once per subgroup.
+static KERNEL_SUBGROUP_COLS: Kernel = Kernel {
+    shader: &SUBGROUP_SHADER,
+    entry: "matmul_subgroup_cols",
+    bindings: BINDINGS,
+};
+
 /// The sum of a split product's partial results.
 static KERNEL_SUM: Kernel = Kernel {
     shader: &SHADER,
@@ -82,9 +90,12 @@ const SUBGROUP_LANES: u32 = 8;
 const TILE_ROWS: usize = 32;
 const TILE_COLS: usize = 16;
 const MAX_TILES: usize = 8;
-/// The subgroup kernel wastes most of a tile on fewer rows (a lane owns 4 of 32): below
-/// this, the block kernel.
-const SUBGROUP_MIN_M: usize = 16;
+/// The column-split subgroup kernel: the most rows of C it covers, its columns per
+/// subgroup, subgroups per workgroup, and the fewest columns it is chosen for.
+const COLS_MAX_M: usize = 16;
+const COLS_TILE: usize = 32;
+const COLS_PER_GROUP: usize = 4;
+const COLS_MIN_N: usize = 32;
 
 /// True when `gpu` runs the subgroup kernel: subgroup operations enabled (see
 /// [`crate::gpu::SUBGROUPS_ENV`]) and subgroups of exactly 8 lanes.
@@ -95,13 +106,14 @@ pub fn subgroup_kernel_available(gpu: &Gpu) -> bool {
 /// Which kernel computes a product of more than one row of C.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Tiling {
-    /// The subgroup kernel where the device has 8-lane subgroups and the product at least
-    /// 16 rows, else the block kernel.
+    /// A subgroup kernel where the device has 8-lane subgroups (for products of at
+    /// most 16 rows, only when they have at least 32 columns), else the block kernel.
     #[default]
     Auto,
     /// 8×8 blocks of C per invocation (`matmul`), on any device.
     Block,
-    /// 32×16 tiles per 8-lane subgroup (`matmul_subgroup`); an error on other devices.
+    /// 32×16 tiles per 8-lane subgroup (`matmul_subgroup`), or 16×32 ones split by
+    /// column for at most 16 rows (`matmul_subgroup_cols`); an error on other devices.
     Subgroup,
 }
 
@@ -663,31 +675,42 @@ impl Gemm {
         ]
     }
 
-    /// The subgroup kernel's grid for `batches` items of C (its workgroup size pushed onto
-    /// `constants`), or `None` where the block kernel runs instead: x over (item, block of
-    /// 16 columns) pairs, y over groups of 32-row tiles (all of a column block's tiles in
-    /// one group where they fit, so the subgroups running together share its op(B) in
-    /// cache).
+    /// One of the subgroup kernels and its grid for `batches` items of C (its workgroup
+    /// size pushed onto `constants`), or `None` where the block kernel runs instead.
+    /// - `matmul_subgroup` (more than 16 rows): x over (item, block of 16 columns) pairs,
+    ///   y over groups of 32-row tiles (all of a column block's tiles in one group where
+    ///   they fit, so the subgroups running together share its op(B) in cache);
+    /// - `matmul_subgroup_cols` (at most 16 rows): x over groups of (item, block of 32
+    ///   columns) pairs.
     fn subgroup_grid(
         &self,
         gpu: &Gpu,
         batches: usize,
         constants: &mut Vec<(&'static str, f64)>,
-    ) -> Result<Option<[u32; 3]>, GpuError> {
+    ) -> Result<Option<(&'static Kernel, [u32; 3])>, GpuError> {
         let usable = subgroup_kernel_available(gpu);
-        let x = batches * self.n.div_ceil(TILE_COLS);
+        let cols = self.m <= COLS_MAX_M;
+        let x = if cols {
+            (batches * self.n.div_ceil(COLS_TILE)).div_ceil(COLS_PER_GROUP)
+        } else {
+            batches * self.n.div_ceil(TILE_COLS)
+        };
         let fits = x <= gpu.limits().max_compute_workgroups_per_dimension as usize;
         match self.tiling {
             Tiling::Block => return Ok(None),
-            Tiling::Auto if !usable || !fits || self.m < SUBGROUP_MIN_M => return Ok(None),
+            Tiling::Auto if !usable || !fits || (cols && self.n < COLS_MIN_N) => return Ok(None),
             Tiling::Subgroup if !usable => {
                 return Err(GpuError::Device(format!(
-                    "matmul_subgroup needs {SUBGROUP_LANES}-lane subgroups; {} has {:?}",
+                    "the subgroup matmul needs {SUBGROUP_LANES}-lane subgroups; {} has {:?}",
                     gpu.info().name,
                     gpu.subgroup_size()
                 )))
             }
             _ => {}
+        }
+        if cols {
+            constants.push(("SG_COL_TILES", COLS_PER_GROUP as f64));
+            return Ok(Some((&KERNEL_SUBGROUP_COLS, [x as u32, 1, 1])));
         }
         let tiles = self.m.div_ceil(TILE_ROWS);
         // More tiles than fit: the largest group that divides them evenly, if not too
@@ -701,10 +724,11 @@ impl Gemm {
                 .unwrap_or(MAX_TILES)
         };
         constants.push(("SG_TILES", per_group as f64));
-        Ok(Some([x as u32, tiles.div_ceil(per_group) as u32, 1]))
+        let groups = [x as u32, tiles.div_ceil(per_group) as u32, 1];
+        Ok(Some((&KERNEL_SUBGROUP, groups)))
     }
 
-    /// The kernel and grid for a product of more than one row: the subgroup kernel where
+    /// The kernel and grid for a product of more than one row: a subgroup kernel where
     /// [`Gemm::subgroup_grid`] allows it, else the block kernel.
     fn tiled_grid(
         &self,
@@ -713,7 +737,7 @@ impl Gemm {
         constants: &mut Vec<(&'static str, f64)>,
     ) -> Result<(&'static Kernel, [u32; 3]), GpuError> {
         Ok(match self.subgroup_grid(gpu, batches, constants)? {
-            Some(groups) => (&KERNEL_SUBGROUP, groups),
+            Some(chosen) => chosen,
             None => (&KERNEL, self.block_grid(batches, constants)),
         })
     }
