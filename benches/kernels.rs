@@ -8,14 +8,16 @@
 //! small shape (C 16, T 48, L 3). Arguments pick a subset: `-- paper`, `-- small`,
 //! `-- train`, `-- infer`. Each step is submitted alone and waited for (~0.5 ms of
 //! overhead on lavapipe), twice, keeping the faster; a heavy step is one that takes at
-//! least 2 % of its pass. About 2 minutes for everything on the 2-core lavapipe machine.
+//! least 2 % of its pass. The baseline is measured just before and just after each pass
+//! and their mean is the reference. About 2 minutes for everything on the 2-core lavapipe machine.
 
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
 use common::network;
-use iastgcn::gpu::{Gpu, Recorder};
+use iastgcn::gpu::{Dispatch, Gpu, Recorder};
 use iastgcn::model::{ModelConfig, Pass, StepTime};
+use iastgcn::ops::matmul::Matmul;
 
 mod common;
 
@@ -24,12 +26,11 @@ const BATCH: usize = 64;
 const HEAVY: f64 = 0.02;
 
 /// GFLOP/s of the baseline product (`common::baseline`), best of 8 after a warm-up.
-fn baseline(gpu: &Gpu) -> f64 {
-    let (mm, d) = common::baseline(gpu);
+fn baseline(gpu: &Gpu, (mm, d): &(Matmul, Dispatch)) -> f64 {
     let mut best = Duration::MAX;
     for i in 0..9 {
         let mut rec = Recorder::new(gpu);
-        rec.dispatch(&d);
+        rec.dispatch(d);
         let t0 = Instant::now();
         rec.submit();
         gpu.wait().unwrap();
@@ -132,8 +133,7 @@ fn main() {
         !named || args.iter().any(|a| a == what)
     };
     let gpu = Gpu::new().expect("a GPU adapter (make bench installs lavapipe)");
-    let base = baseline(&gpu);
-    eprintln!("baseline matmul 896x[64,192]x[192,100]: {base:.2} GFLOP/s");
+    let product = common::baseline(&gpu);
     let shapes = [
         ("paper C64 T100 L5", "paper", ModelConfig::default()),
         ("small C16 T48 L3", "small", common::small_config()),
@@ -152,7 +152,17 @@ fn main() {
             }
             // Untimed once: the first dispatch of each pipeline JIT-compiles it.
             net.profile(&gpu, pass, 1).unwrap();
+            // The baseline just before and just after the pass, their mean counting: on a
+            // shared machine the speed drifts within a run (by up to 1.7x within a minute
+            // on 2026-11-22), and a baseline taken minutes away drifts the ratios with it.
+            let before = baseline(&gpu, &product);
             let times = net.profile(&gpu, pass, 2).unwrap();
+            let after = baseline(&gpu, &product);
+            let base = 0.5 * (before + after);
+            eprintln!(
+                "\nbaseline matmul 896x[64,192]x[192,100] around this pass: \
+                 {before:.2} / {after:.2} GFLOP/s"
+            );
             report(&format!("{name} {label} B={BATCH}"), &times, base);
         }
     }
