@@ -1,7 +1,8 @@
 // The matmul with operand loads shared across a subgroup's lanes (Rust side:
 // src/ops/matmul.rs), for devices whose subgroups have 8 lanes (lavapipe on 256-bit
 // vectors). Compiled after matmul.wgsl: same parameters, bindings, load modes and
-// epilogue, and the same sums in the same order as its `matmul`.
+// epilogue, and the same terms added in the same order as its `matmul` (the compiler's
+// multiply-add fusion may still differ, so the last bits can).
 //
 // Why: lavapipe (Mesa 22.3) turns each lane's storage load inside a loop into a per-lane,
 // per-component sequence with a bounds check and a branch, some eight instructions per
