@@ -897,7 +897,9 @@ impl Gemm {
 }
 
 /// The kernel entry and load modes `matmul.wgsl` uses for `mm`'s forward, dA and dB
-/// products (in that order), for tests and profiles.
+/// products (in that order), for tests and profiles. The entry is the portable one
+/// (`matmul` or `matmul_row`); on a device with 8-lane subgroups a product named
+/// `matmul` runs on a subgroup kernel instead, with the same load modes.
 pub fn plan(mm: &Matmul) -> [(&'static str, Loads); 3] {
     let describe = |g: Gemm| {
         let (g, _) = g.canonical();
