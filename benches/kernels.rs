@@ -9,7 +9,8 @@
 //! `-- train`, `-- infer`. Each step is submitted alone and waited for (~0.5 ms of
 //! overhead on lavapipe), twice, keeping the faster; a heavy step is one that takes at
 //! least 2 % of its pass. The baseline is measured just before and just after each pass
-//! and their mean is the reference. About 2 minutes for everything on the 2-core lavapipe machine.
+//! and their mean is the reference. About 2 minutes for everything on the 2-core lavapipe
+//! machine.
 
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};

@@ -86,6 +86,20 @@ fn a_k4(o: u32) -> vec4<f32> {
     return vec4<f32>(a[o], a[o + s], a[o + 2u * s], a[o + 3u * s]);
 }
 
+// Four consecutive k (kk..kk+3) of the row of op(A) at flat row offset `ra` (row x a_row):
+// one vector when A is read along k, else four scalars.
+fn a_row_k4(abase: u32, kk: u32, ra: u32) -> vec4<f32> {
+    if A_VEC && A_ALONG_K {
+        return a4[(abase + kk + ra) >> 2u];
+    }
+    return a_k4(abase + kk * p.a_col + ra);
+}
+
+// Four rows (flat offsets `rows`, row x a_row) of op(A) at one k, flat offset `o`.
+fn a_m4(o: u32, rows: vec4<u32>) -> vec4<f32> {
+    return vec4<f32>(a[o + rows.x], a[o + rows.y], a[o + rows.z], a[o + rows.w]);
+}
+
 // Four columns (flat offsets `cols`) of one row of op(B) at flat offset `o`.
 fn b_n4(o: u32, cols: vec4<u32>) -> vec4<f32> {
     return vec4<f32>(b[o + cols.x], b[o + cols.y], b[o + cols.z], b[o + cols.w]);
@@ -95,18 +109,14 @@ fn b_n4(o: u32, cols: vec4<u32>) -> vec4<f32> {
 // `rows[i]` (over k). `rows` are clamped row indices; `row0` (a multiple of 4, used only
 // along m, which the host allows only when m is a multiple of 4) is the first of them.
 fn a_rows(abase: u32, kk: u32, row0: u32, rows: vec4<u32>) -> mat4x4<f32> {
-    let ra = rows * p.a_row;
-    if A_VEC && A_ALONG_K {
-        let o = abase + kk;
-        return mat4x4<f32>(a4[(o + ra.x) >> 2u], a4[(o + ra.y) >> 2u], a4[(o + ra.z) >> 2u], a4[(o + ra.w) >> 2u]);
-    }
-    if A_VEC {
+    if A_VEC && !A_ALONG_K {
         let o = abase + kk * p.a_col + row0;
         let s = p.a_col;
         return transpose(mat4x4<f32>(a4[o >> 2u], a4[(o + s) >> 2u], a4[(o + 2u * s) >> 2u], a4[(o + 3u * s) >> 2u]));
     }
-    let o = abase + kk * p.a_col;
-    return mat4x4<f32>(a_k4(o + ra.x), a_k4(o + ra.y), a_k4(o + ra.z), a_k4(o + ra.w));
+    let ra = rows * p.a_row;
+    return mat4x4<f32>(a_row_k4(abase, kk, ra.x), a_row_k4(abase, kk, ra.y),
+                       a_row_k4(abase, kk, ra.z), a_row_k4(abase, kk, ra.w));
 }
 
 // Four columns of op(B) for k = kk..kk+3: column i of the result holds row kk+i (over
@@ -307,10 +317,8 @@ fn matmul(@builtin(global_invocation_id) gid: vec3<u32>) {
             let bk = bbase + kk * p.b_row;
             let bl = b_n4(bk, cols_l * p.b_col);
             let br = b_n4(bk, cols_r * p.b_col);
-            let al = rows_lo * p.a_row;
-            let ah = rows_hi * p.a_row;
-            let xl = vec4<f32>(a[ak + al.x], a[ak + al.y], a[ak + al.z], a[ak + al.w]);
-            let xh = vec4<f32>(a[ak + ah.x], a[ak + ah.y], a[ak + ah.z], a[ak + ah.w]);
+            let xl = a_m4(ak, rows_lo * p.a_row);
+            let xh = a_m4(ak, rows_hi * p.a_row);
             acc_lo_l += outer4(bl, xl);
             acc_lo_r += outer4(br, xl);
             acc_hi_l += outer4(bl, xh);
@@ -373,13 +381,8 @@ fn matmul_row(@builtin(global_invocation_id) gid: vec3<u32>) {
         let bbase = z * p.b_batch + r * p.b_reduce;
         var kk = 0u;
         for (; kk < k4; kk += 4u) {
-            var x: vec4<f32>;
-            if A_VEC {
-                x = a4[(abase + kk) >> 2u];
-            } else {
-                x = a_k4(abase + kk * p.a_col);
-            }
-            acc += b_cols(bbase, kk, col0, cols) * x;
+            // One row: A is only ever read as vectors along k here.
+            acc += b_cols(bbase, kk, col0, cols) * a_row_k4(abase, kk, 0u);
         }
         for (; kk < p.k; kk++) {
             acc += a[abase + kk * p.a_col] * b_n4(bbase + kk * p.b_row, cb);

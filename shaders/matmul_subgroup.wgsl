@@ -98,9 +98,7 @@ fn matmul_subgroup(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup_id) 
         }
         // A ragged K ends in scalar steps, each lane loading all 16 columns itself.
         for (; kk < p.k; kk++) {
-            let ak = abase + kk * p.a_col;
-            let al = rows * p.a_row;
-            let x = vec4<f32>(a[ak + al.x], a[ak + al.y], a[ak + al.z], a[ak + al.w]);
+            let x = a_m4(abase + kk * p.a_col, rows * p.a_row);
             let bk = bbase + kk * p.b_row;
             acc_0 += outer4(b_n4(bk, clamp4(col0, p.n) * p.b_col), x);
             acc_1 += outer4(b_n4(bk, clamp4(col0 + 4u, p.n) * p.b_col), x);
@@ -122,14 +120,6 @@ fn matmul_subgroup(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup_id) 
 
 // Subgroups per workgroup, one block of 32 columns each.
 override SG_COL_TILES: u32 = 4u;
-
-// Four consecutive k (kk..kk+3) of row offset `ra` (row x a_row) of op(A).
-fn a_k4_at(abase: u32, kk: u32, ra: u32) -> vec4<f32> {
-    if A_VEC && A_ALONG_K {
-        return a4[(abase + kk + ra) >> 2u];
-    }
-    return a_k4(abase + kk * p.a_col + ra);
-}
 
 @compute @workgroup_size(8u * SG_COL_TILES, 1, 1)
 fn matmul_subgroup_cols(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup_id) sg: u32,
@@ -165,8 +155,8 @@ fn matmul_subgroup_cols(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup
         var kk = 0u;
         for (; kk < k4; kk += 4u) {
             let y = b_cols(bbase, kk, c0, cols);
-            let x0 = a_k4_at(abase, kk, ra0);
-            let x1 = a_k4_at(abase, kk, ra1);
+            let x0 = a_row_k4(abase, kk, ra0);
+            let x1 = a_row_k4(abase, kk, ra1);
             acc_0 += y * mat4x4<f32>(subgroupBroadcast(x0, 0u), subgroupBroadcast(x1, 0u),
                                      subgroupBroadcast(x0, 1u), subgroupBroadcast(x1, 1u));
             acc_1 += y * mat4x4<f32>(subgroupBroadcast(x0, 2u), subgroupBroadcast(x1, 2u),

@@ -27,8 +27,7 @@ pub struct Shader {
 impl Shader {
     /// The text handed to the compiler: common helpers, the base shader, then this file.
     pub fn full_source(&self) -> String {
-        let base = self.base.map_or("", |b| b.source);
-        format!("{COMMON_WGSL}\n{base}\n{}", self.source)
+        compose(self.base.map_or("", |b| b.source), self.source)
     }
 
     /// Parses and validates the shader (with the common prelude and its base) with naga.
@@ -89,6 +88,12 @@ pub fn validate_wgsl(name: &str, source: &str) -> Result<naga::Module, GpuError>
     validate_with_base(name, source, None)
 }
 
+/// The compiler's text: the common prelude, a base shader's source (or nothing), then
+/// `source`, each followed by a newline (the line mapping of validation relies on it).
+fn compose(base_source: &str, source: &str) -> String {
+    format!("{COMMON_WGSL}\n{base_source}\n{source}")
+}
+
 /// [`validate_wgsl`] for a shader compiled after a base shader (`(name, source)`).
 fn validate_with_base(
     name: &str,
@@ -96,7 +101,7 @@ fn validate_with_base(
     base: Option<(&str, &str)>,
 ) -> Result<naga::Module, GpuError> {
     let (base_name, base_source) = base.unwrap_or(("", ""));
-    let full = format!("{COMMON_WGSL}\n{base_source}\n{source}");
+    let full = compose(base_source, source);
     // Each part ends at the separator newline after it: (file, its last line in `full`).
     let common_end = COMMON_WGSL.matches('\n').count() + 1;
     let base_end = common_end + base_source.matches('\n').count() + 1;
