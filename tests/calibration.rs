@@ -7,7 +7,7 @@ use iastgcn::robot::{Configuration, ErrorParams, Geometry, Robot};
 use iastgcn::twin::sources::NonGeometric;
 use iastgcn::twin::{
     calibration_configurations, draw_errors, draw_machine, measure_calibration, ErrorScales,
-    Machine, SensorNoise,
+    Installation, Machine, SensorSpecs,
 };
 
 fn measure(
@@ -16,7 +16,7 @@ fn measure(
     configs: &[Configuration],
     seed: u64,
 ) -> Vec<Measurement> {
-    measure_calibration(machine, nominal, configs, &SensorNoise::default(), 10, seed)
+    measure_calibration(machine, nominal, configs, &SensorSpecs::default(), 10, seed)
         .unwrap()
         .into_iter()
         .map(|m| Measurement {
@@ -45,6 +45,7 @@ fn geometric_machine(errors: ErrorParams) -> Machine {
     Machine {
         robot: Robot::new(Geometry::default_asset(), errors),
         nongeometric: NonGeometric::none(),
+        sensors: Installation::default(),
     }
 }
 

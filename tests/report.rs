@@ -9,8 +9,9 @@ use iastgcn::compensate::report::{
 use iastgcn::stats::Summary;
 use iastgcn::train::{EpochRecord, Metrics};
 
-const TABLE_V_HEADER: &str =
-    "trajectory,stage,model,pos_mean_um,pos_sd_um,pos_max_um,att_mean_mdeg,att_sd_mdeg,att_max_mdeg";
+const TABLE_V_HEADER: &str = "trajectory,stage,model,\
+true_pos_mean_um,true_pos_sd_um,true_pos_max_um,true_att_mean_mdeg,true_att_sd_mdeg,true_att_max_mdeg,\
+trk_pos_mean_um,trk_pos_sd_um,trk_pos_max_um,trk_att_mean_mdeg,trk_att_sd_mdeg,trk_att_max_mdeg";
 const TABLE_III_HEADER: &str =
     "trajectory,model,pos_mae_um,pos_rmse_um,pos_mape_pct,att_mae_mdeg,att_rmse_mdeg,att_mape_pct";
 const PNG_SIGNATURE: [u8; 8] = [0x89, b'P', b'N', b'G', 0x0d, 0x0a, 0x1a, 0x0a];
@@ -54,12 +55,18 @@ fn stats(pos: (f64, f64, f64), att: (f64, f64, f64)) -> ErrorStats {
     }
 }
 
-fn v_row(trajectory: &str, stage: &str, model: &str, errors: ErrorStats) -> TableVRow {
+/// A row whose tracker statistics are the truth's × 1.25 (so the two are told apart).
+fn v_row(trajectory: &str, stage: &str, model: &str, truth: ErrorStats) -> TableVRow {
+    let scale = |s: &Summary| summary(1.25 * s.mean, 1.25 * s.sd, 1.25 * s.max);
     TableVRow {
         trajectory: trajectory.into(),
         stage: stage.into(),
         model: model.into(),
-        errors,
+        truth,
+        tracker: ErrorStats {
+            position: scale(&truth.position),
+            attitude: scale(&truth.attitude),
+        },
     }
 }
 
@@ -226,6 +233,7 @@ fn synthetic() -> Report {
         traces,
         accumulated: Some((before, after)),
         notes: vec!["The compensated cloud shrinks toward the origin.".into()],
+        sections: vec![("Sensor models".into(), "| E1 | a scale |".into())],
     }
 }
 
@@ -290,13 +298,13 @@ fn writes_every_file_of_the_report_folder() {
     assert_eq!(v.len(), 1 + r.table_v.len());
     for (line, row) in v[1..].iter().zip(&r.table_v) {
         let cells: Vec<&str> = line.split(',').collect();
-        assert_eq!(cells.len(), 9, "{line}");
+        assert_eq!(cells.len(), 15, "{line}");
         assert_eq!(cells[..3], [&row.trajectory, &row.stage, &row.model]);
-        let (p, a) = (&row.errors.position, &row.errors.attitude);
-        for (cell, value) in cells[3..]
-            .iter()
-            .zip([p.mean, p.sd, p.max, a.mean, a.sd, a.max])
-        {
+        let values = [&row.truth, &row.tracker].into_iter().flat_map(|e| {
+            let (p, a) = (&e.position, &e.attitude);
+            [p.mean, p.sd, p.max, a.mean, a.sd, a.max]
+        });
+        for (cell, value) in cells[3..].iter().zip(values) {
             close(cell, value, 4);
             assert_eq!(cell.split('.').nth(1).map(str::len), Some(4), "{cell}");
         }
@@ -342,13 +350,14 @@ fn writes_every_file_of_the_report_folder() {
     assert!(md.contains("## Table III analog"));
     assert!(md.contains("## Fig. 10 analog"));
     assert!(md.contains("The compensated cloud shrinks toward the origin."));
-    // Table V rows grouped per trajectory: initial, calibrated, compensated per model.
+    // Table V rows grouped per trajectory: initial, calibrated, compensated per model;
+    // each cell truth / tracker.
     let order: Vec<usize> = [
-        "| hilbert | initial | - | 812.346 |",
-        "| hilbert | calibrated | - | 8.000 |",
-        "| hilbert | compensated | iastgcn | 2.000 |",
-        "| hilbert | compensated | lstm | 6.000 |",
-        "| raster | initial | - | 640.123 |",
+        "| hilbert | initial | - | 812.3 / 1015.4 |",
+        "| hilbert | calibrated | - | 8.0 / 10.0 |",
+        "| hilbert | compensated | iastgcn | 2.0 / 2.5 |",
+        "| hilbert | compensated | lstm | 6.0 / 7.5 |",
+        "| raster | initial | - | 640.1 / 800.2 |",
     ]
     .iter()
     .map(|row| {

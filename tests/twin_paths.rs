@@ -102,14 +102,19 @@ fn the_tool_reaches_every_path_normal_to_the_surface() {
                 .solve_tool(&target, &c)
                 .unwrap_or_else(|e| panic!("{kind:?} at ({x:.1}, {y:.1}): {e}"));
             let pose = robot.tool_pose(&next.platform, &next.head);
-            assert!((pose.translation.vector - target.position).norm() < 1e-8);
+            let miss = (pose.translation.vector - target.position).norm();
+            assert!(
+                miss < 1e-8,
+                "{kind:?} at ({x:.1}, {y:.1}): missed by {miss:.3e} mm"
+            );
             let dev = (pose.rotation * Vector3::z() - target.axis).norm();
             assert!(
                 dev < 1e-10,
                 "{kind:?} at ({x:.1}, {y:.1}): axis off by {dev:.3e}"
             );
             c = next;
-            s += 25.0;
+            // The rosette turns sharply near the centre: the solve needs closer steps there.
+            s += if kind == PathKind::Rosette { 5.0 } else { 25.0 };
         }
     }
 }

@@ -6,7 +6,7 @@ use iastgcn::twin::sources::{
     Backlash, BacklashParams, LostMotion, LostMotionParams, NonGeometric, Play, Thermal,
     ThermalParams,
 };
-use iastgcn::twin::{draw_machine, measure_calibration, Machine, SensorNoise};
+use iastgcn::twin::{draw_machine, measure_calibration, Machine, SensorSpecs};
 
 #[test]
 fn play_lags_by_half_the_slack_and_holds_on_reversal() {
@@ -43,10 +43,20 @@ fn lost_motion_grows_with_travel() {
 #[test]
 fn backlash_error_flips_sign_with_direction() {
     let w = 0.02f64.to_radians();
-    let mut b = Backlash::new(BacklashParams { width: [w, w] });
+    let mut b = Backlash::new(BacklashParams {
+        width: [w, w],
+        transmission_error: [0.0; 2],
+        transmission_phase: [0.0; 2],
+        ratio: 100.0,
+    });
     b.step([0.0, 0.0]);
     let up = b.step([0.01, 0.01]);
-    let mut b2 = Backlash::new(BacklashParams { width: [w, w] });
+    let mut b2 = Backlash::new(BacklashParams {
+        width: [w, w],
+        transmission_error: [0.0; 2],
+        transmission_phase: [0.0; 2],
+        ratio: 100.0,
+    });
     b2.step([0.02, 0.02]);
     let down = b2.step([0.01, 0.01]);
     assert!(
@@ -61,31 +71,40 @@ fn thermal_elongation_settles_to_gain_times_speed() {
         gain_per_speed: [2.0, 1.0, 0.0],
         time_constant: 60.0,
         expansion: 11.5e-6,
-        length: 800.0,
+        tube_length: 300.0,
+        tube_share: 0.5,
+        tube_time_constant: 120.0,
         ambient_amplitude: 0.0,
         ambient_period: 3600.0,
         ambient_phase: 0.0,
     };
     let mut th = Thermal::new(p);
     let dt = 0.1;
-    let mut e = [0.0; 3];
+    // The nut 400 mm from its bearing: the screw grows over that span only.
+    let travel = [400.0; 3];
+    let mut e = th.step(0.0, dt, [0.0; 3], travel);
     let mut x = 0.0;
-    for k in 0..20_000 {
-        x = 5.0 * k as f64 * dt; // 5 mm/s for 2000 s, ≫ the time constant
-        e = th.step(k as f64 * dt, dt, [x; 3]);
+    for k in 1..30_000 {
+        x = 5.0 * k as f64 * dt; // 5 mm/s for 3000 s, ≫ both time constants
+        e = th.step(k as f64 * dt, dt, [x; 3], travel);
     }
-    // Equilibrium rise 10 K and 5 K: 11.5e-6 · 800 · ΔT mm.
-    assert!((e[0] - 11.5e-6 * 800.0 * 10.0).abs() < 1e-9, "{e:?}");
-    assert!((e[1] - 11.5e-6 * 800.0 * 5.0).abs() < 1e-9, "{e:?}");
-    assert_eq!(e[2], 0.0);
-    // After one time constant at rest, 1/e of it is left.
-    for k in 0..600 {
-        e = th.step(2000.0 + k as f64 * dt, dt, [x; 3]);
-    }
+    // Equilibrium rise 10 K and 5 K in the screws, half of that in the tubes.
+    let screw = |rise: f64| 11.5e-6 * 400.0 * rise;
+    let tube = |rise: f64| 11.5e-6 * 300.0 * 0.5 * rise;
+    assert!((e.screw[0] - screw(10.0)).abs() < 1e-9, "{e:?}");
+    assert!((e.screw[1] - screw(5.0)).abs() < 1e-9, "{e:?}");
+    assert!((e.tube[0] - tube(10.0)).abs() < 1e-9, "{e:?}");
+    assert_eq!(e.total()[2], 0.0);
+    // After one screw time constant at rest, 1/e of the screw's growth is left; the
+    // slower tube has lost less than half of its own.
+    th.idle(60.0);
+    let e = th.step(3060.0, dt, [x; 3], travel);
     assert!(
-        (e[0] / (11.5e-6 * 800.0 * 10.0) - (-1.0f64).exp()).abs() < 0.01,
+        (e.screw[0] / screw(10.0) - (-1.0f64).exp()).abs() < 0.01,
         "{e:?}"
     );
+    let kept = e.tube[0] / tube(10.0);
+    assert!((0.5..0.9).contains(&kept), "tube kept {kept}");
 }
 
 /// Drives the machine to one configuration through a short approach from `from`, and
@@ -96,7 +115,7 @@ fn approach(
     from: &Configuration,
     to: &Configuration,
 ) -> nalgebra::Vector3<f64> {
-    let noise = SensorNoise::default();
+    let noise = SensorSpecs::default();
     let m = measure_calibration(machine, controller, &[*from, *to], &noise, 1, 0).unwrap();
     m[1].actual.translation.vector
 }

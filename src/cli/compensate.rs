@@ -9,13 +9,13 @@ use anyhow::Context;
 use indicatif::ProgressBar;
 
 use crate::calibrate::file;
-use crate::compensate::evaluate::{predictors, table_v, HeldOut};
+use crate::compensate::evaluate::{predictors, table_v, warm_up, HeldOut, HeldOutResult};
 use crate::compensate::online::Online;
 use crate::compensate::report::TableVRow;
 use crate::gpu::Gpu;
 use crate::model::Checkpoint;
 use crate::robot::{Geometry, Robot};
-use crate::twin::{draw_machine, PathKind, SimConfig};
+use crate::twin::{draw_machine, PathKind, PathParams};
 
 #[derive(clap::Args)]
 pub struct CompensateArgs {
@@ -25,9 +25,13 @@ pub struct CompensateArgs {
     /// Calibration file (the controller's model).
     #[arg(long)]
     pub calibration: PathBuf,
-    /// Path to run: grid, fermat, hilbert.
-    #[arg(long, default_value = "hilbert", value_parser = ["grid", "fermat", "hilbert"])]
+    /// Path to run: grid, fermat, hilbert (placed as the held-out runs place them, never
+    /// retracing a training recording) or rosette (never in training).
+    #[arg(long, default_value = "hilbert", value_parser = ["grid", "fermat", "hilbert", "rosette"])]
     pub trajectory: String,
+    /// Minutes of polishing that warm the machine up before the scored run (0: cold).
+    #[arg(long, default_value_t = 2.0)]
+    pub warm_up_minutes: f64,
     /// Length of the run, minutes.
     #[arg(long, default_value_t = 1.0)]
     pub minutes: f64,
@@ -56,16 +60,18 @@ pub fn tick_bar(len: usize, what: &str) -> ProgressBar {
 /// Prints Table V rows.
 pub fn print_table_v(rows: &[TableVRow]) {
     println!(
-        "{:<10} {:<12} {:<14} {:>9} {:>8} {:>9}   {:>8} {:>7} {:>8}",
-        "path", "stage", "model", "pos mean", "SD", "max", "att mean", "SD", "max"
+        "{:<10} {:<12} {:<14} {:<7} {:>9} {:>8} {:>9}   {:>8} {:>7} {:>8}",
+        "path", "stage", "model", "vs", "pos mean", "SD", "max", "att mean", "SD", "max"
     );
-    println!("{:<38} {:>28}   {:>25}", "", "(µm)", "(mdeg)");
+    println!("{:<46} {:>28}   {:>25}", "", "(µm)", "(mdeg)");
     for r in rows {
-        let (p, a) = (r.errors.position, r.errors.attitude);
-        println!(
-            "{:<10} {:<12} {:<14} {:>9.1} {:>8.1} {:>9.1}   {:>8.2} {:>7.2} {:>8.2}",
-            r.trajectory, r.stage, r.model, p.mean, p.sd, p.max, a.mean, a.sd, a.max
-        );
+        for (what, e) in [("truth", &r.truth), ("tracker", &r.tracker)] {
+            let (p, a) = (e.position, e.attitude);
+            println!(
+                "{:<10} {:<12} {:<14} {:<7} {:>9.1} {:>8.1} {:>9.1}   {:>8.2} {:>7.2} {:>8.2}",
+                r.trajectory, r.stage, r.model, what, p.mean, p.sd, p.max, a.mean, a.sd, a.max
+            );
+        }
     }
 }
 
@@ -98,23 +104,34 @@ pub fn run(gpu: Gpu, args: &CompensateArgs) -> anyhow::Result<()> {
     let graph = checkpoints[0].1.graph.clone();
     let gpu = Arc::new(gpu);
     let mut models = predictors(&gpu, &checkpoints)?;
+    let start = warm_up(
+        &machine,
+        &calibrated,
+        args.warm_up_minutes * 60.0,
+        args.seed ^ 0x5741_524d,
+    )
+    .context("warm-up run")?;
     let run = HeldOut {
         path,
+        params: PathParams::held_out(path),
         seconds: args.minutes * 60.0,
         seed: args.seed,
+        start,
     };
-    let ticks = SimConfig::new(path, run.seconds, run.seed).steps();
+    let ticks = run.config().steps();
     let bar = tick_bar(
-        ticks * (2 + models.len()),
+        ticks * (3 + models.len()),
         &format!("compensating {}", path.name()),
     );
-    let (rows, _, latency) = table_v(
+    let window = checkpoints[0].1.config.window;
+    let HeldOutResult { rows, latency, .. } = table_v(
         &machine,
         &nominal,
         &calibrated,
         &graph,
+        window,
         &mut models,
-        run,
+        &run,
         Online { every: args.every },
         |_| bar.inc(1),
     )

@@ -10,15 +10,26 @@ use crate::data::{tracker_columns, write_calibration_set, CalibrationRow, Record
 use crate::plot::{self, Panel, Series};
 use crate::robot::{Geometry, Robot};
 use crate::twin::{
-    calibration_configurations, draw_machine, measure_calibration, Mirror, PathKind, SensorNoise,
-    SimConfig, Simulation, CHANNELS,
+    calibration_configurations, draw_machine, measure_calibration, Machine, MachineState, Mirror,
+    PathKind, PathParams, RunInfo, SensorSpecs, SimConfig, Simulation, CHANNELS,
 };
 
 #[derive(clap::Args)]
 pub struct SimulateArgs {
-    /// Path to polish (grid, fermat, hilbert) or `calibration` for static measurement poses.
-    #[arg(long, value_parser = ["grid", "fermat", "hilbert", "calibration"])]
+    /// Path to polish (grid, fermat, hilbert, rosette) or `calibration` for static
+    /// measurement poses.
+    #[arg(long, value_parser = ["grid", "fermat", "hilbert", "rosette", "calibration"])]
     pub trajectory: String,
+    /// Rotation of the pattern on the part, degrees.
+    #[arg(long, default_value_t = 0.0)]
+    pub rotation: f64,
+    /// Walk the pattern from its other end.
+    #[arg(long)]
+    pub reverse: bool,
+    /// Drive with this calibration's model (default: the nominal model, as an
+    /// uncalibrated machine does).
+    #[arg(long)]
+    pub calibration: Option<PathBuf>,
     /// Length of a polishing run, minutes.
     #[arg(long, default_value_t = 5.0)]
     pub minutes: f64,
@@ -56,8 +67,13 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
         None => Geometry::default_asset(),
     };
     let machine = draw_machine(geometry.clone(), args.machine_seed);
-    // The controller drives with the nominal model: what an uncalibrated machine does.
-    let controller = Robot::nominal(geometry);
+    let (controller, controller_name) = match &args.calibration {
+        Some(p) => (
+            Robot::new(geometry, crate::calibrate::file::load(p)?.errors),
+            p.display().to_string(),
+        ),
+        None => (Robot::nominal(geometry), "nominal".to_string()),
+    };
     if args.trajectory == "calibration" {
         return calibration(args, &machine, &controller);
     }
@@ -65,9 +81,50 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
     if !args.minutes.is_finite() || args.minutes <= 0.0 {
         anyhow::bail!("--minutes must be positive, got {}", args.minutes);
     }
-    let config = SimConfig::new(kind, args.minutes * 60.0, args.seed);
+    let params = PathParams {
+        rotation_deg: args.rotation,
+        reverse: args.reverse,
+        ..PathParams::default()
+    };
+    let mut info = RunInfo::polishing(kind, &params, args.minutes * 60.0, args.seed);
+    info.machine_seed = args.machine_seed;
+    info.controller = controller_name;
+    record_run(
+        &machine,
+        &controller,
+        info,
+        machine.cold(),
+        &args.out,
+        args.plot.clone(),
+    )?;
+    Ok(())
+}
+
+/// Records the polishing run `info` describes on `machine` from `start` (the machine's
+/// state from earlier runs of the session; `info.start` and the temperatures are filled
+/// in from it), writes the CSV, its `.run.toml` sidecar and a PNG (`plot`, or the CSV's
+/// path with `.png`), and returns the machine's state at the end.
+pub fn record_run(
+    machine: &Machine,
+    controller: &Robot,
+    mut info: RunInfo,
+    start: MachineState,
+    out: &std::path::Path,
+    plot: Option<PathBuf>,
+) -> anyhow::Result<MachineState> {
+    let kind: PathKind = info.path.parse().map_err(anyhow::Error::msg)?;
+    let params = PathParams {
+        rotation_deg: info.rotation_deg,
+        reverse: info.reverse,
+        ..PathParams::default()
+    };
+    let mut config = SimConfig::new(kind, info.seconds, info.seed);
+    config.path_params = params;
+    info.start = if start.clock > 0.0 { "warm" } else { "cold" }.into();
+    info.session_clock_s = start.clock;
+    info.screw_rise_k = start.screw_rise();
     let steps = config.steps();
-    let mut sim = Simulation::new(&machine, &controller, Mirror::default(), config)?;
+    let mut sim = Simulation::resume(machine, controller, Mirror::default(), config, start)?;
     let bar = progress(steps as u64, &format!("simulating {}", kind.name()));
     let mut rows = Vec::with_capacity(steps);
     let mut truth = Vec::with_capacity(steps);
@@ -93,11 +150,14 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
         }
     }
     bar.finish_and_clear();
+    let end = sim.machine_state();
     let recording = Recording {
         channels: CHANNELS.iter().map(|c| c.to_string()).collect(),
         rows,
     };
-    recording.write(&args.out)?;
+    recording.write(out)?;
+    info.write(out)
+        .with_context(|| RunInfo::sidecar(out).display().to_string())?;
     let n = truth.len() as f64;
     let mean_pos = truth.iter().map(|t| t.1).sum::<f64>() / n;
     let mean_att = truth.iter().map(|t| t.2).sum::<f64>() / n;
@@ -107,20 +167,20 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
         .filter(|r| r.tracker.is_some())
         .count();
     println!(
-        "wrote {} ({} rows, {:.0} s, {} tracker samples)",
-        args.out.display(),
+        "wrote {} ({} rows, {:.0} s, {} tracker samples; seed {}, {} start, controller {})",
+        out.display(),
         recording.rows.len(),
-        args.minutes * 60.0,
-        tracked
+        info.seconds,
+        tracked,
+        info.seed,
+        info.start,
+        info.controller
     );
     println!(
         "twin truth (not in the file): machine {} is off by {:.3} mm and {:.4} deg on average",
-        args.machine_seed, mean_pos, mean_att
+        info.machine_seed, mean_pos, mean_att
     );
-    let plot_path = args
-        .plot
-        .clone()
-        .unwrap_or_else(|| args.out.with_extension("png"));
+    let plot_path = plot.unwrap_or_else(|| out.with_extension("png"));
     let channel = |i: usize| -> Vec<(f64, f64)> {
         recording
             .rows
@@ -171,7 +231,7 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
     ];
     plot::draw(&plot_path, &panels, 2, 2, (1400, 1000))?;
     println!("plot {}", plot_path.display());
-    Ok(())
+    Ok(end)
 }
 
 fn calibration(
@@ -187,7 +247,7 @@ fn calibration(
         machine,
         controller,
         &configs,
-        &SensorNoise::default(),
+        &SensorSpecs::default(),
         10,
         args.seed,
     )?;
@@ -207,6 +267,23 @@ fn calibration(
     }
     bar.finish_and_clear();
     write_calibration_set(&args.out, &rows)?;
+    RunInfo {
+        path: "calibration".into(),
+        rotation_deg: 0.0,
+        reverse: false,
+        seconds: 0.0,
+        seed: args.seed,
+        machine_seed: args.machine_seed,
+        controller: args
+            .calibration
+            .as_ref()
+            .map_or("nominal".into(), |p| p.display().to_string()),
+        start: "cold".into(),
+        session_clock_s: 0.0,
+        screw_rise_k: [0.0; 3],
+    }
+    .write(&args.out)
+    .with_context(|| RunInfo::sidecar(&args.out).display().to_string())?;
     println!(
         "wrote {} ({} measurement poses, tracker averaged over 10 readings each)",
         args.out.display(),

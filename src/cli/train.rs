@@ -410,6 +410,11 @@ pub struct Refined {
     pub after: Vec<(usize, f64, f64)>,
     pub metrics_before: Vec<(String, Metrics, Metrics)>,
     pub metrics_after: Vec<(String, Metrics, Metrics)>,
+    /// Per-window validation loss (the core stage's) of the incoming and of the returned
+    /// parameters; they are the incoming ones when refinement did not lower it.
+    pub core_val: f64,
+    pub refined_val: f64,
+    pub kept_core: bool,
 }
 
 /// Runs the refinement stages of `config` from `init` (Algorithm 2).
@@ -441,6 +446,8 @@ pub fn refine_params(
                 test_metrics(&trainer, data)?,
             ));
         }
+        // A stage keeps what it was given unless its validation loss improves.
+        trainer.keep_start_unless_improved()?;
         println!(
             "{}: ensembles of {} windows, {} per step, {} steps per epoch, lr0 {:.1e}",
             stage.name,
@@ -458,6 +465,25 @@ pub fn refine_params(
         bail!("refine.magnifications is empty: nothing to refine");
     };
     let (before, metrics_before) = before.expect("set with the first stage");
+    // The stages score ensembles; the model is used window by window, so it is kept only
+    // if the per-window validation loss improves too.
+    let judge = Trainer::new(
+        gpu,
+        data,
+        graph,
+        &config.model,
+        &config.train,
+        core_stage(config),
+        init,
+    )?;
+    let core_val = judge.validation_loss_of(init)?;
+    let refined_val = judge.validation_loss_of(&params)?;
+    let kept_core = refined_val >= core_val;
+    if kept_core {
+        params = init.clone();
+        trainer.load_parameters(init)?;
+    }
+    drop(judge);
     Ok(Refined {
         after: accumulated(&trainer, data, horizon)?,
         metrics_after: test_metrics(&trainer, data)?,
@@ -465,6 +491,9 @@ pub fn refine_params(
         history,
         before,
         metrics_before,
+        core_val,
+        refined_val: refined_val.min(core_val),
+        kept_core,
     })
 }
 

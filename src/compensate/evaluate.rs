@@ -4,7 +4,7 @@
 
 use std::sync::Arc;
 
-use super::online::{self, Online, RunResult};
+use super::online::{self, Feedback, Online, RunResult};
 use super::report::{TableIIIRow, TableVRow, Trace};
 use crate::data::{Dataset, OUTPUTS};
 use crate::gpu::{Gpu, Recorder};
@@ -13,7 +13,7 @@ use crate::model::{Checkpoint, ModelError, Network, Predictor};
 use crate::robot::Robot;
 use crate::train::metrics::per_recording;
 use crate::train::to_physical;
-use crate::twin::{Machine, PathKind, SimConfig};
+use crate::twin::{Machine, MachineState, PathKind, PathParams, SimConfig};
 
 /// Predictions (µm, mdeg) of a checkpoint for the windows at `positions` of a dataset
 /// standardised with the checkpoint's own statistics (so the dataset's label statistics
@@ -77,53 +77,99 @@ pub fn table_iii(
     Ok(rows)
 }
 
-/// A held-out polishing run to compensate.
-#[derive(Clone, Copy, Debug)]
+/// A held-out polishing run to compensate: its path and placement on the part, length,
+/// seed, and the machine's state when it starts (warm from the session's earlier runs).
+#[derive(Clone, Debug)]
 pub struct HeldOut {
     pub path: PathKind,
+    pub params: PathParams,
     pub seconds: f64,
     pub seed: u64,
+    pub start: MachineState,
 }
 
-/// Table V rows, Fig. 11 traces and each model's mean prediction latency (ms).
-pub type HeldOutResult = (Vec<TableVRow>, Vec<Trace>, Vec<(String, f64)>);
+impl HeldOut {
+    /// The run's simulation settings.
+    pub fn config(&self) -> SimConfig {
+        let mut c = SimConfig::new(self.path, self.seconds, self.seed);
+        c.path_params = self.params;
+        c
+    }
+}
 
-/// Table V rows and Fig. 11 traces of one held-out run: the nominal controller
-/// (initial), the calibrated one (calibrated), and the calibrated one compensating
-/// online with each model. Returns also each model's mean prediction latency (ms).
+/// Table V rows, Fig. 11 traces, each model's mean prediction latency (ms), and the
+/// machine's state after the run under the calibrated controller (to carry the session
+/// on with).
+pub struct HeldOutResult {
+    pub rows: Vec<TableVRow>,
+    pub traces: Vec<Trace>,
+    pub latency: Vec<(String, f64)>,
+    pub end: MachineState,
+}
+
+/// Table V rows and Fig. 11 traces of one held-out run, every stage starting from the
+/// same machine state: the nominal controller (initial), the calibrated one
+/// (calibrated), the calibrated one fed the true residual with a `window`-step model's
+/// latency and rate (oracle), and the calibrated one compensating online with each model.
 #[allow(clippy::too_many_arguments)]
 pub fn table_v(
     machine: &Machine,
     nominal: &Robot,
     calibrated: &Robot,
     graph: &Graph,
+    window: usize,
     models: &mut [(String, Predictor)],
-    run: HeldOut,
+    run: &HeldOut,
     settings: Online,
     mut on_tick: impl FnMut(usize),
 ) -> anyhow::Result<HeldOutResult> {
     let name = run.path.name().to_string();
-    let config = || SimConfig::new(run.path, run.seconds, run.seed);
     let row = |stage: &str, model: &str, r: &RunResult| TableVRow {
         trajectory: name.clone(),
         stage: stage.into(),
         model: model.into(),
-        errors: r.errors,
+        truth: r.truth,
+        tracker: r.tracker,
     };
     let mut rows = Vec::new();
     let mut traces = Vec::new();
     let mut latency = Vec::new();
-    let initial = online::run(machine, nominal, config(), None, &mut on_tick)?;
+    let start = || run.start.clone();
+    let initial = online::run(
+        machine,
+        nominal,
+        run.config(),
+        start(),
+        Feedback::None,
+        &mut on_tick,
+    )?;
     rows.push(row("initial", "-", &initial));
-    let plain = online::run(machine, calibrated, config(), None, &mut on_tick)?;
+    let plain = online::run(
+        machine,
+        calibrated,
+        run.config(),
+        start(),
+        Feedback::None,
+        &mut on_tick,
+    )?;
     rows.push(row("calibrated", "-", &plain));
     traces.push(online::trace(run.path, "calibrated", &plain));
+    let oracle = online::run(
+        machine,
+        calibrated,
+        run.config(),
+        start(),
+        Feedback::Oracle { window, settings },
+        &mut on_tick,
+    )?;
+    rows.push(row("oracle", "true residual", &oracle));
     for (model, predictor) in models.iter_mut() {
         let r = online::run(
             machine,
             calibrated,
-            config(),
-            Some((predictor, graph, settings)),
+            run.config(),
+            start(),
+            Feedback::Model(predictor, graph, settings),
             &mut on_tick,
         )?;
         rows.push(row("compensated", model, &r));
@@ -134,7 +180,35 @@ pub fn table_v(
         ));
         latency.push((model.clone(), r.predict_ms));
     }
-    Ok((rows, traces, latency))
+    Ok(HeldOutResult {
+        rows,
+        traces,
+        latency,
+        end: plain.end,
+    })
+}
+
+/// Seconds the machine stands idle between two runs of a session (the operator sets up
+/// the next program).
+pub const IDLE_BETWEEN_RUNS: f64 = 30.0;
+
+/// A cold machine warmed by `seconds` of polishing (0: left cold) under `controller`,
+/// then idle for [`IDLE_BETWEEN_RUNS`]: the start of a held-out session. The warm-up walks
+/// the raster turned a quarter turn, which no scored run retraces.
+pub fn warm_up(
+    machine: &Machine,
+    controller: &Robot,
+    seconds: f64,
+    seed: u64,
+) -> anyhow::Result<MachineState> {
+    let mut state = machine.cold();
+    if seconds > 0.0 {
+        let mut config = SimConfig::new(PathKind::Grid, seconds, seed);
+        config.path_params.rotation_deg = 90.0;
+        state = online::run(machine, controller, config, state, Feedback::None, |_| {})?.end;
+        state.idle(IDLE_BETWEEN_RUNS);
+    }
+    Ok(state)
 }
 
 /// Predictors for checkpoints on one device (B = 1, the online path).

@@ -2,9 +2,10 @@
 //! control tick the controller streams the sensor values into the causal features, the
 //! [`Predictor`] predicts the residual of the window ending at that tick, and the
 //! predicted residual is subtracted from the commanded pose of the next tick before
-//! inverse kinematics. The tracker measures the pad throughout; the error of a tick is
-//! the measured pose (mapped to the base frame with the controller's registration)
-//! against the path target: position in µm, tool-axis angle in mdeg.
+//! inverse kinematics. Every run is scored twice against the path target (position in
+//! µm, tool-axis angle in mdeg; the roll about the axis is free, docs/twin.md "Scoring"):
+//! by the twin's true pad pose at every tick (hidden truth), and by the tracker's
+//! measurements mapped to the base frame with the controller's registration.
 
 use std::time::Instant;
 
@@ -18,13 +19,19 @@ use crate::model::Predictor;
 use crate::robot::Robot;
 use crate::stats::Summary;
 use crate::twin::{
-    pose_error, Correction, Machine, Mirror, PathKind, SimConfig, Simulation, CHANNELS,
+    pose_error, Correction, Machine, MachineState, Mirror, PathKind, SimConfig, Simulation,
+    CHANNELS,
 };
 
 /// What a compensated (or plain) run measured.
 #[derive(Clone, Debug)]
 pub struct RunResult {
-    pub errors: ErrorStats,
+    /// The true pad pose against the target, every tick.
+    pub truth: ErrorStats,
+    /// The tracker's measurement against the target, at its samples.
+    pub tracker: ErrorStats,
+    /// The machine's state at the end of the run (to carry on the session).
+    pub end: MachineState,
     /// Per tracker sample: (t, ex, ey, ez) in µm, base frame.
     pub trace: Vec<(f64, f64, f64, f64)>,
     /// Predictions made and their mean latency (ms); 0 without a model.
@@ -45,6 +52,18 @@ impl Default for Online {
     }
 }
 
+/// What feeds the correction during a run.
+pub enum Feedback<'p> {
+    /// No compensation: the controller's model alone.
+    None,
+    /// A trained model, predicting from the sensor window ending at each tick.
+    Model(&'p mut Predictor, &'p Graph, Online),
+    /// The floor: the true residual of the tick, fed back with a model's latency and rate
+    /// (from the first tick a `window`-step model could predict, every `every` ticks,
+    /// applied from the next tick on).
+    Oracle { window: usize, settings: Online },
+}
+
 /// Indices into the twin's [`CHANNELS`] of the graph's nodes.
 fn node_channels(graph: &Graph) -> anyhow::Result<Vec<usize>> {
     graph
@@ -59,36 +78,45 @@ fn node_channels(graph: &Graph) -> anyhow::Result<Vec<usize>> {
         .collect()
 }
 
-/// Runs one polishing path on `machine` driven by `controller`, compensating online with
-/// `model` when given; `on_tick` sees the progress (ticks done).
+/// Runs one polishing path on `machine` from `start` (its state from earlier runs of the
+/// session), driven by `controller` and corrected by `feedback`; `on_tick` sees the
+/// progress (ticks done).
 pub fn run(
     machine: &Machine,
     controller: &Robot,
     config: SimConfig,
-    model: Option<(&mut Predictor, &Graph, Online)>,
+    start: MachineState,
+    feedback: Feedback<'_>,
     mut on_tick: impl FnMut(usize),
 ) -> anyhow::Result<RunResult> {
     let dt = config.dt;
     let registration = controller.tracker_from_base().inverse();
-    let mut sim = Simulation::new(machine, controller, Mirror::default(), config)?;
-    let mut online = match model {
-        Some((predictor, graph, settings)) => {
+    let mut sim = Simulation::resume(machine, controller, Mirror::default(), config, start)?;
+    let mut model = None;
+    let mut oracle = None;
+    match feedback {
+        Feedback::None => {}
+        Feedback::Model(predictor, graph, settings) => {
             predictor.reset();
             let nodes = node_channels(graph)?;
             let stream = Stream::new(nodes.len(), dt, &FeatureConfig::default());
-            Some((predictor, nodes, stream, settings))
+            model = Some((predictor, nodes, stream, settings));
         }
-        None => None,
-    };
-    let n = online.as_ref().map_or(0, |o| o.1.len());
+        Feedback::Oracle { window, settings } => oracle = Some((window, settings)),
+    }
+    let n = model.as_ref().map_or(0, |o| o.1.len());
     let mut values = vec![None; n];
     let mut features = vec![0f64; n * 3];
     let mut step = vec![0f32; n * 3];
     let (mut pos, mut att, mut trace) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut true_pos, mut true_att) = (Vec::new(), Vec::new());
     let (mut predictions, mut predict_time) = (0usize, 0f64);
     let mut tick = 0usize;
     while let Some(sample) = sim.step() {
         let s = sample.with_context(|| format!("twin at t = {:.2} s", tick as f64 * dt))?;
+        let (p, a) = pose_error(&s.hidden.target, &s.hidden.actual.pose);
+        true_pos.push(p);
+        true_att.push(a);
         if let Some(m) = &s.tracker {
             let base = registration * m;
             let (p, a) = pose_error(&s.hidden.target, &base);
@@ -97,7 +125,7 @@ pub fn run(
             att.push(a);
             trace.push((s.t, e.x, e.y, e.z));
         }
-        if let Some((predictor, nodes, stream, settings)) = online.as_mut() {
+        if let Some((predictor, nodes, stream, settings)) = model.as_mut() {
             for (v, &c) in values.iter_mut().zip(nodes.iter()) {
                 *v = s.channels[c];
             }
@@ -117,18 +145,33 @@ pub fn run(
                 });
             }
         }
+        if let Some((window, settings)) = oracle {
+            if tick + 1 >= window && tick.is_multiple_of(settings.every.max(1)) {
+                let (actual, commanded) = (&s.hidden.actual.pose, &s.hidden.commanded);
+                predictions += 1;
+                sim.set_correction(Correction {
+                    dp: actual.translation.vector - commanded.translation.vector,
+                    dr: (actual.rotation * commanded.rotation.inverse()).scaled_axis(),
+                });
+            }
+        }
         tick += 1;
         on_tick(tick);
     }
     let summary = |v: &[f64]| Summary::of(v).context("the tracker measured nothing in this run");
     Ok(RunResult {
-        errors: ErrorStats {
+        truth: ErrorStats {
+            position: summary(&true_pos)?,
+            attitude: summary(&true_att)?,
+        },
+        tracker: ErrorStats {
             position: summary(&pos)?,
             attitude: summary(&att)?,
         },
+        end: sim.machine_state(),
         trace,
         predictions,
-        predict_ms: if predictions > 0 {
+        predict_ms: if model.is_some() && predictions > 0 {
             1e3 * predict_time / predictions as f64
         } else {
             0.0

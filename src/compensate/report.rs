@@ -27,7 +27,10 @@ pub struct TableVRow {
     pub stage: String,
     /// The compensating model (`-` for the initial and calibrated stages).
     pub model: String,
-    pub errors: ErrorStats,
+    /// Against the twin's true pad pose, every tick (hidden truth).
+    pub truth: ErrorStats,
+    /// As the laser tracker measures it, at its samples.
+    pub tracker: ErrorStats,
 }
 
 /// One row of the Table III analog (test-split prediction accuracy).
@@ -80,11 +83,15 @@ pub struct Report {
     pub accumulated: Option<(AccumulatedCurve, AccumulatedCurve)>,
     /// Free-text findings appended to the Markdown.
     pub notes: Vec<String>,
+    /// Markdown sections (heading, body) placed right after the setup, before the tables.
+    pub sections: Vec<(String, String)>,
 }
 
-/// Header of `table_v.csv`.
-pub const TABLE_V_HEADER: &str =
-    "trajectory,stage,model,pos_mean_um,pos_sd_um,pos_max_um,att_mean_mdeg,att_sd_mdeg,att_max_mdeg";
+/// Header of `table_v.csv`: every statistic against the hidden truth (`true_`) and as
+/// the tracker measured it (`trk_`).
+pub const TABLE_V_HEADER: &str = "trajectory,stage,model,\
+true_pos_mean_um,true_pos_sd_um,true_pos_max_um,true_att_mean_mdeg,true_att_sd_mdeg,true_att_max_mdeg,\
+trk_pos_mean_um,trk_pos_sd_um,trk_pos_max_um,trk_att_mean_mdeg,trk_att_sd_mdeg,trk_att_max_mdeg";
 /// Header of `table_iii.csv`.
 pub const TABLE_III_HEADER: &str =
     "trajectory,model,pos_mae_um,pos_rmse_um,pos_mape_pct,att_mae_mdeg,att_rmse_mdeg,att_mape_pct";
@@ -234,9 +241,11 @@ pub fn table_v_csv(rows: &[TableVRow]) -> String {
         TABLE_V_HEADER,
         rows.iter()
             .map(|r| {
-                let (p, a) = (&r.errors.position, &r.errors.attitude);
                 let mut v = vec![r.trajectory.clone(), r.stage.clone(), r.model.clone()];
-                v.extend([p.mean, p.sd, p.max, a.mean, a.sd, a.max].map(|x| format!("{x:.4}")));
+                for e in [&r.truth, &r.tracker] {
+                    let (p, a) = (&e.position, &e.attitude);
+                    v.extend([p.mean, p.sd, p.max, a.mean, a.sd, a.max].map(|x| format!("{x:.4}")));
+                }
                 v
             })
             .collect(),
@@ -341,9 +350,9 @@ fn reduction(before: f64, after: f64) -> Option<f64> {
     (before > 0.0 && r.is_finite()).then_some(r)
 }
 
-const STAGE_ORDER: [&str; 3] = ["initial", "calibrated", "compensated"];
+const STAGE_ORDER: [&str; 4] = ["initial", "calibrated", "oracle", "compensated"];
 
-/// Table V rows of one trajectory: initial, calibrated, compensated (input order), then
+/// Table V rows of one trajectory: initial, calibrated, oracle, compensated (input order), then
 /// any other stage.
 fn table_v_group<'a>(rows: &'a [TableVRow], trajectory: &str) -> Vec<&'a TableVRow> {
     let of = rows.iter().filter(|r| r.trajectory == trajectory);
@@ -362,26 +371,32 @@ fn markdown_table_v(out: &mut String, rows: &[TableVRow]) {
         return;
     }
     out.push_str(
-        "| Trajectory | Stage | Model | Pos. mean (µm) | Pos. SD (µm) | Pos. max (µm) \
+        "Each cell is hidden truth / tracker: the twin's true pad pose at every tick, and \
+         the laser tracker's measurement at its samples, both against the path target \
+         (attitude: the tool-axis angle). The oracle feeds back the true residual with a \
+         model's latency and rate: the floor for any predictor.\n\n\
+         | Trajectory | Stage | Model | Pos. mean (µm) | Pos. SD (µm) | Pos. max (µm) \
          | Att. mean (mdeg) | Att. SD (mdeg) | Att. max (mdeg) |\n\
          |---|---|---|---:|---:|---:|---:|---:|---:|\n",
     );
     let trajectories = distinct(rows.iter().map(|r| r.trajectory.as_str()));
+    let pair = |t: f64, m: f64| format!("{} / {}", num(t, 1), num(m, 1));
     for &t in &trajectories {
         for r in table_v_group(rows, t) {
-            let (p, a) = (&r.errors.position, &r.errors.attitude);
+            let (tp, ta) = (&r.truth.position, &r.truth.attitude);
+            let (mp, ma) = (&r.tracker.position, &r.tracker.attitude);
             let _ = writeln!(
                 out,
                 "| {} | {} | {} | {} | {} | {} | {} | {} | {} |",
                 md(&r.trajectory),
                 md(&r.stage),
                 md(&r.model),
-                num(p.mean, 3),
-                num(p.sd, 3),
-                num(p.max, 3),
-                num(a.mean, 3),
-                num(a.sd, 3),
-                num(a.max, 3),
+                pair(tp.mean, mp.mean),
+                pair(tp.sd, mp.sd),
+                pair(tp.max, mp.max),
+                pair(ta.mean, ma.mean),
+                pair(ta.sd, ma.sd),
+                pair(ta.max, ma.max),
             );
         }
     }
@@ -397,12 +412,12 @@ fn markdown_table_v(out: &mut String, rows: &[TableVRow]) {
         };
         for c in rows
             .iter()
-            .filter(|r| r.trajectory == t && r.stage == "compensated")
+            .filter(|r| r.trajectory == t && (r.stage == "compensated" || r.stage == "oracle"))
         {
             let pct = |before: f64, after: f64| {
                 reduction(before, after).map_or("n/a".into(), |x| format!("{x:.1} %"))
             };
-            let (cp, ca) = (&cal.errors, &c.errors);
+            let (cp, ca) = (&cal.truth, &c.truth);
             let _ = writeln!(
                 lines,
                 "| {} | {} | {} | {} | {} | {} | {} | {} |",
@@ -419,8 +434,9 @@ fn markdown_table_v(out: &mut String, rows: &[TableVRow]) {
     }
     if !lines.is_empty() {
         out.push_str(
-            "Reduction of the mean error by compensation, relative to calibration alone \
-             (100 · (calibrated − compensated) / calibrated):\n\n\
+            "Reduction of the mean true error by compensation (and by the oracle), relative \
+             to calibration alone (100 · (calibrated − compensated) / calibrated), scored \
+             against the hidden truth:\n\n\
              | Trajectory | Model | Calibrated pos. mean (µm) | Compensated pos. mean (µm) \
              | Pos. reduction | Calibrated att. mean (mdeg) | Compensated att. mean (mdeg) \
              | Att. reduction |\n\
@@ -546,6 +562,9 @@ pub fn markdown(r: &Report) -> String {
     };
     let _ = writeln!(out, "- Adapter: {adapter}");
     let _ = writeln!(out, "- Wall time: {}\n", duration(r.wall_seconds));
+    for (heading, body) in &r.sections {
+        let _ = writeln!(out, "## {heading}\n\n{}\n", body.trim_end());
+    }
     markdown_table_v(&mut out, &r.table_v);
     markdown_table_iii(&mut out, &r.table_iii);
     markdown_timings(&mut out, &r.timings);

@@ -14,7 +14,7 @@ pub use geometry::{Geometry, MdhJoint, DEFAULT_ASSET};
 pub use parallel::{platform_frame, tilt, Limb, PlatformPose};
 pub use serial::mdh;
 
-use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
 
 /// What can go wrong in the robot model, with the numbers that explain it.
 #[derive(Debug, thiserror::Error)]
@@ -218,6 +218,28 @@ impl Robot {
             tool.d,
         );
         t * Translation3::from(self.errors.tool())
+    }
+
+    /// Each serial joint's axis in the base frame, as (a point on it, its unit direction):
+    /// the z axis of the frame its MDH row ends in.
+    pub fn joint_axes(
+        &self,
+        p: &PlatformPose,
+        head: &[f64; 2],
+    ) -> [(Point3<f64>, Vector3<f64>); 2] {
+        let mut t = self.platform_frame(p);
+        let mut out = [(Point3::origin(), Vector3::z()); 2];
+        for (j, joint) in self.geometry.serial.joints.iter().enumerate() {
+            let e = self.errors.mdh(j);
+            t *= mdh(
+                joint.alpha_deg.to_radians() + e.alpha,
+                joint.a + e.a,
+                head[j] + joint.theta_offset_deg.to_radians() + e.theta,
+                joint.d + e.d,
+            );
+            out[j] = (t * Point3::origin(), t.rotation * Vector3::z());
+        }
+        out
     }
 
     /// Tool pose in the base frame for a platform pose and head angles.

@@ -559,6 +559,30 @@ impl<'a> Trainer<'a> {
         Ok(total / self.val_groups.len() as f64)
     }
 
+    /// Scores the starting weights with this stage's validation loss and makes them the
+    /// best so far: the stage then keeps them unless an epoch improves on them (so
+    /// refinement never makes a model worse on validation). Returns that loss.
+    pub fn keep_start_unless_improved(&mut self) -> Result<f64, TrainError> {
+        let loss = self.validation_loss()?;
+        self.progress.best_val = loss;
+        self.best = self.start.params.clone();
+        self.start.best = self.best.clone();
+        self.start.progress = self.progress.clone();
+        Ok(loss)
+    }
+
+    /// This stage's validation loss of `params` (left loaded in the network).
+    pub fn validation_loss_of(&self, params: &Parameters) -> Result<f64, TrainError> {
+        self.load_parameters(params)?;
+        self.validation_loss()
+    }
+
+    /// Loads `params` into the network (what [`Trainer::predict`] then uses).
+    pub fn load_parameters(&self, params: &Parameters) -> Result<(), TrainError> {
+        self.net.load_parameters(self.gpu, params)?;
+        Ok(())
+    }
+
     /// Loads the best weights into the network (at the end of a stage).
     pub fn restore_best(&self) -> Result<(), TrainError> {
         self.net.load_parameters(self.gpu, &self.best)?;

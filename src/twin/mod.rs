@@ -5,16 +5,20 @@
 
 mod mirror;
 pub mod sensors;
+pub mod session;
 mod simulate;
 pub mod sources;
 mod trajectory;
 mod truth;
 
 pub use mirror::Mirror;
-pub use sensors::{SensorNoise, SensorRates, CHANNELS, CHANNEL_UNITS};
+pub use sensors::{
+    Installation, Instruments, Scene, SensorRates, SensorSpecs, CHANNELS, CHANNEL_UNITS,
+};
+pub use session::RunInfo;
 pub use simulate::{
     measure_calibration, pose_error, Actual, CalibrationMeasurement, Correction, Hidden, Machine,
-    Sample, SimConfig, Simulation,
+    MachineState, Sample, SimConfig, Simulation, SourceTerms,
 };
 pub use trajectory::{calibration_configurations, Path, PathKind, PathParams};
 pub use truth::{draw_errors, draw_machine, draw_nongeometric, gaussian, ErrorScales};

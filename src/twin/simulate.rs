@@ -7,25 +7,89 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::mirror::Mirror;
-use super::sensors::{SensorNoise, SensorRates, CHANNELS};
-use super::sources::{compliance, Backlash, LostMotion, NonGeometric, Thermal};
+use super::sensors::{
+    tracker_noise, Installation, Instruments, Scene, SensorRates, SensorSpecs, CHANNELS,
+};
+use super::sources::{
+    compliance, Backlash, LimbGive, LostMotion, NonGeometric, Thermal, ThermalGrowth, ToolLoad,
+};
 use super::trajectory::{Path, PathKind, PathParams};
 use super::truth::gaussian;
 use crate::robot::{Configuration, Joints, PlatformPose, Robot, RobotError, ToolTarget};
 
-/// The hidden-truth machine: geometry with its errors, and its non-geometric sources.
+/// The hidden-truth machine: geometry with its errors, its non-geometric sources, and how
+/// its instruments were mounted.
 #[derive(Clone, Debug)]
 pub struct Machine {
     pub robot: Robot,
     pub nongeometric: NonGeometric,
+    pub sensors: Installation,
 }
 
-/// The dynamic state of a machine's non-geometric sources.
+/// The dynamic state of a machine's non-geometric sources (temperatures, which side of
+/// its play each drive rests on, screw wear) and the session clock. It carries over from
+/// one run to the next of a session: [`Simulation::resume`] starts from it,
+/// [`Simulation::machine_state`] hands it on, [`MachineState::idle`] lets time pass.
 #[derive(Clone, Debug)]
-struct SourceState {
+pub struct MachineState {
     lost_motion: Option<LostMotion>,
     backlash: Option<Backlash>,
     thermal: Option<Thermal>,
+    /// Seconds since the session began (the ambient drift follows it).
+    pub clock: f64,
+}
+
+impl MachineState {
+    /// Leaves the machine at rest for `seconds`: the screws cool, the drives keep the
+    /// side of their play they rest on.
+    pub fn idle(&mut self, seconds: f64) {
+        if let Some(th) = &mut self.thermal {
+            th.idle(seconds);
+        }
+        self.clock += seconds;
+    }
+
+    /// Temperature rise of each screw above ambient, K (zero without thermal growth).
+    pub fn screw_rise(&self) -> [f64; 3] {
+        self.thermal.as_ref().map_or([0.0; 3], Thermal::rise)
+    }
+
+    /// Ambient temperature offset at session time `t`, K (zero without thermal growth).
+    pub fn ambient(&self, t: f64) -> f64 {
+        self.thermal.as_ref().map_or(0.0, |th| th.ambient(t))
+    }
+}
+
+/// Every non-geometric error term of one tick, as the twin applied it (hidden truth: for
+/// the error budget, diagnostics and tests, never written to a recording).
+#[derive(Clone, Copy, Debug)]
+pub struct SourceTerms {
+    /// Ball-screw lost motion per limb, mm.
+    pub lost_motion: [f64; 3],
+    /// Thermal growth per limb (screw and tube parts), mm.
+    pub thermal: ThermalGrowth,
+    /// Stretch and joint clearance per limb, mm.
+    pub give: LimbGive,
+    /// Gear backlash, transmission error and wind-up per serial joint, rad.
+    pub backlash: [f64; 2],
+    pub transmission: [f64; 2],
+    pub windup: [f64; 2],
+    /// Deflection of the pad under the polishing load (base frame, at the pad).
+    pub tip: Isometry3<f64>,
+}
+
+impl Default for SourceTerms {
+    fn default() -> SourceTerms {
+        SourceTerms {
+            lost_motion: [0.0; 3],
+            thermal: ThermalGrowth::default(),
+            give: LimbGive::default(),
+            backlash: [0.0; 2],
+            transmission: [0.0; 2],
+            windup: [0.0; 2],
+            tip: Isometry3::identity(),
+        }
+    }
 }
 
 /// Where the machine really is after one control tick.
@@ -36,76 +100,95 @@ pub struct Actual {
     pub joints: Joints,
     /// True pad pose in the base frame, deflections included.
     pub pose: Isometry3<f64>,
+    pub terms: SourceTerms,
 }
 
 impl Machine {
-    fn state(&self) -> SourceState {
+    /// The machine switched on cold at the start of a session.
+    pub fn cold(&self) -> MachineState {
         let ng = &self.nongeometric;
-        SourceState {
+        MachineState {
             lost_motion: ng.lost_motion.map(LostMotion::new),
             backlash: ng.backlash.map(Backlash::new),
             thermal: ng.thermal.map(Thermal::new),
+            clock: 0.0,
         }
     }
 
-    /// One tick: the drives sit at `encoders`; returns the true state. `force` presses the
-    /// pad along `tool_axis` while it moves along `feed_dir` (zero when at rest).
+    /// Distance of each limb's nut from its screw's fixed bearing, mm.
+    pub fn nut_travel(&self, lengths: &[f64; 3]) -> [f64; 3] {
+        lengths.map(|l| (l - self.nongeometric.screw_origin).max(0.0))
+    }
+
+    /// One tick at session time `t`: the drives sit at `encoders`; returns the true state.
+    /// `contact` = (tool axis, feed direction, force): the pad presses along the axis
+    /// while it moves along the feed (`None` at rest).
     fn drive(
         &self,
-        state: &mut SourceState,
+        state: &mut MachineState,
         t: f64,
         dt: f64,
         encoders: &Joints,
         contact: Option<(&Vector3<f64>, &Vector3<f64>, f64)>,
         guess: PlatformPose,
     ) -> Result<Actual, RobotError> {
-        let mut rods = encoders.limbs;
-        let mut head = encoders.head;
+        let mut terms = SourceTerms::default();
         if let Some(lm) = &mut state.lost_motion {
-            let e = lm.step(encoders.limbs);
-            (0..3).for_each(|i| rods[i] += e[i]);
+            terms.lost_motion = lm.step(encoders.limbs);
         }
         if let Some(th) = &mut state.thermal {
-            let e = th.step(t, dt, encoders.limbs);
-            (0..3).for_each(|i| rods[i] += e[i]);
+            terms.thermal = th.step(t, dt, encoders.limbs, self.nut_travel(&encoders.limbs));
         }
         if let Some(bl) = &mut state.backlash {
-            let e = bl.step(encoders.head);
-            (0..2).for_each(|j| head[j] += e[j]);
+            terms.backlash = bl.step(encoders.head);
+            terms.transmission = bl.transmission(encoders.head);
         }
-        let compliance = self.nongeometric.compliance;
+        let grown = terms.thermal.total();
+        let unloaded: [f64; 3] =
+            [0, 1, 2].map(|i| encoders.limbs[i] + terms.lost_motion[i] + grown[i]);
+        let mut rods = unloaded;
+        let mut head = [0, 1].map(|j| encoders.head[j] + terms.backlash[j] + terms.transmission[j]);
         let mut platform = self.robot.platform_from_lengths(rods, Some(guess))?;
-        if let Some(c) = &compliance {
-            let (axis, force) = match contact {
-                Some((axis, _, f)) => (*axis, f),
-                None => (Vector3::z(), 0.0),
-            };
-            // The stretch depends on the limb directions, which depend on the pose it
+        let mut pose = self.robot.tool_pose(&platform, &head);
+        if let Some(c) = &self.nongeometric.compliance {
+            let still = Vector3::zeros();
+            let (axis, feed_dir, force) = contact.unwrap_or((&still, &still, 0.0));
+            let push = if force > 0.0 { *axis } else { Vector3::z() };
+            // The give depends on the limb directions, which depend on the pose it
             // produces: two fixed-point passes are exact far below a nanometre.
             let b = self.robot.geometry.base_points();
             let a = self.robot.geometry.platform_points();
-            let unstretched = rods;
             for _ in 0..2 {
                 let frame = self.robot.platform_frame(&platform);
                 let u = [0, 1, 2]
                     .map(|i| (frame * Point3::from(a[i]) - Point3::from(b[i])).normalize());
-                let s = compliance::limb_stretch(c, &u, &axis, force);
-                rods = [0, 1, 2].map(|i| unstretched[i] + s[i]);
+                terms.give = compliance::limb_give(c, &u, &push, force);
+                let give = terms.give.total();
+                rods = [0, 1, 2].map(|i| unloaded[i] + give[i]);
                 platform = self.robot.platform_from_lengths(rods, Some(platform))?;
             }
-        }
-        let mut pose = self.robot.tool_pose(&platform, &head);
-        if let (Some(c), Some((axis, feed_dir, force))) = (&compliance, contact) {
-            let d = compliance::tip_deflection(c, axis, feed_dir, force);
-            pose = Isometry3::from_parts(
-                Translation3::from(pose.translation.vector + d.translation.vector),
-                d.rotation * pose.rotation,
-            );
+            // The gears wind up under the torque of the glass and the head's weight.
+            let tool_axis = self.robot.tool_pose(&platform, &head).rotation * Vector3::z();
+            let pad = Point3::from(pose.translation.vector);
+            let load = ToolLoad::new(c, pad, &tool_axis, feed_dir, force);
+            let axes = self.robot.joint_axes(&platform, &head);
+            terms.windup = compliance::drive_windup(c, &axes, &load);
+            head = [0, 1].map(|j| head[j] + terms.windup[j]);
+            pose = self.robot.tool_pose(&platform, &head);
+            if force > 0.0 {
+                let d = compliance::tip_deflection(c, axis, feed_dir, force);
+                terms.tip = d;
+                pose = Isometry3::from_parts(
+                    Translation3::from(pose.translation.vector + d.translation.vector),
+                    d.rotation * pose.rotation,
+                );
+            }
         }
         Ok(Actual {
             platform,
             joints: Joints { limbs: rods, head },
             pose,
+            terms,
         })
     }
 }
@@ -127,7 +210,7 @@ pub struct SimConfig {
     pub force_mean: f64,
     pub force_sd: f64,
     pub force_time_constant: f64,
-    pub noise: SensorNoise,
+    pub sensors: SensorSpecs,
     pub rates: SensorRates,
     pub seed: u64,
 }
@@ -144,7 +227,7 @@ impl SimConfig {
             force_mean: 100.0,
             force_sd: 15.0,
             force_time_constant: 20.0,
-            noise: SensorNoise::default(),
+            sensors: SensorSpecs::default(),
             rates: SensorRates::default(),
             seed,
         }
@@ -175,21 +258,6 @@ pub struct Sample {
     /// The tracker's measurement of the pad pose in its own frame.
     pub tracker: Option<Isometry3<f64>>,
     pub hidden: Hidden,
-}
-
-/// `pose` with tracker noise of the given standard deviations (mm, rad) per axis.
-fn noisy_pose(
-    rng: &mut ChaCha8Rng,
-    pose: &Isometry3<f64>,
-    position_sd: f64,
-    attitude_sd: f64,
-) -> Isometry3<f64> {
-    let dp = Vector3::from_fn(|_, _| gaussian(rng, position_sd));
-    let dr = Vector3::from_fn(|_, _| gaussian(rng, attitude_sd));
-    Isometry3::from_parts(
-        Translation3::from(pose.translation.vector + dp),
-        UnitQuaternion::from_scaled_axis(dr) * pose.rotation,
-    )
 }
 
 /// A pose correction the controller subtracts from the target before inverse kinematics:
@@ -240,7 +308,9 @@ pub struct Simulation<'a> {
     config: SimConfig,
     path: Path,
     rng: ChaCha8Rng,
-    state: SourceState,
+    state: MachineState,
+    start_clock: f64,
+    instruments: Instruments,
     k: usize,
     arc: f64,
     force: f64,
@@ -252,17 +322,31 @@ pub struct Simulation<'a> {
 }
 
 impl<'a> Simulation<'a> {
-    /// Starts at the beginning of the path, the controller having moved there from home.
+    /// Starts at the beginning of the path on a cold machine (the start of a session),
+    /// the controller having moved there from home.
     pub fn new(
         machine: &'a Machine,
         controller: &'a Robot,
         mirror: Mirror,
         config: SimConfig,
     ) -> Result<Simulation<'a>, RobotError> {
+        Simulation::resume(machine, controller, mirror, config, machine.cold())
+    }
+
+    /// Starts at the beginning of the path on a machine in `state` (warm from earlier
+    /// runs of the session), the controller having moved there from wherever it was.
+    pub fn resume(
+        machine: &'a Machine,
+        controller: &'a Robot,
+        mirror: Mirror,
+        config: SimConfig,
+        state: MachineState,
+    ) -> Result<Simulation<'a>, RobotError> {
         let path = Path::generate(config.path, &mirror, &config.path_params);
         let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
         let phases =
             [0, 1].map(|_| rand::RngExt::random_range(&mut rng, 0.0..std::f64::consts::TAU));
+        let instruments = Instruments::new(config.sensors, machine.sensors, &mut rng);
         let [x, y] = path.at(0.0);
         let home = Configuration {
             platform: controller.home(),
@@ -276,7 +360,9 @@ impl<'a> Simulation<'a> {
             force: config.force_mean,
             path,
             rng,
-            state: machine.state(),
+            start_clock: state.clock,
+            state,
+            instruments,
             k: 0,
             arc: 0.0,
             phases,
@@ -286,6 +372,13 @@ impl<'a> Simulation<'a> {
             correction: Correction::default(),
             config,
         })
+    }
+
+    /// The machine's state after the ticks run so far (to resume the session with).
+    pub fn machine_state(&self) -> MachineState {
+        let mut s = self.state.clone();
+        s.clock = self.start_clock + self.k as f64 * self.config.dt;
+        s
     }
 
     pub fn path(&self) -> &Path {
@@ -348,9 +441,10 @@ impl<'a> Simulation<'a> {
             _ => Vector3::zeros(),
         };
         self.last_target = Some(target.position);
+        let clock = self.start_clock + t;
         let actual = self.machine.drive(
             &mut self.state,
-            t,
+            clock,
             dt,
             &encoders,
             Some((&target.axis, &feed_dir, self.force)),
@@ -358,34 +452,27 @@ impl<'a> Simulation<'a> {
         )?;
         self.platform = actual.platform;
         let commanded = self.controller.tool_pose(&command.platform, &command.head);
+        let terms = &actual.terms;
+        let scene = Scene {
+            t: clock,
+            dt,
+            encoder_lengths: encoders.limbs,
+            encoder_angles: encoders.head,
+            nut_error: [0, 1, 2]
+                .map(|i| terms.lost_motion[i] + terms.thermal.screw[i] + terms.give.screw[i]),
+            nut_travel: self.machine.nut_travel(&encoders.limbs),
+            screw_rise: self.state.screw_rise(),
+            ambient: self.state.ambient(clock),
+            extension: actual.platform.w,
+            commanded_extension: command.platform.w,
+            joint_angles: actual.joints.head,
+            pose: actual.pose,
+            commanded,
+            force: self.force,
+        };
+        let values = self.instruments.read(&scene, &mut self.rng);
+        // Only the ticks at each sensor's rate are kept.
         let c = &self.config;
-        let n = &c.noise;
-        let (roll, pitch, yaw) = actual.pose.rotation.euler_angles();
-        let values = [
-            (actual.joints.limbs[0] - encoders.limbs[0]) * 1e3
-                + gaussian(&mut self.rng, n.length_error),
-            (actual.joints.limbs[1] - encoders.limbs[1]) * 1e3
-                + gaussian(&mut self.rng, n.length_error),
-            (actual.joints.limbs[2] - encoders.limbs[2]) * 1e3
-                + gaussian(&mut self.rng, n.length_error),
-            (actual.platform.w - command.platform.w) * 1e3
-                + gaussian(&mut self.rng, n.length_error),
-            (actual.joints.head[0] - encoders.head[0]).to_degrees() * 1e3
-                + gaussian(&mut self.rng, n.angle_error),
-            (actual.joints.head[1] - encoders.head[1]).to_degrees() * 1e3
-                + gaussian(&mut self.rng, n.angle_error),
-            encoders.limbs[0] + gaussian(&mut self.rng, n.encoder_length),
-            encoders.limbs[1] + gaussian(&mut self.rng, n.encoder_length),
-            encoders.limbs[2] + gaussian(&mut self.rng, n.encoder_length),
-            encoders.head[0].to_degrees() + gaussian(&mut self.rng, n.encoder_angle),
-            encoders.head[1].to_degrees() + gaussian(&mut self.rng, n.encoder_angle),
-            roll.to_degrees() + gaussian(&mut self.rng, n.tilt),
-            pitch.to_degrees() + gaussian(&mut self.rng, n.tilt),
-            yaw.to_degrees() + gaussian(&mut self.rng, n.tilt),
-            self.force + gaussian(&mut self.rng, n.force),
-        ];
-        // Every sensor draws its noise each tick (so rates never shift the random
-        // stream); only the ticks at its rate are kept.
         let mut channels = [None; 15];
         for (i, v) in values.into_iter().enumerate() {
             if (k as u32).is_multiple_of(c.rates.channel_every[i]) {
@@ -393,11 +480,12 @@ impl<'a> Simulation<'a> {
             }
         }
         let in_tracker = self.machine.robot.tracker_from_base() * actual.pose;
-        let measured = noisy_pose(
+        let specs = c.sensors;
+        let measured = tracker_noise(
             &mut self.rng,
             &in_tracker,
-            n.tracker_position,
-            n.tracker_attitude,
+            specs.tracker_position,
+            specs.tracker_attitude,
         );
         let tracker = (k as u32)
             .is_multiple_of(c.rates.tracker_every)
@@ -439,12 +527,12 @@ pub fn measure_calibration(
     machine: &Machine,
     controller: &Robot,
     configurations: &[Configuration],
-    noise: &SensorNoise,
+    specs: &SensorSpecs,
     repeats: usize,
     seed: u64,
 ) -> Result<Vec<CalibrationMeasurement>, RobotError> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut state = machine.state();
+    let mut state = machine.cold();
     let mut guess = controller.home();
     let mut last = controller.limb_lengths(&guess);
     let mut t = 0.0;
@@ -477,11 +565,11 @@ pub fn measure_calibration(
             let in_tracker = machine.robot.tracker_from_base() * actual.pose;
             // The mean of `repeats` readings: the noise shrinks by √repeats.
             let shrink = (repeats.max(1) as f64).sqrt();
-            let measured = noisy_pose(
+            let measured = tracker_noise(
                 &mut rng,
                 &in_tracker,
-                noise.tracker_position / shrink,
-                noise.tracker_attitude / shrink,
+                specs.tracker_position / shrink,
+                specs.tracker_attitude / shrink,
             );
             Ok(CalibrationMeasurement {
                 joints,

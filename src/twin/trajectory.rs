@@ -9,7 +9,7 @@ use rand_chacha::ChaCha8Rng;
 use super::mirror::Mirror;
 use crate::robot::{Configuration, PlatformPose, Robot};
 
-/// The tool paths of section IV-D.
+/// The tool paths of section IV-D, and a rosette that no training recording uses.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum PathKind {
     /// Raster lines across the disk, alternating direction.
@@ -18,16 +18,27 @@ pub enum PathKind {
     Fermat,
     /// Hilbert curve over the square inscribed in the aperture.
     Hilbert,
+    /// Hypotrochoid rosette (a rotating-arm pattern): the demo keeps it out of training,
+    /// so one held-out path is new in kind, not only in placement.
+    Rosette,
 }
 
 impl PathKind {
-    pub const ALL: [PathKind; 3] = [PathKind::Grid, PathKind::Fermat, PathKind::Hilbert];
+    pub const ALL: [PathKind; 4] = [
+        PathKind::Grid,
+        PathKind::Fermat,
+        PathKind::Hilbert,
+        PathKind::Rosette,
+    ];
+    /// The paths of the paper's training recordings (section IV-D).
+    pub const TRAINING: [PathKind; 3] = [PathKind::Grid, PathKind::Fermat, PathKind::Hilbert];
 
     pub fn name(self) -> &'static str {
         match self {
             PathKind::Grid => "grid",
             PathKind::Fermat => "fermat",
             PathKind::Hilbert => "hilbert",
+            PathKind::Rosette => "rosette",
         }
     }
 }
@@ -38,17 +49,21 @@ impl FromStr for PathKind {
         PathKind::ALL
             .into_iter()
             .find(|k| k.name() == s)
-            .ok_or_else(|| format!("unknown path {s:?}: expected grid, fermat or hilbert"))
+            .ok_or_else(|| format!("unknown path {s:?}: expected grid, fermat, hilbert or rosette"))
     }
 }
 
-/// Path spacing and edge margin, mm.
-#[derive(Clone, Copy, Debug)]
+/// Path spacing and edge margin (mm), and where the pattern lies on the part.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PathParams {
     /// Distance between neighbouring passes.
     pub spacing: f64,
     /// Distance kept from the mirror's edge.
     pub margin: f64,
+    /// Rotation of the pattern about the mirror's axis, degrees.
+    pub rotation_deg: f64,
+    /// Walk the pattern from its other end.
+    pub reverse: bool,
 }
 
 impl Default for PathParams {
@@ -56,6 +71,33 @@ impl Default for PathParams {
         PathParams {
             spacing: 15.0,
             margin: 10.0,
+            rotation_deg: 0.0,
+            reverse: false,
+        }
+    }
+}
+
+impl PathParams {
+    /// Where the held-out runs put each pattern, so that they never retrace a training
+    /// recording (made with the default placement): the raster and the Hilbert curve
+    /// turned off their lattice (their passes then only cross the training ones), the
+    /// spiral turned half a turn (its arms fall between the training arms) and walked
+    /// inwards. The raster's turns between passes run along the rim, so its held-out
+    /// placement keeps 4 mm further in. The rosette is never trained on and keeps its
+    /// default placement.
+    pub fn held_out(kind: PathKind) -> PathParams {
+        let (rotation_deg, reverse, inset) = match kind {
+            PathKind::Grid => (37.0, false, 4.0),
+            PathKind::Fermat => (180.0, true, 0.0),
+            PathKind::Hilbert => (53.0, true, 0.0),
+            PathKind::Rosette => (0.0, false, 0.0),
+        };
+        let d = PathParams::default();
+        PathParams {
+            rotation_deg,
+            reverse,
+            margin: d.margin + inset,
+            ..d
         }
     }
 }
@@ -162,7 +204,36 @@ impl Path {
                 }
                 densify(&pts, 2.0)
             }
+            PathKind::Rosette => {
+                // Hypotrochoid: an arm of length d on a wheel of radius ρ rolling inside
+                // a circle of radius R; ρ/R irrational enough that the petals precess
+                // instead of closing. Scaled so that it reaches the usable radius.
+                let (big, small, arm) = (1.0, 0.382, 0.55);
+                let k = (big - small) / small;
+                let scale = r / (big - small + arm);
+                let mut pts = Vec::new();
+                let mut t: f64 = 0.0;
+                // Six turns of the wheel centre (about a full coverage), steps of ~2 mm.
+                while t <= 6.0 * std::f64::consts::TAU {
+                    pts.push([
+                        scale * ((big - small) * t.cos() + arm * (k * t).cos()),
+                        scale * ((big - small) * t.sin() - arm * (k * t).sin()),
+                    ]);
+                    t += 2.0 / (scale * (big - small + arm * k));
+                }
+                densify(&pts, 2.0)
+            }
         };
+        let mut points = points;
+        if params.reverse {
+            points.reverse();
+        }
+        if params.rotation_deg != 0.0 {
+            let (s, c) = params.rotation_deg.to_radians().sin_cos();
+            for p in &mut points {
+                *p = [c * p[0] - s * p[1], s * p[0] + c * p[1]];
+            }
+        }
         Path::new(points)
     }
 }

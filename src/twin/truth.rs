@@ -4,9 +4,10 @@ use rand::{Rng, RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 
+use super::sensors::{Installation, SensorSpecs};
 use super::simulate::Machine;
 use super::sources::{
-    BacklashParams, ComplianceParams, LostMotionParams, NonGeometric, ThermalParams,
+    BacklashParams, ComplianceParams, LostMotionParams, NonGeometric, ThermalParams, SCREW_ORIGIN,
 };
 use crate::robot::{ErrorParams, Geometry, Robot, LIMB_VECTORS, N_PARAMS};
 
@@ -92,18 +93,26 @@ pub fn draw_nongeometric(seed: u64) -> NonGeometric {
         }),
         backlash: Some(BacklashParams {
             width: [0; 2].map(|_| between(0.005, 0.02).to_radians()),
+            transmission_error: [0; 2].map(|_| between(0.002, 0.004).to_radians()),
+            transmission_phase: [0; 2].map(|_| between(0.0, std::f64::consts::TAU)),
+            ratio: 100.0,
         }),
         thermal: Some(ThermalParams {
             gain_per_speed: [0; 3].map(|_| between(1.0, 2.0)),
             time_constant: 180.0,
             expansion: 11.5e-6,
-            length: 800.0,
+            tube_length: 350.0,
+            tube_share: 0.4,
+            tube_time_constant: 900.0,
             ambient_amplitude: 0.3,
             ambient_period: 3600.0,
             ambient_phase: between(0.0, std::f64::consts::TAU),
         }),
         compliance: Some(ComplianceParams {
             limb: 5e-5,
+            screw_share: 0.5,
+            joint_clearance: between(0.004, 0.012),
+            clearance_load: 30.0,
             weight: 600.0,
             tip_axial: 3e-4,
             tip_lateral: 6e-4,
@@ -111,15 +120,18 @@ pub fn draw_nongeometric(seed: u64) -> NonGeometric {
             head_lever: 0.07,
             head_weight: 200.0,
             friction: 0.3,
+            drive_torsion: 4e-6,
         }),
+        screw_origin: SCREW_ORIGIN,
     }
 }
 
-/// The twin's machine for `seed`: geometric errors and non-geometric sources drawn
-/// with the default scales.
+/// The twin's machine for `seed`: geometric errors, non-geometric sources and the
+/// instruments' mounting, drawn with the default scales.
 pub fn draw_machine(geometry: Geometry, seed: u64) -> Machine {
     Machine {
         robot: Robot::new(geometry, draw_errors(seed, &ErrorScales::default())),
         nongeometric: draw_nongeometric(seed),
+        sensors: Installation::draw(seed, &SensorSpecs::default()),
     }
 }

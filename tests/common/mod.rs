@@ -36,8 +36,10 @@ pub fn twin_session(dir: &Path, paths: &[&str], seconds: f64) -> (PathBuf, Vec<P
     let minutes = format!("{}", seconds / 60.0);
     let recordings = paths
         .iter()
-        .map(|path| {
+        .enumerate()
+        .map(|(i, path)| {
             let out = p(&format!("{path}.csv"));
+            let seed = format!("{}", 5 + i);
             cli(&[
                 "simulate",
                 "--trajectory",
@@ -45,7 +47,7 @@ pub fn twin_session(dir: &Path, paths: &[&str], seconds: f64) -> (PathBuf, Vec<P
                 "--minutes",
                 &minutes,
                 "--seed",
-                "5",
+                &seed,
                 "--out",
                 &out,
             ]);

@@ -8,10 +8,14 @@ pub mod play;
 pub mod thermal;
 
 pub use backlash::{Backlash, BacklashParams};
-pub use compliance::ComplianceParams;
+pub use compliance::{ComplianceParams, LimbGive, ToolLoad};
 pub use lost_motion::{LostMotion, LostMotionParams};
 pub use play::Play;
-pub use thermal::{Thermal, ThermalParams};
+pub use thermal::{Thermal, ThermalGrowth, ThermalParams};
+
+/// The default machine's [`NonGeometric::screw_origin`], mm: 150 mm of screw below the
+/// shortest stroke of assets/robot.toml (520 mm).
+pub const SCREW_ORIGIN: f64 = 370.0;
 
 /// Which non-geometric sources act, with their parameters.
 #[derive(Clone, Copy, Debug)]
@@ -20,6 +24,10 @@ pub struct NonGeometric {
     pub backlash: Option<BacklashParams>,
     pub thermal: Option<ThermalParams>,
     pub compliance: Option<ComplianceParams>,
+    /// Limb length (mm) at which a limb's nut sits at its screw's fixed bearing: the nut
+    /// is `length − screw_origin` mm from the bearing (where the screw's thermal growth
+    /// and a length sensor's span start).
+    pub screw_origin: f64,
 }
 
 impl NonGeometric {
@@ -30,6 +38,7 @@ impl NonGeometric {
             backlash: None,
             thermal: None,
             compliance: None,
+            screw_origin: SCREW_ORIGIN,
         }
     }
 }

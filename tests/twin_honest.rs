@@ -1,0 +1,236 @@
+//! The twin is honest (docs/twin.md): its channels are instruments, not the truth model
+//! plus noise; held-out paths never retrace a training recording; the machine's state
+//! carries over from one run of a session to the next.
+
+use iastgcn::robot::{Geometry, Robot};
+use iastgcn::twin::{
+    draw_machine, Mirror, Path, PathKind, PathParams, Sample, SimConfig, Simulation, CHANNELS,
+};
+
+fn correlation(a: &[f64], b: &[f64]) -> Option<f64> {
+    let n = a.len() as f64;
+    let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
+    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
+    for (x, y) in a.iter().zip(b) {
+        sab += (x - ma) * (y - mb);
+        saa += (x - ma) * (x - ma);
+        sbb += (y - mb) * (y - mb);
+    }
+    // A term that never moves (or moves below rounding) has no correlation to speak of.
+    (saa > 1e-18 * n && sbb > 1e-18 * n).then(|| sab / (saa * sbb).sqrt())
+}
+
+/// Every term of the truth model, and each limb's and joint's total error, per tick.
+fn truth_terms(s: &Sample) -> Vec<(String, f64)> {
+    let h = &s.hidden;
+    let t = &h.actual.terms;
+    let mut v = Vec::new();
+    for i in 0..3 {
+        v.push((format!("lost motion {i}"), t.lost_motion[i]));
+        v.push((format!("screw growth {i}"), t.thermal.screw[i]));
+        v.push((format!("tube growth {i}"), t.thermal.tube[i]));
+        v.push((format!("screw stretch {i}"), t.give.screw[i]));
+        v.push((format!("strut stretch {i}"), t.give.strut[i]));
+        v.push((format!("clearance {i}"), t.give.clearance[i]));
+    }
+    for j in 0..2 {
+        v.push((format!("backlash {j}"), t.backlash[j]));
+        v.push((format!("transmission error {j}"), t.transmission[j]));
+        v.push((format!("wind-up {j}"), t.windup[j]));
+    }
+    let tip = t.tip.translation.vector;
+    let bend = t.tip.rotation.scaled_axis();
+    for k in 0..3 {
+        v.push((format!("tip shift {k}"), tip[k]));
+        v.push((format!("tip bend {k}"), bend[k]));
+    }
+    let dp = h.actual.pose.translation.vector - h.commanded.translation.vector;
+    let dr = (h.actual.pose.rotation * h.commanded.rotation.inverse()).scaled_axis();
+    for k in 0..3 {
+        v.push((format!("pose residual p{k}"), dp[k]));
+        v.push((format!("pose residual r{k}"), dr[k]));
+    }
+    v
+}
+
+#[test]
+fn no_channel_is_a_truth_term_plus_noise() {
+    let g = Geometry::default_asset();
+    let machine = draw_machine(g.clone(), 1);
+    let controller = Robot::nominal(g);
+    let mut sim = Simulation::new(
+        &machine,
+        &controller,
+        Mirror::default(),
+        SimConfig::new(PathKind::Hilbert, 90.0, 17),
+    )
+    .unwrap();
+    let mut channels: Vec<Vec<f64>> = vec![Vec::new(); CHANNELS.len()];
+    let mut terms: Vec<(String, Vec<f64>)> = Vec::new();
+    while let Some(s) = sim.step() {
+        let s = s.unwrap();
+        // The 10 Hz ticks: every channel has a sample there.
+        if s.channels.iter().any(Option::is_none) {
+            continue;
+        }
+        for (c, v) in channels.iter_mut().zip(&s.channels) {
+            c.push(v.unwrap());
+        }
+        for (k, (name, value)) in truth_terms(&s).into_iter().enumerate() {
+            if terms.len() <= k {
+                terms.push((name, Vec::new()));
+            }
+            terms[k].1.push(value);
+        }
+    }
+    assert!(channels[0].len() > 400);
+    let mut worst = (0.0f64, String::new());
+    let mut failures = Vec::new();
+    for (c, values) in CHANNELS.iter().zip(&channels) {
+        for (name, term) in &terms {
+            if let Some(r) = correlation(values, term) {
+                if r.abs() > worst.0 {
+                    worst = (r.abs(), format!("{c} ~ {name}"));
+                }
+                if r.abs() >= 0.99 {
+                    failures.push(format!("{c} reads {name}: correlation {r:.4}"));
+                }
+            }
+        }
+    }
+    println!("highest |correlation| of a channel with a truth term: {worst:?}");
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// Points every `step` mm along the whole path (both ways walked by `Path::at`).
+fn samples(path: &Path, step: f64) -> Vec<[f64; 2]> {
+    let n = (path.length() / step).ceil() as usize;
+    (0..=n).map(|i| path.at(i as f64 * step)).collect()
+}
+
+/// The longest stretch (in samples of `held`) along which `held` follows `trained` in
+/// order: consecutive held-out samples within `tol` of training samples that are
+/// themselves consecutive along the training path (either way), up to `reach` indices.
+fn longest_retrace(held: &[[f64; 2]], trained: &[[f64; 2]], tol: f64, reach: usize) -> usize {
+    let mut cells = std::collections::HashMap::<(i64, i64), Vec<usize>>::new();
+    let key = |p: [f64; 2]| ((p[0] / tol).floor() as i64, (p[1] / tol).floor() as i64);
+    for (j, p) in trained.iter().enumerate() {
+        cells.entry(key(*p)).or_default().push(j);
+    }
+    let near = |p: [f64; 2]| -> Vec<usize> {
+        let (cx, cy) = key(p);
+        let mut out = Vec::new();
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for &j in cells.get(&(cx + dx, cy + dy)).map_or(&[][..], |v| &v[..]) {
+                    let q = trained[j];
+                    if (p[0] - q[0]).hypot(p[1] - q[1]) <= tol {
+                        out.push(j);
+                    }
+                }
+            }
+        }
+        out
+    };
+    let (mut longest, mut prev): (usize, Vec<(usize, usize)>) = (0, Vec::new());
+    for p in held {
+        let now: Vec<(usize, usize)> = near(*p)
+            .into_iter()
+            .map(|j| {
+                let run = prev
+                    .iter()
+                    .filter(|(k, _)| j.abs_diff(*k) <= reach)
+                    .map(|(_, r)| r + 1)
+                    .max()
+                    .unwrap_or(1);
+                (j, run)
+            })
+            .collect();
+        longest = longest.max(now.iter().map(|(_, r)| *r).max().unwrap_or(0));
+        prev = now;
+    }
+    longest
+}
+
+#[test]
+fn held_out_paths_never_retrace_a_training_recording() {
+    let m = Mirror::default();
+    // Training paths every 0.5 mm, held-out ones every 1 mm: following a training path
+    // advances its index by about 2 per held-out sample.
+    let trained: Vec<Vec<[f64; 2]>> = PathKind::TRAINING
+        .iter()
+        .map(|&k| samples(&Path::generate(k, &m, &PathParams::default()), 0.5))
+        .collect();
+    // A window is 48 ticks at up to 26 mm/s (the feed's peak): under 25 mm of path. No
+    // 20 mm of a held-out path may follow the training recording of its own pattern
+    // within 1 mm. Another pattern can only touch it where a pass runs tangent to a
+    // curved one (a straight pass stays within 1 mm of a 245 mm arc for ~44 mm): such
+    // brushes stay under three windows.
+    let window_mm = 20;
+    let mut retraced = Vec::new();
+    for kind in PathKind::ALL {
+        let held = samples(&Path::generate(kind, &m, &PathParams::held_out(kind)), 1.0);
+        let per: Vec<usize> = trained
+            .iter()
+            .map(|t| longest_retrace(&held, t, 1.0, 6))
+            .collect();
+        println!("{kind:?} along grid, fermat, hilbert: {per:?} mm");
+        for (trained_kind, &mm) in PathKind::TRAINING.iter().zip(&per) {
+            let limit = if *trained_kind == kind {
+                window_mm
+            } else {
+                3 * window_mm
+            };
+            if mm >= limit {
+                retraced.push(format!(
+                    "{kind:?} follows the {trained_kind:?} recording for {mm} mm"
+                ));
+            }
+        }
+    }
+    assert!(retraced.is_empty(), "{retraced:?}");
+    // The check has teeth: the training placement itself, and the raster shifted by
+    // half a millimetre, retrace all the way.
+    let grid = |params: PathParams| samples(&Path::generate(PathKind::Grid, &m, &params), 1.0);
+    assert!(longest_retrace(&grid(PathParams::default())[..200], &trained[0], 1.0, 6) >= 199);
+    let turned = PathParams {
+        rotation_deg: 0.1,
+        ..PathParams::default()
+    };
+    assert!(longest_retrace(&grid(turned)[..200], &trained[0], 1.0, 6) >= 100);
+}
+
+#[test]
+fn a_warm_machine_carries_its_temperatures_into_the_next_run() {
+    let g = Geometry::default_asset();
+    let machine = draw_machine(g.clone(), 1);
+    let controller = Robot::nominal(g);
+    let config = SimConfig::new(PathKind::Grid, 60.0, 3);
+    let mut sim =
+        Simulation::new(&machine, &controller, Mirror::default(), config.clone()).unwrap();
+    while sim.step().is_some() {}
+    let mut warm = sim.machine_state();
+    assert!((warm.clock - 60.0).abs() < 1e-9);
+    let hot = warm.screw_rise();
+    assert!(hot.iter().all(|&r| r > 0.1), "{hot:?}");
+    warm.idle(30.0);
+    let cooled = warm.screw_rise();
+    assert!((0..3).all(|i| cooled[i] < hot[i] && cooled[i] > 0.5 * hot[i]));
+    // The same run from the warm state differs from the cold one at its first tick.
+    let first = |state| {
+        let mut s = Simulation::resume(
+            &machine,
+            &controller,
+            Mirror::default(),
+            config.clone(),
+            state,
+        )
+        .unwrap();
+        s.step().unwrap().unwrap().hidden.actual.joints.limbs
+    };
+    let (cold, resumed) = (first(machine.cold()), first(warm));
+    assert!(
+        (0..3).any(|i| (cold[i] - resumed[i]).abs() > 1e-3),
+        "{cold:?} {resumed:?}"
+    );
+}
