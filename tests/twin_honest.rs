@@ -234,3 +234,36 @@ fn a_warm_machine_carries_its_temperatures_into_the_next_run() {
         "{cold:?} {resumed:?}"
     );
 }
+
+#[test]
+fn the_error_budget_splits_the_true_error_by_source() {
+    use iastgcn::compensate::budget::error_budget;
+    let g = Geometry::default_asset();
+    let machine = draw_machine(g, 1);
+    // A perfect calibration: the controller knows the machine's geometry.
+    let config = SimConfig::new(PathKind::Fermat, 60.0, 23);
+    let rows = error_budget(&machine, &machine.robot, &config, &machine.cold()).unwrap();
+    for r in &rows {
+        println!(
+            "{:<60} {:>8.2} µm {:>8.2} mdeg",
+            r.source, r.position_rms, r.attitude_rms
+        );
+    }
+    assert_eq!(rows.len(), 5);
+    // Nothing is left of the geometry in position, and every non-geometric group
+    // matters. (In attitude a few mdeg stay: a head whose axes are not quite
+    // perpendicular cannot point exactly along its revolution axis, near the centre.)
+    assert!(rows[1].position_rms < 1e-3, "{:?}", rows[1]);
+    for r in &rows[2..] {
+        assert!(r.position_rms > 1.0, "{r:?}");
+    }
+    // The whole is about the root-sum-square of independent parts: never below the
+    // largest one by much, never above their sum.
+    let all = rows[0].position_rms;
+    let parts: Vec<f64> = rows[2..].iter().map(|r| r.position_rms).collect();
+    let largest = parts.iter().cloned().fold(0.0, f64::max);
+    assert!(
+        all > 0.8 * largest && all < 1.1 * parts.iter().sum::<f64>(),
+        "{all} vs {parts:?}"
+    );
+}

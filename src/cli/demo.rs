@@ -18,6 +18,7 @@ use super::train::{
     build_dataset, fit, print_accumulated, read_run_config, refine_params, DataArgs,
 };
 use crate::calibrate::file;
+use crate::compensate::budget::{error_budget, markdown as budget_markdown};
 use crate::compensate::evaluate::{
     predictors, table_iii, table_v, warm_up, HeldOut, IDLE_BETWEEN_RUNS,
 };
@@ -216,6 +217,15 @@ fn evaluate_into(
             seed: held.held_out_seed + i as u64,
             start: state.clone(),
         };
+        let budget = error_budget(&machine, &calibrated, &run.config(), &run.start)?;
+        report.sections.push((
+            format!("Error budget: {} (held-out run)", path.name()),
+            format!(
+                "The hidden tool-pose error of this run split by source (RMS over every tick, \
+                 against the path target; `iastgcn budget` gives it for any run):\n\n{}",
+                budget_markdown(&budget)
+            ),
+        ));
         let bar = tick_bar(
             run.config().steps() * (3 + preds.len()),
             &format!("compensating {}", path.name()),

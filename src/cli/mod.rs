@@ -1,5 +1,6 @@
 //! Command line: clap commands, and every error turned into one readable message.
 
+mod budget;
 mod calibrate;
 mod compensate;
 mod dataset;
@@ -55,6 +56,8 @@ enum Command {
     Predict(train::PredictArgs),
     /// Run a held-out path in the twin: nominal, calibrated, and compensated online by each model.
     Compensate(compensate::CompensateArgs),
+    /// The error budget of a run in the twin: the hidden tool-pose error split by source.
+    Budget(budget::BudgetArgs),
     /// Tables III and V and the report folder for trained models.
     Evaluate(demo::EvaluateArgs),
     /// The main job end to end on the embedded twin: simulate, calibrate, train the four
@@ -103,6 +106,7 @@ pub fn main() -> ExitCode {
         Command::Compensate(args) => {
             open_gpu(cli.adapter.as_deref()).and_then(|gpu| compensate::run(gpu, &args))
         }
+        Command::Budget(args) => budget::run(&args),
         Command::Evaluate(args) => {
             open_gpu(cli.adapter.as_deref()).and_then(|gpu| demo::evaluate(gpu, &args))
         }

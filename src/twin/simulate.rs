@@ -49,6 +49,20 @@ impl MachineState {
         self.clock += seconds;
     }
 
+    /// This state with only the sources that `sources` has (for a copy of the machine with
+    /// some sources switched off).
+    pub fn keeping(&self, sources: &NonGeometric) -> MachineState {
+        MachineState {
+            lost_motion: self
+                .lost_motion
+                .clone()
+                .filter(|_| sources.lost_motion.is_some()),
+            backlash: self.backlash.clone().filter(|_| sources.backlash.is_some()),
+            thermal: self.thermal.clone().filter(|_| sources.thermal.is_some()),
+            clock: self.clock,
+        }
+    }
+
     /// Temperature rise of each screw above ambient, K (zero without thermal growth).
     pub fn screw_rise(&self) -> [f64; 3] {
         self.thermal.as_ref().map_or([0.0; 3], Thermal::rise)
