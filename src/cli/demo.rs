@@ -51,7 +51,7 @@ pub struct DemoArgs {
 #[derive(Args, Clone)]
 pub struct HeldOutArgs {
     /// Length of each held-out compensation run, minutes.
-    #[arg(long, default_value_t = 0.75)]
+    #[arg(long, default_value_t = 0.5)]
     pub held_out_minutes: f64,
     /// Seed of the first held-out run; the next paths take the following seeds (the
     /// demo's training recordings use 201–203, its calibration set 101).

@@ -565,7 +565,7 @@ pub fn predict(gpu: std::sync::Arc<Gpu>, args: &PredictArgs) -> anyhow::Result<(
         ..WindowConfig::default()
     };
     let mut csv = String::from("recording,row,t,pred_dx_um,pred_dy_um,pred_dz_um,pred_rx_mdeg,pred_ry_mdeg,pred_rz_mdeg,true_dx_um,true_dy_um,true_dz_um,true_rx_mdeg,true_ry_mdeg,true_rz_mdeg\n");
-    let mut all = (Vec::new(), Vec::new());
+    let mut all = (Vec::new(), Vec::new(), Vec::new());
     let mut panels = Vec::new();
     println!("recording                           windows  labelled  pos MAE/RMSE/MAPE           att MAE/RMSE/MAPE");
     for (name, rec) in &recordings {
@@ -597,7 +597,7 @@ pub fn predict(gpu: std::sync::Arc<Gpu>, args: &PredictArgs) -> anyhow::Result<(
         }
         let mut out = Vec::new();
         predictor.predict_batch(&x, &mut out)?;
-        let (mut pred, mut truth) = (Vec::new(), Vec::new());
+        let (mut pred, mut truth, mut axes) = (Vec::new(), Vec::new(), Vec::new());
         for (w, y) in chosen.iter().zip(&out) {
             let label = prepared.labels[w.end];
             csv += &format!("{name},{},{:.4}", w.end, rec.rows[w.end].t);
@@ -611,12 +611,13 @@ pub fn predict(gpu: std::sync::Arc<Gpu>, args: &PredictArgs) -> anyhow::Result<(
                 }
             }
             csv.push('\n');
-            if let Some(l) = label {
+            if let (Some(l), Some(a)) = (label, prepared.axes[w.end]) {
                 pred.push(*y);
                 truth.push(l);
+                axes.push(a);
             }
         }
-        let m = Metrics::of(&pred, &truth);
+        let m = Metrics::of(&pred, &truth, &axes);
         println!(
             "  {name:<34} {:>6}  {:>8}  {:.3}/{:.3}/{:.2}%   {:.3}/{:.3}/{:.2}%",
             chosen.len(),
@@ -651,8 +652,9 @@ pub fn predict(gpu: std::sync::Arc<Gpu>, args: &PredictArgs) -> anyhow::Result<(
         }
         all.0.extend(pred);
         all.1.extend(truth);
+        all.2.extend(axes);
     }
-    let m = Metrics::of(&all.0, &all.1);
+    let m = Metrics::of(&all.0, &all.1, &all.2);
     println!(
         "  {:<34} {:>6}  {:>8}  {:.3}/{:.3}/{:.2}%   {:.3}/{:.3}/{:.2}%",
         "all", "", m.count, m.pos_mae, m.pos_rmse, m.pos_mape, m.att_mae, m.att_rmse, m.att_mape

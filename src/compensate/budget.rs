@@ -46,7 +46,8 @@ fn run_rms(
     )?;
     while let Some(s) = sim.step() {
         let s = s.context("budget run")?;
-        let (p, a) = crate::twin::pose_error(&s.hidden.target, &s.hidden.actual.pose);
+        let actual = super::online::located(machine, controller, &s.hidden.actual.pose);
+        let (p, a) = crate::twin::pose_error(&s.hidden.target, &actual);
         pos.push(p);
         att.push(a);
     }

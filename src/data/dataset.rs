@@ -49,6 +49,9 @@ pub struct Dataset {
     pub y: Vec<f32>,
     /// `[W]` raw labels (µm, mdeg).
     pub labels: Vec<[f64; OUTPUTS]>,
+    /// `[W]` the tool axis (unit, base frame) at each window's end under the calibrated
+    /// model: attitude errors are scored as the tilt of this axis (docs/twin.md "Scoring").
+    pub axes: Vec<[f64; 3]>,
     pub normalization: Normalization,
 }
 
@@ -59,6 +62,9 @@ pub struct Prepared {
     pub features: Vec<[Vec<f64>; FEATURES]>,
     /// Per row: the residual (µm, mdeg) where the tracker measured, else `None`.
     pub labels: Vec<Option<[f64; OUTPUTS]>>,
+    /// Per row: the tool axis (unit, base frame) under the model where the tracker
+    /// measured, else `None`.
+    pub axes: Vec<Option<[f64; 3]>>,
 }
 
 impl Prepared {
@@ -136,9 +142,11 @@ pub fn prepare(
         .collect::<Result<_, _>>()?;
     let mut guess: Option<PlatformPose> = None;
     let mut labels = Vec::with_capacity(rec.rows.len());
+    let mut axes = Vec::with_capacity(rec.rows.len());
     for (i, row) in rec.rows.iter().enumerate() {
         let Some(p) = row.tracker else {
             labels.push(None);
+            axes.push(None);
             continue;
         };
         let joints = Joints {
@@ -150,8 +158,14 @@ pub fn prepare(
             .map_err(|e| err(name, format!("line {}: {e}", i + 2)))?;
         guess = Some(platform);
         labels.push(Some(label));
+        let axis = model.tool_pose(&platform, &joints.head).rotation * nalgebra::Vector3::z();
+        axes.push(Some([axis.x, axis.y, axis.z]));
     }
-    Ok(Prepared { features, labels })
+    Ok(Prepared {
+        features,
+        labels,
+        axes,
+    })
 }
 
 fn mean_std(values: impl Iterator<Item = f64>) -> (f64, f64) {
@@ -274,6 +288,7 @@ impl Dataset {
         let mut x = Vec::with_capacity(windows.len() * n_nodes * FEATURES * t_len);
         let mut y = Vec::with_capacity(windows.len() * OUTPUTS);
         let mut labels = Vec::with_capacity(windows.len());
+        let mut axes = Vec::with_capacity(windows.len());
         for w in &windows {
             let p = &prepared[w.recording];
             let start = w.end + 1 - t_len;
@@ -290,6 +305,7 @@ impl Dataset {
             let l = label_of(w);
             y.extend((0..OUTPUTS).map(|k| ((l[k] - label_mean[k]) / label_std[k]) as f32));
             labels.push(l);
+            axes.push(p.axes[w.end].expect("windows end on labelled rows"));
         }
         Ok(Dataset {
             nodes: graph.nodes.clone(),
@@ -301,6 +317,7 @@ impl Dataset {
             x,
             y,
             labels,
+            axes,
             normalization: Normalization {
                 feature_mean,
                 feature_std,

@@ -1,8 +1,12 @@
 //! Accuracy metrics of Table IV on residuals in physical units, the loss bracket of
 //! eq. 39 evaluated on the host, and the accumulated long-horizon error of Fig. 9b.
 //!
-//! Position and attitude are scored as vectors: the error of one window is the Euclidean
-//! norm of ŷ − y over dx, dy, dz (µm) or over rx, ry, rz (mdeg).
+//! Position is scored as a vector: the error of one window is the Euclidean norm of ŷ − y
+//! over dx, dy, dz (µm). Attitude is scored as Table V scores it, by the tool axis: the
+//! error is the part of the rotation-vector difference (rx, ry, rz, mdeg) across the tool
+//! axis a at the window's end, ‖e − (e·a)a‖, which is to first order the angle by which
+//! the predicted correction would misplace the axis; the roll about the axis is left out,
+//! as the 2R head leaves it free (docs/twin.md "Scoring").
 //! MAE = mean ‖ŷ − y‖, RMSE = √(mean ‖ŷ − y‖²), and
 //! MAPE = 100 · mean ‖ŷ − y‖ / max(‖y‖, g) %, with the guard g = 5% of the mean label
 //! norm of the evaluated set, so a label that happens to pass near zero cannot blow
@@ -35,28 +39,45 @@ fn diff(a: &[f64; 6], b: &[f64; 6]) -> [f64; 6] {
     std::array::from_fn(|k| a[k] - b[k])
 }
 
+/// The attitude part of `v` (components 3..6) across the unit `axis`: ‖r − (r·a)a‖.
+fn tilt(v: &[f64; 6], axis: &[f64; 3]) -> f64 {
+    let along = v[3] * axis[0] + v[4] * axis[1] + v[5] * axis[2];
+    ((v[3] - along * axis[0]).powi(2)
+        + (v[4] - along * axis[1]).powi(2)
+        + (v[5] - along * axis[2]).powi(2))
+    .sqrt()
+}
+
 impl Metrics {
-    /// Scores predictions against labels (both in µm / mdeg).
-    pub fn of(pred: &[[f64; 6]], truth: &[[f64; 6]]) -> Metrics {
+    /// Scores predictions against labels (both in µm / mdeg), each window's attitude
+    /// across its tool axis `axes[i]` (unit, base frame).
+    pub fn of(pred: &[[f64; 6]], truth: &[[f64; 6]], axes: &[[f64; 3]]) -> Metrics {
         assert_eq!(pred.len(), truth.len(), "one prediction per label");
+        assert_eq!(axes.len(), truth.len(), "one tool axis per label");
         let n = pred.len();
         if n == 0 {
             return Metrics::default();
         }
-        let part = |from: usize| {
-            let guard = MAPE_GUARD * truth.iter().map(|y| norm3(y, from)).sum::<f64>() / n as f64;
+        let part = |size: &dyn Fn(&[f64; 6], usize) -> f64| {
+            let guard = MAPE_GUARD
+                * truth
+                    .iter()
+                    .enumerate()
+                    .map(|(i, y)| size(y, i))
+                    .sum::<f64>()
+                / n as f64;
             let (mut abs, mut sq, mut pct) = (0.0, 0.0, 0.0);
-            for (p, y) in pred.iter().zip(truth) {
-                let e = norm3(&diff(p, y), from);
+            for (i, (p, y)) in pred.iter().zip(truth).enumerate() {
+                let e = size(&diff(p, y), i);
                 abs += e;
                 sq += e * e;
-                pct += e / norm3(y, from).max(guard).max(f64::MIN_POSITIVE);
+                pct += e / size(y, i).max(guard).max(f64::MIN_POSITIVE);
             }
             let nf = n as f64;
             (abs / nf, (sq / nf).sqrt(), 100.0 * pct / nf)
         };
-        let (pos_mae, pos_rmse, pos_mape) = part(0);
-        let (att_mae, att_rmse, att_mape) = part(3);
+        let (pos_mae, pos_rmse, pos_mape) = part(&|v, _| norm3(v, 0));
+        let (att_mae, att_rmse, att_mape) = part(&|v, i| tilt(v, &axes[i]));
         Metrics {
             count: n,
             pos_mae,
@@ -82,9 +103,13 @@ pub fn per_recording(
                 .filter(|&i| data.windows[positions[i]].recording == r)
                 .collect();
             let truth: Vec<[f64; 6]> = idx.iter().map(|&i| data.labels[positions[i]]).collect();
+            let axes: Vec<[f64; 3]> = idx.iter().map(|&i| data.axes[positions[i]]).collect();
             let model: Vec<[f64; 6]> = idx.iter().map(|&i| pred[i]).collect();
             let mean = vec![data.normalization.label_mean; idx.len()];
-            (Metrics::of(&model, &truth), Metrics::of(&mean, &truth))
+            (
+                Metrics::of(&model, &truth, &axes),
+                Metrics::of(&mean, &truth, &axes),
+            )
         })
         .collect()
 }
