@@ -176,7 +176,7 @@ fn geometric_errors_move_the_tool_by_a_realistic_amount() {
     );
     // The twin's machine (seed 1) over the whole workspace, geometric errors alone: most
     // of a millimetre and a few tenths of a degree (polishing paths use less of the
-    // workspace; the twin's magnitude test checks those against TWIN.md).
+    // workspace; the twin's magnitude test checks those against docs/twin.md).
     assert!(
         (0.4..1.5).contains(&mean(&pos)),
         "mean position error {} mm",

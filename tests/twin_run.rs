@@ -1,5 +1,5 @@
 //! The running twin end to end: error magnitudes on the three polishing paths against
-//! TWIN.md, and bit-for-bit reproducible recordings from the CLI.
+//! docs/twin.md, and bit-for-bit reproducible recordings from the CLI.
 
 use std::path::PathBuf;
 use std::process::Command;
@@ -38,7 +38,7 @@ fn mean_error(kind: PathKind, seconds: f64, controller_knows_geometry: bool) -> 
 
 #[test]
 fn error_magnitudes_match_twin_md() {
-    // TWIN.md: uncalibrated ~0.5–0.7 mm / 0.15–0.2°; with the geometry known exactly
+    // docs/twin.md: uncalibrated ~0.5–0.7 mm / 0.15–0.2°; with the geometry known exactly
     // (a perfect calibration) ~0.10–0.15 mm / 0.05–0.08°, the non-geometric remainder.
     // Four minutes lets the screws warm up (180 s time constant).
     // The six runs are independent: spread them over the cores.

@@ -26,7 +26,7 @@ use crate::train::{
 /// Where the data comes from (shared by train, refine and predict).
 #[derive(Args, Clone)]
 pub struct DataArgs {
-    /// Recordings (CSV, TWIN.md format).
+    /// Recordings (CSV, docs/twin.md "Recording format").
     #[arg(long, num_args = 1.., required = true)]
     pub data: Vec<PathBuf>,
     /// Calibration file from `iastgcn calibrate` (labels are residuals under it).

@@ -1,4 +1,4 @@
-//! Online compensation in the twin (TWIN.md "Compensation", section IV-E): at each
+//! Online compensation in the twin (docs/twin.md "Scoring", section IV-E): at each
 //! control tick the controller streams the sensor values into the causal features, the
 //! [`Predictor`] predicts the residual of the window ending at that tick, and the
 //! predicted residual is subtracted from the commanded pose of the next tick before

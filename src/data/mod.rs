@@ -1,4 +1,4 @@
-//! Recordings and datasets: the CSV formats of TWIN.md, causal preprocessing (hold,
+//! Recordings and datasets: the CSV formats of docs/twin.md, causal preprocessing (hold,
 //! low-pass, differences, entropy), windows and leakage-free splits.
 
 pub mod dataset;

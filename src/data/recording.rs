@@ -1,4 +1,4 @@
-//! The recording CSV of TWIN.md: `t`, one column per sensor channel, then the laser
+//! The recording CSV of docs/twin.md: `t`, one column per sensor channel, then the laser
 //! tracker's pose `x,y,z` (mm) and `rx,ry,rz` (rotation vector, rad). Empty cells mean
 //! "no sample at this tick" (slower sensors, the tracker between its samples).
 //!

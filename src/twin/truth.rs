@@ -82,7 +82,7 @@ pub fn gaussian<R: Rng + ?Sized>(rng: &mut R, sigma: f64) -> f64 {
     sigma * z
 }
 
-/// A seeded draw of a machine's non-geometric sources, in the ranges of TWIN.md.
+/// A seeded draw of a machine's non-geometric sources, in the ranges of docs/twin.md.
 pub fn draw_nongeometric(seed: u64) -> NonGeometric {
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x6e6f_6e67_656f);
     let mut between = |lo: f64, hi: f64| rng.random_range(lo..hi);
