@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use indicatif::ProgressBar;
 
+use crate::compensate::online::located;
 use crate::data::{tracker_columns, write_calibration_set, CalibrationRow, Recording, Row};
 use crate::plot::{self, Panel, Series};
 use crate::robot::{Geometry, Robot};
@@ -132,10 +133,12 @@ pub fn record_run(
         let s = sample.with_context(|| format!("at t = {:.2} s", rows.len() as f64 * 0.02))?;
         let tracker = s.tracker.as_ref().map(tracker_columns);
         let h = s.hidden;
+        // In the frame the part was located in (docs/twin.md "Scoring").
+        let actual = located(machine, controller, &h.actual.pose);
         truth.push((
             s.t,
-            (h.actual.pose.translation.vector - h.commanded.translation.vector).norm(),
-            (h.actual.pose.rotation * h.commanded.rotation.inverse())
+            (actual.translation.vector - h.commanded.translation.vector).norm(),
+            (actual.rotation * h.commanded.rotation.inverse())
                 .angle()
                 .to_degrees(),
             [h.target.position.x, h.target.position.y],

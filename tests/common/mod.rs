@@ -1,6 +1,9 @@
 //! Shared fixture of the training tests: a short twin session written by the CLI (a
 //! calibration measurement set, its EKF calibration and short polishing recordings).
 
+// Each test binary uses only some of these helpers.
+#![allow(dead_code)]
+
 use std::path::{Path, PathBuf};
 
 /// Runs the `iastgcn` binary with `args`; panics with its stderr on failure; returns stdout.
