@@ -21,26 +21,9 @@ fn truth_position(table: &str, stage: &str) -> f64 {
 #[test]
 fn a_trained_model_beats_calibration_on_the_hidden_truth() {
     let dir = std::env::temp_dir().join(format!("iastgcn-truth-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let cal = common::calibration(&dir, 101);
+    let cal = cal.to_str().unwrap();
     let f = |name: &str| dir.join(name).to_str().unwrap().to_string();
-    cli(&[
-        "simulate",
-        "--trajectory",
-        "calibration",
-        "--poses",
-        "60",
-        "--seed",
-        "101",
-        "--out",
-        &f("set.csv"),
-    ]);
-    cli(&[
-        "calibrate",
-        "--measurements",
-        &f("set.csv"),
-        "--out",
-        &f("cal.toml"),
-    ]);
     // One cold session per recording here (the CLI starts each run cold); each has its
     // own seed and the calibrated controller.
     let mut data = Vec::new();
@@ -55,7 +38,7 @@ fn a_trained_model_beats_calibration_on_the_hidden_truth() {
             "--seed",
             &seed,
             "--calibration",
-            &f("cal.toml"),
+            cal,
             "--out",
             &f(&format!("{path}.csv")),
         ]);
@@ -63,13 +46,13 @@ fn a_trained_model_beats_calibration_on_the_hidden_truth() {
     }
     // The demo's model and schedule (T = 48, C = 16, L = 3, 8 epochs).
     let config = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/demo.toml");
-    let (cal, model) = (f("cal.toml"), f("m.safetensors"));
+    let model = f("m.safetensors");
     let mut args = vec![
         "train",
         "--config",
         config,
         "--calibration",
-        &cal,
+        cal,
         "--out",
         &model,
     ];
@@ -82,7 +65,7 @@ fn a_trained_model_beats_calibration_on_the_hidden_truth() {
         "--model",
         &model,
         "--calibration",
-        &cal,
+        cal,
         "--trajectory",
         "rosette",
         "--minutes",

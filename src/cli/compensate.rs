@@ -15,13 +15,23 @@ use crate::compensate::report::TableVRow;
 use crate::gpu::Gpu;
 use crate::model::Checkpoint;
 use crate::robot::{Geometry, Robot};
-use crate::twin::{draw_machine, PathKind, PathParams};
+use crate::twin::{draw_machine, Machine, PathKind, PathParams};
 
 #[derive(clap::Args)]
 pub struct CompensateArgs {
     /// Checkpoints to compensate with (each gets its own run).
     #[arg(long, num_args = 1.., required = true)]
     pub model: Vec<PathBuf>,
+    #[command(flatten)]
+    pub run: RunArgs,
+    /// Predict every this many control ticks (the correction is held in between).
+    #[arg(long, default_value_t = 1)]
+    pub every: usize,
+}
+
+/// One held-out run in the twin: shared by `compensate` and `budget`.
+#[derive(clap::Args)]
+pub struct RunArgs {
     /// Calibration file (the controller's model).
     #[arg(long)]
     pub calibration: PathBuf,
@@ -29,24 +39,68 @@ pub struct CompensateArgs {
     /// retracing a training recording) or rosette (never in training).
     #[arg(long, default_value = "hilbert", value_parser = ["grid", "fermat", "hilbert", "rosette"])]
     pub trajectory: String,
-    /// Minutes of polishing that warm the machine up before the scored run (0: cold).
-    #[arg(long, default_value_t = 2.0)]
-    pub warm_up_minutes: f64,
     /// Length of the run, minutes.
     #[arg(long, default_value_t = 1.0)]
     pub minutes: f64,
+    /// Minutes of polishing that warm the machine up before the run (0: cold).
+    #[arg(long, default_value_t = 2.0)]
+    pub warm_up_minutes: f64,
     /// Seed of the run (use one the training recordings did not).
     #[arg(long, default_value_t = 12)]
     pub seed: u64,
     /// Seed of the machine (the twin's default machine is 1).
     #[arg(long, default_value_t = 1)]
     pub machine_seed: u64,
-    /// Predict every this many control ticks (the correction is held in between).
-    #[arg(long, default_value_t = 1)]
-    pub every: usize,
     /// Robot geometry asset (default: the embedded assets/robot.toml).
     #[arg(long)]
     pub robot: Option<PathBuf>,
+}
+
+/// A held-out run ready to go: the machine, both controllers, and the run itself (at
+/// its held-out placement, starting from the warmed-up machine).
+pub struct Prepared {
+    pub machine: Machine,
+    pub nominal: Robot,
+    pub calibrated: Robot,
+    pub run: HeldOut,
+}
+
+impl RunArgs {
+    pub fn prepare(&self) -> anyhow::Result<Prepared> {
+        let geometry = match &self.robot {
+            Some(p) => Geometry::load(p)?,
+            None => Geometry::default_asset(),
+        };
+        let machine = draw_machine(geometry.clone(), self.machine_seed);
+        let nominal = Robot::nominal(geometry.clone());
+        let calibrated = Robot::new(geometry, file::load(&self.calibration)?.errors);
+        let path: PathKind = self.trajectory.parse().map_err(anyhow::Error::msg)?;
+        anyhow::ensure!(
+            self.minutes.is_finite() && self.minutes > 0.0,
+            "--minutes must be positive, got {}",
+            self.minutes
+        );
+        let start = warm_up(
+            &machine,
+            &calibrated,
+            self.warm_up_minutes * 60.0,
+            self.seed ^ 0x5741_524d,
+        )
+        .context("warm-up run")?;
+        let run = HeldOut {
+            path,
+            params: PathParams::held_out(path),
+            seconds: self.minutes * 60.0,
+            seed: self.seed,
+            start,
+        };
+        Ok(Prepared {
+            machine,
+            nominal,
+            calibrated,
+            run,
+        })
+    }
 }
 
 /// A progress bar over control ticks.
@@ -76,20 +130,13 @@ pub fn print_table_v(rows: &[TableVRow]) {
 }
 
 pub fn run(gpu: Gpu, args: &CompensateArgs) -> anyhow::Result<()> {
-    let geometry = match &args.robot {
-        Some(p) => Geometry::load(p)?,
-        None => Geometry::default_asset(),
-    };
-    let cal = file::load(&args.calibration)?;
-    let machine = draw_machine(geometry.clone(), args.machine_seed);
-    let nominal = Robot::nominal(geometry.clone());
-    let calibrated = Robot::new(geometry, cal.errors);
-    let path: PathKind = args.trajectory.parse().map_err(anyhow::Error::msg)?;
-    anyhow::ensure!(
-        args.minutes.is_finite() && args.minutes > 0.0,
-        "--minutes must be positive, got {}",
-        args.minutes
-    );
+    let Prepared {
+        machine,
+        nominal,
+        calibrated,
+        run,
+    } = args.run.prepare()?;
+    let path = run.path;
     let checkpoints = args
         .model
         .iter()
@@ -104,20 +151,6 @@ pub fn run(gpu: Gpu, args: &CompensateArgs) -> anyhow::Result<()> {
     let graph = checkpoints[0].1.graph.clone();
     let gpu = Arc::new(gpu);
     let mut models = predictors(&gpu, &checkpoints)?;
-    let start = warm_up(
-        &machine,
-        &calibrated,
-        args.warm_up_minutes * 60.0,
-        args.seed ^ 0x5741_524d,
-    )
-    .context("warm-up run")?;
-    let run = HeldOut {
-        path,
-        params: PathParams::held_out(path),
-        seconds: args.minutes * 60.0,
-        seed: args.seed,
-        start,
-    };
     let ticks = run.config().steps();
     let bar = tick_bar(
         ticks * (3 + models.len()),

@@ -197,10 +197,11 @@ impl Robot {
         })
     }
 
-    /// Platform frame → tool frame (pad centre, z along the tool axis) through the MDH
-    /// rows of the head and the tool, with their errors.
-    pub fn head_transform(&self, head: &[f64; 2]) -> Isometry3<f64> {
+    /// Platform frame → the frame each serial joint's MDH row ends in (its z axis is the
+    /// joint's axis), with the errors.
+    fn serial_frames(&self, head: &[f64; 2]) -> [Isometry3<f64>; 2] {
         let mut t = Isometry3::identity();
+        let mut out = [Isometry3::identity(); 2];
         for (j, joint) in self.geometry.serial.joints.iter().enumerate() {
             let e = self.errors.mdh(j);
             t *= mdh(
@@ -209,37 +210,36 @@ impl Robot {
                 head[j] + joint.theta_offset_deg.to_radians() + e.theta,
                 joint.d + e.d,
             );
+            out[j] = t;
         }
+        out
+    }
+
+    /// Platform frame → tool frame (pad centre, z along the tool axis) through the MDH
+    /// rows of the head and the tool, with their errors.
+    pub fn head_transform(&self, head: &[f64; 2]) -> Isometry3<f64> {
         let tool = &self.geometry.tool;
-        t *= mdh(
-            tool.alpha_deg.to_radians(),
-            tool.a,
-            tool.theta_deg.to_radians(),
-            tool.d,
-        );
+        let t = self.serial_frames(head)[1]
+            * mdh(
+                tool.alpha_deg.to_radians(),
+                tool.a,
+                tool.theta_deg.to_radians(),
+                tool.d,
+            );
         t * Translation3::from(self.errors.tool())
     }
 
-    /// Each serial joint's axis in the base frame, as (a point on it, its unit direction):
-    /// the z axis of the frame its MDH row ends in.
+    /// Each serial joint's axis in the base frame, as (a point on it, its unit direction).
     pub fn joint_axes(
         &self,
         p: &PlatformPose,
         head: &[f64; 2],
     ) -> [(Point3<f64>, Vector3<f64>); 2] {
-        let mut t = self.platform_frame(p);
-        let mut out = [(Point3::origin(), Vector3::z()); 2];
-        for (j, joint) in self.geometry.serial.joints.iter().enumerate() {
-            let e = self.errors.mdh(j);
-            t *= mdh(
-                joint.alpha_deg.to_radians() + e.alpha,
-                joint.a + e.a,
-                head[j] + joint.theta_offset_deg.to_radians() + e.theta,
-                joint.d + e.d,
-            );
-            out[j] = (t * Point3::origin(), t.rotation * Vector3::z());
-        }
-        out
+        let platform = self.platform_frame(p);
+        self.serial_frames(head).map(|f| {
+            let t = platform * f;
+            (t * Point3::origin(), t.rotation * Vector3::z())
+        })
     }
 
     /// Tool pose in the base frame for a platform pose and head angles.

@@ -170,7 +170,7 @@ impl Installation {
 /// an instrument sees only part of it.
 #[derive(Clone, Copy, Debug)]
 pub struct Scene {
-    pub t: f64,
+    /// Control period, s.
     pub dt: f64,
     /// Motor encoder lengths (mm) and angles (rad): the commanded inputs.
     pub encoder_lengths: [f64; 3],
@@ -226,10 +226,6 @@ impl Instruments {
             seal: 0.0,
             force: None,
         }
-    }
-
-    pub fn specs(&self) -> &SensorSpecs {
-        &self.specs
     }
 
     /// Every channel's reading for one tick, in [`CHANNELS`] order. Every random draw is

@@ -468,7 +468,6 @@ impl<'a> Simulation<'a> {
         let commanded = self.controller.tool_pose(&command.platform, &command.head);
         let terms = &actual.terms;
         let scene = Scene {
-            t: clock,
             dt,
             encoder_lengths: encoders.limbs,
             encoder_angles: encoders.head,

@@ -20,22 +20,33 @@ pub fn cli(args: &[&str]) -> String {
     String::from_utf8_lossy(&o.stdout).into_owned()
 }
 
-/// In `dir`: `cal.toml` (EKF on 60 simulated poses) and `<path>.csv` recordings of
-/// `seconds` each (seed 5). Returns (calibration, recordings).
-pub fn twin_session(dir: &Path, paths: &[&str], seconds: f64) -> (PathBuf, Vec<PathBuf>) {
+/// In `dir` (created if missing): `set.csv`, 60 calibration poses measured with `seed`,
+/// and `cal.toml`, their EKF calibration. Returns the calibration's path.
+pub fn calibration(dir: &Path, seed: u64) -> PathBuf {
     std::fs::create_dir_all(dir).unwrap();
     let p = |name: &str| dir.join(name).to_str().unwrap().to_string();
     let (set, cal) = (p("set.csv"), p("cal.toml"));
+    let seed = seed.to_string();
     cli(&[
         "simulate",
         "--trajectory",
         "calibration",
         "--poses",
         "60",
+        "--seed",
+        &seed,
         "--out",
         &set,
     ]);
     cli(&["calibrate", "--measurements", &set, "--out", &cal]);
+    PathBuf::from(cal)
+}
+
+/// In `dir`: `cal.toml` (EKF on 60 simulated poses) and `<path>.csv` recordings of
+/// `seconds` each (seeds 5, 6, …). Returns (calibration, recordings).
+pub fn twin_session(dir: &Path, paths: &[&str], seconds: f64) -> (PathBuf, Vec<PathBuf>) {
+    let cal = calibration(dir, 7);
+    let p = |name: &str| dir.join(name).to_str().unwrap().to_string();
     let minutes = format!("{}", seconds / 60.0);
     let recordings = paths
         .iter()
@@ -57,5 +68,5 @@ pub fn twin_session(dir: &Path, paths: &[&str], seconds: f64) -> (PathBuf, Vec<P
             PathBuf::from(out)
         })
         .collect();
-    (PathBuf::from(cal), recordings)
+    (cal, recordings)
 }
