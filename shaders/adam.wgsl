@@ -1,4 +1,4 @@
-// Adam (MODEL.md: β1 0.9, β2 0.999, ε 1e-8) with the L2 weight decay of eq. 39 folded
+// Adam (docs/model.md: β1 0.9, β2 0.999, ε 1e-8) with the L2 weight decay of eq. 39 folded
 // into the gradient, one tensor per dispatch, in place (Rust side: src/ops/adam.rs):
 //   g' = g + 2·decay·w,  m = β1 m + (1 − β1) g',  v = β2 v + (1 − β2) g'²,
 //   w −= lr · (m / bc1) / (sqrt(v / bc2) + ε).

@@ -1,8 +1,8 @@
-// Gated dilated causal convolution (MODEL.md step 4; Rust side: src/ops/gated_dcc.rs).
+// Gated dilated causal convolution (docs/model.md step 4; Rust side: src/ops/gated_dcc.rs).
 //
 // The convolution runs as a GEMM over a causal unfolding of its input:
 //   col[r, c, k, t] = x[r, c, t − d·k]   (0 when t − d·k < 0; r = b·N + n)
-// so that G[r] = weight [C, C·K] · col[r] [C·K, T] with the MODEL.md weight layout
+// so that G[r] = weight [C, C·K] · col[r] [C·K, T] with the docs/model.md weight layout
 // [o, c, k] read as a [C, C·K] matrix. `outputs` keeps only the last steps of col
 // (t ≥ T − outputs): the last block computes its convolution only where the head reads. The GEMMs are ops::matmul; this file holds the
 // unfolding and the gate H = tanh(G_f) ⊙ σ(G_g), forward and backward.

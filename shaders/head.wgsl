@@ -1,4 +1,4 @@
-// The head's input (MODEL.md "Head"; Rust side: src/ops/head.rs): the last time step
+// The head's input (docs/model.md "Head"; Rust side: src/ops/head.rs): the last time step
 // of the last block, h[b, n·C + c] = Y[b, n, c, T − 1], and its backward scatter.
 
 struct HeadParams {

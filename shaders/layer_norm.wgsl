@@ -1,4 +1,4 @@
-// LayerNorm over the channel axis of [B, N, C, T] activations (MODEL.md step 6), forward
+// LayerNorm over the channel axis of [B, N, C, T] activations (docs/model.md step 6), forward
 // and backward (Rust side: src/ops/layer_norm.rs).
 //
 // Rows are (b·N + n, t) pairs: `outer` = B·N blocks of C·T elements, channel stride T.

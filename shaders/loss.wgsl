@@ -1,7 +1,7 @@
-// The training loss of MODEL.md eq. 39 without the weight-decay term (the optimiser adds
+// The training loss of docs/model.md eq. 39 without the weight-decay term (the optimiser adds
 // 2λW to the weight gradients; Rust side: src/ops/loss.rs):
 //   ℒ = (1/B) Σ_b Σ_m w_m (ŷ[b, m] − y[b, m])²,  w_m = 1 for m < 3 (position), P otherwise.
-// With group = M > 1 (MODEL.md "Refinement") the batch holds G = B/M ensembles of M
+// With group = M > 1 (docs/model.md "Refinement") the batch holds G = B/M ensembles of M
 // consecutive windows and each adds the loss of its mean prediction:
 //   ℒ = (1/G) Σ_g [ (1/M) Σ_k ℓ(ŷ_gk, y_gk) + ℓ(mean_k ŷ_gk, mean_k y_gk) ]
 //     = (1/B) [ Σ_b Σ_m w_m e[b, m]² + M Σ_g Σ_m w_m ē[g, m]² ],  e = ŷ − y, ē = mean_k e_gk.

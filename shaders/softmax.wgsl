@@ -1,5 +1,5 @@
 // Softmax along one axis of a tensor viewed as [outer, L, inner] (Rust side:
-// src/ops/softmax.rs). The attention of MODEL.md normalises E[b, t, t'] over t (L = T,
+// src/ops/softmax.rs). The attention of docs/model.md normalises E[b, t, t'] over t (L = T,
 // inner = T) and S[b, i, j] over j (L = N, inner = 1). One invocation per (outer, inner)
 // line; the maximum is subtracted before exp, so large scores never overflow.
 

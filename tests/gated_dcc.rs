@@ -1,6 +1,6 @@
 //! Gated dilated causal convolution: the causal unfolding and the gate vs the f64
 //! reference (forward and backward), the unfolding+GEMM path vs the direct convolution
-//! of MODEL.md step 4, and the reference gradients vs central differences.
+//! of docs/model.md step 4, and the reference gradients vs central differences.
 
 use iastgcn::gpu::DType;
 use iastgcn::ops::gated_dcc::{cpu, gate_backward_stacked, gate_forward, ReluOutput, Unfold};

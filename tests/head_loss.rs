@@ -83,7 +83,7 @@ fn pose_loss_matches_reference_and_finite_differences() {
     }
 }
 
-/// ℓ(a, b) = Σ_j w_j (a_j − b_j)² of one window (MODEL.md eq. 39's bracket).
+/// ℓ(a, b) = Σ_j w_j (a_j − b_j)² of one window (docs/model.md eq. 39's bracket).
 fn window_loss(penalty: f64, a: &[f64], b: &[f64]) -> f64 {
     a.iter()
         .zip(b)
@@ -92,7 +92,7 @@ fn window_loss(penalty: f64, a: &[f64], b: &[f64]) -> f64 {
         .sum()
 }
 
-/// The ensemble loss written straight from MODEL.md "Refinement", independent of the
+/// The ensemble loss written straight from docs/model.md "Refinement", independent of the
 /// reference's rearrangement: (1/G) Σ_g [ (1/m) Σ_k ℓ(ŷ_gk, y_gk) + ℓ(mean ŷ, mean y) ].
 fn ensemble_loss_by_definition(l: &PoseLoss, pred: &[f64], truth: &[f64]) -> f64 {
     let (m, o) = (l.group, l.outputs);

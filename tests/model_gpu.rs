@@ -165,7 +165,7 @@ fn inference_forward_matches_reference() {
     }
 }
 
-/// MODEL.md's paper shape (B = 64, T = 100, C = 64, L = 5): the inference forward
+/// docs/model.md's paper shape (B = 64, T = 100, C = 64, L = 5): the inference forward
 /// matches the f64 reference to 1e-4 of the output scale.
 #[test]
 fn paper_shape_forward_matches_reference() {

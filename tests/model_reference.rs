@@ -374,7 +374,7 @@ fn loss_is_eq_39() {
     assert!((got - want).abs() <= 1e-12 * want.abs(), "{got} vs {want}");
 }
 
-/// MODEL.md's formulas written out index by index (slow, but a direct transcription),
+/// docs/model.md's formulas written out index by index (slow, but a direct transcription),
 /// against every block of the tape, in every variant, with dropout: catches what finite
 /// differences cannot (a transposed index, the softmax axis, the kernel's lag direction,
 /// Ψ's construction), since the backward is only checked against this same forward.

@@ -1,5 +1,5 @@
 //! Residual pose errors after calibration (eq. 19): δT_ng = T_M · T_cg⁻¹, as the 6-D label
-//! of MODEL.md.
+//! of docs/model.md.
 
 use nalgebra::Isometry3;
 

@@ -14,7 +14,7 @@ use crate::model::{Checkpoint, ModelConfig, Network, Normalization, Parameters, 
 
 #[derive(Args)]
 pub struct InitArgs {
-    /// Run config (TOML); its `[model]` table holds the fields of MODEL.md's notation
+    /// Run config (TOML); its `[model]` table holds the fields of docs/model.md's notation
     /// table: variant, nodes, features, window, channels, blocks, kernel, scale, …; the
     /// paper shape when absent.
     #[arg(long)]

@@ -18,7 +18,7 @@ pub struct SmokeArgs {
     /// Rows of the activation matrix (B·N·T of a layer); 1400 = 1 window of 14 nodes × 100 steps.
     #[arg(long, default_value_t = 1400)]
     rows: usize,
-    /// Channels (C of MODEL.md).
+    /// Channels (C of docs/model.md).
     #[arg(long, default_value_t = 64)]
     channels: usize,
 }
@@ -82,7 +82,7 @@ fn matmul_check(gpu: &Gpu, args: &SmokeArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The gate of MODEL.md step 4, `H = tanh(F) ⊙ σ(G)`, forward and backward.
+/// The gate of docs/model.md step 4, `H = tanh(F) ⊙ σ(G)`, forward and backward.
 fn gated_unit_check(gpu: &Gpu, args: &SmokeArgs) -> anyhow::Result<()> {
     let n = args.rows * args.channels;
     let mut g = rng(args.seed + 1);

@@ -9,7 +9,7 @@ use crate::calibrate::residual;
 use crate::graph::Graph;
 use crate::robot::{Joints, PlatformPose, Robot};
 
-/// Features per node and step (MODEL.md F).
+/// Features per node and step (docs/model.md F).
 pub const FEATURES: usize = 3;
 /// Label components: dx, dy, dz (µm), rx, ry, rz (mdeg).
 pub const OUTPUTS: usize = 6;

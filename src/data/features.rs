@@ -1,4 +1,4 @@
-//! Per-node features of MODEL.md: the filtered signal r(n), its difference D(n) and the
+//! Per-node features of docs/model.md: the filtered signal r(n), its difference D(n) and the
 //! differential entropy H(n) of eq. 20–22 — all causal, so the same code runs online.
 
 /// Preprocessing settings.

@@ -15,7 +15,7 @@ pub const ADAPTER_ENV: &str = "IASTGCN_ADAPTER";
 pub const SUBGROUPS_ENV: &str = "IASTGCN_SUBGROUPS";
 
 /// The backends we ask for. GL is left out on purpose: it only adds a second
-/// llvmpipe adapter and 30-300 ms of EGL probing (see shared/notes/lavapipe.md).
+/// llvmpipe adapter and 30-300 ms of EGL probing (see docs/lavapipe.md).
 pub const BACKENDS: wgpu::Backends = wgpu::Backends::VULKAN
     .union(wgpu::Backends::METAL)
     .union(wgpu::Backends::DX12);

@@ -108,7 +108,7 @@ impl Graph {
     }
 }
 
-/// The spectral quantities of MODEL.md ("Graph"), computed once on the CPU in f64.
+/// The spectral quantities of docs/model.md ("Graph"), computed once on the CPU in f64.
 #[derive(Clone, Debug)]
 pub struct Spectral {
     /// Normalised Laplacian L = I − D^(−1/2) A D^(−1/2).

@@ -1,5 +1,5 @@
-//! One ST block on the device (MODEL.md steps 1–7): its activation buffers and the
-//! forward and backward schedules, op by op, in the order of MODEL.md.
+//! One ST block on the device (docs/model.md steps 1–7): its activation buffers and the
+//! forward and backward schedules, op by op, in the order of docs/model.md.
 
 use super::config::ModelConfig;
 use super::schedule::{Scratch, Steps};
@@ -14,7 +14,7 @@ use crate::ops::matmul::{Epilogue, Matmul};
 use crate::ops::outer::{OuterPair, Second};
 use crate::ops::softmax::Softmax;
 
-/// Device parameters and their gradients, looked up by MODEL.md name.
+/// Device parameters and their gradients, looked up by docs/model.md name.
 pub trait ParamTable {
     fn param(&self, name: &str) -> &Tensor;
     fn grad(&self, name: &str) -> &Tensor;
@@ -199,7 +199,7 @@ impl Block {
         format!("blocks.{}.{s}", self.index)
     }
 
-    // The products of MODEL.md, named by what they compute.
+    // The products of docs/model.md, named by what they compute.
 
     /// tat: xu1[b, (c,t)] = Σ_n U1[n] X[b, n, (c,t)].
     fn mm_u1(&self) -> Matmul {

@@ -1,5 +1,5 @@
-//! Checkpoints in safetensors (MODEL.md "Parameter names"): every parameter as an f32
-//! tensor under its MODEL.md name, and as metadata (JSON strings) the format, the
+//! Checkpoints in safetensors (docs/model.md "Parameter names"): every parameter as an f32
+//! tensor under its docs/model.md name, and as metadata (JSON strings) the format, the
 //! variant, the config, the graph and the normalisation statistics. Written atomically;
 //! loading checks names, shapes, dtypes, values and metadata and says what is wrong.
 
@@ -16,7 +16,7 @@ use crate::graph::Graph;
 /// The value of the `format` metadata key.
 pub const FORMAT: &str = "iastgcn-checkpoint/1";
 
-/// Feature and label standardisation of the training split (MODEL.md "Features and
+/// Feature and label standardisation of the training split (docs/model.md "Features and
 /// labels"): x' = (x − mean)/std per node and feature; ŷ is de-standardised as
 /// ŷ·std + mean per output (µm, mdeg).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

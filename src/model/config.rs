@@ -1,8 +1,8 @@
-//! The network's configuration (MODEL.md "Notation") and its variants.
+//! The network's configuration (docs/model.md "Notation") and its variants.
 
 use serde::{Deserialize, Serialize};
 
-/// Which network the engine runs (MODEL.md "Variants"); stored in checkpoint metadata.
+/// Which network the engine runs (docs/model.md "Variants"); stored in checkpoint metadata.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Variant {
     /// The full model.
@@ -55,7 +55,7 @@ impl std::fmt::Display for Variant {
     }
 }
 
-/// Shapes and hyper-parameters of one network. Defaults are MODEL.md's paper shape.
+/// Shapes and hyper-parameters of one network. Defaults are docs/model.md's paper shape.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ModelConfig {
@@ -104,7 +104,7 @@ impl Default for ModelConfig {
 }
 
 impl ModelConfig {
-    /// The small shape of the whole-model gradient checks (MODEL.md defaults otherwise):
+    /// The small shape of the whole-model gradient checks (docs/model.md defaults otherwise):
     /// F = 3, T = 16, C = 4, L = 2, K = 3 on the 14-node graph, dropout 0.2.
     pub fn gradient_check(variant: Variant) -> ModelConfig {
         ModelConfig {

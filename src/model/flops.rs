@@ -1,4 +1,4 @@
-//! FLOP counts of the network (MODEL.md), per contraction family, for GFLOP/s figures.
+//! FLOP counts of the network (docs/model.md), per contraction family, for GFLOP/s figures.
 //!
 //! What is counted: the GEMM-like contractions only, a multiply-add being 2 FLOPs —
 //! the attention score products (U1, U2, U3, lhs·rhs, Ve; W1, W2, W3, lhs·rhsᵀ, Vs),
@@ -14,7 +14,7 @@
 //!
 //! The convolutions are counted as the schedule runs them: one dense GEMM over the
 //! unfolded input, `[C, C·K] · [C·K, T]` per (b, n), so the taps that fall before t = 0
-//! (zeros, MODEL.md step 4) are counted as the GPU multiplies them too. The last block
+//! (zeros, docs/model.md step 4) are counted as the GPU multiplies them too. The last block
 //! computes its convolutions and residual only at the last step (all the head reads;
 //! `model::block`), and is counted so.
 //!

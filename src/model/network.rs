@@ -36,7 +36,7 @@ pub enum Pass {
 pub struct Network {
     pub config: ModelConfig,
     pub batch: usize,
-    /// Windows per ensemble of the loss (MODEL.md "Refinement"); 1 = the plain loss.
+    /// Windows per ensemble of the loss (docs/model.md "Refinement"); 1 = the plain loss.
     pub group: usize,
     /// Built with the training schedules ([`Network::new`]) or for inference only.
     pub training: bool,
@@ -107,7 +107,7 @@ impl Network {
         Network::build(gpu, config, graph, batch, 1, dropout_seed, true)
     }
 
-    /// Training on ensembles (MODEL.md refinement): `batch` windows = batch/group ensembles of `group` consecutive windows; the loss is the ensemble loss.
+    /// Training on ensembles (docs/model.md refinement): `batch` windows = batch/group ensembles of `group` consecutive windows; the loss is the ensemble loss.
     pub fn for_ensembles(
         gpu: &Gpu,
         config: &ModelConfig,
@@ -253,7 +253,7 @@ impl Network {
         })
     }
 
-    /// The loss and the backward schedule (MODEL.md order reversed).
+    /// The loss and the backward schedule (docs/model.md order reversed).
     #[allow(clippy::too_many_arguments)]
     fn build_backward(
         gpu: &Gpu,

@@ -1,4 +1,4 @@
-//! The parameter table of MODEL.md: names, shapes, initialisation, weight decay, and the
+//! The parameter table of docs/model.md: names, shapes, initialisation, weight decay, and the
 //! fixed graph basis that θ combines into Ψ.
 
 use rand::{RngExt, SeedableRng};
@@ -7,7 +7,7 @@ use rand_chacha::ChaCha8Rng;
 use super::config::{ModelConfig, Variant};
 use crate::graph::Graph;
 
-/// How a parameter starts (MODEL.md "Initialisation").
+/// How a parameter starts (docs/model.md "Initialisation").
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Init {
     /// He uniform U(−√(6/fan_in), √(6/fan_in)).
@@ -99,7 +99,7 @@ pub fn param_specs(config: &ModelConfig) -> Vec<ParamSpec> {
     out
 }
 
-/// Host copy of all parameters (f32, MODEL.md layouts), in [`param_specs`] order.
+/// Host copy of all parameters (f32, docs/model.md layouts), in [`param_specs`] order.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Parameters {
     pub specs: Vec<ParamSpec>,
@@ -154,7 +154,7 @@ impl Parameters {
 
 /// The fixed matrices that θ combines into Ψ = Σ_k θ_k · basis_k, as `[terms, N, N]`
 /// row-major f64. For the wavelet variants basis_k = ψ_s[:, k] ψ_s⁻¹[k, :] (so that
-/// Σ_k θ_k basis_k = ψ_s diag(θ) ψ_s⁻¹, MODEL.md step 3); for `iastgcn-s` basis_k = T_k(L̃).
+/// Σ_k θ_k basis_k = ψ_s diag(θ) ψ_s⁻¹, docs/model.md step 3); for `iastgcn-s` basis_k = T_k(L̃).
 pub fn graph_basis(graph: &Graph, config: &ModelConfig) -> Vec<f64> {
     let n = graph.len();
     let spectral = graph.spectral();

@@ -2,7 +2,7 @@
 //! feed windows (one, many, or one step at a time through a ring buffer) and get the
 //! 6-D pose residual in µm and mdeg.
 //!
-//! Inputs are the model's per-node features *before* standardisation (MODEL.md
+//! Inputs are the model's per-node features *before* standardisation (docs/model.md
 //! "Features and labels": filtered signal, difference, scaled entropy per node and
 //! step); the predictor standardises them with the checkpoint's statistics and
 //! de-standardises the output. After [`Predictor::new`] no call allocates host

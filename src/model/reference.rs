@@ -1,9 +1,9 @@
-//! The f64 CPU reference of the whole network of MODEL.md: the forward pass (keeping every
+//! The f64 CPU reference of the whole network of docs/model.md: the forward pass (keeping every
 //! intermediate on a [`Tape`]), the loss of eq. 39 and a hand-written backward pass. Tests
 //! check the backward against finite differences of the forward, and the GPU schedule
 //! against both.
 //!
-//! One function per MODEL.md step, its backward next to it. Tensors are row-major
+//! One function per docs/model.md step, its backward next to it. Tensors are row-major
 //! `[B, N, C, T]` like the GPU's; loops keep the contiguous T axis innermost (as `axpy` /
 //! `dot` over rows of length T) so that the paper shape runs in seconds at opt-level 1.
 
@@ -13,7 +13,7 @@
 use super::{ModelConfig, ParamSpec};
 use crate::ops::dropout::{keep, Dropout};
 
-/// The dropout of one training step (MODEL.md step 7). Block `l` draws its mask from
+/// The dropout of one training step (docs/model.md step 7). Block `l` draws its mask from
 /// [`DropoutStep::block`]: element `i` (flat index into Y `[B,N,C,T]`) is kept iff
 /// `ops::dropout::keep(&mask, step, i)`, and kept values are scaled by 1/(1−p).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -43,7 +43,7 @@ pub struct Loss {
 }
 
 impl Default for Loss {
-    /// MODEL.md's defaults: P = 1, λ = 1e-4.
+    /// docs/model.md's defaults: P = 1, λ = 1e-4.
     fn default() -> Loss {
         Loss {
             attitude_penalty: 1.0,
@@ -119,7 +119,7 @@ pub struct SpatialAttention {
     pub xw1: Vec<f64>,
     /// lhs `[B,N,T]`.
     pub lhs: Vec<f64>,
-    /// rhs, stored transposed as `[B,N,T]` (rhs[b,t,m] of MODEL.md at `[b,m,t]`).
+    /// rhs, stored transposed as `[B,N,T]` (rhs[b,t,m] of docs/model.md at `[b,m,t]`).
     pub rhs: Vec<f64>,
     /// σ(P + bs) `[B,N,N]`.
     pub sig: Vec<f64>,
@@ -209,7 +209,7 @@ impl Dims {
     }
 }
 
-/// Parameters looked up by name (MODEL.md names, `param_specs` order).
+/// Parameters looked up by name (docs/model.md names, `param_specs` order).
 struct Table<'a> {
     specs: &'a [ParamSpec],
     values: &'a [Vec<f64>],
@@ -1339,7 +1339,7 @@ fn output_weight(m: usize, loss: &Loss) -> f64 {
     }
 }
 
-/// The forward pass of MODEL.md on `x` `[B,N,F,T]` (`batch` = B). `basis` is
+/// The forward pass of docs/model.md on `x` `[B,N,F,T]` (`batch` = B). `basis` is
 /// `graph_basis(graph, config)`, `params` in `param_specs(config)` order. With `dropout`
 /// the blocks apply the masks of that training step; without, the pass is the
 /// evaluation one.

@@ -1,4 +1,4 @@
-//! The Adam update of MODEL.md (β1 0.9, β2 0.999, ε 1e-8) with the λ‖W‖² term of eq. 39
+//! The Adam update of docs/model.md (β1 0.9, β2 0.999, ε 1e-8) with the λ‖W‖² term of eq. 39
 //! folded into the gradient (the GPU loss omits it), in place per tensor, with the f64
 //! CPU reference.
 
@@ -24,7 +24,7 @@ static STEP: Kernel = Kernel {
 
 /// Adam with L2 weight decay folded into the gradient (g' = g + 2·decay·w).
 ///
-/// `decay` is λ for the weights of MODEL.md eq. 39 and 0 for biases, be/bs, θ and ln.*.
+/// `decay` is λ for the weights of docs/model.md eq. 39 and 0 for biases, be/bs, θ and ln.*.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Adam {
     pub numel: usize,

@@ -1,4 +1,4 @@
-//! Inverted dropout (MODEL.md step 7) with a counter-based RNG: the mask is a hash of
+//! Inverted dropout (docs/model.md step 7) with a counter-based RNG: the mask is a hash of
 //! (element, seed, step), recomputed in the backward pass instead of stored. Forward and
 //! backward are the same kernel (`y = mask·x/(1−p)`, `dx = mask·dy/(1−p)`).
 

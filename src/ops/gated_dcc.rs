@@ -1,4 +1,4 @@
-//! Gated dilated causal convolution (MODEL.md step 4): the causal unfolding that turns
+//! Gated dilated causal convolution (docs/model.md step 4): the causal unfolding that turns
 //! the convolution into one GEMM per row, and the tanh ⊙ σ gate, forward and backward,
 //! with the f64 CPU reference of the whole gated convolution.
 
@@ -293,7 +293,7 @@ pub mod cpu {
         dx
     }
 
-    /// `G[r, o, t] = bias[o] + Σ_c Σ_k weight[o, c, k] · x[r, c, t − d·k]` (MODEL.md step 4)
+    /// `G[r, o, t] = bias[o] + Σ_c Σ_k weight[o, c, k] · x[r, c, t − d·k]` (docs/model.md step 4)
     /// over the kept steps: `[rows, out_channels, u.outputs]`.
     pub fn conv(
         u: &Unfold,

@@ -1,4 +1,4 @@
-//! The head's input: the last time step of the last block (MODEL.md "Head"), gathered
+//! The head's input: the last time step of the last block (docs/model.md "Head"), gathered
 //! forward and scattered backward, with the f64 CPU reference.
 
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};

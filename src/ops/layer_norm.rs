@@ -1,4 +1,4 @@
-//! LayerNorm over the channel axis of `[B, N, C, T]` (MODEL.md step 6): forward, input and
+//! LayerNorm over the channel axis of `[B, N, C, T]` (docs/model.md step 6): forward, input and
 //! parameter gradients, and the f64 CPU reference.
 
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
@@ -71,7 +71,7 @@ struct Params {
 }
 
 impl LayerNorm {
-    /// MODEL.md: ε = 1e-5.
+    /// docs/model.md: ε = 1e-5.
     pub fn new(outer: usize, channels: usize, steps: usize) -> LayerNorm {
         LayerNorm {
             outer,

@@ -1,5 +1,5 @@
-//! The weighted squared error of MODEL.md eq. 39 (without weight decay, which the
-//! optimiser applies), optionally over ensembles of consecutive windows (MODEL.md
+//! The weighted squared error of docs/model.md eq. 39 (without weight decay, which the
+//! optimiser applies), optionally over ensembles of consecutive windows (docs/model.md
 //! "Refinement"): forward into a one-element tensor and backward, with the f64 CPU
 //! reference.
 
@@ -26,7 +26,7 @@ static BACKWARD: Kernel = Kernel {
 /// first three outputs (position) and `penalty` (P) for the rest (attitude).
 ///
 /// With `group` = M > 1 the batch holds G = B/M ensembles of M consecutive windows
-/// (rows g·M .. g·M + M − 1) and the loss is the ensemble loss of MODEL.md
+/// (rows g·M .. g·M + M − 1) and the loss is the ensemble loss of docs/model.md
 /// "Refinement": `ℒ = (1/G) Σ_g [ (1/M) Σ_k ℓ(ŷ_gk, y_gk) + ℓ(mean_k ŷ_gk, mean_k y_gk) ]`.
 /// `group` = 1 is the plain loss (no ensemble term: the formula with M = 1 would count
 /// every window twice).

@@ -1,4 +1,4 @@
-//! Softmax along one axis (the attention normalisations of MODEL.md), forward and
+//! Softmax along one axis (the attention normalisations of docs/model.md), forward and
 //! backward, with the f64 CPU reference.
 
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};

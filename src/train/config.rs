@@ -1,6 +1,6 @@
 //! Run configuration (`assets/demo.toml`, `assets/paper.toml`): the model shape, the
-//! windowing of the data, the core training schedule (MODEL.md "Optimiser and schedule")
-//! and the refinement stages (MODEL.md "Refinement"). Every field has a default (the
+//! windowing of the data, the core training schedule (docs/model.md "Optimiser and schedule")
+//! and the refinement stages (docs/model.md "Refinement"). Every field has a default (the
 //! paper's values) and a check whose message names the field.
 
 use std::path::Path;
@@ -32,7 +32,7 @@ impl Default for DataConfig {
     }
 }
 
-/// The core stage (MODEL.md "Loss", "Optimiser and schedule").
+/// The core stage (docs/model.md "Loss", "Optimiser and schedule").
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct TrainConfig {

@@ -130,7 +130,7 @@ pub fn window_loss(pred: &[f32], truth: &[f32], penalty: f64) -> f64 {
         .sum()
 }
 
-/// The loss of MODEL.md "Refinement" for one ensemble of m windows (rows of `pred`,
+/// The loss of docs/model.md "Refinement" for one ensemble of m windows (rows of `pred`,
 /// `truth`, `outputs` values each): mean per-window ℓ plus ℓ of the means. For m = 1 it
 /// is the plain ℓ.
 pub fn ensemble_loss(pred: &[f32], truth: &[f32], outputs: usize, penalty: f64) -> f64 {

@@ -1,4 +1,4 @@
-//! Training (MODEL.md "Loss", "Optimiser and schedule", "Refinement"): the run config,
+//! Training (docs/model.md "Loss", "Optimiser and schedule", "Refinement"): the run config,
 //! Adam on the device, the stage loop with early stopping and the divergence guard,
 //! resumable states, metrics, logs and plots.
 

@@ -1,4 +1,4 @@
-//! Adam over every parameter tensor of a [`Network`], on the device (MODEL.md
+//! Adam over every parameter tensor of a [`Network`], on the device (docs/model.md
 //! "Optimiser and schedule"), with the inverse-time-decay learning rate. The moments
 //! live next to the parameters for the whole run; one step is one dispatch per tensor,
 //! recorded after the backward pass into the same submit.
@@ -30,7 +30,7 @@ pub struct Optimizer {
 
 impl Optimizer {
     /// Zero moments for every parameter of `net`; λ (`weight_decay`) acts on the tensors
-    /// MODEL.md marks as weights only.
+    /// docs/model.md marks as weights only.
     pub fn new(gpu: &Gpu, net: &Network, config: &TrainConfig) -> Result<Optimizer, GpuError> {
         let hyper = gpu.zeros("adam.hyper", &[4], DType::F32);
         let (mut m, mut v, mut updates) = (Vec::new(), Vec::new(), Vec::new());
