@@ -66,7 +66,7 @@ fn main() -> anyhow::Result<()> {
 
     let batch: Vec<f32> = (0..20).flat_map(|i| window_at(t - 1 + i)).collect();
     let mut residuals = Vec::new();
-    predictor.predict_batch(&batch, &mut residuals)?;
+    predictor.predict_batch(&batch, iastgcn::model::Features::Raw, &mut residuals)?;
     println!(
         "batch of {}: first {}",
         residuals.len(),

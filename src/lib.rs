@@ -8,14 +8,15 @@
 
 pub mod atomic;
 pub mod calibrate;
-pub mod cli;
 pub mod compensate;
 pub mod data;
+pub mod error;
 pub mod gpu;
 pub mod graph;
 pub mod model;
 pub mod ops;
 pub mod plot;
+pub mod progress;
 pub mod robot;
 pub mod stats;
 pub mod testing;

@@ -1,3 +1,7 @@
+//! The `iastgcn` command line: it parses arguments, calls the library and prints.
+
+mod cli;
+
 fn main() -> std::process::ExitCode {
-    iastgcn::cli::main()
+    cli::main()
 }

@@ -241,7 +241,8 @@ fn predictor_matches_network_in_every_mode() {
         close(&r, &expected[w], &format!("predict window {w}"));
     }
     let mut out = Vec::new();
-    p.predict_batch(&raw, &mut out).unwrap();
+    p.predict_batch(&raw, iastgcn::model::Features::Raw, &mut out)
+        .unwrap();
     assert_eq!(out.len(), windows);
     for w in 0..windows {
         close(&out[w], &expected[w], &format!("predict_batch window {w}"));

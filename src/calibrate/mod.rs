@@ -6,9 +6,11 @@ pub mod file;
 pub mod identify;
 pub mod jacobian;
 pub mod residual;
+pub mod scoring;
 
 pub use identify::{
     calibrate, default_prior_sigma, Calibration, CalibrationError, EkfConfig, Measurement,
     StageReport,
 };
 pub use residual::residual;
+pub use scoring::{hold_out, pose_errors};

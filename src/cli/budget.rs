@@ -1,8 +1,9 @@
 //! `iastgcn budget`: the error budget of one held-out polishing run in the twin (the
 //! hidden tool-pose error split by source, docs/twin.md "Error budget").
 
-use super::compensate::{Prepared, RunArgs};
-use crate::compensate::budget::{error_budget, markdown};
+use super::compensate::RunArgs;
+use iastgcn::compensate::budget::{error_budget, markdown};
+use iastgcn::compensate::held_out::Prepared;
 
 #[derive(clap::Args)]
 pub struct BudgetArgs {
@@ -16,7 +17,7 @@ pub fn run(args: &BudgetArgs) -> anyhow::Result<()> {
         calibrated,
         run,
         ..
-    } = args.run.prepare()?;
+    } = args.run.spec()?.prepare()?;
     let rows = error_budget(&machine, &calibrated, &run.config(), &run.start)?;
     let a = &args.run;
     println!(

@@ -6,16 +6,15 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::Context;
-use indicatif::ProgressBar;
 
-use crate::calibrate::file;
-use crate::compensate::evaluate::{predictors, table_v, warm_up, HeldOut, HeldOutResult};
-use crate::compensate::online::Online;
-use crate::compensate::report::TableVRow;
-use crate::gpu::Gpu;
-use crate::model::Checkpoint;
-use crate::robot::{Geometry, Robot};
-use crate::twin::{draw_machine, Machine, PathKind, PathParams};
+use super::Console;
+use iastgcn::compensate::evaluate::{predictors, table_v, HeldOutResult};
+use iastgcn::compensate::held_out::{Prepared, RunSpec};
+use iastgcn::compensate::online::Online;
+use iastgcn::compensate::report::table_v_lines;
+use iastgcn::gpu::Gpu;
+use iastgcn::model::Checkpoint;
+use iastgcn::progress::Reporter;
 
 #[derive(clap::Args)]
 pub struct CompensateArgs {
@@ -56,76 +55,17 @@ pub struct RunArgs {
     pub robot: Option<PathBuf>,
 }
 
-/// A held-out run ready to go: the machine, both controllers, and the run itself (at
-/// its held-out placement, starting from the warmed-up machine).
-pub struct Prepared {
-    pub machine: Machine,
-    pub nominal: Robot,
-    pub calibrated: Robot,
-    pub run: HeldOut,
-}
-
 impl RunArgs {
-    pub fn prepare(&self) -> anyhow::Result<Prepared> {
-        let geometry = match &self.robot {
-            Some(p) => Geometry::load(p)?,
-            None => Geometry::default_asset(),
-        };
-        let machine = draw_machine(geometry.clone(), self.machine_seed);
-        let nominal = Robot::nominal(geometry.clone());
-        let calibrated = Robot::new(geometry, file::load(&self.calibration)?.errors);
-        let path: PathKind = self.trajectory.parse().map_err(anyhow::Error::msg)?;
-        anyhow::ensure!(
-            self.minutes.is_finite() && self.minutes > 0.0,
-            "--minutes must be positive, got {}",
-            self.minutes
-        );
-        let start = warm_up(
-            &machine,
-            &calibrated,
-            self.warm_up_minutes * 60.0,
-            self.seed ^ 0x5741_524d,
-        )
-        .context("warm-up run")?;
-        let run = HeldOut {
-            path,
-            params: PathParams::held_out(path),
-            seconds: self.minutes * 60.0,
+    pub fn spec(&self) -> anyhow::Result<RunSpec> {
+        Ok(RunSpec {
+            calibration: self.calibration.clone(),
+            path: self.trajectory.parse().map_err(anyhow::Error::msg)?,
+            minutes: self.minutes,
+            warm_up_minutes: self.warm_up_minutes,
             seed: self.seed,
-            start,
-        };
-        Ok(Prepared {
-            machine,
-            nominal,
-            calibrated,
-            run,
+            machine_seed: self.machine_seed,
+            robot: self.robot.clone(),
         })
-    }
-}
-
-/// A progress bar over control ticks.
-pub fn tick_bar(len: usize, what: &str) -> ProgressBar {
-    super::progress_bar(
-        len as u64,
-        &format!("{what} {{bar:40}} {{pos}}/{{len}} ticks {{elapsed}}"),
-    )
-}
-
-/// Prints Table V rows.
-pub fn print_table_v(rows: &[TableVRow]) {
-    println!(
-        "{:<10} {:<12} {:<14} {:<7} {:>9} {:>8} {:>9}   {:>8} {:>7} {:>8}",
-        "path", "stage", "model", "vs", "pos mean", "SD", "max", "att mean", "SD", "max"
-    );
-    println!("{:<46} {:>28}   {:>25}", "", "(µm)", "(mdeg)");
-    for r in rows {
-        for (what, e) in [("truth", &r.truth), ("tracker", &r.tracker)] {
-            let (p, a) = (e.position, e.attitude);
-            println!(
-                "{:<10} {:<12} {:<14} {:<7} {:>9.1} {:>8.1} {:>9.1}   {:>8.2} {:>7.2} {:>8.2}",
-                r.trajectory, r.stage, r.model, what, p.mean, p.sd, p.max, a.mean, a.sd, a.max
-            );
-        }
     }
 }
 
@@ -135,8 +75,7 @@ pub fn run(gpu: Gpu, args: &CompensateArgs) -> anyhow::Result<()> {
         nominal,
         calibrated,
         run,
-    } = args.run.prepare()?;
-    let path = run.path;
+    } = args.run.spec()?.prepare()?;
     let checkpoints = args
         .model
         .iter()
@@ -151,11 +90,13 @@ pub fn run(gpu: Gpu, args: &CompensateArgs) -> anyhow::Result<()> {
     let graph = checkpoints[0].1.graph.clone();
     let gpu = Arc::new(gpu);
     let mut models = predictors(&gpu, &checkpoints)?;
-    let ticks = run.config().steps();
-    let bar = tick_bar(
-        ticks * (3 + models.len()),
-        &format!("compensating {}", path.name()),
+    let ticks = run.config().steps() * (3 + models.len());
+    let mut console = Console::default();
+    console.begin(
+        &format!("compensating {} (ticks)", run.path.name()),
+        ticks as u64,
     );
+    let mut done = 0u64;
     let window = checkpoints[0].1.config.window;
     let HeldOutResult { rows, latency, .. } = table_v(
         &machine,
@@ -166,11 +107,18 @@ pub fn run(gpu: Gpu, args: &CompensateArgs) -> anyhow::Result<()> {
         &mut models,
         &run,
         Online { every: args.every },
-        |_| bar.inc(1),
+        |_| {
+            done += 1;
+            if done.is_multiple_of(50) {
+                console.update(done, "");
+            }
+        },
     )
     .context("compensation run")?;
-    bar.finish_and_clear();
-    print_table_v(&rows);
+    console.end();
+    for line in table_v_lines(&rows) {
+        println!("{line}");
+    }
     for (m, ms) in latency {
         println!(
             "{m}: {ms:.2} ms per online prediction on {}",

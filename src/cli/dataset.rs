@@ -3,9 +3,10 @@
 
 use std::path::PathBuf;
 
-use super::train::{build_dataset, DataArgs};
-use crate::model::ModelConfig;
-use crate::train::{DataConfig, RunConfig};
+use iastgcn::data::DataSources;
+use iastgcn::model::ModelConfig;
+use iastgcn::train::build_dataset;
+use iastgcn::train::{DataConfig, RunConfig};
 
 #[derive(clap::Args)]
 pub struct DatasetArgs {
@@ -46,8 +47,8 @@ pub fn run(args: &DatasetArgs) -> anyhow::Result<()> {
         },
         ..RunConfig::default()
     };
-    let data = DataArgs {
-        data: args.recordings.clone(),
+    let data = DataSources {
+        recordings: args.recordings.clone(),
         calibration: args.calibration.clone(),
         graph: args.graph.clone(),
         robot: args.robot.clone(),

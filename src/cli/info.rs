@@ -1,7 +1,7 @@
 //! `iastgcn info`: what the engine will run on.
 
-use crate::gpu::{describe, Gpu};
-use crate::ops::matmul;
+use iastgcn::gpu::{describe, Gpu};
+use iastgcn::ops::matmul;
 
 pub fn run(adapter: Option<&str>) -> anyhow::Result<()> {
     let all = Gpu::list_adapters();

@@ -1,4 +1,5 @@
-//! Command line: clap commands, and every error turned into one readable message.
+//! Command line: clap commands that parse, call the library and print; progress bars;
+//! every error turned into one readable message. No pipeline logic lives here.
 
 mod budget;
 mod calibrate;
@@ -16,7 +17,8 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::gpu::Gpu;
+use iastgcn::gpu::Gpu;
+use iastgcn::progress::Reporter;
 
 #[derive(Parser)]
 #[command(
@@ -123,9 +125,37 @@ pub fn main() -> ExitCode {
     }
 }
 
-/// A progress bar of `len` steps drawn with indicatif's `template`.
-fn progress_bar(len: u64, template: &str) -> ProgressBar {
-    let bar = ProgressBar::new(len);
-    bar.set_style(ProgressStyle::with_template(template).expect("valid progress template"));
-    bar
+/// The terminal's [`Reporter`]: a progress bar per task, notes printed as lines.
+#[derive(Default)]
+pub struct Console {
+    bar: Option<ProgressBar>,
+}
+
+impl Reporter for Console {
+    fn begin(&mut self, what: &str, len: u64) {
+        self.end();
+        let bar = ProgressBar::new(len);
+        let template = format!("{what} {{pos}}/{{len}} {{bar:30}} {{elapsed}} eta {{eta}} {{msg}}");
+        if let Ok(style) = ProgressStyle::with_template(&template) {
+            bar.set_style(style);
+        }
+        self.bar = Some(bar);
+    }
+    fn update(&mut self, pos: u64, message: &str) {
+        if let Some(bar) = &self.bar {
+            bar.set_position(pos);
+            bar.set_message(message.to_string());
+        }
+    }
+    fn end(&mut self) {
+        if let Some(bar) = self.bar.take() {
+            bar.finish();
+        }
+    }
+    fn note(&mut self, line: &str) {
+        match &self.bar {
+            Some(bar) => bar.println(line),
+            None => println!("{line}"),
+        }
+    }
 }

@@ -7,10 +7,10 @@ use anyhow::{bail, Context};
 use clap::Args;
 use safetensors::tensor::{Dtype, SafeTensors, TensorView};
 
-use crate::gpu::{Gpu, Readback, Recorder};
-use crate::graph::Graph;
-use crate::model::checkpoint::f32_values;
-use crate::model::{Checkpoint, ModelConfig, Network, Normalization, Parameters, Variant};
+use iastgcn::gpu::{Gpu, Readback, Recorder};
+use iastgcn::graph::Graph;
+use iastgcn::model::checkpoint::f32_values;
+use iastgcn::model::{Checkpoint, ModelConfig, Network, Normalization, Parameters, Variant};
 
 #[derive(Args)]
 pub struct InitArgs {
@@ -50,7 +50,7 @@ pub struct ForwardArgs {
 /// The `[model]` table of a run config TOML (assets/demo.toml, assets/paper.toml);
 /// errors name the file and field.
 pub fn read_config(path: &Path) -> anyhow::Result<ModelConfig> {
-    Ok(crate::train::RunConfig::load(path)?.model)
+    Ok(iastgcn::train::RunConfig::load(path)?.model)
 }
 
 pub fn init(args: &InitArgs) -> anyhow::Result<()> {
@@ -158,7 +158,7 @@ pub fn forward(gpu: &Gpu, args: &ForwardArgs) -> anyhow::Result<()> {
     let bytes: &[u8] = bytemuck::cast_slice(&y);
     let view = TensorView::new(Dtype::F32, vec![windows, config.outputs], bytes)?;
     let file = safetensors::serialize([("y", view)], None)?;
-    crate::atomic::write(&args.out, &file)
+    iastgcn::atomic::write(&args.out, &file)
         .with_context(|| format!("writing {}", args.out.display()))?;
     println!(
         "wrote {} (y [{windows}, {}], {} on {})",

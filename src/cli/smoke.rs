@@ -5,10 +5,10 @@ use std::time::Instant;
 
 use anyhow::anyhow;
 
-use crate::gpu::{Gpu, Recorder};
-use crate::ops::elementwise::{self, Binary, Unary};
-use crate::ops::matmul::{self, Matmul};
-use crate::testing::{compare_tensor, rng, round_f32, to_f32, uniform, Tolerance};
+use iastgcn::gpu::{Gpu, Recorder};
+use iastgcn::ops::elementwise::{self, Binary, Unary};
+use iastgcn::ops::matmul::{self, Matmul};
+use iastgcn::testing::{compare_tensor, rng, round_f32, to_f32, uniform, Tolerance};
 
 #[derive(clap::Args)]
 pub struct SmokeArgs {
@@ -42,9 +42,9 @@ fn matmul_check(gpu: &Gpu, args: &SmokeArgs) -> anyhow::Result<()> {
     let xt = gpu.upload("x", &[r, c], &to_f32(&x))?;
     let wt = gpu.upload("w", &[c, c], &to_f32(&w))?;
     let dyt = gpu.upload("dy", &[r, c], &to_f32(&dy))?;
-    let yt = gpu.zeros("y", &[r, c], crate::gpu::DType::F32);
-    let dxt = gpu.zeros("dx", &[r, c], crate::gpu::DType::F32);
-    let dwt = gpu.zeros("dw", &[c, c], crate::gpu::DType::F32);
+    let yt = gpu.zeros("y", &[r, c], iastgcn::gpu::DType::F32);
+    let dxt = gpu.zeros("dx", &[r, c], iastgcn::gpu::DType::F32);
+    let dwt = gpu.zeros("dw", &[c, c], iastgcn::gpu::DType::F32);
     let step = [
         mm.forward(gpu, &xt, &wt, &yt, false)?,
         mm.backward_a(gpu, &wt, &dyt, &dxt, false)?,
@@ -93,7 +93,7 @@ fn gated_unit_check(gpu: &Gpu, args: &SmokeArgs) -> anyhow::Result<()> {
     let ft = gpu.upload("filter", &shape, &to_f32(&f))?;
     let gt = gpu.upload("gate", &shape, &to_f32(&gg))?;
     let dht = gpu.upload("dH", &shape, &to_f32(&dh))?;
-    let z = |name: &str| gpu.zeros(name, &shape, crate::gpu::DType::F32);
+    let z = |name: &str| gpu.zeros(name, &shape, iastgcn::gpu::DType::F32);
     let (tf, sg, h, dtf, dsg, df, dg) = (
         z("tanh"),
         z("sigma"),

@@ -6,7 +6,7 @@
 //! sources. Errors are RMS over every tick against the path target (position µm,
 //! tool-axis angle mdeg). The groups do not add exactly (they interact through the pose).
 
-use anyhow::Context;
+use crate::error::{Error, Result};
 
 use crate::robot::Robot;
 use crate::twin::sources::NonGeometric;
@@ -35,7 +35,7 @@ fn run_rms(
     controller: &Robot,
     config: SimConfig,
     start: MachineState,
-) -> anyhow::Result<(f64, f64)> {
+) -> Result<(f64, f64)> {
     let (mut pos, mut att) = (Vec::new(), Vec::new());
     let mut sim = crate::twin::Simulation::resume(
         machine,
@@ -45,8 +45,8 @@ fn run_rms(
         start,
     )?;
     while let Some(s) = sim.step() {
-        let s = s.context("budget run")?;
-        let actual = super::online::located(machine, controller, &s.hidden.actual.pose);
+        let s = s.map_err(|e| Error::from(e).context("budget run"))?;
+        let actual = crate::twin::located(machine, controller, &s.hidden.actual.pose);
         let (p, a) = crate::twin::pose_error(&s.hidden.target, &actual);
         pos.push(p);
         att.push(a);
@@ -61,7 +61,7 @@ pub fn error_budget(
     calibrated: &Robot,
     config: &SimConfig,
     start: &MachineState,
-) -> anyhow::Result<Vec<BudgetRow>> {
+) -> Result<Vec<BudgetRow>> {
     let ng = machine.nongeometric;
     let none = NonGeometric {
         screw_origin: ng.screw_origin,

@@ -4,44 +4,37 @@
 
 use std::sync::Arc;
 
+use super::budget::{error_budget, markdown as budget_markdown};
+use super::held_out::{warm_up, HeldOut, IDLE_BETWEEN_RUNS};
 use super::online::{self, Feedback, Online, RunResult};
-use super::report::{TableIIIRow, TableVRow, Trace};
-use crate::data::{Dataset, OUTPUTS};
-use crate::gpu::{Gpu, Recorder};
+use super::report::{
+    table_iii_lines, table_v_lines, Report, TableIIIRow, TableVRow, Timing, Trace,
+};
+use crate::calibrate::file;
+use crate::data::{DataSources, Dataset};
+use crate::error::{ensure, Error, Result};
+use crate::gpu::Gpu;
 use crate::graph::Graph;
-use crate::model::{Checkpoint, ModelError, Network, Predictor};
+use crate::model::{Checkpoint, Features, ModelError, Predictor};
+use crate::progress::Reporter;
 use crate::robot::Robot;
 use crate::train::metrics::per_recording;
-use crate::train::to_physical;
-use crate::twin::{Machine, MachineState, PathKind, PathParams, SimConfig};
+use crate::train::{build_dataset, data_normalization, sibling, RunConfig};
+use crate::twin::{draw_machine, Machine, MachineState, PathKind, PathParams};
 
 /// Predictions (µm, mdeg) of a checkpoint for the windows at `positions` of a dataset
-/// standardised with the checkpoint's own statistics (so the dataset's label statistics
-/// are the checkpoint's).
+/// standardised with the checkpoint's own statistics, through the batched
+/// [`Predictor`] path.
 pub fn predict_windows(
-    gpu: &Gpu,
+    gpu: &Arc<Gpu>,
     ck: &Checkpoint,
     data: &Dataset,
     positions: &[usize],
 ) -> Result<Vec<[f64; 6]>, ModelError> {
-    let batch = 64.min(positions.len().max(1));
-    let net = Network::for_inference(gpu, &ck.config, &ck.graph, batch)?;
-    net.load_parameters(gpu, &ck.parameters)?;
-    let len = data.window_len();
+    let mut predictor = Predictor::new(gpu.clone(), ck, 64.min(positions.len().max(1)))?;
+    let (x, _) = data.gather(positions);
     let mut out = Vec::with_capacity(positions.len());
-    for chunk in positions.chunks(batch) {
-        let (mut x, _) = data.gather(chunk);
-        x.resize(batch * len, 0.0);
-        gpu.write(&net.input, &x)?;
-        let mut rec = Recorder::new(gpu);
-        net.record_forward(&mut rec)?;
-        rec.submit();
-        let y = gpu.read_f32(&net.output)?;
-        out.extend(to_physical(
-            &y[..chunk.len() * OUTPUTS],
-            &data.normalization,
-        ));
-    }
+    predictor.predict_batch(&x, Features::Standardised, &mut out)?;
     Ok(out)
 }
 
@@ -49,7 +42,7 @@ pub fn predict_windows(
 /// recording r), plus the training-mean baseline as the model `training mean` when
 /// `baseline` is set.
 pub fn table_iii(
-    gpu: &Gpu,
+    gpu: &Arc<Gpu>,
     model: &str,
     ck: &Checkpoint,
     data: &Dataset,
@@ -77,26 +70,6 @@ pub fn table_iii(
     Ok(rows)
 }
 
-/// A held-out polishing run to compensate: its path and placement on the part, length,
-/// seed, and the machine's state when it starts (warm from the session's earlier runs).
-#[derive(Clone, Debug)]
-pub struct HeldOut {
-    pub path: PathKind,
-    pub params: PathParams,
-    pub seconds: f64,
-    pub seed: u64,
-    pub start: MachineState,
-}
-
-impl HeldOut {
-    /// The run's simulation settings.
-    pub fn config(&self) -> SimConfig {
-        let mut c = SimConfig::new(self.path, self.seconds, self.seed);
-        c.path_params = self.params;
-        c
-    }
-}
-
 /// Table V rows, Fig. 11 traces, each model's mean prediction latency (ms), and the
 /// machine's state after the run under the calibrated controller (to carry the session
 /// on with).
@@ -122,7 +95,7 @@ pub fn table_v(
     run: &HeldOut,
     settings: Online,
     mut on_tick: impl FnMut(usize),
-) -> anyhow::Result<HeldOutResult> {
+) -> Result<HeldOutResult> {
     let name = run.path.name().to_string();
     let row = |stage: &str, model: &str, r: &RunResult| TableVRow {
         trajectory: name.clone(),
@@ -188,29 +161,6 @@ pub fn table_v(
     })
 }
 
-/// Seconds the machine stands idle between two runs of a session (the operator sets up
-/// the next program).
-pub const IDLE_BETWEEN_RUNS: f64 = 30.0;
-
-/// A cold machine warmed by `seconds` of polishing (0: left cold) under `controller`,
-/// then idle for [`IDLE_BETWEEN_RUNS`]: the start of a held-out session. The warm-up walks
-/// the raster turned a quarter turn, which no scored run retraces.
-pub fn warm_up(
-    machine: &Machine,
-    controller: &Robot,
-    seconds: f64,
-    seed: u64,
-) -> anyhow::Result<MachineState> {
-    let mut state = machine.cold();
-    if seconds > 0.0 {
-        let mut config = SimConfig::new(PathKind::Grid, seconds, seed);
-        config.path_params.rotation_deg = 90.0;
-        state = online::run(machine, controller, config, state, Feedback::None, |_| {})?.end;
-        state.idle(IDLE_BETWEEN_RUNS);
-    }
-    Ok(state)
-}
-
 /// Predictors for checkpoints on one device (B = 1, the online path).
 pub fn predictors(
     gpu: &Arc<Gpu>,
@@ -220,4 +170,232 @@ pub fn predictors(
         .iter()
         .map(|(name, ck)| Ok((name.clone(), Predictor::new(gpu.clone(), ck, 1)?)))
         .collect()
+}
+
+/// The held-out session of an evaluation (Table V): how long each run is, its seeds,
+/// how long the machine warms up first, and how often the models predict.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HeldOutConfig {
+    /// Length of each held-out run, minutes (> 0).
+    pub minutes: f64,
+    /// Seed of the first run; the next paths take the following seeds.
+    pub seed: u64,
+    /// Minutes of polishing that warm the machine before the first scored run (0: cold).
+    pub warm_up_minutes: f64,
+    /// Predict every this many control ticks.
+    pub every: usize,
+}
+
+impl Default for HeldOutConfig {
+    /// The demo's session: 0.5 min runs from seed 301 after 2 min of warm-up, a
+    /// prediction every 5 ticks.
+    fn default() -> HeldOutConfig {
+        HeldOutConfig {
+            minutes: 0.5,
+            seed: 301,
+            warm_up_minutes: 2.0,
+            every: 5,
+        }
+    }
+}
+
+/// A checkpoint with the name the tables give it, and its mean training time per epoch
+/// (NaN when unknown).
+#[derive(Clone, Debug)]
+pub struct NamedModel {
+    pub name: String,
+    pub checkpoint: Checkpoint,
+    pub epoch_seconds: f64,
+}
+
+impl NamedModel {
+    /// The checkpoint at `path`, named by its file stem; a `<stem>.log.csv` beside it
+    /// gives its training time per epoch.
+    pub fn load(path: &std::path::Path) -> Result<NamedModel> {
+        let name = path
+            .file_stem()
+            .map_or("model".into(), |s| s.to_string_lossy().into_owned());
+        Ok(NamedModel {
+            name,
+            checkpoint: Checkpoint::load(path)?,
+            epoch_seconds: read_epoch_seconds(&sibling(path, ".log.csv")).unwrap_or(f64::NAN),
+        })
+    }
+}
+
+/// Mean `seconds` of the core epochs in a training log (of every epoch when it has no
+/// core stage, as a refined model's log), if the log exists.
+fn read_epoch_seconds(log: &std::path::Path) -> Option<f64> {
+    let text = std::fs::read_to_string(log).ok()?;
+    let seconds = |core: bool| -> Vec<f64> {
+        text.lines()
+            .skip(1)
+            .filter(|l| !core || l.starts_with("core,"))
+            .filter_map(|l| l.split(',').nth(6)?.parse().ok())
+            .collect()
+    };
+    let v = Some(seconds(true))
+        .filter(|v| !v.is_empty())
+        .unwrap_or_else(|| seconds(false));
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
+/// Table III (each model on the test split of `sources`, windowed as `config` says and
+/// standardised with the model's own statistics) and Table V (every path of one held-out
+/// session in the twin, compensated by each model), with the Hilbert run's error budget,
+/// Fig. 11 traces and Fig. 10 timings, added to `report`. The first model gives the graph
+/// and window of the online runs; Fig. 11 shows the model named `iastgcn` (or the first).
+pub fn evaluate(
+    gpu: &Arc<Gpu>,
+    report: &mut Report,
+    models: &[NamedModel],
+    sources: &DataSources,
+    config: &RunConfig,
+    held: &HeldOutConfig,
+    reporter: &mut dyn Reporter,
+) -> Result<()> {
+    let Some(first) = models.first() else {
+        return Err(Error::Invalid("no model to evaluate".into()));
+    };
+    ensure(held.minutes.is_finite() && held.minutes > 0.0, || {
+        format!(
+            "held-out runs must last a positive time, got {} min",
+            held.minutes
+        )
+    })?;
+    reporter.note("== Table III: prediction accuracy on the held-out split");
+    let mut rows: Vec<TableIIIRow> = Vec::new();
+    for (i, m) in models.iter().enumerate() {
+        let mut c = config.clone();
+        c.model = m.checkpoint.config.clone();
+        let fixed = data_normalization(&m.checkpoint.normalization).ok_or_else(|| {
+            Error::Invalid(format!(
+                "{}: the checkpoint's normalisation is not N×3 features and 6 labels",
+                m.name
+            ))
+        })?;
+        let (_, data) = build_dataset(sources, &c, Some(&fixed))?;
+        let names: Vec<String> = data
+            .recordings
+            .iter()
+            .map(|r| {
+                std::path::Path::new(r)
+                    .file_stem()
+                    .map_or(r.clone(), |s| s.to_string_lossy().into_owned())
+            })
+            .collect();
+        rows.extend(table_iii(
+            gpu,
+            &m.name,
+            &m.checkpoint,
+            &data,
+            &names,
+            i == 0,
+        )?);
+    }
+    for line in table_iii_lines(&rows) {
+        reporter.note(&line);
+    }
+    report.table_iii = rows;
+
+    reporter.note("== Table V: compensation of held-out runs in the twin");
+    let geometry = sources.geometry()?;
+    let cal = file::load(&sources.calibration)?;
+    let machine = draw_machine(geometry.clone(), 1);
+    let nominal = Robot::nominal(geometry.clone());
+    let calibrated = Robot::new(geometry, cal.errors);
+    let graph = first.checkpoint.graph.clone();
+    let window = first.checkpoint.config.window;
+    let checkpoints: Vec<(String, Checkpoint)> = models
+        .iter()
+        .map(|m| (m.name.clone(), m.checkpoint.clone()))
+        .collect();
+    let mut preds = predictors(gpu, &checkpoints)?;
+    let mut latency = vec![(0.0, 0usize); models.len()];
+    // One held-out session: the machine warms up, then every path runs in turn; each
+    // stage of a path starts from the same state, and the session carries on from the
+    // calibrated run's end.
+    let mut state = warm_up(
+        &machine,
+        &calibrated,
+        held.warm_up_minutes * 60.0,
+        held.seed.wrapping_add(1000),
+    )?;
+    let main = models
+        .iter()
+        .find(|m| m.name == "iastgcn")
+        .unwrap_or(first)
+        .name
+        .clone();
+    for (i, path) in PathKind::ALL.into_iter().enumerate() {
+        let run = HeldOut {
+            path,
+            params: PathParams::held_out(path),
+            seconds: held.minutes * 60.0,
+            seed: held.seed + i as u64,
+            start: state.clone(),
+        };
+        // One budget (the Hilbert run's) keeps the demo in its time; `iastgcn budget`
+        // gives any other.
+        if path == PathKind::Hilbert {
+            let budget = error_budget(&machine, &calibrated, &run.config(), &run.start)?;
+            report.sections.push((
+                format!("Error budget: {} (held-out run)", path.name()),
+                format!(
+                    "The hidden tool-pose error of this run split by source (RMS over every tick, \
+                 against the path target; `iastgcn budget` gives it for any run):\n\n{}",
+                    budget_markdown(&budget)
+                ),
+            ));
+        }
+        let ticks = run.config().steps() * (3 + preds.len());
+        reporter.begin(&format!("compensating {}", path.name()), ticks as u64);
+        let mut done = 0u64;
+        let result = table_v(
+            &machine,
+            &nominal,
+            &calibrated,
+            &graph,
+            window,
+            &mut preds,
+            &run,
+            Online { every: held.every },
+            |_| {
+                done += 1;
+                if done.is_multiple_of(50) {
+                    reporter.update(done, "");
+                }
+            },
+        )?;
+        reporter.end();
+        for line in table_v_lines(&result.rows) {
+            reporter.note(&line);
+        }
+        report.table_v.extend(result.rows);
+        state = result.end;
+        state.idle(IDLE_BETWEEN_RUNS);
+        // Fig. 11 shows before/after: calibration only, and the main model.
+        let keep = format!("compensated ({main})");
+        report.traces.extend(
+            result
+                .traces
+                .into_iter()
+                .filter(|t| t.label == "calibrated" || t.label == keep),
+        );
+        for (slot, (_, ms)) in latency.iter_mut().zip(result.latency) {
+            slot.0 += ms;
+            slot.1 += 1;
+        }
+    }
+    report.timings = models
+        .iter()
+        .zip(&latency)
+        .map(|(m, (ms, n))| Timing {
+            model: m.name.clone(),
+            epoch_seconds: m.epoch_seconds,
+            infer_ms: ms / (*n).max(1) as f64,
+            adapter: gpu.info().name.clone(),
+        })
+        .collect();
+    Ok(())
 }

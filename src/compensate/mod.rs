@@ -1,6 +1,8 @@
 //! Online compensation in the twin and the report of the paper's Tables III and V.
 
 pub mod budget;
+pub mod demo;
 pub mod evaluate;
+pub mod held_out;
 pub mod online;
 pub mod report;

@@ -11,9 +11,7 @@
 
 use std::time::Instant;
 
-use nalgebra::Isometry3;
-
-use anyhow::Context;
+use crate::error::{Error, Result};
 
 use super::report::{ErrorStats, Trace};
 use crate::data::features::Stream;
@@ -23,8 +21,8 @@ use crate::model::Predictor;
 use crate::robot::Robot;
 use crate::stats::Summary;
 use crate::twin::{
-    pose_error, Correction, Machine, MachineState, Mirror, PathKind, SimConfig, Simulation,
-    CHANNELS,
+    located, pose_error, Correction, Machine, MachineState, Mirror, PathKind, SimConfig,
+    Simulation, CHANNELS,
 };
 
 /// What a compensated (or plain) run measured.
@@ -56,16 +54,6 @@ impl Default for Online {
     }
 }
 
-/// The true pad pose in the frame where the part was located: the part is measured with
-/// the tracker and handed to the controller through its registration, so the base frame
-/// that matters is the controller's estimate, not the twin's true one. (Calibration
-/// cannot tell a shift of the whole robot from one of the tracker's registration; scored
-/// in the twin's true base frame, that unobservable shift would count as error, several
-/// hundred µm on the demo machine.)
-pub fn located(machine: &Machine, controller: &Robot, pose: &Isometry3<f64>) -> Isometry3<f64> {
-    controller.tracker_from_base().inverse() * machine.robot.tracker_from_base() * pose
-}
-
 /// What feeds the correction during a run.
 pub enum Feedback<'p> {
     /// No compensation: the controller's model alone.
@@ -79,15 +67,14 @@ pub enum Feedback<'p> {
 }
 
 /// Indices into the twin's [`CHANNELS`] of the graph's nodes.
-fn node_channels(graph: &Graph) -> anyhow::Result<Vec<usize>> {
+fn node_channels(graph: &Graph) -> Result<Vec<usize>> {
     graph
         .nodes
         .iter()
         .map(|n| {
-            CHANNELS
-                .iter()
-                .position(|c| c == n)
-                .with_context(|| format!("graph node {n:?} is not a twin sensor channel"))
+            CHANNELS.iter().position(|c| c == n).ok_or_else(|| {
+                Error::Invalid(format!("graph node {n:?} is not a twin sensor channel"))
+            })
         })
         .collect()
 }
@@ -102,7 +89,7 @@ pub fn run(
     start: MachineState,
     feedback: Feedback<'_>,
     mut on_tick: impl FnMut(usize),
-) -> anyhow::Result<RunResult> {
+) -> Result<RunResult> {
     let dt = config.dt;
     let registration = controller.tracker_from_base().inverse();
     let mut sim = Simulation::resume(machine, controller, Mirror::default(), config, start)?;
@@ -127,7 +114,9 @@ pub fn run(
     let (mut predictions, mut predict_time) = (0usize, 0f64);
     let mut tick = 0usize;
     while let Some(sample) = sim.step() {
-        let s = sample.with_context(|| format!("twin at t = {:.2} s", tick as f64 * dt))?;
+        let s = sample.map_err(|e| {
+            Error::from(e).context(format!("twin at t = {:.2} s", tick as f64 * dt))
+        })?;
         let actual = located(machine, controller, &s.hidden.actual.pose);
         let (p, a) = pose_error(&s.hidden.target, &actual);
         true_pos.push(p);
@@ -151,7 +140,8 @@ pub fn run(
             let full = predictor.push_step(&step)?;
             if full && tick.is_multiple_of(settings.every.max(1)) {
                 let began = Instant::now();
-                let r = predictor.predict_latest()?.expect("the ring is full");
+                // `push_step` said the ring is full, so there is a window to predict.
+                let r = predictor.predict_latest()?.unwrap_or_default();
                 predict_time += began.elapsed().as_secs_f64();
                 predictions += 1;
                 sim.set_correction(Correction {
@@ -173,7 +163,10 @@ pub fn run(
         tick += 1;
         on_tick(tick);
     }
-    let summary = |v: &[f64]| Summary::of(v).context("the tracker measured nothing in this run");
+    let summary = |v: &[f64]| {
+        Summary::of(v)
+            .ok_or_else(|| Error::Invalid("the tracker measured nothing in this run".into()))
+    };
     Ok(RunResult {
         truth: ErrorStats {
             position: summary(&true_pos)?,

@@ -5,11 +5,11 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use anyhow::Context as _;
+use crate::error::{write_file, Error, Result};
 
 use crate::plot::{self, Panel, Series};
 use crate::stats::Summary;
-use crate::train::log::distinct;
+use crate::train::log::{accumulated_csv, csv_text, distinct, plot_accumulated};
 use crate::train::{EpochRecord, Metrics};
 
 /// Mean / SD / max of the position (µm) and attitude (mdeg) pose errors of one run.
@@ -63,7 +63,7 @@ pub struct Trace {
 }
 
 /// Fig. 9b curve: (k, mean accumulated position error µm, attitude error mdeg) per horizon.
-pub type AccumulatedCurve = Vec<(usize, f64, f64)>;
+pub use crate::train::refine::AccumulatedCurve;
 
 /// Everything the report shows.
 #[derive(Clone, Debug, Default)]
@@ -223,18 +223,6 @@ fn plan(r: &Report) -> Vec<Entry> {
     out
 }
 
-fn csv_text(header: &str, rows: Vec<Vec<String>>) -> String {
-    let mut w = csv::WriterBuilder::new()
-        .terminator(csv::Terminator::Any(b'\n'))
-        .from_writer(Vec::new());
-    // Writing to a Vec cannot fail.
-    w.write_record(header.split(',')).expect("in-memory CSV");
-    for row in rows {
-        w.write_record(&row).expect("in-memory CSV");
-    }
-    String::from_utf8(w.into_inner().expect("in-memory CSV")).expect("UTF-8 fields")
-}
-
 /// `table_v.csv`: one line per row, in the given order; µm and mdeg with 4 decimals.
 pub fn table_v_csv(rows: &[TableVRow]) -> String {
     csv_text(
@@ -286,32 +274,6 @@ pub fn timings_csv(rows: &[Timing]) -> String {
                     format!("{:.4}", t.epoch_seconds),
                     format!("{:.4}", t.infer_ms),
                     t.adapter.clone(),
-                ]
-            })
-            .collect(),
-    )
-}
-
-/// The Fig. 9b table: horizon, position and attitude before and after refinement.
-pub fn accumulated_csv(before: &[(usize, f64, f64)], after: &[(usize, f64, f64)]) -> String {
-    let mut ks: Vec<usize> = before.iter().chain(after).map(|r| r.0).collect();
-    ks.sort_unstable();
-    ks.dedup();
-    let cell = |v: &[(usize, f64, f64)], k: usize, pick: fn(&(usize, f64, f64)) -> f64| {
-        v.iter()
-            .find(|r| r.0 == k)
-            .map_or(String::new(), |r| format!("{:.4}", pick(r)))
-    };
-    csv_text(
-        "horizon,pos_before_um,att_before_mdeg,pos_after_um,att_after_mdeg",
-        ks.into_iter()
-            .map(|k| {
-                vec![
-                    k.to_string(),
-                    cell(before, k, |r| r.1),
-                    cell(before, k, |r| r.2),
-                    cell(after, k, |r| r.1),
-                    cell(after, k, |r| r.2),
                 ]
             })
             .collect(),
@@ -650,38 +612,6 @@ fn plot_fig10(path: &Path, timings: &[Timing]) -> Result<(), plot::PlotError> {
     plot::draw(path, &panels, 1, 2, (2 * width, 440))
 }
 
-/// The Fig. 9b chart: accumulated position and attitude error before and after refinement.
-pub fn plot_accumulated(
-    path: &Path,
-    before: &[(usize, f64, f64)],
-    after: &[(usize, f64, f64)],
-) -> Result<(), plot::PlotError> {
-    type Pick = fn(&(usize, f64, f64)) -> f64;
-    let series = |v: &[(usize, f64, f64)], pick: Pick, name: &str| {
-        Series::new(name, v.iter().map(|r| (r.0 as f64, pick(r))).collect())
-    };
-    let panel = |title: &str, unit: &str, pick: Pick| Panel {
-        title: title.into(),
-        x_label: "consecutive windows k".into(),
-        y_label: format!("mean |Σ(ŷ−y)| ({unit})"),
-        series: vec![
-            series(before, pick, "before refinement"),
-            series(after, pick, "after refinement"),
-        ],
-        equal_aspect: false,
-    };
-    plot::draw(
-        path,
-        &[
-            panel("accumulated position error", "µm", |r| r.1),
-            panel("accumulated attitude error", "mdeg", |r| r.2),
-        ],
-        1,
-        2,
-        (1100, 420),
-    )
-}
-
 /// Writes the report folder `dir` (created if missing): `report.md`, `table_v.csv`,
 /// `table_iii.csv`, `timings.csv`, `fig10_timings.png` (when there are timings),
 /// `fig11_<trajectory>.png` for every trajectory that has traces (Fig. 11 for the Hilbert
@@ -689,12 +619,9 @@ pub fn plot_accumulated(
 /// model; when some model has a history), and `accumulated.png` plus `accumulated.csv`
 /// when `accumulated` is Some. Every file is written atomically; `report.md` is written
 /// last. Returns the paths written.
-pub fn write(dir: &Path, r: &Report) -> anyhow::Result<Vec<PathBuf>> {
-    std::fs::create_dir_all(dir).with_context(|| format!("create {}", dir.display()))?;
-    let text = |path: &Path, s: &str| {
-        crate::atomic::write(path, s.as_bytes())
-            .with_context(|| format!("write {}", path.display()))
-    };
+pub fn write(dir: &Path, r: &Report) -> Result<Vec<PathBuf>> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let text = |path: &Path, s: &str| write_file(path, s.as_bytes());
     let mut written = Vec::new();
     for e in plan(r) {
         let path = dir.join(&e.name);
@@ -727,4 +654,38 @@ pub fn write(dir: &Path, r: &Report) -> anyhow::Result<Vec<PathBuf>> {
         written.push(path);
     }
     Ok(written)
+}
+
+/// Table III rows as aligned text lines (for a terminal).
+pub fn table_iii_lines(rows: &[TableIIIRow]) -> Vec<String> {
+    rows.iter()
+        .map(|r| {
+            let m = &r.metrics;
+            format!(
+                "  {:<10} {:<20} MAE {:>7.2} µm / {:>6.2} mdeg  RMSE {:>7.2} / {:>6.2}  MAPE {:>6.1}% / {:>6.1}%",
+                r.trajectory, r.model, m.pos_mae, m.att_mae, m.pos_rmse, m.att_rmse, m.pos_mape, m.att_mape
+            )
+        })
+        .collect()
+}
+
+/// Table V rows as aligned text lines under a two-line header (for a terminal).
+pub fn table_v_lines(rows: &[TableVRow]) -> Vec<String> {
+    let mut out = vec![
+        format!(
+            "{:<10} {:<12} {:<14} {:<7} {:>9} {:>8} {:>9}   {:>8} {:>7} {:>8}",
+            "path", "stage", "model", "vs", "pos mean", "SD", "max", "att mean", "SD", "max"
+        ),
+        format!("{:<46} {:>28}   {:>25}", "", "(µm)", "(mdeg)"),
+    ];
+    for r in rows {
+        for (what, e) in [("truth", &r.truth), ("tracker", &r.tracker)] {
+            let (p, a) = (e.position, e.attitude);
+            out.push(format!(
+                "{:<10} {:<12} {:<14} {:<7} {:>9.1} {:>8.1} {:>9.1}   {:>8.2} {:>7.2} {:>8.2}",
+                r.trajectory, r.stage, r.model, what, p.mean, p.sd, p.max, a.mean, a.sd, a.max
+            ));
+        }
+    }
+    out
 }

@@ -44,6 +44,11 @@ impl Graph {
         Graph::parse(&text, &file)
     }
 
+    /// The file at `path`, or the embedded default asset when there is none.
+    pub fn load_or_default(path: Option<&Path>) -> Result<Graph, GraphError> {
+        path.map_or_else(|| Ok(Graph::default_asset()), Graph::load)
+    }
+
     /// Parses and checks a graph asset; `file` names the source in errors.
     pub fn parse(text: &str, file: &str) -> Result<Graph, GraphError> {
         let err = |message: String| GraphError {

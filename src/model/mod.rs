@@ -16,5 +16,5 @@ pub mod network;
 pub mod schedule;
 
 pub use network::{ModelError, Network, Pass};
-pub use predictor::{Predictor, Residual};
+pub use predictor::{Features, Predictor, Residual};
 pub use schedule::StepTime;

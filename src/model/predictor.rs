@@ -18,6 +18,17 @@ use crate::gpu::{Gpu, Readback, Recorder};
 /// A residual prediction: dx, dy, dz in µm, rx, ry, rz in mdeg (base frame).
 pub type Residual = [f64; 6];
 
+/// What the windows given to [`Predictor::predict_batch`] hold.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Features {
+    /// The per-node features as computed from the signals; the predictor standardises
+    /// them with the checkpoint's statistics.
+    Raw,
+    /// Features already standardised with the checkpoint's statistics (a dataset built
+    /// with them, as the evaluation does).
+    Standardised,
+}
+
 /// The forward pass of one checkpoint on one device, for up to `capacity` windows
 /// per submit.
 pub struct Predictor {
@@ -101,13 +112,20 @@ impl Predictor {
         ((v as f64 - nz.feature_mean[node][k]) / nz.feature_std[node][k]) as f32
     }
 
-    /// Standardises one window `[N, F, T]` into staging slot `slot`.
-    fn stage(&mut self, slot: usize, window: &[f32]) {
+    /// Puts one window `[N, F, T]` into staging slot `slot`, standardised.
+    fn stage(&mut self, slot: usize, window: &[f32], features: Features) {
         let (f, t) = (self.config.features, self.config.window);
         let len = self.window_len();
+        let staged = &mut self.staging[slot * len..][..len];
+        if features == Features::Standardised {
+            staged.copy_from_slice(window);
+            return;
+        }
         for (i, &v) in window.iter().enumerate() {
             let row = i / t;
-            self.staging[slot * len + i] = self.standardise(row / f, row % f, v);
+            let nz = &self.normalization;
+            staged[i] = ((v as f64 - nz.feature_mean[row / f][row % f])
+                / nz.feature_std[row / f][row % f]) as f32;
         }
     }
 
@@ -145,16 +163,18 @@ impl Predictor {
                 window.len()
             )));
         }
-        self.stage(0, window);
+        self.stage(0, window, Features::Raw);
         self.run(1)?;
         Ok(self.residual(0))
     }
 
     /// The residuals of many windows `[W, N, F, T]`, `capacity` per submit, written to
-    /// `out` (cleared first).
+    /// `out` (cleared first). This is the one batched path: prediction on recordings,
+    /// Table III and any caller with many windows use it.
     pub fn predict_batch(
         &mut self,
         windows: &[f32],
+        features: Features,
         out: &mut Vec<Residual>,
     ) -> Result<(), ModelError> {
         let len = self.window_len();
@@ -168,7 +188,7 @@ impl Predictor {
         for chunk in windows.chunks(self.capacity() * len) {
             let n = chunk.len() / len;
             for (slot, w) in chunk.chunks(len).enumerate() {
-                self.stage(slot, w);
+                self.stage(slot, w, features);
             }
             // A partial last chunk still runs the full-capacity network (stale slots
             // are ignored) unless it is a single window.

@@ -83,6 +83,11 @@ impl Geometry {
         Geometry::parse(&text, &path.display().to_string())
     }
 
+    /// The file at `path`, or the embedded default asset when there is none.
+    pub fn load_or_default(path: Option<&std::path::Path>) -> Result<Geometry, RobotError> {
+        path.map_or_else(|| Ok(Geometry::default_asset()), Geometry::load)
+    }
+
     /// Parses TOML text; `file` names the source in errors.
     pub fn parse(text: &str, file: &str) -> Result<Geometry, RobotError> {
         let g: Geometry = toml::from_str(text).map_err(|e| RobotError::Asset {

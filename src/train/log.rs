@@ -3,12 +3,12 @@
 use std::path::Path;
 
 use super::trainer::EpochRecord;
+use crate::error::{write_file, Result};
 use crate::plot::{self, Panel, PlotError, Series};
 
 /// Writes the epoch history as CSV (atomically).
-pub fn write_csv(path: &Path, history: &[EpochRecord]) -> anyhow::Result<()> {
-    let mut w = csv::Writer::from_writer(Vec::new());
-    w.write_record([
+pub fn write_csv(path: &Path, history: &[EpochRecord]) -> Result<()> {
+    let header = [
         "stage",
         "epoch",
         "step",
@@ -17,21 +17,24 @@ pub fn write_csv(path: &Path, history: &[EpochRecord]) -> anyhow::Result<()> {
         "lr",
         "seconds",
         "windows_per_s",
-    ])?;
-    for r in history {
-        w.write_record([
-            r.stage.clone(),
-            r.epoch.to_string(),
-            r.step.to_string(),
-            format!("{:.6e}", r.train_loss),
-            format!("{:.6e}", r.val_loss),
-            format!("{:.6e}", r.lr),
-            format!("{:.3}", r.seconds),
-            format!("{:.1}", r.windows_per_s),
-        ])?;
-    }
-    let bytes = w.into_inner()?;
-    crate::atomic::write(path, &bytes).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    ]
+    .join(",");
+    let rows = history
+        .iter()
+        .map(|r| {
+            vec![
+                r.stage.clone(),
+                r.epoch.to_string(),
+                r.step.to_string(),
+                format!("{:.6e}", r.train_loss),
+                format!("{:.6e}", r.val_loss),
+                format!("{:.6e}", r.lr),
+                format!("{:.3}", r.seconds),
+                format!("{:.1}", r.windows_per_s),
+            ]
+        })
+        .collect();
+    write_file(path, csv_text(&header, rows).as_bytes())
 }
 
 /// Distinct values in order of first appearance.
@@ -93,5 +96,76 @@ pub fn plot_losses(path: &Path, histories: &[(String, Vec<EpochRecord>)]) -> Res
         rows,
         cols,
         (520 * cols as u32, 420 * rows as u32),
+    )
+}
+
+/// CSV text of `rows` under the comma-separated `header`.
+pub fn csv_text(header: &str, rows: Vec<Vec<String>>) -> String {
+    let mut w = csv::WriterBuilder::new()
+        .terminator(csv::Terminator::Any(b'\n'))
+        .from_writer(Vec::new());
+    // Writing to a Vec cannot fail.
+    w.write_record(header.split(',')).expect("in-memory CSV");
+    for row in rows {
+        w.write_record(&row).expect("in-memory CSV");
+    }
+    String::from_utf8(w.into_inner().expect("in-memory CSV")).expect("UTF-8 fields")
+}
+
+/// The Fig. 9b table: horizon, position and attitude before and after refinement.
+pub fn accumulated_csv(before: &[(usize, f64, f64)], after: &[(usize, f64, f64)]) -> String {
+    let mut ks: Vec<usize> = before.iter().chain(after).map(|r| r.0).collect();
+    ks.sort_unstable();
+    ks.dedup();
+    let cell = |v: &[(usize, f64, f64)], k: usize, pick: fn(&(usize, f64, f64)) -> f64| {
+        v.iter()
+            .find(|r| r.0 == k)
+            .map_or(String::new(), |r| format!("{:.4}", pick(r)))
+    };
+    csv_text(
+        "horizon,pos_before_um,att_before_mdeg,pos_after_um,att_after_mdeg",
+        ks.into_iter()
+            .map(|k| {
+                vec![
+                    k.to_string(),
+                    cell(before, k, |r| r.1),
+                    cell(before, k, |r| r.2),
+                    cell(after, k, |r| r.1),
+                    cell(after, k, |r| r.2),
+                ]
+            })
+            .collect(),
+    )
+}
+
+/// The Fig. 9b chart: accumulated position and attitude error before and after refinement.
+pub fn plot_accumulated(
+    path: &Path,
+    before: &[(usize, f64, f64)],
+    after: &[(usize, f64, f64)],
+) -> Result<(), plot::PlotError> {
+    type Pick = fn(&(usize, f64, f64)) -> f64;
+    let series = |v: &[(usize, f64, f64)], pick: Pick, name: &str| {
+        Series::new(name, v.iter().map(|r| (r.0 as f64, pick(r))).collect())
+    };
+    let panel = |title: &str, unit: &str, pick: Pick| Panel {
+        title: title.into(),
+        x_label: "consecutive windows k".into(),
+        y_label: format!("mean |Σ(ŷ−y)| ({unit})"),
+        series: vec![
+            series(before, pick, "before refinement"),
+            series(after, pick, "after refinement"),
+        ],
+        equal_aspect: false,
+    };
+    plot::draw(
+        path,
+        &[
+            panel("accumulated position error", "µm", |r| r.1),
+            panel("accumulated attitude error", "mdeg", |r| r.2),
+        ],
+        1,
+        2,
+        (1100, 420),
     )
 }

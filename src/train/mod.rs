@@ -3,15 +3,21 @@
 //! resumable states, metrics, logs and plots.
 
 pub mod config;
+pub mod fit;
 pub mod log;
 pub mod metrics;
 pub mod optimizer;
+pub mod predict;
+pub mod refine;
 pub mod state;
 pub mod trainer;
 
 pub use config::{ConfigError, DataConfig, RefineConfig, RunConfig, TrainConfig};
+pub use fit::{build_dataset, run_stage, sibling, test_metrics, train, TestMetrics, Trained};
 pub use metrics::{accumulated_error, Metrics};
 pub use optimizer::{learning_rate, Optimizer};
+pub use predict::{predict_recordings, PredictOptions, RecordingPrediction, Subset};
+pub use refine::{refine, Refined};
 pub use state::{StateError, TrainState};
 pub use trainer::{
     consecutive_runs, ensembles, EpochRecord, Progress, Snapshot, Stage, TrainError, Trainer,

@@ -3,7 +3,9 @@
 //! tracker, and the simulation that runs them. Imports `robot` only: the ground truth
 //! never peeks at the estimator.
 
+mod machine;
 mod mirror;
+mod noise;
 pub mod sensors;
 pub mod session;
 mod simulate;
@@ -11,14 +13,16 @@ pub mod sources;
 mod trajectory;
 mod truth;
 
+pub use machine::{located, Actual, Machine, MachineState, SourceTerms};
 pub use mirror::Mirror;
+pub use noise::gaussian;
 pub use sensors::{
     Installation, Instruments, Scene, SensorRates, SensorSpecs, CHANNELS, CHANNEL_UNITS,
 };
 pub use session::RunInfo;
 pub use simulate::{
-    measure_calibration, pose_error, Actual, CalibrationMeasurement, Correction, Hidden, Machine,
-    MachineState, Sample, SimConfig, Simulation, SourceTerms,
+    measure_calibration, pose_error, CalibrationMeasurement, Correction, Hidden, Sample, SimConfig,
+    Simulation,
 };
 pub use trajectory::{calibration_configurations, Path, PathKind, PathParams};
-pub use truth::{draw_errors, draw_machine, draw_nongeometric, gaussian, ErrorScales};
+pub use truth::{draw_errors, draw_machine, draw_nongeometric, ErrorScales};

@@ -26,7 +26,7 @@ use nalgebra::{Isometry3, UnitQuaternion};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::truth::gaussian;
+use super::noise::gaussian;
 
 /// Channel names in recording order: the 14 nodes of Table II, then the force.
 pub const CHANNELS: [&str; 15] = [

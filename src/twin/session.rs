@@ -48,6 +48,23 @@ impl RunInfo {
         }
     }
 
+    /// A calibration measurement set with run seed `seed` on the default machine, measured
+    /// cold under the nominal controller.
+    pub fn calibration(seed: u64) -> RunInfo {
+        RunInfo {
+            path: "calibration".into(),
+            rotation_deg: 0.0,
+            reverse: false,
+            seconds: 0.0,
+            seed,
+            machine_seed: 1,
+            controller: "nominal".into(),
+            start: "cold".into(),
+            session_clock_s: 0.0,
+            screw_rise_k: [0.0; 3],
+        }
+    }
+
     /// The sidecar's path for a recording at `csv`: `<csv without .csv>.run.toml`.
     pub fn sidecar(csv: &Path) -> PathBuf {
         csv.with_extension("run.toml")

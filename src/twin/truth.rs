@@ -1,11 +1,11 @@
 //! The twin's hidden truth: a seeded draw of the geometric errors of one machine.
 
-use rand::{Rng, RngExt, SeedableRng};
+use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use rand_distr::StandardNormal;
 
+use super::machine::Machine;
+use super::noise::gaussian;
 use super::sensors::{Installation, SensorSpecs};
-use super::simulate::Machine;
 use super::sources::{
     BacklashParams, ComplianceParams, LostMotionParams, NonGeometric, ThermalParams, SCREW_ORIGIN,
 };
@@ -74,12 +74,6 @@ pub fn draw_errors(seed: u64, scales: &ErrorScales) -> ErrorParams {
     values.extend((0..3).map(|_| normal(scales.tracker_attitude)));
     debug_assert_eq!(values.len(), N_PARAMS);
     ErrorParams { values }
-}
-
-/// A normal draw with standard deviation `sigma`.
-pub fn gaussian<R: Rng + ?Sized>(rng: &mut R, sigma: f64) -> f64 {
-    let z: f64 = rng.sample(StandardNormal);
-    sigma * z
 }
 
 /// A seeded draw of a machine's non-geometric sources, in the ranges of docs/twin.md.

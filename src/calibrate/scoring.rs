@@ -1,0 +1,35 @@
+//! Scoring a calibration: the split of a measurement set into the poses the EKF fits and
+//! the poses held out to judge it, and a model's pose error at measured poses.
+
+use nalgebra::Vector3;
+
+use super::identify::Measurement;
+use super::jacobian::twist;
+use crate::robot::{Robot, RobotError};
+
+/// `(fit, held out)`: every `every`-th measurement is held out (none when `every` is 0).
+pub fn hold_out(all: &[Measurement], every: usize) -> (Vec<Measurement>, Vec<Measurement>) {
+    let (fit, held): (Vec<_>, Vec<_>) = all
+        .iter()
+        .enumerate()
+        .partition(|(i, _)| every == 0 || (i + 1) % every != 0);
+    (
+        fit.into_iter().map(|(_, m)| *m).collect(),
+        held.into_iter().map(|(_, m)| *m).collect(),
+    )
+}
+
+/// Position (µm) and attitude (mdeg) error of `model`'s prediction of each measured
+/// pose, in the tracker's frame through the model's registration.
+pub fn pose_errors(model: &Robot, ms: &[Measurement]) -> Result<(Vec<f64>, Vec<f64>), RobotError> {
+    let (mut p, mut a) = (Vec::new(), Vec::new());
+    let mut guess = None;
+    for m in ms {
+        let (platform, tool) = model.forward(&m.joints, guess)?;
+        guess = Some(platform);
+        let d = twist(&(model.tracker_from_base() * tool), &m.pose);
+        p.push(Vector3::new(d[0], d[1], d[2]).norm() * 1e3);
+        a.push(Vector3::new(d[3], d[4], d[5]).norm().to_degrees() * 1e3);
+    }
+    Ok((p, a))
+}

@@ -1,0 +1,223 @@
+//! Recordings made on the twin: a polishing run or a calibration measurement set
+//! simulated and written in the formats of docs/twin.md "File formats", each with its
+//! `.run.toml` sidecar, and a PNG of the run (path, driving errors, hidden true error).
+
+use std::path::{Path, PathBuf};
+
+use super::{tracker_columns, write_calibration_set, CalibrationRow, Recording, Row};
+use crate::error::{Error, Result};
+use crate::plot::{self, Panel, Series};
+use crate::progress::Reporter;
+use crate::robot::Robot;
+use crate::twin::{
+    calibration_configurations, located, measure_calibration, Machine, MachineState, Mirror,
+    PathKind, PathParams, RunInfo, SensorSpecs, SimConfig, Simulation, CHANNELS,
+};
+
+/// What a recorded run left: the machine's state at its end (to carry the session on),
+/// and a summary of the file.
+#[derive(Clone, Debug)]
+pub struct RecordedRun {
+    pub end: MachineState,
+    pub info: RunInfo,
+    pub rows: usize,
+    pub tracker_samples: usize,
+    /// The hidden truth, not in the file: mean tool position (mm) and attitude (deg)
+    /// error in the frame the part was located in.
+    pub mean_position_error_mm: f64,
+    pub mean_attitude_error_deg: f64,
+    pub plot: PathBuf,
+}
+
+/// Records the polishing run `info` describes on `machine` under `controller` from
+/// `start` (the machine's state from earlier runs of the session; `info.start`, the
+/// session clock and temperatures are filled in from it), and writes the CSV `out`, its
+/// `.run.toml` sidecar and a PNG (`plot`, or `out` with `.png`).
+pub fn record_run(
+    machine: &Machine,
+    controller: &Robot,
+    mut info: RunInfo,
+    start: MachineState,
+    out: &Path,
+    plot: Option<PathBuf>,
+    reporter: &mut dyn Reporter,
+) -> Result<RecordedRun> {
+    let kind: PathKind = info.path.parse().map_err(Error::Invalid)?;
+    crate::error::ensure(info.seconds.is_finite() && info.seconds > 0.0, || {
+        format!("a run must last a positive time, got {} s", info.seconds)
+    })?;
+    let params = PathParams {
+        rotation_deg: info.rotation_deg,
+        reverse: info.reverse,
+        ..PathParams::default()
+    };
+    let mut config = SimConfig::new(kind, info.seconds, info.seed);
+    config.path_params = params;
+    info.start = if start.clock > 0.0 { "warm" } else { "cold" }.into();
+    info.session_clock_s = start.clock;
+    info.screw_rise_k = start.screw_rise();
+    let steps = config.steps();
+    let dt = config.dt;
+    let mut sim = Simulation::resume(machine, controller, Mirror::default(), config, start)?;
+    reporter.begin(&format!("simulating {}", kind.name()), steps as u64);
+    let mut rows = Vec::with_capacity(steps);
+    let mut truth = Vec::with_capacity(steps);
+    while let Some(sample) = sim.step() {
+        let s = sample.map_err(|e| {
+            Error::from(e).context(format!("at t = {:.2} s", rows.len() as f64 * dt))
+        })?;
+        let tracker = s.tracker.as_ref().map(tracker_columns);
+        let h = s.hidden;
+        // In the frame the part was located in (docs/twin.md "Scoring").
+        let actual = located(machine, controller, &h.actual.pose);
+        truth.push((
+            s.t,
+            (actual.translation.vector - h.commanded.translation.vector).norm(),
+            (actual.rotation * h.commanded.rotation.inverse())
+                .angle()
+                .to_degrees(),
+            [h.target.position.x, h.target.position.y],
+        ));
+        rows.push(Row {
+            t: s.t,
+            values: s.channels.to_vec(),
+            tracker,
+        });
+        if rows.len().is_multiple_of(50) {
+            reporter.update(rows.len() as u64, "");
+        }
+    }
+    reporter.end();
+    let end = sim.machine_state();
+    let recording = Recording {
+        channels: CHANNELS.iter().map(|c| c.to_string()).collect(),
+        rows,
+    };
+    let plot_path = plot.unwrap_or_else(|| out.with_extension("png"));
+    plot_run(&plot_path, kind, &recording, &truth)?;
+    recording.write(out)?;
+    info.write(out)
+        .map_err(|e| Error::io(&RunInfo::sidecar(out), e))?;
+    let n = truth.len().max(1) as f64;
+    Ok(RecordedRun {
+        end,
+        tracker_samples: recording
+            .rows
+            .iter()
+            .filter(|r| r.tracker.is_some())
+            .count(),
+        rows: recording.rows.len(),
+        info,
+        mean_position_error_mm: truth.iter().map(|t| t.1).sum::<f64>() / n,
+        mean_attitude_error_deg: truth.iter().map(|t| t.2).sum::<f64>() / n,
+        plot: plot_path,
+    })
+}
+
+/// The run's PNG: the path over the mirror, the driving errors E1–E4, and the hidden true
+/// pad position and attitude error. `truth` holds (t, position mm, attitude deg, target
+/// x/y mm) per tick.
+fn plot_run(
+    path: &Path,
+    kind: PathKind,
+    recording: &Recording,
+    truth: &[(f64, f64, f64, [f64; 2])],
+) -> Result<()> {
+    let channel = |i: usize| -> Vec<(f64, f64)> {
+        recording
+            .rows
+            .iter()
+            .filter_map(|r| r.values[i].map(|v| (r.t, v)))
+            .collect()
+    };
+    let panels = [
+        Panel {
+            title: format!("{} path over the mirror", kind.name()),
+            x_label: "x (mm)".into(),
+            y_label: "y (mm)".into(),
+            series: vec![Series::new(
+                "target",
+                truth.iter().map(|t| (t.3[0], t.3[1])).collect(),
+            )],
+            equal_aspect: true,
+        },
+        Panel {
+            title: "driving errors E1-E4".into(),
+            x_label: "t (s)".into(),
+            y_label: "µm".into(),
+            series: (0..4)
+                .map(|i| Series::new(CHANNELS[i], channel(i)))
+                .collect(),
+            equal_aspect: false,
+        },
+        Panel {
+            title: "true pad position error (hidden)".into(),
+            x_label: "t (s)".into(),
+            y_label: "µm".into(),
+            series: vec![Series::new(
+                "|Δp|",
+                truth.iter().map(|t| (t.0, t.1 * 1e3)).collect(),
+            )],
+            equal_aspect: false,
+        },
+        Panel {
+            title: "true pad attitude error (hidden)".into(),
+            x_label: "t (s)".into(),
+            y_label: "mdeg".into(),
+            series: vec![Series::new(
+                "|Δθ|",
+                truth.iter().map(|t| (t.0, t.2 * 1e3)).collect(),
+            )],
+            equal_aspect: false,
+        },
+    ];
+    Ok(plot::draw(path, &panels, 2, 2, (1400, 1000))?)
+}
+
+/// Measures `poses` static calibration poses (seeded by `info.seed`, the tracker
+/// averaged over 10 readings each) on a cold `machine` under `controller`, and writes
+/// the calibration set `out` with its sidecar. Returns the number of poses.
+pub fn record_calibration_set(
+    machine: &Machine,
+    controller: &Robot,
+    poses: usize,
+    info: &RunInfo,
+    out: &Path,
+    reporter: &mut dyn Reporter,
+) -> Result<usize> {
+    crate::error::ensure(poses > 0, || {
+        "a calibration set needs at least one pose".into()
+    })?;
+    let configs = calibration_configurations(controller, poses, info.seed);
+    reporter.begin("measuring", configs.len() as u64);
+    let measured = measure_calibration(
+        machine,
+        controller,
+        &configs,
+        &SensorSpecs::default(),
+        10,
+        info.seed,
+    )?;
+    let rows: Vec<CalibrationRow> = measured
+        .iter()
+        .map(|m| {
+            let j = &m.joints;
+            CalibrationRow {
+                joints: [
+                    j.limbs[0],
+                    j.limbs[1],
+                    j.limbs[2],
+                    j.head[0].to_degrees(),
+                    j.head[1].to_degrees(),
+                ],
+                pose: tracker_columns(&m.measured),
+            }
+        })
+        .collect();
+    reporter.update(rows.len() as u64, "");
+    reporter.end();
+    write_calibration_set(out, &rows)?;
+    info.write(out)
+        .map_err(|e| Error::io(&RunInfo::sidecar(out), e))?;
+    Ok(rows.len())
+}

@@ -1,0 +1,94 @@
+//! Where a run's data comes from: recordings, the calibration they are labelled under,
+//! and (optionally) other graph and robot assets than the embedded ones. Loading them
+//! gives the inputs of [`Dataset::build_normalized`], and of prediction on recordings.
+
+use std::path::PathBuf;
+
+use super::{expected_channels, Dataset, FeatureConfig, Normalization, Recording};
+use super::{SplitMode, WindowConfig};
+use crate::calibrate::file;
+use crate::error::Result;
+use crate::graph::Graph;
+use crate::robot::{Geometry, Robot};
+
+/// The files of a run's data.
+#[derive(Clone, Debug)]
+pub struct DataSources {
+    /// Recordings (CSV, docs/twin.md "File formats").
+    pub recordings: Vec<PathBuf>,
+    /// Calibration file: labels are the residuals under this calibrated model.
+    pub calibration: PathBuf,
+    /// Sensor graph asset (the embedded assets/graph.toml when `None`).
+    pub graph: Option<PathBuf>,
+    /// Robot geometry asset (the embedded assets/robot.toml when `None`).
+    pub robot: Option<PathBuf>,
+}
+
+/// The loaded sources: the graph, the calibrated robot and the named recordings.
+pub struct Inputs {
+    pub graph: Graph,
+    pub robot: Robot,
+    pub recordings: Vec<(String, Recording)>,
+}
+
+impl DataSources {
+    /// `recordings` labelled under `calibration`, with the embedded graph and robot.
+    pub fn new(recordings: Vec<PathBuf>, calibration: PathBuf) -> DataSources {
+        DataSources {
+            recordings,
+            calibration,
+            graph: None,
+            robot: None,
+        }
+    }
+
+    /// The robot geometry (the embedded asset unless [`DataSources::robot`] names one).
+    pub fn geometry(&self) -> Result<Geometry> {
+        Ok(Geometry::load_or_default(self.robot.as_deref())?)
+    }
+
+    /// Graph, calibrated robot and the recordings, read with the graph's channels and
+    /// at least `window` rows each.
+    pub fn load(&self, window: usize) -> Result<Inputs> {
+        let graph = Graph::load_or_default(self.graph.as_deref())?;
+        let robot = Robot::new(self.geometry()?, file::load(&self.calibration)?.errors);
+        let channels = expected_channels(&graph.nodes);
+        let channels: Vec<&str> = channels.iter().map(String::as_str).collect();
+        let recordings = self
+            .recordings
+            .iter()
+            .map(|p| {
+                Ok((
+                    p.display().to_string(),
+                    Recording::read(p, &channels, window)?,
+                ))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Inputs {
+            graph,
+            robot,
+            recordings,
+        })
+    }
+
+    /// The dataset of these sources, standardised with `fixed` (a model's statistics)
+    /// or with its own training split's.
+    pub fn dataset(
+        &self,
+        window: &WindowConfig,
+        mode: SplitMode,
+        fixed: Option<&Normalization>,
+    ) -> Result<(Graph, Dataset)> {
+        let inputs = self.load(window.length)?;
+        let data = Dataset::build_normalized(
+            &inputs.recordings,
+            &inputs.graph,
+            &inputs.robot,
+            &FeatureConfig::default(),
+            window,
+            mode,
+            fixed,
+        )?;
+        Ok((inputs.graph, data))
+    }
+}

@@ -1,0 +1,103 @@
+//! The library's error: every module's typed error in one enum, so that a pipeline call
+//! (train, refine, evaluate, the demo) returns one type that still says which stage,
+//! file or tensor failed. The binary turns it into a message; nothing here panics on
+//! input.
+
+use std::fmt::Display;
+use std::path::{Path, PathBuf};
+
+use crate::calibrate::file::CalibrationFileError;
+use crate::calibrate::CalibrationError;
+use crate::data::{DataError, DatasetError};
+use crate::gpu::GpuError;
+use crate::graph::GraphError;
+use crate::model::{CheckpointError, ModelError};
+use crate::plot::PlotError;
+use crate::robot::RobotError;
+use crate::train::{ConfigError, StateError, TrainError};
+
+/// What stops a library call.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    #[error(transparent)]
+    Robot(#[from] RobotError),
+    #[error(transparent)]
+    Calibration(#[from] CalibrationError),
+    #[error(transparent)]
+    CalibrationFile(#[from] CalibrationFileError),
+    #[error(transparent)]
+    Data(#[from] DataError),
+    #[error(transparent)]
+    Dataset(#[from] DatasetError),
+    #[error(transparent)]
+    Graph(#[from] GraphError),
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error(transparent)]
+    State(#[from] StateError),
+    #[error(transparent)]
+    Train(#[from] TrainError),
+    #[error(transparent)]
+    Plot(#[from] PlotError),
+    /// A file that could not be written or read.
+    #[error("{}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    /// An argument or setting that cannot be used; the text names it and says why.
+    #[error("{0}")]
+    Invalid(String),
+    /// An error and where it happened (a run, a stage, a file).
+    #[error("{context}: {source}")]
+    Context { context: String, source: Box<Error> },
+}
+
+/// The library's result.
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+impl Error {
+    /// An I/O error on `path`.
+    pub fn io(path: &Path, source: std::io::Error) -> Error {
+        Error::Io {
+            path: path.to_path_buf(),
+            source,
+        }
+    }
+
+    /// `self`, said to have happened in `context`.
+    pub fn context(self, context: impl Display) -> Error {
+        Error::Context {
+            context: context.to_string(),
+            source: Box::new(self),
+        }
+    }
+
+    /// The innermost error under every [`Error::Context`].
+    pub fn root(&self) -> &Error {
+        match self {
+            Error::Context { source, .. } => source.root(),
+            e => e,
+        }
+    }
+}
+
+/// Returns [`Error::Invalid`] with `message` unless `ok`.
+pub fn ensure(ok: bool, message: impl FnOnce() -> String) -> Result<()> {
+    if ok {
+        Ok(())
+    } else {
+        Err(Error::Invalid(message()))
+    }
+}
+
+/// Writes `bytes` to `path` atomically ([`crate::atomic::write`]), naming the path on error.
+pub fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
+    crate::atomic::write(path, bytes).map_err(|e| Error::io(path, e))
+}

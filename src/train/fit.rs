@@ -1,0 +1,255 @@
+//! Fitting a model from start to end: the dataset of a run config, the stage loop with
+//! its reporting, the core training run with its checkpoint, resumable state, log and
+//! loss plot (and the last good weights when it diverges), and the test-split metrics.
+
+use std::path::{Path, PathBuf};
+
+use super::{
+    checkpoint, core_stage, log, metrics, normalization, to_physical, Metrics, RunConfig,
+    TrainError, TrainState, Trainer,
+};
+use crate::data::{self, DataSources, Dataset, SplitMode, WindowConfig};
+use crate::error::{Error, Result};
+use crate::gpu::Gpu;
+use crate::graph::Graph;
+use crate::model::Parameters;
+use crate::progress::Reporter;
+
+/// The sibling of `out` with `suffix` in place of its extension (`m.safetensors` →
+/// `m.state.safetensors`).
+pub fn sibling(out: &Path, suffix: &str) -> PathBuf {
+    let stem = out
+        .file_stem()
+        .map_or("model".into(), |s| s.to_string_lossy().into_owned());
+    out.with_file_name(format!("{stem}{suffix}"))
+}
+
+/// The windows of a run config.
+pub fn window_config(config: &RunConfig) -> WindowConfig {
+    WindowConfig {
+        length: config.model.window,
+        stride: config.data.stride,
+        ..WindowConfig::default()
+    }
+}
+
+/// The split of a run config: contiguous blocks, or the paper's random split.
+pub fn split_mode(config: &RunConfig) -> SplitMode {
+    if config.data.split == "random" {
+        SplitMode::Random {
+            seed: config.data.split_seed,
+        }
+    } else {
+        SplitMode::Contiguous
+    }
+}
+
+/// The dataset of `sources` windowed and split as `config` says, standardised with
+/// `fixed` (a model's statistics) or its own training split's.
+pub fn build_dataset(
+    sources: &DataSources,
+    config: &RunConfig,
+    fixed: Option<&data::Normalization>,
+) -> Result<(Graph, Dataset)> {
+    sources.dataset(&window_config(config), split_mode(config), fixed)
+}
+
+/// Test-split metrics of one recording: the model's, and those of predicting the
+/// training-split mean.
+#[derive(Clone, Debug)]
+pub struct TestMetrics {
+    pub recording: String,
+    pub model: Metrics,
+    pub training_mean: Metrics,
+}
+
+/// Test-split metrics per recording of the trainer's current weights.
+pub fn test_metrics(trainer: &Trainer, data: &Dataset) -> Result<Vec<TestMetrics>, TrainError> {
+    let [_, _, test] = data.split_ranges();
+    let positions: Vec<usize> = test.collect();
+    let pred = to_physical(&trainer.predict(&positions)?, &data.normalization);
+    Ok(data
+        .recordings
+        .iter()
+        .zip(metrics::per_recording(data, &positions, &pred))
+        .map(|(name, (model, mean))| TestMetrics {
+            recording: name.clone(),
+            model,
+            training_mean: mean,
+        })
+        .collect())
+}
+
+/// Runs the trainer's stage to its end, reporting every epoch to `reporter` (as task
+/// `label`) and calling `on_epoch` with whether the validation loss improved; restores
+/// the best weights.
+pub fn run_stage(
+    trainer: &mut Trainer,
+    label: &str,
+    reporter: &mut dyn Reporter,
+    mut on_epoch: impl FnMut(&Trainer, bool) -> Result<()>,
+) -> Result<()> {
+    reporter.begin(&format!("{label} epoch"), trainer.stage.max_epochs as u64);
+    reporter.update(trainer.progress.epoch as u64, "");
+    while !trainer.finished() {
+        let (r, improved) = trainer.run_epoch()?;
+        reporter.update(
+            r.epoch as u64,
+            &format!(
+                "loss {:.4} val {:.4} lr {:.2e} {:.0} win/s{}",
+                r.train_loss,
+                r.val_loss,
+                r.lr,
+                r.windows_per_s,
+                if improved { " *" } else { "" }
+            ),
+        );
+        on_epoch(trainer, improved)?;
+    }
+    reporter.end();
+    trainer.restore_best()?;
+    Ok(())
+}
+
+/// Every setting that must match for a resumed run (the epoch limit and patience may change).
+fn resumable(a: &RunConfig, b: &RunConfig) -> bool {
+    let strip = |c: &RunConfig| {
+        let mut c = c.clone();
+        c.train.max_epochs = 0;
+        c.train.patience = 0;
+        c.refine = Default::default();
+        c
+    };
+    strip(a) == strip(b)
+}
+
+/// How a core training run ended.
+#[derive(Clone, Debug)]
+pub struct Trained {
+    pub best_val: f64,
+    pub best_epoch: usize,
+    pub epochs: usize,
+    pub history: Vec<super::EpochRecord>,
+    pub test: Vec<TestMetrics>,
+}
+
+/// The core stage of `config` on `data` (a fresh seeded start, or the state file
+/// `resume`), written as it goes: the best checkpoint to `out` (atomically, whenever the
+/// validation loss improves), and beside it `<stem>.state.safetensors` (to resume),
+/// `<stem>.log.csv` and `<stem>.loss.png`. When training diverges, `out` keeps the best
+/// weights, or the last good ones when no epoch finished, and the error says which.
+pub fn train(
+    gpu: &Gpu,
+    data: &Dataset,
+    graph: &Graph,
+    config: &RunConfig,
+    out: &Path,
+    resume: Option<&Path>,
+    reporter: &mut dyn Reporter,
+) -> Result<Trained> {
+    config.validate().map_err(Error::Invalid)?;
+    let init = Parameters::init(&config.model, config.train.seed);
+    let mut trainer = Trainer::new(
+        gpu,
+        data,
+        graph,
+        &config.model,
+        &config.train,
+        core_stage(config),
+        &init,
+    )?;
+    let stats = normalization(&data.normalization);
+    if let Some(p) = resume {
+        let state = TrainState::load(p)?;
+        if !resumable(&state.run, config) {
+            return Err(Error::Invalid(format!(
+                "{}: the state was written by a run with another config or variant (only train.max_epochs and train.patience may change)",
+                p.display()
+            )));
+        }
+        if state.normalization != stats {
+            return Err(Error::Invalid(format!(
+                "{}: the state was trained on other data (its normalisation statistics differ from these recordings')",
+                p.display()
+            )));
+        }
+        trainer.restore(&state.snapshot)?;
+        trainer.set_limits(config.train.max_epochs, config.train.patience);
+        let p2 = &trainer.progress;
+        reporter.note(&format!(
+            "resumed {} at epoch {} (step {}, best validation loss {:.5} at epoch {})",
+            p.display(),
+            p2.epoch,
+            p2.step,
+            p2.best_val,
+            p2.best_epoch
+        ));
+    }
+    reporter.note(&format!(
+        "training {} on {}: {} windows per step, {} steps per epoch",
+        config.model.variant,
+        gpu.info().name,
+        trainer.batch(),
+        trainer.steps_per_epoch()
+    ));
+    let state_path = sibling(out, ".state.safetensors");
+    let log_path = sibling(out, ".log.csv");
+    let png_path = sibling(out, ".loss.png");
+    let name = config.model.variant.name();
+    let result = run_stage(&mut trainer, name, reporter, |t, improved| {
+        if improved {
+            checkpoint(&config.model, graph, &t.best, &data.normalization).save(out)?;
+        }
+        TrainState {
+            run: config.clone(),
+            normalization: stats.clone(),
+            snapshot: t.snapshot().clone(),
+        }
+        .save(&state_path)?;
+        log::write_csv(&log_path, &t.progress.history)?;
+        log::plot_losses(&png_path, &[(name.to_string(), t.progress.history.clone())])?;
+        Ok(())
+    });
+    if let Err(e) = result {
+        return Err(diverged(e, &trainer, config, graph, data, out));
+    }
+    let p = &trainer.progress;
+    Ok(Trained {
+        best_val: p.best_val,
+        best_epoch: p.best_epoch,
+        epochs: p.epoch,
+        history: p.history.clone(),
+        test: test_metrics(&trainer, data)?,
+    })
+}
+
+/// On divergence: keep the best checkpoint, or write the last good weights when no epoch
+/// finished; say where they are.
+fn diverged(
+    e: Error,
+    trainer: &Trainer,
+    config: &RunConfig,
+    graph: &Graph,
+    data: &Dataset,
+    out: &Path,
+) -> Error {
+    let Error::Train(TrainError::Diverged { last_good, .. }) = &e else {
+        return e;
+    };
+    if trainer.progress.best_epoch > 0 {
+        let epoch = trainer.progress.best_epoch;
+        return e.context(format!(
+            "stopped; {} keeps the best weights (epoch {epoch})",
+            out.display()
+        ));
+    }
+    match checkpoint(&config.model, graph, last_good, &data.normalization).save(out) {
+        Ok(()) => e.context(format!(
+            "stopped; the last good weights (before the bad step) are in {}",
+            out.display()
+        )),
+        Err(w) => e.context(format!(
+            "stopped, and the last good weights could not be saved: {w}"
+        )),
+    }
+}
