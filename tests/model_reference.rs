@@ -2,6 +2,10 @@
 //! against central differences of `loss(forward(..))` for every parameter tensor and the
 //! input, in all four variants, with and without dropout; batch independence, causality
 //! of the attention-free blocks, the dropout masks and the loss of eq. 39.
+//!
+//! One file past 600 lines on purpose: half of it is the last test, docs/model.md's forward
+//! transcribed index by index in one piece to be read against the document, and each file
+//! in tests/ is one more test binary to build and link.
 
 use iastgcn::graph::Graph;
 use iastgcn::model::reference::{backward, forward, loss, DropoutStep, Loss, Tape};

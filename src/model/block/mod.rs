@@ -1,0 +1,413 @@
+//! One ST block on the device (docs/model.md steps 1–7): its activation buffers and the
+//! shape of every op it runs, shared by the forward schedule (`forward.rs`) and the
+//! backward one (`backward.rs`), each op by op in the order of docs/model.md.
+
+mod backward;
+mod forward;
+
+use super::config::ModelConfig;
+use crate::gpu::{DType, Gpu, Tensor};
+use crate::ops::bias::Bias;
+use crate::ops::dropout::Dropout;
+use crate::ops::gated_dcc::Unfold;
+use crate::ops::head::LastStep;
+use crate::ops::layer_norm::LayerNorm;
+use crate::ops::matmul::Matmul;
+use crate::ops::outer::{OuterPair, Second};
+use crate::ops::softmax::Softmax;
+
+/// Device parameters and their gradients, looked up by docs/model.md name.
+pub trait ParamTable {
+    fn param(&self, name: &str) -> &Tensor;
+    fn grad(&self, name: &str) -> &Tensor;
+}
+
+/// The shapes of one block.
+#[derive(Clone, Copy, Debug)]
+struct Dims {
+    b: usize,
+    n: usize,
+    ci: usize,
+    c: usize,
+    t: usize,
+    /// Steps the block computes its convolution, residual, norm and dropout for: T, or 1
+    /// for the last block (the head reads only its last step).
+    to: usize,
+    k: usize,
+    terms: usize,
+}
+
+/// Temporal-attention intermediates (step 1).
+struct Temporal {
+    xu1: Tensor,
+    lhs: Tensor,
+    rhs: Tensor,
+    p: Tensor,
+    sig: Tensor,
+    e: Tensor,
+    ep: Tensor,
+}
+
+/// Spatial-attention intermediates (step 2).
+struct Spatial {
+    xt: Tensor,
+    xw1: Tensor,
+    lhs: Tensor,
+    rhs: Tensor,
+    p: Tensor,
+    sig: Tensor,
+    s: Tensor,
+    sp: Tensor,
+    /// Q[b] = Ψ·(I + S'[b]): the spatial attention and the graph mix in one matrix, so
+    /// that M = Ψ·X_s = Q·X_t takes one small-K product instead of two.
+    q: Tensor,
+}
+
+/// One block's buffers: everything its backward pass reads.
+pub struct Block {
+    index: usize,
+    d: Dims,
+    gated: bool,
+    dilation: usize,
+    eps: f32,
+    dropout: Dropout,
+    input: Tensor,
+    tat: Option<Temporal>,
+    sat: Option<Spatial>,
+    psi: Tensor,
+    m: Tensor,
+    /// ReLU(G): the graph convolution's product applies it in its epilogue.
+    z: Tensor,
+    col: Tensor,
+    f: Tensor,
+    gg: Tensor,
+    /// H, then ReLU(H + R + bias) once the residual product has accumulated onto it.
+    s: Tensor,
+    y: Tensor,
+    mean: Tensor,
+    rstd: Tensor,
+    /// The input's last step `[B, N, C_in]`, for the residual of a trimmed block.
+    x_last: Option<Tensor>,
+    /// `[tcn.filter.weight; tcn.gate.weight]` as one `[2C, C·K]` matrix (gated variants),
+    /// copied in each backward pass: the two convolutions' backward is one product.
+    w_fg: Option<Tensor>,
+    /// The block output `[B, N, C, to]`: `y` after dropout (training) or a copy of it
+    /// (inference).
+    pub output: Tensor,
+}
+
+/// Indices of a block's dropout dispatch in the forward and backward schedules.
+pub struct DropoutSlots {
+    pub dropout: Dropout,
+    pub forward: usize,
+    pub backward: usize,
+}
+
+impl Block {
+    /// Allocates the buffers of block `index` reading `input` [B, N, C_in, T]. A `trimmed`
+    /// block (the last one) computes steps 4–7 only at the last step, which is all the
+    /// head reads: its output is `[B, N, C, 1]`, the same values as the last step of the
+    /// whole computation (the attention and graph convolution still run on all T steps,
+    /// which the attention needs).
+    pub fn new(
+        gpu: &Gpu,
+        config: &ModelConfig,
+        index: usize,
+        batch: usize,
+        input: &Tensor,
+        dropout_seed: u32,
+        trimmed: bool,
+    ) -> Block {
+        let d = Dims {
+            b: batch,
+            n: config.nodes,
+            ci: config.block_input(index),
+            c: config.channels,
+            t: config.window,
+            to: if trimmed { 1 } else { config.window },
+            k: config.kernel,
+            terms: config.graph_terms(),
+        };
+        let name = |s: &str| format!("blocks.{index}.{s}");
+        let z = |s: &str, shape: &[usize]| gpu.zeros(&name(s), shape, DType::F32);
+        let (b, n, ci, c, t) = (d.b, d.n, d.ci, d.c, d.t);
+        let (tat, sat) = if config.variant.attention() {
+            let tat = Temporal {
+                xu1: z("tat.xu1", &[b, ci, t]),
+                lhs: z("tat.lhs", &[b, t, n]),
+                rhs: z("tat.rhs", &[b, n, t]),
+                p: z("tat.P", &[b, t, t]),
+                sig: z("tat.sig", &[b, t, t]),
+                e: z("tat.E", &[b, t, t]),
+                ep: z("tat.E'", &[b, t, t]),
+            };
+            let sat = Spatial {
+                xt: z("X_t", &[b, n, ci, t]),
+                xw1: z("sat.xw1", &[b, n, ci]),
+                lhs: z("sat.lhs", &[b, n, t]),
+                rhs: z("sat.rhs", &[b, n, t]),
+                p: z("sat.P", &[b, n, n]),
+                sig: z("sat.sig", &[b, n, n]),
+                s: z("sat.S", &[b, n, n]),
+                sp: z("sat.S'", &[b, n, n]),
+                q: z("gwc.Q", &[b, n, n]),
+            };
+            (Some(tat), Some(sat))
+        } else {
+            (None, None)
+        };
+        let hidden = [b, n, c, t];
+        let out = [b, n, c, d.to];
+        let whole = Dropout::new(
+            hidden.iter().product(),
+            config.dropout,
+            dropout_seed.wrapping_add(index as u32),
+        );
+        Block {
+            index,
+            d,
+            gated: config.variant.gated(),
+            dilation: config.dilation(index),
+            eps: config.eps as f32,
+            // Element (b, n, c) of a trimmed block is element (b, n, c, T − 1) of the whole.
+            dropout: if trimmed {
+                whole.strided(b * n * c, t, t - 1)
+            } else {
+                whole
+            },
+            input: input.clone(),
+            tat,
+            sat,
+            psi: z("gwc.Psi", &[n, n]),
+            m: z("gwc.M", &[b, n, ci, t]),
+            z: z("Z", &hidden),
+            col: z("tcn.col", &[b, n, c, d.k, d.to]),
+            f: z("tcn.G_f", &out),
+            gg: z("tcn.G_g", &out),
+            s: z("relu(H+R)", &out),
+            y: z("Y", &out),
+            mean: z("ln.mean", &[b * n * d.to]),
+            rstd: z("ln.rstd", &[b * n * d.to]),
+            x_last: trimmed.then(|| z("x_last", &[b, n, ci])),
+            w_fg: config
+                .variant
+                .gated()
+                .then(|| z("tcn.W_fg", &[2 * c, c * d.k])),
+            output: z("output", &out),
+        }
+    }
+
+    fn name(&self, s: &str) -> String {
+        format!("blocks.{}.{s}", self.index)
+    }
+
+    // The products of docs/model.md, named by what they compute.
+
+    /// tat: xu1[b, (c,t)] = Σ_n U1[n] X[b, n, (c,t)].
+    fn mm_u1(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(1, d.ci * d.t, d.n).batched(d.b).share_a(true)
+    }
+    /// tat: lhs[b] = xu1[b]ᵀ [T, C_in] · U2 [C_in, N].
+    fn mm_u2(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.t, d.n, d.ci)
+            .batched(d.b)
+            .transpose_a(true)
+            .share_b(true)
+    }
+    /// tat: rhs[b, n] = U3 [1, C_in] · X[b, n] [C_in, T].
+    fn mm_u3(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(1, d.t, d.ci).batched(d.b * d.n).share_a(true)
+    }
+    /// tat: P[b] = lhs[b] [T, N] · rhs[b] [N, T].
+    fn mm_tp(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.t, d.t, d.n).batched(d.b)
+    }
+    /// tat: E[b] = Ve · σ(P + be)[b].
+    fn mm_ve(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.t, d.t, d.t).batched(d.b).share_a(true)
+    }
+    /// tat: X_t[b] = X[b] [N·C_in, T] · (E'[b] [T, T] + I), the identity's term (X) added
+    /// in the product's epilogue (and dX_t in that of dX).
+    fn mm_xt(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.n * d.ci, d.t, d.t)
+            .batched(d.b)
+            .plus_identity(true)
+    }
+    /// sat: xw1[(b,n,c)] = X_t[(b,n,c), :] · W1.
+    fn mm_w1(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.b * d.n * d.ci, 1, d.t)
+    }
+    /// sat: lhs[(b,n)] = xw1[(b,n), :] · W2 [C_in, T].
+    fn mm_w2(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.b * d.n, d.t, d.ci)
+    }
+    /// sat: rhs[b, m] = W3 [1, C_in] · X_t[b, m] [C_in, T] (stored [B, N, T]).
+    fn mm_w3(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(1, d.t, d.ci).batched(d.b * d.n).share_a(true)
+    }
+    /// sat: P[b] = lhs[b] [N, T] · rhs[b]ᵀ.
+    fn mm_sp(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.n, d.n, d.t).batched(d.b).transpose_b(true)
+    }
+    /// sat: S[b] = Vs · σ(P + bs)[b].
+    fn mm_vs(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.n, d.n, d.n).batched(d.b).share_a(true)
+    }
+    /// sat + gwc: Q[b] = Ψ [N, N] · S'[b] [N, N] (+ Ψ, in the epilogue).
+    fn mm_q(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.n, d.n, d.n).batched(d.b).share_a(true)
+    }
+    /// gwc with attention: M[b] = Q[b] [N, N] · X_t[b] [N, C_in·T].
+    fn mm_qx(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.n, d.ci * d.t, d.n).batched(d.b)
+    }
+    /// The input gradient of an attention's two rank-1 projections (W3, W1 on X_t or U3,
+    /// U1 on X), over `[B·N, C_in, T]`.
+    fn rank_one_pair(&self, second: Second) -> OuterPair {
+        let d = self.d;
+        OuterPair {
+            items: d.b * d.n,
+            rows: d.ci,
+            cols: d.t,
+            second,
+        }
+    }
+    /// The batch sum of dQ, the gradient of Ψ's direct term in Q = Ψ + Ψ·S'.
+    fn batch_sum_nn(&self) -> Bias {
+        Bias {
+            outer: self.d.b,
+            channels: self.d.n * self.d.n,
+            inner: 1,
+        }
+    }
+    /// gwc: Ψ [1, N·N] = θ [1, terms] · basis [terms, N·N].
+    fn mm_psi(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(1, d.n * d.n, d.terms)
+    }
+    /// gwc without attention: M[b] = Ψ [N, N] · X[b] [N, C_in·T].
+    fn mm_mix(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.n, d.ci * d.t, d.n).batched(d.b).share_a(true)
+    }
+    /// gwc: G[b, n] = Wᵀ [C, C_in] · M[b, n] [C_in, T] (W stored [C_in, C]).
+    fn mm_w(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.c, d.t, d.ci)
+            .batched(d.b * d.n)
+            .transpose_a(true)
+            .share_a(true)
+    }
+    /// tcn: G[b, n] = weight [C, C·K] · col[b, n] [C·K, T].
+    fn mm_conv(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.c, d.to, d.c * d.k)
+            .batched(d.b * d.n)
+            .share_a(true)
+    }
+    /// res: R[b, n] = res.weight [C, C_in] · X[b, n] [C_in, T].
+    fn mm_res(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(d.c, d.to, d.ci)
+            .batched(d.b * d.n)
+            .share_a(true)
+    }
+
+    /// tcn backward, filter and gate stacked: [dG_f; dG_g][b, n] [2C, to] from
+    /// [W_f; W_g] [2C, C·K] · col[b, n] [C·K, to].
+    fn mm_conv_fg(&self) -> Matmul {
+        let d = self.d;
+        Matmul::new(2 * d.c, d.to, d.c * d.k)
+            .batched(d.b * d.n)
+            .share_a(true)
+    }
+
+    /// The input's last step, read by the residual of a trimmed block.
+    fn input_last_step(&self) -> LastStep {
+        let d = self.d;
+        LastStep {
+            rows: d.b * d.n * d.ci,
+            steps: d.t,
+        }
+    }
+
+    fn unfold(&self) -> Unfold {
+        let d = self.d;
+        Unfold {
+            rows: d.b * d.n,
+            channels: d.c,
+            kernel: d.k,
+            steps: d.t,
+            dilation: self.dilation,
+            outputs: d.to,
+        }
+    }
+
+    fn channel_bias(&self) -> Bias {
+        let d = self.d;
+        Bias {
+            outer: d.b * d.n,
+            channels: d.c,
+            inner: d.to,
+        }
+    }
+
+    /// tat: be [T, T] added to P over the batch.
+    fn temporal_score_bias(&self) -> Bias {
+        Bias {
+            outer: self.d.b,
+            channels: self.d.t * self.d.t,
+            inner: 1,
+        }
+    }
+
+    /// sat: bs [N, N] added to P over the batch.
+    fn spatial_score_bias(&self) -> Bias {
+        Bias {
+            outer: self.d.b,
+            channels: self.d.n * self.d.n,
+            inner: 1,
+        }
+    }
+
+    fn layer_norm(&self) -> LayerNorm {
+        let d = self.d;
+        LayerNorm {
+            eps: self.eps,
+            ..LayerNorm::new(d.b * d.n, d.c, d.to)
+        }
+    }
+
+    fn temporal_softmax(&self) -> Softmax {
+        Softmax {
+            outer: self.d.b,
+            len: self.d.t,
+            inner: self.d.t,
+        }
+    }
+
+    fn spatial_softmax(&self) -> Softmax {
+        Softmax {
+            outer: self.d.b * self.d.n,
+            len: self.d.n,
+            inner: 1,
+        }
+    }
+
+    pub fn dropout(&self) -> Dropout {
+        self.dropout
+    }
+}

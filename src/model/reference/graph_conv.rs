@@ -1,0 +1,111 @@
+//! Step 3: the graph convolution (eq. 29; Chebyshev basis in `iastgcn-s`).
+
+use super::block::BlockParams;
+use super::{axpy, dot, row, row_mut, Dims, Grads};
+
+/// Ψ[i,j] = Σ_k θ_k·basis[k,i,j].
+pub(super) fn graph_kernel(nn: usize, basis: &[f64], theta: &[f64]) -> Vec<f64> {
+    let mut psi = vec![0.0; nn * nn];
+    for (k, &th) in theta.iter().enumerate() {
+        axpy(&mut psi, th, row(basis, k, nn * nn));
+    }
+    psi
+}
+
+/// Q = X_s·W (channels), Z = ReLU(Ψ·Q) (nodes). Returns (Q, Z).
+pub(super) fn graph_conv(d: &Dims, psi: &[f64], w: &[f64], xs: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let Dims {
+        b: nb,
+        n: nn,
+        ci,
+        c: nc,
+        t: nt,
+    } = *d;
+    let mut q = vec![0.0; nb * nn * nc * nt];
+    for b in 0..nb {
+        for j in 0..nn {
+            for o in 0..nc {
+                let qr = row_mut(&mut q, d.r(nc, b, j, o), nt);
+                for c in 0..ci {
+                    axpy(qr, w[c * nc + o], row(xs, d.r(ci, b, j, c), nt));
+                }
+            }
+        }
+    }
+    let ct = nc * nt;
+    let mut z = vec![0.0; nb * nn * ct];
+    for b in 0..nb {
+        for i in 0..nn {
+            let zr = row_mut(&mut z, b * nn + i, ct);
+            for j in 0..nn {
+                axpy(zr, psi[i * nn + j], row(&q, b * nn + j, ct));
+            }
+            for v in zr.iter_mut() {
+                *v = v.max(0.0);
+            }
+        }
+    }
+    (q, z)
+}
+
+/// Backward of step 3: returns dL/dX_s and adds dθ, dW to `grads`.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn graph_conv_backward(
+    d: &Dims,
+    basis: &[f64],
+    p: &BlockParams,
+    psi: &[f64],
+    q: &[f64],
+    z: &[f64],
+    xs: &[f64],
+    dz: &[f64],
+    grads: &mut Grads,
+) -> Vec<f64> {
+    let Dims {
+        b: nb,
+        n: nn,
+        ci,
+        c: nc,
+        t: nt,
+    } = *d;
+    let ct = nc * nt;
+    // ReLU.
+    let dg: Vec<f64> = dz
+        .iter()
+        .zip(z)
+        .map(|(&g, &z)| if z > 0.0 { g } else { 0.0 })
+        .collect();
+    // G = Ψ·Q over nodes; Ψ = Σ_k θ_k basis_k.
+    let mut dpsi = vec![0.0; nn * nn];
+    let mut dq = vec![0.0; q.len()];
+    for b in 0..nb {
+        for i in 0..nn {
+            let gi = row(&dg, b * nn + i, ct);
+            for j in 0..nn {
+                dpsi[i * nn + j] += dot(gi, row(q, b * nn + j, ct));
+                axpy(row_mut(&mut dq, b * nn + j, ct), psi[i * nn + j], gi);
+            }
+        }
+    }
+    let dtheta: Vec<f64> = (0..p.theta.len())
+        .map(|k| dot(&dpsi, row(basis, k, nn * nn)))
+        .collect();
+    // Q = X_s·W over channels.
+    let mut dw = vec![0.0; ci * nc];
+    let mut dxs = vec![0.0; xs.len()];
+    for b in 0..nb {
+        for j in 0..nn {
+            for o in 0..nc {
+                let gr = row(&dq, d.r(nc, b, j, o), nt);
+                for c in 0..ci {
+                    let r = d.r(ci, b, j, c);
+                    dw[c * nc + o] += dot(row(xs, r, nt), gr);
+                    axpy(row_mut(&mut dxs, r, nt), p.w[c * nc + o], gr);
+                }
+            }
+        }
+    }
+    grads.add(&p.name("gwc.theta"), &dtheta);
+    grads.add(&p.name("gwc.W"), &dw);
+    dxs
+}

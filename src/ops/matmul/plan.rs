@@ -1,0 +1,390 @@
+//! The planner: a [`Matmul`]'s shape and operand layouts, the strided products (`Gemm`s)
+//! its forward, dA and dB passes launch, and the choices that follow from the shape alone
+//! (the row kernel's transposed form, vector loads, a split reduction).
+
+use super::Loads;
+use crate::gpu::{GpuError, Tensor};
+
+/// Which kernel computes a product of more than one row of C.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Tiling {
+    /// A subgroup kernel where the device has 8-lane subgroups (for products of at
+    /// most 16 rows, only when they have at least 32 columns), else the block kernel.
+    #[default]
+    Auto,
+    /// 8×8 blocks of C per invocation (`matmul`), on any device.
+    Block,
+    /// 32×16 tiles per 8-lane subgroup (`matmul_subgroup`), or 16×32 ones split by
+    /// column for at most 16 rows (`matmul_subgroup_cols`); an error on other devices.
+    Subgroup,
+}
+
+/// Operand bytes per chunk of a split reduction (about one core's L2), and the most
+/// scratch its partial results may take (see [`Gemm::split_chunk`]).
+const SPLIT_CHUNK_BYTES: usize = 1 << 20;
+const SPLIT_PARTIALS_BYTES: usize = 32 << 20;
+
+/// Shape of one (batched) product.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Matmul {
+    pub batch: usize,
+    pub m: usize,
+    pub n: usize,
+    pub k: usize,
+    /// A is stored `[k, m]` (per batch item) and used transposed.
+    pub trans_a: bool,
+    /// B is stored `[n, k]` and used transposed.
+    pub trans_b: bool,
+    /// A has no batch axis: the same matrix for every batch item.
+    pub shared_a: bool,
+    /// B has no batch axis.
+    pub shared_b: bool,
+    /// `C = op(A) · (op(B) + I)` (k = n): the identity's term, op(A) itself, is added in
+    /// the epilogue of the forward and dA products, saving a copy of A into C before an
+    /// accumulating product and an extra pass adding dC into dA. dB is unchanged.
+    pub plus_identity: bool,
+    /// The kernel for products of more than one row ([`Tiling::Auto`] unless a test or a
+    /// benchmark wants one).
+    pub tiling: Tiling,
+}
+
+/// A strided 2-D view with a batch stride (0 when shared).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct View {
+    pub(super) row: usize,
+    pub(super) col: usize,
+    pub(super) batch: usize,
+}
+
+impl View {
+    /// Logical `[rows, cols]`, stored row-major or (when `trans`) as its transpose.
+    fn of(rows: usize, cols: usize, trans: bool, batch: usize) -> View {
+        if trans {
+            View {
+                row: 1,
+                col: rows,
+                batch,
+            }
+        } else {
+            View {
+                row: cols,
+                col: 1,
+                batch,
+            }
+        }
+    }
+
+    fn t(self) -> View {
+        View {
+            row: self.col,
+            col: self.row,
+            batch: self.batch,
+        }
+    }
+}
+
+impl Matmul {
+    /// A single `[m, k] · [k, n]` product.
+    pub fn new(m: usize, n: usize, k: usize) -> Matmul {
+        Matmul {
+            batch: 1,
+            m,
+            n,
+            k,
+            trans_a: false,
+            trans_b: false,
+            shared_a: false,
+            shared_b: false,
+            plus_identity: false,
+            tiling: Tiling::Auto,
+        }
+    }
+
+    pub fn batched(self, batch: usize) -> Matmul {
+        Matmul { batch, ..self }
+    }
+
+    pub fn transpose_a(self, trans_a: bool) -> Matmul {
+        Matmul { trans_a, ..self }
+    }
+
+    pub fn transpose_b(self, trans_b: bool) -> Matmul {
+        Matmul { trans_b, ..self }
+    }
+
+    pub fn share_a(self, shared_a: bool) -> Matmul {
+        Matmul { shared_a, ..self }
+    }
+
+    pub fn share_b(self, shared_b: bool) -> Matmul {
+        Matmul { shared_b, ..self }
+    }
+
+    pub fn plus_identity(self, plus_identity: bool) -> Matmul {
+        Matmul {
+            plus_identity,
+            ..self
+        }
+    }
+
+    pub fn tiling(self, tiling: Tiling) -> Matmul {
+        Matmul { tiling, ..self }
+    }
+
+    /// `plus_identity` needs a square op(B) of more than one row, and dA per batch item
+    /// (a shared A's gradient would need the batch sum of dC as well).
+    pub(super) fn check_identity(&self, tensor: &Tensor) -> Result<(), GpuError> {
+        if self.plus_identity && (self.k != self.n || self.n < 2 || self.shared_a) {
+            return Err(GpuError::Shape {
+                tensor: tensor.name().to_string(),
+                expected: "a square op(B) (k = n > 1) and an unshared A for op(A)·(op(B) + I)"
+                    .into(),
+                got: format!("{self:?}"),
+            });
+        }
+        Ok(())
+    }
+
+    pub fn a_len(&self) -> usize {
+        self.m * self.k * if self.shared_a { 1 } else { self.batch }
+    }
+
+    pub fn b_len(&self) -> usize {
+        self.k * self.n * if self.shared_b { 1 } else { self.batch }
+    }
+
+    pub fn c_len(&self) -> usize {
+        self.batch * self.m * self.n
+    }
+
+    /// Multiply-adds counted twice, as usual for GFLOP/s.
+    pub fn flops(&self) -> f64 {
+        2.0 * (self.batch * self.m * self.n * self.k) as f64
+    }
+
+    fn view_a(&self) -> View {
+        let stride = if self.shared_a { 0 } else { self.m * self.k };
+        View::of(self.m, self.k, self.trans_a, stride)
+    }
+
+    fn view_b(&self) -> View {
+        let stride = if self.shared_b { 0 } else { self.k * self.n };
+        View::of(self.k, self.n, self.trans_b, stride)
+    }
+
+    fn view_c(&self) -> View {
+        View::of(self.m, self.n, false, self.m * self.n)
+    }
+
+    pub(super) fn forward_gemm(&self) -> Gemm {
+        Gemm {
+            m: self.m,
+            n: self.n,
+            k: self.k,
+            lhs: self.view_a(),
+            rhs: self.view_b(),
+            out_shared: false,
+            batch: self.batch,
+            plus: self.identity_on(Plus::Lhs),
+            tiling: self.tiling,
+        }
+    }
+
+    /// The operand a product's epilogue adds for `plus_identity`: `side`, or none.
+    fn identity_on(&self, side: Plus) -> Plus {
+        if self.plus_identity {
+            side
+        } else {
+            Plus::None
+        }
+    }
+
+    /// The product giving dA, and whether its left operand is B (else dC).
+    pub(super) fn backward_a_gemm(&self) -> (Gemm, bool) {
+        let (dcv, bv) = (self.view_c(), self.view_b());
+        // op(A) grad = dC · op(B)ᵀ, stored as its transpose when A is; with the identity,
+        // dC · (op(B) + I)ᵀ adds dC itself (the operand beside op(B)).
+        if self.trans_a {
+            let gemm = Gemm {
+                m: self.k,
+                n: self.m,
+                k: self.n,
+                lhs: bv,
+                rhs: dcv.t(),
+                out_shared: self.shared_a,
+                batch: self.batch,
+                plus: self.identity_on(Plus::Rhs),
+                tiling: self.tiling,
+            };
+            (gemm, true)
+        } else {
+            let gemm = Gemm {
+                m: self.m,
+                n: self.k,
+                k: self.n,
+                lhs: dcv,
+                rhs: bv.t(),
+                out_shared: self.shared_a,
+                batch: self.batch,
+                plus: self.identity_on(Plus::Lhs),
+                tiling: self.tiling,
+            };
+            (gemm, false)
+        }
+    }
+
+    /// The product giving dB, and whether its left operand is dC (else A).
+    pub(super) fn backward_b_gemm(&self) -> (Gemm, bool) {
+        let (av, dcv) = (self.view_a(), self.view_c());
+        // op(B) grad = op(A)ᵀ · dC, stored as its transpose when B is.
+        if self.trans_b {
+            let gemm = Gemm {
+                m: self.n,
+                n: self.k,
+                k: self.m,
+                lhs: dcv.t(),
+                rhs: av,
+                out_shared: self.shared_b,
+                batch: self.batch,
+                plus: Plus::None,
+                tiling: self.tiling,
+            };
+            (gemm, true)
+        } else {
+            let gemm = Gemm {
+                m: self.k,
+                n: self.n,
+                k: self.m,
+                lhs: av.t(),
+                rhs: dcv,
+                out_shared: self.shared_b,
+                batch: self.batch,
+                plus: Plus::None,
+                tiling: self.tiling,
+            };
+            (gemm, false)
+        }
+    }
+}
+
+/// One launch of the kernel: `out[m, n] = lhs[m, k] · rhs[k, n]` over strided views.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Gemm {
+    pub(super) m: usize,
+    pub(super) n: usize,
+    pub(super) k: usize,
+    pub(super) lhs: View,
+    pub(super) rhs: View,
+    /// The output has no batch axis: sum the products of all batch items into it.
+    pub(super) out_shared: bool,
+    pub(super) batch: usize,
+    /// An operand added to the product in the epilogue (never with `out_shared`).
+    pub(super) plus: Plus,
+    pub(super) tiling: Tiling,
+}
+
+/// Which operand, if any, the epilogue adds to C: `lhs · (rhs + I)` adds element (i, j)
+/// of lhs (k = n), `(lhs + I) · rhs` adds element (i, j) of rhs (k = m).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Plus {
+    None,
+    Lhs,
+    Rhs,
+}
+
+impl Plus {
+    /// The value of `matmul.wgsl`'s PLUS_I.
+    pub(super) fn mode(self) -> u8 {
+        match self {
+            Plus::None => 0,
+            Plus::Lhs => 1,
+            Plus::Rhs => 2,
+        }
+    }
+
+    /// The same term after the operands are swapped and transposed.
+    fn swapped(self) -> Plus {
+        match self {
+            Plus::None => Plus::None,
+            Plus::Lhs => Plus::Rhs,
+            Plus::Rhs => Plus::Lhs,
+        }
+    }
+}
+
+impl Gemm {
+    /// A product with one output column is the product with one output row of the
+    /// transposed views (`Cᵀ = op(B)ᵀ · op(A)ᵀ`, the same memory since C is a vector per
+    /// batch item), which the row kernel computes without wasting 7/8 of an 8×8 block.
+    pub(super) fn canonical(self) -> (Gemm, bool) {
+        if self.n == 1 && self.m > 1 {
+            let t = Gemm {
+                m: 1,
+                n: self.m,
+                k: self.k,
+                lhs: self.rhs.t(),
+                rhs: self.lhs.t(),
+                plus: self.plus.swapped(),
+                ..self
+            };
+            (t, true)
+        } else {
+            (self, false)
+        }
+    }
+
+    /// Vector loads for each operand that allows them: contiguous along one axis, with
+    /// that axis (where blocks read it unclamped), the other stride and the batch stride
+    /// multiples of 4, so every vector starts on a 16-byte boundary. Loads within the
+    /// k-loop step by 4 from there; a ragged K ends in scalar loads.
+    pub(super) fn loads(&self) -> Loads {
+        let aligned = |xs: &[usize]| xs.iter().all(|x| x % 4 == 0);
+        let (l, r) = (self.lhs, self.rhs);
+        // One row reads no row stride.
+        let a_k = l.col == 1 && aligned(&[l.batch]) && (self.m == 1 || aligned(&[l.row]));
+        let a_m = self.m > 1 && l.row == 1 && aligned(&[l.batch, l.col, self.m]);
+        let b_n = r.col == 1 && aligned(&[r.batch, r.row, self.n]);
+        let b_k = r.row == 1 && aligned(&[r.batch, r.col]);
+        Loads {
+            a_vec: a_k || a_m,
+            a_along_k: !a_m,
+            b_vec: b_n || b_k,
+            b_along_n: !b_k,
+        }
+    }
+
+    /// Reduction items per chunk when a batch-summed product (a weight gradient) is better
+    /// split: each chunk's sum goes to its own slice of a scratch buffer, and a second
+    /// launch adds the slices in order. A single launch sweeps all items in every
+    /// invocation, so each item's operands stream from memory again for every block of C
+    /// (the paper's conv weight gradient ran at 0.6 of the best matmul). Chunks whose
+    /// operands fit in one core's L2 let the blocks of C that run together share them:
+    /// 1.8× on that product (7.7 → 14–15.7 GFLOP/s, best with ~1 MiB chunks).
+    pub(super) fn split_chunk(&self, reduce: usize) -> Option<usize> {
+        if !self.out_shared || self.m == 1 {
+            return None;
+        }
+        let item_bytes = 4 * self.k * (self.m + self.n);
+        let partial_bytes = 4 * self.m * self.n;
+        let chunk = (SPLIT_CHUNK_BYTES / item_bytes)
+            .max(1)
+            .max((reduce * partial_bytes).div_ceil(SPLIT_PARTIALS_BYTES));
+        (chunk < reduce).then_some(chunk)
+    }
+}
+
+/// The kernel entry and load modes `matmul.wgsl` uses for `mm`'s forward, dA and dB
+/// products (in that order), for tests and profiles. The entry is the portable one
+/// (`matmul` or `matmul_row`); on a device with 8-lane subgroups a product named
+/// `matmul` runs on a subgroup kernel instead, with the same load modes.
+pub fn plan(mm: &Matmul) -> [(&'static str, Loads); 3] {
+    let describe = |g: Gemm| {
+        let (g, _) = g.canonical();
+        (if g.m == 1 { "matmul_row" } else { "matmul" }, g.loads())
+    };
+    [
+        describe(mm.forward_gemm()),
+        describe(mm.backward_a_gemm().0),
+        describe(mm.backward_b_gemm().0),
+    ]
+}
