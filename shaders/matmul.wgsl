@@ -1,4 +1,4 @@
-// Batched matrix multiply, the workhorse of every layer (Rust side: src/ops/matmul.rs).
+// Batched matrix multiply, the workhorse of every layer (Rust side: src/ops/matmul/).
 //
 //   C[z] = alpha * sum_r op(A)[z, r] . op(B)[z, r]   (+ bias) (+ C[z] when accumulate = 1)
 //   then optionally C[z] = max(0, C[z]); with PLUS_I, one operand has an identity added
@@ -7,7 +7,7 @@
 // Operands are strided views, so one kernel covers every transpose: element (i, kk) of
 // op(A) is a[z*a_batch + r*a_reduce + i*a_row + kk*a_col], element (kk, j) of op(B) is
 // b[z*b_batch + r*b_reduce + kk*b_row + j*b_col]; C is contiguous [M, N] per batch.
-// The backward pass is this kernel again on transposed views (see ops/matmul.rs), and
+// The backward pass is this kernel again on transposed views (see ops/matmul/), and
 // `reduce` sums over a batch axis when a shared operand's gradient is wanted.
 //
 // Each invocation of `matmul` computes an 8x8 block of C in registers (register blocking
@@ -16,7 +16,7 @@
 // products with a single output row (the host turns a single column into one), computes
 // four outputs of that row. Loads: an operand contiguous along one axis whose strides are
 // multiples of 4 is read four floats at a time (override constants below, chosen per
-// operand by ops/matmul.rs), any other through scalar loads; a K that is not a multiple
+// operand by ops/matmul/), any other through scalar loads; a K that is not a multiple
 // of 4 ends in a scalar tail. Stores (with the epilogue) go four floats at a time when N
 // is a multiple of 4 (C_VEC): 1.05-1.24x on the model's products, most on small K.
 
@@ -250,7 +250,7 @@ fn vec_start(i0: u32, len: u32) -> u32 {
     return min(i0, len - 4u);
 }
 
-// Workgroup shape, chosen per product by ops/matmul.rs: 8x8x1 (64x64 outputs) in general,
+// Workgroup shape, chosen per product by ops/matmul/: 8x8x1 (64x64 outputs) in general,
 // flatter when M is small, and spanning several batch items when each item's C is small.
 override GROUP_X: u32 = 8u;
 override GROUP_Y: u32 = 8u;

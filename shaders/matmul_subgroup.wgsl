@@ -1,5 +1,5 @@
 // The matmul with operand loads shared across a subgroup's lanes (Rust side:
-// src/ops/matmul.rs), for devices whose subgroups have 8 lanes (lavapipe on 256-bit
+// src/ops/matmul/), for devices whose subgroups have 8 lanes (lavapipe on 256-bit
 // vectors). Compiled after matmul.wgsl: same parameters, bindings, load modes and
 // epilogue, and the same terms added in the same order as its `matmul` (the compiler's
 // multiply-add fusion may still differ, so the last bits can).

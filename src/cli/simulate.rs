@@ -78,6 +78,11 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     let kind: PathKind = args.trajectory.parse().map_err(anyhow::Error::msg)?;
+    anyhow::ensure!(
+        args.minutes.is_finite() && args.minutes > 0.0,
+        "--minutes must be positive, got {}",
+        args.minutes
+    );
     let params = PathParams {
         rotation_deg: args.rotation,
         reverse: args.reverse,

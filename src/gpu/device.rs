@@ -123,7 +123,7 @@ impl Gpu {
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("iastgcn"),
             // Subgroup operations where offered: the matmul's lavapipe kernel shares
-            // operand loads across a subgroup's lanes (ops/matmul.rs picks it).
+            // operand loads across a subgroup's lanes (ops/matmul/plan.rs picks it).
             required_features: wanted_features,
             // wgpu's defaults are far below what compute needs (256 MiB buffers, 16 KiB
             // workgroup memory); ask for everything the adapter offers.

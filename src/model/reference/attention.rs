@@ -1,8 +1,25 @@
 //! Steps 1–2: the temporal attention (eq. 35–37) and the spatial attention (eq. 32–34),
 //! with the softmaxes and the score gate their backward passes share.
 
-use super::block::{SpatialParams, TemporalParams};
 use super::{axpy, dot, row, row_mut, sigmoid, Dims, Grads, SpatialAttention, TemporalAttention};
+
+/// The temporal attention's parameters of one block (U1, U2, U3, be, Ve).
+pub(super) struct TemporalParams<'a> {
+    pub(super) u1: &'a [f64],
+    pub(super) u2: &'a [f64],
+    pub(super) u3: &'a [f64],
+    pub(super) be: &'a [f64],
+    pub(super) ve: &'a [f64],
+}
+
+/// The spatial attention's parameters of one block (W1, W2, W3, bs, Vs).
+pub(super) struct SpatialParams<'a> {
+    pub(super) w1: &'a [f64],
+    pub(super) w2: &'a [f64],
+    pub(super) w3: &'a [f64],
+    pub(super) bs: &'a [f64],
+    pub(super) vs: &'a [f64],
+}
 
 // ---------------------------------------------------------------------------------------
 // Softmaxes of the attention steps.

@@ -7,83 +7,9 @@ use super::attention::{
 use super::causal_conv::{causal_conv, temporal_conv_backward, temporal_output};
 use super::graph_conv::{graph_conv, graph_conv_backward, graph_kernel};
 use super::norm::{layer_norm, layer_norm_backward, residual, residual_backward};
-use super::{axpy, BlockTape, Dims, DropoutStep, Grads, Table};
+use super::{axpy, BlockParams, BlockTape, Dims, DropoutStep, Grads};
 use crate::model::ModelConfig;
 use crate::ops::dropout::keep;
-
-pub(super) struct TemporalParams<'a> {
-    pub(super) u1: &'a [f64],
-    pub(super) u2: &'a [f64],
-    pub(super) u3: &'a [f64],
-    pub(super) be: &'a [f64],
-    pub(super) ve: &'a [f64],
-}
-
-pub(super) struct SpatialParams<'a> {
-    pub(super) w1: &'a [f64],
-    pub(super) w2: &'a [f64],
-    pub(super) w3: &'a [f64],
-    pub(super) bs: &'a [f64],
-    pub(super) vs: &'a [f64],
-}
-
-/// The parameters of block `l`.
-pub(super) struct BlockParams<'a> {
-    pub(super) prefix: String,
-    pub(super) temporal: Option<TemporalParams<'a>>,
-    pub(super) spatial: Option<SpatialParams<'a>>,
-    pub(super) theta: &'a [f64],
-    pub(super) w: &'a [f64],
-    pub(super) filter_weight: &'a [f64],
-    pub(super) filter_bias: &'a [f64],
-    /// (weight, bias) of the gate; `None` in `iastgcn-t`.
-    pub(super) gate: Option<(&'a [f64], &'a [f64])>,
-    pub(super) res_weight: &'a [f64],
-    pub(super) res_bias: &'a [f64],
-    pub(super) gamma: &'a [f64],
-    pub(super) beta: &'a [f64],
-}
-
-impl<'a> BlockParams<'a> {
-    pub(super) fn new(table: &Table<'a>, config: &ModelConfig, l: usize) -> BlockParams<'a> {
-        let prefix = format!("blocks.{l}");
-        let p = |s: &str| table.get(&format!("{prefix}.{s}"));
-        let attention = config.variant.attention();
-        BlockParams {
-            temporal: attention.then(|| TemporalParams {
-                u1: p("tat.U1"),
-                u2: p("tat.U2"),
-                u3: p("tat.U3"),
-                be: p("tat.be"),
-                ve: p("tat.Ve"),
-            }),
-            spatial: attention.then(|| SpatialParams {
-                w1: p("sat.W1"),
-                w2: p("sat.W2"),
-                w3: p("sat.W3"),
-                bs: p("sat.bs"),
-                vs: p("sat.Vs"),
-            }),
-            theta: p("gwc.theta"),
-            w: p("gwc.W"),
-            filter_weight: p("tcn.filter.weight"),
-            filter_bias: p("tcn.filter.bias"),
-            gate: config
-                .variant
-                .gated()
-                .then(|| (p("tcn.gate.weight"), p("tcn.gate.bias"))),
-            res_weight: p("res.weight"),
-            res_bias: p("res.bias"),
-            gamma: p("ln.gamma"),
-            beta: p("ln.beta"),
-            prefix,
-        }
-    }
-
-    pub(super) fn name(&self, s: &str) -> String {
-        format!("{}.{s}", self.prefix)
-    }
-}
 
 /// Forward of block `l` on its input `x` `[B,N,C_in,T]`.
 #[allow(clippy::too_many_arguments)]

@@ -1,8 +1,7 @@
 //! Step 4: the gated dilated causal convolution (eq. 30–31), also the plain one of
 //! `iastgcn-t`.
 
-use super::block::BlockParams;
-use super::{axpy, dot, row, row_mut, sigmoid, Dims, Grads};
+use super::{axpy, dot, row, row_mut, sigmoid, BlockParams, Dims, Grads};
 
 /// G[b,n,o,t] = bias[o] + Σ_c Σ_k weight[o,c,k]·Z[b,n,c,t − dil·k] (zero before t = 0).
 pub(super) fn causal_conv(

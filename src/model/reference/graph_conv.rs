@@ -1,7 +1,6 @@
 //! Step 3: the graph convolution (eq. 29; Chebyshev basis in `iastgcn-s`).
 
-use super::block::BlockParams;
-use super::{axpy, dot, row, row_mut, Dims, Grads};
+use super::{axpy, dot, row, row_mut, BlockParams, Dims, Grads};
 
 /// Ψ[i,j] = Σ_k θ_k·basis[k,i,j].
 pub(super) fn graph_kernel(nn: usize, basis: &[f64], theta: &[f64]) -> Vec<f64> {

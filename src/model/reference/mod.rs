@@ -24,7 +24,8 @@ mod norm;
 
 use super::{ModelConfig, ParamSpec};
 use crate::ops::dropout::Dropout;
-use block::{block_backward, block_forward, BlockParams};
+use attention::{SpatialParams, TemporalParams};
+use block::{block_backward, block_forward};
 use head::{head, head_backward, output_weight};
 
 /// The dropout of one training step (docs/model.md step 7). Block `l` draws its mask from
@@ -412,4 +413,62 @@ pub fn backward(
         }
     }
     (grads.values, dy)
+}
+
+/// The parameters of block `l`.
+struct BlockParams<'a> {
+    prefix: String,
+    temporal: Option<TemporalParams<'a>>,
+    spatial: Option<SpatialParams<'a>>,
+    theta: &'a [f64],
+    w: &'a [f64],
+    filter_weight: &'a [f64],
+    filter_bias: &'a [f64],
+    /// (weight, bias) of the gate; `None` in `iastgcn-t`.
+    gate: Option<(&'a [f64], &'a [f64])>,
+    res_weight: &'a [f64],
+    res_bias: &'a [f64],
+    gamma: &'a [f64],
+    beta: &'a [f64],
+}
+
+impl<'a> BlockParams<'a> {
+    fn new(table: &Table<'a>, config: &ModelConfig, l: usize) -> BlockParams<'a> {
+        let prefix = format!("blocks.{l}");
+        let p = |s: &str| table.get(&format!("{prefix}.{s}"));
+        let attention = config.variant.attention();
+        BlockParams {
+            temporal: attention.then(|| TemporalParams {
+                u1: p("tat.U1"),
+                u2: p("tat.U2"),
+                u3: p("tat.U3"),
+                be: p("tat.be"),
+                ve: p("tat.Ve"),
+            }),
+            spatial: attention.then(|| SpatialParams {
+                w1: p("sat.W1"),
+                w2: p("sat.W2"),
+                w3: p("sat.W3"),
+                bs: p("sat.bs"),
+                vs: p("sat.Vs"),
+            }),
+            theta: p("gwc.theta"),
+            w: p("gwc.W"),
+            filter_weight: p("tcn.filter.weight"),
+            filter_bias: p("tcn.filter.bias"),
+            gate: config
+                .variant
+                .gated()
+                .then(|| (p("tcn.gate.weight"), p("tcn.gate.bias"))),
+            res_weight: p("res.weight"),
+            res_bias: p("res.bias"),
+            gamma: p("ln.gamma"),
+            beta: p("ln.beta"),
+            prefix,
+        }
+    }
+
+    fn name(&self, s: &str) -> String {
+        format!("{}.{s}", self.prefix)
+    }
 }

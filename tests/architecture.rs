@@ -1,0 +1,371 @@
+//! The module graph of docs/architecture.md, checked on the source: every top-level
+//! module imports only what its row of the table allows, no two files of one folder
+//! import each other in a cycle, and nothing in the library uses `anyhow` (the binary's
+//! alone). Reads `src/` as text; needs no build of anything else and no GPU.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::fs;
+use std::path::{Path, PathBuf};
+
+/// What each top-level module may import (docs/architecture.md "Modules"). `error` is
+/// the one exception to the pipeline's direction: it names every module's error type so
+/// that a pipeline call returns one error, and every module may return it.
+const ALLOWED: &[(&str, &[&str])] = &[
+    ("atomic", &[]),
+    ("stats", &[]),
+    ("plot", &[]),
+    ("progress", &[]),
+    ("gpu", &[]),
+    ("graph", &[]),
+    ("robot", &[]),
+    ("ops", &["gpu"]),
+    ("testing", &["gpu", "ops", "error"]),
+    ("twin", &["robot", "atomic"]),
+    ("calibrate", &["robot", "atomic"]),
+    ("model", &["gpu", "ops", "graph", "atomic", "error"]),
+    (
+        "data",
+        &[
+            "robot",
+            "twin",
+            "calibrate",
+            "graph",
+            "plot",
+            "progress",
+            "atomic",
+            "error",
+        ],
+    ),
+    (
+        "train",
+        &[
+            "data", "model", "ops", "gpu", "graph", "plot", "progress", "atomic", "error", "stats",
+        ],
+    ),
+    (
+        "compensate",
+        &[
+            "twin",
+            "calibrate",
+            "data",
+            "train",
+            "model",
+            "gpu",
+            "graph",
+            "robot",
+            "plot",
+            "progress",
+            "stats",
+            "atomic",
+            "error",
+        ],
+    ),
+    (
+        "error",
+        &[
+            "gpu",
+            "robot",
+            "calibrate",
+            "data",
+            "graph",
+            "model",
+            "train",
+            "plot",
+            "atomic",
+        ],
+    ),
+];
+
+/// The rules docs/architecture.md states as "never", checked on their own so that a
+/// change to the table above cannot quietly drop them.
+const NEVER: &[(&str, &[&str])] = &[
+    (
+        "gpu",
+        &[
+            "robot",
+            "twin",
+            "calibrate",
+            "data",
+            "model",
+            "train",
+            "compensate",
+        ],
+    ),
+    (
+        "ops",
+        &[
+            "robot",
+            "twin",
+            "calibrate",
+            "data",
+            "model",
+            "train",
+            "compensate",
+        ],
+    ),
+    (
+        "robot",
+        &["gpu", "ops", "model", "train", "data", "compensate"],
+    ),
+    (
+        "twin",
+        &[
+            "gpu",
+            "ops",
+            "model",
+            "train",
+            "calibrate",
+            "data",
+            "compensate",
+        ],
+    ),
+    (
+        "calibrate",
+        &["gpu", "ops", "model", "train", "data", "compensate"],
+    ),
+];
+
+fn src() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("src")
+}
+
+/// Every `.rs` file under `dir` (or `dir` itself when it is a file).
+fn rust_files(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    if dir.is_file() {
+        out.push(dir.to_path_buf());
+    } else if let Ok(entries) = fs::read_dir(dir) {
+        for e in entries.flatten() {
+            out.extend(rust_files(&e.path()));
+        }
+    }
+    out.retain(|p| p.extension().is_some_and(|x| x == "rs"));
+    out.sort();
+    out
+}
+
+/// The code of a file without its comments (doc links are not imports).
+fn code(path: &Path) -> String {
+    let text = fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    text.lines()
+        .map(|l| l.split("//").next().unwrap_or(""))
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// The identifiers that follow `prefix` (`crate::`, `super::`) in `code`.
+fn paths_after(code: &str, prefix: &str) -> BTreeSet<String> {
+    code.match_indices(prefix)
+        .filter(|(i, _)| {
+            // A whole path segment: not `xcrate::` or `a::super::`.
+            !code[..*i].ends_with(|c: char| c.is_alphanumeric() || c == '_' || c == ':')
+        })
+        .map(|(i, _)| {
+            code[i + prefix.len()..]
+                .chars()
+                .take_while(|c| c.is_alphanumeric() || *c == '_')
+                .collect()
+        })
+        .filter(|s: &String| !s.is_empty())
+        .collect()
+}
+
+/// Top-level modules of the library (as `lib.rs` declares them) and what each imports.
+fn module_imports() -> BTreeMap<String, BTreeSet<String>> {
+    let lib = code(&src().join("lib.rs"));
+    let mut out = BTreeMap::new();
+    for line in lib.lines() {
+        let Some(name) = line.trim().strip_prefix("pub mod ") else {
+            continue;
+        };
+        let name = name.trim_end_matches(';').to_string();
+        let (dir, file) = (src().join(&name), src().join(format!("{name}.rs")));
+        let files = if dir.is_dir() {
+            rust_files(&dir)
+        } else {
+            vec![file]
+        };
+        let mut imports = BTreeSet::new();
+        for f in files {
+            imports.extend(paths_after(&code(&f), "crate::"));
+        }
+        imports.remove(&name);
+        out.insert(name, imports);
+    }
+    out
+}
+
+#[test]
+fn every_module_imports_only_what_the_architecture_allows() {
+    let modules = module_imports();
+    let allowed: BTreeMap<&str, &[&str]> = ALLOWED.iter().copied().collect();
+    let mut wrong = Vec::new();
+    for (module, imports) in &modules {
+        let Some(ok) = allowed.get(module.as_str()) else {
+            wrong.push(format!("{module}: not in docs/architecture.md's table"));
+            continue;
+        };
+        for i in imports {
+            if !ok.contains(&i.as_str()) {
+                wrong.push(format!("{module} imports {i}"));
+            }
+        }
+    }
+    for (module, never) in NEVER {
+        for i in modules.get(*module).into_iter().flatten() {
+            if never.contains(&i.as_str()) {
+                wrong.push(format!("{module} imports {i}, which it must never do"));
+            }
+        }
+    }
+    assert!(
+        wrong.is_empty(),
+        "imports against the architecture:\n{}",
+        wrong.join("\n")
+    );
+    // The table and the code name the same modules, so the check covers the whole crate.
+    for (module, _) in ALLOWED {
+        assert!(
+            modules.contains_key(*module),
+            "{module} is in the table but not in lib.rs"
+        );
+    }
+}
+
+/// Edges between sibling files of one folder: `super::x` and `crate::m::x` where `x` is
+/// a file (or folder) next to the importing one.
+fn sibling_edges(dir: &Path, module_path: &str) -> Vec<(String, String)> {
+    let siblings: BTreeSet<String> = fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|e| {
+            let p = e.path();
+            let stem = p.file_stem()?.to_string_lossy().into_owned();
+            (p.is_dir() || p.extension().is_some_and(|x| x == "rs")).then_some(stem)
+        })
+        .filter(|s| s != "mod")
+        .collect();
+    let mut edges = Vec::new();
+    for s in &siblings {
+        let (file, sub) = (dir.join(format!("{s}.rs")), dir.join(s));
+        let files = if sub.is_dir() {
+            rust_files(&sub)
+        } else {
+            vec![file]
+        };
+        let in_folder = sub.is_dir();
+        for f in files {
+            let text = code(&f);
+            // From a file of a sub-folder, `super::` is that sub-folder, not this one.
+            let direct = f.parent() == Some(dir);
+            let mut targets = if direct && !in_folder {
+                paths_after(&text, "super::")
+            } else {
+                BTreeSet::new()
+            };
+            if !module_path.is_empty() {
+                targets.extend(paths_after(&text, &format!("crate::{module_path}::")));
+            }
+            for t in targets {
+                if &t != s && siblings.contains(&t) {
+                    edges.push((s.clone(), t));
+                }
+            }
+        }
+    }
+    edges
+}
+
+/// A cycle in `edges`, if there is one.
+fn find_cycle(edges: &[(String, String)]) -> Option<Vec<String>> {
+    let mut next: BTreeMap<&str, Vec<&str>> = BTreeMap::new();
+    for (a, b) in edges {
+        next.entry(a).or_default().push(b);
+    }
+    fn walk<'a>(
+        at: &'a str,
+        next: &BTreeMap<&'a str, Vec<&'a str>>,
+        stack: &mut Vec<&'a str>,
+        done: &mut BTreeSet<&'a str>,
+    ) -> Option<Vec<String>> {
+        if let Some(i) = stack.iter().position(|s| *s == at) {
+            let mut cycle: Vec<String> = stack[i..].iter().map(|s| s.to_string()).collect();
+            cycle.push(at.to_string());
+            return Some(cycle);
+        }
+        if !done.insert(at) {
+            return None;
+        }
+        stack.push(at);
+        for n in next.get(at).into_iter().flatten() {
+            if let Some(c) = walk(n, next, stack, done) {
+                return Some(c);
+            }
+        }
+        stack.pop();
+        None
+    }
+    let mut done = BTreeSet::new();
+    for start in next.keys() {
+        if let Some(c) = walk(start, &next, &mut Vec::new(), &mut done) {
+            return Some(c);
+        }
+    }
+    None
+}
+
+/// Every folder under `src/` with its module path (`twin`, `twin::sources`).
+fn folders(dir: &Path, path: &str, out: &mut Vec<(PathBuf, String)>) {
+    out.push((dir.to_path_buf(), path.to_string()));
+    for e in fs::read_dir(dir).into_iter().flatten().flatten() {
+        let p = e.path();
+        if p.is_dir() {
+            let name = p.file_name().map(|n| n.to_string_lossy().into_owned());
+            let name = name.unwrap_or_default();
+            let sub = if path.is_empty() {
+                name
+            } else {
+                format!("{path}::{name}")
+            };
+            folders(&p, &sub, out);
+        }
+    }
+}
+
+#[test]
+fn no_two_files_of_a_folder_import_each_other_in_a_cycle() {
+    let mut all = Vec::new();
+    folders(&src(), "", &mut all);
+    let mut cycles = Vec::new();
+    for (dir, path) in &all {
+        // The crate root's files are the top-level modules, checked by the table above.
+        if path.is_empty() || path == "cli" {
+            continue;
+        }
+        if let Some(c) = find_cycle(&sibling_edges(dir, path)) {
+            cycles.push(format!("{path}: {}", c.join(" → ")));
+        }
+    }
+    assert!(cycles.is_empty(), "import cycles:\n{}", cycles.join("\n"));
+}
+
+#[test]
+fn the_cycle_check_finds_a_cycle_and_none_in_a_chain() {
+    let e = |a: &str, b: &str| (a.to_string(), b.to_string());
+    let cycle = find_cycle(&[e("simulate", "truth"), e("truth", "simulate")]);
+    assert_eq!(cycle.map(|c| c.len()), Some(3));
+    assert_eq!(find_cycle(&[e("a", "b"), e("b", "c"), e("a", "c")]), None);
+}
+
+#[test]
+fn the_library_leaves_anyhow_to_the_binary() {
+    let mut users = Vec::new();
+    for f in rust_files(&src()) {
+        let in_binary = f.starts_with(src().join("cli")) || f == src().join("main.rs");
+        if !in_binary && code(&f).contains("anyhow") {
+            users.push(f.display().to_string());
+        }
+    }
+    assert!(users.is_empty(), "library files using anyhow: {users:?}");
+}
