@@ -18,7 +18,7 @@ pub fn write(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     })
 }
 
-/// The temporary path beside `path` that [`write`] uses, for writers that need a path of
+/// The temporary path beside `path` that [`write()`] uses, for writers that need a path of
 /// their own (image encoders).
 pub fn temporary(path: &Path) -> PathBuf {
     let dir = path

@@ -76,7 +76,7 @@ impl Adam {
         }
     }
 
-    /// One update of `param` in place from `grad`, moments `m`, `v` (updated in place), reading lr and bias corrections from `hyper` [4].
+    /// One update of `param` in place from `grad`, moments `m`, `v` (updated in place), reading lr and bias corrections from `hyper` (4 floats).
     pub fn step(
         &self,
         gpu: &Gpu,

@@ -21,8 +21,8 @@ pub struct Machine {
 
 /// The dynamic state of a machine's non-geometric sources (temperatures, which side of
 /// its play each drive rests on, screw wear) and the session clock. It carries over from
-/// one run to the next of a session: [`Simulation::resume`] starts from it,
-/// [`Simulation::machine_state`] hands it on, [`MachineState::idle`] lets time pass.
+/// one run to the next of a session: [`Simulation::resume`](super::Simulation::resume) starts from it,
+/// [`Simulation::machine_state`](super::Simulation::machine_state) hands it on, [`MachineState::idle`] lets time pass.
 #[derive(Clone, Debug)]
 pub struct MachineState {
     lost_motion: Option<LostMotion>,

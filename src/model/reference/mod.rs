@@ -89,7 +89,7 @@ pub struct BlockTape {
     pub spatial: Option<SpatialAttention>,
     /// Step 3: Ψ = Σ_k θ_k basis_k `[N,N]`.
     pub psi: Vec<f64>,
-    /// Step 3: Q[b,j,o,t] = Σ_c X_s[b,j,c,t]·W[c,o] `[B,N,C,T]` (before the node mixing).
+    /// Step 3: `Q[b,j,o,t] = Σ_c X_s[b,j,c,t]·W[c,o]` `[B,N,C,T]` (before the node mixing).
     pub q: Vec<f64>,
     /// Step 3: Z = ReLU(Ψ·Q) `[B,N,C,T]`.
     pub z: Vec<f64>,
@@ -111,7 +111,7 @@ pub struct BlockTape {
 /// Step 1 intermediates (eq. 35–37).
 #[derive(Clone, Debug)]
 pub struct TemporalAttention {
-    /// Σ_n X[b,n,c,t]·U1[n], stored `[B,C_in,T]`.
+    /// `Σ_n X[b,n,c,t]·U1[n]`, stored `[B,C_in,T]`.
     pub xu1: Vec<f64>,
     /// lhs `[B,T,N]`.
     pub lhs: Vec<f64>,
@@ -130,11 +130,11 @@ pub struct TemporalAttention {
 /// Step 2 intermediates (eq. 32–34).
 #[derive(Clone, Debug)]
 pub struct SpatialAttention {
-    /// Σ_u X_t[b,n,c,u]·W1[u] `[B,N,C_in]`.
+    /// `Σ_u X_t[b,n,c,u]·W1[u]` `[B,N,C_in]`.
     pub xw1: Vec<f64>,
     /// lhs `[B,N,T]`.
     pub lhs: Vec<f64>,
-    /// rhs, stored transposed as `[B,N,T]` (rhs[b,t,m] of docs/model.md at `[b,m,t]`).
+    /// rhs, stored transposed as `[B,N,T]` (`rhs[b,t,m]` of docs/model.md at `[b,m,t]`).
     pub rhs: Vec<f64>,
     /// σ(P + bs) `[B,N,N]`.
     pub sig: Vec<f64>,
