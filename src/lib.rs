@@ -1,10 +1,32 @@
 //! IASTGCN: predicting the pose residual errors of an optical-polishing hybrid robot with
 //! an interpretable adaptive spatio-temporal graph network, trained on any GPU through
-//! WGSL compute shaders.
+//! WGSL compute shaders with hand-written backward passes.
 //!
-//! The pipeline, module by module: `gpu` (device, tensors, pipelines, recorder) →
-//! `ops` (WGSL kernels with forward/backward and f64 CPU references). Later stages
-//! (twin, calibrate, data, graph, model, train, compensate) build on these.
+//! The modules read as the pipeline (docs/architecture.md has the picture and the rules
+//! on who may import whom):
+//!
+//! - [`robot`] → [`twin`]: the robot's kinematics, and the digital twin that stands in for
+//!   it (hidden error sources, instruments, tracker, polishing paths);
+//! - [`calibrate`]: geometric calibration with a graded EKF;
+//! - [`data`]: recordings, features, labels, windows and leakage-free splits;
+//! - [`model`] on [`ops`] on [`gpu`]: the network as WGSL kernels, its f64 reference,
+//!   checkpoints and the embeddable [`model::Predictor`];
+//! - [`train`]: training, refinement and prediction on recordings;
+//! - [`compensate`]: online compensation in the twin, Tables III and V, the demo.
+//!
+//! Long calls report through a [`progress::Reporter`] and return [`error::Result`].
+//!
+//! ```no_run
+//! use iastgcn::{data::DataSources, gpu::Gpu, progress::Silent, train};
+//!
+//! let sources = DataSources::new(vec!["grid.csv".into()], "calibration.toml".into());
+//! let config = train::RunConfig::demo();
+//! let (graph, data) = train::build_dataset(&sources, &config, None)?;
+//! let out = std::path::Path::new("model.safetensors");
+//! let trained = train::train(&Gpu::new()?, &data, &graph, &config, out, None, &mut Silent)?;
+//! println!("best validation loss {}", trained.best_val);
+//! # Ok::<(), iastgcn::error::Error>(())
+//! ```
 
 pub mod atomic;
 pub mod calibrate;
