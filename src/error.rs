@@ -19,36 +19,51 @@ use crate::train::{ConfigError, StateError, TrainError};
 /// What stops a library call.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
+    /// The GPU: no adapter, a device or shader failure, a buffer too large.
     #[error(transparent)]
     Gpu(#[from] GpuError),
+    /// The robot model: a bad geometry asset, a pose outside the workspace, kinematics that fail.
     #[error(transparent)]
     Robot(#[from] RobotError),
+    /// The identification of the geometric errors.
     #[error(transparent)]
     Calibration(#[from] CalibrationError),
+    /// A calibration file that cannot be written or read.
     #[error(transparent)]
     CalibrationFile(#[from] CalibrationFileError),
+    /// A recording or calibration set that cannot be written or read.
     #[error(transparent)]
     Data(#[from] DataError),
+    /// Recordings that cannot be turned into a dataset.
     #[error(transparent)]
     Dataset(#[from] DatasetError),
+    /// A sensor graph asset that cannot be read or is invalid.
     #[error(transparent)]
     Graph(#[from] GraphError),
+    /// A model config or network that cannot be built or run.
     #[error(transparent)]
     Model(#[from] ModelError),
+    /// A checkpoint that cannot be written, read or trusted.
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
+    /// A run config that cannot be read or is invalid.
     #[error(transparent)]
     Config(#[from] ConfigError),
+    /// A training state that cannot be written, read or resumed.
     #[error(transparent)]
     State(#[from] StateError),
+    /// Training, refinement or prediction that cannot go on.
     #[error(transparent)]
     Train(#[from] TrainError),
+    /// A plot that cannot be drawn or written.
     #[error(transparent)]
     Plot(#[from] PlotError),
     /// A file that could not be written or read.
     #[error("{}: {source}", path.display())]
     Io {
+        /// The file.
         path: PathBuf,
+        /// What the operating system said.
         source: std::io::Error,
     },
     /// An argument or setting that cannot be used; the text names it and says why.
@@ -56,7 +71,12 @@ pub enum Error {
     Invalid(String),
     /// An error and where it happened (a run, a stage, a file).
     #[error("{context}: {source}")]
-    Context { context: String, source: Box<Error> },
+    Context {
+        /// Where it happened.
+        context: String,
+        /// What happened.
+        source: Box<Error>,
+    },
 }
 
 /// The library's result.
@@ -72,6 +92,14 @@ impl Error {
     }
 
     /// `self`, said to have happened in `context`.
+    ///
+    /// ```
+    /// use iastgcn::error::Error;
+    ///
+    /// let e = Error::Invalid("batch must be positive".into()).context("run config");
+    /// assert_eq!(e.to_string(), "run config: batch must be positive");
+    /// assert!(matches!(e.root(), Error::Invalid(_)));
+    /// ```
     pub fn context(self, context: impl Display) -> Error {
         Error::Context {
             context: context.to_string(),

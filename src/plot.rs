@@ -17,10 +17,13 @@ fn register_font() {
     });
 }
 
+/// A chart that could not be drawn or written.
 #[derive(Debug, thiserror::Error)]
 #[error("plot {file}: {message}")]
 pub struct PlotError {
+    /// The PNG's path.
     pub file: String,
+    /// What went wrong.
     pub message: String,
 }
 
@@ -44,8 +47,11 @@ pub const BAR_WIDTH: f64 = 0.8;
 /// One series of a chart: a line (the default), a scatter cloud or bars.
 #[derive(Clone, Debug)]
 pub struct Series {
+    /// The legend's label (and a bar's x-axis label).
     pub name: String,
+    /// `(x, y)` in the axes' units.
     pub points: Vec<(f64, f64)>,
+    /// How it is drawn.
     pub style: Style,
 }
 
@@ -100,9 +106,13 @@ impl Series {
 /// One chart: a title, axis labels and its lines.
 #[derive(Clone, Debug, Default)]
 pub struct Panel {
+    /// The chart's title.
     pub title: String,
+    /// The x axis's label, with its unit.
     pub x_label: String,
+    /// The y axis's label, with its unit.
     pub y_label: String,
+    /// The series drawn, in legend order.
     pub series: Vec<Series>,
     /// Same scale on both axes (for paths in a plane).
     pub equal_aspect: bool,

@@ -3,14 +3,27 @@
 /// Mean, standard deviation and maximum of a set of values.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Summary {
+    /// Arithmetic mean.
     pub mean: f64,
+    /// Population standard deviation (divided by the count).
     pub sd: f64,
+    /// Largest value.
     pub max: f64,
+    /// Number of values.
     pub count: usize,
 }
 
 impl Summary {
-    /// `None` for an empty set.
+    /// The summary of `values`, in their unit; `None` for an empty set.
+    ///
+    /// ```
+    /// use iastgcn::stats::Summary;
+    ///
+    /// let s = Summary::of(&[1.0, 2.0, 3.0, 6.0]).unwrap();
+    /// assert_eq!((s.mean, s.max, s.count), (3.0, 6.0, 4));
+    /// assert!((s.sd - 3.5f64.sqrt()).abs() < 1e-12);
+    /// assert!(Summary::of(&[]).is_none());
+    /// ```
     pub fn of(values: &[f64]) -> Option<Summary> {
         if values.is_empty() {
             return None;

@@ -10,10 +10,13 @@ use serde::{Deserialize, Serialize};
 use super::identify::Calibration;
 use crate::robot::{ErrorParams, N_PARAMS};
 
+/// A calibration file that cannot be written, read or trusted.
 #[derive(Debug, thiserror::Error)]
 #[error("{file}: {message}")]
 pub struct CalibrationFileError {
+    /// The file's path.
     pub file: String,
+    /// What is wrong, naming the field where it can.
     pub message: String,
 }
 
@@ -48,9 +51,14 @@ struct CalibrationFile {
 /// A calibration read back from its file.
 #[derive(Clone, Debug)]
 pub struct LoadedCalibration {
+    /// δX for every parameter (mm, rad): the controller's model is the nominal geometry
+    /// with these errors (eq. 18).
     pub errors: ErrorParams,
+    /// Names of the identified parameters.
     pub identified: Vec<String>,
+    /// Their posterior standard deviations (mm or rad), same order.
     pub sigma: Vec<f64>,
+    /// How many measurement poses the filter used.
     pub measurements: usize,
 }
 

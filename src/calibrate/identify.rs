@@ -15,7 +15,9 @@ use crate::robot::{ErrorParams, Joints, PlatformPose, Robot, RobotError};
 /// One calibration measurement: joint inputs and the tracker's pad pose (tracker frame).
 #[derive(Clone, Copy, Debug)]
 pub struct Measurement {
+    /// The commanded joint inputs (limb lengths mm, head angles rad).
     pub joints: Joints,
+    /// The tracker's pad pose, tracker frame.
     pub pose: Isometry3<f64>,
 }
 
@@ -24,17 +26,20 @@ pub struct Measurement {
 pub struct EkfConfig {
     /// Prior standard deviation of each parameter (mm or rad), in [`ErrorParams`] order.
     pub prior_sigma: Vec<f64>,
-    /// Measurement noise (one standard deviation per axis): position mm, attitude rad.
+    /// Measurement noise of the position, one standard deviation per axis, mm.
     pub noise_position: f64,
+    /// Measurement noise of the attitude, one standard deviation per axis, rad.
     pub noise_attitude: f64,
     /// Process noise variance per step (eq. 13); 0 for constant parameters.
     pub process_noise: f64,
     /// Termination threshold Γ of eq. 17, in mm / rad.
     pub gamma: f64,
+    /// Sweeps at most of the final joint stage.
     pub max_sweeps: usize,
-    /// Graded rounds (serial then parallel) at most, and sweeps per graded stage: the
-    /// graded pass only has to bring the joint stage close.
+    /// Graded rounds (serial then parallel) at most.
     pub max_rounds: usize,
+    /// Sweeps at most per graded stage: the graded pass only has to bring the joint stage
+    /// close.
     pub graded_sweeps: usize,
     /// A parameter is identifiable when its scaled column keeps at least this fraction of
     /// the largest column's norm after removing the already selected ones.
@@ -94,33 +99,57 @@ pub struct Calibration {
     pub stages: Vec<StageReport>,
 }
 
+/// How one EKF stage ended.
 #[derive(Clone, Debug)]
 pub struct StageReport {
+    /// `serial`, `parallel` or `joint`.
     pub name: &'static str,
+    /// The graded round, from 1 (the joint stage runs once, as round 1).
     pub round: usize,
+    /// How many parameters the stage identified.
     pub parameters: usize,
+    /// Sweeps used.
     pub sweeps: usize,
+    /// The final Γ of eq. 17, mm / rad.
     pub gamma: f64,
 }
 
+/// Why the identification failed.
 #[derive(Debug, thiserror::Error)]
 pub enum CalibrationError {
+    /// Forward kinematics failed at a measurement's joint inputs.
     #[error("{0}")]
     Kinematics(#[from] RobotError),
+    /// The measurement set cannot identify what a richer set could.
     #[error("{measurements} measurements are too few: the {stage} stage identifies only {rank} of {needed} parameters it could with a richer set (need at least {min} poses)")]
     TooFew {
+        /// `serial`, `parallel` or `joint`.
         stage: &'static str,
+        /// How many measurements were given.
         measurements: usize,
+        /// How many of the stage's parameters the set identifies.
         rank: usize,
+        /// How many parameters the stage has.
         needed: usize,
+        /// The fewest poses the identified parameters need.
         min: usize,
     },
+    /// A measurement holds a NaN or infinite value.
     #[error("measurement {index}: {what} is not finite")]
-    NonFinite { index: usize, what: &'static str },
+    NonFinite {
+        /// The measurement's index, from 0.
+        index: usize,
+        /// `a joint input` or `the measured pose`.
+        what: &'static str,
+    },
+    /// The filter's estimate blew up or its innovation covariance became singular.
     #[error("the EKF diverged in the {stage} stage at sweep {sweep}: {why}")]
     Diverged {
+        /// `serial`, `parallel` or `joint`.
         stage: &'static str,
+        /// The sweep it diverged in, from 1.
         sweep: usize,
+        /// What went wrong.
         why: String,
     },
 }

@@ -15,9 +15,11 @@ use crate::twin::{Machine, MachineState, SimConfig};
 /// One line of the budget.
 #[derive(Clone, Debug, PartialEq)]
 pub struct BudgetRow {
+    /// The group of sources switched on, in words.
     pub source: String,
-    /// RMS of the true pad position error, µm, and of the tool-axis angle, mdeg.
+    /// RMS of the true pad position error, µm.
     pub position_rms: f64,
+    /// RMS of the tool-axis angle error, mdeg.
     pub attitude_rms: f64,
     /// How fast the source changes, in words.
     pub time_scale: String,

@@ -21,8 +21,10 @@ use crate::robot::{Geometry, Robot};
 use crate::train::{self, build_dataset, core_stage, log, refine, run_stage, RunConfig, Trainer};
 use crate::twin::{draw_machine, PathKind, PathParams, RunInfo};
 
-/// Seeds of the demo's runs: every run has its own (written in its `.run.toml`).
+/// Seeds of the demo's runs: every run has its own (written in its `.run.toml`). This one
+/// is the calibration set's.
 pub const CALIBRATION_SEED: u64 = 101;
+/// Seed of the first training recording; the later ones count up from it.
 pub const TRAINING_SEED: u64 = 201;
 
 /// What the demo runs.

@@ -74,9 +74,13 @@ pub fn table_iii(
 /// machine's state after the run under the calibrated controller (to carry the session
 /// on with).
 pub struct HeldOutResult {
+    /// Table V rows: initial, calibrated, oracle, then one compensated row per model.
     pub rows: Vec<TableVRow>,
+    /// Fig. 11 traces: the calibrated run, then one per model.
     pub traces: Vec<Trace>,
+    /// Each model's name and its mean prediction latency, ms.
     pub latency: Vec<(String, f64)>,
+    /// The machine's state after the calibrated run.
     pub end: MachineState,
 }
 
@@ -203,8 +207,11 @@ impl Default for HeldOutConfig {
 /// (NaN when unknown).
 #[derive(Clone, Debug)]
 pub struct NamedModel {
+    /// The model's name in the tables.
     pub name: String,
+    /// Its weights, config, graph and normalisation.
     pub checkpoint: Checkpoint,
+    /// Mean wall time of a training epoch, s (NaN when unknown).
     pub epoch_seconds: f64,
 }
 

@@ -14,10 +14,15 @@ use crate::twin::{draw_machine, Machine, MachineState, PathKind, PathParams, Sim
 /// seed, and the machine's state when it starts (warm from the session's earlier runs).
 #[derive(Clone, Debug)]
 pub struct HeldOut {
+    /// The path.
     pub path: PathKind,
+    /// Its placement on the part (usually [`PathParams::held_out`]).
     pub params: PathParams,
+    /// Length of the run, s.
     pub seconds: f64,
+    /// Seed of the run.
     pub seed: u64,
+    /// The machine's state at the run's start.
     pub start: MachineState,
 }
 
@@ -75,9 +80,13 @@ pub struct RunSpec {
 /// A held-out run ready to go: the machine, both controllers, and the run itself
 /// (starting from the warmed-up machine).
 pub struct Prepared {
+    /// The twin's hidden-truth machine.
     pub machine: Machine,
+    /// The nominal controller (no calibration).
     pub nominal: Robot,
+    /// The controller with the calibration file's errors.
     pub calibrated: Robot,
+    /// The run, starting from the warmed-up machine.
     pub run: HeldOut,
 }
 

@@ -36,8 +36,9 @@ pub struct RunResult {
     pub end: MachineState,
     /// Per tracker sample: (t, ex, ey, ez) in µm, base frame.
     pub trace: Vec<(f64, f64, f64, f64)>,
-    /// Predictions made and their mean latency (ms); 0 without a model.
+    /// Predictions made; 0 without a model.
     pub predictions: usize,
+    /// Their mean latency, ms; 0 without a model.
     pub predict_ms: f64,
 }
 
@@ -63,7 +64,12 @@ pub enum Feedback<'p> {
     /// The floor: the true residual of the tick, fed back with a model's latency and rate
     /// (from the first tick a `window`-step model could predict, every `every` ticks,
     /// applied from the next tick on).
-    Oracle { window: usize, settings: Online },
+    Oracle {
+        /// The window length, ticks, of the model the oracle stands in for.
+        window: usize,
+        /// How often it predicts.
+        settings: Online,
+    },
 }
 
 /// Indices into the twin's [`CHANNELS`] of the graph's nodes.

@@ -16,32 +16,44 @@ pub const OUTPUTS: usize = 6;
 /// The joint-input channels the labels need.
 const JOINT_CHANNELS: [&str; 5] = ["Q1", "Q2", "Q3", "Q4", "Q5"];
 
+/// A recording that cannot be turned into a dataset (uneven clock, missing channel, no
+/// labelled window, ...).
 #[derive(Debug, thiserror::Error)]
 #[error("{file}: {message}")]
 pub struct DatasetError {
+    /// The recording's name, or `dataset` when the problem is not one recording's.
     pub file: String,
+    /// What is wrong, naming the line where it can.
     pub message: String,
 }
 
 /// Mean and standard deviation per (node, feature) and per label component.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Normalization {
-    /// `[N][F]`.
+    /// Feature means, `[N][F]` (r and D in the channel's unit, H dimensionless).
     pub feature_mean: Vec<[f64; FEATURES]>,
+    /// Feature standard deviations (population), `[N][F]`.
     pub feature_std: Vec<[f64; FEATURES]>,
+    /// Label means: dx, dy, dz (µm), rx, ry, rz (mdeg).
     pub label_mean: [f64; OUTPUTS],
+    /// Label standard deviations (population), µm and mdeg.
     pub label_std: [f64; OUTPUTS],
 }
 
 /// Windows, their tensors and splits.
 #[derive(Clone, Debug)]
 pub struct Dataset {
+    /// The graph's node names, in node order.
     pub nodes: Vec<String>,
+    /// The recordings' names, indexed by [`Window::recording`].
     pub recordings: Vec<String>,
+    /// Window length, stride and split fractions.
     pub window: WindowConfig,
+    /// How windows were assigned to splits.
     pub mode: SplitMode,
     /// Every window in `splits` order: train, then validation, then test.
     pub windows: Vec<Window>,
+    /// The same windows by split.
     pub splits: Splits,
     /// `[W, N, F, T]`, z-scored with the training statistics.
     pub x: Vec<f32>,
@@ -52,6 +64,7 @@ pub struct Dataset {
     /// `[W]` the tool axis (unit, base frame) at each window's end under the calibrated
     /// model: attitude errors are scored as the tilt of this axis (docs/twin.md "Scoring").
     pub axes: Vec<[f64; 3]>,
+    /// The statistics `x` and `y` were standardised with.
     pub normalization: Normalization,
 }
 

@@ -20,13 +20,24 @@ pub const JOINT_COLUMNS: [&str; 5] = ["q1", "q2", "q3", "q4", "q5"];
 /// What went wrong reading or writing a data file, and where.
 #[derive(Debug, thiserror::Error)]
 pub enum DataError {
+    /// A problem with the file as a whole (cannot be read, bad header, too short).
     #[error("{file}: {message}")]
-    File { file: String, message: String },
+    File {
+        /// The file's path.
+        file: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// A problem at one cell or line.
     #[error("{file}:{line}:{column}: {message}")]
     At {
+        /// The file's path.
         file: String,
+        /// The line, from 1 (the header is line 1).
         line: u64,
+        /// The header name of the cell at fault.
         column: String,
+        /// What is wrong.
         message: String,
     },
 }
@@ -67,6 +78,7 @@ pub fn expected_channels(nodes: &[String]) -> Vec<String> {
 /// One tick of a recording.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Row {
+    /// Run time, s.
     pub t: f64,
     /// One entry per [`Recording::channels`]; `None` where the sensor had no sample.
     pub values: Vec<Option<f64>>,
@@ -77,7 +89,9 @@ pub struct Row {
 /// A recording: channel names and rows in time order.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Recording {
+    /// The sensor column names, in file order (without `t` and the tracker's columns).
     pub channels: Vec<String>,
+    /// One row per control tick, in time order.
     pub rows: Vec<Row>,
 }
 
@@ -230,7 +244,10 @@ impl Recording {
 /// tracker's pose `[x, y, z, rx, ry, rz]`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CalibrationRow {
+    /// `q1`–`q3` (UPS limb lengths, mm), `q4`, `q5` (serial joint angles, deg).
     pub joints: [f64; 5],
+    /// The tracker's pad pose `[x, y, z]` (mm) and `[rx, ry, rz]` (rotation vector, rad),
+    /// tracker frame.
     pub pose: [f64; 6],
 }
 
@@ -264,6 +281,20 @@ pub fn read_calibration_set(path: &Path) -> Result<Vec<CalibrationRow>, DataErro
     parse_calibration_set(&text, &file)
 }
 
+/// Parses a calibration set's CSV text; `file` names the source in errors.
+///
+/// ```
+/// use iastgcn::data::recording::parse_calibration_set;
+///
+/// let text = "q1,q2,q3,q4,q5,x,y,z,rx,ry,rz\n\
+///             700,710,720,0,10,1500,-800,1100,3.1,0,0.5\n";
+/// let rows = parse_calibration_set(text, "cal.csv")?;
+/// assert_eq!(rows[0].joints, [700.0, 710.0, 720.0, 0.0, 10.0]);
+///
+/// let err = parse_calibration_set("q1,q2\n1,2\n", "bad.csv").unwrap_err();
+/// assert!(err.to_string().starts_with("bad.csv: the header must be"));
+/// # Ok::<(), iastgcn::data::DataError>(())
+/// ```
 pub fn parse_calibration_set(text: &str, file: &str) -> Result<Vec<CalibrationRow>, DataError> {
     let table = Table::parse(text, file)?;
     let expected: Vec<&str> = JOINT_COLUMNS

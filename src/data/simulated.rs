@@ -18,14 +18,21 @@ use crate::twin::{
 /// and a summary of the file.
 #[derive(Clone, Debug)]
 pub struct RecordedRun {
+    /// The machine's state at the end of the run.
     pub end: MachineState,
+    /// The run's provenance, as written to its `.run.toml` sidecar.
     pub info: RunInfo,
+    /// Rows written (control ticks).
     pub rows: usize,
+    /// Rows with a tracker measurement.
     pub tracker_samples: usize,
-    /// The hidden truth, not in the file: mean tool position (mm) and attitude (deg)
-    /// error in the frame the part was located in.
+    /// The hidden truth, not in the file: mean distance of the true pad (in the frame the
+    /// part was located in) from the pose the controller expected for its command, mm.
     pub mean_position_error_mm: f64,
+    /// The hidden truth: mean angle between the true pad attitude and the expected one,
+    /// deg.
     pub mean_attitude_error_deg: f64,
+    /// The run's PNG.
     pub plot: PathBuf,
 }
 

@@ -26,13 +26,30 @@ pub struct DataSources {
 
 /// The loaded sources: the graph, the calibrated robot and the named recordings.
 pub struct Inputs {
+    /// The sensor graph.
     pub graph: Graph,
+    /// The calibrated robot: the model the labels are computed under (eq. 19).
     pub robot: Robot,
+    /// Each recording with its name (its path as given).
     pub recordings: Vec<(String, Recording)>,
 }
 
 impl DataSources {
     /// `recordings` labelled under `calibration`, with the embedded graph and robot.
+    ///
+    /// ```
+    /// use iastgcn::data::DataSources;
+    ///
+    /// let sources = DataSources::new(
+    ///     vec!["grid.csv".into(), "fermat.csv".into()],
+    ///     "calibration.toml".into(),
+    /// );
+    /// assert_eq!(sources.recordings.len(), 2);
+    /// assert!(sources.graph.is_none() && sources.robot.is_none());
+    /// let geometry = sources.geometry()?; // the embedded assets/robot.toml
+    /// assert_eq!(geometry.parallel.base_radius, 450.0);
+    /// # Ok::<(), iastgcn::error::Error>(())
+    /// ```
     pub fn new(recordings: Vec<PathBuf>, calibration: PathBuf) -> DataSources {
         DataSources {
             recordings,

@@ -13,9 +13,12 @@ use rand_chacha::ChaCha8Rng;
 /// How windows are assigned to train / validation / test.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SplitMode {
+    /// Each recording cut into 70/20/10 % blocks in time; windows straddling a boundary
+    /// are dropped (leakage-free).
     Contiguous,
     /// The paper's protocol; leaks through overlapping windows.
     Random {
+        /// Seed of the shuffle (`[data] split_seed`).
         seed: u64,
     },
 }
@@ -35,10 +38,13 @@ impl SplitMode {
 /// Window geometry: length T and stride S in control ticks.
 #[derive(Clone, Copy, Debug)]
 pub struct WindowConfig {
+    /// Window length T, ticks.
     pub length: usize,
+    /// Least distance S between window ends, ticks.
     pub stride: usize,
-    /// Fractions of train and validation (test takes the rest).
+    /// Fraction of train (test takes what train and validation leave).
     pub train: f64,
+    /// Fraction of validation.
     pub validation: f64,
 }
 
@@ -57,7 +63,9 @@ impl Default for WindowConfig {
 /// `end + 1 − T ..= end`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Window {
+    /// Index of the recording, from 0.
     pub recording: usize,
+    /// Its last row, from 0.
     pub end: usize,
 }
 
@@ -65,6 +73,14 @@ pub struct Window {
 /// measured there) that completes a window, then each labelled row at least `stride` rows
 /// after the previous end. With the tracker every 5 ticks and S = 20 that is exactly every
 /// 20 rows.
+///
+/// ```
+/// use iastgcn::data::{window_ends, WindowConfig};
+///
+/// let config = WindowConfig { length: 10, stride: 4, ..WindowConfig::default() };
+/// // The tracker measured at every second row.
+/// assert_eq!(window_ends(20, &config, |row| row % 2 == 0), vec![10, 14, 18]);
+/// ```
 pub fn window_ends(
     rows: usize,
     config: &WindowConfig,
@@ -85,12 +101,28 @@ pub fn window_ends(
 /// Train / validation / test windows.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Splits {
+    /// Training windows.
     pub train: Vec<Window>,
+    /// Validation windows (early stopping).
     pub validation: Vec<Window>,
+    /// Test windows (Table III).
     pub test: Vec<Window>,
 }
 
 /// Assigns `windows` (of recordings with `rows[r]` rows) to splits.
+///
+/// ```
+/// use iastgcn::data::{split, window_ends, SplitMode, Window, WindowConfig};
+///
+/// let config = WindowConfig { length: 10, stride: 5, ..WindowConfig::default() };
+/// let windows: Vec<Window> = window_ends(100, &config, |_| true)
+///     .into_iter()
+///     .map(|end| Window { recording: 0, end })
+///     .collect();
+/// let s = split(&windows, &[100], &config, SplitMode::Contiguous);
+/// // 19 windows: the two that straddle the cuts at rows 70 and 90 are dropped.
+/// assert_eq!((s.train.len(), s.validation.len(), s.test.len()), (13, 3, 1));
+/// ```
 pub fn split(windows: &[Window], rows: &[usize], config: &WindowConfig, mode: SplitMode) -> Splits {
     let mut s = Splits::default();
     match mode {

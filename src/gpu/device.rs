@@ -154,6 +154,7 @@ impl Gpu {
             .collect()
     }
 
+    /// The adapter's name, backend and device type.
     pub fn info(&self) -> &wgpu::AdapterInfo {
         &self.info
     }
@@ -168,10 +169,12 @@ impl Gpu {
         self.adapter_features
     }
 
+    /// The wgpu device, for work outside this crate's kernels.
     pub fn device(&self) -> &wgpu::Device {
         &self.device
     }
 
+    /// The device's queue.
     pub fn queue(&self) -> &wgpu::Queue {
         &self.queue
     }

@@ -19,34 +19,63 @@ use wgpu::util::DeviceExt;
 /// Everything that can go wrong in the device layer, with the name of what was involved.
 #[derive(Debug, thiserror::Error)]
 pub enum GpuError {
+    /// No adapter of any backend.
     #[error("no GPU adapter found (Vulkan, Metal or DX12): {hint}")]
-    NoAdapter { hint: String },
+    NoAdapter {
+        /// What to try (drivers, a software adapter).
+        hint: String,
+    },
+    /// No adapter's name contains the one asked for.
     #[error(
         "no adapter name contains {wanted:?} (set by {ADAPTER_ENV} or --adapter); available: {}",
         if available.is_empty() { "none".to_string() } else { available.join("; ") }
     )]
     AdapterNotFound {
+        /// The name fragment asked for.
         wanted: String,
+        /// The names of the adapters there are.
         available: Vec<String>,
     },
+    /// The adapter refused to open a device (limits, features, driver).
     #[error("could not open a device on {adapter}: {reason}")]
-    RequestDevice { adapter: String, reason: String },
+    RequestDevice {
+        /// The adapter's name.
+        adapter: String,
+        /// What wgpu said.
+        reason: String,
+    },
+    /// A WGSL shader that does not parse or validate.
     #[error("{location}: {message}")]
-    Shader { location: String, message: String },
+    Shader {
+        /// `shaders/<file>.wgsl:line:column`.
+        location: String,
+        /// What naga said.
+        message: String,
+    },
+    /// A tensor of the wrong size or shape for the kernel or the data given.
     #[error("tensor {tensor}: expected {expected}, got {got}")]
     Shape {
+        /// The tensor's name.
         tensor: String,
+        /// The shape or length expected.
         expected: String,
+        /// The one it has.
         got: String,
     },
+    /// A dispatch larger than the device allows.
     #[error("{kernel}: {count} workgroups along one axis exceed the device limit of {limit}")]
     TooManyWorkgroups {
+        /// The kernel's name.
         kernel: String,
+        /// The workgroups asked for along the axis.
         count: u32,
+        /// The device's limit per axis.
         limit: u32,
     },
+    /// Copying a tensor back to the host failed; the text names the tensor.
     #[error("readback of {0} failed")]
     Readback(String),
+    /// Any other failure of the device, or a call it cannot serve; the text says which.
     #[error("device error: {0}")]
     Device(String),
 }

@@ -17,6 +17,7 @@ pub const COMMON_WGSL: &str = include_str!("../../shaders/common.wgsl");
 pub struct Shader {
     /// File stem: `matmul` for `shaders/matmul.wgsl`.
     pub name: &'static str,
+    /// The WGSL text (without the common prelude).
     pub source: &'static str,
     /// A shader whose declarations this one uses, compiled before it (after the common
     /// prelude): an entry point that needs a device feature lives in its own module, so
@@ -43,7 +44,9 @@ impl Shader {
 /// How a kernel uses one storage binding.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Access {
+    /// `var<storage, read>`.
     Read,
+    /// `var<storage, read_write>`.
     ReadWrite,
 }
 
@@ -51,7 +54,9 @@ pub enum Access {
 /// the kernel's uniform parameter block.
 #[derive(Clone, Copy, Debug)]
 pub struct Binding {
+    /// The `@binding` number (from 1; 0 is the uniform block).
     pub slot: u32,
+    /// Read-only or read-write.
     pub access: Access,
 }
 
@@ -76,14 +81,24 @@ impl Binding {
 /// A compute entry point together with its bind layout.
 #[derive(Debug)]
 pub struct Kernel {
+    /// The shader that defines it.
     pub shader: &'static Shader,
+    /// The `@compute` entry point's name.
     pub entry: &'static str,
     /// Storage bindings in the order tensors are passed to [`crate::gpu::Gpu::dispatch`].
     pub bindings: &'static [Binding],
 }
 
 /// Validates `source` (with the common prelude) and maps error positions back to
-/// `shaders/<name>.wgsl:line:col` (or `shaders/common.wgsl`).
+/// `shaders/<name>.wgsl:line:col` (or `shaders/common.wgsl`). Needs no GPU.
+///
+/// ```
+/// use iastgcn::gpu::validate_wgsl;
+///
+/// assert!(validate_wgsl("empty", "@compute @workgroup_size(64) fn main() {}").is_ok());
+/// let err = validate_wgsl("broken", "fn main( {}").unwrap_err();
+/// assert!(err.to_string().starts_with("shaders/broken.wgsl:1:"));
+/// ```
 pub fn validate_wgsl(name: &str, source: &str) -> Result<naga::Module, GpuError> {
     validate_with_base(name, source, None)
 }
@@ -159,6 +174,7 @@ impl PipelineCache {
         self.pipelines.len()
     }
 
+    /// True when no pipeline has been compiled yet.
     pub fn is_empty(&self) -> bool {
         self.pipelines.is_empty()
     }

@@ -25,10 +25,12 @@ pub struct Dispatch {
 }
 
 impl Dispatch {
+    /// `shader::entry` of the kernel, as profiles and errors name it.
     pub fn label(&self) -> &str {
         &self.label
     }
 
+    /// The workgroup counts along x, y, z.
     pub fn workgroups(&self) -> [u32; 3] {
         self.workgroups
     }
@@ -90,6 +92,7 @@ pub struct Recorder<'g> {
 }
 
 impl<'g> Recorder<'g> {
+    /// An empty recorder on `gpu`'s device.
     pub fn new(gpu: &'g Gpu) -> Recorder<'g> {
         let encoder = gpu
             .device
@@ -201,6 +204,7 @@ impl<'g> Recorder<'g> {
         self.dispatches
     }
 
+    /// True when nothing has been recorded.
     pub fn is_empty(&self) -> bool {
         self.dispatches == 0
     }

@@ -5,11 +5,14 @@ use super::{Gpu, GpuError};
 /// Element type of a tensor.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DType {
+    /// 32-bit float.
     F32,
+    /// 32-bit unsigned integer.
     U32,
 }
 
 impl DType {
+    /// Bytes per element (4 for both).
     pub fn size(self) -> usize {
         4
     }
@@ -28,26 +31,32 @@ pub struct Tensor {
 }
 
 impl Tensor {
+    /// The row-major shape, e.g. `[B, N, C, T]`.
     pub fn shape(&self) -> &[usize] {
         &self.shape
     }
 
+    /// The element type.
     pub fn dtype(&self) -> DType {
         self.dtype
     }
 
+    /// The name errors and profiles give it.
     pub fn name(&self) -> &str {
         &self.name
     }
 
+    /// Number of elements: the product of the shape.
     pub fn numel(&self) -> usize {
         self.shape.iter().product()
     }
 
+    /// Size of the data in bytes.
     pub fn byte_len(&self) -> u64 {
         (self.numel() * self.dtype.size()) as u64
     }
 
+    /// The wgpu storage buffer.
     pub fn buffer(&self) -> &wgpu::Buffer {
         &self.buffer
     }
@@ -180,6 +189,8 @@ pub struct Readback {
 }
 
 impl Readback {
+    /// A staging buffer of at least `bytes` bytes (rounded up to a multiple of 4), named
+    /// `name` in errors.
     pub fn new(gpu: &Gpu, name: &str, bytes: u64) -> Readback {
         let size = bytes.max(4).next_multiple_of(4);
         let buffer = gpu.device.create_buffer(&wgpu::BufferDescriptor {

@@ -9,10 +9,13 @@ use serde::Deserialize;
 /// The asset shipped with the engine.
 pub const DEFAULT_ASSET: &str = include_str!("../../assets/graph.toml");
 
+/// A graph asset that cannot be read or breaks a rule of docs/twin.md "Sensor graph asset".
 #[derive(Debug, thiserror::Error)]
 #[error("{file}: {message}")]
 pub struct GraphError {
+    /// The asset's file name.
     pub file: String,
+    /// What is wrong, naming the node or edge.
     pub message: String,
 }
 
@@ -26,15 +29,27 @@ struct Asset {
 /// Named nodes and undirected edges (by node index, `i < j`, no self loops).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Graph {
+    /// Node names (sensor channels), in node order.
     pub nodes: Vec<String>,
+    /// Edges as node-index pairs `(i, j)` with `i < j`, in file order.
     pub edges: Vec<(usize, usize)>,
 }
 
 impl Graph {
+    /// The embedded assets/graph.toml: the 14 nodes of Table II.
+    ///
+    /// ```
+    /// use iastgcn::graph::Graph;
+    ///
+    /// let graph = Graph::default_asset();
+    /// assert_eq!(graph.len(), 14);
+    /// assert_eq!(graph.nodes[0], "E1");
+    /// ```
     pub fn default_asset() -> Graph {
         Graph::parse(DEFAULT_ASSET, "assets/graph.toml").expect("embedded graph asset is valid")
     }
 
+    /// Reads and checks the graph asset at `path`.
     pub fn load(path: &Path) -> Result<Graph, GraphError> {
         let file = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|e| GraphError {
@@ -50,6 +65,23 @@ impl Graph {
     }
 
     /// Parses and checks a graph asset; `file` names the source in errors.
+    ///
+    /// ```
+    /// use iastgcn::graph::Graph;
+    ///
+    /// let graph = Graph::parse(
+    ///     r#"nodes = ["a", "b", "c"]
+    ///        edges = [["c", "a"]]"#,
+    ///     "g.toml",
+    /// )?;
+    /// assert_eq!(graph.edges, vec![(0, 2)]);
+    ///
+    /// let looped = r#"nodes = ["a"]
+    ///                 edges = [["a", "a"]]"#;
+    /// let err = Graph::parse(looped, "g.toml").unwrap_err();
+    /// assert_eq!(err.to_string(), r#"g.toml: self loop on node "a""#);
+    /// # Ok::<(), iastgcn::graph::GraphError>(())
+    /// ```
     pub fn parse(text: &str, file: &str) -> Result<Graph, GraphError> {
         let err = |message: String| GraphError {
             file: file.to_string(),
@@ -94,10 +126,12 @@ impl Graph {
         })
     }
 
+    /// Number of nodes N.
     pub fn len(&self) -> usize {
         self.nodes.len()
     }
 
+    /// True without nodes (a parsed graph always has some).
     pub fn is_empty(&self) -> bool {
         self.nodes.is_empty()
     }
@@ -118,8 +152,9 @@ impl Graph {
 pub struct Spectral {
     /// Normalised Laplacian L = I − D^(−1/2) A D^(−1/2).
     pub laplacian: DMatrix<f64>,
-    /// Eigenvalues λ (ascending) and orthonormal eigenvectors U (columns) of L.
+    /// Eigenvalues λ of L, ascending.
     pub eigenvalues: Vec<f64>,
+    /// Orthonormal eigenvectors U of L, as columns in the order of the eigenvalues.
     pub eigenvectors: DMatrix<f64>,
 }
 

@@ -22,11 +22,13 @@ pub const FORMAT: &str = "iastgcn-checkpoint/1";
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Normalization {
-    /// `[N][F]`.
+    /// Feature means, `[N][F]`.
     pub feature_mean: Vec<Vec<f64>>,
+    /// Feature standard deviations, `[N][F]`.
     pub feature_std: Vec<Vec<f64>>,
-    /// `[O]`.
+    /// Label means, `[O]`: dx, dy, dz (µm), rx, ry, rz (mdeg).
     pub label_mean: Vec<f64>,
+    /// Label standard deviations, `[O]`, µm and mdeg.
     pub label_std: Vec<f64>,
 }
 
@@ -77,16 +79,38 @@ struct GraphMeta {
 #[derive(Debug, thiserror::Error)]
 #[error("{file}: {message}")]
 pub struct CheckpointError {
+    /// The checkpoint's path (or the name given to [`Checkpoint::from_bytes`]).
     pub file: String,
+    /// What is wrong, naming the tensor or metadata field.
     pub message: String,
 }
 
 /// Everything needed to run a trained network.
+///
+/// ```
+/// use iastgcn::graph::Graph;
+/// use iastgcn::model::{Checkpoint, ModelConfig, Normalization, Parameters, Variant};
+///
+/// let config = ModelConfig::gradient_check(Variant::Iastgcn);
+/// let checkpoint = Checkpoint {
+///     parameters: Parameters::init(&config, 1),
+///     normalization: Normalization::identity(&config),
+///     graph: Graph::default_asset(),
+///     config,
+/// };
+/// let bytes = checkpoint.to_bytes()?;
+/// assert_eq!(Checkpoint::from_bytes(&bytes, "in memory")?, checkpoint);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 #[derive(Clone, Debug, PartialEq)]
 pub struct Checkpoint {
+    /// The network's shapes and variant.
     pub config: ModelConfig,
+    /// The sensor graph it was trained on.
     pub graph: Graph,
+    /// Its weights.
     pub parameters: Parameters,
+    /// The statistics new inputs are standardised with and outputs de-standardised with.
     pub normalization: Normalization,
 }
 
@@ -137,6 +161,8 @@ impl Checkpoint {
         crate::atomic::write(path, &bytes).map_err(|e| err(e.to_string()))
     }
 
+    /// Reads and validates the checkpoint at `path` (docs/model.md "Parameter names" lists
+    /// the checks).
     pub fn load(path: &Path) -> Result<Checkpoint, CheckpointError> {
         let bytes = std::fs::read(path).map_err(|e| CheckpointError {
             file: path.display().to_string(),
@@ -256,6 +282,7 @@ pub fn open_safetensors<'b>(
 pub struct Metadata(HashMap<String, String>);
 
 impl Metadata {
+    /// The string value of `key`.
     pub fn field(&self, key: &str) -> Result<&str, String> {
         self.0
             .get(key)

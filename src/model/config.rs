@@ -20,6 +20,7 @@ pub enum Variant {
 }
 
 impl Variant {
+    /// Every variant, the full model first.
     pub const ALL: [Variant; 4] = [
         Variant::Iastgcn,
         Variant::NoAttention,
@@ -27,6 +28,15 @@ impl Variant {
         Variant::Chebyshev,
     ];
 
+    /// The name in configs, checkpoint metadata and reports.
+    ///
+    /// ```
+    /// use iastgcn::model::Variant;
+    ///
+    /// assert_eq!(Variant::NoAttention.name(), "iastgcn-a");
+    /// assert_eq!(Variant::parse("iastgcn-s"), Some(Variant::Chebyshev));
+    /// assert_eq!(Variant::parse("convlstm"), None);
+    /// ```
     pub fn name(self) -> &'static str {
         match self {
             Variant::Iastgcn => "iastgcn",
@@ -36,14 +46,17 @@ impl Variant {
         }
     }
 
+    /// The variant of that name; `None` for any other.
     pub fn parse(name: &str) -> Option<Variant> {
         Variant::ALL.into_iter().find(|v| v.name() == name)
     }
 
+    /// True when the blocks run the temporal and spatial attention (steps 1–2).
     pub fn attention(self) -> bool {
         self != Variant::NoAttention
     }
 
+    /// True when step 4 is the gated dilated convolution (not the plain one).
     pub fn gated(self) -> bool {
         self != Variant::PlainTemporal
     }
@@ -59,6 +72,7 @@ impl std::fmt::Display for Variant {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ModelConfig {
+    /// Which network.
     pub variant: Variant,
     /// N: graph nodes.
     pub nodes: usize,

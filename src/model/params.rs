@@ -12,23 +12,30 @@ use crate::graph::Graph;
 pub enum Init {
     /// He uniform U(−√(6/fan_in), √(6/fan_in)).
     HeUniform {
+        /// Length of the axis the weight is contracted over.
         fan_in: usize,
     },
+    /// All zeros (biases, `be`, `bs`, `ln.beta`).
     Zeros,
+    /// All ones (`ln.gamma`, `gwc.theta`).
     Ones,
 }
 
 /// One entry of the table.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ParamSpec {
+    /// The docs/model.md name, e.g. `blocks.0.tat.U1`.
     pub name: String,
+    /// Its row-major shape, e.g. `[C_in, N]`.
     pub shape: Vec<usize>,
+    /// How it starts.
     pub init: Init,
     /// Counted in the λ‖W‖² term of the loss (weights only).
     pub decay: bool,
 }
 
 impl ParamSpec {
+    /// Number of scalars: the product of the shape.
     pub fn numel(&self) -> usize {
         self.shape.iter().product()
     }
@@ -102,12 +109,23 @@ pub fn param_specs(config: &ModelConfig) -> Vec<ParamSpec> {
 /// Host copy of all parameters (f32, docs/model.md layouts), in [`param_specs`] order.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Parameters {
+    /// Name, shape and initialisation of each tensor.
     pub specs: Vec<ParamSpec>,
+    /// Each tensor's values, row-major, same order.
     pub values: Vec<Vec<f32>>,
 }
 
 impl Parameters {
     /// Fresh parameters drawn from `seed` (reproducible: one ChaCha8 stream, table order).
+    ///
+    /// ```
+    /// use iastgcn::model::{ModelConfig, Parameters};
+    ///
+    /// // The paper shape (T 100, C 64, L 5) of docs/model.md "Parameter names".
+    /// let params = Parameters::init(&ModelConfig::default(), 1);
+    /// assert_eq!((params.count(), params.specs.len()), (295_658, 102));
+    /// assert_eq!(params.get("head.bias"), &[0.0; 6]);
+    /// ```
     pub fn init(config: &ModelConfig, seed: u64) -> Parameters {
         let specs = param_specs(config);
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -127,6 +145,7 @@ impl Parameters {
         Parameters { specs, values }
     }
 
+    /// Position of parameter `name` in the table; `None` for an unknown name.
     pub fn index(&self, name: &str) -> Option<usize> {
         self.specs.iter().position(|s| s.name == name)
     }
@@ -139,6 +158,7 @@ impl Parameters {
         &self.values[i]
     }
 
+    /// The values of parameter `name`, to change (panics on an unknown name).
     pub fn get_mut(&mut self, name: &str) -> &mut Vec<f32> {
         let i = self
             .index(name)

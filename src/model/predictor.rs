@@ -92,6 +92,7 @@ impl Predictor {
         })
     }
 
+    /// The network's shapes and variant, as in the checkpoint.
     pub fn config(&self) -> &ModelConfig {
         &self.config
     }

@@ -9,13 +9,19 @@ use crate::gpu::{DType, Dispatch, Gpu, GpuError, Recorder, Tensor};
 /// One entry of a schedule.
 #[derive(Debug)]
 pub enum Step {
+    /// A kernel launch.
     Run(Dispatch),
     /// `count` f32 elements from `src[src_at..]` to `dst[dst_at..]`.
     CopyRange {
+        /// The tensor copied from.
         src: Tensor,
+        /// The first element copied, in elements.
         src_at: usize,
+        /// The tensor copied into.
         dst: Tensor,
+        /// Where the copy lands in `dst`, in elements.
         dst_at: usize,
+        /// Elements copied.
         count: usize,
     },
 }
@@ -25,6 +31,8 @@ pub enum Step {
 pub struct Steps(pub Vec<Step>);
 
 impl Steps {
+    /// Appends the dispatch (passing on its error) and returns its index, for
+    /// [`Steps::dispatch`].
     pub fn run(&mut self, d: Result<Dispatch, GpuError>) -> Result<usize, GpuError> {
         self.0.push(Step::Run(d?));
         Ok(self.0.len() - 1)
@@ -46,6 +54,7 @@ impl Steps {
         });
     }
 
+    /// The dispatch at `index`; `None` for a copy or past the end.
     pub fn dispatch(&self, index: usize) -> Option<&Dispatch> {
         match self.0.get(index) {
             Some(Step::Run(d)) => Some(d),
@@ -53,14 +62,17 @@ impl Steps {
         }
     }
 
+    /// Number of steps.
     pub fn len(&self) -> usize {
         self.0.len()
     }
 
+    /// True without steps.
     pub fn is_empty(&self) -> bool {
         self.0.is_empty()
     }
 
+    /// Records every step, in order, into `rec`.
     pub fn record(&self, rec: &mut Recorder) -> Result<(), GpuError> {
         for step in &self.0 {
             Self::record_step(step, rec)?;
@@ -126,10 +138,12 @@ pub struct StepTime {
     pub target: String,
     /// FLOPs of a contraction, 0 otherwise.
     pub flops: f64,
+    /// The fastest of the repeats, submit and wait included.
     pub time: Duration,
 }
 
 impl StepTime {
+    /// GFLOP/s of a contraction, 0 for other steps.
     pub fn gflops(&self) -> f64 {
         self.flops / self.time.as_secs_f64() / 1e9
     }
@@ -143,6 +157,7 @@ pub struct Scratch<'g> {
 }
 
 impl<'g> Scratch<'g> {
+    /// No buffers yet; they are made on `gpu` as roles ask for them.
     pub fn new(gpu: &'g Gpu) -> Scratch<'g> {
         Scratch {
             gpu,
@@ -150,6 +165,8 @@ impl<'g> Scratch<'g> {
         }
     }
 
+    /// A tensor of `shape` for `role`: a view of the role's buffer when that is large
+    /// enough, else a new zeroed buffer that becomes the role's.
     pub fn get(&mut self, role: &'static str, shape: &[usize]) -> Result<Tensor, GpuError> {
         if let Some(t) = self.buffers.get(role) {
             if let Ok(view) = t.prefix(role, shape) {

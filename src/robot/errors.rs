@@ -30,14 +30,23 @@ pub const LIMB_VECTORS: [(&str, &str); 9] = [
 /// Errors of one UPS limb, borrowed from the flat vector.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LimbErrors {
+    /// Position error Δb of the base Hooke joint B_i, mm, base frame.
     pub db: Vector3<f64>,
+    /// Attitude error θ_B of the base Hooke joint B_i, rad (rotation vector).
     pub theta_b: Vector3<f64>,
+    /// Position error Δn of the link origin N_i, mm.
     pub dn: Vector3<f64>,
+    /// Attitude error θ_N of the link origin N_i, rad (rotation vector).
     pub theta_n: Vector3<f64>,
+    /// Position error Δm of the joint-shaft origin M_i, mm.
     pub dm: Vector3<f64>,
+    /// Attitude error θ_M of the joint-shaft origin M_i, rad (rotation vector).
     pub theta_m: Vector3<f64>,
+    /// Position error Δa of the platform Hooke joint A_i, mm, platform frame.
     pub da: Vector3<f64>,
+    /// Attitude error θ_A of the platform Hooke joint A_i, rad (rotation vector).
     pub theta_a: Vector3<f64>,
+    /// Position error ΔS of the composite ball-hinge centre, mm.
     pub ds: Vector3<f64>,
     /// Length error of the composite ball-joint connection shaft (Δδ_i).
     pub d_shaft: f64,
@@ -48,15 +57,20 @@ pub struct LimbErrors {
 /// Errors of one MDH row: Δα (rad), Δa (mm), Δθ (rad), Δd (mm).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct MdhErrors {
+    /// Δα, rad.
     pub alpha: f64,
+    /// Δa, mm.
     pub a: f64,
+    /// Δθ, rad.
     pub theta: f64,
+    /// Δd, mm.
     pub d: f64,
 }
 
 /// The flat error vector. `ErrorParams::zero()` is the nominal robot.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ErrorParams {
+    /// The [`N_PARAMS`] values in the order of [`ErrorParams::names`], mm or rad.
     pub values: Vec<f64>,
 }
 
@@ -71,6 +85,15 @@ fn v3(x: &[f64]) -> Vector3<f64> {
 }
 
 impl ErrorParams {
+    /// All errors zero: the nominal robot.
+    ///
+    /// ```
+    /// use iastgcn::robot::{ErrorParams, N_PARAMS};
+    ///
+    /// let errors = ErrorParams::zero();
+    /// assert_eq!(errors.values.len(), N_PARAMS);
+    /// assert_eq!(ErrorParams::names()[errors.values.len() - 1], "tracker.theta.z");
+    /// ```
     pub fn zero() -> ErrorParams {
         ErrorParams {
             values: vec![0.0; N_PARAMS],

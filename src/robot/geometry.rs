@@ -12,10 +12,15 @@ pub const DEFAULT_ASSET: &str = include_str!("../../assets/robot.toml");
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct MdhJoint {
+    /// The joint's name (`revolution`, `tilt`), used in error messages.
     pub name: String,
+    /// α, deg.
     pub alpha_deg: f64,
+    /// a, mm.
     pub a: f64,
+    /// Constant offset added to the joint angle θ, deg.
     pub theta_offset_deg: f64,
+    /// d, mm.
     pub d: f64,
     /// Joint range; `None` for a continuous (slip-ring) joint.
     #[serde(default)]
@@ -62,9 +67,13 @@ pub struct TrackerGeometry {
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Geometry {
+    /// The 3-UPS/UP parallel module.
     pub parallel: ParallelGeometry,
+    /// The 2R serial head.
     pub serial: SerialGeometry,
+    /// The fixed MDH row from the tilt joint to the pad centre.
     pub tool: ToolGeometry,
+    /// The base frame's nominal pose in the laser tracker's frame.
     pub tracker: TrackerGeometry,
 }
 

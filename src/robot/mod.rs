@@ -19,38 +19,70 @@ use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3
 /// What can go wrong in the robot model, with the numbers that explain it.
 #[derive(Debug, thiserror::Error)]
 pub enum RobotError {
+    /// A robot geometry asset that cannot be read or is invalid.
     #[error("{file}: {message}")]
-    Asset { file: String, message: String },
+    Asset {
+        /// The asset's file name.
+        file: String,
+        /// What is wrong, naming the field.
+        message: String,
+    },
+    /// A joint coordinate outside its range (tilt, extension, stroke or joint limit).
     #[error("{what} = {value:.6} is outside the workspace [{low:.6}, {high:.6}]")]
     OutsideWorkspace {
+        /// The coordinate, with its unit.
         what: String,
+        /// Its value, in that unit.
         value: f64,
+        /// The lower end of its range.
         low: f64,
+        /// The upper end of its range.
         high: f64,
     },
+    /// The parallel module's forward kinematics (Newton) did not converge.
     #[error(
         "forward kinematics did not converge for limb lengths {lengths:?} mm: residual {residual:.3e} mm after {iterations} Newton steps"
     )]
     NoConvergence {
+        /// The limb lengths asked for, mm.
         lengths: [f64; 3],
+        /// The largest limb length residual left, mm.
         residual: f64,
+        /// The Newton steps taken.
         iterations: usize,
     },
+    /// The parallel module's forward kinematics met a singular Jacobian.
     #[error("forward kinematics hit a singular configuration at limb lengths {lengths:?} mm")]
-    Singular { lengths: [f64; 3] },
+    Singular {
+        /// The limb lengths asked for, mm.
+        lengths: [f64; 3],
+    },
+    /// The whole robot's inverse kinematics met a singular system.
     #[error("inverse kinematics hit a singular configuration for the tool at {target:?} mm")]
-    SingularTool { target: [f64; 3] },
+    SingularTool {
+        /// The pad centre asked for, mm, base frame.
+        target: [f64; 3],
+    },
+    /// No configuration puts the pad at the target with the tool axis within
+    /// [`MAX_AXIS_DEVIATION`] of the one asked for.
     #[error(
         "the tool cannot reach {target:?} mm with the requested axis (residual {residual:.3e})"
     )]
-    ToolUnreachable { target: [f64; 3], residual: f64 },
+    ToolUnreachable {
+        /// The pad centre asked for, mm, base frame.
+        target: [f64; 3],
+        /// The larger of the position residual (mm) and the axis residual (mrad).
+        residual: f64,
+    },
 }
 
 /// Joint inputs of the whole robot: the three UPS actuator lengths (mm, nodes Q1–Q3) and
 /// the two serial joint angles (rad, Q4–Q5).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Joints {
+    /// The three UPS actuator (limb) lengths, mm.
     pub limbs: [f64; 3],
+    /// The two serial joint angles, rad: the revolution joint (continuous), then the tilt joint.
     pub head: [f64; 2],
 }
 
@@ -58,12 +90,24 @@ pub struct Joints {
 /// a seeded draw for the twin's hidden truth, the estimate after calibration).
 #[derive(Clone, Debug)]
 pub struct Robot {
+    /// The nominal geometry.
     pub geometry: Geometry,
+    /// The geometric errors δX applied on top of it (Table I; docs/twin.md "Calibration file").
     pub errors: ErrorParams,
     limbs: [Limb; 3],
 }
 
 impl Robot {
+    /// A robot of `geometry` carrying `errors`.
+    ///
+    /// ```
+    /// use iastgcn::robot::{ErrorParams, Geometry, Robot};
+    ///
+    /// let robot = Robot::new(Geometry::default_asset(), ErrorParams::zero());
+    /// let lengths = robot.limb_lengths(&robot.home());
+    /// robot.check_lengths(&lengths)?;
+    /// # Ok::<(), iastgcn::robot::RobotError>(())
+    /// ```
     pub fn new(geometry: Geometry, errors: ErrorParams) -> Robot {
         let b = geometry.base_points();
         let a = geometry.platform_points();
@@ -293,7 +337,9 @@ pub const MAX_AXIS_DEVIATION: f64 = 0.01;
 /// limb joints) and the two head angles.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Configuration {
+    /// The parallel module's pose: the UP joint's tilts and the slide's extension.
     pub platform: PlatformPose,
+    /// The serial joint angles, rad (revolution, tilt).
     pub head: [f64; 2],
 }
 
@@ -320,7 +366,9 @@ impl Configuration {
 /// robot's five joints.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ToolTarget {
+    /// The pad centre, mm, base frame.
     pub position: Vector3<f64>,
+    /// The unit tool axis, base frame.
     pub axis: Vector3<f64>,
 }
 

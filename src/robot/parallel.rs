@@ -12,16 +12,21 @@ use super::errors::LimbErrors;
 /// Pose of the moving platform in the UP limb's joint coordinates (rad, rad, mm).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PlatformPose {
+    /// Tilt of the UP joint about the base x axis, rad.
     pub alpha: f64,
+    /// Tilt of the UP joint about the rotated y axis, rad.
     pub beta: f64,
+    /// Extension of the UP limb's slide (base joint to platform centre), mm.
     pub w: f64,
 }
 
 impl PlatformPose {
+    /// The pose as `[alpha, beta, w]`.
     pub fn to_vector(self) -> Vector3<f64> {
         Vector3::new(self.alpha, self.beta, self.w)
     }
 
+    /// The pose from `[alpha, beta, w]`.
     pub fn from_vector(v: &Vector3<f64>) -> PlatformPose {
         PlatformPose {
             alpha: v.x,
@@ -85,9 +90,13 @@ fn hooke_angles(v: &Vector3<f64>, between: &Rotation3<f64>) -> (f64, f64) {
 /// (platform frame), shaft length `delta`.
 #[derive(Clone, Copy, Debug)]
 pub struct Limb {
+    /// Base joint centre b_i, mm, base frame.
     pub b: Vector3<f64>,
+    /// Platform joint centre a_0i, mm, platform frame.
     pub a0: Vector3<f64>,
+    /// Nominal length δ of the composite joint's connection shaft, mm.
     pub delta: f64,
+    /// The limb's geometric errors.
     pub err: LimbErrors,
 }
 

@@ -42,13 +42,17 @@ pub struct TrainConfig {
     pub lr: f64,
     /// r of lr(step) = lr0 / (1 + r · step / steps_per_epoch).
     pub lr_decay: f64,
+    /// Adam's β1.
     pub beta1: f64,
+    /// Adam's β2.
     pub beta2: f64,
+    /// Adam's ε.
     pub adam_eps: f64,
     /// λ of eq. 39 (on weights only).
     pub weight_decay: f64,
     /// P of eq. 39.
     pub attitude_penalty: f64,
+    /// Epochs at most.
     pub max_epochs: usize,
     /// Epochs without a better validation loss before stopping.
     pub patience: usize,
@@ -79,9 +83,13 @@ impl Default for TrainConfig {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RefineConfig {
+    /// Windows per ensemble, m, one stage per entry in order (each at least 2).
     pub magnifications: Vec<usize>,
+    /// Each stage's lr0 as a multiple of `[train] lr`.
     pub lr_scale: f64,
+    /// Epochs at most per stage.
     pub max_epochs: usize,
+    /// Epochs without a better validation loss before a stage stops.
     pub patience: usize,
     /// Longest run of consecutive held-out windows in the accumulated-error check.
     pub horizon: usize,
@@ -103,9 +111,13 @@ impl Default for RefineConfig {
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RunConfig {
+    /// `[model]`: the network's shape and variant.
     pub model: ModelConfig,
+    /// `[data]`: windowing and split.
     pub data: DataConfig,
+    /// `[train]`: the core stage.
     pub train: TrainConfig,
+    /// `[refine]`: the refinement stages.
     pub refine: RefineConfig,
 }
 
@@ -113,7 +125,9 @@ pub struct RunConfig {
 #[derive(Debug, thiserror::Error)]
 #[error("{file}: {message}")]
 pub struct ConfigError {
+    /// The config file's name.
     pub file: String,
+    /// What is wrong, naming the field.
     pub message: String,
 }
 
@@ -126,7 +140,17 @@ fn check(ok: bool, field: &str, value: impl std::fmt::Display, rule: &str) -> Re
 }
 
 impl RunConfig {
-    /// The embedded `assets/demo.toml`.
+    /// The embedded `assets/demo.toml`: the paper's config with a smaller network (T 48,
+    /// C 16, L 3) and a shorter schedule.
+    ///
+    /// ```
+    /// use iastgcn::train::RunConfig;
+    ///
+    /// let config = RunConfig::demo();
+    /// assert_eq!((config.model.window, config.model.channels), (48, 16));
+    /// assert_eq!(config.train.max_epochs, 8);
+    /// assert_eq!(config.refine.magnifications, vec![10, 5]);
+    /// ```
     pub fn demo() -> RunConfig {
         RunConfig::parse(include_str!("../../assets/demo.toml"), "assets/demo.toml")
             .expect("the embedded demo config is valid")
@@ -142,7 +166,19 @@ impl RunConfig {
         RunConfig::parse(&text, &file)
     }
 
-    /// Parses and checks TOML text (`file` names it in errors).
+    /// Parses and checks TOML text (`file` names it in errors); fields left out take the
+    /// paper's values.
+    ///
+    /// ```
+    /// use iastgcn::train::RunConfig;
+    ///
+    /// let config = RunConfig::parse("[train]\nbatch = 32", "run.toml")?;
+    /// assert_eq!((config.train.batch, config.model.window), (32, 100));
+    ///
+    /// let err = RunConfig::parse("[train]\nbatch = 0", "run.toml").unwrap_err();
+    /// assert_eq!(err.to_string(), "run.toml: train.batch = 0: must be positive");
+    /// # Ok::<(), iastgcn::train::ConfigError>(())
+    /// ```
     pub fn parse(text: &str, file: &str) -> Result<RunConfig, ConfigError> {
         let err = |message: String| ConfigError {
             file: file.to_string(),

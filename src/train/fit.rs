@@ -58,8 +58,11 @@ pub fn build_dataset(
 /// training-split mean.
 #[derive(Clone, Debug)]
 pub struct TestMetrics {
+    /// The recording's name.
     pub recording: String,
+    /// The model's metrics on its test block.
     pub model: Metrics,
+    /// Those of predicting the training-split label mean (the baseline).
     pub training_mean: Metrics,
 }
 
@@ -126,10 +129,15 @@ fn resumable(a: &RunConfig, b: &RunConfig) -> bool {
 /// How a core training run ended.
 #[derive(Clone, Debug)]
 pub struct Trained {
+    /// The best validation loss (the data term of eq. 39, standardised label space).
     pub best_val: f64,
+    /// The epoch it was reached in.
     pub best_epoch: usize,
+    /// Epochs run.
     pub epochs: usize,
+    /// One record per epoch.
     pub history: Vec<super::EpochRecord>,
+    /// Test-split metrics of the best weights, per recording.
     pub test: Vec<TestMetrics>,
 }
 

@@ -22,12 +22,19 @@ pub const MAPE_GUARD: f64 = 0.05;
 /// MAE, RMSE, MAPE for position (µm) and attitude (mdeg) over `count` windows.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct Metrics {
+    /// Windows scored.
     pub count: usize,
+    /// Mean Euclidean position error over dx, dy, dz, µm.
     pub pos_mae: f64,
+    /// RMS of the position error, µm.
     pub pos_rmse: f64,
+    /// Mean position error relative to the label's norm (guarded by [`MAPE_GUARD`]), %.
     pub pos_mape: f64,
+    /// Mean attitude error across the tool axis, mdeg (docs/twin.md "Scoring").
     pub att_mae: f64,
+    /// RMS of the attitude error, mdeg.
     pub att_rmse: f64,
+    /// Mean attitude error relative to the label's (guarded by [`MAPE_GUARD`]), %.
     pub att_mape: f64,
 }
 
@@ -51,6 +58,16 @@ fn tilt(v: &[f64; 6], axis: &[f64; 3]) -> f64 {
 impl Metrics {
     /// Scores predictions against labels (both in µm / mdeg), each window's attitude
     /// across its tool axis `axes[i]` (unit, base frame).
+    ///
+    /// ```
+    /// use iastgcn::train::Metrics;
+    ///
+    /// let truth = [[10.0, 0.0, 0.0, 0.0, 0.0, 2.0]];
+    /// let pred = [[7.0, 4.0, 0.0, 0.0, 0.0, 5.0]];
+    /// let m = Metrics::of(&pred, &truth, &[[0.0, 0.0, 1.0]]);
+    /// assert_eq!((m.pos_mae, m.pos_mape), (5.0, 50.0)); // ‖(−3, 4, 0)‖ µm against 10 µm
+    /// assert_eq!(m.att_mae, 0.0); // the roll about the tool axis is not scored
+    /// ```
     pub fn of(pred: &[[f64; 6]], truth: &[[f64; 6]], axes: &[[f64; 3]]) -> Metrics {
         assert_eq!(pred.len(), truth.len(), "one prediction per label");
         assert_eq!(axes.len(), truth.len(), "one tool axis per label");

@@ -18,8 +18,9 @@ pub type Moments = (Vec<Vec<f32>>, Vec<Vec<f32>>);
 
 /// Adam moments and the prepared update dispatches of one network.
 pub struct Optimizer {
-    /// First and second moments, in [`crate::model::param_specs`] order.
+    /// First moments, in [`crate::model::param_specs`] order.
     pub m: Vec<Tensor>,
+    /// Second moments, same order.
     pub v: Vec<Tensor>,
     /// [lr, 1 − β1^t, 1 − β2^t, 0], written once per step.
     hyper: Tensor,

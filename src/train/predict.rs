@@ -16,11 +16,22 @@ use crate::plot::{self, Panel, Series};
 
 /// Which windows of each recording to predict: all, or one split's (contiguous 70/20/10
 /// blocks of each recording).
+///
+/// ```
+/// use iastgcn::train::Subset;
+///
+/// assert_eq!("test".parse::<Subset>(), Ok(Subset::Test));
+/// assert!("holdout".parse::<Subset>().is_err());
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Subset {
+    /// Every window.
     All,
+    /// Windows inside the first 70 % of each recording.
     Train,
+    /// Windows inside the next 20 %.
     Validation,
+    /// Windows inside the last 10 %.
     Test,
 }
 
@@ -56,17 +67,24 @@ pub struct PredictOptions {
 /// tracker measured) the true residual, µm and mdeg.
 #[derive(Clone, Debug)]
 pub struct PredictedWindow {
+    /// The window's last row in the recording, from 0.
     pub row: usize,
+    /// That row's time, s.
     pub t: f64,
+    /// The model's residual.
     pub predicted: Residual,
+    /// The label (eq. 19) where the tracker measured at that row.
     pub truth: Option<Residual>,
 }
 
 /// The predictions on one recording and their metrics over the labelled windows.
 #[derive(Clone, Debug)]
 pub struct RecordingPrediction {
+    /// The recording's name (its path as given).
     pub recording: String,
+    /// Every predicted window, in time order.
     pub windows: Vec<PredictedWindow>,
+    /// The metrics over the labelled windows.
     pub metrics: Metrics,
     /// Tool axis at each labelled window's end (the attitude metric's tilt axis).
     axes: Vec<[f64; 3]>,

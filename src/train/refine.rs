@@ -41,17 +41,24 @@ fn accumulated(trainer: &Trainer, data: &Dataset, horizon: usize) -> Result<Accu
 
 /// What a refinement produced.
 pub struct Refined {
+    /// The weights to keep: the refined ones, or the incoming ones when `kept_core`.
     pub params: Parameters,
+    /// One record per epoch of every refinement stage.
     pub history: Vec<EpochRecord>,
-    /// Fig. 9b before and after.
+    /// Fig. 9b before refinement.
     pub before: AccumulatedCurve,
+    /// Fig. 9b after, for `params`.
     pub after: AccumulatedCurve,
+    /// Test-split metrics of the incoming weights, per recording.
     pub metrics_before: Vec<TestMetrics>,
+    /// Test-split metrics of `params`, per recording.
     pub metrics_after: Vec<TestMetrics>,
-    /// Per-window validation loss (the core stage's) of the incoming and of the returned
-    /// parameters; they are the incoming ones when refinement did not lower it.
+    /// Per-window validation loss (the core stage's) of the incoming parameters.
     pub core_val: f64,
+    /// The same loss of the returned parameters (the incoming ones when refinement did
+    /// not lower it).
     pub refined_val: f64,
+    /// True when refinement did not lower the loss and the incoming weights are kept.
     pub kept_core: bool,
 }
 

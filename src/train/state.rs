@@ -20,21 +20,28 @@ pub const FORMAT: &str = "iastgcn-train-state/1";
 #[derive(Debug, thiserror::Error)]
 #[error("{file}: {message}")]
 pub struct StateError {
+    /// The state file's path.
     pub file: String,
+    /// What is wrong, naming the tensor or metadata field.
     pub message: String,
 }
 
 /// A snapshot with the run it belongs to.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TrainState {
+    /// The whole run config (a resumed run must match it).
     pub run: RunConfig,
+    /// The dataset's standardisation statistics.
     pub normalization: Normalization,
+    /// The trainer's state at the end of the last finished epoch.
     pub snapshot: Snapshot,
 }
 
 const GROUPS: [&str; 4] = ["param", "best", "adam.m", "adam.v"];
 
 impl TrainState {
+    /// Writes the state atomically as safetensors (docs/twin.md "Checkpoints and training
+    /// states" has the layout).
     pub fn save(&self, path: &Path) -> Result<(), StateError> {
         let err = |message: String| StateError {
             file: path.display().to_string(),
@@ -64,6 +71,7 @@ impl TrainState {
         crate::atomic::write(path, &bytes).map_err(|e| err(e.to_string()))
     }
 
+    /// Reads and checks a state written by [`TrainState::save`].
     pub fn load(path: &Path) -> Result<TrainState, StateError> {
         let file = path.display().to_string();
         let err = |message: String| StateError {

@@ -22,20 +22,29 @@ use crate::model::{ModelConfig, ModelError, Network, Parameters};
 /// What stops a training run.
 #[derive(Debug, thiserror::Error)]
 pub enum TrainError {
+    /// The device failed.
     #[error(transparent)]
     Gpu(#[from] GpuError),
+    /// The network could not be built or run.
     #[error(transparent)]
     Model(#[from] ModelError),
+    /// The data does not fit the model or the stage (shapes, too few windows, a state of
+    /// another stage).
     #[error("{0}")]
     Data(String),
     /// A non-finite loss or parameter. `last_good` holds the parameters just before the
     /// step that went bad.
     #[error("training diverged at step {step} (epoch {epoch}, batch {batch}): {what}")]
     Diverged {
+        /// The optimiser step that went bad, counted from 0 within the stage.
         step: u64,
+        /// Its epoch, from 1.
         epoch: usize,
+        /// Its mini-batch within the epoch, from 1.
         batch: usize,
+        /// What went bad: the loss, or the first non-finite tensor.
         what: String,
+        /// The parameters just before that step.
         last_good: Box<Parameters>,
     },
 }
@@ -47,14 +56,18 @@ pub struct Stage {
     pub name: String,
     /// Windows per ensemble: 1 for the core stage.
     pub group: usize,
+    /// lr0 of the stage's inverse-time decay.
     pub lr0: f64,
+    /// Epochs at most.
     pub max_epochs: usize,
+    /// Epochs without a better validation loss before the stage stops.
     pub patience: usize,
 }
 
 /// One finished epoch.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EpochRecord {
+    /// The stage's name (`core`, `refine-m10`, ...).
     pub stage: String,
     /// 1-based.
     pub epoch: usize,
@@ -67,8 +80,9 @@ pub struct EpochRecord {
     pub val_loss: f64,
     /// Learning rate of the epoch's last step.
     pub lr: f64,
-    /// Wall time of the training steps (validation excluded).
+    /// Wall time of the training steps (validation excluded), s.
     pub seconds: f64,
+    /// Training throughput: windows per second of `seconds`.
     pub windows_per_s: f64,
 }
 
@@ -77,11 +91,15 @@ pub struct EpochRecord {
 pub struct Progress {
     /// Epochs completed.
     pub epoch: usize,
+    /// Optimiser steps taken in the stage.
     pub step: u64,
+    /// The best validation loss so far (infinite before the first epoch).
     pub best_val: f64,
-    /// 0 until an epoch has finished.
+    /// The epoch of `best_val`; 0 until an epoch has finished.
     pub best_epoch: usize,
+    /// Epochs in a row without improvement.
     pub bad_epochs: usize,
+    /// One record per finished epoch.
     pub history: Vec<EpochRecord>,
 }
 
@@ -102,11 +120,17 @@ impl Progress {
 /// continue exactly where the run stopped.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Snapshot {
+    /// The stage's schedule.
     pub stage: Stage,
+    /// Where it stands.
     pub progress: Progress,
+    /// The current weights.
     pub params: Parameters,
+    /// The best weights so far.
     pub best: Parameters,
+    /// Adam's first moments, in parameter order.
     pub adam_m: Vec<Vec<f32>>,
+    /// Adam's second moments, in parameter order.
     pub adam_v: Vec<Vec<f32>>,
 }
 
@@ -164,7 +188,9 @@ pub struct Trainer<'a> {
     gpu: &'a Gpu,
     data: &'a Dataset,
     config: TrainConfig,
+    /// The stage's schedule.
     pub stage: Stage,
+    /// The network being trained.
     pub net: Network,
     opt: Optimizer,
     train_groups: Vec<Vec<usize>>,
@@ -181,7 +207,9 @@ pub struct Trainer<'a> {
     positions: Vec<usize>,
     batch_x: Vec<f32>,
     batch_y: Vec<f32>,
+    /// Where the stage stands.
     pub progress: Progress,
+    /// The best weights so far (the start's until an epoch improves).
     pub best: Parameters,
     /// Parameters and moments at the start of the current epoch (for the replay).
     start: Snapshot,
@@ -302,6 +330,7 @@ impl<'a> Trainer<'a> {
         &self.start
     }
 
+    /// Optimiser steps per epoch: ⌈training ensembles / ensembles per step⌉.
     pub fn steps_per_epoch(&self) -> usize {
         self.steps_per_epoch
     }

@@ -14,8 +14,11 @@ use crate::robot::{Joints, PlatformPose, Robot, RobotError};
 /// its instruments were mounted.
 #[derive(Clone, Debug)]
 pub struct Machine {
+    /// The true robot: the nominal geometry with the drawn geometric errors.
     pub robot: Robot,
+    /// The non-geometric error sources that act (docs/twin.md "Error sources").
     pub nongeometric: NonGeometric,
+    /// How the instruments were mounted, fixed for the life of the machine.
     pub sensors: Installation,
 }
 
@@ -77,9 +80,11 @@ pub struct SourceTerms {
     pub thermal: ThermalGrowth,
     /// Stretch and joint clearance per limb, mm.
     pub give: LimbGive,
-    /// Gear backlash, transmission error and wind-up per serial joint, rad.
+    /// Gear backlash per serial joint, rad.
     pub backlash: [f64; 2],
+    /// Gear transmission error per serial joint, rad.
     pub transmission: [f64; 2],
+    /// Gear wind-up under the load per serial joint, rad.
     pub windup: [f64; 2],
     /// Deflection of the pad under the polishing load (base frame, at the pad).
     pub tip: Isometry3<f64>,
@@ -102,11 +107,13 @@ impl Default for SourceTerms {
 /// Where the machine really is after one control tick.
 #[derive(Clone, Copy, Debug)]
 pub struct Actual {
+    /// The true platform pose, after lost motion, thermal growth and limb give.
     pub platform: PlatformPose,
     /// True rod lengths (mm) and load-side joint angles (rad).
     pub joints: Joints,
     /// True pad pose in the base frame, deflections included.
     pub pose: Isometry3<f64>,
+    /// The non-geometric terms applied this tick (hidden truth).
     pub terms: SourceTerms,
 }
 

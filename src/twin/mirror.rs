@@ -32,6 +32,7 @@ impl Default for Mirror {
 }
 
 impl Mirror {
+    /// Half the clear aperture, mm.
     pub fn radius(&self) -> f64 {
         0.5 * self.diameter
     }

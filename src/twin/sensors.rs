@@ -74,39 +74,48 @@ pub const CHANNEL_UNITS: [(&str, &str); 15] = [
 /// docs/twin.md). Lengths in mm or µm and angles in deg or mdeg as named.
 #[derive(Clone, Copy, Debug)]
 pub struct SensorSpecs {
-    /// Linear scales (E1–E4): long-wave pitch error amplitude, µm, and wavelength, mm.
+    /// Linear scales (E1–E4): amplitude of the long-wave pitch error, µm.
     pub scale_pitch_error: f64,
+    /// Wavelength of the scales' pitch error, mm.
     pub scale_pitch_wavelength: f64,
-    /// Scale expansion coefficient (glass), 1/K, and the share of the screw's temperature
-    /// rise its housing reaches.
+    /// Scale expansion coefficient (glass), 1/K.
     pub scale_expansion: f64,
+    /// Share of the screw's temperature rise that a scale's housing reaches.
     pub scale_housing_share: f64,
     /// Scale reading noise (vibration, interpolation), µm.
     pub scale_noise: f64,
-    /// Load-side absolute encoders (E5–E6): quantum and eccentricity amplitude, mdeg.
+    /// Load-side absolute encoders (E5–E6): quantum, mdeg.
     pub load_encoder_quantum: f64,
+    /// Amplitude of a load encoder's eccentricity error, once per joint turn, mdeg.
     pub load_encoder_eccentricity: f64,
-    /// Motor encoders: quantum of a limb's length (mm) and of a joint angle at the load
-    /// (deg, motor counts over the gear ratio).
+    /// Motor encoders: quantum of a limb's length, mm.
     pub motor_length_quantum: f64,
+    /// Motor encoders: quantum of a joint angle at the load (motor counts over the gear
+    /// ratio), deg.
     pub motor_angle_quantum: f64,
-    /// Inclinometer (φX, φY): filter time constant (s), noise (mdeg), mounting offset
-    /// scale (mdeg), temperature coefficient (mdeg/K), bias random walk (mdeg/√s).
+    /// Inclinometer (φX, φY): time constant of its first-order filter, s.
     pub tilt_lag: f64,
+    /// Inclinometer output noise, mdeg.
     pub tilt_noise: f64,
+    /// Standard deviation of the inclinometer's mounting offset, mdeg.
     pub tilt_mounting: f64,
+    /// Inclinometer temperature coefficient on the ambient offset, mdeg/K.
     pub tilt_tempco: f64,
+    /// Inclinometer bias random walk, mdeg/√s (from 0 at each run's start).
     pub tilt_bias_walk: f64,
-    /// Gyro (φZ): angle random walk (deg/√s), bias standard deviation per run (deg/s),
-    /// output noise (mdeg).
+    /// Gyro (φZ): angle random walk, deg/√s.
     pub gyro_angle_walk: f64,
+    /// Standard deviation of the gyro bias drawn per run, deg/s.
     pub gyro_bias: f64,
+    /// Gyro output noise, mdeg.
     pub gyro_noise: f64,
-    /// Force from pressure (F): seal friction (N, its correlation time s), valve lag (s),
-    /// noise (N).
+    /// Force from pressure (F): standard deviation of the seal friction, N.
     pub force_seal_friction: f64,
+    /// Correlation time of the seal friction (Ornstein–Uhlenbeck), s.
     pub force_seal_time: f64,
+    /// Time constant of the valve's first-order lag, s.
     pub force_lag: f64,
+    /// Force output noise, N.
     pub force_noise: f64,
     /// Laser tracker position per axis, mm.
     pub tracker_position: f64,
@@ -149,12 +158,17 @@ impl Default for SensorSpecs {
 /// inclinometer's mounting offsets (mdeg).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Installation {
+    /// Phase of each linear scale's pitch error (E1–E4), rad.
     pub scale_phase: [f64; 4],
+    /// Phase of each load encoder's eccentricity (E5–E6), rad.
     pub eccentricity_phase: [f64; 2],
+    /// Inclinometer mounting offsets (φX, φY), mdeg.
     pub tilt_offset: [f64; 2],
 }
 
 impl Installation {
+    /// The mounting of the machine with seed `seed` (its own random stream, so it does
+    /// not shift the other draws of that seed).
     pub fn draw(seed: u64, specs: &SensorSpecs) -> Installation {
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x7365_6e73_6f72);
         let tau = std::f64::consts::TAU;
@@ -172,24 +186,29 @@ impl Installation {
 pub struct Scene {
     /// Control period, s.
     pub dt: f64,
-    /// Motor encoder lengths (mm) and angles (rad): the commanded inputs.
+    /// Motor encoder lengths of the UPS limbs, mm: the commanded inputs.
     pub encoder_lengths: [f64; 3],
+    /// Motor encoder angles of the serial joints (at the load), rad: the commanded inputs.
     pub encoder_angles: [f64; 2],
     /// True nut position minus the encoder's, per limb, mm: what a scale from the bearing
     /// block to the nut spans.
     pub nut_error: [f64; 3],
     /// Distance of each nut from its bearing, mm.
     pub nut_travel: [f64; 3],
-    /// Temperature rise of each screw (K) and the ambient offset (K).
+    /// Temperature rise of each screw above ambient, K.
     pub screw_rise: [f64; 3],
+    /// Ambient temperature offset, K.
     pub ambient: f64,
-    /// True and commanded extension of the UP limb, mm.
+    /// True extension of the UP limb, mm.
     pub extension: f64,
+    /// Extension of the UP limb that the controller commanded, mm.
     pub commanded_extension: f64,
     /// True load-side joint angles, rad.
     pub joint_angles: [f64; 2],
-    /// True pad pose (base frame) and the pose the controller commanded.
+    /// True pad pose, base frame.
     pub pose: Isometry3<f64>,
+    /// The pad pose the controller commanded (the gyro is aligned to its yaw at the run's
+    /// start).
     pub commanded: Isometry3<f64>,
     /// Contact force, N.
     pub force: f64,
@@ -336,6 +355,7 @@ pub fn tracker_noise(
 pub struct SensorRates {
     /// Per channel, in [`CHANNELS`] order.
     pub channel_every: [u32; 15],
+    /// For the laser tracker.
     pub tracker_every: u32,
 }
 

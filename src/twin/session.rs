@@ -13,9 +13,11 @@ use super::trajectory::{PathKind, PathParams};
 pub struct RunInfo {
     /// `grid`, `fermat`, `hilbert`, `rosette` or `calibration`.
     pub path: String,
-    /// Rotation of the pattern on the part (degrees) and whether it is walked backwards.
+    /// Rotation of the pattern on the part about the mirror axis, deg.
     pub rotation_deg: f64,
+    /// Whether the pattern is walked from its other end.
     pub reverse: bool,
+    /// Length of the run, s (0 for a calibration set).
     pub seconds: f64,
     /// Seed of the run: force, feed modulation, sensor noise and drift.
     pub seed: u64,

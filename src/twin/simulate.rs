@@ -20,22 +20,39 @@ pub struct SimConfig {
     pub dt: f64,
     /// Length of the run, s.
     pub duration: f64,
+    /// The polishing path.
     pub path: PathKind,
+    /// Its spacing, margin and placement on the part.
     pub path_params: PathParams,
     /// Mean feed along the path, mm/s.
     pub feed: f64,
     /// Relative amplitude of the dwell-time modulation of the feed.
     pub feed_variation: f64,
-    /// Pneumatic force: mean, standard deviation (N) and correlation time (s).
+    /// Mean of the pneumatic polishing force, N.
     pub force_mean: f64,
+    /// Standard deviation of the force (Ornstein–Uhlenbeck), N.
     pub force_sd: f64,
+    /// Correlation time of the force, s.
     pub force_time_constant: f64,
+    /// The instruments' specifications.
     pub sensors: SensorSpecs,
+    /// Every how many ticks each sensor samples.
     pub rates: SensorRates,
+    /// The run's seed: force, feed modulation, sensor noise and drift.
     pub seed: u64,
 }
 
 impl SimConfig {
+    /// A run of `duration` seconds along `path` at the default placement, with the
+    /// docs/twin.md defaults: 50 Hz control, 20 mm/s feed ±30 %, 100 ± 15 N force.
+    ///
+    /// ```
+    /// use iastgcn::twin::{PathKind, SimConfig};
+    ///
+    /// let config = SimConfig::new(PathKind::Grid, 60.0, 7);
+    /// assert_eq!(config.dt, 0.02);
+    /// assert_eq!(config.steps(), 3000);
+    /// ```
     pub fn new(path: PathKind, duration: f64, seed: u64) -> SimConfig {
         SimConfig {
             dt: 0.02,
@@ -53,6 +70,7 @@ impl SimConfig {
         }
     }
 
+    /// The number of control ticks in the run.
     pub fn steps(&self) -> usize {
         (self.duration / self.dt).round() as usize
     }
@@ -66,17 +84,20 @@ pub struct Hidden {
     pub target: ToolTarget,
     /// Pad pose the controller's model expects for its command.
     pub commanded: Isometry3<f64>,
+    /// Where the machine really was.
     pub actual: Actual,
 }
 
 /// One control tick as the sensors saw it.
 #[derive(Clone, Debug)]
 pub struct Sample {
+    /// Run time of the tick, s, from 0.
     pub t: f64,
     /// Per [`CHANNELS`], `None` when that sensor had no sample at this tick.
     pub channels: [Option<f64>; 15],
     /// The tracker's measurement of the pad pose in its own frame.
     pub tracker: Option<Isometry3<f64>>,
+    /// The tick's hidden truth.
     pub hidden: Hidden,
 }
 
@@ -88,7 +109,9 @@ pub struct Sample {
 /// spin about the axis free.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Correction {
+    /// Position correction, mm, base frame.
     pub dp: Vector3<f64>,
+    /// Attitude correction, rotation vector, rad, base frame.
     pub dr: Vector3<f64>,
 }
 
@@ -201,10 +224,12 @@ impl<'a> Simulation<'a> {
         s
     }
 
+    /// The path being polished.
     pub fn path(&self) -> &Path {
         &self.path
     }
 
+    /// The run's settings.
     pub fn config(&self) -> &SimConfig {
         &self.config
     }
@@ -328,7 +353,9 @@ impl<'a> Simulation<'a> {
 /// measured pad pose (tracker frame).
 #[derive(Clone, Copy, Debug)]
 pub struct CalibrationMeasurement {
+    /// The commanded joint inputs.
     pub joints: Joints,
+    /// The tracker's pad pose, tracker frame, averaged over the repeats.
     pub measured: Isometry3<f64>,
     /// The true pad pose in the base frame (hidden; for tests).
     pub actual: Isometry3<f64>,

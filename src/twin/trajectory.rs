@@ -24,6 +24,7 @@ pub enum PathKind {
 }
 
 impl PathKind {
+    /// Every path, in the order of the variants.
     pub const ALL: [PathKind; 4] = [
         PathKind::Grid,
         PathKind::Fermat,
@@ -33,6 +34,18 @@ impl PathKind {
     /// The paths of the paper's training recordings (section IV-D).
     pub const TRAINING: [PathKind; 3] = [PathKind::Grid, PathKind::Fermat, PathKind::Hilbert];
 
+    /// The path's name in recordings, sidecars and on the command line; [`str::parse`]
+    /// reads it back.
+    ///
+    /// ```
+    /// use iastgcn::twin::PathKind;
+    ///
+    /// let kind: PathKind = "hilbert".parse()?;
+    /// assert_eq!(kind, PathKind::Hilbert);
+    /// assert_eq!(kind.name(), "hilbert");
+    /// assert!("spiral".parse::<PathKind>().is_err());
+    /// # Ok::<(), String>(())
+    /// ```
     pub fn name(self) -> &'static str {
         match self {
             PathKind::Grid => "grid",
@@ -110,6 +123,15 @@ pub struct Path {
 }
 
 impl Path {
+    /// The polyline through `points` (mm, in the mirror's plane), walked in their order.
+    ///
+    /// ```
+    /// use iastgcn::twin::Path;
+    ///
+    /// let path = Path::new(vec![[0.0, 0.0], [3.0, 4.0]]);
+    /// assert_eq!(path.length(), 5.0);
+    /// assert_eq!(path.at(2.5), [1.5, 2.0]);
+    /// ```
     pub fn new(points: Vec<[f64; 2]>) -> Path {
         let mut arc = Vec::with_capacity(points.len());
         let mut s = 0.0;
@@ -123,10 +145,12 @@ impl Path {
         Path { points, arc }
     }
 
+    /// Total arc length, mm.
     pub fn length(&self) -> f64 {
         *self.arc.last().unwrap_or(&0.0)
     }
 
+    /// The polyline's vertices, mm.
     pub fn points(&self) -> &[[f64; 2]] {
         &self.points
     }

@@ -24,8 +24,9 @@ pub struct ErrorScales {
     pub mdh_angle: f64,
     /// MDH lengths Δa, Δd and the tool offset, mm.
     pub mdh_length: f64,
-    /// Base-to-tracker registration: position mm, attitude rad.
+    /// Base-to-tracker registration position, mm.
     pub tracker_position: f64,
+    /// Base-to-tracker registration attitude, rad.
     pub tracker_attitude: f64,
 }
 

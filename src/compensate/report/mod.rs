@@ -17,13 +17,16 @@ pub use markdown::markdown;
 /// Mean / SD / max of the position (µm) and attitude (mdeg) pose errors of one run.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ErrorStats {
+    /// Pad position error, µm.
     pub position: Summary,
+    /// Tool-axis angle error, mdeg.
     pub attitude: Summary,
 }
 
 /// One row of the Table V analog.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TableVRow {
+    /// The held-out path (`grid`, `fermat`, `hilbert`, `rosette`).
     pub trajectory: String,
     /// `initial`, `calibrated` or `compensated`.
     pub stage: String,
@@ -38,25 +41,31 @@ pub struct TableVRow {
 /// One row of the Table III analog (test-split prediction accuracy).
 #[derive(Clone, Debug, PartialEq)]
 pub struct TableIIIRow {
+    /// The training recording whose test block was scored.
     pub trajectory: String,
+    /// The model's name, or `training mean` for the baseline.
     pub model: String,
+    /// Its prediction errors on that test block.
     pub metrics: Metrics,
 }
 
 /// The Fig. 10 analog for one model.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Timing {
+    /// The model's name.
     pub model: String,
     /// Mean wall time of a training epoch (core stage).
     pub epoch_seconds: f64,
     /// Latency of one online prediction (B = 1, `Predictor::push`), milliseconds.
     pub infer_ms: f64,
+    /// The GPU adapter it ran on.
     pub adapter: String,
 }
 
 /// Per-tracker-sample pose error of one compensation run (for Fig. 11).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Trace {
+    /// The held-out path.
     pub trajectory: String,
     /// e.g. `calibrated`, `compensated (iastgcn)`.
     pub label: String,
@@ -70,16 +79,23 @@ pub use crate::train::refine::AccumulatedCurve;
 /// Everything the report shows.
 #[derive(Clone, Debug, Default)]
 pub struct Report {
+    /// The Markdown heading.
     pub title: String,
+    /// The GPU adapter the models ran on.
     pub adapter: String,
     /// What produced it (config file, recordings, split mode).
     pub setup: Vec<String>,
+    /// Wall time of the whole run, s.
     pub wall_seconds: f64,
+    /// The Table V analog: pose errors of the held-out runs.
     pub table_v: Vec<TableVRow>,
+    /// The Table III analog: test-split prediction accuracy.
     pub table_iii: Vec<TableIIIRow>,
+    /// The Fig. 10 analog: training and inference time per model.
     pub timings: Vec<Timing>,
     /// Training history per model.
     pub histories: Vec<(String, Vec<EpochRecord>)>,
+    /// The Fig. 11 analog: residual traces of the held-out runs.
     pub traces: Vec<Trace>,
     /// Fig. 9b: (k, position µm, attitude mdeg) before and after refinement.
     pub accumulated: Option<(AccumulatedCurve, AccumulatedCurve)>,

@@ -33,7 +33,10 @@ use head::{head, head_backward, output_weight};
 /// `ops::dropout::keep(&mask, step, i)`, and kept values are scaled by 1/(1−p).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct DropoutStep {
+    /// The masks' base seed (block `l` uses seed + l); in training, the two 32-bit
+    /// halves of `[train] seed` XORed together.
     pub seed: u32,
+    /// The optimiser step, counted from 0 within the training stage.
     pub step: u32,
 }
 
@@ -71,9 +74,11 @@ impl Default for Loss {
 /// comparisons) need it.
 #[derive(Clone, Debug)]
 pub struct Tape {
+    /// B: windows in the batch.
     pub batch: usize,
     /// The network input x `[B,N,F,T]`.
     pub input: Vec<f64>,
+    /// Each block's intermediates, block 0 first.
     pub blocks: Vec<BlockTape>,
     /// ŷ `[B,O]`.
     pub output: Vec<f64>,
@@ -99,8 +104,9 @@ pub struct BlockTape {
     pub gate: Option<Vec<f64>>,
     /// Step 6: ReLU(H + R) `[B,N,C,T]`, the LayerNorm input.
     pub act: Vec<f64>,
-    /// Step 6: LayerNorm mean and 1/√(var + ε) per (b,n,t), `[B,N,T]`.
+    /// Step 6: LayerNorm mean μ per (b,n,t), `[B,N,T]`.
     pub mean: Vec<f64>,
+    /// Step 6: LayerNorm 1/√(v + ε) per (b,n,t), `[B,N,T]`.
     pub rstd: Vec<f64>,
     /// Step 7: the dropout mask (`None` without dropout).
     pub mask: Option<Vec<bool>>,

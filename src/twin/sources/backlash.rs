@@ -4,17 +4,21 @@
 
 use super::play::Play;
 
+/// The gear trains' parameters, one entry per serial joint (docs/twin.md "Lost motion and
+/// backlash").
 #[derive(Clone, Copy, Debug)]
 pub struct BacklashParams {
     /// Total backlash of each joint, rad (0.005–0.02°).
     pub width: [f64; 2],
-    /// Amplitude of each gear's transmission error, rad, and its phase.
+    /// Amplitude of each gear's transmission error, rad.
     pub transmission_error: [f64; 2],
+    /// Phase of each gear's transmission error, rad.
     pub transmission_phase: [f64; 2],
     /// Gear ratio (motor turns per joint turn).
     pub ratio: f64,
 }
 
+/// State of the two gear trains: which side of its play each one rests on.
 #[derive(Clone, Debug)]
 pub struct Backlash {
     params: BacklashParams,
@@ -22,6 +26,7 @@ pub struct Backlash {
 }
 
 impl Backlash {
+    /// Gear trains with their play centred.
     pub fn new(params: BacklashParams) -> Backlash {
         Backlash {
             params,

@@ -5,6 +5,7 @@
 
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 
+/// The machine's compliance parameters (docs/twin.md "Compliance").
 #[derive(Clone, Copy, Debug)]
 pub struct ComplianceParams {
     /// Axial compliance of a UPS limb, mm/N.
@@ -51,6 +52,7 @@ pub struct LimbGive {
 }
 
 impl LimbGive {
+    /// Each limb's whole give (screw, strut and clearance), mm.
     pub fn total(&self) -> [f64; 3] {
         [0, 1, 2].map(|i| self.screw[i] + self.strut[i] + self.clearance[i])
     }
@@ -80,13 +82,19 @@ pub fn limb_give(
 /// The forces on the tool that the head's joints carry: the glass's push and drag at the
 /// pad, and the head's weight at its lever.
 pub struct ToolLoad {
+    /// The pad centre, mm, base frame.
     pub pad: Point3<f64>,
+    /// The force of the glass on the pad (normal push and friction drag), N, base frame.
     pub pad_force: Vector3<f64>,
+    /// Where the head's weight acts: `head_lever` up the tool axis from the pad, mm.
     pub weight_at: Point3<f64>,
+    /// The head's weight, N, base frame (+z is down).
     pub weight: Vector3<f64>,
 }
 
 impl ToolLoad {
+    /// The load for the pad at `pad` (mm) pressing with `force` (N) along `tool_axis` while
+    /// it moves along `feed_dir` (unit, or zero at rest).
     pub fn new(
         p: &ComplianceParams,
         pad: Point3<f64>,

@@ -3,6 +3,7 @@
 
 use super::play::Play;
 
+/// The ball screws' lost-motion parameters (docs/twin.md "Lost motion and backlash").
 #[derive(Clone, Copy, Debug)]
 pub struct LostMotionParams {
     /// Total play of each new screw, mm (10–30 µm).
@@ -21,6 +22,7 @@ pub struct LostMotion {
 }
 
 impl LostMotion {
+    /// New screws (nothing travelled yet) with their play centred.
     pub fn new(params: LostMotionParams) -> LostMotion {
         LostMotion {
             params,

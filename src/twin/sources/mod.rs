@@ -20,9 +20,13 @@ pub const SCREW_ORIGIN: f64 = 370.0;
 /// Which non-geometric sources act, with their parameters.
 #[derive(Clone, Copy, Debug)]
 pub struct NonGeometric {
+    /// Ball-screw lost motion of the UPS limbs.
     pub lost_motion: Option<LostMotionParams>,
+    /// Gear backlash and transmission error of the serial joints.
     pub backlash: Option<BacklashParams>,
+    /// Thermal growth of the UPS limbs.
     pub thermal: Option<ThermalParams>,
+    /// Limb give, gear wind-up and tool-tip deflection under load.
     pub compliance: Option<ComplianceParams>,
     /// Limb length (mm) at which a limb's nut sits at its screw's fixed bearing: the nut
     /// is `length − screw_origin` mm from the bearing (where the screw's thermal growth

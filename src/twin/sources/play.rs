@@ -8,6 +8,7 @@ pub struct Play {
 }
 
 impl Play {
+    /// A play operator that has seen no input yet.
     pub fn new() -> Play {
         Play { output: None }
     }

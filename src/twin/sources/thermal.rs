@@ -11,6 +11,7 @@
 //!
 //! A slow ambient drift acts on both. The limb's length sensor spans only the first part.
 
+/// The limbs' thermal parameters (docs/twin.md "Thermal").
 #[derive(Clone, Copy, Debug)]
 pub struct ThermalParams {
     /// Equilibrium temperature rise of the screw per mm/s of screw speed, K.
@@ -25,9 +26,11 @@ pub struct ThermalParams {
     pub tube_share: f64,
     /// Thermal time constant of the tube, s.
     pub tube_time_constant: f64,
-    /// Ambient drift: amplitude (K) and period (s) of a slow sinusoid.
+    /// Amplitude of the slow ambient sinusoid, K.
     pub ambient_amplitude: f64,
+    /// Period of the ambient sinusoid, s.
     pub ambient_period: f64,
+    /// Phase of the ambient sinusoid at session time 0, rad.
     pub ambient_phase: f64,
 }
 
@@ -41,6 +44,7 @@ pub struct ThermalGrowth {
 }
 
 impl ThermalGrowth {
+    /// Each limb's whole elongation (screw plus tube), mm.
     pub fn total(&self) -> [f64; 3] {
         [0, 1, 2].map(|i| self.screw[i] + self.tube[i])
     }
@@ -57,6 +61,7 @@ pub struct Thermal {
 }
 
 impl Thermal {
+    /// Cold limbs: no rise above ambient, no last reading.
     pub fn new(params: ThermalParams) -> Thermal {
         Thermal {
             params,
