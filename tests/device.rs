@@ -4,6 +4,7 @@
 use iastgcn::gpu::{choose_adapter, DType, GpuError, Readback, Recorder, SUBGROUPS_ENV};
 use iastgcn::ops::elementwise::{self, Unary};
 use iastgcn::ops::matmul;
+use iastgcn::ops::Accumulate;
 use iastgcn::testing::gpu;
 
 fn info(name: &str, device_type: wgpu::DeviceType) -> wgpu::AdapterInfo {
@@ -89,7 +90,7 @@ fn recorder_batches_copy_zero_and_dispatch_in_one_submit() {
     let a = g.upload("a", &[n], &x).unwrap();
     let b = g.zeros("b", &[n], DType::F32);
     let y = g.upload("y", &[n], &vec![5.0; n]).unwrap();
-    let relu = elementwise::unary_forward(&g, Unary::Relu, &b, &y, true).unwrap();
+    let relu = elementwise::unary_forward(&g, Unary::Relu, &b, &y, Accumulate::Add).unwrap();
     let rb = Readback::new(&g, "y", y.byte_len());
     let mut rec = Recorder::new(&g);
     rec.copy(&a, &b).unwrap();
@@ -118,11 +119,11 @@ fn each_pipeline_is_compiled_once_per_device() {
     let z = g.zeros("z", &[10], DType::F32);
     assert_eq!(g.pipeline_count(), 0);
     for _ in 0..3 {
-        elementwise::unary_forward(&g, Unary::Tanh, &x, &y, false).unwrap();
-        elementwise::unary_forward(&g, Unary::Tanh, &y, &z, false).unwrap();
+        elementwise::unary_forward(&g, Unary::Tanh, &x, &y, Accumulate::Overwrite).unwrap();
+        elementwise::unary_forward(&g, Unary::Tanh, &y, &z, Accumulate::Overwrite).unwrap();
     }
     assert_eq!(g.pipeline_count(), 1);
-    elementwise::unary_forward(&g, Unary::Sigmoid, &x, &y, false).unwrap();
+    elementwise::unary_forward(&g, Unary::Sigmoid, &x, &y, Accumulate::Overwrite).unwrap();
     assert_eq!(g.pipeline_count(), 2);
 }
 
@@ -131,14 +132,14 @@ fn mismatched_or_aliased_tensors_are_rejected_by_name() {
     let g = gpu();
     let x = g.zeros("x", &[10], DType::F32);
     let y = g.zeros("y", &[11], DType::F32);
-    let err = elementwise::unary_forward(&g, Unary::Relu, &x, &y, false)
+    let err = elementwise::unary_forward(&g, Unary::Relu, &x, &y, Accumulate::Overwrite)
         .unwrap_err()
         .to_string();
     assert!(
         err.contains("tensor x") && err.contains("11 elements"),
         "{err}"
     );
-    let err = elementwise::unary_forward(&g, Unary::Relu, &x, &x, false)
+    let err = elementwise::unary_forward(&g, Unary::Relu, &x, &x, Accumulate::Overwrite)
         .unwrap_err()
         .to_string();
     assert!(err.contains("distinct"), "{err}");

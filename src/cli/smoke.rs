@@ -8,6 +8,7 @@ use anyhow::anyhow;
 use iastgcn::gpu::{Gpu, Recorder};
 use iastgcn::ops::elementwise::{self, Binary, Unary};
 use iastgcn::ops::matmul::{self, Matmul};
+use iastgcn::ops::Accumulate;
 use iastgcn::testing::{compare_tensor, rng, round_f32, to_f32, uniform, Tolerance};
 
 #[derive(clap::Args)]
@@ -46,9 +47,9 @@ fn matmul_check(gpu: &Gpu, args: &SmokeArgs) -> anyhow::Result<()> {
     let dxt = gpu.zeros("dx", &[r, c], iastgcn::gpu::DType::F32);
     let dwt = gpu.zeros("dw", &[c, c], iastgcn::gpu::DType::F32);
     let step = [
-        mm.forward(gpu, &xt, &wt, &yt, false)?,
-        mm.backward_a(gpu, &wt, &dyt, &dxt, false)?,
-        mm.backward_b(gpu, &xt, &dyt, &dwt, false)?,
+        mm.forward(gpu, &xt, &wt, &yt, Accumulate::Overwrite)?,
+        mm.backward_a(gpu, &wt, &dyt, &dxt, Accumulate::Overwrite)?,
+        mm.backward_b(gpu, &xt, &dyt, &dwt, Accumulate::Overwrite)?,
     ];
     gpu.run(&step)?; // warm-up: the first dispatch of a pipeline JIT-compiles it
     let reps = 5;
@@ -104,13 +105,13 @@ fn gated_unit_check(gpu: &Gpu, args: &SmokeArgs) -> anyhow::Result<()> {
         z("dG"),
     );
     let step = [
-        elementwise::unary_forward(gpu, Unary::Tanh, &ft, &tf, false)?,
-        elementwise::unary_forward(gpu, Unary::Sigmoid, &gt, &sg, false)?,
-        elementwise::binary_forward(gpu, Binary::Mul, &tf, &sg, &h, false)?,
-        elementwise::binary_backward(gpu, Binary::Mul, &sg, &dht, &dtf, false)?,
-        elementwise::binary_backward(gpu, Binary::Mul, &tf, &dht, &dsg, false)?,
-        elementwise::unary_backward(gpu, Unary::Tanh, &tf, &dtf, &df, false)?,
-        elementwise::unary_backward(gpu, Unary::Sigmoid, &sg, &dsg, &dg, false)?,
+        elementwise::unary_forward(gpu, Unary::Tanh, &ft, &tf, Accumulate::Overwrite)?,
+        elementwise::unary_forward(gpu, Unary::Sigmoid, &gt, &sg, Accumulate::Overwrite)?,
+        elementwise::binary_forward(gpu, Binary::Mul, &tf, &sg, &h, Accumulate::Overwrite)?,
+        elementwise::binary_backward(gpu, Binary::Mul, &sg, &dht, &dtf, Accumulate::Overwrite)?,
+        elementwise::binary_backward(gpu, Binary::Mul, &tf, &dht, &dsg, Accumulate::Overwrite)?,
+        elementwise::unary_backward(gpu, Unary::Tanh, &tf, &dtf, &df, Accumulate::Overwrite)?,
+        elementwise::unary_backward(gpu, Unary::Sigmoid, &sg, &dsg, &dg, Accumulate::Overwrite)?,
     ];
     let t0 = Instant::now();
     gpu.run(&step)?;
