@@ -1,11 +1,12 @@
 //! Adapter choice (pure logic, no driver needed) and the device layer on the real adapter:
-//! tensors, the pipeline cache, the recorder and explicit readback.
+//! tensors, the pipeline cache, the recorder and explicit readback; the smoke check of a
+//! device, from the library and from the command line.
 
 use iastgcn::gpu::{choose_adapter, DType, GpuError, Readback, Recorder, SUBGROUPS_ENV};
 use iastgcn::ops::elementwise::{self, Unary};
 use iastgcn::ops::matmul;
 use iastgcn::ops::Accumulate;
-use iastgcn::testing::gpu;
+use iastgcn::testing::{gpu, smoke, SmokeOptions};
 
 fn info(name: &str, device_type: wgpu::DeviceType) -> wgpu::AdapterInfo {
     wgpu::AdapterInfo {
@@ -175,4 +176,58 @@ fn subgroup_matmul_follows_the_device_and_can_be_switched_off() {
     }
     let off = info(Some("0"));
     assert!(off.contains("8x8 blocks per invocation (matmul)"), "{off}");
+}
+
+#[test]
+fn smoke_check_compares_every_kernel_output_with_the_reference() {
+    let g = gpu();
+    let options = SmokeOptions {
+        seed: 3,
+        rows: 28,
+        channels: 8,
+    };
+    let rows = smoke(&g, &options).unwrap();
+    let names: Vec<&str> = rows.iter().map(|r| r.name.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "matmul forward",
+            "matmul backward dX",
+            "matmul backward dW",
+            "gate H",
+            "gate dF",
+            "gate dG"
+        ]
+    );
+    for r in &rows {
+        assert!(r.pass, "{}: {}", r.name, r.worst);
+        assert!(r.worst.ratio <= 1.0 && r.worst.abs_err.is_finite(), "{r:?}");
+        assert!(r.seconds > 0.0, "{r:?}");
+    }
+    assert_eq!(rows[0].group, "matmul [28,8]x[8,8] fwd+bwd");
+    assert_eq!(
+        rows[0].flops,
+        Some(3.0 * matmul::Matmul::new(28, 8, 8).flops())
+    );
+    assert!(!rows[0].includes_compile && rows[5].includes_compile);
+    assert_eq!(SmokeOptions::default().rows, 1400);
+}
+
+#[test]
+fn smoke_command_prints_the_rows_and_succeeds() {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
+        .args(["smoke", "--rows", "28", "--channels", "8"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.contains("matmul backward dW"), "{text}");
+    assert!(
+        text.contains("all kernels match the CPU reference"),
+        "{text}"
+    );
 }
