@@ -11,6 +11,7 @@ use crate::calibrate::CalibrationError;
 use crate::data::{DataError, DatasetError};
 use crate::gpu::GpuError;
 use crate::graph::GraphError;
+use crate::interop::TensorFileError;
 use crate::model::{CheckpointError, ModelError};
 use crate::plot::PlotError;
 use crate::robot::RobotError;
@@ -45,6 +46,8 @@ pub enum Error {
     Train(#[from] TrainError),
     #[error(transparent)]
     Plot(#[from] PlotError),
+    #[error(transparent)]
+    TensorFile(#[from] TensorFileError),
     /// A file that could not be written or read.
     #[error("{}: {source}", path.display())]
     Io {
