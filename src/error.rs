@@ -49,17 +49,19 @@ pub enum Error {
     #[error(transparent)]
     TensorFile(#[from] TensorFileError),
     /// A file that could not be written or read.
-    #[error("{}: {source}", path.display())]
+    // The I/O error is part of the message, not a source: a chain printer (the CLI's
+    // `{:#}`) would print it twice.
+    #[error("{}: {error}", path.display())]
     Io {
         path: PathBuf,
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// An argument or setting that cannot be used; the text names it and says why.
     #[error("{0}")]
     Invalid(String),
     /// An error and where it happened (a run, a stage, a file).
-    #[error("{context}: {source}")]
-    Context { context: String, source: Box<Error> },
+    #[error("{context}: {inner}")]
+    Context { context: String, inner: Box<Error> },
 }
 
 /// The library's result.
@@ -70,7 +72,7 @@ impl Error {
     pub fn io(path: &Path, source: std::io::Error) -> Error {
         Error::Io {
             path: path.to_path_buf(),
-            source,
+            error: source,
         }
     }
 
@@ -78,14 +80,14 @@ impl Error {
     pub fn context(self, context: impl Display) -> Error {
         Error::Context {
             context: context.to_string(),
-            source: Box::new(self),
+            inner: Box::new(self),
         }
     }
 
     /// The innermost error under every [`Error::Context`].
     pub fn root(&self) -> &Error {
         match self {
-            Error::Context { source, .. } => source.root(),
+            Error::Context { inner, .. } => inner.root(),
             e => e,
         }
     }

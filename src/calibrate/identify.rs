@@ -105,7 +105,7 @@ pub struct StageReport {
 
 #[derive(Debug, thiserror::Error)]
 pub enum CalibrationError {
-    #[error("{0}")]
+    #[error(transparent)]
     Kinematics(#[from] RobotError),
     #[error("{measurements} measurements are too few: the {stage} stage identifies only {rank} of {needed} parameters it could with a richer set (need at least {min} poses)")]
     TooFew {
