@@ -2,6 +2,7 @@
 //! forward / backward schedules for one batch size. Nothing is allocated and no
 //! pipeline is created after [`Network::new`]; a training step reads nothing back.
 
+pub use super::block::Pass;
 use super::block::{Block, DropoutSlots, Extent, ParamTable};
 use super::config::ModelConfig;
 use super::params::{graph_basis, param_specs, ParamSpec, Parameters};
@@ -22,16 +23,6 @@ pub enum ModelError {
     Config(String),
     #[error("parameter {name}: {message}")]
     Parameter { name: String, message: String },
-}
-
-/// A pass through the network: which schedules a network is built with
-/// ([`Network::built_for`]), and which one [`Network::profile`] times.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Pass {
-    /// The inference forward.
-    Inference,
-    /// The training forward, the loss and the backward.
-    Train,
 }
 
 /// IASTGCN on one device for a fixed batch size.

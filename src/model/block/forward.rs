@@ -1,8 +1,8 @@
 //! The forward schedule of one block: steps 1–7 as device ops, for training or inference.
 
+use super::Pass;
 use super::{Block, ParamTable};
 use crate::gpu::{Gpu, GpuError};
-use crate::model::network::Pass;
 use crate::model::schedule::Steps;
 use crate::ops::elementwise::{unary_forward, Unary};
 use crate::ops::gated_dcc::gate_forward;

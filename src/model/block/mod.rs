@@ -16,6 +16,17 @@ use crate::ops::matmul::Matmul;
 use crate::ops::outer::{OuterPair, Second};
 use crate::ops::softmax::Softmax;
 
+/// A pass through the network: which schedules a network is built with
+/// ([`Network::built_for`](crate::model::Network::built_for)), and which one
+/// [`Network::profile`](crate::model::Network::profile) times.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Pass {
+    /// The inference forward.
+    Inference,
+    /// The training forward, the loss and the backward.
+    Train,
+}
+
 /// Device parameters and their gradients, looked up by docs/model.md name.
 pub trait ParamTable {
     fn param(&self, name: &str) -> &Tensor;
