@@ -9,6 +9,7 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Through
 use iastgcn::gpu::{DType, Dispatch, Gpu, Readback, Recorder};
 use iastgcn::ops::elementwise::{self, Unary};
 use iastgcn::ops::matmul::Matmul;
+use iastgcn::ops::Accumulate;
 use iastgcn::testing::{rng, to_f32, uniform};
 
 /// Records `d` `iters` times into one submit and waits: per-dispatch time with the submit
@@ -56,20 +57,20 @@ fn gpu_case(gpu: &Gpu, mm: Matmul, pass: Pass) -> Dispatch {
         )
         .unwrap();
     match pass {
-        Pass::Forward => mm.forward(gpu, &a, &b, &c, false),
+        Pass::Forward => mm.forward(gpu, &a, &b, &c, Accumulate::Overwrite),
         Pass::GradA => mm.backward_a(
             gpu,
             &b,
             &c,
             &gpu.zeros("da", &[mm.a_len()], DType::F32),
-            false,
+            Accumulate::Overwrite,
         ),
         Pass::GradB => mm.backward_b(
             gpu,
             &a,
             &c,
             &gpu.zeros("db", &[mm.b_len()], DType::F32),
-            false,
+            Accumulate::Overwrite,
         ),
     }
     .unwrap()
@@ -153,7 +154,8 @@ fn fixed_costs(c: &mut Criterion) {
     let gpu = Gpu::new().expect("a GPU adapter (make bench installs lavapipe)");
     let x = gpu.upload("x", &[64], &[0.5; 64]).unwrap();
     let y = gpu.zeros("y", &[64], DType::F32);
-    let tiny = elementwise::unary_forward(&gpu, Unary::Relu, &x, &y, false).unwrap();
+    let tiny =
+        elementwise::unary_forward(&gpu, Unary::Relu, &x, &y, Accumulate::Overwrite).unwrap();
     gpu.run(std::slice::from_ref(&tiny)).unwrap();
     let rb = Readback::new(&gpu, "y", 4);
     let scalar = gpu.zeros("loss", &[1], DType::F32);

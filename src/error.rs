@@ -11,6 +11,7 @@ use crate::calibrate::CalibrationError;
 use crate::data::{DataError, DatasetError};
 use crate::gpu::GpuError;
 use crate::graph::GraphError;
+use crate::interop::TensorFileError;
 use crate::model::{CheckpointError, ModelError};
 use crate::plot::PlotError;
 use crate::robot::RobotError;
@@ -58,24 +59,29 @@ pub enum Error {
     /// A plot that cannot be drawn or written.
     #[error(transparent)]
     Plot(#[from] PlotError),
+    /// A tensor file (`iastgcn forward`'s input or output) that cannot be read or written.
+    #[error(transparent)]
+    TensorFile(#[from] TensorFileError),
     /// A file that could not be written or read.
-    #[error("{}: {source}", path.display())]
+    // The I/O error is part of the message, not a source: a chain printer (the CLI's
+    // `{:#}`) would print it twice.
+    #[error("{}: {error}", path.display())]
     Io {
         /// The file.
         path: PathBuf,
         /// What the operating system said.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// An argument or setting that cannot be used; the text names it and says why.
     #[error("{0}")]
     Invalid(String),
     /// An error and where it happened (a run, a stage, a file).
-    #[error("{context}: {source}")]
+    #[error("{context}: {inner}")]
     Context {
         /// Where it happened.
         context: String,
         /// What happened.
-        source: Box<Error>,
+        inner: Box<Error>,
     },
 }
 
@@ -87,7 +93,7 @@ impl Error {
     pub fn io(path: &Path, source: std::io::Error) -> Error {
         Error::Io {
             path: path.to_path_buf(),
-            source,
+            error: source,
         }
     }
 
@@ -103,14 +109,14 @@ impl Error {
     pub fn context(self, context: impl Display) -> Error {
         Error::Context {
             context: context.to_string(),
-            source: Box::new(self),
+            inner: Box::new(self),
         }
     }
 
     /// The innermost error under every [`Error::Context`].
     pub fn root(&self) -> &Error {
         match self {
-            Error::Context { source, .. } => source.root(),
+            Error::Context { inner, .. } => inner.root(),
             e => e,
         }
     }

@@ -35,6 +35,7 @@ pub mod data;
 pub mod error;
 pub mod gpu;
 pub mod graph;
+pub mod interop;
 pub mod model;
 pub mod ops;
 pub mod plot;

@@ -42,6 +42,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
             "data", "model", "ops", "gpu", "graph", "plot", "progress", "atomic", "error", "stats",
         ],
     ),
+    ("interop", &["model", "train", "gpu", "graph", "error"]),
     (
         "compensate",
         &[
@@ -72,6 +73,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
             "train",
             "plot",
             "atomic",
+            "interop",
         ],
     ),
 ];

@@ -3,6 +3,7 @@
 
 use iastgcn::gpu::DType;
 use iastgcn::ops::bias::{cpu, Bias};
+use iastgcn::ops::Accumulate;
 use iastgcn::testing::{
     check_gradient, compare_tensor, dot, gpu, rng, round_f32, to_f32, uniform, Tolerance,
 };
@@ -51,8 +52,8 @@ fn forward_and_backward_match_reference() {
         let db_acc = g.upload("dbias+", &[channels], &to_f32(&bias)).unwrap();
         g.run(&[
             b.forward(&g, &bt, &yt).unwrap(),
-            b.backward(&g, &dyt, &db, false).unwrap(),
-            b.backward(&g, &dyt, &db_acc, true).unwrap(),
+            b.backward(&g, &dyt, &db, Accumulate::Overwrite).unwrap(),
+            b.backward(&g, &dyt, &db_acc, Accumulate::Add).unwrap(),
         ])
         .unwrap();
         let tol = Tolerance::new(1e-6, 1e-6);

@@ -1,10 +1,13 @@
 //! Checkpoints: save → load gives identical parameters and identical GPU outputs; bad
 //! files are rejected with a message naming the file and what is wrong. The predictor
-//! (window, batch, ring buffer) against the network, and the `init` / `forward` CLI.
+//! (window, batch, ring buffer) against the network, the `init` / `forward` library calls
+//! (interop) and their CLI.
 
 use std::sync::Arc;
 
+use iastgcn::error::Error;
 use iastgcn::graph::Graph;
+use iastgcn::interop;
 use iastgcn::model::{
     Checkpoint, ModelConfig, Network, Normalization, Parameters, Predictor, Variant,
 };
@@ -344,4 +347,86 @@ fn cli_init_and_forward_round_trip() {
     assert!(!output.status.success());
     let msg = String::from_utf8_lossy(&output.stderr);
     assert!(msg.contains("expected [B, 14, 3, 16]"), "{msg}");
+}
+
+#[test]
+fn interop_init_and_forward_from_the_library() {
+    let config = temp("interop.toml");
+    std::fs::write(
+        &config,
+        "[model]\nvariant = \"iastgcn-a\"\nwindow = 16\nchannels = 8\nblocks = 2\n",
+    )
+    .unwrap();
+    let ck = interop::init(Some(&config), Some(Variant::PlainTemporal), None, 5).unwrap();
+    assert_eq!(
+        ck.config.variant,
+        Variant::PlainTemporal,
+        "the override wins"
+    );
+    assert_eq!(ck.config.window, 16);
+    assert_eq!(ck.parameters, Parameters::init(&ck.config, 5));
+    assert_eq!(ck.normalization, Normalization::identity(&ck.config));
+    assert_eq!(ck.graph, Graph::default_asset());
+    let paper = interop::init(None, None, None, 1).unwrap();
+    assert_eq!(paper.config, ModelConfig::default());
+
+    // y is the network's output in standardised label space, whatever the batch.
+    let b = 5;
+    let x = to_f32(&uniform(&mut rng(6), b * 14 * 3 * 16, -1.0, 1.0));
+    let g = gpu();
+    let net = Network::for_inference(&g, &ck.config, &ck.graph, b).unwrap();
+    net.load_parameters(&g, &ck.parameters).unwrap();
+    let want = net.predict(&g, &x).unwrap();
+    assert_eq!(interop::forward_windows(&g, &ck, &x, 2).unwrap(), want);
+
+    let model = temp("interop.safetensors");
+    ck.save(&model).unwrap();
+    let input = temp("interop-x.safetensors");
+    interop::write_tensor(&input, "x", &[b, 14, 3, 16], &x).unwrap();
+    let out = temp("interop-y.safetensors");
+    let done = interop::forward(&g, &model, &input, &out, 3).unwrap();
+    assert_eq!(
+        done,
+        interop::Forwarded {
+            windows: b,
+            outputs: 6,
+            variant: Variant::PlainTemporal
+        }
+    );
+    let (shape, y) = interop::read_tensor(&out, "y").unwrap();
+    assert_eq!(shape, [b, 6]);
+    assert_eq!(y, want);
+
+    // Errors are typed and name the file and the tensor.
+    let tensor_error = |e: Error| match e {
+        Error::TensorFile(e) => (e.path, e.tensor, e.message),
+        e => panic!("not a tensor file error: {e}"),
+    };
+    let (path, tensor, message) = tensor_error(interop::read_tensor(&out, "x").unwrap_err());
+    assert_eq!((path, tensor.as_deref()), (out.clone(), Some("x")));
+    assert!(message.contains("found: y"), "{message}");
+    let mut bad = x.clone();
+    bad[7] = f32::NAN;
+    interop::write_tensor(&input, "x", &[b, 14, 3, 16], &bad).unwrap();
+    let err = interop::forward(&g, &model, &input, &out, 3).unwrap_err();
+    let text = err.to_string();
+    let (path, tensor, message) = tensor_error(err);
+    assert_eq!((path, tensor.as_deref()), (input.clone(), Some("x")));
+    assert!(message.contains("element 7 is NaN"), "{text}");
+    assert!(
+        text.contains("interop-x.safetensors: tensor x: element 7"),
+        "{text}"
+    );
+    let err = interop::forward(&g, &model, &input, &out, 0).unwrap_err();
+    assert!(err.to_string().contains("nothing to run"), "{err}");
+    let missing = temp("no-such-file.safetensors");
+    let err = interop::forward(&g, &model, &missing, &out, 3).unwrap_err();
+    assert!(
+        matches!(err, Error::Io { ref path, .. } if *path == missing),
+        "{err}"
+    );
+    let graph = temp("interop-graph.toml");
+    std::fs::write(&graph, "not a graph").unwrap();
+    let err = interop::init(None, None, Some(&graph), 1).unwrap_err();
+    assert!(err.to_string().contains("interop-graph.toml"), "{err}");
 }

@@ -1,10 +1,12 @@
 //! Adapter choice (pure logic, no driver needed) and the device layer on the real adapter:
-//! tensors, the pipeline cache, the recorder and explicit readback.
+//! tensors, the pipeline cache, the recorder and explicit readback; the smoke check of a
+//! device, from the library and from the command line.
 
 use iastgcn::gpu::{choose_adapter, DType, GpuError, Readback, Recorder, SUBGROUPS_ENV};
 use iastgcn::ops::elementwise::{self, Unary};
 use iastgcn::ops::matmul;
-use iastgcn::testing::gpu;
+use iastgcn::ops::Accumulate;
+use iastgcn::testing::{gpu, smoke, SmokeOptions};
 
 fn info(name: &str, device_type: wgpu::DeviceType) -> wgpu::AdapterInfo {
     wgpu::AdapterInfo {
@@ -89,7 +91,7 @@ fn recorder_batches_copy_zero_and_dispatch_in_one_submit() {
     let a = g.upload("a", &[n], &x).unwrap();
     let b = g.zeros("b", &[n], DType::F32);
     let y = g.upload("y", &[n], &vec![5.0; n]).unwrap();
-    let relu = elementwise::unary_forward(&g, Unary::Relu, &b, &y, true).unwrap();
+    let relu = elementwise::unary_forward(&g, Unary::Relu, &b, &y, Accumulate::Add).unwrap();
     let rb = Readback::new(&g, "y", y.byte_len());
     let mut rec = Recorder::new(&g);
     rec.copy(&a, &b).unwrap();
@@ -118,11 +120,11 @@ fn each_pipeline_is_compiled_once_per_device() {
     let z = g.zeros("z", &[10], DType::F32);
     assert_eq!(g.pipeline_count(), 0);
     for _ in 0..3 {
-        elementwise::unary_forward(&g, Unary::Tanh, &x, &y, false).unwrap();
-        elementwise::unary_forward(&g, Unary::Tanh, &y, &z, false).unwrap();
+        elementwise::unary_forward(&g, Unary::Tanh, &x, &y, Accumulate::Overwrite).unwrap();
+        elementwise::unary_forward(&g, Unary::Tanh, &y, &z, Accumulate::Overwrite).unwrap();
     }
     assert_eq!(g.pipeline_count(), 1);
-    elementwise::unary_forward(&g, Unary::Sigmoid, &x, &y, false).unwrap();
+    elementwise::unary_forward(&g, Unary::Sigmoid, &x, &y, Accumulate::Overwrite).unwrap();
     assert_eq!(g.pipeline_count(), 2);
 }
 
@@ -131,14 +133,14 @@ fn mismatched_or_aliased_tensors_are_rejected_by_name() {
     let g = gpu();
     let x = g.zeros("x", &[10], DType::F32);
     let y = g.zeros("y", &[11], DType::F32);
-    let err = elementwise::unary_forward(&g, Unary::Relu, &x, &y, false)
+    let err = elementwise::unary_forward(&g, Unary::Relu, &x, &y, Accumulate::Overwrite)
         .unwrap_err()
         .to_string();
     assert!(
         err.contains("tensor x") && err.contains("11 elements"),
         "{err}"
     );
-    let err = elementwise::unary_forward(&g, Unary::Relu, &x, &x, false)
+    let err = elementwise::unary_forward(&g, Unary::Relu, &x, &x, Accumulate::Overwrite)
         .unwrap_err()
         .to_string();
     assert!(err.contains("distinct"), "{err}");
@@ -174,4 +176,58 @@ fn subgroup_matmul_follows_the_device_and_can_be_switched_off() {
     }
     let off = info(Some("0"));
     assert!(off.contains("8x8 blocks per invocation (matmul)"), "{off}");
+}
+
+#[test]
+fn smoke_check_compares_every_kernel_output_with_the_reference() {
+    let g = gpu();
+    let options = SmokeOptions {
+        seed: 3,
+        rows: 28,
+        channels: 8,
+    };
+    let rows = smoke(&g, &options).unwrap();
+    let names: Vec<&str> = rows.iter().map(|r| r.name.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "matmul forward",
+            "matmul backward dX",
+            "matmul backward dW",
+            "gate H",
+            "gate dF",
+            "gate dG"
+        ]
+    );
+    for r in &rows {
+        assert!(r.pass, "{}: {}", r.name, r.worst);
+        assert!(r.worst.ratio <= 1.0 && r.worst.abs_err.is_finite(), "{r:?}");
+        assert!(r.seconds > 0.0, "{r:?}");
+    }
+    assert_eq!(rows[0].group, "matmul [28,8]x[8,8] fwd+bwd");
+    assert_eq!(
+        rows[0].flops,
+        Some(3.0 * matmul::Matmul::new(28, 8, 8).flops())
+    );
+    assert!(!rows[0].includes_compile && rows[5].includes_compile);
+    assert_eq!(SmokeOptions::default().rows, 1400);
+}
+
+#[test]
+fn smoke_command_prints_the_rows_and_succeeds() {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
+        .args(["smoke", "--rows", "28", "--channels", "8"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.contains("matmul backward dW"), "{text}");
+    assert!(
+        text.contains("all kernels match the CPU reference"),
+        "{text}"
+    );
 }

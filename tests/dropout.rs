@@ -3,6 +3,7 @@
 
 use iastgcn::gpu::DType;
 use iastgcn::ops::dropout::{keep, Dropout};
+use iastgcn::ops::Accumulate;
 use iastgcn::testing::gpu;
 
 #[test]
@@ -13,7 +14,8 @@ fn mask_matches_the_cpu_hash_and_scales_kept_values() {
     let x: Vec<f32> = (0..n).map(|i| 1.0 + (i % 7) as f32).collect();
     let xt = g.upload("x", &[n], &x).unwrap();
     let y = g.zeros("y", &[n], DType::F32);
-    g.run(&[d.apply(&g, 5, &xt, &y, false).unwrap()]).unwrap();
+    g.run(&[d.apply(&g, 5, &xt, &y, Accumulate::Overwrite).unwrap()])
+        .unwrap();
     let got = g.read_f32(&y).unwrap();
     let scale = (1.0 / 0.8f64) as f32;
     let mut kept = 0;
@@ -38,14 +40,14 @@ fn backward_uses_the_forward_mask_and_steps_change_it() {
         g.zeros("y", &[n], DType::F32),
         g.zeros("dx", &[n], DType::F32),
     );
-    let fwd = d.apply(&g, 11, &ones, &y, false).unwrap();
-    let bwd = d.apply(&g, 11, &ones, &dx, false).unwrap();
+    let fwd = d.apply(&g, 11, &ones, &y, Accumulate::Overwrite).unwrap();
+    let bwd = d.apply(&g, 11, &ones, &dx, Accumulate::Overwrite).unwrap();
     g.run(&[fwd, bwd]).unwrap();
     let (a, b) = (g.read_f32(&y).unwrap(), g.read_f32(&dx).unwrap());
     assert_eq!(a, b, "forward and backward masks differ");
     // The same dispatch pointed at the next step gives another mask.
-    let next = d.apply(&g, 11, &ones, &y, false).unwrap();
-    d.set_step(&g, &next, 12, false).unwrap();
+    let next = d.apply(&g, 11, &ones, &y, Accumulate::Overwrite).unwrap();
+    d.set_step(&g, &next, 12, Accumulate::Overwrite).unwrap();
     g.run(&[next]).unwrap();
     let c = g.read_f32(&y).unwrap();
     let same = a.iter().zip(&c).filter(|(p, q)| p == q).count();
@@ -73,8 +75,8 @@ fn a_strided_subset_gets_the_bits_of_the_whole_tensor() {
         g.zeros("y last", &[rows], DType::F32),
     );
     g.run(&[
-        whole.apply(&g, 3, &xt, &y, false).unwrap(),
-        last.apply(&g, 3, &tt, &yl, false).unwrap(),
+        whole.apply(&g, 3, &xt, &y, Accumulate::Overwrite).unwrap(),
+        last.apply(&g, 3, &tt, &yl, Accumulate::Overwrite).unwrap(),
     ])
     .unwrap();
     let (y, yl) = (g.read_f32(&y).unwrap(), g.read_f32(&yl).unwrap());

@@ -3,6 +3,7 @@
 
 use iastgcn::gpu::{grid_1d, DType, Gpu, Tensor};
 use iastgcn::ops::elementwise::{self as ew, cpu, Binary, Unary};
+use iastgcn::ops::Accumulate;
 use iastgcn::testing::{
     away_from_zero, check_gradient, compare_tensor, dot, gpu, rng, round_f32, to_f32, uniform,
     Tolerance,
@@ -41,8 +42,8 @@ fn unary_forward_and_backward_match_reference() {
             let dx = g.zeros("dx", &[n], DType::F32);
             let saved = if op.backward_uses_output() { &y } else { &xt };
             g.run(&[
-                ew::unary_forward(&g, op, &xt, &y, false).unwrap(),
-                ew::unary_backward(&g, op, saved, &dyt, &dx, false).unwrap(),
+                ew::unary_forward(&g, op, &xt, &y, Accumulate::Overwrite).unwrap(),
+                ew::unary_backward(&g, op, saved, &dyt, &dx, Accumulate::Overwrite).unwrap(),
             ])
             .unwrap();
             compare_tensor(
@@ -90,7 +91,7 @@ fn saturated_inputs_stay_finite() {
     let xt = upload(&g, "x", &x);
     for op in Unary::ALL {
         let y = g.zeros("y", &[x.len()], DType::F32);
-        g.run(&[ew::unary_forward(&g, op, &xt, &y, false).unwrap()])
+        g.run(&[ew::unary_forward(&g, op, &xt, &y, Accumulate::Overwrite).unwrap()])
             .unwrap();
         compare_tensor(
             &g,
@@ -121,9 +122,9 @@ fn binary_forward_and_backward_match_reference() {
             let da = g.zeros("da", &[n], DType::F32);
             let db = g.zeros("db", &[n], DType::F32);
             g.run(&[
-                ew::binary_forward(&g, op, &at, &bt, &c, false).unwrap(),
-                ew::binary_backward(&g, op, &bt, &dct, &da, false).unwrap(),
-                ew::binary_backward(&g, op, &at, &dct, &db, false).unwrap(),
+                ew::binary_forward(&g, op, &at, &bt, &c, Accumulate::Overwrite).unwrap(),
+                ew::binary_backward(&g, op, &bt, &dct, &da, Accumulate::Overwrite).unwrap(),
+                ew::binary_backward(&g, op, &at, &dct, &db, Accumulate::Overwrite).unwrap(),
             ])
             .unwrap();
             let (da_ref, db_ref) = cpu::binary_backward(op, &a, &b, &dc);
@@ -179,8 +180,8 @@ fn backward_accumulates_when_asked() {
     let (xt, dyt) = (upload(&g, "x", &x), upload(&g, "dy", &dy));
     let dx = g.zeros("dx", &[300], DType::F32);
     g.run(&[
-        ew::binary_backward(&g, Binary::Mul, &xt, &dyt, &dx, false).unwrap(),
-        ew::binary_backward(&g, Binary::Mul, &xt, &dyt, &dx, true).unwrap(),
+        ew::binary_backward(&g, Binary::Mul, &xt, &dyt, &dx, Accumulate::Overwrite).unwrap(),
+        ew::binary_backward(&g, Binary::Mul, &xt, &dyt, &dx, Accumulate::Add).unwrap(),
     ])
     .unwrap();
     let want: Vec<f64> = x.iter().zip(&dy).map(|(x, g)| 2.0 * x * g).collect();
@@ -208,7 +209,7 @@ fn folded_grid_covers_every_element_on_the_device() {
         .collect();
     let xt = g.upload("x", &[n], &x).unwrap();
     let y = g.zeros("y", &[n], DType::F32);
-    let d = ew::unary_forward(&g, Unary::Relu, &xt, &y, false).unwrap();
+    let d = ew::unary_forward(&g, Unary::Relu, &xt, &y, Accumulate::Overwrite).unwrap();
     assert!(
         d.workgroups()[1] > 1,
         "grid should fold: {:?}",

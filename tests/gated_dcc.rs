@@ -5,6 +5,7 @@
 use iastgcn::gpu::DType;
 use iastgcn::ops::gated_dcc::{cpu, gate_backward_stacked, gate_forward, ReluOutput, Unfold};
 use iastgcn::ops::matmul::Matmul;
+use iastgcn::ops::Accumulate;
 use iastgcn::testing::{
     check_gradient, compare, compare_tensor, dot, gpu, rng, round_f32, to_f32, uniform, Tolerance,
 };
@@ -52,7 +53,7 @@ fn unfold_matches_reference() {
         let dx = g.upload("dx", &[u.input_len()], &to_f32(&x)).unwrap();
         g.run(&[
             u.forward(&g, &xt, &col).unwrap(),
-            u.backward(&g, &dcolt, &dx, true).unwrap(),
+            u.backward(&g, &dcolt, &dx, Accumulate::Add).unwrap(),
         ])
         .unwrap();
         let exact = Tolerance::new(0.0, 0.0);
@@ -145,7 +146,8 @@ fn unfold_then_gemm_is_the_causal_convolution() {
         .share_a(true);
     g.run(&[
         u.forward(&g, &xt, &col).unwrap(),
-        mm.forward(&g, &wt, &col, &out, false).unwrap(),
+        mm.forward(&g, &wt, &col, &out, Accumulate::Overwrite)
+            .unwrap(),
     ])
     .unwrap();
     let expected = cpu::conv(&u, outputs, &w, &vec![0.0; outputs], &x);

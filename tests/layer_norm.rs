@@ -3,6 +3,7 @@
 
 use iastgcn::gpu::{DType, Gpu, Tensor};
 use iastgcn::ops::layer_norm::{cpu, LayerNorm};
+use iastgcn::ops::Accumulate;
 use iastgcn::testing::{
     check_gradient, compare_tensor, dot, gpu, rng, round_f32, to_f32, uniform, Tolerance,
 };
@@ -53,9 +54,9 @@ fn forward_and_backward_match_reference() {
         );
         g.run(&[
             ln.forward(&g, &xt, &gt, &bt, &y, &mean, &rstd).unwrap(),
-            ln.backward_input(&g, &xt, &gt, &dyt, &mean, &rstd, &dx, false)
+            ln.backward_input(&g, &xt, &gt, &dyt, &mean, &rstd, &dx, Accumulate::Overwrite)
                 .unwrap(),
-            ln.backward_params(&g, &xt, &dyt, &mean, &rstd, &dg, &db, false)
+            ln.backward_params(&g, &xt, &dyt, &mean, &rstd, &dg, &db, Accumulate::Overwrite)
                 .unwrap(),
         ])
         .unwrap();
@@ -152,9 +153,9 @@ fn gradients_accumulate_when_asked() {
     );
     g.run(&[
         ln.forward(&g, &xt, &gt, &beta, &y, &mean, &rstd).unwrap(),
-        ln.backward_input(&g, &xt, &gt, &dyt, &mean, &rstd, &dx, true)
+        ln.backward_input(&g, &xt, &gt, &dyt, &mean, &rstd, &dx, Accumulate::Add)
             .unwrap(),
-        ln.backward_params(&g, &xt, &dyt, &mean, &rstd, &dg, &db, true)
+        ln.backward_params(&g, &xt, &dyt, &mean, &rstd, &dg, &db, Accumulate::Add)
             .unwrap(),
     ])
     .unwrap();
@@ -198,7 +199,7 @@ fn relu_input_masks_the_input_gradient() {
         );
         g.run(&[
             ln.forward(&g, &xt, &gt, &beta, &y, &mean, &rstd).unwrap(),
-            ln.backward_input(&g, &xt, &gt, &dyt, &mean, &rstd, &dx, false)
+            ln.backward_input(&g, &xt, &gt, &dyt, &mean, &rstd, &dx, Accumulate::Overwrite)
                 .unwrap(),
         ])
         .unwrap();

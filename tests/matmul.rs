@@ -7,6 +7,7 @@
 use iastgcn::gpu::{DType, Gpu, Tensor};
 use iastgcn::ops::gated_dcc;
 use iastgcn::ops::matmul::{cpu, plan, Epilogue, Loads, Matmul, Tiling};
+use iastgcn::ops::Accumulate;
 use iastgcn::testing::{
     check_gradient, compare_tensor, dot, gpu, rng, round_f32, to_f32, uniform, Tolerance,
 };
@@ -137,7 +138,7 @@ fn forward_matches_reference() {
         let x = inputs(&mm, i as u64);
         let (a, b) = (upload(&g, "a", &x.a), upload(&g, "b", &x.b));
         let c = g.zeros("c", &[mm.c_len()], DType::F32);
-        g.run(&[mm.forward(&g, &a, &b, &c, false).unwrap()])
+        g.run(&[mm.forward(&g, &a, &b, &c, Accumulate::Overwrite).unwrap()])
             .unwrap();
         compare_tensor(
             &g,
@@ -163,8 +164,10 @@ fn backward_matches_reference() {
         let da = g.zeros("da", &[mm.a_len()], DType::F32);
         let db = g.zeros("db", &[mm.b_len()], DType::F32);
         g.run(&[
-            mm.backward_a(&g, &b, &dc, &da, false).unwrap(),
-            mm.backward_b(&g, &a, &dc, &db, false).unwrap(),
+            mm.backward_a(&g, &b, &dc, &da, Accumulate::Overwrite)
+                .unwrap(),
+            mm.backward_b(&g, &a, &dc, &db, Accumulate::Overwrite)
+                .unwrap(),
         ])
         .unwrap();
         let (da_ref, db_ref) = cpu::backward(&mm, &x.a, &x.b, &x.dc);
@@ -222,7 +225,11 @@ fn epilogue_adds_one_bias_per_output_row_then_relu() {
             upload(&g, "b", &x.b),
             upload(&g, "bias", &bias),
         );
-        for (accumulate, relu) in [(false, false), (true, false), (true, true)] {
+        for (accumulate, relu) in [
+            (Accumulate::Overwrite, false),
+            (Accumulate::Add, false),
+            (Accumulate::Add, true),
+        ] {
             let c = upload(&g, "c", &c0);
             let epilogue = Epilogue {
                 bias: Some(&tb),
@@ -238,7 +245,8 @@ fn epilogue_adds_one_bias_per_output_row_then_relu() {
                 .enumerate()
                 .map(|(j, v)| {
                     let row = (j / mm.n) % mm.m;
-                    let v = v + bias[row] + if accumulate { c0[j] } else { 0.0 };
+                    let added = accumulate == Accumulate::Add;
+                    let v = v + bias[row] + if added { c0[j] } else { 0.0 };
                     if relu {
                         v.max(0.0)
                     } else {
@@ -248,7 +256,7 @@ fn epilogue_adds_one_bias_per_output_row_then_relu() {
                 .collect();
             compare_tensor(
                 &g,
-                &format!("{mm:?} accumulate={accumulate}"),
+                &format!("{mm:?} accumulate={accumulate:?}"),
                 &c,
                 &want,
                 gpu_tol(mm.k),
@@ -274,7 +282,9 @@ fn epilogue_adds_one_bias_per_output_row_then_relu() {
             matrix: Some(&ta),
             ..Epilogue::default()
         };
-        g.run(&[mm.forward_with(&g, &a, &b, &c, false, epilogue).unwrap()])
+        g.run(&[mm
+            .forward_with(&g, &a, &b, &c, Accumulate::Overwrite, epilogue)
+            .unwrap()])
             .unwrap();
         let want: Vec<f64> = cpu::forward(&mm, &x.a, &x.b)
             .iter()
@@ -292,7 +302,14 @@ fn epilogue_adds_one_bias_per_output_row_then_relu() {
         ..Epilogue::default()
     };
     let err = mm
-        .forward_with(&g, &t("a", 16), &t("b", 16), &t("c", 16), false, epilogue)
+        .forward_with(
+            &g,
+            &t("a", 16),
+            &t("b", 16),
+            &t("c", 16),
+            Accumulate::Overwrite,
+            epilogue,
+        )
         .unwrap_err()
         .to_string();
     assert!(
@@ -327,7 +344,9 @@ fn gate_epilogue_applies_tanh_of_the_filter_times_sigmoid() {
             gate: Some(&tf),
             ..Epilogue::default()
         };
-        g.run(&[mm.forward_with(&g, &a, &b, &c, false, epilogue).unwrap()])
+        g.run(&[mm
+            .forward_with(&g, &a, &b, &c, Accumulate::Overwrite, epilogue)
+            .unwrap()])
             .unwrap();
         let pre: Vec<f64> = cpu::forward(&mm, &x.a, &x.b)
             .iter()
@@ -343,7 +362,7 @@ fn gate_epilogue_applies_tanh_of_the_filter_times_sigmoid() {
             ..Epilogue::default()
         };
         let err = mm
-            .forward_with(&g, &a, &b, &c, false, bad)
+            .forward_with(&g, &a, &b, &c, Accumulate::Overwrite, bad)
             .unwrap_err()
             .to_string();
         assert!(err.contains("f short"), "{err}");
@@ -368,8 +387,8 @@ fn accumulate_adds_to_existing_values() {
         let db0: Vec<f64> = (0..mm.b_len()).map(|i| 1.0 - i as f64 * 0.5).collect();
         let (c, db) = (upload(&g, "c", &c0), upload(&g, "db", &db0));
         g.run(&[
-            mm.forward(&g, &a, &b, &c, true).unwrap(),
-            mm.backward_b(&g, &a, &dc, &db, true).unwrap(),
+            mm.forward(&g, &a, &b, &c, Accumulate::Add).unwrap(),
+            mm.backward_b(&g, &a, &dc, &db, Accumulate::Add).unwrap(),
         ])
         .unwrap();
         let c_ref: Vec<f64> = cpu::forward(&mm, &x.a, &x.b)
@@ -432,7 +451,7 @@ fn split_weight_gradients_match_reference() {
             } else {
                 (db_ref, mm.b_len(), mm.m * mm.batch)
             };
-            for accumulate in [false, true] {
+            for accumulate in Accumulate::ALL {
                 let g0: Vec<f64> = (0..len).map(|j| 0.5 - j as f64 * 0.01).collect();
                 let grad = upload(&g, "dw", &g0);
                 let d = if shared_a {
@@ -447,9 +466,15 @@ fn split_weight_gradients_match_reference() {
                 let want: Vec<f64> = grad_ref
                     .iter()
                     .zip(&g0)
-                    .map(|(r, g0)| r + if accumulate { *g0 } else { 0.0 })
+                    .map(|(r, g0)| {
+                        r + if accumulate == Accumulate::Add {
+                            *g0
+                        } else {
+                            0.0
+                        }
+                    })
                     .collect();
-                let what = format!("{mm:?} split gradient, accumulate {accumulate}");
+                let what = format!("{mm:?} split gradient, accumulate {accumulate:?}");
                 compare_tensor(&g, &what, &grad, &want, gpu_tol(k)).unwrap();
             }
         }
@@ -470,8 +495,9 @@ fn model_sized_product_matches_reference() {
         let c = g.zeros("y", &[mm.c_len()], DType::F32);
         let db = g.zeros("dw", &[mm.b_len()], DType::F32);
         g.run(&[
-            mm.forward(&g, &a, &b, &c, false).unwrap(),
-            mm.backward_b(&g, &a, &dc, &db, false).unwrap(),
+            mm.forward(&g, &a, &b, &c, Accumulate::Overwrite).unwrap(),
+            mm.backward_b(&g, &a, &dc, &db, Accumulate::Overwrite)
+                .unwrap(),
         ])
         .unwrap();
         compare_tensor(&g, "y", &c, &cpu::forward(&mm, &x.a, &x.b), gpu_tol(64)).unwrap();
@@ -532,7 +558,10 @@ fn wrong_lengths_name_the_tensor() {
     let a = g.zeros("activations", &[15], DType::F32);
     let b = g.zeros("weights", &[16], DType::F32);
     let c = g.zeros("out", &[16], DType::F32);
-    let err = mm.forward(&g, &a, &b, &c, false).unwrap_err().to_string();
+    let err = mm
+        .forward(&g, &a, &b, &c, Accumulate::Overwrite)
+        .unwrap_err()
+        .to_string();
     assert!(
         err.contains("tensor activations") && err.contains("16 elements"),
         "{err}"
@@ -561,8 +590,8 @@ fn identity_term_accumulates_onto_existing_gradient() {
         let da = upload(&g, "da", &da0);
         let c = g.zeros("c", &[mm.c_len()], DType::F32);
         g.run(&[
-            mm.forward(&g, &a, &b, &c, false).unwrap(),
-            mm.backward_a(&g, &b, &dc, &da, true).unwrap(),
+            mm.forward(&g, &a, &b, &c, Accumulate::Overwrite).unwrap(),
+            mm.backward_a(&g, &b, &dc, &da, Accumulate::Add).unwrap(),
         ])
         .unwrap();
         // The identity's term by hand: C = A·B + A, dA = dC·Bᵀ + dC.
@@ -591,7 +620,10 @@ fn identity_term_needs_a_square_operand() {
     let a = g.zeros("x", &[20], DType::F32);
     let b = g.zeros("e", &[30], DType::F32);
     let c = g.zeros("x_t", &[24], DType::F32);
-    let err = mm.forward(&g, &a, &b, &c, false).unwrap_err().to_string();
+    let err = mm
+        .forward(&g, &a, &b, &c, Accumulate::Overwrite)
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("x_t") && err.contains("square"), "{err}");
     let shared = Matmul::new(4, 5, 5).share_a(true).plus_identity(true);
     let (e, dc) = (
@@ -600,7 +632,7 @@ fn identity_term_needs_a_square_operand() {
     );
     let dx = g.zeros("dx", &[20], DType::F32);
     let err = shared
-        .backward_a(&g, &e, &dc, &dx, false)
+        .backward_a(&g, &e, &dc, &dx, Accumulate::Overwrite)
         .unwrap_err()
         .to_string();
     assert!(err.contains("unshared"), "{err}");

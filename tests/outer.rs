@@ -5,6 +5,7 @@
 use iastgcn::gpu::{Gpu, Tensor};
 use iastgcn::ops::matmul::{self, Matmul};
 use iastgcn::ops::outer::{cpu, OuterPair, Second};
+use iastgcn::ops::Accumulate;
 use iastgcn::testing::{compare, compare_tensor, gpu, rng, round_f32, to_f32, uniform, Tolerance};
 
 /// One product and one sum of f32 values in [-1, 1]: a few ulps.
@@ -71,7 +72,7 @@ fn matches_reference_with_and_without_accumulation() {
             upload(&g, "w", &x.w),
             upload(&g, "q", &x.q),
         );
-        for accumulate in [false, true] {
+        for accumulate in Accumulate::ALL {
             let start: Vec<f64> = (0..reference.len()).map(|i| (i % 5) as f64 - 2.0).collect();
             let out = upload(&g, "out", &start);
             g.run(&[op.apply(&g, [&u, &v, &w, &q], &out, accumulate).unwrap()])
@@ -79,9 +80,15 @@ fn matches_reference_with_and_without_accumulation() {
             let expected: Vec<f64> = reference
                 .iter()
                 .zip(&start)
-                .map(|(r, s0)| r + if accumulate { *s0 } else { 0.0 })
+                .map(|(r, s0)| {
+                    r + if accumulate == Accumulate::Add {
+                        *s0
+                    } else {
+                        0.0
+                    }
+                })
                 .collect();
-            let what = format!("{op:?} accumulate {accumulate}");
+            let what = format!("{op:?} accumulate {accumulate:?}");
             compare_tensor(&g, &what, &out, &expected, GPU_TOL).unwrap();
         }
     }
@@ -160,17 +167,21 @@ fn wrong_lengths_and_aliasing_name_the_tensor() {
         zeros("W1", 4),
     );
     let out = zeros("dX_t", 24);
-    let err = op.apply(&g, [&u, &v, &w, &q], &out, false).unwrap_err();
+    let err = op
+        .apply(&g, [&u, &v, &w, &q], &out, Accumulate::Overwrite)
+        .unwrap_err();
     assert!(err.to_string().contains("d xw1"), "{err}");
     let w = zeros("d xw1", 6);
-    let err = op.apply(&g, [&u, &v, &w, &q], &v, false).unwrap_err();
+    let err = op
+        .apply(&g, [&u, &v, &w, &q], &v, Accumulate::Overwrite)
+        .unwrap_err();
     assert!(err.to_string().contains("d rhs"), "{err}");
     let by_node = OuterPair {
         second: Second::NodeByMatrix { nodes: 3 },
         ..op
     };
     let err = by_node
-        .apply(&g, [&u, &v, &w, &q], &out, false)
+        .apply(&g, [&u, &v, &w, &q], &out, Accumulate::Overwrite)
         .unwrap_err();
     assert!(err.to_string().contains("nodes"), "{err}");
 }

@@ -3,6 +3,7 @@
 
 use iastgcn::gpu::DType;
 use iastgcn::ops::softmax::{cpu, Softmax};
+use iastgcn::ops::Accumulate;
 use iastgcn::testing::{
     check_gradient, compare_tensor, dot, gpu, rng, round_f32, to_f32, uniform, Tolerance,
 };
@@ -31,7 +32,8 @@ fn forward_and_backward_match_reference() {
         let dx = g.zeros("dx", &[s.numel()], DType::F32);
         g.run(&[
             s.forward(&g, &xt, &y).unwrap(),
-            s.backward(&g, &y, &dyt, &dx, false).unwrap(),
+            s.backward(&g, &y, &dyt, &dx, Accumulate::Overwrite)
+                .unwrap(),
         ])
         .unwrap();
         let tol = Tolerance::new(1e-6, 2e-5);

@@ -5,6 +5,7 @@ use iastgcn::gpu::{Dispatch, Gpu};
 use iastgcn::graph::Graph;
 use iastgcn::model::{ModelConfig, Network, Parameters};
 use iastgcn::ops::matmul::Matmul;
+use iastgcn::ops::Accumulate;
 use iastgcn::testing::{rng, to_f32, uniform};
 
 /// The paper shape's temporal convolution, `[64, 192] · [192, 100]` for each of
@@ -23,7 +24,7 @@ pub fn baseline(gpu: &Gpu) -> (Matmul, Dispatch) {
         upload("b", mm.b_len()),
         upload("c", mm.c_len()),
     );
-    let d = mm.forward(gpu, &a, &b, &c, false).unwrap();
+    let d = mm.forward(gpu, &a, &b, &c, Accumulate::Overwrite).unwrap();
     (mm, d)
 }
 

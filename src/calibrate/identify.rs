@@ -118,7 +118,7 @@ pub struct StageReport {
 #[derive(Debug, thiserror::Error)]
 pub enum CalibrationError {
     /// Forward kinematics failed at a measurement's joint inputs.
-    #[error("{0}")]
+    #[error(transparent)]
     Kinematics(#[from] RobotError),
     /// The measurement set cannot identify what a richer set could.
     #[error("{measurements} measurements are too few: the {stage} stage identifies only {rank} of {needed} parameters it could with a richer set (need at least {min} poses)")]

@@ -2,7 +2,8 @@
 //! forward / backward schedules for one batch size. Nothing is allocated and no
 //! pipeline is created after [`Network::new`]; a training step reads nothing back.
 
-use super::block::{Block, DropoutSlots, ParamTable};
+pub use super::block::Pass;
+use super::block::{Block, DropoutSlots, Extent, ParamTable};
 use super::config::ModelConfig;
 use super::params::{graph_basis, param_specs, ParamSpec, Parameters};
 use super::schedule::{Scratch, StepTime, Steps};
@@ -11,6 +12,7 @@ use crate::graph::Graph;
 use crate::ops::bias::Bias;
 use crate::ops::loss::PoseLoss;
 use crate::ops::matmul::Matmul;
+use crate::ops::Accumulate;
 
 /// What can go wrong building or feeding a network.
 #[derive(Debug, thiserror::Error)]
@@ -23,23 +25,16 @@ pub enum ModelError {
     Parameter { name: String, message: String },
 }
 
-/// Which schedule [`Network::profile`] times.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Pass {
-    /// The inference forward.
-    Inference,
-    /// The training forward, the loss and the backward.
-    Train,
-}
-
 /// IASTGCN on one device for a fixed batch size.
 pub struct Network {
     pub config: ModelConfig,
     pub batch: usize,
     /// Windows per ensemble of the loss (docs/model.md "Refinement"); 1 = the plain loss.
     pub group: usize,
-    /// Built with the training schedules ([`Network::new`]) or for inference only.
-    pub training: bool,
+    /// The schedules built: [`Pass::Train`] for the inference forward, the training
+    /// forward and the backward ([`Network::new`]); [`Pass::Inference`] for the inference
+    /// forward only ([`Network::for_inference`]).
+    pub built_for: Pass,
     pub specs: Vec<ParamSpec>,
     /// Parameters and their gradients, in [`param_specs`] order.
     pub params: Vec<Tensor>,
@@ -104,7 +99,7 @@ impl Network {
         batch: usize,
         dropout_seed: u32,
     ) -> Result<Network, ModelError> {
-        Network::build(gpu, config, graph, batch, 1, dropout_seed, true)
+        Network::build(gpu, config, graph, batch, 1, dropout_seed, Pass::Train)
     }
 
     /// Training on ensembles (docs/model.md refinement): `batch` windows = batch/group ensembles of `group` consecutive windows; the loss is the ensemble loss.
@@ -116,7 +111,7 @@ impl Network {
         group: usize,
         dropout_seed: u32,
     ) -> Result<Network, ModelError> {
-        Network::build(gpu, config, graph, batch, group, dropout_seed, true)
+        Network::build(gpu, config, graph, batch, group, dropout_seed, Pass::Train)
     }
 
     /// The inference forward only: no training schedules, gradient scratch or dropout.
@@ -126,7 +121,7 @@ impl Network {
         graph: &Graph,
         batch: usize,
     ) -> Result<Network, ModelError> {
-        Network::build(gpu, config, graph, batch, 1, 0, false)
+        Network::build(gpu, config, graph, batch, 1, 0, Pass::Inference)
     }
 
     fn build(
@@ -136,8 +131,9 @@ impl Network {
         batch: usize,
         group: usize,
         dropout_seed: u32,
-        training: bool,
+        built_for: Pass,
     ) -> Result<Network, ModelError> {
+        let training = built_for == Pass::Train;
         config.validate().map_err(ModelError::Config)?;
         if graph.len() != config.nodes {
             return Err(ModelError::Config(format!(
@@ -179,8 +175,12 @@ impl Network {
         // The last block is trimmed to the last step, which is all the head reads.
         for l in 0..config.blocks {
             let x = blocks.last().map_or(&input, |b| &b.output).clone();
-            let last = l + 1 == config.blocks;
-            blocks.push(Block::new(gpu, config, l, batch, &x, dropout_seed, last));
+            let extent = if l + 1 == config.blocks {
+                Extent::LastStep
+            } else {
+                Extent::Window
+            };
+            blocks.push(Block::new(gpu, config, l, batch, &x, dropout_seed, extent));
         }
         let table = Table {
             specs: &specs,
@@ -196,9 +196,9 @@ impl Network {
         let mut train = Steps::default();
         let mut fwd_slots = Vec::new();
         for block in &blocks {
-            block.forward(gpu, &table, &mut infer, false)?;
+            block.forward(gpu, &table, &mut infer, Pass::Inference)?;
             if training {
-                fwd_slots.push(block.forward(gpu, &table, &mut train, true)?);
+                fwd_slots.push(block.forward(gpu, &table, &mut train, Pass::Train)?);
             }
         }
         let head_steps = if training {
@@ -207,7 +207,13 @@ impl Network {
             vec![&mut infer]
         };
         for steps in head_steps {
-            steps.run(head.forward(gpu, &h, table.param("head.weight"), &output, false))?;
+            steps.run(head.forward(
+                gpu,
+                &h,
+                table.param("head.weight"),
+                &output,
+                Accumulate::Overwrite,
+            ))?;
             steps.run(head_bias.forward(gpu, table.param("head.bias"), &output))?;
         }
 
@@ -235,7 +241,7 @@ impl Network {
             config: config.clone(),
             batch,
             group,
-            training,
+            built_for,
             specs,
             params,
             grads,
@@ -284,10 +290,27 @@ impl Network {
             backward.run(pose.forward(gpu, output, target, loss))?,
             backward.run(pose.backward(gpu, output, target, &doutput))?,
         ];
-        backward.run(head_bias.backward(gpu, &doutput, table.grad("head.bias"), false))?;
-        backward.run(head.backward_b(gpu, h, &doutput, table.grad("head.weight"), false))?;
+        backward.run(head_bias.backward(
+            gpu,
+            &doutput,
+            table.grad("head.bias"),
+            Accumulate::Overwrite,
+        ))?;
+        backward.run(head.backward_b(
+            gpu,
+            h,
+            &doutput,
+            table.grad("head.weight"),
+            Accumulate::Overwrite,
+        ))?;
         let dh = gpu.zeros("head.dh", &[batch, n * c], DType::F32);
-        backward.run(head.backward_a(gpu, table.param("head.weight"), &doutput, &dh, false))?;
+        backward.run(head.backward_a(
+            gpu,
+            table.param("head.weight"),
+            &doutput,
+            &dh,
+            Accumulate::Overwrite,
+        ))?;
         let hidden = [batch, n, c, t];
         let ping = [
             gpu.zeros("d block output (even)", &hidden, DType::F32),
@@ -409,7 +432,7 @@ impl Network {
     }
 
     fn expect_training(&self) -> Result<(), GpuError> {
-        if self.training {
+        if self.built_for == Pass::Train {
             Ok(())
         } else {
             Err(GpuError::Device(
@@ -423,7 +446,7 @@ impl Network {
         for s in &self.dropout {
             for (steps, i) in [(&self.train, s.forward), (&self.backward, s.backward)] {
                 let d = steps.dispatch(i).expect("dropout slot is a dispatch");
-                s.dropout.set_step(gpu, d, step, false)?;
+                s.dropout.set_step(gpu, d, step, Accumulate::Overwrite)?;
             }
         }
         Ok(())

@@ -2,6 +2,7 @@
 //! CPU reference.
 
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
+use crate::ops::Accumulate;
 
 pub static SHADER: Shader = Shader {
     name: "bias",
@@ -47,12 +48,12 @@ impl Bias {
         self.outer * self.channels * self.inner
     }
 
-    fn params(&self, accumulate: bool) -> Params {
+    fn params(&self, accumulate: Accumulate) -> Params {
         Params {
             outer: self.outer as u32,
             channels: self.channels as u32,
             inner: self.inner as u32,
-            accumulate: accumulate as u32,
+            accumulate: accumulate.flag(),
         }
     }
 
@@ -64,7 +65,7 @@ impl Bias {
         gpu.dispatch(
             &ADD,
             &[],
-            &self.params(false),
+            &self.params(Accumulate::Overwrite),
             &[bias, y],
             grid_1d(self.numel(), 256, max),
         )
@@ -82,7 +83,7 @@ impl Bias {
         gpu: &Gpu,
         dy: &Tensor,
         dbias: &Tensor,
-        accumulate: bool,
+        accumulate: Accumulate,
     ) -> Result<Dispatch, GpuError> {
         dy.expect_len(self.numel())?;
         dbias.expect_len(self.channels)?;

@@ -3,6 +3,7 @@
 //! backward are the same kernel (`y = mask·x/(1−p)`, `dx = mask·dy/(1−p)`).
 
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
+use crate::ops::Accumulate;
 
 pub static SHADER: Shader = Shader {
     name: "dropout",
@@ -63,14 +64,14 @@ impl Dropout {
         }
     }
 
-    fn params(&self, step: u32, accumulate: bool) -> Params {
+    fn params(&self, step: u32, accumulate: Accumulate) -> Params {
         Params {
             n: self.n as u32,
             seed: self.seed,
             step,
             threshold: threshold(self.p),
             scale: (1.0 / (1.0 - self.p)) as f32,
-            accumulate: accumulate as u32,
+            accumulate: accumulate.flag(),
             stride: self.stride as u32,
             offset: self.offset as u32,
         }
@@ -84,7 +85,7 @@ impl Dropout {
         step: u32,
         src: &Tensor,
         dst: &Tensor,
-        accumulate: bool,
+        accumulate: Accumulate,
     ) -> Result<Dispatch, GpuError> {
         src.expect_len(self.n)?;
         dst.expect_len(self.n)?;
@@ -109,7 +110,7 @@ impl Dropout {
         gpu: &Gpu,
         dispatch: &Dispatch,
         step: u32,
-        accumulate: bool,
+        accumulate: Accumulate,
     ) -> Result<(), GpuError> {
         dispatch.write_params(gpu, &self.params(step, accumulate))
     }

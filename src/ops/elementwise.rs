@@ -3,6 +3,7 @@
 //! gradient, so a tensor used twice simply receives two dispatches.
 
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
+use crate::ops::Accumulate;
 
 pub static SHADER: Shader = Shader {
     name: "elementwise",
@@ -89,7 +90,7 @@ fn launch(
     kernel: &Kernel,
     inputs: &[&Tensor],
     out: &Tensor,
-    accumulate: bool,
+    accumulate: Accumulate,
 ) -> Result<Dispatch, GpuError> {
     let n = out.numel();
     for t in inputs {
@@ -98,7 +99,7 @@ fn launch(
     out.expect_distinct(inputs.iter().copied())?;
     let params = Params {
         n: n as u32,
-        accumulate: accumulate as u32,
+        accumulate: accumulate.flag(),
         _pad: [0; 2],
     };
     let mut tensors = inputs.to_vec();
@@ -117,7 +118,7 @@ pub fn unary_forward(
     op: Unary,
     x: &Tensor,
     y: &Tensor,
-    accumulate: bool,
+    accumulate: Accumulate,
 ) -> Result<Dispatch, GpuError> {
     launch(gpu, op.kernels().0, &[x], y, accumulate)
 }
@@ -130,7 +131,7 @@ pub fn unary_backward(
     saved: &Tensor,
     dy: &Tensor,
     dx: &Tensor,
-    accumulate: bool,
+    accumulate: Accumulate,
 ) -> Result<Dispatch, GpuError> {
     launch(gpu, op.kernels().1, &[saved, dy], dx, accumulate)
 }
@@ -142,7 +143,7 @@ pub fn binary_forward(
     a: &Tensor,
     b: &Tensor,
     c: &Tensor,
-    accumulate: bool,
+    accumulate: Accumulate,
 ) -> Result<Dispatch, GpuError> {
     let kernel = match op {
         Binary::Add => &ADD_FWD,
@@ -159,7 +160,7 @@ pub fn binary_backward(
     other: &Tensor,
     dc: &Tensor,
     d_self: &Tensor,
-    accumulate: bool,
+    accumulate: Accumulate,
 ) -> Result<Dispatch, GpuError> {
     match op {
         Binary::Add => launch(gpu, &ADD_BWD, &[dc], d_self, accumulate),

@@ -3,6 +3,7 @@
 //! with the f64 CPU reference of the whole gated convolution.
 
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
+use crate::ops::Accumulate;
 
 pub static SHADER: Shader = Shader {
     name: "gated_dcc",
@@ -115,14 +116,14 @@ impl Unfold {
         Ok(())
     }
 
-    fn params(&self, accumulate: bool) -> UnfoldParams {
+    fn params(&self, accumulate: Accumulate) -> UnfoldParams {
         UnfoldParams {
             rows: self.rows as u32,
             channels: self.channels as u32,
             kernel: self.kernel as u32,
             steps: self.steps as u32,
             dilation: self.dilation as u32,
-            accumulate: accumulate as u32,
+            accumulate: accumulate.flag(),
             outputs: self.outputs as u32,
             relu_input: 0,
         }
@@ -141,7 +142,7 @@ impl Unfold {
         gpu.dispatch(
             kernel,
             &[],
-            &self.params(false),
+            &self.params(Accumulate::Overwrite),
             &[x, col],
             grid_1d(threads, 256, max),
         )
@@ -153,7 +154,7 @@ impl Unfold {
         gpu: &Gpu,
         dcol: &Tensor,
         dx: &Tensor,
-        accumulate: bool,
+        accumulate: Accumulate,
     ) -> Result<Dispatch, GpuError> {
         self.backward_masked(gpu, dcol, dx, None, accumulate)
     }
@@ -168,7 +169,7 @@ impl Unfold {
         dx: &Tensor,
     ) -> Result<Dispatch, GpuError> {
         x.0.expect_len(self.input_len())?;
-        self.backward_masked(gpu, dcol, dx, Some(x.0), false)
+        self.backward_masked(gpu, dcol, dx, Some(x.0), Accumulate::Overwrite)
     }
 
     fn backward_masked(
@@ -177,7 +178,7 @@ impl Unfold {
         dcol: &Tensor,
         dx: &Tensor,
         mask: Option<&Tensor>,
-        accumulate: bool,
+        accumulate: Accumulate,
     ) -> Result<Dispatch, GpuError> {
         self.check()?;
         dcol.expect_len(self.col_len())?;

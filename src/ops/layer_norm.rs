@@ -2,6 +2,7 @@
 //! parameter gradients, and the f64 CPU reference.
 
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
+use crate::ops::Accumulate;
 
 pub static SHADER: Shader = Shader {
     name: "layer_norm",
@@ -95,12 +96,12 @@ impl LayerNorm {
         self.outer * self.steps
     }
 
-    fn params(&self, accumulate: bool) -> Params {
+    fn params(&self, accumulate: Accumulate) -> Params {
         Params {
             outer: self.outer as u32,
             channels: self.channels as u32,
             steps: self.steps as u32,
-            accumulate: accumulate as u32,
+            accumulate: accumulate.flag(),
             eps: self.eps,
             relu_input: self.relu_input as u32,
             _pad: [0; 2],
@@ -153,7 +154,7 @@ impl LayerNorm {
         gpu.dispatch(
             if self.quads() { &FORWARD4 } else { &FORWARD },
             &[],
-            &self.params(false),
+            &self.params(Accumulate::Overwrite),
             &[x, gamma, beta, y, mean, rstd],
             self.row_grid(gpu),
         )
@@ -170,7 +171,7 @@ impl LayerNorm {
         mean: &Tensor,
         rstd: &Tensor,
         dx: &Tensor,
-        accumulate: bool,
+        accumulate: Accumulate,
     ) -> Result<Dispatch, GpuError> {
         self.check(&[x, dy, dx], &[gamma], &[mean, rstd])?;
         gpu.dispatch(
@@ -197,7 +198,7 @@ impl LayerNorm {
         rstd: &Tensor,
         dgamma: &Tensor,
         dbeta: &Tensor,
-        accumulate: bool,
+        accumulate: Accumulate,
     ) -> Result<Dispatch, GpuError> {
         self.check(&[x, dy], &[dgamma, dbeta], &[mean, rstd])?;
         gpu.dispatch(

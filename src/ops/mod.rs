@@ -15,6 +15,30 @@ pub mod softmax;
 
 use crate::gpu::Shader;
 
+/// What a kernel does with the tensor it writes. Backward kernels add, so that a tensor
+/// read by several ops receives one gradient contribution per dispatch; the first
+/// contribution (or a forward result) overwrites.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Accumulate {
+    /// `out = f(…)`: whatever the tensor held is replaced.
+    Overwrite,
+    /// `out += f(…)`: the result is added to what the tensor holds.
+    Add,
+}
+
+impl Accumulate {
+    /// Both modes, for tests that check each.
+    pub const ALL: [Accumulate; 2] = [Accumulate::Overwrite, Accumulate::Add];
+
+    /// The `accumulate` word of a kernel's uniform parameters: 1 to add, 0 to overwrite.
+    pub(crate) fn flag(self) -> u32 {
+        match self {
+            Accumulate::Overwrite => 0,
+            Accumulate::Add => 1,
+        }
+    }
+}
+
 /// Every op shader, for validation and for the pipeline warm-up.
 pub fn shaders() -> [&'static Shader; 12] {
     [

@@ -9,6 +9,7 @@
 //! of its own.
 
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
+use crate::ops::Accumulate;
 
 pub static SHADER: Shader = Shader {
     name: "outer",
@@ -73,7 +74,7 @@ impl OuterPair {
         gpu: &Gpu,
         [u, v, w, q]: [&Tensor; 4],
         out: &Tensor,
-        accumulate: bool,
+        accumulate: Accumulate,
     ) -> Result<Dispatch, GpuError> {
         let (z, r, c) = (self.items, self.rows, self.cols);
         let (w_len, q_len, nodes) = match self.second {
@@ -97,7 +98,7 @@ impl OuterPair {
             items: z as u32,
             rows: r as u32,
             cols: c as u32,
-            accumulate: accumulate as u32,
+            accumulate: accumulate.flag(),
             nodes: nodes as u32,
             _pad: [0; 3],
         };

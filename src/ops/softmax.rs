@@ -2,6 +2,7 @@
 //! backward, with the f64 CPU reference.
 
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
+use crate::ops::Accumulate;
 
 pub static SHADER: Shader = Shader {
     name: "softmax",
@@ -44,12 +45,12 @@ impl Softmax {
         self.outer * self.len * self.inner
     }
 
-    fn params(&self, accumulate: bool) -> Params {
+    fn params(&self, accumulate: Accumulate) -> Params {
         Params {
             outer: self.outer as u32,
             len: self.len as u32,
             inner: self.inner as u32,
-            accumulate: accumulate as u32,
+            accumulate: accumulate.flag(),
         }
     }
 
@@ -65,7 +66,13 @@ impl Softmax {
     pub fn forward(&self, gpu: &Gpu, x: &Tensor, y: &Tensor) -> Result<Dispatch, GpuError> {
         x.expect_len(self.numel())?;
         y.expect_len(self.numel())?;
-        gpu.dispatch(&FORWARD, &[], &self.params(false), &[x, y], self.grid(gpu))
+        gpu.dispatch(
+            &FORWARD,
+            &[],
+            &self.params(Accumulate::Overwrite),
+            &[x, y],
+            self.grid(gpu),
+        )
     }
 
     /// `dx (+)= y ⊙ (dy − Σ dy·y)` from the forward output `y`.
@@ -75,7 +82,7 @@ impl Softmax {
         y: &Tensor,
         dy: &Tensor,
         dx: &Tensor,
-        accumulate: bool,
+        accumulate: Accumulate,
     ) -> Result<Dispatch, GpuError> {
         for t in [y, dy, dx] {
             t.expect_len(self.numel())?;

@@ -9,6 +9,7 @@ use crate::ops::elementwise::{unary_backward, Unary};
 use crate::ops::gated_dcc::{gate_backward_stacked, ReluOutput};
 use crate::ops::layer_norm::LayerNorm;
 use crate::ops::outer::Second;
+use crate::ops::Accumulate::{Add, Overwrite};
 
 impl Block {
     /// The backward pass of a training forward: from `d_out` (∂ℒ/∂output) into the
@@ -32,7 +33,7 @@ impl Block {
         let acts = [d.b, d.n, d.ci, d.t];
         // 7. Dropout: the same mask as the forward pass.
         let dy = scratch.get("dY", &out)?;
-        let slot = steps.run(self.dropout.apply(gpu, 0, d_out, &dy, false))?;
+        let slot = steps.run(self.dropout.apply(gpu, 0, d_out, &dy, Overwrite))?;
         // 6. LayerNorm and the ReLU before it (its input was the ReLU's output; the mask
         // is applied by the LayerNorm backward).
         let ln = LayerNorm {
@@ -48,7 +49,7 @@ impl Block {
             &self.mean,
             &self.rstd,
             &ds,
-            false,
+            Overwrite,
         ))?;
         steps.run(ln.backward_params(
             gpu,
@@ -58,24 +59,24 @@ impl Block {
             &self.rstd,
             dw("ln.gamma"),
             dw("ln.beta"),
-            false,
+            Overwrite,
         ))?;
         // 5. Residual: ∂/∂H = ∂/∂R = dS.
         let bias = self.channel_bias();
         let res = self.mm_res();
-        steps.run(bias.backward(gpu, &ds, dw("res.bias"), false))?;
+        steps.run(bias.backward(gpu, &ds, dw("res.bias"), Overwrite))?;
         match &self.x_last {
             Some(x_last) => {
                 // Only the last step of the input reached the residual: its gradient
                 // there, zero elsewhere (this writes all of d_in).
                 let dx_last = scratch.get("dx_last", &[d.b, d.n, d.ci])?;
-                steps.run(res.backward_a(gpu, x_last, &ds, dw("res.weight"), false))?;
-                steps.run(res.backward_b(gpu, w("res.weight"), &ds, &dx_last, false))?;
+                steps.run(res.backward_a(gpu, x_last, &ds, dw("res.weight"), Overwrite))?;
+                steps.run(res.backward_b(gpu, w("res.weight"), &ds, &dx_last, Overwrite))?;
                 steps.run(self.input_last_step().backward(gpu, &dx_last, d_in))?;
             }
             None => {
-                steps.run(res.backward_a(gpu, x, &ds, dw("res.weight"), false))?;
-                steps.run(res.backward_b(gpu, w("res.weight"), &ds, d_in, false))?;
+                steps.run(res.backward_a(gpu, x, &ds, dw("res.weight"), Overwrite))?;
+                steps.run(res.backward_b(gpu, w("res.weight"), &ds, d_in, Overwrite))?;
             }
         }
         // 4. Gate and convolutions.
@@ -97,22 +98,29 @@ impl Block {
                 ..self.channel_bias()
             };
             let dbias = scratch.get("dbias_fg", &[2 * c])?;
-            steps.run(stacked_bias.backward(gpu, &dfg, &dbias, false))?;
+            steps.run(stacked_bias.backward(gpu, &dfg, &dbias, Overwrite))?;
             steps.copy_range((&dbias, 0), (dw("tcn.filter.bias"), 0), c);
             steps.copy_range((&dbias, c), (dw("tcn.gate.bias"), 0), c);
             let fg = self.mm_conv_fg();
             let dw_fg = scratch.get("dW_fg", &[2 * c, ck])?;
-            steps.run(fg.backward_a(gpu, &self.col, &dfg, &dw_fg, false))?;
+            steps.run(fg.backward_a(gpu, &self.col, &dfg, &dw_fg, Overwrite))?;
             steps.copy_range((&dw_fg, 0), (dw("tcn.filter.weight"), 0), c * ck);
             steps.copy_range((&dw_fg, c * ck), (dw("tcn.gate.weight"), 0), c * ck);
-            steps.run(fg.backward_b(gpu, w_fg, &dfg, &dcol, false))?;
+            steps.run(fg.backward_b(gpu, w_fg, &dfg, &dcol, Overwrite))?;
         } else {
             let df = scratch.get("dG_f", &out)?;
-            steps.run(unary_backward(gpu, Unary::Relu, &self.f, &ds, &df, false))?;
-            steps.run(bias.backward(gpu, &df, dw("tcn.filter.bias"), false))?;
+            steps.run(unary_backward(
+                gpu,
+                Unary::Relu,
+                &self.f,
+                &ds,
+                &df,
+                Overwrite,
+            ))?;
+            steps.run(bias.backward(gpu, &df, dw("tcn.filter.bias"), Overwrite))?;
             let weight = dw("tcn.filter.weight");
-            steps.run(conv.backward_a(gpu, &self.col, &df, weight, false))?;
-            steps.run(conv.backward_b(gpu, w("tcn.filter.weight"), &df, &dcol, false))?;
+            steps.run(conv.backward_a(gpu, &self.col, &df, weight, Overwrite))?;
+            steps.run(conv.backward_b(gpu, w("tcn.filter.weight"), &df, &dcol, Overwrite))?;
         }
         // 3. Graph convolution: Z = ReLU(G), masked by the unfolding's backward.
         let dg = scratch.get("dG", &hidden)?;
@@ -120,15 +128,15 @@ impl Block {
         steps.run(self.unfold().backward_through_relu(gpu, &dcol, z, &dg))?;
         let (mw, mix, mpsi) = (self.mm_w(), self.mm_mix(), self.mm_psi());
         let dm = scratch.get("dM", &acts)?;
-        steps.run(mw.backward_a(gpu, &self.m, &dg, dw("gwc.W"), false))?;
-        steps.run(mw.backward_b(gpu, w("gwc.W"), &dg, &dm, false))?;
+        steps.run(mw.backward_a(gpu, &self.m, &dg, dw("gwc.W"), Overwrite))?;
+        steps.run(mw.backward_b(gpu, w("gwc.W"), &dg, &dm, Overwrite))?;
         let dpsi = scratch.get("dPsi", &[d.n, d.n])?;
         let basis = p.param("graph.basis");
         let Some((ta, sa)) = self.tat.as_ref().zip(self.sat.as_ref()) else {
             // M = Ψ·X: dΨ, then dX accumulated onto the residual's contribution.
-            steps.run(mix.backward_a(gpu, x, &dm, &dpsi, false))?;
-            steps.run(mpsi.backward_a(gpu, basis, &dpsi, dw("gwc.theta"), false))?;
-            steps.run(mix.backward_b(gpu, &self.psi, &dm, d_in, true))?;
+            steps.run(mix.backward_a(gpu, x, &dm, &dpsi, Overwrite))?;
+            steps.run(mpsi.backward_a(gpu, basis, &dpsi, dw("gwc.theta"), Overwrite))?;
+            steps.run(mix.backward_b(gpu, &self.psi, &dm, d_in, Add))?;
             return Ok(slot);
         };
         // M = Q·X_t, Q = Ψ + Ψ·S': dQ, dΨ = Σ_b dQ·(I + S')ᵀ, dS' = Ψᵀ·dQ (dX_t = Qᵀ·dM + the
@@ -144,50 +152,50 @@ impl Block {
         let dxt = scratch.get("dX_t", &acts)?;
         let xt = &sa.xt;
         let (mq, mqx) = (self.mm_q(), self.mm_qx());
-        steps.run(mqx.backward_a(gpu, xt, &dm, &dq, false))?;
-        steps.run(mq.backward_a(gpu, &sa.sp, &dq, &dpsi, false))?;
-        steps.run(self.batch_sum_nn().backward(gpu, &dq, &dpsi, true))?;
-        steps.run(mpsi.backward_a(gpu, basis, &dpsi, dw("gwc.theta"), false))?;
-        steps.run(mq.backward_b(gpu, &self.psi, &dq, &dsp, false))?;
+        steps.run(mqx.backward_a(gpu, xt, &dm, &dq, Overwrite))?;
+        steps.run(mq.backward_a(gpu, &sa.sp, &dq, &dpsi, Overwrite))?;
+        steps.run(self.batch_sum_nn().backward(gpu, &dq, &dpsi, Add))?;
+        steps.run(mpsi.backward_a(gpu, basis, &dpsi, dw("gwc.theta"), Overwrite))?;
+        steps.run(mq.backward_b(gpu, &self.psi, &dq, &dsp, Overwrite))?;
         // 2. Spatial attention.
         steps.run(
             self.spatial_softmax()
-                .backward(gpu, &sa.sp, &dsp, &dss, false),
+                .backward(gpu, &sa.sp, &dsp, &dss, Overwrite),
         )?;
         let mvs = self.mm_vs();
-        steps.run(mvs.backward_a(gpu, &sa.sig, &dss, dw("sat.Vs"), false))?;
-        steps.run(mvs.backward_b(gpu, w("sat.Vs"), &dss, &dsig, false))?;
+        steps.run(mvs.backward_a(gpu, &sa.sig, &dss, dw("sat.Vs"), Overwrite))?;
+        steps.run(mvs.backward_b(gpu, w("sat.Vs"), &dss, &dsig, Overwrite))?;
         steps.run(unary_backward(
             gpu,
             Unary::Sigmoid,
             &sa.sig,
             &dsig,
             &dp,
-            false,
+            Overwrite,
         ))?;
         let bs = self.spatial_score_bias();
-        steps.run(bs.backward(gpu, &dp, dw("sat.bs"), false))?;
+        steps.run(bs.backward(gpu, &dp, dw("sat.bs"), Overwrite))?;
         let msp = self.mm_sp();
         let (dlhs, drhs) = (
             scratch.get("sat.dlhs", &[d.b, d.n, d.t])?,
             scratch.get("sat.drhs", &[d.b, d.n, d.t])?,
         );
-        steps.run(msp.backward_a(gpu, &sa.rhs, &dp, &dlhs, false))?;
-        steps.run(msp.backward_b(gpu, &sa.lhs, &dp, &drhs, false))?;
+        steps.run(msp.backward_a(gpu, &sa.rhs, &dp, &dlhs, Overwrite))?;
+        steps.run(msp.backward_b(gpu, &sa.lhs, &dp, &drhs, Overwrite))?;
         let mw3 = self.mm_w3();
-        steps.run(mw3.backward_a(gpu, xt, &drhs, dw("sat.W3"), false))?;
+        steps.run(mw3.backward_a(gpu, xt, &drhs, dw("sat.W3"), Overwrite))?;
         let dxw1 = scratch.get("sat.dxw1", &[d.b, d.n, d.ci])?;
         let mw2 = self.mm_w2();
-        steps.run(mw2.backward_a(gpu, w("sat.W2"), &dlhs, &dxw1, false))?;
-        steps.run(mw2.backward_b(gpu, &sa.xw1, &dlhs, dw("sat.W2"), false))?;
+        steps.run(mw2.backward_a(gpu, w("sat.W2"), &dlhs, &dxw1, Overwrite))?;
+        steps.run(mw2.backward_b(gpu, &sa.xw1, &dlhs, dw("sat.W2"), Overwrite))?;
         let mw1 = self.mm_w1();
-        steps.run(mw1.backward_b(gpu, xt, &dxw1, dw("sat.W1"), false))?;
+        steps.run(mw1.backward_b(gpu, xt, &dxw1, dw("sat.W1"), Overwrite))?;
         // dX_t: the projections' two rank-1 terms (W3 ⊗ d rhs + d xw1 ⊗ W1) in one pass, then
         // Qᵀ·dM accumulated onto them.
         let pair = self.rank_one_pair(Second::RowsByCols);
         let factors = [w("sat.W3"), &drhs, &dxw1, w("sat.W1")];
-        steps.run(pair.apply(gpu, factors, &dxt, false))?;
-        steps.run(mqx.backward_b(gpu, &sa.q, &dm, &dxt, true))?;
+        steps.run(pair.apply(gpu, factors, &dxt, Overwrite))?;
+        steps.run(mqx.backward_b(gpu, &sa.q, &dm, &dxt, Add))?;
         // 1. Temporal attention: X_t = X·(E' + I), so dX += dX_t·(E' + I)ᵀ.
         let tt = [d.b, d.t, d.t];
         let (dep, de, dsig, dp) = (
@@ -197,44 +205,44 @@ impl Block {
             scratch.get("tat.dP", &tt)?,
         );
         let mxt = self.mm_xt();
-        steps.run(mxt.backward_b(gpu, x, &dxt, &dep, false))?;
-        steps.run(mxt.backward_a(gpu, &ta.ep, &dxt, d_in, true))?;
+        steps.run(mxt.backward_b(gpu, x, &dxt, &dep, Overwrite))?;
+        steps.run(mxt.backward_a(gpu, &ta.ep, &dxt, d_in, Add))?;
         steps.run(
             self.temporal_softmax()
-                .backward(gpu, &ta.ep, &dep, &de, false),
+                .backward(gpu, &ta.ep, &dep, &de, Overwrite),
         )?;
         let mve = self.mm_ve();
-        steps.run(mve.backward_a(gpu, &ta.sig, &de, dw("tat.Ve"), false))?;
-        steps.run(mve.backward_b(gpu, w("tat.Ve"), &de, &dsig, false))?;
+        steps.run(mve.backward_a(gpu, &ta.sig, &de, dw("tat.Ve"), Overwrite))?;
+        steps.run(mve.backward_b(gpu, w("tat.Ve"), &de, &dsig, Overwrite))?;
         steps.run(unary_backward(
             gpu,
             Unary::Sigmoid,
             &ta.sig,
             &dsig,
             &dp,
-            false,
+            Overwrite,
         ))?;
         let be = self.temporal_score_bias();
-        steps.run(be.backward(gpu, &dp, dw("tat.be"), false))?;
+        steps.run(be.backward(gpu, &dp, dw("tat.be"), Overwrite))?;
         let mtp = self.mm_tp();
         let (dlhs, drhs) = (
             scratch.get("tat.dlhs", &[d.b, d.t, d.n])?,
             scratch.get("tat.drhs", &[d.b, d.n, d.t])?,
         );
-        steps.run(mtp.backward_a(gpu, &ta.rhs, &dp, &dlhs, false))?;
-        steps.run(mtp.backward_b(gpu, &ta.lhs, &dp, &drhs, false))?;
+        steps.run(mtp.backward_a(gpu, &ta.rhs, &dp, &dlhs, Overwrite))?;
+        steps.run(mtp.backward_b(gpu, &ta.lhs, &dp, &drhs, Overwrite))?;
         let mu3 = self.mm_u3();
-        steps.run(mu3.backward_a(gpu, x, &drhs, dw("tat.U3"), false))?;
+        steps.run(mu3.backward_a(gpu, x, &drhs, dw("tat.U3"), Overwrite))?;
         let dxu1 = scratch.get("tat.dxu1", &[d.b, d.ci, d.t])?;
         let mu2 = self.mm_u2();
-        steps.run(mu2.backward_a(gpu, w("tat.U2"), &dlhs, &dxu1, false))?;
-        steps.run(mu2.backward_b(gpu, &ta.xu1, &dlhs, dw("tat.U2"), false))?;
+        steps.run(mu2.backward_a(gpu, w("tat.U2"), &dlhs, &dxu1, Overwrite))?;
+        steps.run(mu2.backward_b(gpu, &ta.xu1, &dlhs, dw("tat.U2"), Overwrite))?;
         let mu1 = self.mm_u1();
-        steps.run(mu1.backward_a(gpu, x, &dxu1, dw("tat.U1"), false))?;
+        steps.run(mu1.backward_a(gpu, x, &dxu1, dw("tat.U1"), Overwrite))?;
         // dX += U3 ⊗ d rhs + U1 ⊗ d xu1, the projections' two rank-1 terms in one pass.
         let pair = self.rank_one_pair(Second::NodeByMatrix { nodes: self.d.n });
         let factors = [w("tat.U3"), &drhs, w("tat.U1"), &dxu1];
-        steps.run(pair.apply(gpu, factors, d_in, true))?;
+        steps.run(pair.apply(gpu, factors, d_in, Add))?;
         Ok(slot)
     }
 }

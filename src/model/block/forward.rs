@@ -1,14 +1,16 @@
 //! The forward schedule of one block: steps 1–7 as device ops, for training or inference.
 
+use super::Pass;
 use super::{Block, ParamTable};
 use crate::gpu::{Gpu, GpuError};
 use crate::model::schedule::Steps;
 use crate::ops::elementwise::{unary_forward, Unary};
 use crate::ops::gated_dcc::gate_forward;
 use crate::ops::matmul::Epilogue;
+use crate::ops::Accumulate::{Add, Overwrite};
 
 impl Block {
-    /// The forward pass. With `train`, dropout (whose step is set later through the
+    /// The forward pass. For [`Pass::Train`], dropout (whose step is set later through the
     /// returned slot) writes the output and G_g and Y are kept for the backward pass;
     /// otherwise the gate is fused into the gate product and LayerNorm writes the output.
     pub fn forward(
@@ -16,44 +18,75 @@ impl Block {
         gpu: &Gpu,
         p: &dyn ParamTable,
         steps: &mut Steps,
-        train: bool,
+        pass: Pass,
     ) -> Result<Option<usize>, GpuError> {
+        let train = pass == Pass::Train;
         let w = |s: &str| p.param(&self.name(s));
         let x = &self.input;
         let attention = match (&self.tat, &self.sat) {
             (Some(ta), Some(sa)) => {
                 // 1. Temporal attention.
-                steps.run(self.mm_u1().forward(gpu, w("tat.U1"), x, &ta.xu1, false))?;
+                steps.run(
+                    self.mm_u1()
+                        .forward(gpu, w("tat.U1"), x, &ta.xu1, Overwrite),
+                )?;
                 steps.run(
                     self.mm_u2()
-                        .forward(gpu, &ta.xu1, w("tat.U2"), &ta.lhs, false),
+                        .forward(gpu, &ta.xu1, w("tat.U2"), &ta.lhs, Overwrite),
                 )?;
-                steps.run(self.mm_u3().forward(gpu, w("tat.U3"), x, &ta.rhs, false))?;
-                steps.run(self.mm_tp().forward(gpu, &ta.lhs, &ta.rhs, &ta.p, false))?;
+                steps.run(
+                    self.mm_u3()
+                        .forward(gpu, w("tat.U3"), x, &ta.rhs, Overwrite),
+                )?;
+                steps.run(
+                    self.mm_tp()
+                        .forward(gpu, &ta.lhs, &ta.rhs, &ta.p, Overwrite),
+                )?;
                 let be = self.temporal_score_bias();
                 steps.run(be.forward(gpu, w("tat.be"), &ta.p))?;
-                steps.run(unary_forward(gpu, Unary::Sigmoid, &ta.p, &ta.sig, false))?;
+                steps.run(unary_forward(
+                    gpu,
+                    Unary::Sigmoid,
+                    &ta.p,
+                    &ta.sig,
+                    Overwrite,
+                ))?;
                 steps.run(
                     self.mm_ve()
-                        .forward(gpu, w("tat.Ve"), &ta.sig, &ta.e, false),
+                        .forward(gpu, w("tat.Ve"), &ta.sig, &ta.e, Overwrite),
                 )?;
                 steps.run(self.temporal_softmax().forward(gpu, &ta.e, &ta.ep))?;
-                steps.run(self.mm_xt().forward(gpu, x, &ta.ep, &sa.xt, false))?;
+                steps.run(self.mm_xt().forward(gpu, x, &ta.ep, &sa.xt, Overwrite))?;
                 // 2. Spatial attention.
                 let xt = &sa.xt;
-                steps.run(self.mm_w1().forward(gpu, xt, w("sat.W1"), &sa.xw1, false))?;
+                steps.run(
+                    self.mm_w1()
+                        .forward(gpu, xt, w("sat.W1"), &sa.xw1, Overwrite),
+                )?;
                 steps.run(
                     self.mm_w2()
-                        .forward(gpu, &sa.xw1, w("sat.W2"), &sa.lhs, false),
+                        .forward(gpu, &sa.xw1, w("sat.W2"), &sa.lhs, Overwrite),
                 )?;
-                steps.run(self.mm_w3().forward(gpu, w("sat.W3"), xt, &sa.rhs, false))?;
-                steps.run(self.mm_sp().forward(gpu, &sa.lhs, &sa.rhs, &sa.p, false))?;
+                steps.run(
+                    self.mm_w3()
+                        .forward(gpu, w("sat.W3"), xt, &sa.rhs, Overwrite),
+                )?;
+                steps.run(
+                    self.mm_sp()
+                        .forward(gpu, &sa.lhs, &sa.rhs, &sa.p, Overwrite),
+                )?;
                 let bs = self.spatial_score_bias();
                 steps.run(bs.forward(gpu, w("sat.bs"), &sa.p))?;
-                steps.run(unary_forward(gpu, Unary::Sigmoid, &sa.p, &sa.sig, false))?;
+                steps.run(unary_forward(
+                    gpu,
+                    Unary::Sigmoid,
+                    &sa.p,
+                    &sa.sig,
+                    Overwrite,
+                ))?;
                 steps.run(
                     self.mm_vs()
-                        .forward(gpu, w("sat.Vs"), &sa.sig, &sa.s, false),
+                        .forward(gpu, w("sat.Vs"), &sa.sig, &sa.s, Overwrite),
                 )?;
                 steps.run(self.spatial_softmax().forward(gpu, &sa.s, &sa.sp))?;
                 Some(sa)
@@ -67,7 +100,7 @@ impl Block {
             w("gwc.theta"),
             p.param("graph.basis"),
             &self.psi,
-            false,
+            Overwrite,
         ))?;
         match attention {
             Some(sa) => {
@@ -76,11 +109,11 @@ impl Block {
                     ..Epilogue::default()
                 };
                 let mq = self.mm_q();
-                steps.run(mq.forward_with(gpu, &self.psi, &sa.sp, &sa.q, false, plus_psi))?;
-                steps.run(self.mm_qx().forward(gpu, &sa.q, &sa.xt, &self.m, false))?;
+                steps.run(mq.forward_with(gpu, &self.psi, &sa.sp, &sa.q, Overwrite, plus_psi))?;
+                steps.run(self.mm_qx().forward(gpu, &sa.q, &sa.xt, &self.m, Overwrite))?;
             }
             None => {
-                steps.run(self.mm_mix().forward(gpu, &self.psi, x, &self.m, false))?;
+                steps.run(self.mm_mix().forward(gpu, &self.psi, x, &self.m, Overwrite))?;
             }
         }
         let relu = Epilogue {
@@ -89,7 +122,7 @@ impl Block {
             ..Epilogue::default()
         };
         let mw = self.mm_w();
-        steps.run(mw.forward_with(gpu, w("gwc.W"), &self.m, &self.z, false, relu))?;
+        steps.run(mw.forward_with(gpu, w("gwc.W"), &self.m, &self.z, Overwrite, relu))?;
         // 4. Gated dilated causal convolution (or the plain one of iastgcn-t).
         steps.run(self.unfold().forward(gpu, &self.z, &self.col))?;
         // The channel biases are added by the products themselves.
@@ -101,7 +134,7 @@ impl Block {
             ..Epilogue::default()
         };
         let filter = bias("tcn.filter.bias");
-        steps.run(conv.forward_with(gpu, w("tcn.filter.weight"), col, f, false, filter))?;
+        steps.run(conv.forward_with(gpu, w("tcn.filter.weight"), col, f, Overwrite, filter))?;
         if self.gated && !train {
             // Inference keeps no G_g: the gate product applies tanh(G_f) ⊙ σ(·) itself.
             let gated = Epilogue {
@@ -109,13 +142,13 @@ impl Block {
                 ..bias("tcn.gate.bias")
             };
             let gate_weight = w("tcn.gate.weight");
-            steps.run(conv.forward_with(gpu, gate_weight, col, &self.s, false, gated))?;
+            steps.run(conv.forward_with(gpu, gate_weight, col, &self.s, Overwrite, gated))?;
         } else if self.gated {
             let (gg, gate) = (&self.gg, bias("tcn.gate.bias"));
-            steps.run(conv.forward_with(gpu, w("tcn.gate.weight"), col, gg, false, gate))?;
+            steps.run(conv.forward_with(gpu, w("tcn.gate.weight"), col, gg, Overwrite, gate))?;
             steps.run(gate_forward(gpu, f, gg, &self.s))?;
         } else {
-            steps.run(unary_forward(gpu, Unary::Relu, f, &self.s, false))?;
+            steps.run(unary_forward(gpu, Unary::Relu, f, &self.s, Overwrite))?;
         }
         // 5–6. Residual 1×1 convolution (+ bias) accumulated onto H, with the ReLU in the
         // product's epilogue; then LayerNorm.
@@ -136,7 +169,7 @@ impl Block {
             w("res.weight"),
             x_res,
             &self.s,
-            true,
+            Add,
             residual,
         ))?;
         // Inference has no dropout: LayerNorm writes the block output itself.
@@ -157,7 +190,7 @@ impl Block {
                 0,
                 &self.y,
                 &self.output,
-                false,
+                Overwrite,
             ))?))
         } else {
             Ok(None)

@@ -16,10 +16,33 @@ use crate::ops::matmul::Matmul;
 use crate::ops::outer::{OuterPair, Second};
 use crate::ops::softmax::Softmax;
 
+/// A pass through the network: which schedules a network is built with
+/// ([`Network::built_for`](crate::model::Network::built_for)), and which one
+/// [`Network::profile`](crate::model::Network::profile) times.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Pass {
+    /// The inference forward.
+    Inference,
+    /// The training forward, the loss and the backward.
+    Train,
+}
+
 /// Device parameters and their gradients, looked up by docs/model.md name.
 pub trait ParamTable {
     fn param(&self, name: &str) -> &Tensor;
     fn grad(&self, name: &str) -> &Tensor;
+}
+
+/// Which steps a block computes its convolution, residual, norm and dropout for (the
+/// attention and the graph convolution always run on all T steps, which the attention
+/// needs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Extent {
+    /// All T steps: the output is `[B, N, C, T]` (every block but the last).
+    Window,
+    /// The last step only, which is all the head reads: the output is `[B, N, C, 1]`,
+    /// the same values as the last step of the whole computation (the last block).
+    LastStep,
 }
 
 /// The shapes of one block.
@@ -104,11 +127,9 @@ pub struct DropoutSlots {
 }
 
 impl Block {
-    /// Allocates the buffers of block `index` reading `input` [B, N, C_in, T]. A `trimmed`
-    /// block (the last one) computes steps 4–7 only at the last step, which is all the
-    /// head reads: its output is `[B, N, C, 1]`, the same values as the last step of the
-    /// whole computation (the attention and graph convolution still run on all T steps,
-    /// which the attention needs).
+    /// Allocates the buffers of block `index` reading `input` [B, N, C_in, T]. A block
+    /// of [`Extent::LastStep`] (the last one) is *trimmed*: it computes steps 4–7 only
+    /// at the last step, which is all the head reads.
     pub fn new(
         gpu: &Gpu,
         config: &ModelConfig,
@@ -116,8 +137,9 @@ impl Block {
         batch: usize,
         input: &Tensor,
         dropout_seed: u32,
-        trimmed: bool,
+        extent: Extent,
     ) -> Block {
+        let trimmed = extent == Extent::LastStep;
         let d = Dims {
             b: batch,
             n: config.nodes,

@@ -8,6 +8,7 @@ use super::{
     ROW_BLOCK, ROW_WORKGROUP, SUBGROUP_LANES, TILE_COLS, TILE_ROWS, WORKGROUP,
 };
 use crate::gpu::{grid_1d, DType, Dispatch, Gpu, GpuError, Kernel, Tensor};
+use crate::ops::Accumulate;
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -39,7 +40,7 @@ impl Matmul {
         a: &Tensor,
         b: &Tensor,
         c: &Tensor,
-        accumulate: bool,
+        accumulate: Accumulate,
     ) -> Result<Dispatch, GpuError> {
         self.forward_with(gpu, a, b, c, accumulate, Epilogue::default())
     }
@@ -53,7 +54,7 @@ impl Matmul {
         a: &Tensor,
         b: &Tensor,
         c: &Tensor,
-        accumulate: bool,
+        accumulate: Accumulate,
         epilogue: Epilogue,
     ) -> Result<Dispatch, GpuError> {
         a.expect_len(self.a_len())?;
@@ -87,7 +88,7 @@ impl Matmul {
         b: &Tensor,
         dc: &Tensor,
         da: &Tensor,
-        accumulate: bool,
+        accumulate: Accumulate,
     ) -> Result<Dispatch, GpuError> {
         b.expect_len(self.b_len())?;
         dc.expect_len(self.c_len())?;
@@ -105,7 +106,7 @@ impl Matmul {
         a: &Tensor,
         dc: &Tensor,
         db: &Tensor,
-        accumulate: bool,
+        accumulate: Accumulate,
     ) -> Result<Dispatch, GpuError> {
         a.expect_len(self.a_len())?;
         dc.expect_len(self.c_len())?;
@@ -313,7 +314,7 @@ impl Gemm {
         lhs: &Tensor,
         rhs: &Tensor,
         out: &Tensor,
-        accumulate: bool,
+        accumulate: Accumulate,
     ) -> Result<Dispatch, GpuError> {
         self.dispatch_with(gpu, lhs, rhs, out, accumulate, Epilogue::default())
     }
@@ -325,7 +326,7 @@ impl Gemm {
         lhs: &Tensor,
         rhs: &Tensor,
         out: &Tensor,
-        accumulate: bool,
+        accumulate: Accumulate,
         epilogue: Epilogue,
     ) -> Result<Dispatch, GpuError> {
         let bias = epilogue.bias.or(epilogue.matrix);
@@ -364,7 +365,7 @@ impl Gemm {
             a_batch: lb as u32,
             b_batch: rb as u32,
             c_batch: (gemm.m * gemm.n) as u32,
-            accumulate: accumulate as u32,
+            accumulate: accumulate.flag(),
             a_reduce: lr as u32,
             b_reduce: rr as u32,
             alpha: 1.0,

@@ -1,5 +1,10 @@
 //! Kernel test support: seeded random data, central finite differences in f64, and
-//! comparisons that report the worst element. Used by `tests/` and by `iastgcn smoke`.
+//! comparisons that report the worst element. Used by `tests/` and by [`smoke()`], the
+//! device check behind `iastgcn smoke`.
+
+pub mod smoke;
+
+pub use smoke::{smoke, SmokeOptions, SmokeRow};
 
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -104,6 +109,26 @@ pub fn compare(
     expected: &[f64],
     tol: Tolerance,
 ) -> Result<Worst, String> {
+    let worst = worst(what, actual, expected, tol)?;
+    if worst.ratio <= 1.0 {
+        Ok(worst)
+    } else {
+        Err(format!(
+            "{what}: {worst} (tolerance abs {:.1e} + rel {:.1e})",
+            tol.abs, tol.rel
+        ))
+    }
+}
+
+/// The element that came closest to (or went furthest past) its tolerance, whether or
+/// not it passes (a non-finite `actual` has ratio ∞); `Err` names `what` only when the
+/// lengths differ or there is nothing to compare.
+pub fn worst(
+    what: &str,
+    actual: &[f64],
+    expected: &[f64],
+    tol: Tolerance,
+) -> Result<Worst, String> {
     if actual.len() != expected.len() {
         return Err(format!(
             "{what}: {} elements, expected {}",
@@ -136,15 +161,7 @@ pub fn compare(
             });
         }
     }
-    let worst = worst.expect("non-empty");
-    if worst.ratio <= 1.0 {
-        Ok(worst)
-    } else {
-        Err(format!(
-            "{what}: {worst} (tolerance abs {:.1e} + rel {:.1e})",
-            tol.abs, tol.rel
-        ))
-    }
+    Ok(worst.expect("non-empty"))
 }
 
 /// Reads a tensor back and compares it with an f64 reference.

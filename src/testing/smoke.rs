@@ -1,0 +1,200 @@
+//! The smoke check of a device (`iastgcn smoke`): the kernel families the model leans on
+//! run once on the device, are compared with the f64 CPU reference and are timed. A quick
+//! "does this GPU work" for a new machine.
+
+use std::time::Instant;
+
+use super::{rng, round_f32, to_f32, uniform, worst, Tolerance, Worst};
+use crate::error::{Error, Result};
+use crate::gpu::{DType, Gpu, Recorder, Tensor};
+use crate::ops::elementwise::{self, Binary, Unary};
+use crate::ops::matmul::{self, Matmul};
+use crate::ops::Accumulate;
+
+/// The sizes and seed of the smoke check.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SmokeOptions {
+    /// Seed of the random inputs.
+    pub seed: u64,
+    /// Rows of the activation matrix (B·N·T of a layer); 1400 = 1 window of 14 nodes ×
+    /// 100 steps.
+    pub rows: usize,
+    /// Channels (C of docs/model.md).
+    pub channels: usize,
+}
+
+impl Default for SmokeOptions {
+    fn default() -> SmokeOptions {
+        SmokeOptions {
+            seed: 7,
+            rows: 1400,
+            channels: 64,
+        }
+    }
+}
+
+/// One tensor of the smoke check compared with its reference.
+#[derive(Clone, Debug)]
+pub struct SmokeRow {
+    /// The tensor compared, e.g. `matmul backward dW`.
+    pub name: String,
+    /// The kernels that computed it, run and timed together, e.g.
+    /// `matmul [1400,64]x[64,64] fwd+bwd`; rows of one group share `seconds` and `flops`.
+    pub group: String,
+    /// The element furthest from the reference relative to its tolerance (its absolute
+    /// and relative error, and that ratio).
+    pub worst: Worst,
+    pub tolerance: Tolerance,
+    /// Whether every element is within the tolerance (`worst.ratio <= 1`).
+    pub pass: bool,
+    /// Wall time of one run of the group's kernels.
+    pub seconds: f64,
+    /// Whether `seconds` includes compiling the pipelines (a first run) rather than the
+    /// mean of warm runs.
+    pub includes_compile: bool,
+    /// Floating-point operations of one run of the group, where counted.
+    pub flops: Option<f64>,
+}
+
+/// Runs every kernel family of the check once on `gpu`, compares each output with the
+/// f64 CPU reference and times it: one row per tensor compared, failing rows included
+/// (`Err` only when the device or a tensor cannot be used).
+pub fn smoke(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> {
+    let mut rows = matmul_check(gpu, options)?;
+    rows.extend(gated_unit_check(gpu, options)?);
+    Ok(rows)
+}
+
+/// What one group of kernels produced: the tensors to compare and how it was timed.
+struct Group<'a> {
+    name: String,
+    seconds: f64,
+    includes_compile: bool,
+    flops: Option<f64>,
+    checks: Vec<(&'a str, &'a Tensor, &'a [f64], Tolerance)>,
+}
+
+impl Group<'_> {
+    fn rows(self, gpu: &Gpu) -> Result<Vec<SmokeRow>> {
+        self.checks
+            .iter()
+            .map(|&(what, tensor, expected, tolerance)| {
+                let got = gpu.read_f32(tensor)?;
+                let got: Vec<f64> = got[..tensor.numel()].iter().map(|&v| v as f64).collect();
+                let worst = worst(what, &got, expected, tolerance).map_err(Error::Invalid)?;
+                Ok(SmokeRow {
+                    name: what.to_string(),
+                    group: self.name.clone(),
+                    pass: worst.ratio <= 1.0,
+                    worst,
+                    tolerance,
+                    seconds: self.seconds,
+                    includes_compile: self.includes_compile,
+                    flops: self.flops,
+                })
+            })
+            .collect()
+    }
+}
+
+/// A 1×1 convolution as the model runs it: `Y = X · W` with W shared, and its backward.
+fn matmul_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> {
+    let (r, c) = (options.rows, options.channels);
+    let mm = Matmul::new(r, c, c);
+    let mut g = rng(options.seed);
+    let x = round_f32(&uniform(&mut g, mm.a_len(), -1.0, 1.0));
+    let w = round_f32(&uniform(&mut g, mm.b_len(), -1.0, 1.0));
+    let dy = round_f32(&uniform(&mut g, mm.c_len(), -1.0, 1.0));
+    let xt = gpu.upload("x", &[r, c], &to_f32(&x))?;
+    let wt = gpu.upload("w", &[c, c], &to_f32(&w))?;
+    let dyt = gpu.upload("dy", &[r, c], &to_f32(&dy))?;
+    let yt = gpu.zeros("y", &[r, c], DType::F32);
+    let dxt = gpu.zeros("dx", &[r, c], DType::F32);
+    let dwt = gpu.zeros("dw", &[c, c], DType::F32);
+    let step = [
+        mm.forward(gpu, &xt, &wt, &yt, Accumulate::Overwrite)?,
+        mm.backward_a(gpu, &wt, &dyt, &dxt, Accumulate::Overwrite)?,
+        mm.backward_b(gpu, &xt, &dyt, &dwt, Accumulate::Overwrite)?,
+    ];
+    gpu.run(&step)?; // warm-up: the first dispatch of a pipeline JIT-compiles it
+    let reps = 5;
+    let t0 = Instant::now();
+    let mut rec = Recorder::new(gpu);
+    for _ in 0..reps {
+        rec.dispatch_all(&step);
+    }
+    rec.submit();
+    gpu.wait()?;
+    let seconds = t0.elapsed().as_secs_f64() / reps as f64;
+    let y = matmul::cpu::forward(&mm, &x, &w);
+    let (dx, dw) = matmul::cpu::backward(&mm, &x, &w, &dy);
+    // f32 sums of `k` products of |v| ≤ 1: a few ulps times √k, far below any real bug.
+    let tol = |k: usize| Tolerance::new(1e-6 * (k as f64).sqrt() * 4.0, 1e-4);
+    Group {
+        name: format!("matmul [{r},{c}]x[{c},{c}] fwd+bwd"),
+        seconds,
+        includes_compile: false,
+        flops: Some(3.0 * mm.flops()),
+        checks: vec![
+            ("matmul forward", &yt, &y, tol(c)),
+            ("matmul backward dX", &dxt, &dx, tol(c)),
+            ("matmul backward dW", &dwt, &dw, tol(r)),
+        ],
+    }
+    .rows(gpu)
+}
+
+/// The gate of docs/model.md step 4, `H = tanh(F) ⊙ σ(G)`, forward and backward.
+fn gated_unit_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> {
+    let n = options.rows * options.channels;
+    let mut g = rng(options.seed + 1);
+    let f = round_f32(&uniform(&mut g, n, -3.0, 3.0));
+    let gg = round_f32(&uniform(&mut g, n, -3.0, 3.0));
+    let dh = round_f32(&uniform(&mut g, n, -1.0, 1.0));
+    let shape = [n];
+    let ft = gpu.upload("filter", &shape, &to_f32(&f))?;
+    let gt = gpu.upload("gate", &shape, &to_f32(&gg))?;
+    let dht = gpu.upload("dH", &shape, &to_f32(&dh))?;
+    let z = |name: &str| gpu.zeros(name, &shape, DType::F32);
+    let (tf, sg, h, dtf, dsg, df, dg) = (
+        z("tanh"),
+        z("sigma"),
+        z("H"),
+        z("dtanh"),
+        z("dsigma"),
+        z("dF"),
+        z("dG"),
+    );
+    let new = Accumulate::Overwrite;
+    let step = [
+        elementwise::unary_forward(gpu, Unary::Tanh, &ft, &tf, new)?,
+        elementwise::unary_forward(gpu, Unary::Sigmoid, &gt, &sg, new)?,
+        elementwise::binary_forward(gpu, Binary::Mul, &tf, &sg, &h, new)?,
+        elementwise::binary_backward(gpu, Binary::Mul, &sg, &dht, &dtf, new)?,
+        elementwise::binary_backward(gpu, Binary::Mul, &tf, &dht, &dsg, new)?,
+        elementwise::unary_backward(gpu, Unary::Tanh, &tf, &dtf, &df, new)?,
+        elementwise::unary_backward(gpu, Unary::Sigmoid, &sg, &dsg, &dg, new)?,
+    ];
+    let t0 = Instant::now();
+    gpu.run(&step)?;
+    let seconds = t0.elapsed().as_secs_f64();
+    let tf_ref = elementwise::cpu::unary_forward(Unary::Tanh, &f);
+    let sg_ref = elementwise::cpu::unary_forward(Unary::Sigmoid, &gg);
+    let h_ref = elementwise::cpu::binary_forward(Binary::Mul, &tf_ref, &sg_ref);
+    let (dtf_ref, dsg_ref) = elementwise::cpu::binary_backward(Binary::Mul, &tf_ref, &sg_ref, &dh);
+    let df_ref = elementwise::cpu::unary_backward(Unary::Tanh, &f, &dtf_ref);
+    let dg_ref = elementwise::cpu::unary_backward(Unary::Sigmoid, &gg, &dsg_ref);
+    let tol = Tolerance::new(1e-6, 1e-5);
+    Group {
+        name: format!("gated unit tanh(F)*sigmoid(G) fwd+bwd on {n} elements"),
+        seconds,
+        includes_compile: true,
+        flops: None,
+        checks: vec![
+            ("gate H", &h, &h_ref, tol),
+            ("gate dF", &df, &df_ref, tol),
+            ("gate dG", &dg, &dg_ref, tol),
+        ],
+    }
+    .rows(gpu)
+}
