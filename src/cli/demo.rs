@@ -100,6 +100,7 @@ pub fn demo(gpu: Gpu, args: &DemoArgs) -> anyhow::Result<()> {
         config.run = read_run_config(Some(p), None)?;
         config.run_source = p.display().to_string();
     }
-    demo::demo(Arc::new(gpu), &config, &args.out, &mut Console::default())?;
+    let report = demo::demo(Arc::new(gpu), &config, &args.out, &mut Console::default())?;
+    println!("demo finished in {:.0} s", report.wall_seconds);
     Ok(())
 }

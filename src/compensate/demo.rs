@@ -291,7 +291,7 @@ pub fn demo(
         "every model is refined the same way and keeps its core weights unless refinement lowers its per-window validation loss".into(),
     ];
     setup.extend(refinement);
-    let mut report = Report {
+    let report = Report {
         title: "IASTGCN on the digital twin — demo report".into(),
         adapter: gpu.info().name.clone(),
         setup,
@@ -300,24 +300,9 @@ pub fn demo(
         sections: vec![("Sensor models".into(), sensor_table())],
         ..Report::default()
     };
-    evaluate(
-        &gpu,
-        &mut report,
-        &models,
-        &sources,
-        config,
-        held_out,
-        reporter,
-    )?;
-    report.wall_seconds = began.elapsed().as_secs_f64();
-    let files = report::write(out, &report)?;
-    reporter.note(&format!(
-        "report: {} ({} files); demo finished in {:.0} s",
-        out.join("report.md").display(),
-        files.len(),
-        report.wall_seconds
-    ));
-    Ok(report)
+    finish(
+        &gpu, report, &models, &sources, config, held_out, began, out, reporter,
+    )
 }
 
 /// The report of `iastgcn evaluate`: Tables III and V for `models` on `sources`, written
@@ -343,7 +328,7 @@ pub fn evaluation_report(
             .collect::<Vec<_>>()
             .join(", ")
     };
-    let mut report = Report {
+    let report = Report {
         title: "IASTGCN evaluation".into(),
         adapter: gpu.info().name.clone(),
         setup: vec![
@@ -364,10 +349,29 @@ pub fn evaluation_report(
         ],
         ..Report::default()
     };
+    finish(
+        &gpu, report, &named, sources, config, held_out, began, out, reporter,
+    )
+}
+
+/// Tables III and V into `report`, its wall time since `began`, and the report folder
+/// `out` written; returns the report.
+#[allow(clippy::too_many_arguments)]
+fn finish(
+    gpu: &Arc<Gpu>,
+    mut report: Report,
+    models: &[NamedModel],
+    sources: &DataSources,
+    config: &RunConfig,
+    held_out: &HeldOutConfig,
+    began: Instant,
+    out: &std::path::Path,
+    reporter: &mut dyn Reporter,
+) -> Result<Report> {
     evaluate(
-        &gpu,
+        gpu,
         &mut report,
-        &named,
+        models,
         sources,
         config,
         held_out,
@@ -376,9 +380,10 @@ pub fn evaluation_report(
     report.wall_seconds = began.elapsed().as_secs_f64();
     let files = report::write(out, &report)?;
     reporter.note(&format!(
-        "report: {} ({} files)",
+        "report: {} ({} files), {:.0} s in all",
         out.join("report.md").display(),
-        files.len()
+        files.len(),
+        report.wall_seconds
     ));
     Ok(report)
 }
