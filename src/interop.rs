@@ -21,9 +21,12 @@ use crate::train::RunConfig;
 #[derive(Debug, thiserror::Error)]
 #[error("{}: {}{message}", path.display(), tensor.as_ref().map(|t| format!("tensor {t}: ")).unwrap_or_default())]
 pub struct TensorFileError {
+    /// The safetensors file read or written.
     pub path: PathBuf,
     /// The tensor, when the problem is one tensor's.
     pub tensor: Option<String>,
+    /// What is wrong (e.g. a missing tensor, a dtype other than F32, a wrong shape, a
+    /// non-finite element).
     pub message: String,
 }
 
@@ -102,8 +105,11 @@ pub fn write_tensor(path: &Path, name: &str, shape: &[usize], values: &[f32]) ->
 /// What [`forward`] wrote: `y` `[windows, outputs]` from a model of `variant`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Forwarded {
+    /// Windows B run: the leading axis of the input `x` and of `y`.
     pub windows: usize,
+    /// Outputs O per window (the checkpoint's `[model] outputs`).
     pub outputs: usize,
+    /// The variant of the checkpoint that was run.
     pub variant: Variant,
 }
 

@@ -1,3 +1,4 @@
+#![warn(missing_docs)]
 //! IASTGCN: predicting the pose residual errors of an optical-polishing hybrid robot with
 //! an interpretable adaptive spatio-temporal graph network, trained on any GPU through
 //! WGSL compute shaders with hand-written backward passes.

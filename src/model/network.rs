@@ -17,17 +17,29 @@ use crate::ops::Accumulate;
 /// What can go wrong building or feeding a network.
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
+    /// The device failed: allocation, upload, a kernel's shape check or a dispatch.
     #[error(transparent)]
     Gpu(#[from] GpuError),
+    /// A model config, graph, batch size, parameter count or input length the network
+    /// cannot use; the message says which and why.
     #[error("{0}")]
     Config(String),
+    /// A parameter tensor given to [`Network::load_parameters`] whose name, shape or
+    /// length differs from the network's own at that position.
     #[error("parameter {name}: {message}")]
-    Parameter { name: String, message: String },
+    Parameter {
+        /// The docs/model.md name of the tensor given (e.g. `blocks.0.gwc.W`).
+        name: String,
+        /// The expected and the given name, shape and value count.
+        message: String,
+    },
 }
 
 /// IASTGCN on one device for a fixed batch size.
 pub struct Network {
+    /// The model's `[model]` config (validated when the network was built).
     pub config: ModelConfig,
+    /// Windows B per forward and backward pass; every activation has this leading axis.
     pub batch: usize,
     /// Windows per ensemble of the loss (docs/model.md "Refinement"); 1 = the plain loss.
     pub group: usize,
@@ -35,9 +47,14 @@ pub struct Network {
     /// forward and the backward ([`Network::new`]); [`Pass::Inference`] for the inference
     /// forward only ([`Network::for_inference`]).
     pub built_for: Pass,
+    /// Name and shape of every parameter tensor, in [`param_specs`] order
+    /// (docs/model.md "Parameter names").
     pub specs: Vec<ParamSpec>,
     /// Parameters and their gradients, in [`param_specs`] order.
     pub params: Vec<Tensor>,
+    /// ∂ℒ/∂parameter of the last backward pass, one per entry of `params` with the same
+    /// shape; each backward overwrites them, and they hold the data term only (the
+    /// optimiser adds the weight decay).
     pub grads: Vec<Tensor>,
     /// `x` [B, N, F, T] (write before recording a forward pass).
     pub input: Tensor,
@@ -476,6 +493,7 @@ impl Network {
         (self.infer.len(), self.train.len(), self.backward.len())
     }
 
+    /// Number of ST blocks L.
     pub fn blocks(&self) -> usize {
         self.blocks.len()
     }

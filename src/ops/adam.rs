@@ -4,6 +4,7 @@
 
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
 
+/// The WGSL module of this family (`shaders/adam.wgsl`, entry `adam_step`).
 pub static SHADER: Shader = Shader {
     name: "adam",
     source: include_str!("../../shaders/adam.wgsl"),
@@ -27,10 +28,17 @@ static STEP: Kernel = Kernel {
 /// `decay` is λ for the weights of docs/model.md eq. 39 and 0 for biases, be/bs, θ and ln.*.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Adam {
+    /// Number of elements in the parameter tensor (and in its gradient and both moments).
     pub numel: usize,
+    /// Decay rate β1 of the first moment (docs/model.md "Optimiser and schedule": 0.9).
     pub beta1: f64,
+    /// Decay rate β2 of the second moment (docs/model.md "Optimiser and schedule": 0.999).
     pub beta2: f64,
+    /// ε added to √v̂ in the update's denominator (docs/model.md "Optimiser and schedule":
+    /// 1e-8).
     pub eps: f64,
+    /// L2 coefficient λ: the gradient becomes g + 2·decay·w before the moments; 0 for the
+    /// tensors outside the weight-decay term of docs/model.md "Loss".
     pub decay: f64,
 }
 

@@ -4,6 +4,8 @@
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
 use crate::ops::Accumulate;
 
+/// The WGSL module of this family (`shaders/bias.wgsl`: `bias_add`, `bias_grad`,
+/// `bias_grad_columns`).
 pub static SHADER: Shader = Shader {
     name: "bias",
     source: include_str!("../../shaders/bias.wgsl"),
@@ -29,8 +31,14 @@ static GRAD_COLUMNS: Kernel = Kernel {
 /// A bias of `channels` values added along the middle axis of `[outer, channels, inner]`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Bias {
+    /// Length of the leading axis the bias is broadcast over (B·N for a convolution bias on
+    /// `[B, N, C, T]`, B for the attention score biases and the head bias).
     pub outer: usize,
+    /// Number of bias values: the length of the middle axis (C for a convolution bias,
+    /// T·T for `be`, N·N for `bs`, O for the head).
     pub channels: usize,
+    /// Length of the trailing axis the bias is broadcast over (the time steps computed,
+    /// for a convolution bias; 1 for the others).
     pub inner: usize,
 }
 
@@ -44,6 +52,7 @@ struct Params {
 }
 
 impl Bias {
+    /// Number of elements of the biased tensor, `outer · channels · inner`.
     pub fn numel(&self) -> usize {
         self.outer * self.channels * self.inner
     }
@@ -112,6 +121,7 @@ impl Bias {
 pub mod cpu {
     use super::Bias;
 
+    /// `y + bias` broadcast over `[outer, channels, inner]`, as a new vector.
     pub fn forward(b: &Bias, bias: &[f64], y: &[f64]) -> Vec<f64> {
         y.iter()
             .enumerate()
@@ -119,6 +129,7 @@ pub mod cpu {
             .collect()
     }
 
+    /// `dbias[c] = Σ_{outer, inner} dy[o, c, i]`, a vector of `channels` values.
     pub fn backward(b: &Bias, dy: &[f64]) -> Vec<f64> {
         let mut out = vec![0.0; b.channels];
         for (i, v) in dy.iter().enumerate() {

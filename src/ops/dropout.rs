@@ -5,6 +5,7 @@
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
 use crate::ops::Accumulate;
 
+/// The WGSL module of this family (`shaders/dropout.wgsl`, entry `dropout`).
 pub static SHADER: Shader = Shader {
     name: "dropout",
     source: include_str!("../../shaders/dropout.wgsl"),
@@ -35,10 +36,17 @@ struct Params {
 /// block's last step) gets exactly the bits it has in the whole one.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Dropout {
+    /// Number of elements the op reads and writes.
     pub n: usize,
+    /// Drop probability, in [0, 1); kept elements are scaled by 1/(1−p).
     pub p: f64,
+    /// The mask seed: `seed_l = seed32 + l` of block l (docs/model.md step 7, "how the mask
+    /// is drawn").
     pub seed: u32,
+    /// Flat-index step in the larger tensor between consecutive elements (1 for the whole
+    /// tensor).
     pub stride: usize,
+    /// Flat index in the larger tensor of element 0 (0 for the whole tensor).
     pub offset: usize,
 }
 

@@ -5,6 +5,8 @@
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
 use crate::ops::Accumulate;
 
+/// The WGSL module of this family (`shaders/elementwise.wgsl`: one forward and one
+/// backward entry per op).
 pub static SHADER: Shader = Shader {
     name: "elementwise",
     source: include_str!("../../shaders/elementwise.wgsl"),
@@ -43,19 +45,25 @@ kernel!(MUL_BWD, "mul_backward", BINARY);
 /// A one-input activation.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Unary {
+    /// `max(x, 0)`; its derivative is taken as 0 at x = 0.
     Relu,
+    /// The logistic sigmoid σ(x) = 1/(1 + e^(−x)).
     Sigmoid,
+    /// The hyperbolic tangent.
     Tanh,
 }
 
 /// A two-input elementwise op on equal shapes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Binary {
+    /// `c = a + b`.
     Add,
+    /// `c = a · b` (Hadamard product).
     Mul,
 }
 
 impl Unary {
+    /// Every activation, for tests that check each.
     pub const ALL: [Unary; 3] = [Unary::Relu, Unary::Sigmoid, Unary::Tanh];
 
     /// Whether the backward pass needs the forward *output* (sigmoid, tanh) rather than
@@ -74,6 +82,7 @@ impl Unary {
 }
 
 impl Binary {
+    /// Both ops, for tests that check each.
     pub const ALL: [Binary; 2] = [Binary::Add, Binary::Mul];
 }
 
@@ -172,6 +181,7 @@ pub fn binary_backward(
 pub mod cpu {
     use super::{Binary, Unary};
 
+    /// The activation `op` of one value.
     pub fn unary(op: Unary, x: f64) -> f64 {
         match op {
             Unary::Relu => x.max(0.0),
@@ -180,6 +190,7 @@ pub mod cpu {
         }
     }
 
+    /// `y = f(x)` element by element, as a new vector.
     pub fn unary_forward(op: Unary, x: &[f64]) -> Vec<f64> {
         x.iter().map(|&v| unary(op, v)).collect()
     }
@@ -201,6 +212,7 @@ pub mod cpu {
             .collect()
     }
 
+    /// `c = a ∘ b` element by element over equal lengths, as a new vector.
     pub fn binary_forward(op: Binary, a: &[f64], b: &[f64]) -> Vec<f64> {
         a.iter()
             .zip(b)

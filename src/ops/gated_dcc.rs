@@ -5,6 +5,8 @@
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
 use crate::ops::Accumulate;
 
+/// The WGSL module of this family (`shaders/gated_dcc.wgsl`: the unfolding and the gate,
+/// forward and backward).
 pub static SHADER: Shader = Shader {
     name: "gated_dcc",
     source: include_str!("../../shaders/gated_dcc.wgsl"),
@@ -52,10 +54,16 @@ static GATE_BWD_STACKED: Kernel = Kernel {
 /// with `col[r, c, k, t] = x[r, c, t − dilation·k]` (zero before the start).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Unfold {
+    /// Independent rows convolved separately (B·N in a block, row r = b·N + n).
     pub rows: usize,
+    /// Input channels per row (C: the convolution's input is Z).
     pub channels: usize,
+    /// Temporal kernel size K: lags k = 0..K, k = 0 being the current step.
     pub kernel: usize,
+    /// Input time steps per row and channel (T).
     pub steps: usize,
+    /// Steps between consecutive lags, d_l = 2^l in block l (1 in every block of
+    /// `iastgcn-t`); docs/model.md step 4.
     pub dilation: usize,
     /// Output steps kept, the last ones (`steps` for the whole unfolding): col is
     /// `[rows, channels, kernel, outputs]` and holds steps `steps − outputs ..`.
@@ -87,10 +95,12 @@ struct GateParams {
 }
 
 impl Unfold {
+    /// Number of elements of the input x, `rows · channels · steps`.
     pub fn input_len(&self) -> usize {
         self.rows * self.channels * self.steps
     }
 
+    /// Number of elements of the unfolded col, `rows · channels · kernel · outputs`.
     pub fn col_len(&self) -> usize {
         self.rows * self.channels * self.kernel * self.outputs
     }
@@ -129,6 +139,9 @@ impl Unfold {
         }
     }
 
+    /// Writes (overwrites) `col [rows, channels, kernel, outputs]` from
+    /// `x [rows, channels, steps]`; an error if `outputs` is 0 or exceeds `steps`, or a
+    /// tensor's length differs.
     pub fn forward(&self, gpu: &Gpu, x: &Tensor, col: &Tensor) -> Result<Dispatch, GpuError> {
         self.check()?;
         x.expect_len(self.input_len())?;
@@ -266,6 +279,8 @@ pub fn gate_backward_stacked(
 pub mod cpu {
     use super::Unfold;
 
+    /// The unfolding `col [rows, channels, kernel, outputs]` of `x [rows, channels, steps]`,
+    /// zero where `t − dilation·k < 0`.
     pub fn unfold(u: &Unfold, x: &[f64]) -> Vec<f64> {
         let mut col = vec![0.0; u.col_len()];
         let first = u.first_output();
@@ -280,6 +295,8 @@ pub mod cpu {
         col
     }
 
+    /// `dx [rows, channels, steps]` from `dcol [rows, channels, kernel, outputs]`: each col
+    /// element's gradient added back to the input step it was copied from.
     pub fn unfold_backward(u: &Unfold, dcol: &[f64]) -> Vec<f64> {
         let mut dx = vec![0.0; u.input_len()];
         let first = u.first_output();
@@ -322,6 +339,7 @@ pub mod cpu {
         out
     }
 
+    /// `H = tanh(f) ⊙ σ(g)` element by element (docs/model.md step 4).
     pub fn gate(f: &[f64], g: &[f64]) -> Vec<f64> {
         f.iter()
             .zip(g)
@@ -337,6 +355,8 @@ pub mod cpu {
             .collect()
     }
 
+    /// `(df, dg)` of the gate from the pre-activations `f`, `g` and upstream `dh`:
+    /// `df = dh·σ(g)·(1 − tanh²f)`, `dg = dh·tanh(f)·σ(g)·(1 − σ(g))` (not stacked).
     pub fn gate_backward(f: &[f64], g: &[f64], dh: &[f64]) -> (Vec<f64>, Vec<f64>) {
         let mut df = Vec::with_capacity(f.len());
         let mut dg = Vec::with_capacity(f.len());

@@ -3,6 +3,8 @@
 
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
 
+/// The WGSL module of this family (`shaders/head.wgsl`: `last_step_forward`,
+/// `last_step_backward`).
 pub static SHADER: Shader = Shader {
     name: "head",
     source: include_str!("../../shaders/head.wgsl"),
@@ -23,7 +25,10 @@ static BACKWARD: Kernel = Kernel {
 /// `h[r] = y[r, steps − 1]` for `y` viewed as `[rows, steps]` (rows = B·N·C).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct LastStep {
+    /// Number of rows, one output value each: B·N·C for the head's input (B·N·C_in when a
+    /// trimmed block's residual reads its input's last step).
     pub rows: usize,
+    /// Time steps per row (T); the op reads or writes step `steps − 1`.
     pub steps: usize,
 }
 
@@ -44,6 +49,8 @@ impl LastStep {
         }
     }
 
+    /// Gathers (overwrites) `h [rows]` from `y [rows, steps]`: for `[B, N, C, T]` that is
+    /// the head's input `h [B, N·C]`.
     pub fn forward(&self, gpu: &Gpu, y: &Tensor, h: &Tensor) -> Result<Dispatch, GpuError> {
         y.expect_len(self.rows * self.steps)?;
         h.expect_len(self.rows)?;
@@ -76,10 +83,12 @@ impl LastStep {
 pub mod cpu {
     use super::LastStep;
 
+    /// `h[r] = y[r, steps − 1]`, a vector of `rows` values.
     pub fn forward(s: &LastStep, y: &[f64]) -> Vec<f64> {
         (0..s.rows).map(|r| y[r * s.steps + s.steps - 1]).collect()
     }
 
+    /// `dy [rows, steps]`: `dh` at the last step of each row, zero elsewhere.
     pub fn backward(s: &LastStep, dh: &[f64]) -> Vec<f64> {
         let mut dy = vec![0.0; s.rows * s.steps];
         for (r, d) in dh.iter().enumerate() {

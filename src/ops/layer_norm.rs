@@ -4,6 +4,8 @@
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
 use crate::ops::Accumulate;
 
+/// The WGSL module of this family (`shaders/layer_norm.wgsl`: forward, input gradient,
+/// parameter gradients).
 pub static SHADER: Shader = Shader {
     name: "layer_norm",
     source: include_str!("../../shaders/layer_norm.wgsl"),
@@ -50,9 +52,15 @@ const WORKGROUP: u32 = 256;
 /// Shape of a LayerNorm over C for each of `outer` (= B·N) blocks and `steps` (= T).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LayerNorm {
+    /// Number of leading blocks, B·N for `[B, N, C, T]`.
     pub outer: usize,
+    /// Length C of the normalised (middle) axis, and of γ and β.
     pub channels: usize,
+    /// Length of the trailing axis (T, or the time steps a trimmed block computes); each
+    /// (outer, step) pair is normalised on its own.
     pub steps: usize,
+    /// ε added to the biased variance under the square root (`[model] eps`, docs/model.md
+    /// step 6).
     pub eps: f32,
     /// x is the output of a ReLU: [`LayerNorm::backward_input`] returns the gradient with
     /// respect to the ReLU's input, `(x > 0) · ∂L/∂x` (one elementwise pass fewer).
@@ -83,10 +91,12 @@ impl LayerNorm {
         }
     }
 
+    /// Number of elements of x and y, `outer · channels · steps`.
     pub fn len(&self) -> usize {
         self.outer * self.channels * self.steps
     }
 
+    /// Whether x and y have no elements.
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
@@ -219,6 +229,8 @@ pub mod cpu {
         (o * ln.channels + c) * ln.steps + t
     }
 
+    /// `y = γ ⊙ (x − μ)/√(v + ε) + β` over `[outer, channels, steps]`, with μ and the biased
+    /// variance v taken over the channels of each (outer, step).
     pub fn forward(ln: &LayerNorm, x: &[f64], gamma: &[f64], beta: &[f64]) -> Vec<f64> {
         let mut y = vec![0.0; ln.len()];
         let c = ln.channels as f64;

@@ -5,6 +5,7 @@
 
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
 
+/// The WGSL module of this family (`shaders/loss.wgsl`: `loss_forward`, `loss_backward`).
 pub static SHADER: Shader = Shader {
     name: "loss",
     source: include_str!("../../shaders/loss.wgsl"),
@@ -32,9 +33,15 @@ static BACKWARD: Kernel = Kernel {
 /// every window twice).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PoseLoss {
+    /// Windows B in the batch: ŷ and y are `[batch, outputs]`, in standardised label space.
     pub batch: usize,
+    /// Outputs O per window (6: dx, dy, dz, rx, ry, rz); the first three are weighted 1,
+    /// the rest `penalty`.
     pub outputs: usize,
+    /// The attitude penalty P of docs/model.md "Loss" (`[train] attitude_penalty`).
     pub penalty: f64,
+    /// Ensemble size M (the refinement magnification m); 1 for the plain per-window loss.
+    /// Must divide `batch`.
     pub group: usize,
 }
 
@@ -146,6 +153,8 @@ pub mod cpu {
         mean
     }
 
+    /// ℒ for `pred` and `target` `[batch, outputs]`, as [`PoseLoss`] defines it; panics if
+    /// `group` does not divide `batch`.
     pub fn forward(l: &PoseLoss, pred: &[f64], target: &[f64]) -> f64 {
         let windows: f64 = pred
             .iter()
@@ -162,6 +171,8 @@ pub mod cpu {
         windows / l.batch as f64 + ensembles / (l.batch / l.group) as f64
     }
 
+    /// `∂ℒ/∂ŷ`, `[batch, outputs]`: `(2/B)·w_m·(ŷ − y)`, plus `(2/B)·w_m·mean_k(ŷ_gk − y_gk)`
+    /// of the window's ensemble when `group` > 1.
     pub fn backward(l: &PoseLoss, pred: &[f64], target: &[f64]) -> Vec<f64> {
         let mean = group_mean_errors(l, pred, target);
         let o = l.outputs;

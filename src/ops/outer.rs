@@ -11,6 +11,7 @@
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
 use crate::ops::Accumulate;
 
+/// The WGSL module of this family (`shaders/outer.wgsl`, entry `outer_pair`).
 pub static SHADER: Shader = Shader {
     name: "outer",
     source: include_str!("../../shaders/outer.wgsl"),
@@ -54,16 +55,23 @@ pub enum Second {
     RowsByCols,
     /// `w[z mod nodes]·q[z / nodes, i, j]`: `w [nodes]`, `q [items / nodes, rows, cols]`
     /// (items run over (batch, node) pairs).
-    NodeByMatrix { nodes: usize },
+    NodeByMatrix {
+        /// Nodes N per batch item: item z is node `z mod N` of batch item `z / N`.
+        nodes: usize,
+    },
 }
 
 /// The shape: `out` is `[items, rows, cols]`, `u` `[rows]`, `v` `[items, cols]`; `w` and
 /// `q` as [`Second`] says.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct OuterPair {
+    /// Number of items z, each an output matrix of its own (B·N in a block).
     pub items: usize,
+    /// Rows i of each item's matrix, and the length of `u` (C_in in a block).
     pub rows: usize,
+    /// Columns j of each item's matrix (T in a block).
     pub cols: usize,
+    /// The form of the second outer product, and the shapes of `w` and `q`.
     pub second: Second,
 }
 
@@ -119,6 +127,8 @@ impl OuterPair {
 pub mod cpu {
     use super::{OuterPair, Second};
 
+    /// `out [items, rows, cols] = u ⊗ v + w ⊗ q` per item, as a new vector (the
+    /// overwriting form of [`OuterPair::apply`]).
     pub fn apply(op: &OuterPair, u: &[f64], v: &[f64], w: &[f64], q: &[f64]) -> Vec<f64> {
         let (rows, cols) = (op.rows, op.cols);
         let mut out = Vec::with_capacity(op.items * rows * cols);

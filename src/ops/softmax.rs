@@ -4,6 +4,8 @@
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
 use crate::ops::Accumulate;
 
+/// The WGSL module of this family (`shaders/softmax.wgsl`: `softmax_forward`,
+/// `softmax_backward`).
 pub static SHADER: Shader = Shader {
     name: "softmax",
     source: include_str!("../../shaders/softmax.wgsl"),
@@ -26,8 +28,14 @@ const WORKGROUP: u32 = 256;
 /// Softmax along the middle axis of a tensor viewed as `[outer, len, inner]`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Softmax {
+    /// Length of the leading axis: B for the temporal attention's E `[B, T, T]`, B·N for
+    /// the spatial attention's S `[B, N, N]` (docs/model.md "One ST block", steps 1–2).
     pub outer: usize,
+    /// Length of the normalised axis: T (the first index t of E), or N (the last index j
+    /// of S).
     pub len: usize,
+    /// Length of the trailing axis, each position normalised on its own: T for E (one
+    /// softmax per t'), 1 for S.
     pub inner: usize,
 }
 
@@ -41,6 +49,7 @@ struct Params {
 }
 
 impl Softmax {
+    /// Number of elements of x and y, `outer · len · inner`.
     pub fn numel(&self) -> usize {
         self.outer * self.len * self.inner
     }
@@ -107,6 +116,8 @@ pub mod cpu {
         })
     }
 
+    /// `y = softmax(x)` along the middle axis, the maximum subtracted before
+    /// exponentiating.
     pub fn forward(s: &Softmax, x: &[f64]) -> Vec<f64> {
         let mut y = vec![0.0; s.numel()];
         for idx in lines(s) {

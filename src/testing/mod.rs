@@ -42,10 +42,13 @@ pub fn round_f32(x: &[f64]) -> Vec<f64> {
     x.iter().map(|&v| v as f32 as f64).collect()
 }
 
+/// Converts to f32 (rounding to nearest), for uploading host data to a tensor.
 pub fn to_f32(x: &[f64]) -> Vec<f32> {
     x.iter().map(|&v| v as f32).collect()
 }
 
+/// `Σ_i a[i]·b[i]` over the shorter length, e.g. a scalar loss `⟨dy, y⟩` for gradient
+/// checks.
 pub fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
@@ -69,11 +72,14 @@ pub fn central_difference(mut f: impl FnMut(&[f64]) -> f64, x: &[f64], h: f64) -
 /// Element `i` passes when `|actual − expected| <= abs + rel·|expected|`.
 #[derive(Clone, Copy, Debug)]
 pub struct Tolerance {
+    /// The absolute part, in the compared values' units.
     pub abs: f64,
+    /// The relative part, a fraction of `|expected|`.
     pub rel: f64,
 }
 
 impl Tolerance {
+    /// `abs + rel·|expected|`.
     pub const fn new(abs: f64, rel: f64) -> Tolerance {
         Tolerance { abs, rel }
     }
@@ -82,10 +88,15 @@ impl Tolerance {
 /// The element that came closest to (or went furthest past) its tolerance.
 #[derive(Clone, Debug)]
 pub struct Worst {
+    /// Its flat index in the compared slices.
     pub index: usize,
+    /// The value computed (by the kernel under test).
     pub actual: f64,
+    /// The reference value.
     pub expected: f64,
+    /// `|actual − expected|`.
     pub abs_err: f64,
+    /// `abs_err / |expected|` (the denominator at least `f64::MIN_POSITIVE`).
     pub rel_err: f64,
     /// Error divided by the element's tolerance: ≤ 1 passes.
     pub ratio: f64,

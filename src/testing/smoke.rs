@@ -44,6 +44,7 @@ pub struct SmokeRow {
     /// The element furthest from the reference relative to its tolerance (its absolute
     /// and relative error, and that ratio).
     pub worst: Worst,
+    /// The tolerance the tensor was checked against.
     pub tolerance: Tolerance,
     /// Whether every element is within the tolerance (`worst.ratio <= 1`).
     pub pass: bool,

@@ -29,6 +29,8 @@ fn b_at(mm: &Matmul, b: &[f64], z: usize, kk: usize, j: usize) -> f64 {
         }
 }
 
+/// `C [batch, m, n] = op(A) · op(B)` (plus op(A) when `plus_identity`), from A and B
+/// stored as `mm` describes.
 pub fn forward(mm: &Matmul, a: &[f64], b: &[f64]) -> Vec<f64> {
     let mut c = vec![0.0; mm.c_len()];
     for z in 0..mm.batch {

@@ -20,6 +20,9 @@ pub use plan::{plan, Matmul, Tiling};
 
 use crate::gpu::{Binding, Gpu, Kernel, Shader, Tensor};
 
+/// The portable WGSL module of this family (`shaders/matmul.wgsl`: the block kernel
+/// `matmul`, the one-row kernel `matmul_row`, `sum_partials` of a split reduction), whose
+/// declarations [`SUBGROUP_SHADER`] builds on.
 pub static SHADER: Shader = Shader {
     name: "matmul",
     source: include_str!("../../../shaders/matmul.wgsl"),

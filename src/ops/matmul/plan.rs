@@ -27,9 +27,14 @@ const SPLIT_PARTIALS_BYTES: usize = 32 << 20;
 /// Shape of one (batched) product.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Matmul {
+    /// Number of products computed together (1 for a single product); C is
+    /// `[batch, m, n]`.
     pub batch: usize,
+    /// Rows of op(A) and of C.
     pub m: usize,
+    /// Columns of op(B) and of C.
     pub n: usize,
+    /// The contracted length: columns of op(A), rows of op(B).
     pub k: usize,
     /// A is stored `[k, m]` (per batch item) and used transposed.
     pub trans_a: bool,
@@ -100,26 +105,34 @@ impl Matmul {
         }
     }
 
+    /// The same product over `batch` items.
     pub fn batched(self, batch: usize) -> Matmul {
         Matmul { batch, ..self }
     }
 
+    /// Sets [`Matmul::trans_a`]: A stored `[k, m]`.
     pub fn transpose_a(self, trans_a: bool) -> Matmul {
         Matmul { trans_a, ..self }
     }
 
+    /// Sets [`Matmul::trans_b`]: B stored `[n, k]`.
     pub fn transpose_b(self, trans_b: bool) -> Matmul {
         Matmul { trans_b, ..self }
     }
 
+    /// Sets [`Matmul::shared_a`]: one A for every batch item, its gradient summed over
+    /// the batch.
     pub fn share_a(self, shared_a: bool) -> Matmul {
         Matmul { shared_a, ..self }
     }
 
+    /// Sets [`Matmul::shared_b`]: one B for every batch item, its gradient summed over
+    /// the batch.
     pub fn share_b(self, shared_b: bool) -> Matmul {
         Matmul { shared_b, ..self }
     }
 
+    /// Sets [`Matmul::plus_identity`]: `C = op(A) · (op(B) + I)`.
     pub fn plus_identity(self, plus_identity: bool) -> Matmul {
         Matmul {
             plus_identity,
@@ -127,6 +140,7 @@ impl Matmul {
         }
     }
 
+    /// Sets [`Matmul::tiling`], the kernel for products of more than one row.
     pub fn tiling(self, tiling: Tiling) -> Matmul {
         Matmul { tiling, ..self }
     }
@@ -145,14 +159,17 @@ impl Matmul {
         Ok(())
     }
 
+    /// Number of elements of A: `m · k`, times `batch` unless A is shared.
     pub fn a_len(&self) -> usize {
         self.m * self.k * if self.shared_a { 1 } else { self.batch }
     }
 
+    /// Number of elements of B: `k · n`, times `batch` unless B is shared.
     pub fn b_len(&self) -> usize {
         self.k * self.n * if self.shared_b { 1 } else { self.batch }
     }
 
+    /// Number of elements of C, `batch · m · n` (C always has the batch axis).
     pub fn c_len(&self) -> usize {
         self.batch * self.m * self.n
     }
