@@ -109,8 +109,7 @@ impl Predictor {
 
     /// `(v − mean)/std` of feature `k` of node `node`.
     fn standardise(&self, node: usize, k: usize, v: f32) -> f32 {
-        let nz = &self.normalization;
-        ((v as f64 - nz.feature_mean[node][k]) / nz.feature_std[node][k]) as f32
+        standardise(&self.normalization, node, k, v)
     }
 
     /// Puts one window `[N, F, T]` into staging slot `slot`, standardised.
@@ -124,9 +123,7 @@ impl Predictor {
         }
         for (i, &v) in window.iter().enumerate() {
             let row = i / t;
-            let nz = &self.normalization;
-            staged[i] = ((v as f64 - nz.feature_mean[row / f][row % f])
-                / nz.feature_std[row / f][row % f]) as f32;
+            staged[i] = standardise(&self.normalization, row / f, row % f, v);
         }
     }
 
@@ -247,4 +244,9 @@ impl Predictor {
         self.head = 0;
         self.filled = 0;
     }
+}
+
+/// `(v − mean)/std` of feature `k` of node `node` under the statistics `nz`.
+fn standardise(nz: &Normalization, node: usize, k: usize, v: f32) -> f32 {
+    ((v as f64 - nz.feature_mean[node][k]) / nz.feature_std[node][k]) as f32
 }
