@@ -127,8 +127,7 @@ pub fn demo(
     let machine = draw_machine(geometry.clone(), 1);
     let nominal = Robot::nominal(geometry.clone());
     let set = data_dir.join("calibration_set.csv");
-    let mut info = RunInfo::calibration(CALIBRATION_SEED);
-    info.machine_seed = 1;
+    let info = RunInfo::calibration(CALIBRATION_SEED);
     let poses = record_calibration_set(&machine, &nominal, 80, &info, &set, reporter)?;
     reporter.note(&format!(
         "wrote {} ({poses} measurement poses)",
