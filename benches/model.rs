@@ -1,6 +1,8 @@
 //! Whole-network throughput: inference forward at B = 1 (latency) and B = 64, and one
 //! training step at B = 64, for the paper shape (C 64, T 100, L 5) and a small shape
-//! (C 16, T 48, L 3), against the project's best matmul measured in the same run.
+//! (C 16, T 48, L 3), then the same three for each dense baseline (mlp, bkls-ann,
+//! ann-bfpa, erc) at both windows, against the project's best matmul measured in the
+//! same run.
 //!
 //! Criterion's "thrpt" column is in windows/s (elements = batch) for the model groups and
 //! in FLOP/s for the baseline. Each benchmark also prints to stderr its FLOPs
@@ -25,7 +27,7 @@ use criterion::{
     Throughput,
 };
 use iastgcn::gpu::{Gpu, Recorder};
-use iastgcn::model::{flops, ModelConfig, Network};
+use iastgcn::model::{flops, ModelConfig, Network, Variant};
 
 mod common;
 
@@ -245,6 +247,20 @@ fn paper_shape(c: &mut Criterion) {
     model_group(c, "paper C64 T100 L5", &ModelConfig::default());
 }
 
+/// The dense baselines (docs/model.md "Baselines") at the demo's and the paper's window
+/// (they read only its last step; H = 64 in both).
+fn baselines(c: &mut Criterion) {
+    for variant in Variant::DENSE {
+        for (shape, base) in [
+            ("small", common::small_config()),
+            ("paper", ModelConfig::default()),
+        ] {
+            let config = ModelConfig { variant, ..base };
+            model_group(c, &format!("{shape} {variant}"), &config);
+        }
+    }
+}
+
 fn summary(_: &mut Criterion) {
     let rows = ROWS.lock().unwrap();
     if rows.is_empty() {
@@ -273,6 +289,6 @@ criterion_group! {
     name = benches;
     // No plots: the plotters backend panics for want of a font on this machine.
     config = Criterion::default().without_plots();
-    targets = matmul_baseline, small_shape, paper_shape, summary
+    targets = matmul_baseline, small_shape, paper_shape, baselines, summary
 }
 criterion_main!(benches);

@@ -264,6 +264,7 @@ fn writes_every_file_of_the_report_folder() {
     let written = report::write(&dir, &r).unwrap();
 
     let expected = [
+        "compensated.png",
         "report.md",
         "table_v.csv",
         "table_iii.csv",

@@ -128,6 +128,32 @@ fn train_resume_predict_refine() {
     assert!(rows
         .iter()
         .all(|r| r.len() == 15 && r[3].parse::<f64>().is_ok()));
+
+    // A baseline trains from the CLI the same way; ann-bfpa runs its seeded search first,
+    // and the same seed on the same data gives the same weights bit for bit.
+    let bfpa = f("bfpa.safetensors");
+    let text = train(&bfpa, &["--variant", "ann-bfpa"]);
+    assert!(
+        text.contains("flower-pollination search") && text.contains("test split"),
+        "{text}"
+    );
+    // "… loss A at the He initialisation, B at the pick": the pick is never worse.
+    let line = text.lines().find(|l| l.contains("at the pick")).unwrap();
+    let number = |before: &str| -> f64 {
+        let head = &line[..line.find(before).unwrap()];
+        head.rsplit(' ').nth(1).unwrap().parse().unwrap()
+    };
+    let (start, pick) = (number("at the He"), number("at the pick"));
+    assert!(pick <= start && pick.is_finite(), "{line}");
+    let ck = iastgcn::model::Checkpoint::load(&bfpa).unwrap();
+    assert_eq!(ck.config.variant, iastgcn::model::Variant::AnnBfpa);
+    let again = f("bfpa2.safetensors");
+    train(&again, &["--variant", "ann-bfpa"]);
+    let ck2 = iastgcn::model::Checkpoint::load(&again).unwrap();
+    assert!(
+        ck2.parameters == ck.parameters,
+        "the search is reproducible"
+    );
     assert!(
         rows.iter().any(|r| r[9].parse::<f64>().is_ok()),
         "some windows are labelled"
@@ -223,8 +249,9 @@ fn demo_writes_the_report() {
         .map(|l| l.split(',').map(str::to_string).collect())
         .collect();
     // Per path (the three trained ones placed anew, and the rosette): initial,
-    // calibrated, the oracle, and the 4 models (each refined or kept).
-    assert_eq!(rows.len(), 4 * 7);
+    // calibrated, the oracle, and the 8 models (each refined or kept): IASTGCN, its three
+    // ablations and the four dense baselines.
+    assert_eq!(rows.len(), 4 * 11);
     let value = |r: &Vec<String>, i: usize| r[i].parse::<f64>().unwrap();
     for path in ["grid", "fermat", "hilbert", "rosette"] {
         let of = |stage: &str| {
@@ -239,7 +266,7 @@ fn demo_writes_the_report() {
                 of("oracle").len(),
                 of("compensated").len()
             ],
-            [1, 1, 1, 4],
+            [1, 1, 1, 8],
             "{path}"
         );
         // On the hidden truth, the true residual fed back at a model's rate and latency
@@ -269,7 +296,7 @@ fn demo_writes_the_report() {
             (nums[0], nums[1])
         })
         .collect();
-    assert_eq!(refined.len(), 4, "{text}");
+    assert_eq!(refined.len(), 8, "{text}");
     assert!(
         refined.iter().all(|(core, after)| after <= core),
         "{refined:?}"
@@ -295,7 +322,14 @@ fn demo_writes_the_report() {
         "trajectory,model,pos_mae_um,pos_rmse_um,pos_mape_pct,att_mae_mdeg,att_rmse_mdeg,att_mape_pct\n"
     ));
     assert!(table_iii.contains("hilbert,iastgcn-s,") && table_iii.contains("training mean"));
+    for baseline in ["mlp", "bkls-ann", "ann-bfpa", "erc"] {
+        assert!(
+            table_iii.contains(&format!("hilbert,{baseline},")),
+            "{baseline} in Table III"
+        );
+    }
     for f in [
+        "compensated.png",
         "report.md",
         "fig11_hilbert.png",
         "fig10_timings.png",

@@ -18,7 +18,7 @@ pub struct InitArgs {
     /// paper shape when absent.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Override the config's variant: iastgcn, iastgcn-a, iastgcn-t, iastgcn-s.
+    /// Override the config's variant: iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, or a baseline: mlp, bkls-ann, ann-bfpa, erc.
     #[arg(long)]
     pub variant: Option<String>,
     /// Sensor graph (TOML); the embedded 14-node graph when absent.
@@ -48,9 +48,10 @@ pub struct ForwardArgs {
 
 pub fn init(args: &InitArgs) -> anyhow::Result<()> {
     let variant = match &args.variant {
-        Some(v) => Some(Variant::parse(v).with_context(|| {
-            format!("unknown variant {v:?} (iastgcn, iastgcn-a, iastgcn-t, iastgcn-s)")
-        })?),
+        Some(v) => Some(
+            Variant::parse(v)
+                .with_context(|| format!("unknown variant {v:?} ({})", Variant::names()))?,
+        ),
         None => None,
     };
     let checkpoint = interop::init(

@@ -52,7 +52,7 @@ pub struct TrainArgs {
     /// Run config (TOML: [model], [data], [train], [refine]); the paper's values when absent.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Override the config's variant: iastgcn, iastgcn-a, iastgcn-t, iastgcn-s.
+    /// Override the config's variant: iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, or a baseline: mlp, bkls-ann, ann-bfpa, erc.
     #[arg(long)]
     pub variant: Option<String>,
     /// Override train.max_epochs (e.g. to continue a resumed run further).
@@ -114,9 +114,8 @@ pub fn read_run_config(path: Option<&Path>, variant: Option<&str>) -> anyhow::Re
         None => RunConfig::default(),
     };
     if let Some(v) = variant {
-        config.model.variant = Variant::parse(v).with_context(|| {
-            format!("unknown variant {v:?} (iastgcn, iastgcn-a, iastgcn-t, iastgcn-s)")
-        })?;
+        config.model.variant = Variant::parse(v)
+            .with_context(|| format!("unknown variant {v:?} ({})", Variant::names()))?;
     }
     Ok(config)
 }

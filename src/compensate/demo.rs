@@ -15,10 +15,12 @@ use crate::calibrate::{self, file, hold_out, pose_errors, EkfConfig};
 use crate::data::{read_measurements, record_calibration_set, record_run, DataSources};
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
-use crate::model::{Parameters, Variant};
+use crate::model::Variant;
 use crate::progress::Reporter;
 use crate::robot::{Geometry, Robot};
-use crate::train::{self, build_dataset, core_stage, log, refine, run_stage, RunConfig, Trainer};
+use crate::train::{
+    self, build_dataset, core_stage, initial_parameters, log, refine, run_stage, RunConfig, Trainer,
+};
 use crate::twin::{draw_machine, PathKind, PathParams, RunInfo};
 
 /// Seeds of the demo's runs: every run has its own (written in its `.run.toml`). This one
@@ -198,23 +200,18 @@ pub fn demo(
     }
 
     reporter.note(
-        "== 5/6 training and refining IASTGCN and its ablations (the same treatment for each)",
+        "== 5/6 training and refining IASTGCN, its ablations and the dense baselines (the same treatment for each)",
     );
     let mut models: Vec<NamedModel> = Vec::new();
     let mut histories = Vec::new();
     let mut accumulated = None;
     let mut refinement = Vec::new();
-    for variant in [
-        Variant::Iastgcn,
-        Variant::NoAttention,
-        Variant::PlainTemporal,
-        Variant::Chebyshev,
-    ] {
+    for variant in Variant::IASTGCN.into_iter().chain(Variant::DENSE) {
         let mut c = config.clone();
         c.model.variant = variant;
         let name = variant.name();
         let path = model_dir.join(format!("{name}.safetensors"));
-        let init = Parameters::init(&c.model, c.train.seed);
+        let init = initial_parameters(&gpu, &data, &graph, &c, reporter)?;
         let mut trainer = Trainer::new(
             &gpu,
             &data,

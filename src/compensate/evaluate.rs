@@ -80,6 +80,9 @@ pub struct HeldOutResult {
     pub traces: Vec<Trace>,
     /// Each model's name and its mean prediction latency, ms.
     pub latency: Vec<(String, f64)>,
+    /// Each model's name, its refused corrections (`online::MAX_CORRECTION`), its
+    /// predictions, and the ticks whose corrected target was unreachable.
+    pub refused: Vec<(String, usize, usize, usize)>,
     /// The machine's state after the calibrated run.
     pub end: MachineState,
 }
@@ -111,6 +114,7 @@ pub fn table_v(
     let mut rows = Vec::new();
     let mut traces = Vec::new();
     let mut latency = Vec::new();
+    let mut refused = Vec::new();
     let start = || run.start.clone();
     let initial = online::run(
         machine,
@@ -156,11 +160,13 @@ pub fn table_v(
             &r,
         ));
         latency.push((model.clone(), r.predict_ms));
+        refused.push((model.clone(), r.refused, r.predictions, r.unreachable));
     }
     Ok(HeldOutResult {
         rows,
         traces,
         latency,
+        refused,
         end: plain.end,
     })
 }
@@ -379,6 +385,15 @@ pub fn evaluate(
             reporter.note(&line);
         }
         report.table_v.extend(result.rows);
+        for (model, n, of, ticks) in result.refused.iter().filter(|r| r.1 + r.3 > 0) {
+            let (mm, deg) = super::online::MAX_CORRECTION;
+            let line = format!(
+                "{}: the controller refused {n} of {of} corrections predicted by {model} (beyond {mm} mm or {deg}°; it kept its last accepted correction) and ran {ticks} ticks uncorrected because the corrected target was unreachable",
+                path.name()
+            );
+            reporter.note(&line);
+            report.setup.push(line);
+        }
         state = result.end;
         state.idle(IDLE_BETWEEN_RUNS);
         // Fig. 11 shows before/after: calibration only, and the main model.

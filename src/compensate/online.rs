@@ -38,6 +38,11 @@ pub struct RunResult {
     pub trace: Vec<(f64, f64, f64, f64)>,
     /// Predictions made; 0 without a model.
     pub predictions: usize,
+    /// Predictions the controller refused as beyond [`MAX_CORRECTION`].
+    pub refused: usize,
+    /// Ticks whose corrected target the controller could not reach, run uncorrected
+    /// (`twin::Simulation::set_correction`).
+    pub unreachable: usize,
     /// Their mean latency, ms; 0 without a model.
     pub predict_ms: f64,
 }
@@ -71,6 +76,14 @@ pub enum Feedback<'p> {
         settings: Online,
     },
 }
+
+/// The largest correction the controller accepts from a model: 1 mm of position, 1° of
+/// attitude. A prediction beyond either (or not finite) is refused: the controller keeps
+/// its last accepted correction and counts the refusal ([`RunResult::refused`]). The
+/// residuals it compensates are about a tenth of a millimetre and a tenth of a degree;
+/// the limit keeps a model that extrapolates wildly from commanding a pose the machine
+/// cannot reach. It is the same for every model.
+pub const MAX_CORRECTION: (f64, f64) = (1.0, 1.0);
 
 /// Indices into the twin's [`CHANNELS`] of the graph's nodes.
 fn node_channels(graph: &Graph) -> Result<Vec<usize>> {
@@ -117,7 +130,7 @@ pub fn run(
     let mut step = vec![0f32; n * 3];
     let (mut pos, mut att, mut trace) = (Vec::new(), Vec::new(), Vec::new());
     let (mut true_pos, mut true_att) = (Vec::new(), Vec::new());
-    let (mut predictions, mut predict_time) = (0usize, 0f64);
+    let (mut predictions, mut predict_time, mut refused) = (0usize, 0f64, 0usize);
     let mut tick = 0usize;
     while let Some(sample) = sim.step() {
         let s = sample.map_err(|e| {
@@ -150,10 +163,15 @@ pub fn run(
                 let r = predictor.predict_latest()?.unwrap_or_default();
                 predict_time += began.elapsed().as_secs_f64();
                 predictions += 1;
-                sim.set_correction(Correction {
-                    dp: nalgebra::Vector3::new(r[0], r[1], r[2]) * 1e-3,
-                    dr: nalgebra::Vector3::new(r[3], r[4], r[5]).map(|v| (v * 1e-3).to_radians()),
-                });
+                let dp = nalgebra::Vector3::new(r[0], r[1], r[2]) * 1e-3;
+                let dr = nalgebra::Vector3::new(r[3], r[4], r[5]).map(|v| (v * 1e-3).to_radians());
+                let (mm, deg) = MAX_CORRECTION;
+                if dp.norm() <= mm && dr.norm() <= deg.to_radians() {
+                    sim.set_correction(Correction { dp, dr });
+                } else {
+                    // Also refuses NaN, which fails both comparisons.
+                    refused += 1;
+                }
             }
         }
         if let Some((window, settings)) = oracle {
@@ -183,8 +201,10 @@ pub fn run(
             attitude: summary(&att)?,
         },
         end: sim.machine_state(),
+        unreachable: sim.unreachable_corrections(),
         trace,
         predictions,
+        refused,
         predict_ms: if model.is_some() && predictions > 0 {
             1e3 * predict_time / predictions as f64
         } else {

@@ -17,16 +17,74 @@ pub enum Variant {
     /// Step 3 uses a Chebyshev graph convolution on the scaled Laplacian.
     #[serde(rename = "iastgcn-s")]
     Chebyshev,
+    /// Instantaneous baseline: a ReLU MLP on every node's features at the window's last
+    /// step only (no history, no graph).
+    #[serde(rename = "mlp")]
+    Mlp,
+    /// Offline pose→error baseline of Table V [15]: a tanh feed-forward ANN on the joint
+    /// inputs Q1–Q5 at the last step.
+    #[serde(rename = "bkls-ann")]
+    BklsAnn,
+    /// Offline pose→error baseline of Table V [17]: a one-hidden-layer tanh ANN on the
+    /// joint inputs whose starting weights a seeded flower-pollination search picks.
+    #[serde(rename = "ann-bfpa")]
+    AnnBfpa,
+    /// Offline pose→error baseline of Table V [19]: a residual network on the joint inputs.
+    #[serde(rename = "erc")]
+    Erc,
+}
+
+/// What a variant's network is built from (docs/model.md "Variants" and "Baselines").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Family {
+    /// Stacked ST blocks and the head (IASTGCN and its ablations).
+    StBlocks,
+    /// Dense layers on the last step of the window ([`crate::model::dense`]).
+    Dense,
 }
 
 impl Variant {
-    /// Every variant, the full model first.
-    pub const ALL: [Variant; 4] = [
+    /// Every variant: IASTGCN, its ablations, then the baselines.
+    pub const ALL: [Variant; 8] = [
+        Variant::Iastgcn,
+        Variant::NoAttention,
+        Variant::PlainTemporal,
+        Variant::Chebyshev,
+        Variant::Mlp,
+        Variant::BklsAnn,
+        Variant::AnnBfpa,
+        Variant::Erc,
+    ];
+
+    /// IASTGCN and its three ablations: the variants built from ST blocks.
+    pub const IASTGCN: [Variant; 4] = [
         Variant::Iastgcn,
         Variant::NoAttention,
         Variant::PlainTemporal,
         Variant::Chebyshev,
     ];
+
+    /// The dense baselines: the instantaneous MLP and the three offline pose→error models.
+    pub const DENSE: [Variant; 4] = [
+        Variant::Mlp,
+        Variant::BklsAnn,
+        Variant::AnnBfpa,
+        Variant::Erc,
+    ];
+
+    /// What the network is built from.
+    pub fn family(self) -> Family {
+        if Variant::DENSE.contains(&self) {
+            Family::Dense
+        } else {
+            Family::StBlocks
+        }
+    }
+
+    /// Every name, comma-separated, for help texts and error messages.
+    pub fn names() -> String {
+        Variant::ALL.map(Variant::name).join(", ")
+    }
 
     /// The name in configs, checkpoint metadata and reports.
     ///
@@ -35,6 +93,7 @@ impl Variant {
     ///
     /// assert_eq!(Variant::NoAttention.name(), "iastgcn-a");
     /// assert_eq!(Variant::parse("iastgcn-s"), Some(Variant::Chebyshev));
+    /// assert_eq!(Variant::parse("erc"), Some(Variant::Erc));
     /// assert_eq!(Variant::parse("convlstm"), None);
     /// ```
     pub fn name(self) -> &'static str {
@@ -43,6 +102,10 @@ impl Variant {
             Variant::NoAttention => "iastgcn-a",
             Variant::PlainTemporal => "iastgcn-t",
             Variant::Chebyshev => "iastgcn-s",
+            Variant::Mlp => "mlp",
+            Variant::BklsAnn => "bkls-ann",
+            Variant::AnnBfpa => "ann-bfpa",
+            Variant::Erc => "erc",
         }
     }
 
@@ -53,12 +116,18 @@ impl Variant {
 
     /// True when the blocks run the temporal and spatial attention (steps 1–2).
     pub fn attention(self) -> bool {
-        self != Variant::NoAttention
+        matches!(
+            self,
+            Variant::Iastgcn | Variant::PlainTemporal | Variant::Chebyshev
+        )
     }
 
     /// True when step 4 is the gated dilated convolution (not the plain one).
     pub fn gated(self) -> bool {
-        self != Variant::PlainTemporal
+        matches!(
+            self,
+            Variant::Iastgcn | Variant::NoAttention | Variant::Chebyshev
+        )
     }
 }
 
@@ -92,6 +161,8 @@ pub struct ModelConfig {
     pub chebyshev_order: usize,
     /// O: outputs.
     pub outputs: usize,
+    /// H: width of the dense baselines' hidden layers (unused by the ST-block variants).
+    pub hidden: usize,
     /// Inverted dropout probability on each block's output (training only).
     pub dropout: f64,
     /// LayerNorm ε.
@@ -111,6 +182,7 @@ impl Default for ModelConfig {
             scale: 1.0,
             chebyshev_order: 3,
             outputs: 6,
+            hidden: 64,
             dropout: 0.2,
             eps: 1e-5,
         }
@@ -149,10 +221,11 @@ impl ModelConfig {
     }
 
     /// Number of graph basis matrices Ψ is a θ-combination of: N wavelets or the
-    /// Chebyshev order.
+    /// Chebyshev order; 0 for the dense baselines, which use no graph.
     pub fn graph_terms(&self) -> usize {
-        match self.variant {
-            Variant::Chebyshev => self.chebyshev_order,
+        match (self.variant, self.variant.family()) {
+            (_, Family::Dense) => 0,
+            (Variant::Chebyshev, _) => self.chebyshev_order,
             _ => self.nodes,
         }
     }
@@ -168,6 +241,7 @@ impl ModelConfig {
             ("kernel", self.kernel),
             ("chebyshev_order", self.chebyshev_order),
             ("outputs", self.outputs),
+            ("hidden", self.hidden),
         ];
         if let Some((name, _)) = positive.iter().find(|(_, v)| *v == 0) {
             return Err(format!("model config: {name} must be positive"));

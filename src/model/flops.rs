@@ -34,7 +34,7 @@ struct Family {
 }
 
 /// Family names, in schedule order (every variant lists all of them; absent ones are 0).
-pub const FAMILIES: [&str; 11] = [
+pub const FAMILIES: [&str; 12] = [
     "tat scores (U1,U2,U3,lhs·rhs,Ve)",
     "tat apply X·E'",
     "sat scores (W1,W2,W3,lhs·rhsT,Vs)",
@@ -46,6 +46,7 @@ pub const FAMILIES: [&str; 11] = [
     "tcn gate conv",
     "res 1x1 conv",
     "head",
+    "dense layers",
 ];
 
 fn families(config: &ModelConfig, batch: usize) -> Vec<Family> {
@@ -58,6 +59,11 @@ fn families(config: &ModelConfig, batch: usize) -> Vec<Family> {
         f(config.kernel),
     );
     let mut sums = [0.0f64; FAMILIES.len()];
+    if let Some(arch) = super::dense::Architecture::of(config) {
+        // A dense baseline: its layers (head included) and input selection, nothing else.
+        sums[11] = arch.forward_flops(config, batch);
+        return named(sums);
+    }
     for l in 0..config.blocks {
         let ci = f(config.block_input(l));
         let mut fam = [0.0f64; FAMILIES.len()];
@@ -86,6 +92,10 @@ fn families(config: &ModelConfig, batch: usize) -> Vec<Family> {
         }
     }
     sums[10] = 2.0 * b * f(config.outputs) * n * c;
+    named(sums)
+}
+
+fn named(sums: [f64; FAMILIES.len()]) -> Vec<Family> {
     FAMILIES
         .iter()
         .zip(sums)
@@ -129,7 +139,10 @@ pub fn training_flops(config: &ModelConfig, batch: usize) -> f64 {
 
 /// Whether `variant` has any FLOPs in family `name` (for tables that skip empty rows).
 pub fn has_family(variant: Variant, name: &str) -> bool {
+    let dense = variant.family() == super::config::Family::Dense;
     match name {
+        "dense layers" => dense,
+        _ if dense => false,
         n if n.starts_with("tat") || n.starts_with("sat") => variant.attention(),
         "tcn gate conv" => variant.gated(),
         _ => true,
@@ -226,6 +239,22 @@ mod tests {
                 assert_eq!(value > 0.0, has_family(v, name), "{v} {name}");
             }
         }
+    }
+
+    #[test]
+    fn dense_baselines() {
+        let dense = |variant| ModelConfig {
+            hidden: 3,
+            ..tiny(variant)
+        };
+        // mlp: 2→3, 3→3, head 3→1 on B 2: 2·2·(6 + 9 + 3).
+        let mlp = dense(Variant::Mlp);
+        assert_eq!(forward_flops(&mlp, 2), 72.0);
+        assert_eq!(training_flops(&mlp, 2), 216.0);
+        assert_eq!(family(&mlp, "dense layers"), 72.0);
+        // erc: the selection [2, 2]·[2, 5] (2·2·2·5 = 40), stem 5→3, two residual
+        // blocks of 3→3 twice, head 3→1: 2·2·(15 + 36 + 3) = 216.
+        assert_eq!(forward_flops(&dense(Variant::Erc), 2), 256.0);
     }
 
     #[test]

@@ -2,13 +2,14 @@
 
 pub mod checkpoint;
 pub mod config;
+pub mod dense;
 pub mod flops;
 pub mod params;
 pub mod predictor;
 pub mod reference;
 
 pub use checkpoint::{Checkpoint, CheckpointError, Normalization};
-pub use config::{ModelConfig, Variant};
+pub use config::{Family, ModelConfig, Variant};
 pub use params::{graph_basis, param_specs, Init, ParamSpec, Parameters};
 
 mod block;

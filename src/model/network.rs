@@ -5,6 +5,7 @@
 pub use super::block::Pass;
 use super::block::{Block, DropoutSlots, Extent, ParamTable};
 use super::config::ModelConfig;
+use super::dense::{Architecture, DenseBody};
 use super::params::{graph_basis, param_specs, ParamSpec, Parameters};
 use super::schedule::{Scratch, StepTime, Steps};
 use crate::gpu::{DType, Gpu, GpuError, Recorder, Tensor};
@@ -35,7 +36,8 @@ pub enum ModelError {
     },
 }
 
-/// IASTGCN on one device for a fixed batch size.
+/// A network (IASTGCN, an ablation or a dense baseline) on one device for a fixed batch
+/// size.
 pub struct Network {
     /// The model's `[model]` config (validated when the network was built).
     pub config: ModelConfig,
@@ -66,7 +68,10 @@ pub struct Network {
     pub loss: Tensor,
     /// ∂ℒ/∂x [B, N, F, T], written by the backward pass.
     pub input_grad: Tensor,
+    /// The ST blocks (empty for a dense baseline).
     blocks: Vec<Block>,
+    /// A dense baseline's layers (`None` for the ST-block variants).
+    dense: Option<DenseBody>,
     infer: Steps,
     train: Steps,
     backward: Steps,
@@ -80,7 +85,8 @@ struct Table<'a> {
     specs: &'a [ParamSpec],
     params: &'a [Tensor],
     grads: &'a [Tensor],
-    basis: &'a Tensor,
+    /// The graph basis (none for the dense baselines, which use no graph).
+    basis: Option<&'a Tensor>,
 }
 
 impl Table<'_> {
@@ -95,7 +101,7 @@ impl Table<'_> {
 impl ParamTable for Table<'_> {
     fn param(&self, name: &str) -> &Tensor {
         if name == "graph.basis" {
-            return self.basis;
+            return self.basis.expect("the ST blocks have a graph basis");
         }
         &self.params[self.index(name)]
     }
@@ -181,12 +187,60 @@ impl Network {
             .iter()
             .map(|&v| v as f32)
             .collect();
-        let basis = gpu.upload("graph.basis", &[config.graph_terms(), n, n], &basis_data)?;
+        let basis = match config.graph_terms() {
+            0 => None,
+            terms => Some(gpu.upload("graph.basis", &[terms, n, n], &basis_data)?),
+        };
         let input = gpu.zeros("x", &[batch, n, config.features, t], DType::F32);
         let input_grad = gpu.zeros("dx", &[batch, n, config.features, t], DType::F32);
         let target = gpu.zeros("y", &[batch, o], DType::F32);
         let output = gpu.zeros("y_hat", &[batch, o], DType::F32);
         let loss = gpu.zeros("loss", &[1], DType::F32);
+        if let Some(arch) = Architecture::of(config) {
+            let table = Table {
+                specs: &specs,
+                params: &params,
+                grads: &grads,
+                basis: None,
+            };
+            let indices = arch
+                .input_indices(graph, config.features)
+                .map_err(ModelError::Config)?;
+            let body = DenseBody::new(gpu, config, arch, &indices, batch, &output)?;
+            let mut infer = Steps::default();
+            let mut train = Steps::default();
+            let mut backward = Steps::default();
+            let mut loss_slots = [0; 2];
+            body.forward(gpu, &table, &input, &mut infer)?;
+            if training {
+                body.forward(gpu, &table, &input, &mut train)?;
+                let (slots, doutput) =
+                    loss_steps(gpu, config, group, &output, &target, &loss, &mut backward)?;
+                loss_slots = slots;
+                body.backward(gpu, &table, &doutput, &input_grad, &mut backward)?;
+            }
+            return Ok(Network {
+                config: config.clone(),
+                batch,
+                group,
+                built_for,
+                specs,
+                params,
+                grads,
+                input,
+                target,
+                output,
+                loss,
+                input_grad,
+                blocks: Vec::new(),
+                dense: Some(body),
+                infer,
+                train,
+                backward,
+                dropout: Vec::new(),
+                loss_slots,
+            });
+        }
 
         let mut blocks: Vec<Block> = Vec::with_capacity(config.blocks);
         // The last block is trimmed to the last step, which is all the head reads.
@@ -203,7 +257,7 @@ impl Network {
             specs: &specs,
             params: &params,
             grads: &grads,
-            basis: &basis,
+            basis: basis.as_ref(),
         };
         // The trimmed last block's output [B, N, C, 1] is the head's input h [B, N·C].
         let h = blocks.last().expect("at least one block").output.clone();
@@ -268,6 +322,7 @@ impl Network {
             loss,
             input_grad,
             blocks,
+            dense: None,
             infer,
             train,
             backward,
@@ -294,19 +349,9 @@ impl Network {
         dropout: &mut Vec<DropoutSlots>,
     ) -> Result<[usize; 2], ModelError> {
         let batch = input_grad.shape()[0];
-        let (n, t, c, o) = (config.nodes, config.window, config.channels, config.outputs);
+        let (n, t, c) = (config.nodes, config.window, config.channels);
         let (head, head_bias) = head_ops(config, batch);
-        let pose = PoseLoss {
-            batch,
-            outputs: o,
-            penalty: 1.0,
-            group,
-        };
-        let doutput = gpu.zeros("d y_hat", &[batch, o], DType::F32);
-        let loss_slots = [
-            backward.run(pose.forward(gpu, output, target, loss))?,
-            backward.run(pose.backward(gpu, output, target, &doutput))?,
-        ];
+        let (loss_slots, doutput) = loss_steps(gpu, config, group, output, target, loss, backward)?;
         backward.run(head_bias.backward(
             gpu,
             &doutput,
@@ -493,9 +538,14 @@ impl Network {
         (self.infer.len(), self.train.len(), self.backward.len())
     }
 
-    /// Number of ST blocks L.
+    /// Number of ST blocks L (0 for a dense baseline).
     pub fn blocks(&self) -> usize {
         self.blocks.len()
+    }
+
+    /// True for a dense baseline (layers on the last step instead of ST blocks).
+    pub fn is_dense(&self) -> bool {
+        self.dense.is_some()
     }
 
     /// Convenience for tests and tools: runs the inference forward on `x` and reads ŷ.
@@ -520,6 +570,32 @@ impl Network {
         rec.submit();
         gpu.wait()
     }
+}
+
+/// Appends the loss (eq. 39) and its gradient ∂ℒ/∂ŷ to `backward`: the indices of the two
+/// dispatches (to change the attitude penalty) and the gradient tensor `[B, O]`.
+fn loss_steps(
+    gpu: &Gpu,
+    config: &ModelConfig,
+    group: usize,
+    output: &Tensor,
+    target: &Tensor,
+    loss: &Tensor,
+    backward: &mut Steps,
+) -> Result<([usize; 2], Tensor), GpuError> {
+    let batch = output.shape()[0];
+    let pose = PoseLoss {
+        batch,
+        outputs: config.outputs,
+        penalty: 1.0,
+        group,
+    };
+    let doutput = gpu.zeros("d y_hat", &[batch, config.outputs], DType::F32);
+    let slots = [
+        backward.run(pose.forward(gpu, output, target, loss))?,
+        backward.run(pose.backward(gpu, output, target, &doutput))?,
+    ];
+    Ok((slots, doutput))
 }
 
 /// The head's ops for `batch` windows: `h · head.weightᵀ` and its bias (h is the trimmed

@@ -58,8 +58,26 @@ fn zeros(name: String, shape: &[usize]) -> ParamSpec {
     spec(name, shape, Init::Zeros, false)
 }
 
-/// Every parameter of `config`, in the canonical order (blocks in order, then the head).
+/// Every parameter of `config`, in the canonical order (blocks in order, then the head;
+/// for a dense baseline, its layers in order, the head last).
 pub fn param_specs(config: &ModelConfig) -> Vec<ParamSpec> {
+    if let Some(arch) = super::dense::Architecture::of(config) {
+        // Layer by layer: He-uniform weights [outputs, inputs] with weight decay, zero biases.
+        return arch
+            .layers
+            .iter()
+            .flat_map(|l| {
+                [
+                    weight(
+                        format!("{}.weight", l.name),
+                        &[l.outputs, l.inputs],
+                        l.inputs,
+                    ),
+                    zeros(format!("{}.bias", l.name), &[l.outputs]),
+                ]
+            })
+            .collect();
+    }
     let (n, t, c, k, o) = (
         config.nodes,
         config.window,
@@ -174,9 +192,13 @@ impl Parameters {
 
 /// The fixed matrices that θ combines into Ψ = Σ_k θ_k · basis_k, as `[terms, N, N]`
 /// row-major f64. For the wavelet variants basis_k = ψ_s[:, k] ψ_s⁻¹[k, :] (so that
-/// Σ_k θ_k basis_k = ψ_s diag(θ) ψ_s⁻¹, docs/model.md step 3); for `iastgcn-s` basis_k = T_k(L̃).
+/// Σ_k θ_k basis_k = ψ_s diag(θ) ψ_s⁻¹, docs/model.md step 3); for `iastgcn-s` basis_k = T_k(L̃);
+/// empty for the dense baselines.
 pub fn graph_basis(graph: &Graph, config: &ModelConfig) -> Vec<f64> {
     let n = graph.len();
+    if config.graph_terms() == 0 {
+        return Vec::new();
+    }
     let spectral = graph.spectral();
     let mut out = Vec::with_capacity(config.graph_terms() * n * n);
     match config.variant {

@@ -4,6 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
+use super::pollination::{pollinate, Pollination};
 use super::{
     checkpoint, core_stage, log, metrics, normalization, to_physical, Metrics, RunConfig,
     TrainError, TrainState, Trainer,
@@ -12,7 +13,7 @@ use crate::data::{self, DataSources, Dataset, SplitMode, WindowConfig};
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
 use crate::graph::Graph;
-use crate::model::Parameters;
+use crate::model::{Parameters, Variant};
 use crate::progress::Reporter;
 
 /// The sibling of `out` with `suffix` in place of its extension (`m.safetensors` →
@@ -156,7 +157,11 @@ pub fn train(
     reporter: &mut dyn Reporter,
 ) -> Result<Trained> {
     config.validate().map_err(Error::Invalid)?;
-    let init = Parameters::init(&config.model, config.train.seed);
+    let init = match resume {
+        // The state's weights replace the start.
+        Some(_) => Parameters::init(&config.model, config.train.seed),
+        None => initial_parameters(gpu, data, graph, config, reporter)?,
+    };
     let mut trainer = Trainer::new(
         gpu,
         data,
@@ -229,6 +234,40 @@ pub fn train(
         history: p.history.clone(),
         test: test_metrics(&trainer, data)?,
     })
+}
+
+/// The starting weights of a core stage: the He initialisation of `[train] seed`, or for
+/// `ann-bfpa` the pick of its flower-pollination search (docs/model.md "Baselines").
+pub fn initial_parameters(
+    gpu: &Gpu,
+    data: &Dataset,
+    graph: &Graph,
+    config: &RunConfig,
+    reporter: &mut dyn Reporter,
+) -> Result<Parameters> {
+    if config.model.variant != Variant::AnnBfpa {
+        return Ok(Parameters::init(&config.model, config.train.seed));
+    }
+    let search = Pollination::default();
+    let s = pollinate(
+        gpu,
+        data,
+        graph,
+        &config.model,
+        &config.train,
+        &search,
+        reporter,
+    )?;
+    reporter.note(&format!(
+        "ann-bfpa: flower-pollination search, {} candidates × {} generations ({} losses on {} training windows): loss {:.4} at the He initialisation, {:.4} at the pick",
+        search.population,
+        search.generations,
+        s.evaluations,
+        search.windows.min(data.splits.train.len()),
+        s.start_loss,
+        s.best_loss
+    ));
+    Ok(s.params)
 }
 
 /// On divergence: keep the best checkpoint, or write the last good weights when no epoch

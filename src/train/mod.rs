@@ -7,15 +7,20 @@ pub mod fit;
 pub mod log;
 pub mod metrics;
 pub mod optimizer;
+pub mod pollination;
 pub mod predict;
 pub mod refine;
 pub mod state;
 pub mod trainer;
 
 pub use config::{ConfigError, DataConfig, RefineConfig, RunConfig, TrainConfig};
-pub use fit::{build_dataset, run_stage, sibling, test_metrics, train, TestMetrics, Trained};
+pub use fit::{
+    build_dataset, initial_parameters, run_stage, sibling, test_metrics, train, TestMetrics,
+    Trained,
+};
 pub use metrics::{accumulated_error, Metrics};
 pub use optimizer::{learning_rate, Optimizer};
+pub use pollination::{pollinate, Pollination, Searched};
 pub use predict::{predict_recordings, PredictOptions, RecordingPrediction, Subset};
 pub use refine::{refine, Refined};
 pub use state::{StateError, TrainState};

@@ -162,6 +162,8 @@ pub struct Simulation<'a> {
     platform: PlatformPose,
     last_target: Option<Vector3<f64>>,
     correction: Correction,
+    /// Ticks whose corrected target the controller could not reach.
+    unreachable: usize,
 }
 
 impl<'a> Simulation<'a> {
@@ -213,6 +215,7 @@ impl<'a> Simulation<'a> {
             platform: command.platform,
             last_target: None,
             correction: Correction::default(),
+            unreachable: 0,
             config,
         })
     }
@@ -241,8 +244,18 @@ impl<'a> Simulation<'a> {
     /// The polishing force still presses along the path target's axis and feeds along the
     /// path. [`Correction::default`] (the start) leaves the run bit-identical to an
     /// uncorrected one.
+    ///
+    /// A corrected target the inverse kinematics cannot reach (near a singular head
+    /// configuration, say) is dropped for that tick: the controller solves for the path
+    /// target itself, as uncorrected, and counts the tick
+    /// ([`Simulation::unreachable_corrections`]).
     pub fn set_correction(&mut self, c: Correction) {
         self.correction = c;
+    }
+
+    /// Ticks so far whose corrected target could not be reached (each ran uncorrected).
+    pub fn unreachable_corrections(&self) -> usize {
+        self.unreachable
     }
 
     /// Advances one control tick.
@@ -273,9 +286,17 @@ impl<'a> Simulation<'a> {
             + gaussian(&mut self.rng, c.force_sd * (1.0 - a * a).sqrt());
         let [x, y] = self.path.at(self.arc);
         let target = self.mirror.target(x, y);
-        let (command, lengths) = self
+        let (command, lengths) = match self
             .controller
-            .solve_tool(&self.correction.apply(&target), &self.command)?;
+            .solve_tool(&self.correction.apply(&target), &self.command)
+        {
+            Ok(solved) => solved,
+            Err(_) if self.correction != Correction::default() => {
+                self.unreachable += 1;
+                self.controller.solve_tool(&target, &self.command)?
+            }
+            Err(e) => return Err(e),
+        };
         self.command = command;
         let encoders = Joints {
             limbs: lengths,

@@ -120,6 +120,7 @@ pub const TIMINGS_HEADER: &str = "model,epoch_seconds,infer_ms,adapter";
 #[derive(Clone, Debug, PartialEq)]
 enum Kind {
     Markdown,
+    Compensated,
     TableV,
     TableIII,
     Timings,
@@ -163,7 +164,19 @@ fn plan(r: &Report) -> Vec<Entry> {
         what,
         kind,
     };
-    let mut out = vec![
+    let mut out = Vec::new();
+    if r.table_v.iter().any(|row| row.stage != "initial") {
+        out.push(entry(
+            "compensated.png",
+            "The result at a glance: mean position (µm) and attitude (mdeg) error against the \
+             hidden truth on each held-out path, after calibration alone, with each model's \
+             compensation, and with the oracle (the uncompensated initial error is left out: \
+             it would dwarf the rest)."
+                .into(),
+            Kind::Compensated,
+        ));
+    }
+    out.extend([
         entry(
             "table_v.csv",
             "Table V analog, machine-readable: mean/SD/max position (µm) and attitude (mdeg) \
@@ -185,7 +198,7 @@ fn plan(r: &Report) -> Vec<Entry> {
                 .into(),
             Kind::Timings,
         ),
-    ];
+    ]);
     if !r.timings.is_empty() {
         out.push(entry(
             "fig10_timings.png",
@@ -334,6 +347,56 @@ fn plot_fig11(path: &Path, trajectory: &str, traces: &[&Trace]) -> Result<(), pl
     plot::draw(path, &panels, 1, 2, (1300, 600))
 }
 
+/// Two panels per trajectory (position, attitude): one bar per Table V row but the
+/// initial one, against the hidden truth.
+fn plot_compensated(path: &Path, rows: &[TableVRow]) -> Result<(), plot::PlotError> {
+    let trajectories = distinct(rows.iter().map(|r| r.trajectory.as_str()));
+    let mut panels = Vec::new();
+    for trajectory in &trajectories {
+        let shown: Vec<&TableVRow> = rows
+            .iter()
+            .filter(|r| &r.trajectory == trajectory && r.stage != "initial")
+            .collect();
+        let label = |r: &TableVRow| match r.stage.as_str() {
+            "compensated" => r.model.clone(),
+            stage => stage.to_string(),
+        };
+        let bars = |pick: fn(&TableVRow) -> f64| -> Vec<Series> {
+            shown
+                .iter()
+                .enumerate()
+                .map(|(i, r)| Series::bars(label(r), vec![(i as f64, pick(r))]))
+                .collect()
+        };
+        for (what, unit, pick) in [
+            (
+                "position",
+                "µm",
+                (|r: &TableVRow| r.truth.position.mean) as fn(&TableVRow) -> f64,
+            ),
+            ("attitude", "mdeg", |r: &TableVRow| r.truth.attitude.mean),
+        ] {
+            panels.push(Panel {
+                title: format!("{trajectory}: mean {what} error vs truth"),
+                x_label: String::new(),
+                y_label: format!("{what} ({unit})"),
+                series: bars(pick),
+                equal_aspect: false,
+            });
+        }
+    }
+    let rows_shown =
+        rows.iter().filter(|r| r.stage != "initial").count() / trajectories.len().max(1);
+    let width = (260 + 90 * rows_shown as u32).clamp(600, 1300);
+    plot::draw(
+        path,
+        &panels,
+        trajectories.len().max(1),
+        2,
+        (2 * width, 380 * trajectories.len().max(1) as u32),
+    )
+}
+
 fn plot_fig10(path: &Path, timings: &[Timing]) -> Result<(), plot::PlotError> {
     let adapters = distinct(timings.iter().map(|t| t.adapter.as_str())).join(", ");
     let bars = |pick: fn(&Timing) -> f64| -> Vec<Series> {
@@ -363,7 +426,8 @@ fn plot_fig10(path: &Path, timings: &[Timing]) -> Result<(), plot::PlotError> {
     plot::draw(path, &panels, 1, 2, (2 * width, 440))
 }
 
-/// Writes the report folder `dir` (created if missing): `report.md`, `table_v.csv`,
+/// Writes the report folder `dir` (created if missing): `compensated.png` (when Table V
+/// has rows beyond the initial ones), `report.md`, `table_v.csv`,
 /// `table_iii.csv`, `timings.csv`, `fig10_timings.png` (when there are timings),
 /// `fig11_<trajectory>.png` for every trajectory that has traces (Fig. 11 for the Hilbert
 /// one is the one the paper shows), `losses.png` (train/val loss per epoch, one panel per
@@ -378,6 +442,7 @@ pub fn write(dir: &Path, r: &Report) -> Result<Vec<PathBuf>> {
         let path = dir.join(&e.name);
         match &e.kind {
             Kind::Markdown => text(&path, &markdown(r))?,
+            Kind::Compensated => plot_compensated(&path, &r.table_v)?,
             Kind::TableV => text(&path, &table_v_csv(&r.table_v))?,
             Kind::TableIII => text(&path, &table_iii_csv(&r.table_iii))?,
             Kind::Timings => text(&path, &timings_csv(&r.timings))?,

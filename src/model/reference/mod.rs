@@ -11,9 +11,13 @@
 //! whole network; one file per op family holds the steps: `attention.rs` (steps 1–2),
 //! `graph_conv.rs` (step 3), `causal_conv.rs` (step 4), `norm.rs` (steps 5–6),
 //! `block.rs` (one ST block, steps 1–7) and `head.rs` (the head and the loss weights).
+//! The dense baselines have their own forward and backward in `dense.rs`; [`loss`] serves
+//! every model.
 
 // The loops index several tensors by the equations' indices at once.
 #![allow(clippy::needless_range_loop)]
+
+pub mod dense;
 
 mod attention;
 mod block;
@@ -293,6 +297,11 @@ pub fn forward(
     dropout: Option<DropoutStep>,
 ) -> Tape {
     config.validate().unwrap_or_else(|e| panic!("{e}"));
+    assert!(
+        config.variant.family() == super::Family::StBlocks,
+        "{} is a dense baseline: use reference::dense",
+        config.variant
+    );
     let table = Table::new(specs, params);
     let (nn, nt) = (config.nodes, config.window);
     assert_eq!(x.len(), batch * nn * config.features * nt, "x is [B,N,F,T]");
