@@ -21,7 +21,7 @@ DEMO_DIR ?= report
 ## of held-out runs for Table V, the report folder), and the Predictor example on the
 ## refined model. Outputs land in $(DEMO_DIR)/ (report.md is the entry point).
 demo: vulkan
-	$(CARGO) build --release
+	$(CARGO) build --release --bin iastgcn --example predict
 	./target/release/iastgcn info
 	./target/release/iastgcn smoke
 	./target/release/iastgcn demo --out $(DEMO_DIR)

@@ -1,6 +1,6 @@
 //! Whole-network throughput: inference forward at B = 1 (latency) and B = 64, and one
 //! training step at B = 64, for the paper shape (C 64, T 100, L 5) and a small shape
-//! (C 16, T 48, L 3), then the same three for each dense baseline (mlp, bkls-ann,
+//! (C 16, T 48, L 3), then the same three for each baseline (tgcn, mlp, bkls-ann,
 //! ann-bfpa, erc) at both windows, against the project's best matmul measured in the
 //! same run.
 //!
@@ -247,16 +247,18 @@ fn paper_shape(c: &mut Criterion) {
     model_group(c, "paper C64 T100 L5", &ModelConfig::default());
 }
 
-/// The dense baselines (docs/model.md "Baselines") at the demo's and the paper's window
-/// (they read only its last step; H = 64 in both).
+/// The baselines (docs/model.md "Baselines") at the demo's and the paper's window, H = 64
+/// in both. T-GCN's time loop runs T steps per pass (the group name says how many: the
+/// cost of one step is the time over T); the dense ones read only the last step.
 fn baselines(c: &mut Criterion) {
-    for variant in Variant::DENSE {
+    for variant in Variant::SPATIO_TEMPORAL.into_iter().chain(Variant::DENSE) {
         for (shape, base) in [
             ("small", common::small_config()),
             ("paper", ModelConfig::default()),
         ] {
             let config = ModelConfig { variant, ..base };
-            model_group(c, &format!("{shape} {variant}"), &config);
+            let name = format!("{shape} {variant} (T {})", config.window);
+            model_group(c, &name, &config);
         }
     }
 }

@@ -145,6 +145,15 @@ impl Graph {
         }
         a
     }
+
+    /// Â = D̃^(−1/2) (A + I) D̃^(−1/2), with D̃ the degrees of A + I: the propagation
+    /// matrix of the Kipf–Welling graph convolution (the one T-GCN uses).
+    pub fn renormalized_adjacency(&self) -> DMatrix<f64> {
+        let n = self.len();
+        let a = self.adjacency() + DMatrix::identity(n, n);
+        let d: Vec<f64> = (0..n).map(|i| 1.0 / a.row(i).sum().sqrt()).collect();
+        DMatrix::from_fn(n, n, |i, j| d[i] * a[(i, j)] * d[j])
+    }
 }
 
 /// The spectral quantities of docs/model.md ("Graph"), computed once on the CPU in f64.

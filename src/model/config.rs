@@ -32,6 +32,10 @@ pub enum Variant {
     /// Offline pose→error baseline of Table V [19]: a residual network on the joint inputs.
     #[serde(rename = "erc")]
     Erc,
+    /// Spatio-temporal baseline of Table III [23]: a graph convolution inside a GRU,
+    /// run over the window's steps.
+    #[serde(rename = "tgcn")]
+    Tgcn,
 }
 
 /// What a variant's network is built from (docs/model.md "Variants" and "Baselines").
@@ -41,11 +45,13 @@ pub enum Family {
     StBlocks,
     /// Dense layers on the last step of the window ([`crate::model::dense`]).
     Dense,
+    /// A recurrent cell over the window's steps ([`crate::model::recurrent`]).
+    Recurrent,
 }
 
 impl Variant {
     /// Every variant: IASTGCN, its ablations, then the baselines.
-    pub const ALL: [Variant; 8] = [
+    pub const ALL: [Variant; 9] = [
         Variant::Iastgcn,
         Variant::NoAttention,
         Variant::PlainTemporal,
@@ -54,6 +60,7 @@ impl Variant {
         Variant::BklsAnn,
         Variant::AnnBfpa,
         Variant::Erc,
+        Variant::Tgcn,
     ];
 
     /// IASTGCN and its three ablations: the variants built from ST blocks.
@@ -72,10 +79,15 @@ impl Variant {
         Variant::Erc,
     ];
 
+    /// The spatio-temporal baselines of Table III built so far.
+    pub const SPATIO_TEMPORAL: [Variant; 1] = [Variant::Tgcn];
+
     /// What the network is built from.
     pub fn family(self) -> Family {
         if Variant::DENSE.contains(&self) {
             Family::Dense
+        } else if Variant::SPATIO_TEMPORAL.contains(&self) {
+            Family::Recurrent
         } else {
             Family::StBlocks
         }
@@ -106,6 +118,7 @@ impl Variant {
             Variant::BklsAnn => "bkls-ann",
             Variant::AnnBfpa => "ann-bfpa",
             Variant::Erc => "erc",
+            Variant::Tgcn => "tgcn",
         }
     }
 
@@ -161,7 +174,8 @@ pub struct ModelConfig {
     pub chebyshev_order: usize,
     /// O: outputs.
     pub outputs: usize,
-    /// H: width of the dense baselines' hidden layers (unused by the ST-block variants).
+    /// H: width of the baselines' hidden layers and recurrent state (unused by the
+    /// ST-block variants).
     pub hidden: usize,
     /// Inverted dropout probability on each block's output (training only).
     pub dropout: f64,
@@ -224,7 +238,7 @@ impl ModelConfig {
     /// Chebyshev order; 0 for the dense baselines, which use no graph.
     pub fn graph_terms(&self) -> usize {
         match (self.variant, self.variant.family()) {
-            (_, Family::Dense) => 0,
+            (_, Family::Dense | Family::Recurrent) => 0,
             (Variant::Chebyshev, _) => self.chebyshev_order,
             _ => self.nodes,
         }

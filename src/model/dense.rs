@@ -108,7 +108,8 @@ impl Architecture {
             Variant::Iastgcn
             | Variant::NoAttention
             | Variant::PlainTemporal
-            | Variant::Chebyshev => return None,
+            | Variant::Chebyshev
+            | Variant::Tgcn => return None,
         };
         Some(Architecture { inputs, layers })
     }

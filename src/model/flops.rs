@@ -46,7 +46,7 @@ pub const FAMILIES: [&str; 12] = [
     "tcn gate conv",
     "res 1x1 conv",
     "head",
-    "dense layers",
+    "dense layers / recurrent cell",
 ];
 
 fn families(config: &ModelConfig, batch: usize) -> Vec<Family> {
@@ -59,6 +59,11 @@ fn families(config: &ModelConfig, batch: usize) -> Vec<Family> {
         f(config.kernel),
     );
     let mut sums = [0.0f64; FAMILIES.len()];
+    if config.variant == Variant::Tgcn {
+        // The GRU's gate products and graph mixes and the head, all in one family.
+        sums[11] = super::recurrent::forward_flops(config, batch);
+        return named(sums);
+    }
     if let Some(arch) = super::dense::Architecture::of(config) {
         // A dense baseline: its layers (head included) and input selection, nothing else.
         sums[11] = arch.forward_flops(config, batch);
@@ -139,9 +144,9 @@ pub fn training_flops(config: &ModelConfig, batch: usize) -> f64 {
 
 /// Whether `variant` has any FLOPs in family `name` (for tables that skip empty rows).
 pub fn has_family(variant: Variant, name: &str) -> bool {
-    let dense = variant.family() == super::config::Family::Dense;
+    let dense = variant.family() != super::config::Family::StBlocks;
     match name {
-        "dense layers" => dense,
+        "dense layers / recurrent cell" => dense,
         _ if dense => false,
         n if n.starts_with("tat") || n.starts_with("sat") => variant.attention(),
         "tcn gate conv" => variant.gated(),
@@ -251,7 +256,7 @@ mod tests {
         let mlp = dense(Variant::Mlp);
         assert_eq!(forward_flops(&mlp, 2), 72.0);
         assert_eq!(training_flops(&mlp, 2), 216.0);
-        assert_eq!(family(&mlp, "dense layers"), 72.0);
+        assert_eq!(family(&mlp, "dense layers / recurrent cell"), 72.0);
         // erc: the selection [2, 2]·[2, 5] (2·2·2·5 = 40), stem 5→3, two residual
         // blocks of 3→3 twice, head 3→1: 2·2·(15 + 36 + 3) = 216.
         assert_eq!(forward_flops(&dense(Variant::Erc), 2), 256.0);

@@ -6,6 +6,7 @@ pub mod dense;
 pub mod flops;
 pub mod params;
 pub mod predictor;
+pub mod recurrent;
 pub mod reference;
 
 pub use checkpoint::{Checkpoint, CheckpointError, Normalization};

@@ -4,9 +4,11 @@
 
 pub use super::block::Pass;
 use super::block::{Block, DropoutSlots, Extent, ParamTable};
+use super::config::Family;
 use super::config::ModelConfig;
 use super::dense::{Architecture, DenseBody};
 use super::params::{graph_basis, param_specs, ParamSpec, Parameters};
+use super::recurrent::RecurrentBody;
 use super::schedule::{Scratch, StepTime, Steps};
 use crate::gpu::{DType, Gpu, GpuError, Recorder, Tensor};
 use crate::graph::Graph;
@@ -68,10 +70,8 @@ pub struct Network {
     pub loss: Tensor,
     /// ∂ℒ/∂x [B, N, F, T], written by the backward pass.
     pub input_grad: Tensor,
-    /// The ST blocks (empty for a dense baseline).
-    blocks: Vec<Block>,
-    /// A dense baseline's layers (`None` for the ST-block variants).
-    dense: Option<DenseBody>,
+    /// What runs between x and the head.
+    body: Body,
     infer: Steps,
     train: Steps,
     backward: Steps,
@@ -196,118 +196,33 @@ impl Network {
         let target = gpu.zeros("y", &[batch, o], DType::F32);
         let output = gpu.zeros("y_hat", &[batch, o], DType::F32);
         let loss = gpu.zeros("loss", &[1], DType::F32);
-        if let Some(arch) = Architecture::of(config) {
-            let table = Table {
-                specs: &specs,
-                params: &params,
-                grads: &grads,
-                basis: None,
-            };
-            let indices = arch
-                .input_indices(graph, config.features)
-                .map_err(ModelError::Config)?;
-            let body = DenseBody::new(gpu, config, arch, &indices, batch, &output)?;
-            let mut infer = Steps::default();
-            let mut train = Steps::default();
-            let mut backward = Steps::default();
-            let mut loss_slots = [0; 2];
-            body.forward(gpu, &table, &input, &mut infer)?;
-            if training {
-                body.forward(gpu, &table, &input, &mut train)?;
-                let (slots, doutput) =
-                    loss_steps(gpu, config, group, &output, &target, &loss, &mut backward)?;
-                loss_slots = slots;
-                body.backward(gpu, &table, &doutput, &input_grad, &mut backward)?;
-            }
-            return Ok(Network {
-                config: config.clone(),
-                batch,
-                group,
-                built_for,
-                specs,
-                params,
-                grads,
-                input,
-                target,
-                output,
-                loss,
-                input_grad,
-                blocks: Vec::new(),
-                dense: Some(body),
-                infer,
-                train,
-                backward,
-                dropout: Vec::new(),
-                loss_slots,
-            });
-        }
-
-        let mut blocks: Vec<Block> = Vec::with_capacity(config.blocks);
-        // The last block is trimmed to the last step, which is all the head reads.
-        for l in 0..config.blocks {
-            let x = blocks.last().map_or(&input, |b| &b.output).clone();
-            let extent = if l + 1 == config.blocks {
-                Extent::LastStep
-            } else {
-                Extent::Window
-            };
-            blocks.push(Block::new(gpu, config, l, batch, &x, dropout_seed, extent));
-        }
         let table = Table {
             specs: &specs,
             params: &params,
             grads: &grads,
             basis: basis.as_ref(),
         };
-        // The trimmed last block's output [B, N, C, 1] is the head's input h [B, N·C].
-        let h = blocks.last().expect("at least one block").output.clone();
-        let (head, head_bias) = head_ops(config, batch);
-
-        let mut infer = Steps::default();
-        let mut train = Steps::default();
-        let mut fwd_slots = Vec::new();
-        for block in &blocks {
-            block.forward(gpu, &table, &mut infer, Pass::Inference)?;
-            if training {
-                fwd_slots.push(block.forward(gpu, &table, &mut train, Pass::Train)?);
-            }
-        }
-        let head_steps = if training {
-            vec![&mut infer, &mut train]
-        } else {
-            vec![&mut infer]
+        let io = Io {
+            input: &input,
+            input_grad: &input_grad,
+            output: &output,
+            target: &target,
+            loss: &loss,
         };
-        for steps in head_steps {
-            steps.run(head.forward(
-                gpu,
-                &h,
-                table.param("head.weight"),
-                &output,
-                Accumulate::Overwrite,
-            ))?;
-            steps.run(head_bias.forward(gpu, table.param("head.bias"), &output))?;
-        }
-
-        let mut backward = Steps::default();
-        let mut dropout = Vec::new();
-        let mut loss_slots = [0; 2];
-        if training {
-            loss_slots = Network::build_backward(
-                gpu,
-                config,
-                group,
-                &table,
-                &blocks,
-                &fwd_slots,
-                &input_grad,
-                &output,
-                &target,
-                &loss,
-                &h,
-                &mut backward,
-                &mut dropout,
-            )?;
-        }
+        let s = match (Architecture::of(config), config.variant.family()) {
+            (Some(arch), _) => {
+                let indices = arch
+                    .input_indices(graph, config.features)
+                    .map_err(ModelError::Config)?;
+                let body = DenseBody::new(gpu, config, arch, &indices, batch, &output)?;
+                dense_schedules(gpu, config, group, training, &table, &io, body)?
+            }
+            (None, Family::Recurrent) => {
+                let body = RecurrentBody::new(gpu, config, graph, batch)?;
+                recurrent_schedules(gpu, config, group, training, &table, &io, body)?
+            }
+            (None, _) => block_schedules(gpu, config, group, dropout_seed, training, &table, &io)?,
+        };
         Ok(Network {
             config: config.clone(),
             batch,
@@ -321,13 +236,12 @@ impl Network {
             output,
             loss,
             input_grad,
-            blocks,
-            dense: None,
-            infer,
-            train,
-            backward,
-            dropout,
-            loss_slots,
+            body: s.body,
+            infer: s.infer,
+            train: s.train,
+            backward: s.backward,
+            dropout: s.dropout,
+            loss_slots: s.loss_slots,
         })
     }
 
@@ -538,14 +452,17 @@ impl Network {
         (self.infer.len(), self.train.len(), self.backward.len())
     }
 
-    /// Number of ST blocks L (0 for a dense baseline).
+    /// Number of ST blocks L (0 for a baseline).
     pub fn blocks(&self) -> usize {
-        self.blocks.len()
+        match &self.body {
+            Body::Blocks(b) => b.len(),
+            Body::Dense | Body::Recurrent => 0,
+        }
     }
 
     /// True for a dense baseline (layers on the last step instead of ST blocks).
     pub fn is_dense(&self) -> bool {
-        self.dense.is_some()
+        matches!(self.body, Body::Dense)
     }
 
     /// Convenience for tests and tools: runs the inference forward on `x` and reads ŷ.
@@ -570,6 +487,210 @@ impl Network {
         rec.submit();
         gpu.wait()
     }
+}
+
+/// The tensors every schedule reads or writes.
+struct Io<'a> {
+    input: &'a Tensor,
+    input_grad: &'a Tensor,
+    output: &'a Tensor,
+    target: &'a Tensor,
+    loss: &'a Tensor,
+}
+
+/// What runs between x and ŷ.
+enum Body {
+    /// IASTGCN's ST blocks; the head follows.
+    Blocks(Vec<Block>),
+    /// A dense baseline's layers, the head included (its schedules hold its tensors).
+    Dense,
+    /// T-GCN's time loop; the head follows (its schedules hold its tensors).
+    Recurrent,
+}
+
+impl Default for Body {
+    fn default() -> Body {
+        Body::Blocks(Vec::new())
+    }
+}
+
+/// A body's schedules and the parts of it that they keep.
+#[derive(Default)]
+struct Schedules {
+    body: Body,
+    infer: Steps,
+    train: Steps,
+    backward: Steps,
+    dropout: Vec<DropoutSlots>,
+    loss_slots: [usize; 2],
+}
+
+/// A dense baseline's schedules: its forward (the same with and without training: no
+/// dropout), the loss and its backward.
+fn dense_schedules(
+    gpu: &Gpu,
+    config: &ModelConfig,
+    group: usize,
+    training: bool,
+    table: &Table,
+    io: &Io,
+    body: DenseBody,
+) -> Result<Schedules, ModelError> {
+    let mut s = Schedules::default();
+    body.forward(gpu, table, io.input, &mut s.infer)?;
+    if training {
+        body.forward(gpu, table, io.input, &mut s.train)?;
+        let (slots, doutput) = loss_steps(
+            gpu,
+            config,
+            group,
+            io.output,
+            io.target,
+            io.loss,
+            &mut s.backward,
+        )?;
+        s.loss_slots = slots;
+        body.backward(gpu, table, &doutput, io.input_grad, &mut s.backward)?;
+    }
+    s.body = Body::Dense;
+    Ok(s)
+}
+
+/// IASTGCN's schedules: the ST blocks (the last trimmed to the last step, which is all
+/// the head reads), the head, and with training the loss and the backward pass.
+fn block_schedules(
+    gpu: &Gpu,
+    config: &ModelConfig,
+    group: usize,
+    dropout_seed: u32,
+    training: bool,
+    table: &Table,
+    io: &Io,
+) -> Result<Schedules, ModelError> {
+    let batch = io.input.shape()[0];
+    let mut s = Schedules::default();
+    let mut blocks: Vec<Block> = Vec::with_capacity(config.blocks);
+    for l in 0..config.blocks {
+        let x = blocks.last().map_or(io.input, |b| &b.output).clone();
+        let extent = if l + 1 == config.blocks {
+            Extent::LastStep
+        } else {
+            Extent::Window
+        };
+        blocks.push(Block::new(gpu, config, l, batch, &x, dropout_seed, extent));
+    }
+    // The trimmed last block's output [B, N, C, 1] is the head's input h [B, N·C].
+    let h = blocks.last().expect("at least one block").output.clone();
+    let (head, head_bias) = head_ops(config, batch);
+    let mut fwd_slots = Vec::new();
+    for block in &blocks {
+        block.forward(gpu, table, &mut s.infer, Pass::Inference)?;
+        if training {
+            fwd_slots.push(block.forward(gpu, table, &mut s.train, Pass::Train)?);
+        }
+    }
+    let head_steps = if training {
+        vec![&mut s.infer, &mut s.train]
+    } else {
+        vec![&mut s.infer]
+    };
+    for steps in head_steps {
+        steps.run(head.forward(
+            gpu,
+            &h,
+            table.param("head.weight"),
+            io.output,
+            Accumulate::Overwrite,
+        ))?;
+        steps.run(head_bias.forward(gpu, table.param("head.bias"), io.output))?;
+    }
+    if training {
+        s.loss_slots = Network::build_backward(
+            gpu,
+            config,
+            group,
+            table,
+            &blocks,
+            &fwd_slots,
+            io.input_grad,
+            io.output,
+            io.target,
+            io.loss,
+            &h,
+            &mut s.backward,
+            &mut s.dropout,
+        )?;
+    }
+    s.body = Body::Blocks(blocks);
+    Ok(s)
+}
+
+/// T-GCN's schedules: the time loop, the head on the last state, and with training the
+/// loss, the head's backward and backpropagation through time.
+fn recurrent_schedules(
+    gpu: &Gpu,
+    config: &ModelConfig,
+    group: usize,
+    training: bool,
+    table: &Table,
+    io: &Io,
+    body: RecurrentBody,
+) -> Result<Schedules, ModelError> {
+    let batch = io.input.shape()[0];
+    let (n, h, o) = (config.nodes, config.hidden, config.outputs);
+    let head = Matmul::new(batch, o, n * h).transpose_b(true);
+    let head_bias = Bias {
+        outer: batch,
+        channels: o,
+        inner: 1,
+    };
+    let last = body.last_state();
+    let mut s = Schedules::default();
+    let passes = if training {
+        vec![&mut s.infer, &mut s.train]
+    } else {
+        vec![&mut s.infer]
+    };
+    for steps in passes {
+        body.forward(gpu, table, io.input, steps)?;
+        steps.run(head.forward(
+            gpu,
+            last,
+            table.param("head.weight"),
+            io.output,
+            Accumulate::Overwrite,
+        ))?;
+        steps.run(head_bias.forward(gpu, table.param("head.bias"), io.output))?;
+    }
+    if training {
+        let b = &mut s.backward;
+        let (slots, doutput) = loss_steps(gpu, config, group, io.output, io.target, io.loss, b)?;
+        s.loss_slots = slots;
+        b.run(head_bias.backward(
+            gpu,
+            &doutput,
+            table.grad("head.bias"),
+            Accumulate::Overwrite,
+        ))?;
+        b.run(head.backward_b(
+            gpu,
+            last,
+            &doutput,
+            table.grad("head.weight"),
+            Accumulate::Overwrite,
+        ))?;
+        let d_last = gpu.zeros("tgcn.dh", &[batch * n, h], DType::F32);
+        b.run(head.backward_a(
+            gpu,
+            table.param("head.weight"),
+            &doutput,
+            &d_last,
+            Accumulate::Overwrite,
+        ))?;
+        body.backward(gpu, table, &d_last, io.input_grad, b)?;
+    }
+    s.body = Body::Recurrent;
+    Ok(s)
 }
 
 /// Appends the loss (eq. 39) and its gradient ∂ℒ/∂ŷ to `backward`: the indices of the two

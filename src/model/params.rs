@@ -59,8 +59,28 @@ fn zeros(name: String, shape: &[usize]) -> ParamSpec {
 }
 
 /// Every parameter of `config`, in the canonical order (blocks in order, then the head;
-/// for a dense baseline, its layers in order, the head last).
+/// for a dense baseline, its layers in order, the head last; for T-GCN, the gates r, u,
+/// c, then the head).
 pub fn param_specs(config: &ModelConfig) -> Vec<ParamSpec> {
+    if config.variant == Variant::Tgcn {
+        // Per gate (r, u, c): input and state weights [F, H], [H, H] and a bias [H]; then
+        // the head on the last state [O, N·H].
+        let (f, h) = (config.features, config.hidden);
+        let mut out: Vec<ParamSpec> = super::recurrent::GATES
+            .iter()
+            .flat_map(|g| {
+                [
+                    weight(format!("cell.{g}.wx"), &[f, h], f),
+                    weight(format!("cell.{g}.wh"), &[h, h], h),
+                    zeros(format!("cell.{g}.bias"), &[h]),
+                ]
+            })
+            .collect();
+        let nh = config.nodes * h;
+        out.push(weight("head.weight".into(), &[config.outputs, nh], nh));
+        out.push(zeros("head.bias".into(), &[config.outputs]));
+        return out;
+    }
     if let Some(arch) = super::dense::Architecture::of(config) {
         // Layer by layer: He-uniform weights [outputs, inputs] with weight decay, zero biases.
         return arch

@@ -6,12 +6,14 @@ pub mod bias;
 pub mod dropout;
 pub mod elementwise;
 pub mod gated_dcc;
+pub mod gru;
 pub mod head;
 pub mod layer_norm;
 pub mod loss;
 pub mod matmul;
 pub mod outer;
 pub mod softmax;
+pub mod time_step;
 
 use crate::gpu::Shader;
 
@@ -40,13 +42,14 @@ impl Accumulate {
 }
 
 /// Every op shader, for validation and for the pipeline warm-up.
-pub fn shaders() -> [&'static Shader; 12] {
+pub fn shaders() -> [&'static Shader; 14] {
     [
         &adam::SHADER,
         &bias::SHADER,
         &dropout::SHADER,
         &elementwise::SHADER,
         &gated_dcc::SHADER,
+        &gru::SHADER,
         &head::SHADER,
         &layer_norm::SHADER,
         &loss::SHADER,
@@ -54,5 +57,6 @@ pub fn shaders() -> [&'static Shader; 12] {
         &matmul::SUBGROUP_SHADER,
         &outer::SHADER,
         &softmax::SHADER,
+        &time_step::SHADER,
     ]
 }

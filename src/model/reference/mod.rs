@@ -18,6 +18,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod dense;
+pub mod recurrent;
 
 mod attention;
 mod block;
@@ -299,7 +300,7 @@ pub fn forward(
     config.validate().unwrap_or_else(|e| panic!("{e}"));
     assert!(
         config.variant.family() == super::Family::StBlocks,
-        "{} is a dense baseline: use reference::dense",
+        "{} is a baseline: use reference::dense or reference::recurrent",
         config.variant
     );
     let table = Table::new(specs, params);
