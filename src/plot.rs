@@ -37,7 +37,8 @@ pub enum Style {
     Points,
     /// One bar per point, from y = 0 to y, [`BAR_WIDTH`] x-units wide and centred on x
     /// (put the bars at x = 0, 1, 2, …). In a panel made only of bars, the x-axis is
-    /// labelled at each bar with the name of its series instead of numbers.
+    /// labelled at each bar with the name of its series instead of numbers, and there is
+    /// no legend.
     Bars,
 }
 
@@ -235,7 +236,8 @@ pub fn draw(
                 };
                 anno.label(&s.name);
             }
-            if panel.series.len() > 1 {
+            // A categorical panel names its bars on the x-axis; a legend would only cover them.
+            if panel.series.len() > 1 && !categorical {
                 chart
                     .configure_series_labels()
                     .background_style(WHITE.mix(0.8))
