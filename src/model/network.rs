@@ -264,7 +264,7 @@ impl Network {
     ) -> Result<[usize; 2], ModelError> {
         let batch = input_grad.shape()[0];
         let (n, t, c) = (config.nodes, config.window, config.channels);
-        let (head, head_bias) = head_ops(config, batch);
+        let (head, head_bias) = head_ops(config, batch, config.nodes * config.channels);
         let (loss_slots, doutput) = loss_steps(gpu, config, group, output, target, loss, backward)?;
         backward.run(head_bias.backward(
             gpu,
@@ -581,7 +581,7 @@ fn block_schedules(
     }
     // The trimmed last block's output [B, N, C, 1] is the head's input h [B, N·C].
     let h = blocks.last().expect("at least one block").output.clone();
-    let (head, head_bias) = head_ops(config, batch);
+    let (head, head_bias) = head_ops(config, batch, config.nodes * config.channels);
     let mut fwd_slots = Vec::new();
     for block in &blocks {
         block.forward(gpu, table, &mut s.infer, Pass::Inference)?;
@@ -637,13 +637,8 @@ fn recurrent_schedules(
     body: RecurrentBody,
 ) -> Result<Schedules, ModelError> {
     let batch = io.input.shape()[0];
-    let (n, h, o) = (config.nodes, config.hidden, config.outputs);
-    let head = Matmul::new(batch, o, n * h).transpose_b(true);
-    let head_bias = Bias {
-        outer: batch,
-        channels: o,
-        inner: 1,
-    };
+    let (n, h) = (config.nodes, config.hidden);
+    let (head, head_bias) = head_ops(config, batch, n * h);
     let last = body.last_state();
     let mut s = Schedules::default();
     let passes = if training {
@@ -719,11 +714,11 @@ fn loss_steps(
     Ok((slots, doutput))
 }
 
-/// The head's ops for `batch` windows: `h · head.weightᵀ` and its bias (h is the trimmed
-/// last block's output, its last step).
-fn head_ops(config: &ModelConfig, batch: usize) -> (Matmul, Bias) {
-    let (n, c, o) = (config.nodes, config.channels, config.outputs);
-    let head = Matmul::new(batch, o, n * c).transpose_b(true);
+/// The head's ops for `batch` windows: `h · head.weightᵀ` and its bias, h `[B, width]` (the
+/// trimmed last block's last step, N·C, or T-GCN's last state, N·H).
+fn head_ops(config: &ModelConfig, batch: usize, width: usize) -> (Matmul, Bias) {
+    let o = config.outputs;
+    let head = Matmul::new(batch, o, width).transpose_b(true);
     let bias = Bias {
         outer: batch,
         channels: o,

@@ -2,8 +2,7 @@
 //! the forward pass keeping every activation, and its hand-written backward pass. The
 //! loss is [`super::loss`], the same as IASTGCN's.
 
-use super::head::output_weight;
-use super::{axpy, Grads, Loss, Table};
+use super::{add_weight_decay, axpy, output_gradient, Grads, Loss, Table};
 use crate::model::dense::Architecture;
 use crate::model::{ModelConfig, ParamSpec};
 use crate::ops::elementwise::cpu as act;
@@ -112,14 +111,8 @@ pub fn backward(
         values: specs.iter().map(|s| vec![0.0; s.numel()]).collect(),
     };
     let mut d_acts: Vec<Vec<f64>> = tape.acts.iter().map(|a| vec![0.0; a.len()]).collect();
-    // Eq. 39, data term.
-    *d_acts.last_mut().expect("the head's output") = tape
-        .output
-        .iter()
-        .zip(y)
-        .enumerate()
-        .map(|(i, (&p, &t))| 2.0 / batch as f64 * output_weight(i % no, loss) * (p - t))
-        .collect();
+    *d_acts.last_mut().expect("the head's output") =
+        output_gradient(&tape.output, y, no, batch, loss);
     for (i, l) in arch.layers.iter().enumerate().rev() {
         let d_out = d_acts[i + 1].clone();
         if let Some(j) = l.skip {
@@ -160,11 +153,6 @@ pub fn backward(
             dx[(b * nf + i) * t + t - 1] += d_acts[0][b * k + j];
         }
     }
-    // Eq. 39, weight decay.
-    for (i, s) in specs.iter().enumerate() {
-        if s.decay {
-            axpy(&mut grads.values[i], 2.0 * loss.weight_decay, &params[i]);
-        }
-    }
+    add_weight_decay(specs, params, &mut grads.values, loss);
     (grads.values, dx)
 }

@@ -383,14 +383,7 @@ pub fn backward(
         specs,
         values: specs.iter().map(|s| vec![0.0; s.numel()]).collect(),
     };
-    // Eq. 39, data term.
-    let dout: Vec<f64> = tape
-        .output
-        .iter()
-        .zip(y)
-        .enumerate()
-        .map(|(i, (&p, &t))| 2.0 / batch as f64 * output_weight(i % no, loss) * (p - t))
-        .collect();
+    let dout = output_gradient(&tape.output, y, no, batch, loss);
     // Head.
     let last = tape.blocks.last().map_or(&tape.input, |b| &b.output);
     let mut dy = head_backward(
@@ -422,13 +415,33 @@ pub fn backward(
             &mut grads,
         );
     }
-    // Eq. 39, weight decay.
+    add_weight_decay(specs, params, &mut grads.values, loss);
+    (grads.values, dy)
+}
+
+/// Eq. 39's data term differentiated by ŷ `[B, O]`: every model's backward starts here.
+fn output_gradient(
+    output: &[f64],
+    y: &[f64],
+    outputs: usize,
+    batch: usize,
+    loss: &Loss,
+) -> Vec<f64> {
+    output
+        .iter()
+        .zip(y)
+        .enumerate()
+        .map(|(i, (&p, &t))| 2.0 / batch as f64 * output_weight(i % outputs, loss) * (p - t))
+        .collect()
+}
+
+/// Eq. 39's weight-decay term: adds 2λW to the gradient of every parameter with `decay`.
+fn add_weight_decay(specs: &[ParamSpec], params: &[Vec<f64>], grads: &mut [Vec<f64>], loss: &Loss) {
     for (i, s) in specs.iter().enumerate() {
         if s.decay {
-            axpy(&mut grads.values[i], 2.0 * loss.weight_decay, &params[i]);
+            axpy(&mut grads[i], 2.0 * loss.weight_decay, &params[i]);
         }
     }
-    (grads.values, dy)
 }
 
 /// The parameters of block `l`.

@@ -2,8 +2,7 @@
 //! loop keeping every step's gates and state, and backpropagation through time by hand.
 //! The loss is [`super::loss`].
 
-use super::head::output_weight;
-use super::{axpy, Grads, Loss, Table};
+use super::{add_weight_decay, axpy, output_gradient, Grads, Loss, Table};
 use crate::model::{ModelConfig, ParamSpec};
 
 /// One step's values, each `[B, N, ·]` row-major.
@@ -245,13 +244,7 @@ pub fn backward(
         specs,
         values: specs.iter().map(|s| vec![0.0; s.numel()]).collect(),
     };
-    let dout: Vec<f64> = tape
-        .output
-        .iter()
-        .zip(y)
-        .enumerate()
-        .map(|(i, (&p, &t))| 2.0 / batch as f64 * output_weight(i % o, loss) * (p - t))
-        .collect();
+    let dout = output_gradient(&tape.output, y, o, batch, loss);
     // Head.
     let nh = s.n * s.h;
     let last = &tape.steps[s.t - 1].h;
@@ -305,10 +298,6 @@ pub fn backward(
         }
         dh = dh_prev;
     }
-    for (i, spec) in specs.iter().enumerate() {
-        if spec.decay {
-            axpy(&mut grads.values[i], 2.0 * loss.weight_decay, &params[i]);
-        }
-    }
+    add_weight_decay(specs, params, &mut grads.values, loss);
     (grads.values, dx)
 }
