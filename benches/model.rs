@@ -1,7 +1,7 @@
 //! Whole-network throughput: inference forward at B = 1 (latency) and B = 64, and one
 //! training step at B = 64, for the paper shape (C 64, T 100, L 5) and a small shape
-//! (C 16, T 48, L 3), then the same three for each baseline (tgcn, mlp, bkls-ann,
-//! ann-bfpa, erc) at both windows, against the project's best matmul measured in the
+//! (C 16, T 48, L 3), then the same three for each baseline (tgcn, eat-gcn, mlp,
+//! bkls-ann, ann-bfpa, erc) at both windows, against the project's best matmul measured in the
 //! same run.
 //!
 //! Criterion's "thrpt" column is in windows/s (elements = batch) for the model groups and
@@ -248,7 +248,7 @@ fn paper_shape(c: &mut Criterion) {
 }
 
 /// The baselines (docs/model.md "Baselines") at the demo's and the paper's window, H = 64
-/// in both. T-GCN's time loop runs T steps per pass (the group name says how many: the
+/// in both. The recurrent time loops run T steps per pass (the group name says how many: the
 /// cost of one step is the time over T); the dense ones read only the last step.
 fn baselines(c: &mut Criterion) {
     for variant in Variant::SPATIO_TEMPORAL.into_iter().chain(Variant::DENSE) {

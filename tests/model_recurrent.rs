@@ -1,9 +1,11 @@
-//! T-GCN (`model::recurrent`, docs/model.md "Baselines"): the f64 reference's
-//! backpropagation through time against central differences in f64 for every parameter
-//! tensor and x, and the GPU network's forward, loss, parameter gradients and input
-//! gradient against the reference.
+//! The recurrent baselines T-GCN and EAT-GCN (`model::recurrent`, docs/model.md
+//! "Baselines"): the f64 reference's backpropagation through time (and EAT-GCN's attention
+//! over time) against central differences in f64 for every parameter tensor and x, and the
+//! GPU network's forward, loss, parameter gradients and input gradient against the
+//! reference.
 
 use iastgcn::graph::Graph;
+use iastgcn::model::recurrent::supports;
 use iastgcn::model::reference::{loss, recurrent, Loss};
 use iastgcn::model::{param_specs, ModelConfig, Network, Parameters, Variant};
 use iastgcn::testing::{compare, gpu, rng, to_f32, uniform, Tolerance};
@@ -15,22 +17,14 @@ const LOSS: Loss = Loss {
 };
 const H: f64 = 1e-6;
 
-/// The 14-node graph, F = 3, T = 4, H = 5.
-fn config() -> ModelConfig {
+/// The 14-node graph, F = 3, T = 4, H = 5 (and K = 3 Chebyshev supports for EAT-GCN).
+fn config(variant: Variant) -> ModelConfig {
     ModelConfig {
-        variant: Variant::Tgcn,
+        variant,
         window: 4,
         hidden: 5,
         ..ModelConfig::default()
     }
-}
-
-fn adjacency() -> Vec<f64> {
-    let a = Graph::default_asset().renormalized_adjacency();
-    (0..14)
-        .flat_map(|i| (0..14).map(move |j| (i, j)))
-        .map(|(i, j)| a[(i, j)])
-        .collect()
 }
 
 fn f64s(v: &[f32]) -> Vec<f64> {
@@ -38,12 +32,11 @@ fn f64s(v: &[f32]) -> Vec<f64> {
 }
 
 /// He-initialised weights, biases moved off zero, x and y, all rounded to f32.
-fn case(seed: u64) -> (Parameters, Vec<f64>, Vec<f64>) {
-    let c = config();
-    let mut p = Parameters::init(&c, seed);
+fn case(c: &ModelConfig, seed: u64) -> (Parameters, Vec<f64>, Vec<f64>) {
+    let mut p = Parameters::init(c, seed);
     let mut r = rng(seed + 1);
     for (s, v) in p.specs.iter().zip(p.values.iter_mut()) {
-        if s.name.ends_with("bias") {
+        if s.name.ends_with("bias") || s.name == "attn.b" {
             *v = to_f32(&uniform(&mut r, v.len(), -0.3, 0.3));
         }
     }
@@ -53,14 +46,17 @@ fn case(seed: u64) -> (Parameters, Vec<f64>, Vec<f64>) {
     (p, x, y)
 }
 
-#[test]
-fn parameters_are_three_gates_and_the_head() {
-    let names: Vec<String> = param_specs(&config())
+fn names(variant: Variant) -> Vec<String> {
+    param_specs(&config(variant))
         .into_iter()
         .map(|s| format!("{} {:?}", s.name, s.shape))
-        .collect();
+        .collect()
+}
+
+#[test]
+fn parameters_are_three_gates_and_the_head() {
     assert_eq!(
-        names,
+        names(Variant::Tgcn),
         [
             "cell.r.wx [3, 5]",
             "cell.r.wh [5, 5]",
@@ -76,7 +72,8 @@ fn parameters_are_three_gates_and_the_head() {
         ]
     );
     // Â is symmetric with rows of a node and its neighbours.
-    let a = adjacency();
+    let a = supports(&Graph::default_asset(), &config(Variant::Tgcn));
+    assert_eq!(a.len(), 14 * 14);
     for i in 0..14 {
         for j in 0..14 {
             assert!((a[i * 14 + j] - a[j * 14 + i]).abs() < 1e-15);
@@ -86,10 +83,58 @@ fn parameters_are_three_gates_and_the_head() {
 }
 
 #[test]
-fn reference_backward_matches_finite_differences() {
-    let c = config();
-    let a = adjacency();
-    let (p, x, y) = case(3);
+fn eat_gcn_has_a_weight_per_chebyshev_term_and_the_attention() {
+    let got = names(Variant::EatGcn);
+    let mut want = Vec::new();
+    for g in ["r", "u", "c"] {
+        for (kind, rows) in [("wx", 3), ("wh", 5)] {
+            for k in 0..3 {
+                want.push(format!("cell.{g}.{kind}.{k} [{rows}, 5]"));
+            }
+        }
+        want.push(format!("cell.{g}.bias [5]"));
+    }
+    want.extend(
+        [
+            "attn.W [70, 5]",
+            "attn.b [5]",
+            "attn.v [5]",
+            "head.weight [6, 70]",
+            "head.bias [6]",
+        ]
+        .map(String::from),
+    );
+    assert_eq!(got, want);
+    // The supports are T_0 = I, T_1 = L̃ and T_2 = 2L̃² − I.
+    let s = supports(&Graph::default_asset(), &config(Variant::EatGcn));
+    assert_eq!(s.len(), 3 * 14 * 14);
+    for i in 0..14 {
+        for j in 0..14 {
+            let l = |k: usize| s[k * 196 + i * 14 + j];
+            assert_eq!(l(0), if i == j { 1.0 } else { 0.0 });
+            let l2: f64 = (0..14)
+                .map(|m| s[196 + i * 14 + m] * s[196 + m * 14 + j])
+                .sum();
+            let want = 2.0 * l2 - if i == j { 1.0 } else { 0.0 };
+            assert!((l(2) - want).abs() < 1e-12, "T_2[{i},{j}]");
+        }
+    }
+}
+
+#[test]
+fn tgcn_reference_backward_matches_finite_differences() {
+    reference_backward_matches_finite_differences(Variant::Tgcn);
+}
+
+#[test]
+fn eat_gcn_reference_backward_matches_finite_differences() {
+    reference_backward_matches_finite_differences(Variant::EatGcn);
+}
+
+fn reference_backward_matches_finite_differences(variant: Variant) {
+    let c = config(variant);
+    let a = supports(&Graph::default_asset(), &c);
+    let (p, x, y) = case(&c, 3);
     let params: Vec<Vec<f64>> = p.values.iter().map(|v| f64s(v)).collect();
     let eval = |params: &[Vec<f64>], x: &[f64]| {
         let tape = recurrent::forward(&c, &a, &p.specs, params, x, BATCH);
@@ -109,6 +154,11 @@ fn reference_backward_matches_finite_differences() {
             })
             .collect();
         compare(&format!("d{}", spec.name), &grads[t], &want, tol).unwrap();
+        assert!(
+            want.iter().any(|v| v.abs() > 1e-9),
+            "{} has no effect",
+            spec.name
+        );
     }
     let want: Vec<f64> = (0..x.len())
         .map(|i| {
@@ -127,11 +177,20 @@ fn reference_backward_matches_finite_differences() {
 }
 
 #[test]
-fn gpu_matches_reference() {
+fn tgcn_gpu_matches_reference() {
+    gpu_matches_reference(Variant::Tgcn);
+}
+
+#[test]
+fn eat_gcn_gpu_matches_reference() {
+    gpu_matches_reference(Variant::EatGcn);
+}
+
+fn gpu_matches_reference(variant: Variant) {
     let g = gpu();
-    let c = config();
-    let a = adjacency();
-    let (p, x, y) = case(7);
+    let c = config(variant);
+    let a = supports(&Graph::default_asset(), &c);
+    let (p, x, y) = case(&c, 7);
     const PENALTY: f64 = 1.7;
     let net = Network::new(&g, &c, &Graph::default_asset(), BATCH, 9).unwrap();
     assert_eq!(net.blocks(), 0);

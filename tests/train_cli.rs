@@ -10,7 +10,8 @@ use std::path::{Path, PathBuf};
 use common::cli;
 use iastgcn::train::RunConfig;
 
-const TINY: &str = "[model]\nwindow = 16\nchannels = 4\nblocks = 2\n\n[data]\nstride = 5\n\n\
+const TINY: &str =
+    "[model]\nwindow = 16\nchannels = 4\nblocks = 2\nhidden = 8\n\n[data]\nstride = 5\n\n\
 [train]\nbatch = 32\nlr = 3e-3\nmax_epochs = 2\n\n[refine]\nmagnifications = [5]\nmax_epochs = 1\n";
 
 fn s(p: &Path) -> &str {
@@ -158,6 +159,19 @@ fn train_resume_predict_refine() {
         rows.iter().any(|r| r[9].parse::<f64>().is_ok()),
         "some windows are labelled"
     );
+    // The recurrent baselines too: their time loops train, and the checkpoint says which.
+    for variant in ["tgcn", "eat-gcn"] {
+        let out = f(&format!("{variant}.safetensors"));
+        let text = train(&out, &["--variant", variant]);
+        assert!(text.contains("test split"), "{variant}: {text}");
+        let ck = iastgcn::model::Checkpoint::load(&out).unwrap();
+        assert_eq!(ck.config.variant.name(), variant);
+        assert!(ck
+            .parameters
+            .get("head.weight")
+            .iter()
+            .all(|v| v.is_finite()));
+    }
 
     // Refine: one stage of ensembles of 5.
     let refined = f("refined.safetensors");

@@ -206,9 +206,10 @@ pub fn demo(
     let mut histories = Vec::new();
     let mut accumulated = None;
     let mut refinement = Vec::new();
-    // T-GCN (Variant::SPATIO_TEMPORAL) is left out: at 20 s per epoch on 2 cores its time
-    // loop does not fit the demo's 15 minutes (docs/results.md); `iastgcn train --variant
-    // tgcn` and `iastgcn evaluate` give its tables.
+    // The recurrent baselines (Variant::SPATIO_TEMPORAL) are left out: at 20 s (T-GCN) and
+    // 39 s (EAT-GCN) per epoch on 2 cores their time loops do not fit the demo's 15 minutes
+    // (docs/results.md); `iastgcn train --variant tgcn` (or `eat-gcn`) and `iastgcn
+    // evaluate` give their tables.
     for variant in Variant::IASTGCN.into_iter().chain(Variant::DENSE) {
         let mut c = config.clone();
         c.model.variant = variant;

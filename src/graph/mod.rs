@@ -224,7 +224,7 @@ impl Spectral {
     }
 
     /// Chebyshev polynomials T_0..T_{order−1} of the scaled Laplacian
-    /// L̃ = 2L/λ_max − I (for the `iastgcn-s` ablation).
+    /// L̃ = 2L/λ_max − I (for the `iastgcn-s` ablation and the `eat-gcn` baseline).
     pub fn chebyshev(&self, order: usize) -> Vec<DMatrix<f64>> {
         let n = self.laplacian.nrows();
         let lmax = self.eigenvalues.last().copied().unwrap_or(0.0).max(1e-12);

@@ -36,6 +36,11 @@ pub enum Variant {
     /// run over the window's steps.
     #[serde(rename = "tgcn")]
     Tgcn,
+    /// Spatio-temporal baseline of Table III [26]: a GRU whose gates are Chebyshev graph
+    /// convolutions, with an attention over the window's steps that weighs every step's
+    /// state into the head's input.
+    #[serde(rename = "eat-gcn")]
+    EatGcn,
 }
 
 /// What a variant's network is built from (docs/model.md "Variants" and "Baselines").
@@ -51,7 +56,7 @@ pub enum Family {
 
 impl Variant {
     /// Every variant: IASTGCN, its ablations, then the baselines.
-    pub const ALL: [Variant; 9] = [
+    pub const ALL: [Variant; 10] = [
         Variant::Iastgcn,
         Variant::NoAttention,
         Variant::PlainTemporal,
@@ -61,6 +66,7 @@ impl Variant {
         Variant::AnnBfpa,
         Variant::Erc,
         Variant::Tgcn,
+        Variant::EatGcn,
     ];
 
     /// IASTGCN and its three ablations: the variants built from ST blocks.
@@ -80,7 +86,7 @@ impl Variant {
     ];
 
     /// The spatio-temporal baselines of Table III built so far.
-    pub const SPATIO_TEMPORAL: [Variant; 1] = [Variant::Tgcn];
+    pub const SPATIO_TEMPORAL: [Variant; 2] = [Variant::Tgcn, Variant::EatGcn];
 
     /// What the network is built from.
     pub fn family(self) -> Family {
@@ -119,6 +125,7 @@ impl Variant {
             Variant::AnnBfpa => "ann-bfpa",
             Variant::Erc => "erc",
             Variant::Tgcn => "tgcn",
+            Variant::EatGcn => "eat-gcn",
         }
     }
 
@@ -170,7 +177,8 @@ pub struct ModelConfig {
     pub kernel: usize,
     /// s: wavelet scale.
     pub scale: f64,
-    /// Order of the Chebyshev graph convolution of `iastgcn-s` (T_0..T_{order−1}).
+    /// Order of the Chebyshev graph convolutions of `iastgcn-s` and `eat-gcn`
+    /// (T_0..T_{order−1}).
     pub chebyshev_order: usize,
     /// O: outputs.
     pub outputs: usize,

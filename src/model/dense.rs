@@ -109,7 +109,8 @@ impl Architecture {
             | Variant::NoAttention
             | Variant::PlainTemporal
             | Variant::Chebyshev
-            | Variant::Tgcn => return None,
+            | Variant::Tgcn
+            | Variant::EatGcn => return None,
         };
         Some(Architecture { inputs, layers })
     }

@@ -59,7 +59,7 @@ fn families(config: &ModelConfig, batch: usize) -> Vec<Family> {
         f(config.kernel),
     );
     let mut sums = [0.0f64; FAMILIES.len()];
-    if config.variant == Variant::Tgcn {
+    if config.variant.family() == super::config::Family::Recurrent {
         // The GRU's gate products and graph mixes and the head, all in one family.
         sums[11] = super::recurrent::forward_flops(config, batch);
         return named(sums);

@@ -625,8 +625,9 @@ fn block_schedules(
     Ok(s)
 }
 
-/// T-GCN's schedules: the time loop, the head on the last state, and with training the
-/// loss, the head's backward and backpropagation through time.
+/// A recurrent baseline's schedules: the time loop, the head on the last state (or the
+/// attention's context), and with training the loss, the head's backward and
+/// backpropagation through time.
 fn recurrent_schedules(
     gpu: &Gpu,
     config: &ModelConfig,
@@ -639,7 +640,7 @@ fn recurrent_schedules(
     let batch = io.input.shape()[0];
     let (n, h) = (config.nodes, config.hidden);
     let (head, head_bias) = head_ops(config, batch, n * h);
-    let last = body.last_state();
+    let last = body.output();
     let mut s = Schedules::default();
     let passes = if training {
         vec![&mut s.infer, &mut s.train]
@@ -674,7 +675,7 @@ fn recurrent_schedules(
             table.grad("head.weight"),
             Accumulate::Overwrite,
         ))?;
-        let d_last = gpu.zeros("tgcn.dh", &[batch * n, h], DType::F32);
+        let d_last = gpu.zeros("d head input", &[batch * n, h], DType::F32);
         b.run(head.backward_a(
             gpu,
             table.param("head.weight"),

@@ -4,7 +4,8 @@
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::config::{ModelConfig, Variant};
+use super::config::{Family, ModelConfig, Variant};
+use super::recurrent;
 use crate::graph::Graph;
 
 /// How a parameter starts (docs/model.md "Initialisation").
@@ -59,24 +60,32 @@ fn zeros(name: String, shape: &[usize]) -> ParamSpec {
 }
 
 /// Every parameter of `config`, in the canonical order (blocks in order, then the head;
-/// for a dense baseline, its layers in order, the head last; for T-GCN, the gates r, u,
-/// c, then the head).
+/// for a dense baseline, its layers in order, the head last; for a recurrent baseline,
+/// the gates r, u, c, EAT-GCN's attention over time, then the head).
 pub fn param_specs(config: &ModelConfig) -> Vec<ParamSpec> {
-    if config.variant == Variant::Tgcn {
-        // Per gate (r, u, c): input and state weights [F, H], [H, H] and a bias [H]; then
-        // the head on the last state [O, N·H].
+    if config.variant.family() == Family::Recurrent {
+        // Per gate (r, u, c) and graph support k: input and state weights [F, H] and
+        // [H, H]; then the gate's bias [H]. EAT-GCN's attention over time: Wa [N·H, A],
+        // ba [A], v [A] (A = H). Then the head on the state or context [O, N·H].
         let (f, h) = (config.features, config.hidden);
-        let mut out: Vec<ParamSpec> = super::recurrent::GATES
-            .iter()
-            .flat_map(|g| {
-                [
-                    weight(format!("cell.{g}.wx"), &[f, h], f),
-                    weight(format!("cell.{g}.wh"), &[h, h], h),
-                    zeros(format!("cell.{g}.bias"), &[h]),
-                ]
-            })
-            .collect();
+        let terms = recurrent::support_count(config);
+        let mut out: Vec<ParamSpec> = Vec::new();
+        for g in recurrent::GATES {
+            for kind in ["wx", "wh"] {
+                let fan_in = if kind == "wx" { f } else { h };
+                for k in 0..terms {
+                    let name = recurrent::weight_name(g, kind, k, terms);
+                    out.push(weight(name, &[fan_in, h], fan_in));
+                }
+            }
+            out.push(zeros(format!("cell.{g}.bias"), &[h]));
+        }
         let nh = config.nodes * h;
+        if recurrent::attends_over_time(config.variant) {
+            out.push(weight("attn.W".into(), &[nh, h], nh));
+            out.push(zeros("attn.b".into(), &[h]));
+            out.push(weight("attn.v".into(), &[h], h));
+        }
         out.push(weight("head.weight".into(), &[config.outputs, nh], nh));
         out.push(zeros("head.bias".into(), &[config.outputs]));
         return out;

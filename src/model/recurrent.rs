@@ -1,12 +1,18 @@
-//! The T-GCN baseline of Table III (Zhao et al. [23]; docs/model.md "Baselines"): a GRU
-//! whose gates are graph convolutions, run over the window's T steps, then the head on
-//! the last state. Per step t, with Â the renormalised adjacency and x_t `[B, N, F]`:
+//! The recurrent baselines of Table III (docs/model.md "Baselines"): a GRU whose gates are
+//! graph convolutions, run over the window's T steps, then the head. Per step t, with
+//! x_t `[B, N, F]` and the graph supports S_0..S_{K−1}:
 //!
 //! ```text
-//! r = σ(Â (x_t·Wx_r + h·Wh_r) + b_r)        u = σ(Â (x_t·Wx_u + h·Wh_u) + b_u)
-//! c = tanh(Â (x_t·Wx_c + (r ⊙ h)·Wh_c) + b_c)
-//! h' = u ⊙ h + (1 − u) ⊙ c                   (h = 0 before step 0)
+//! gate(x, h) = Σ_k S_k (x·Wx_k + h·Wh_k) + b
+//! r = σ(gate_r(x_t, h))        u = σ(gate_u(x_t, h))        c = tanh(gate_c(x_t, r ⊙ h))
+//! h' = u ⊙ h + (1 − u) ⊙ c     (h = 0 before step 0)
 //! ```
+//!
+//! * T-GCN (Zhao et al. [23]): one support, the renormalised adjacency Â; the head reads
+//!   the last state h_{T−1}.
+//! * EAT-GCN [26]: the Chebyshev polynomials T_0..T_{K−1}(L̃) as supports, and an
+//!   attention over the steps: per window, e_t = v · tanh(h_t·Wa + ba) on the flattened
+//!   state h_t `[N·H]`, α = softmax_t(e), and the head reads Σ_t α_t h_t.
 //!
 //! The time loop is one dispatch chain per step, recorded into the same schedule, with
 //! every step's state on the device. The backward pass runs through time in reverse:
@@ -14,7 +20,7 @@
 //! The f64 reference is `model::reference::recurrent`.
 
 use super::block::ParamTable;
-use super::config::ModelConfig;
+use super::config::{ModelConfig, Variant};
 use super::schedule::Steps;
 use crate::gpu::{DType, Gpu, GpuError, Tensor};
 use crate::graph::Graph;
@@ -24,11 +30,52 @@ use crate::ops::elementwise::{
 };
 use crate::ops::gru;
 use crate::ops::matmul::Matmul;
+use crate::ops::softmax::Softmax;
 use crate::ops::time_step::TimeStep;
 use crate::ops::Accumulate;
 
 /// The gates, in parameter order: reset, update, candidate.
 pub const GATES: [&str; 3] = ["r", "u", "c"];
+
+/// True when `variant` weighs every step's state by an attention over time (EAT-GCN);
+/// otherwise the head reads the last state (T-GCN).
+pub fn attends_over_time(variant: Variant) -> bool {
+    variant == Variant::EatGcn
+}
+
+/// The graph supports S_k of the gates, `[K, N, N]` row-major f64: Â for T-GCN, the
+/// Chebyshev polynomials T_0..T_{K−1}(L̃) (K = `chebyshev_order`) for EAT-GCN.
+pub fn supports(graph: &Graph, config: &ModelConfig) -> Vec<f64> {
+    let matrices = if attends_over_time(config.variant) {
+        graph.spectral().chebyshev(config.chebyshev_order)
+    } else {
+        vec![graph.renormalized_adjacency()]
+    };
+    let n = graph.len();
+    matrices
+        .iter()
+        .flat_map(|m| (0..n * n).map(move |i| m[(i / n, i % n)]))
+        .collect()
+}
+
+/// The name of gate `g`'s weight `kind` (`wx` or `wh`) for support `k` of `terms`:
+/// `cell.r.wx` with one support, `cell.r.wx.0`, `cell.r.wx.1`, … with several.
+pub fn weight_name(g: &str, kind: &str, k: usize, terms: usize) -> String {
+    if terms == 1 {
+        format!("cell.{g}.{kind}")
+    } else {
+        format!("cell.{g}.{kind}.{k}")
+    }
+}
+
+/// How many graph supports the gates sum over: 1 (T-GCN) or `chebyshev_order` (EAT-GCN).
+pub fn support_count(config: &ModelConfig) -> usize {
+    if attends_over_time(config.variant) {
+        config.chebyshev_order
+    } else {
+        1
+    }
+}
 
 /// One step's saved tensors, `[B·N, ·]` row-major.
 struct Step {
@@ -43,15 +90,41 @@ struct Step {
     h: Tensor,
 }
 
-/// T-GCN's tensors and ops for one batch size (part of a [`super::Network`]).
+/// The attention over time of EAT-GCN: its saved and scratch tensors.
+struct TimeAttention {
+    /// tanh(h_t·Wa + ba) `[B, A]` of every step.
+    score_hidden: Vec<Tensor>,
+    /// Scratch `[B, A]`: the pre-activation, then its gradient.
+    hidden_scratch: Tensor,
+    /// Scratch `[B, A]`: ∂ℒ/∂ tanh(·).
+    d_hidden: Tensor,
+    /// Scratch `[B]`: one step's e_t or α_t (or their gradients).
+    column: Tensor,
+    /// e `[B, T]`, then ∂ℒ/∂e in the backward pass.
+    scores: Tensor,
+    /// α = softmax_t(e) `[B, T]`.
+    weights: Tensor,
+    /// ∂ℒ/∂α `[B, T]`.
+    d_weights: Tensor,
+    /// Σ_t α_t h_t `[B, N·H]`: the head's input.
+    context: Tensor,
+    /// Its width A (= H).
+    width: usize,
+}
+
+/// A recurrent baseline's tensors and ops for one batch size (part of a
+/// [`super::Network`]).
 pub(super) struct RecurrentBody {
-    adjacency: Tensor,
+    /// S_k `[N, N]`; `None` where S_k = I (T_0), whose product is skipped.
+    supports: Vec<Option<Tensor>>,
     /// The state before step 0 (zeros).
     h0: Tensor,
     steps: Vec<Step>,
-    /// Forward scratch shared by the steps: the product before the graph mix and after.
+    /// Forward scratch shared by the steps: one support's product before its graph mix,
+    /// and the gate's sum over the supports.
     pre: Tensor,
     mixed: Tensor,
+    attention: Option<TimeAttention>,
     batch: usize,
     nodes: usize,
     features: usize,
@@ -67,43 +140,70 @@ impl RecurrentBody {
         graph: &Graph,
         batch: usize,
     ) -> Result<RecurrentBody, GpuError> {
-        let (n, f, h) = (config.nodes, config.features, config.hidden);
-        let a: Vec<f32> = {
-            let m = graph.renormalized_adjacency();
-            (0..n)
-                .flat_map(|i| (0..n).map(move |j| (i, j)))
-                .map(|(i, j)| m[(i, j)] as f32)
-                .collect()
-        };
-        let adjacency = gpu.upload("tgcn.adjacency", &[n, n], &a)?;
+        let (n, f, h, t) = (config.nodes, config.features, config.hidden, config.window);
+        let all = supports(graph, config);
+        let supports = all
+            .chunks(n * n)
+            .enumerate()
+            .map(|(k, s)| {
+                let identity = (0..n * n).all(|i| s[i] == if i % (n + 1) == 0 { 1.0 } else { 0.0 });
+                if identity {
+                    return Ok(None);
+                }
+                let data: Vec<f32> = s.iter().map(|&v| v as f32).collect();
+                gpu.upload(&format!("cell.support{k}"), &[n, n], &data)
+                    .map(Some)
+            })
+            .collect::<Result<Vec<_>, GpuError>>()?;
         let state = |name: String| gpu.zeros(&name, &[batch * n, h], DType::F32);
-        let steps = (0..config.window)
+        let steps = (0..t)
             .map(|t| Step {
-                x: gpu.zeros(&format!("tgcn.x{t}"), &[batch * n, f], DType::F32),
-                r: state(format!("tgcn.r{t}")),
-                u: state(format!("tgcn.u{t}")),
-                rh: state(format!("tgcn.rh{t}")),
-                c: state(format!("tgcn.c{t}")),
-                h: state(format!("tgcn.h{t}")),
+                x: gpu.zeros(&format!("cell.x{t}"), &[batch * n, f], DType::F32),
+                r: state(format!("cell.r{t}")),
+                u: state(format!("cell.u{t}")),
+                rh: state(format!("cell.rh{t}")),
+                c: state(format!("cell.c{t}")),
+                h: state(format!("cell.h{t}")),
             })
             .collect();
+        let attention = attends_over_time(config.variant).then(|| {
+            let width = h;
+            let wide = |name: &str| gpu.zeros(name, &[batch, width], DType::F32);
+            let per_step = |name: &str| gpu.zeros(name, &[batch, t], DType::F32);
+            TimeAttention {
+                score_hidden: (0..t).map(|t| wide(&format!("attn.hidden{t}"))).collect(),
+                hidden_scratch: wide("attn.hidden scratch"),
+                d_hidden: wide("attn.d hidden"),
+                column: gpu.zeros("attn.column", &[batch], DType::F32),
+                scores: per_step("attn.e"),
+                weights: per_step("attn.alpha"),
+                d_weights: per_step("attn.d alpha"),
+                context: gpu.zeros("attn.context", &[batch, n * h], DType::F32),
+                width,
+            }
+        });
         Ok(RecurrentBody {
-            adjacency,
-            h0: state("tgcn.h0".into()),
+            supports,
+            h0: state("cell.h0".into()),
             steps,
-            pre: state("tgcn.pre".into()),
-            mixed: state("tgcn.mixed".into()),
+            pre: state("cell.pre".into()),
+            mixed: state("cell.mixed".into()),
+            attention,
             batch,
             nodes: n,
             features: f,
             hidden: h,
-            window: config.window,
+            window: t,
         })
     }
 
-    /// The last state h_{T−1} `[B, N·H]`: the head's input.
-    pub(super) fn last_state(&self) -> &Tensor {
-        &self.steps[self.window - 1].h
+    /// What the head reads, `[B, N·H]`: the last state h_{T−1}, or with the attention over
+    /// time the context Σ_t α_t h_t.
+    pub(super) fn output(&self) -> &Tensor {
+        match &self.attention {
+            Some(a) => &a.context,
+            None => &self.steps[self.window - 1].h,
+        }
     }
 
     fn rows(&self) -> usize {
@@ -148,7 +248,7 @@ impl RecurrentBody {
         }
     }
 
-    /// Appends `act(Â (x·Wx + h·Wh) + b)` of gate `g` into `out`.
+    /// Appends `act(Σ_k S_k (x·Wx_k + h·Wh_k) + b)` of gate `g` into `out`.
     #[allow(clippy::too_many_arguments)]
     fn gate_forward(
         &self,
@@ -161,26 +261,37 @@ impl RecurrentBody {
         out: &Tensor,
         steps: &mut Steps,
     ) -> Result<(), GpuError> {
-        let p = |s: &str| table.param(&format!("cell.{g}.{s}"));
-        steps.run(self.input_product().forward(
-            gpu,
-            x,
-            p("wx"),
-            &self.pre,
-            Accumulate::Overwrite,
-        ))?;
+        let terms = self.supports.len();
+        for (k, support) in self.supports.iter().enumerate() {
+            // With S_k = I the products go straight into the sum.
+            let (target, first) = match support {
+                Some(_) => (&self.pre, Accumulate::Overwrite),
+                None if k == 0 => (&self.mixed, Accumulate::Overwrite),
+                None => (&self.mixed, Accumulate::Add),
+            };
+            let wx = table.param(&weight_name(g, "wx", k, terms));
+            let wh = table.param(&weight_name(g, "wh", k, terms));
+            steps.run(self.input_product().forward(gpu, x, wx, target, first))?;
+            steps.run(
+                self.state_product()
+                    .forward(gpu, h, wh, target, Accumulate::Add),
+            )?;
+            if let Some(s) = support {
+                let acc = if k == 0 {
+                    Accumulate::Overwrite
+                } else {
+                    Accumulate::Add
+                };
+                steps.run(
+                    self.graph_mix()
+                        .forward(gpu, s, &self.pre, &self.mixed, acc),
+                )?;
+            }
+        }
         steps.run(
-            self.state_product()
-                .forward(gpu, h, p("wh"), &self.pre, Accumulate::Add),
+            self.bias()
+                .forward(gpu, table.param(&format!("cell.{g}.bias")), &self.mixed),
         )?;
-        steps.run(self.graph_mix().forward(
-            gpu,
-            &self.adjacency,
-            &self.pre,
-            &self.mixed,
-            Accumulate::Overwrite,
-        ))?;
-        steps.run(self.bias().forward(gpu, p("bias"), &self.mixed))?;
         steps.run(unary_forward(
             gpu,
             act,
@@ -191,7 +302,7 @@ impl RecurrentBody {
         Ok(())
     }
 
-    /// Appends the time loop from x (`input` `[B, N, F, T]`) to h_{T−1}.
+    /// Appends the time loop from x (`input` `[B, N, F, T]`) to the head's input.
     pub(super) fn forward(
         &self,
         gpu: &Gpu,
@@ -215,30 +326,215 @@ impl RecurrentBody {
             self.gate_forward(gpu, table, "c", &s.x, &s.rh, Unary::Tanh, &s.c, steps)?;
             steps.run(gru::forward(gpu, &s.u, h, &s.c, &s.h))?;
         }
+        if let Some(a) = &self.attention {
+            self.attention_forward(gpu, table, a, steps)?;
+        }
         Ok(())
     }
 
-    /// Appends backpropagation through time from ∂ℒ/∂h_{T−1} (`d_last`, overwritten as
-    /// scratch) to the cell's parameter gradients and ∂ℒ/∂x (`input_grad`).
+    /// The products of the attention over time: `h_t·Wa` `[B, N·H]·[N·H, A]`, `·v`
+    /// `[B, A]·[A, 1]`, and α_t·h_t per window `[1, 1]·[1, N·H]`.
+    fn attention_products(&self, a: &TimeAttention) -> (Matmul, Matmul, Matmul) {
+        let nh = self.nodes * self.hidden;
+        (
+            Matmul::new(self.batch, a.width, nh),
+            Matmul::new(self.batch, 1, a.width),
+            Matmul::new(1, nh, 1).batched(self.batch),
+        )
+    }
+
+    fn attention_bias(&self, a: &TimeAttention) -> Bias {
+        Bias {
+            outer: self.batch,
+            channels: a.width,
+            inner: 1,
+        }
+    }
+
+    /// Step t's column of a `[B, T]` tensor.
+    fn column(&self, t: usize) -> TimeStep {
+        TimeStep {
+            rows: self.batch,
+            steps: self.window,
+            step: t,
+        }
+    }
+
+    fn time_softmax(&self) -> Softmax {
+        Softmax {
+            outer: self.batch,
+            len: self.window,
+            inner: 1,
+        }
+    }
+
+    /// Appends e_t = v · tanh(h_t·Wa + ba), α = softmax_t(e) and the context Σ_t α_t h_t.
+    fn attention_forward(
+        &self,
+        gpu: &Gpu,
+        table: &dyn ParamTable,
+        a: &TimeAttention,
+        steps: &mut Steps,
+    ) -> Result<(), GpuError> {
+        let (score_in, score_out, weigh) = self.attention_products(a);
+        let first = |t: usize| {
+            if t == 0 {
+                Accumulate::Overwrite
+            } else {
+                Accumulate::Add
+            }
+        };
+        for (t, s) in self.steps.iter().enumerate() {
+            let hidden = &a.score_hidden[t];
+            steps.run(score_in.forward(
+                gpu,
+                &s.h,
+                table.param("attn.W"),
+                &a.hidden_scratch,
+                Accumulate::Overwrite,
+            ))?;
+            steps.run(self.attention_bias(a).forward(
+                gpu,
+                table.param("attn.b"),
+                &a.hidden_scratch,
+            ))?;
+            steps.run(unary_forward(
+                gpu,
+                Unary::Tanh,
+                &a.hidden_scratch,
+                hidden,
+                Accumulate::Overwrite,
+            ))?;
+            steps.run(score_out.forward(
+                gpu,
+                hidden,
+                table.param("attn.v"),
+                &a.column,
+                Accumulate::Overwrite,
+            ))?;
+            steps.run(self.column(t).backward(gpu, &a.column, &a.scores, first(t)))?;
+        }
+        steps.run(self.time_softmax().forward(gpu, &a.scores, &a.weights))?;
+        for (t, s) in self.steps.iter().enumerate() {
+            steps.run(self.column(t).forward(gpu, &a.weights, &a.column))?;
+            steps.run(weigh.forward(gpu, &a.column, &s.h, &a.context, first(t)))?;
+        }
+        Ok(())
+    }
+
+    /// Appends ∂ℒ/∂e (into `scores`) from ∂ℒ/∂context: ∂ℒ/∂α_t = h_t · ∂ℒ/∂context, then
+    /// the softmax backward.
+    fn attention_backward_scores(
+        &self,
+        gpu: &Gpu,
+        a: &TimeAttention,
+        d_context: &Tensor,
+        steps: &mut Steps,
+    ) -> Result<(), GpuError> {
+        let (_, _, weigh) = self.attention_products(a);
+        for (t, s) in self.steps.iter().enumerate() {
+            let acc = if t == 0 {
+                Accumulate::Overwrite
+            } else {
+                Accumulate::Add
+            };
+            steps.run(weigh.backward_a(gpu, &s.h, d_context, &a.column, Accumulate::Overwrite))?;
+            steps.run(self.column(t).backward(gpu, &a.column, &a.d_weights, acc))?;
+        }
+        steps.run(self.time_softmax().backward(
+            gpu,
+            &a.weights,
+            &a.d_weights,
+            &a.scores,
+            Accumulate::Overwrite,
+        ))?;
+        Ok(())
+    }
+
+    /// Appends the attention's share of ∂ℒ/∂h_t into `dh` (`dh_acc`: overwrite for the
+    /// last step, whose ∂ℒ/∂h comes only from here) and its parameter gradients (`acc`).
+    #[allow(clippy::too_many_arguments)]
+    fn attention_backward_step(
+        &self,
+        gpu: &Gpu,
+        table: &dyn ParamTable,
+        a: &TimeAttention,
+        t: usize,
+        d_context: &Tensor,
+        dh: &Tensor,
+        dh_acc: Accumulate,
+        acc: Accumulate,
+        steps: &mut Steps,
+    ) -> Result<(), GpuError> {
+        let (score_in, score_out, weigh) = self.attention_products(a);
+        let h = &self.steps[t].h;
+        // α_t ∂ℒ/∂context.
+        steps.run(self.column(t).forward(gpu, &a.weights, &a.column))?;
+        steps.run(weigh.backward_b(gpu, &a.column, d_context, dh, dh_acc))?;
+        // Through e_t = v · tanh(h_t·Wa + ba).
+        steps.run(self.column(t).forward(gpu, &a.scores, &a.column))?;
+        let hidden = &a.score_hidden[t];
+        steps.run(score_out.backward_b(gpu, hidden, &a.column, table.grad("attn.v"), acc))?;
+        steps.run(score_out.backward_a(
+            gpu,
+            table.param("attn.v"),
+            &a.column,
+            &a.d_hidden,
+            Accumulate::Overwrite,
+        ))?;
+        steps.run(unary_backward(
+            gpu,
+            Unary::Tanh,
+            hidden,
+            &a.d_hidden,
+            &a.hidden_scratch,
+            Accumulate::Overwrite,
+        ))?;
+        steps.run(self.attention_bias(a).backward(
+            gpu,
+            &a.hidden_scratch,
+            table.grad("attn.b"),
+            acc,
+        ))?;
+        steps.run(score_in.backward_b(gpu, h, &a.hidden_scratch, table.grad("attn.W"), acc))?;
+        steps.run(score_in.backward_a(
+            gpu,
+            table.param("attn.W"),
+            &a.hidden_scratch,
+            dh,
+            Accumulate::Add,
+        ))?;
+        Ok(())
+    }
+
+    /// Appends backpropagation through time from ∂ℒ/∂(head input) (`d_output`; without
+    /// the attention it is ∂ℒ/∂h_{T−1} and is overwritten as scratch) to the cell's
+    /// parameter gradients and ∂ℒ/∂x (`input_grad`).
     pub(super) fn backward(
         &self,
         gpu: &Gpu,
         table: &dyn ParamTable,
-        d_last: &Tensor,
+        d_output: &Tensor,
         input_grad: &Tensor,
         steps: &mut Steps,
     ) -> Result<(), GpuError> {
         let state = |name: &str| gpu.zeros(name, &[self.rows(), self.hidden], DType::F32);
         // ∂ℒ/∂h of the current step and of the one before.
-        let dh = [d_last.clone(), state("tgcn.dh (other)")];
+        let dh = match &self.attention {
+            Some(a) => {
+                self.attention_backward_scores(gpu, a, d_output, steps)?;
+                [state("cell.dh"), state("cell.dh (other)")]
+            }
+            None => [d_output.clone(), state("cell.dh (other)")],
+        };
         let (du, dc, dr, drh) = (
-            state("tgcn.du"),
-            state("tgcn.dc"),
-            state("tgcn.dr"),
-            state("tgcn.drh"),
+            state("cell.du"),
+            state("cell.dc"),
+            state("cell.dr"),
+            state("cell.drh"),
         );
-        let (dz, dp) = (state("tgcn.dz"), state("tgcn.dp"));
-        let dx = gpu.zeros("tgcn.dx", &[self.rows(), self.features], DType::F32);
+        let (dz, dp) = (state("cell.dz"), state("cell.dp"));
+        let dx = gpu.zeros("cell.dx", &[self.rows(), self.features], DType::F32);
         let last = self.window - 1;
         for (t, s) in self.steps.iter().enumerate().rev() {
             let h = self.previous(t);
@@ -249,6 +545,9 @@ impl RecurrentBody {
             } else {
                 Accumulate::Add
             };
+            if let Some(a) = &self.attention {
+                self.attention_backward_step(gpu, table, a, t, d_output, cur, acc, acc, steps)?;
+            }
             steps.run(gru::backward(
                 gpu,
                 &s.u,
@@ -270,10 +569,8 @@ impl RecurrentBody {
                 (&s.x, &s.rh),
                 (&dz, &dp),
                 acc,
-                &drh,
-                Accumulate::Overwrite,
-                &dx,
-                Accumulate::Overwrite,
+                (&drh, Accumulate::Overwrite),
+                (&dx, Accumulate::Overwrite),
                 steps,
             )?;
             steps.run(binary_backward(
@@ -302,10 +599,8 @@ impl RecurrentBody {
                     (&s.x, h),
                     (&dz, &dp),
                     acc,
-                    prev,
-                    Accumulate::Add,
-                    &dx,
-                    Accumulate::Add,
+                    (prev, Accumulate::Add),
+                    (&dx, Accumulate::Add),
                     steps,
                 )?;
             }
@@ -314,9 +609,10 @@ impl RecurrentBody {
         Ok(())
     }
 
-    /// Appends the backward of one gate `out = act(Â (x·Wx + h·Wh) + b)` given
-    /// `d_out`: the gate's parameter gradients (`acc`), ∂ℒ/∂h into `dh` (`dh_acc`) and
-    /// ∂ℒ/∂x into `dx` (`dx_acc`). `scratch` is (∂ℒ/∂ mixed, ∂ℒ/∂ pre).
+    /// Appends the backward of one gate `out = act(Σ_k S_k (x·Wx_k + h·Wh_k) + b)` given
+    /// `d_out`: the gate's parameter gradients (`acc`), ∂ℒ/∂h into `dh` and ∂ℒ/∂x into
+    /// `dx` (each with its own mode for the first support; later supports add).
+    /// `scratch` is (∂ℒ/∂ mixed, ∂ℒ/∂ pre).
     #[allow(clippy::too_many_arguments)]
     fn gate_backward(
         &self,
@@ -328,13 +624,10 @@ impl RecurrentBody {
         (x, h): (&Tensor, &Tensor),
         (dz, dp): (&Tensor, &Tensor),
         acc: Accumulate,
-        dh: &Tensor,
-        dh_acc: Accumulate,
-        dx: &Tensor,
-        dx_acc: Accumulate,
+        (dh, dh_acc): (&Tensor, Accumulate),
+        (dx, dx_acc): (&Tensor, Accumulate),
         steps: &mut Steps,
     ) -> Result<(), GpuError> {
-        let name = |s: &str| format!("cell.{g}.{s}");
         steps.run(unary_backward(
             gpu,
             act,
@@ -345,29 +638,57 @@ impl RecurrentBody {
         ))?;
         steps.run(
             self.bias()
-                .backward(gpu, dz, table.grad(&name("bias")), acc),
+                .backward(gpu, dz, table.grad(&format!("cell.{g}.bias")), acc),
         )?;
-        steps.run(self.graph_mix().backward_b(
-            gpu,
-            &self.adjacency,
-            dz,
-            dp,
-            Accumulate::Overwrite,
-        ))?;
         let (mx, mh) = (self.input_product(), self.state_product());
-        steps.run(mx.backward_b(gpu, x, dp, table.grad(&name("wx")), acc))?;
-        steps.run(mx.backward_a(gpu, table.param(&name("wx")), dp, dx, dx_acc))?;
-        steps.run(mh.backward_b(gpu, h, dp, table.grad(&name("wh")), acc))?;
-        steps.run(mh.backward_a(gpu, table.param(&name("wh")), dp, dh, dh_acc))?;
+        let terms = self.supports.len();
+        for (k, support) in self.supports.iter().enumerate() {
+            // ∂ℒ/∂(x·Wx_k + h·Wh_k) = S_kᵀ dz (dz itself where S_k = I).
+            let d_pre = match support {
+                Some(s) => {
+                    steps.run(self.graph_mix().backward_b(
+                        gpu,
+                        s,
+                        dz,
+                        dp,
+                        Accumulate::Overwrite,
+                    ))?;
+                    dp
+                }
+                None => dz,
+            };
+            let (wx, wh) = (
+                weight_name(g, "wx", k, terms),
+                weight_name(g, "wh", k, terms),
+            );
+            let later = |first: Accumulate| if k == 0 { first } else { Accumulate::Add };
+            steps.run(mx.backward_b(gpu, x, d_pre, table.grad(&wx), acc))?;
+            steps.run(mx.backward_a(gpu, table.param(&wx), d_pre, dx, later(dx_acc)))?;
+            steps.run(mh.backward_b(gpu, h, d_pre, table.grad(&wh), acc))?;
+            steps.run(mh.backward_a(gpu, table.param(&wh), d_pre, dh, later(dh_acc)))?;
+        }
         Ok(())
     }
 }
 
-/// Forward FLOPs of T-GCN for `batch` windows: per step and gate the two products and
-/// the graph mix, then the head.
+/// Forward FLOPs of a recurrent baseline for `batch` windows: per step and gate the two
+/// products per support and the graph mixes, the attention over time, then the head.
 pub fn forward_flops(config: &ModelConfig, batch: usize) -> f64 {
     let f = |x: usize| x as f64;
     let (b, n, h) = (f(batch), f(config.nodes), f(config.hidden));
-    let per_gate = 2.0 * b * n * h * (f(config.features) + h + n);
-    f(config.window) * 3.0 * per_gate + 2.0 * b * f(config.outputs) * n * h
+    let terms = f(support_count(config));
+    // T_0 = I needs no mix; Â does.
+    let mixes = if attends_over_time(config.variant) {
+        terms - 1.0
+    } else {
+        1.0
+    };
+    let per_gate = 2.0 * b * n * h * (terms * (f(config.features) + h) + mixes * n);
+    let attention = if attends_over_time(config.variant) {
+        // h_t·Wa, ·v and α_t h_t per step.
+        2.0 * b * (n * h * h + h + n * h)
+    } else {
+        0.0
+    };
+    f(config.window) * (3.0 * per_gate + attention) + 2.0 * b * f(config.outputs) * n * h
 }
