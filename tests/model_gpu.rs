@@ -48,7 +48,11 @@ fn gradients_match_reference_in_every_variant() {
     let g = gpu();
     let graph = Graph::default_asset();
     let batch = 2;
-    for (vi, variant) in Variant::IASTGCN.into_iter().enumerate() {
+    for (vi, variant) in Variant::IASTGCN
+        .into_iter()
+        .chain([Variant::StGat])
+        .enumerate()
+    {
         let config = ModelConfig::gradient_check(variant);
         let p = parameters(&config, 10 + vi as u64);
         let mut r = rng(100 + vi as u64);
@@ -144,7 +148,11 @@ fn inference_forward_matches_reference() {
     let g = gpu();
     let graph = Graph::default_asset();
     let batch = 3;
-    for (vi, variant) in Variant::IASTGCN.into_iter().enumerate() {
+    for (vi, variant) in Variant::IASTGCN
+        .into_iter()
+        .chain([Variant::StGat])
+        .enumerate()
+    {
         let config = ModelConfig::gradient_check(variant);
         let p = parameters(&config, 20 + vi as u64);
         let mut r = rng(200 + vi as u64);

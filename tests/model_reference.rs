@@ -249,6 +249,11 @@ fn gradients_iastgcn_s() {
     check_variant(Variant::Chebyshev);
 }
 
+#[test]
+fn gradients_st_gat() {
+    check_variant(Variant::StGat);
+}
+
 /// Changing x of one batch item at the last step changes that item's output only, and
 /// the evaluation forward is bit-for-bit deterministic.
 #[test]

@@ -159,8 +159,9 @@ fn train_resume_predict_refine() {
         rows.iter().any(|r| r[9].parse::<f64>().is_ok()),
         "some windows are labelled"
     );
-    // The recurrent baselines too: their time loops train, and the checkpoint says which.
-    for variant in ["tgcn", "eat-gcn"] {
+    // The spatio-temporal baselines too (the recurrent time loops and ST-GAT's graph
+    // attention), and the checkpoint says which.
+    for variant in ["tgcn", "eat-gcn", "st-gat"] {
         let out = f(&format!("{variant}.safetensors"));
         let text = train(&out, &["--variant", variant]);
         assert!(text.contains("test split"), "{variant}: {text}");

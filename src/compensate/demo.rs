@@ -206,10 +206,10 @@ pub fn demo(
     let mut histories = Vec::new();
     let mut accumulated = None;
     let mut refinement = Vec::new();
-    // The recurrent baselines (Variant::SPATIO_TEMPORAL) are left out: at 20 s (T-GCN) and
-    // 39 s (EAT-GCN) per epoch on 2 cores their time loops do not fit the demo's 15 minutes
-    // (docs/results.md); `iastgcn train --variant tgcn` (or `eat-gcn`) and `iastgcn
-    // evaluate` give their tables.
+    // The spatio-temporal baselines (Variant::SPATIO_TEMPORAL) are left out: at 20 s
+    // (T-GCN), 39 s (EAT-GCN) and more than IASTGCN (ST-GAT) per epoch on 2 cores they do
+    // not fit the demo's 15 minutes (docs/results.md); `iastgcn train --variant tgcn` (or
+    // `eat-gcn`, `st-gat`) and `iastgcn evaluate` give their tables.
     for variant in Variant::IASTGCN.into_iter().chain(Variant::DENSE) {
         let mut c = config.clone();
         c.model.variant = variant;

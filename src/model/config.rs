@@ -41,6 +41,11 @@ pub enum Variant {
     /// state into the head's input.
     #[serde(rename = "eat-gcn")]
     EatGcn,
+    /// Spatio-temporal baseline of Table III [27]: ST blocks whose spatial layer is a
+    /// multi-head graph attention (GAT) over each step, then the gated dilated
+    /// convolution; no temporal or spatial attention of IASTGCN's kind.
+    #[serde(rename = "st-gat")]
+    StGat,
 }
 
 /// What a variant's network is built from (docs/model.md "Variants" and "Baselines").
@@ -56,7 +61,7 @@ pub enum Family {
 
 impl Variant {
     /// Every variant: IASTGCN, its ablations, then the baselines.
-    pub const ALL: [Variant; 10] = [
+    pub const ALL: [Variant; 11] = [
         Variant::Iastgcn,
         Variant::NoAttention,
         Variant::PlainTemporal,
@@ -67,6 +72,7 @@ impl Variant {
         Variant::Erc,
         Variant::Tgcn,
         Variant::EatGcn,
+        Variant::StGat,
     ];
 
     /// IASTGCN and its three ablations: the variants built from ST blocks.
@@ -86,13 +92,16 @@ impl Variant {
     ];
 
     /// The spatio-temporal baselines of Table III built so far.
-    pub const SPATIO_TEMPORAL: [Variant; 2] = [Variant::Tgcn, Variant::EatGcn];
+    pub const SPATIO_TEMPORAL: [Variant; 3] = [Variant::Tgcn, Variant::EatGcn, Variant::StGat];
+
+    /// The recurrent baselines: a GRU over the window's steps ([`crate::model::recurrent`]).
+    pub const RECURRENT: [Variant; 2] = [Variant::Tgcn, Variant::EatGcn];
 
     /// What the network is built from.
     pub fn family(self) -> Family {
         if Variant::DENSE.contains(&self) {
             Family::Dense
-        } else if Variant::SPATIO_TEMPORAL.contains(&self) {
+        } else if Variant::RECURRENT.contains(&self) {
             Family::Recurrent
         } else {
             Family::StBlocks
@@ -126,6 +135,7 @@ impl Variant {
             Variant::Erc => "erc",
             Variant::Tgcn => "tgcn",
             Variant::EatGcn => "eat-gcn",
+            Variant::StGat => "st-gat",
         }
     }
 
@@ -146,8 +156,14 @@ impl Variant {
     pub fn gated(self) -> bool {
         matches!(
             self,
-            Variant::Iastgcn | Variant::NoAttention | Variant::Chebyshev
+            Variant::Iastgcn | Variant::NoAttention | Variant::Chebyshev | Variant::StGat
         )
+    }
+
+    /// True when step 3 is a multi-head graph attention (ST-GAT) instead of a graph
+    /// convolution.
+    pub fn graph_attention(self) -> bool {
+        self == Variant::StGat
     }
 }
 
@@ -185,6 +201,8 @@ pub struct ModelConfig {
     /// H: width of the baselines' hidden layers and recurrent state (unused by the
     /// ST-block variants).
     pub hidden: usize,
+    /// Attention heads of `st-gat`'s graph attention (a divisor of `channels`).
+    pub heads: usize,
     /// Inverted dropout probability on each block's output (training only).
     pub dropout: f64,
     /// LayerNorm ε.
@@ -205,6 +223,7 @@ impl Default for ModelConfig {
             chebyshev_order: 3,
             outputs: 6,
             hidden: 64,
+            heads: 4,
             dropout: 0.2,
             eps: 1e-5,
         }
@@ -213,13 +232,14 @@ impl Default for ModelConfig {
 
 impl ModelConfig {
     /// The small shape of the whole-model gradient checks (docs/model.md defaults otherwise):
-    /// F = 3, T = 16, C = 4, L = 2, K = 3 on the 14-node graph, dropout 0.2.
+    /// F = 3, T = 16, C = 4, L = 2, K = 3 on the 14-node graph, dropout 0.2; 2 heads.
     pub fn gradient_check(variant: Variant) -> ModelConfig {
         ModelConfig {
             variant,
             window: 16,
             channels: 4,
             blocks: 2,
+            heads: 2,
             ..ModelConfig::default()
         }
     }
@@ -243,11 +263,13 @@ impl ModelConfig {
     }
 
     /// Number of graph basis matrices Ψ is a θ-combination of: N wavelets or the
-    /// Chebyshev order; 0 for the dense baselines, which use no graph.
+    /// Chebyshev order; 1 for `st-gat` (its neighbour mask); 0 for the dense and recurrent
+    /// baselines, which take no basis.
     pub fn graph_terms(&self) -> usize {
         match (self.variant, self.variant.family()) {
             (_, Family::Dense | Family::Recurrent) => 0,
             (Variant::Chebyshev, _) => self.chebyshev_order,
+            (Variant::StGat, _) => 1,
             _ => self.nodes,
         }
     }
@@ -264,6 +286,7 @@ impl ModelConfig {
             ("chebyshev_order", self.chebyshev_order),
             ("outputs", self.outputs),
             ("hidden", self.hidden),
+            ("heads", self.heads),
         ];
         if let Some((name, _)) = positive.iter().find(|(_, v)| *v == 0) {
             return Err(format!("model config: {name} must be positive"));
@@ -278,6 +301,12 @@ impl ModelConfig {
             return Err(format!(
                 "model config: dropout = {} must be in [0, 1)",
                 self.dropout
+            ));
+        }
+        if self.variant.graph_attention() && !self.channels.is_multiple_of(self.heads) {
+            return Err(format!(
+                "model config: heads = {} must divide channels = {} (each head attends over C/heads channels)",
+                self.heads, self.channels
             ));
         }
         if self.eps.is_nan() || self.eps <= 0.0 || !self.scale.is_finite() {

@@ -110,7 +110,8 @@ impl Architecture {
             | Variant::PlainTemporal
             | Variant::Chebyshev
             | Variant::Tgcn
-            | Variant::EatGcn => return None,
+            | Variant::EatGcn
+            | Variant::StGat => return None,
         };
         Some(Architecture { inputs, layers })
     }

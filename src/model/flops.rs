@@ -80,10 +80,16 @@ fn families(config: &ModelConfig, batch: usize) -> Vec<Family> {
             fam[2] = 2.0 * b * (n * ci * t + n * t * ci + n * t * ci + n * n * t + n * n * n);
             fam[3] = 2.0 * b * n * n * n;
         }
-        // Ψ [N, N] from the graph_terms() basis matrices (N wavelets or the Chebyshev
-        // order): the same for every batch size.
-        fam[4] = 2.0 * f(config.graph_terms()) * n * n;
-        fam[5] = 2.0 * b * n * ci * t * n;
+        if config.variant.graph_attention() {
+            // st-gat: no Ψ; the mix is the graph attention's aggregate Σ_j α_ij q_j over
+            // C channels (its scores, O(B·T·N²·C/heads), are not counted).
+            fam[5] = 2.0 * b * t * n * n * c;
+        } else {
+            // Ψ [N, N] from the graph_terms() basis matrices (N wavelets or the Chebyshev
+            // order): the same for every batch size.
+            fam[4] = 2.0 * f(config.graph_terms()) * n * n;
+            fam[5] = 2.0 * b * n * ci * t * n;
+        }
         fam[6] = 2.0 * b * n * c * t * ci;
         let steps = if l + 1 == config.blocks { 1.0 } else { t };
         let conv = 2.0 * b * n * c * steps * c * k;
@@ -150,6 +156,7 @@ pub fn has_family(variant: Variant, name: &str) -> bool {
         _ if dense => false,
         n if n.starts_with("tat") || n.starts_with("sat") => variant.attention(),
         "tcn gate conv" => variant.gated(),
+        "gwc Psi = theta·basis" => !variant.graph_attention(),
         _ => true,
     }
 }
@@ -239,6 +246,10 @@ mod tests {
         let s = tiny(Variant::Chebyshev);
         assert_eq!(forward_flops(&s, 2), 2160.0 + 16.0);
         assert_eq!(training_flops(&s, 2), 3.0 * 2176.0 - 48.0);
+        // st-gat: iastgcn-a without Ψ (16 per block), its graph mix the attention's
+        // aggregate 2·B·T·N·N·C = 96 per block instead of 48 + 96.
+        let g = tiny(Variant::StGat);
+        assert_eq!(forward_flops(&g, 2), 928.0 - 32.0 - 144.0 + 192.0);
         for v in Variant::ALL {
             for (name, value) in breakdown(&tiny(v), 2) {
                 assert_eq!(value > 0.0, has_family(v, name), "{v} {name}");

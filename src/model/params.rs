@@ -130,13 +130,21 @@ pub fn param_specs(config: &ModelConfig) -> Vec<ParamSpec> {
             out.push(zeros(p("sat.bs"), &[n, n]));
             out.push(weight(p("sat.Vs"), &[n, n], n));
         }
-        out.push(spec(
-            p("gwc.theta"),
-            &[config.graph_terms()],
-            Init::Ones,
-            false,
-        ));
-        out.push(weight(p("gwc.W"), &[ci, c], ci));
+        if config.variant.graph_attention() {
+            // Per head of C/heads channels, its attention vectors' share.
+            let width = c / config.heads;
+            out.push(weight(p("gat.W"), &[ci, c], ci));
+            out.push(weight(p("gat.a_src"), &[c], width));
+            out.push(weight(p("gat.a_dst"), &[c], width));
+        } else {
+            out.push(spec(
+                p("gwc.theta"),
+                &[config.graph_terms()],
+                Init::Ones,
+                false,
+            ));
+            out.push(weight(p("gwc.W"), &[ci, c], ci));
+        }
         out.push(weight(p("tcn.filter.weight"), &[c, c, k], c * k));
         out.push(zeros(p("tcn.filter.bias"), &[c]));
         if config.variant.gated() {
@@ -166,12 +174,20 @@ impl Parameters {
     /// Fresh parameters drawn from `seed` (reproducible: one ChaCha8 stream, table order).
     ///
     /// ```
-    /// use iastgcn::model::{ModelConfig, Parameters};
+    /// use iastgcn::model::{ModelConfig, Parameters, Variant};
     ///
     /// // The paper shape (T 100, C 64, L 5) of docs/model.md "Parameter names".
     /// let params = Parameters::init(&ModelConfig::default(), 1);
     /// assert_eq!((params.count(), params.specs.len()), (295_658, 102));
     /// assert_eq!(params.get("head.bias"), &[0.0; 6]);
+    ///
+    /// // ST-GAT at the same shape: iastgcn-a's blocks with a graph attention as step 3.
+    /// let st_gat = ModelConfig {
+    ///     variant: Variant::StGat,
+    ///     ..ModelConfig::default()
+    /// };
+    /// let params = Parameters::init(&st_gat, 1);
+    /// assert_eq!((params.count(), params.specs.len()), (163_654, 57));
     /// ```
     pub fn init(config: &ModelConfig, seed: u64) -> Parameters {
         let specs = param_specs(config);
@@ -222,11 +238,25 @@ impl Parameters {
 /// The fixed matrices that θ combines into Ψ = Σ_k θ_k · basis_k, as `[terms, N, N]`
 /// row-major f64. For the wavelet variants basis_k = ψ_s[:, k] ψ_s⁻¹[k, :] (so that
 /// Σ_k θ_k basis_k = ψ_s diag(θ) ψ_s⁻¹, docs/model.md step 3); for `iastgcn-s` basis_k = T_k(L̃);
-/// empty for the dense baselines.
+/// for `st-gat` one matrix, its graph attention's neighbour mask (1 on the edges and the
+/// diagonal, 0 elsewhere); empty for the dense and recurrent baselines.
 pub fn graph_basis(graph: &Graph, config: &ModelConfig) -> Vec<f64> {
     let n = graph.len();
     if config.graph_terms() == 0 {
         return Vec::new();
+    }
+    if config.variant.graph_attention() {
+        let a = graph.adjacency();
+        return (0..n * n)
+            .map(|k| {
+                let (i, j) = (k / n, k % n);
+                if i == j || a[(i, j)] != 0.0 {
+                    1.0
+                } else {
+                    0.0
+                }
+            })
+            .collect();
     }
     let spectral = graph.spectral();
     let mut out = Vec::with_capacity(config.graph_terms() * n * n);

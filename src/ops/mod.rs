@@ -6,6 +6,7 @@ pub mod bias;
 pub mod dropout;
 pub mod elementwise;
 pub mod gated_dcc;
+pub mod graph_attention;
 pub mod gru;
 pub mod head;
 pub mod layer_norm;
@@ -42,13 +43,14 @@ impl Accumulate {
 }
 
 /// Every op shader, for validation and for the pipeline warm-up.
-pub fn shaders() -> [&'static Shader; 14] {
+pub fn shaders() -> [&'static Shader; 15] {
     [
         &adam::SHADER,
         &bias::SHADER,
         &dropout::SHADER,
         &elementwise::SHADER,
         &gated_dcc::SHADER,
+        &graph_attention::SHADER,
         &gru::SHADER,
         &head::SHADER,
         &layer_norm::SHADER,

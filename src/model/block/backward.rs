@@ -126,6 +126,31 @@ impl Block {
         let dg = scratch.get("dG", &hidden)?;
         let z = ReluOutput(&self.z);
         steps.run(self.unfold().backward_through_relu(gpu, &dcol, z, &dg))?;
+        if let Some(gat) = &self.gat {
+            // st-gat: through the graph attention into dQ, d a_src and d a_dst, then the
+            // channel mix Q = Wᵀ·X (dX accumulated onto the residual's contribution).
+            let op = self.graph_attention(gat.heads);
+            let dq = scratch.get("gat.dQ", &hidden)?;
+            let d_score = scratch.get("gat.d score", &[d.b, d.t, gat.heads, d.n, d.n])?;
+            let da = scratch.get("gat.da", &[2 * d.c])?;
+            let inputs = [
+                &gat.q,
+                w("gat.a_src"),
+                w("gat.a_dst"),
+                p.param("graph.basis"),
+            ];
+            for dispatch in
+                op.backward(gpu, inputs, &gat.alpha, &dg, &d_score, &dq, &da, Overwrite)?
+            {
+                steps.run(Ok(dispatch))?;
+            }
+            steps.copy_range((&da, 0), (dw("gat.a_src"), 0), d.c);
+            steps.copy_range((&da, d.c), (dw("gat.a_dst"), 0), d.c);
+            let mw = self.mm_w();
+            steps.run(mw.backward_a(gpu, x, &dq, dw("gat.W"), Overwrite))?;
+            steps.run(mw.backward_b(gpu, w("gat.W"), &dq, d_in, Add))?;
+            return Ok(slot);
+        }
         let (mw, mix, mpsi) = (self.mm_w(), self.mm_mix(), self.mm_psi());
         let dm = scratch.get("dM", &acts)?;
         steps.run(mw.backward_a(gpu, &self.m, &dg, dw("gwc.W"), Overwrite))?;

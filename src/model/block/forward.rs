@@ -93,36 +93,23 @@ impl Block {
             }
             _ => None,
         };
-        // 3. Graph wavelet (or Chebyshev) convolution of X_s = X_t + S'·X_t (eq. 28–29 after
-        // 32–34): M = Ψ·X_s = Q·X_t with Q = Ψ + Ψ·S'.
-        steps.run(self.mm_psi().forward(
-            gpu,
-            w("gwc.theta"),
-            p.param("graph.basis"),
-            &self.psi,
-            Overwrite,
-        ))?;
-        match attention {
-            Some(sa) => {
-                let plus_psi = Epilogue {
-                    matrix: Some(&self.psi),
-                    ..Epilogue::default()
-                };
-                let mq = self.mm_q();
-                steps.run(mq.forward_with(gpu, &self.psi, &sa.sp, &sa.q, Overwrite, plus_psi))?;
-                steps.run(self.mm_qx().forward(gpu, &sa.q, &sa.xt, &self.m, Overwrite))?;
-            }
-            None => {
-                steps.run(self.mm_mix().forward(gpu, &self.psi, x, &self.m, Overwrite))?;
-            }
+        if let Some(gat) = &self.gat {
+            // 3. st-gat: Q = Wᵀ·X over channels, α from Q, Z = ReLU(Σ_j α_ij Q_j).
+            let op = self.graph_attention(gat.heads);
+            steps.run(self.mm_w().forward(gpu, w("gat.W"), x, &gat.q, Overwrite))?;
+            steps.run(op.attention_weights(
+                gpu,
+                &gat.q,
+                w("gat.a_src"),
+                w("gat.a_dst"),
+                p.param("graph.basis"),
+                &gat.alpha,
+            ))?;
+            steps.run(op.aggregate(gpu, &gat.q, &gat.alpha, &gat.g, Overwrite))?;
+            steps.run(unary_forward(gpu, Unary::Relu, &gat.g, &self.z, Overwrite))?;
+        } else {
+            self.graph_conv_forward(gpu, p, attention, steps)?;
         }
-        let relu = Epilogue {
-            bias: None,
-            relu: true,
-            ..Epilogue::default()
-        };
-        let mw = self.mm_w();
-        steps.run(mw.forward_with(gpu, w("gwc.W"), &self.m, &self.z, Overwrite, relu))?;
         // 4. Gated dilated causal convolution (or the plain one of iastgcn-t).
         steps.run(self.unfold().forward(gpu, &self.z, &self.col))?;
         // The channel biases are added by the products themselves.
@@ -195,5 +182,47 @@ impl Block {
         } else {
             Ok(None)
         }
+    }
+
+    /// Step 3: the graph wavelet (or Chebyshev) convolution of X_s = X_t + S'·X_t (eq. 28–29
+    /// after 32–34): M = Ψ·X_s = Q·X_t with Q = Ψ + Ψ·S', then Z = ReLU(Wᵀ·M).
+    fn graph_conv_forward(
+        &self,
+        gpu: &Gpu,
+        p: &dyn ParamTable,
+        attention: Option<&super::Spatial>,
+        steps: &mut Steps,
+    ) -> Result<(), GpuError> {
+        let w = |s: &str| p.param(&self.name(s));
+        let x = &self.input;
+        steps.run(self.mm_psi().forward(
+            gpu,
+            w("gwc.theta"),
+            p.param("graph.basis"),
+            &self.psi,
+            Overwrite,
+        ))?;
+        match attention {
+            Some(sa) => {
+                let plus_psi = Epilogue {
+                    matrix: Some(&self.psi),
+                    ..Epilogue::default()
+                };
+                let mq = self.mm_q();
+                steps.run(mq.forward_with(gpu, &self.psi, &sa.sp, &sa.q, Overwrite, plus_psi))?;
+                steps.run(self.mm_qx().forward(gpu, &sa.q, &sa.xt, &self.m, Overwrite))?;
+            }
+            None => {
+                steps.run(self.mm_mix().forward(gpu, &self.psi, x, &self.m, Overwrite))?;
+            }
+        }
+        let relu = Epilogue {
+            bias: None,
+            relu: true,
+            ..Epilogue::default()
+        };
+        let mw = self.mm_w();
+        steps.run(mw.forward_with(gpu, w("gwc.W"), &self.m, &self.z, Overwrite, relu))?;
+        Ok(())
     }
 }

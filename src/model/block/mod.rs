@@ -10,6 +10,7 @@ use crate::gpu::{DType, Gpu, Tensor};
 use crate::ops::bias::Bias;
 use crate::ops::dropout::Dropout;
 use crate::ops::gated_dcc::Unfold;
+use crate::ops::graph_attention::GraphAttention;
 use crate::ops::head::LastStep;
 use crate::ops::layer_norm::LayerNorm;
 use crate::ops::matmul::Matmul;
@@ -86,6 +87,17 @@ struct Spatial {
     q: Tensor,
 }
 
+/// The graph attention of `st-gat` (step 3 in place of the graph convolution).
+struct GatBuffers {
+    /// Q = Wᵀ·X over channels `[B, N, C, T]`.
+    q: Tensor,
+    /// α `[B, T, heads, N, N]`.
+    alpha: Tensor,
+    /// The aggregate Σ_j α_ij q_j before its ReLU `[B, N, C, T]`.
+    g: Tensor,
+    heads: usize,
+}
+
 /// One block's buffers: everything its backward pass reads.
 pub struct Block {
     index: usize,
@@ -97,6 +109,8 @@ pub struct Block {
     input: Tensor,
     tat: Option<Temporal>,
     sat: Option<Spatial>,
+    /// `st-gat` only.
+    gat: Option<GatBuffers>,
     psi: Tensor,
     m: Tensor,
     /// ReLU(G): the graph convolution's product applies it in its epilogue.
@@ -180,6 +194,12 @@ impl Block {
         };
         let hidden = [b, n, c, t];
         let out = [b, n, c, d.to];
+        let gat = config.variant.graph_attention().then(|| GatBuffers {
+            q: z("gat.Q", &hidden),
+            alpha: z("gat.alpha", &[b, t, config.heads, n, n]),
+            g: z("gat.G", &hidden),
+            heads: config.heads,
+        });
         let whole = Dropout::new(
             hidden.iter().product(),
             config.dropout,
@@ -200,6 +220,7 @@ impl Block {
             input: input.clone(),
             tat,
             sat,
+            gat,
             psi: z("gwc.Psi", &[n, n]),
             m: z("gwc.M", &[b, n, ci, t]),
             z: z("Z", &hidden),
@@ -332,6 +353,17 @@ impl Block {
             .batched(d.b * d.n)
             .transpose_a(true)
             .share_a(true)
+    }
+    /// `st-gat`'s graph attention over the block's hidden tensor.
+    fn graph_attention(&self, heads: usize) -> GraphAttention {
+        let d = self.d;
+        GraphAttention {
+            batch: d.b,
+            nodes: d.n,
+            channels: d.c,
+            steps: d.t,
+            heads,
+        }
     }
     /// tcn: G[b, n] = weight [C, C·K] · col[b, n] [C·K, T].
     fn mm_conv(&self) -> Matmul {

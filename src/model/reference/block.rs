@@ -5,7 +5,9 @@ use super::attention::{
     spatial_attention, spatial_attention_backward, temporal_attention, temporal_attention_backward,
 };
 use super::causal_conv::{causal_conv, temporal_conv_backward, temporal_output};
-use super::graph_conv::{graph_conv, graph_conv_backward, graph_kernel};
+use super::graph_conv::{
+    graph_attention, graph_attention_backward, graph_conv, graph_conv_backward, graph_kernel,
+};
 use super::norm::{layer_norm, layer_norm_backward, residual, residual_backward};
 use super::{axpy, BlockParams, BlockTape, Dims, DropoutStep, Grads};
 use crate::model::ModelConfig;
@@ -29,9 +31,14 @@ pub(super) fn block_forward(
         _ => None,
     };
     let xs = spatial.as_ref().map_or(x, |s| &s.output[..]);
-    // Step 3.
-    let psi = graph_kernel(d.n, basis, p.theta);
-    let (q, z) = graph_conv(d, &psi, p.w, xs);
+    // Step 3 (in `st-gat` the graph attention, whose basis is the neighbour mask).
+    let (psi, (q, z)) = if config.variant.graph_attention() {
+        (Vec::new(), graph_attention(d, config.heads, basis, p, xs))
+    } else {
+        let psi = graph_kernel(d.n, basis, p.theta);
+        let qz = graph_conv(d, &psi, p.w, xs);
+        (psi, qz)
+    };
     // Step 4.
     let dil = config.dilation(l);
     let filter = causal_conv(d, dil, p.filter_weight, p.filter_bias, &z);
@@ -122,7 +129,11 @@ pub(super) fn block_backward(
     );
     // Step 3.
     let xs = tape.spatial.as_ref().map_or(x, |s| &s.output[..]);
-    let dxs = graph_conv_backward(d, basis, p, &tape.psi, &tape.q, &tape.z, xs, &dz, grads);
+    let dxs = if config.variant.graph_attention() {
+        graph_attention_backward(d, config.heads, basis, p, &tape.q, &tape.z, xs, &dz, grads)
+    } else {
+        graph_conv_backward(d, basis, p, &tape.psi, &tape.q, &tape.z, xs, &dz, grads)
+    };
     // Steps 2–1.
     match (&tape.temporal, &tape.spatial, &p.temporal, &p.spatial) {
         (Some(ta), Some(sa), Some(tp), Some(sp)) => {

@@ -1,6 +1,8 @@
-//! Step 3: the graph convolution (eq. 29; Chebyshev basis in `iastgcn-s`).
+//! Step 3: the graph convolution (eq. 29; Chebyshev basis in `iastgcn-s`), or the
+//! multi-head graph attention of `st-gat` (`ops::graph_attention::cpu`).
 
 use super::{axpy, dot, row, row_mut, BlockParams, Dims, Grads};
+use crate::ops::graph_attention::{cpu as gat, GraphAttention};
 
 /// Ψ[i,j] = Σ_k θ_k·basis[k,i,j].
 pub(super) fn graph_kernel(nn: usize, basis: &[f64], theta: &[f64]) -> Vec<f64> {
@@ -11,8 +13,8 @@ pub(super) fn graph_kernel(nn: usize, basis: &[f64], theta: &[f64]) -> Vec<f64> 
     psi
 }
 
-/// Q = X_s·W (channels), Z = ReLU(Ψ·Q) (nodes). Returns (Q, Z).
-pub(super) fn graph_conv(d: &Dims, psi: &[f64], w: &[f64], xs: &[f64]) -> (Vec<f64>, Vec<f64>) {
+/// Q = X_s·W over channels: `Q[b,j,o,t] = Σ_c X_s[b,j,c,t]·W[c,o]`.
+fn channel_mix(d: &Dims, w: &[f64], xs: &[f64]) -> Vec<f64> {
     let Dims {
         b: nb,
         n: nn,
@@ -31,7 +33,47 @@ pub(super) fn graph_conv(d: &Dims, psi: &[f64], w: &[f64], xs: &[f64]) -> (Vec<f
             }
         }
     }
-    let ct = nc * nt;
+    q
+}
+
+/// Backward of [`channel_mix`] from dQ: returns dL/dX_s and adds dW to `grads`.
+fn channel_mix_backward(
+    d: &Dims,
+    p: &BlockParams,
+    xs: &[f64],
+    dq: &[f64],
+    grads: &mut Grads,
+    name: &str,
+) -> Vec<f64> {
+    let Dims {
+        b: nb,
+        n: nn,
+        ci,
+        c: nc,
+        t: nt,
+    } = *d;
+    let mut dw = vec![0.0; ci * nc];
+    let mut dxs = vec![0.0; xs.len()];
+    for b in 0..nb {
+        for j in 0..nn {
+            for o in 0..nc {
+                let gr = row(dq, d.r(nc, b, j, o), nt);
+                for c in 0..ci {
+                    let r = d.r(ci, b, j, c);
+                    dw[c * nc + o] += dot(row(xs, r, nt), gr);
+                    axpy(row_mut(&mut dxs, r, nt), p.w[c * nc + o], gr);
+                }
+            }
+        }
+    }
+    grads.add(&p.name(name), &dw);
+    dxs
+}
+
+/// Q = X_s·W (channels), Z = ReLU(Ψ·Q) (nodes). Returns (Q, Z).
+pub(super) fn graph_conv(d: &Dims, psi: &[f64], w: &[f64], xs: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let (nb, nn, ct) = (d.b, d.n, d.c * d.t);
+    let q = channel_mix(d, w, xs);
     let mut z = vec![0.0; nb * nn * ct];
     for b in 0..nb {
         for i in 0..nn {
@@ -47,6 +89,58 @@ pub(super) fn graph_conv(d: &Dims, psi: &[f64], w: &[f64], xs: &[f64]) -> (Vec<f
     (q, z)
 }
 
+/// The graph attention of `st-gat` on `heads` heads.
+fn attention_shape(d: &Dims, heads: usize) -> GraphAttention {
+    GraphAttention {
+        batch: d.b,
+        nodes: d.n,
+        channels: d.c,
+        steps: d.t,
+        heads,
+    }
+}
+
+/// `st-gat`'s step 3: Q = X_s·W (channels), Z = ReLU(GAT(Q)) with the neighbour `mask`
+/// `[N,N]`. Returns (Q, Z).
+pub(super) fn graph_attention(
+    d: &Dims,
+    heads: usize,
+    mask: &[f64],
+    p: &BlockParams,
+    xs: &[f64],
+) -> (Vec<f64>, Vec<f64>) {
+    let (a_src, a_dst) = p.attention_vectors.expect("st-gat has attention vectors");
+    let q = channel_mix(d, p.w, xs);
+    let (_, g) = gat::forward(&attention_shape(d, heads), &q, a_src, a_dst, mask);
+    (q, g.into_iter().map(|v| v.max(0.0)).collect())
+}
+
+/// Backward of [`graph_attention`]: returns dL/dX_s and adds dW, da_src, da_dst.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn graph_attention_backward(
+    d: &Dims,
+    heads: usize,
+    mask: &[f64],
+    p: &BlockParams,
+    q: &[f64],
+    z: &[f64],
+    xs: &[f64],
+    dz: &[f64],
+    grads: &mut Grads,
+) -> Vec<f64> {
+    let (a_src, a_dst) = p.attention_vectors.expect("st-gat has attention vectors");
+    let dg: Vec<f64> = dz
+        .iter()
+        .zip(z)
+        .map(|(&g, &z)| if z > 0.0 { g } else { 0.0 })
+        .collect();
+    let (dq, da_src, da_dst) =
+        gat::backward(&attention_shape(d, heads), q, a_src, a_dst, mask, &dg);
+    grads.add(&p.name("gat.a_src"), &da_src);
+    grads.add(&p.name("gat.a_dst"), &da_dst);
+    channel_mix_backward(d, p, xs, &dq, grads, "gat.W")
+}
+
 /// Backward of step 3: returns dL/dX_s and adds dθ, dW to `grads`.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn graph_conv_backward(
@@ -60,14 +154,7 @@ pub(super) fn graph_conv_backward(
     dz: &[f64],
     grads: &mut Grads,
 ) -> Vec<f64> {
-    let Dims {
-        b: nb,
-        n: nn,
-        ci,
-        c: nc,
-        t: nt,
-    } = *d;
-    let ct = nc * nt;
+    let (nb, nn, ct) = (d.b, d.n, d.c * d.t);
     // ReLU.
     let dg: Vec<f64> = dz
         .iter()
@@ -89,22 +176,7 @@ pub(super) fn graph_conv_backward(
     let dtheta: Vec<f64> = (0..p.theta.len())
         .map(|k| dot(&dpsi, row(basis, k, nn * nn)))
         .collect();
-    // Q = X_s·W over channels.
-    let mut dw = vec![0.0; ci * nc];
-    let mut dxs = vec![0.0; xs.len()];
-    for b in 0..nb {
-        for j in 0..nn {
-            for o in 0..nc {
-                let gr = row(&dq, d.r(nc, b, j, o), nt);
-                for c in 0..ci {
-                    let r = d.r(ci, b, j, c);
-                    dw[c * nc + o] += dot(row(xs, r, nt), gr);
-                    axpy(row_mut(&mut dxs, r, nt), p.w[c * nc + o], gr);
-                }
-            }
-        }
-    }
     grads.add(&p.name("gwc.theta"), &dtheta);
-    grads.add(&p.name("gwc.W"), &dw);
-    dxs
+    // Q = X_s·W over channels.
+    channel_mix_backward(d, p, xs, &dq, grads, "gwc.W")
 }

@@ -97,11 +97,11 @@ pub struct BlockTape {
     pub temporal: Option<TemporalAttention>,
     /// Step 2 (absent in `iastgcn-a`).
     pub spatial: Option<SpatialAttention>,
-    /// Step 3: Ψ = Σ_k θ_k basis_k `[N,N]`.
+    /// Step 3: Ψ = Σ_k θ_k basis_k `[N,N]` (empty in `st-gat`).
     pub psi: Vec<f64>,
     /// Step 3: `Q[b,j,o,t] = Σ_c X_s[b,j,c,t]·W[c,o]` `[B,N,C,T]` (before the node mixing).
     pub q: Vec<f64>,
-    /// Step 3: Z = ReLU(Ψ·Q) `[B,N,C,T]`.
+    /// Step 3: Z = ReLU(Ψ·Q) `[B,N,C,T]` (in `st-gat`, ReLU of the graph attention of Q).
     pub z: Vec<f64>,
     /// Step 4: G_f `[B,N,C,T]` (in `iastgcn-t` the pre-ReLU plain convolution).
     pub filter: Vec<f64>,
@@ -449,8 +449,12 @@ struct BlockParams<'a> {
     prefix: String,
     temporal: Option<TemporalParams<'a>>,
     spatial: Option<SpatialParams<'a>>,
+    /// θ of the graph convolution (empty in `st-gat`).
     theta: &'a [f64],
+    /// The channel mix W of step 3 (`gwc.W`, or `gat.W` in `st-gat`).
     w: &'a [f64],
+    /// (a_src, a_dst) of `st-gat`'s graph attention.
+    attention_vectors: Option<(&'a [f64], &'a [f64])>,
     filter_weight: &'a [f64],
     filter_bias: &'a [f64],
     /// (weight, bias) of the gate; `None` in `iastgcn-t`.
@@ -466,6 +470,7 @@ impl<'a> BlockParams<'a> {
         let prefix = format!("blocks.{l}");
         let p = |s: &str| table.get(&format!("{prefix}.{s}"));
         let attention = config.variant.attention();
+        let gat = config.variant.graph_attention();
         BlockParams {
             temporal: attention.then(|| TemporalParams {
                 u1: p("tat.U1"),
@@ -481,8 +486,9 @@ impl<'a> BlockParams<'a> {
                 bs: p("sat.bs"),
                 vs: p("sat.Vs"),
             }),
-            theta: p("gwc.theta"),
-            w: p("gwc.W"),
+            theta: if gat { &[] } else { p("gwc.theta") },
+            w: p(if gat { "gat.W" } else { "gwc.W" }),
+            attention_vectors: gat.then(|| (p("gat.a_src"), p("gat.a_dst"))),
             filter_weight: p("tcn.filter.weight"),
             filter_bias: p("tcn.filter.bias"),
             gate: config
