@@ -11,10 +11,12 @@ pub mod gru;
 pub mod head;
 pub mod layer_norm;
 pub mod loss;
+pub mod lstm;
 pub mod matmul;
 pub mod outer;
 pub mod softmax;
 pub mod time_step;
+pub mod unfold2d;
 
 use crate::gpu::Shader;
 
@@ -43,7 +45,7 @@ impl Accumulate {
 }
 
 /// Every op shader, for validation and for the pipeline warm-up.
-pub fn shaders() -> [&'static Shader; 15] {
+pub fn shaders() -> [&'static Shader; 17] {
     [
         &adam::SHADER,
         &bias::SHADER,
@@ -55,10 +57,12 @@ pub fn shaders() -> [&'static Shader; 15] {
         &head::SHADER,
         &layer_norm::SHADER,
         &loss::SHADER,
+        &lstm::SHADER,
         &matmul::SHADER,
         &matmul::SUBGROUP_SHADER,
         &outer::SHADER,
         &softmax::SHADER,
         &time_step::SHADER,
+        &unfold2d::SHADER,
     ]
 }
