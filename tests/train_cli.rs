@@ -161,7 +161,7 @@ fn train_resume_predict_refine() {
     );
     // The spatio-temporal baselines too (the recurrent time loops and ST-GAT's graph
     // attention), and the checkpoint says which.
-    for variant in ["tgcn", "eat-gcn", "st-gat"] {
+    for variant in ["convlstm", "tgcn", "eat-gcn", "st-gat"] {
         let out = f(&format!("{variant}.safetensors"));
         let text = train(&out, &["--variant", variant]);
         assert!(text.contains("test split"), "{variant}: {text}");

@@ -18,7 +18,7 @@ pub struct InitArgs {
     /// paper shape when absent.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Override the config's variant: iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, or a baseline: tgcn, eat-gcn, st-gat, mlp, bkls-ann, ann-bfpa, erc.
+    /// Override the config's variant: iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, or a baseline: convlstm, tgcn, eat-gcn, st-gat, mlp, bkls-ann, ann-bfpa, erc.
     #[arg(long)]
     pub variant: Option<String>,
     /// Sensor graph (TOML); the embedded 14-node graph when absent.

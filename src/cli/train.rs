@@ -52,7 +52,7 @@ pub struct TrainArgs {
     /// Run config (TOML: [model], [data], [train], [refine]); the paper's values when absent.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Override the config's variant: iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, or a baseline: tgcn, eat-gcn, st-gat, mlp, bkls-ann, ann-bfpa, erc.
+    /// Override the config's variant: iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, or a baseline: convlstm, tgcn, eat-gcn, st-gat, mlp, bkls-ann, ann-bfpa, erc.
     #[arg(long)]
     pub variant: Option<String>,
     /// Override train.max_epochs (e.g. to continue a resumed run further).

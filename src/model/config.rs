@@ -46,6 +46,10 @@ pub enum Variant {
     /// convolution; no temporal or spatial attention of IASTGCN's kind.
     #[serde(rename = "st-gat")]
     StGat,
+    /// Spatio-temporal baseline of Table III [25]: a convolutional LSTM over the node ×
+    /// feature grid of every step (a 2-D Euclidean convolution, no graph).
+    #[serde(rename = "convlstm")]
+    ConvLstm,
 }
 
 /// What a variant's network is built from (docs/model.md "Variants" and "Baselines").
@@ -57,11 +61,13 @@ pub enum Family {
     Dense,
     /// A recurrent cell over the window's steps ([`crate::model::recurrent`]).
     Recurrent,
+    /// A convolutional LSTM over the window's steps ([`crate::model::conv_lstm`]).
+    ConvRecurrent,
 }
 
 impl Variant {
     /// Every variant: IASTGCN, its ablations, then the baselines.
-    pub const ALL: [Variant; 11] = [
+    pub const ALL: [Variant; 12] = [
         Variant::Iastgcn,
         Variant::NoAttention,
         Variant::PlainTemporal,
@@ -73,6 +79,7 @@ impl Variant {
         Variant::Tgcn,
         Variant::EatGcn,
         Variant::StGat,
+        Variant::ConvLstm,
     ];
 
     /// IASTGCN and its three ablations: the variants built from ST blocks.
@@ -92,7 +99,12 @@ impl Variant {
     ];
 
     /// The spatio-temporal baselines of Table III built so far.
-    pub const SPATIO_TEMPORAL: [Variant; 3] = [Variant::Tgcn, Variant::EatGcn, Variant::StGat];
+    pub const SPATIO_TEMPORAL: [Variant; 4] = [
+        Variant::ConvLstm,
+        Variant::Tgcn,
+        Variant::EatGcn,
+        Variant::StGat,
+    ];
 
     /// The recurrent baselines: a GRU over the window's steps ([`crate::model::recurrent`]).
     pub const RECURRENT: [Variant; 2] = [Variant::Tgcn, Variant::EatGcn];
@@ -103,6 +115,8 @@ impl Variant {
             Family::Dense
         } else if Variant::RECURRENT.contains(&self) {
             Family::Recurrent
+        } else if self == Variant::ConvLstm {
+            Family::ConvRecurrent
         } else {
             Family::StBlocks
         }
@@ -121,7 +135,8 @@ impl Variant {
     /// assert_eq!(Variant::NoAttention.name(), "iastgcn-a");
     /// assert_eq!(Variant::parse("iastgcn-s"), Some(Variant::Chebyshev));
     /// assert_eq!(Variant::parse("erc"), Some(Variant::Erc));
-    /// assert_eq!(Variant::parse("convlstm"), None);
+    /// assert_eq!(Variant::parse("convlstm"), Some(Variant::ConvLstm));
+    /// assert_eq!(Variant::parse("lstm"), None);
     /// ```
     pub fn name(self) -> &'static str {
         match self {
@@ -136,6 +151,7 @@ impl Variant {
             Variant::Tgcn => "tgcn",
             Variant::EatGcn => "eat-gcn",
             Variant::StGat => "st-gat",
+            Variant::ConvLstm => "convlstm",
         }
     }
 
@@ -185,11 +201,11 @@ pub struct ModelConfig {
     pub features: usize,
     /// T: window length.
     pub window: usize,
-    /// C: hidden channels.
+    /// C: hidden channels (also ConvLSTM's state channels).
     pub channels: usize,
     /// L: stacked ST blocks.
     pub blocks: usize,
-    /// K: temporal kernel size.
+    /// K: temporal kernel size (ConvLSTM: the side of its k×k convolution, odd).
     pub kernel: usize,
     /// s: wavelet scale.
     pub scale: f64,
@@ -267,7 +283,7 @@ impl ModelConfig {
     /// baselines, which take no basis.
     pub fn graph_terms(&self) -> usize {
         match (self.variant, self.variant.family()) {
-            (_, Family::Dense | Family::Recurrent) => 0,
+            (_, Family::Dense | Family::Recurrent | Family::ConvRecurrent) => 0,
             (Variant::Chebyshev, _) => self.chebyshev_order,
             (Variant::StGat, _) => 1,
             _ => self.nodes,
@@ -301,6 +317,12 @@ impl ModelConfig {
             return Err(format!(
                 "model config: dropout = {} must be in [0, 1)",
                 self.dropout
+            ));
+        }
+        if self.variant == Variant::ConvLstm && self.kernel.is_multiple_of(2) {
+            return Err(format!(
+                "model config: kernel = {} must be odd for convlstm (a centred k×k convolution)",
+                self.kernel
             ));
         }
         if self.variant.graph_attention() && !self.channels.is_multiple_of(self.heads) {

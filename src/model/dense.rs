@@ -111,7 +111,8 @@ impl Architecture {
             | Variant::Chebyshev
             | Variant::Tgcn
             | Variant::EatGcn
-            | Variant::StGat => return None,
+            | Variant::StGat
+            | Variant::ConvLstm => return None,
         };
         Some(Architecture { inputs, layers })
     }

@@ -64,6 +64,11 @@ fn families(config: &ModelConfig, batch: usize) -> Vec<Family> {
         sums[11] = super::recurrent::forward_flops(config, batch);
         return named(sums);
     }
+    if config.variant.family() == super::config::Family::ConvRecurrent {
+        // ConvLSTM's convolution products and the head.
+        sums[11] = super::conv_lstm::forward_flops(config, batch);
+        return named(sums);
+    }
     if let Some(arch) = super::dense::Architecture::of(config) {
         // A dense baseline: its layers (head included) and input selection, nothing else.
         sums[11] = arch.forward_flops(config, batch);

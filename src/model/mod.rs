@@ -2,6 +2,7 @@
 
 pub mod checkpoint;
 pub mod config;
+pub mod conv_lstm;
 pub mod dense;
 pub mod flops;
 pub mod params;

@@ -6,9 +6,10 @@ pub use super::block::Pass;
 use super::block::{Block, DropoutSlots, Extent, ParamTable};
 use super::config::Family;
 use super::config::ModelConfig;
+use super::conv_lstm::ConvLstmBody;
 use super::dense::{Architecture, DenseBody};
 use super::params::{graph_basis, param_specs, ParamSpec, Parameters};
-use super::recurrent::RecurrentBody;
+use super::recurrent::{RecurrentBody, TimeLoop};
 use super::schedule::{Scratch, StepTime, Steps};
 use crate::gpu::{DType, Gpu, GpuError, Recorder, Tensor};
 use crate::graph::Graph;
@@ -219,7 +220,11 @@ impl Network {
             }
             (None, Family::Recurrent) => {
                 let body = RecurrentBody::new(gpu, config, graph, batch)?;
-                recurrent_schedules(gpu, config, group, training, &table, &io, body)?
+                recurrent_schedules(gpu, config, group, training, &table, &io, &body)?
+            }
+            (None, Family::ConvRecurrent) => {
+                let body = ConvLstmBody::new(gpu, config, batch);
+                recurrent_schedules(gpu, config, group, training, &table, &io, &body)?
             }
             (None, _) => block_schedules(gpu, config, group, dropout_seed, training, &table, &io)?,
         };
@@ -504,7 +509,8 @@ enum Body {
     Blocks(Vec<Block>),
     /// A dense baseline's layers, the head included (its schedules hold its tensors).
     Dense,
-    /// T-GCN's time loop; the head follows (its schedules hold its tensors).
+    /// A recurrent baseline's time loop (GRU or ConvLSTM); the head follows (its schedules
+    /// hold its tensors).
     Recurrent,
 }
 
@@ -635,12 +641,11 @@ fn recurrent_schedules(
     training: bool,
     table: &Table,
     io: &Io,
-    body: RecurrentBody,
+    body: &dyn TimeLoop,
 ) -> Result<Schedules, ModelError> {
     let batch = io.input.shape()[0];
-    let (n, h) = (config.nodes, config.hidden);
-    let (head, head_bias) = head_ops(config, batch, n * h);
     let last = body.output();
+    let (head, head_bias) = head_ops(config, batch, last.numel() / batch);
     let mut s = Schedules::default();
     let passes = if training {
         vec![&mut s.infer, &mut s.train]
@@ -675,7 +680,7 @@ fn recurrent_schedules(
             table.grad("head.weight"),
             Accumulate::Overwrite,
         ))?;
-        let d_last = gpu.zeros("d head input", &[batch * n, h], DType::F32);
+        let d_last = gpu.zeros("d head input", last.shape(), DType::F32);
         b.run(head.backward_a(
             gpu,
             table.param("head.weight"),

@@ -90,6 +90,19 @@ pub fn param_specs(config: &ModelConfig) -> Vec<ParamSpec> {
         out.push(zeros("head.bias".into(), &[config.outputs]));
         return out;
     }
+    if config.variant.family() == Family::ConvRecurrent {
+        // ConvLSTM: the gates' k×k convolutions of x_t (1 channel) and h (C channels) into
+        // 4C channels (i, f, o, g), their bias, then the head on the last state [O, C·N·F].
+        let (c, kk) = (config.channels, config.kernel * config.kernel);
+        let state = c * config.nodes * config.features;
+        return vec![
+            weight("cell.wx".into(), &[4 * c, kk], kk),
+            weight("cell.wh".into(), &[4 * c, c * kk], c * kk),
+            zeros("cell.bias".into(), &[4 * c]),
+            weight("head.weight".into(), &[config.outputs, state], state),
+            zeros("head.bias".into(), &[config.outputs]),
+        ];
+    }
     if let Some(arch) = super::dense::Architecture::of(config) {
         // Layer by layer: He-uniform weights [outputs, inputs] with weight decay, zero biases.
         return arch

@@ -34,6 +34,35 @@ use crate::ops::softmax::Softmax;
 use crate::ops::time_step::TimeStep;
 use crate::ops::Accumulate;
 
+/// What the network's schedules need of a model that runs a cell over the window's steps
+/// (the GRU baselines here, ConvLSTM in `model::conv_lstm`): the time loop forward, the
+/// head's input it leaves, and backpropagation through time.
+pub(super) trait TimeLoop {
+    /// Appends the time loop from x (`input` `[B, N, F, T]`) to the head's input.
+    fn forward(
+        &self,
+        gpu: &Gpu,
+        table: &dyn ParamTable,
+        input: &Tensor,
+        steps: &mut Steps,
+    ) -> Result<(), GpuError>;
+
+    /// Appends backpropagation through time from ∂ℒ/∂(head input) (`d_output`, which may
+    /// be overwritten as scratch) to the cell's parameter gradients and ∂ℒ/∂x
+    /// (`input_grad`, overwritten).
+    fn backward(
+        &self,
+        gpu: &Gpu,
+        table: &dyn ParamTable,
+        d_output: &Tensor,
+        input_grad: &Tensor,
+        steps: &mut Steps,
+    ) -> Result<(), GpuError>;
+
+    /// What the head reads, `[B, width]`.
+    fn output(&self) -> &Tensor;
+}
+
 /// The gates, in parameter order: reset, update, candidate.
 pub const GATES: [&str; 3] = ["r", "u", "c"];
 
@@ -199,7 +228,7 @@ impl RecurrentBody {
 
     /// What the head reads, `[B, N·H]`: the last state h_{T−1}, or with the attention over
     /// time the context Σ_t α_t h_t.
-    pub(super) fn output(&self) -> &Tensor {
+    fn output(&self) -> &Tensor {
         match &self.attention {
             Some(a) => &a.context,
             None => &self.steps[self.window - 1].h,
@@ -303,7 +332,7 @@ impl RecurrentBody {
     }
 
     /// Appends the time loop from x (`input` `[B, N, F, T]`) to the head's input.
-    pub(super) fn forward(
+    fn forward(
         &self,
         gpu: &Gpu,
         table: &dyn ParamTable,
@@ -510,7 +539,7 @@ impl RecurrentBody {
     /// Appends backpropagation through time from ∂ℒ/∂(head input) (`d_output`; without
     /// the attention it is ∂ℒ/∂h_{T−1} and is overwritten as scratch) to the cell's
     /// parameter gradients and ∂ℒ/∂x (`input_grad`).
-    pub(super) fn backward(
+    fn backward(
         &self,
         gpu: &Gpu,
         table: &dyn ParamTable,
@@ -668,6 +697,33 @@ impl RecurrentBody {
             steps.run(mh.backward_a(gpu, table.param(&wh), d_pre, dh, later(dh_acc)))?;
         }
         Ok(())
+    }
+}
+
+impl TimeLoop for RecurrentBody {
+    fn forward(
+        &self,
+        gpu: &Gpu,
+        table: &dyn ParamTable,
+        input: &Tensor,
+        steps: &mut Steps,
+    ) -> Result<(), GpuError> {
+        RecurrentBody::forward(self, gpu, table, input, steps)
+    }
+
+    fn backward(
+        &self,
+        gpu: &Gpu,
+        table: &dyn ParamTable,
+        d_output: &Tensor,
+        input_grad: &Tensor,
+        steps: &mut Steps,
+    ) -> Result<(), GpuError> {
+        RecurrentBody::backward(self, gpu, table, d_output, input_grad, steps)
+    }
+
+    fn output(&self) -> &Tensor {
+        RecurrentBody::output(self)
     }
 }
 

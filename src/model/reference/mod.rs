@@ -11,12 +11,14 @@
 //! whole network; one file per op family holds the steps: `attention.rs` (steps 1–2),
 //! `graph_conv.rs` (step 3), `causal_conv.rs` (step 4), `norm.rs` (steps 5–6),
 //! `block.rs` (one ST block, steps 1–7) and `head.rs` (the head and the loss weights).
-//! The dense baselines have their own forward and backward in `dense.rs`; [`loss`] serves
+//! The dense baselines have their own forward and backward in `dense.rs`, the recurrent
+//! ones in `recurrent.rs` and `conv_lstm.rs`; [`loss`] serves
 //! every model.
 
 // The loops index several tensors by the equations' indices at once.
 #![allow(clippy::needless_range_loop)]
 
+pub mod conv_lstm;
 pub mod dense;
 pub mod recurrent;
 
@@ -300,7 +302,7 @@ pub fn forward(
     config.validate().unwrap_or_else(|e| panic!("{e}"));
     assert!(
         config.variant.family() == super::Family::StBlocks,
-        "{} is a baseline: use reference::dense or reference::recurrent",
+        "{} is a baseline: use reference::dense, reference::recurrent or reference::conv_lstm",
         config.variant
     );
     let table = Table::new(specs, params);
