@@ -226,8 +226,8 @@ fn run_configs_have_defaults_and_checks() {
     }
 }
 
-/// `iastgcn demo` end to end at a tiny size: every stage runs and the report folder has
-/// the two tables with the promised columns and rows.
+/// `iastgcn demo --all-models` end to end at a tiny size: every stage runs, every model is
+/// trained, and the report folder has the two tables with the promised columns and rows.
 #[test]
 fn demo_writes_the_report() {
     let dir: PathBuf = std::env::temp_dir().join(format!("iastgcn-demo-{}", std::process::id()));
@@ -248,6 +248,7 @@ fn demo_writes_the_report() {
         "0.5",
         "--held-out-minutes",
         "0.1",
+        "--all-models",
         "--out",
         s(&out),
     ]);
@@ -264,9 +265,9 @@ fn demo_writes_the_report() {
         .map(|l| l.split(',').map(str::to_string).collect())
         .collect();
     // Per path (the three trained ones placed anew, and the rosette): initial,
-    // calibrated, the oracle, and the 8 models (each refined or kept): IASTGCN, its three
-    // ablations and the four dense baselines.
-    assert_eq!(rows.len(), 4 * 11);
+    // calibrated, the oracle, and the 12 models (each refined or kept): IASTGCN, its three
+    // ablations, the four dense baselines and the four spatio-temporal ones.
+    assert_eq!(rows.len(), 4 * 15);
     let value = |r: &Vec<String>, i: usize| r[i].parse::<f64>().unwrap();
     for path in ["grid", "fermat", "hilbert", "rosette"] {
         let of = |stage: &str| {
@@ -281,7 +282,7 @@ fn demo_writes_the_report() {
                 of("oracle").len(),
                 of("compensated").len()
             ],
-            [1, 1, 1, 8],
+            [1, 1, 1, 12],
             "{path}"
         );
         // On the hidden truth, the true residual fed back at a model's rate and latency
@@ -311,7 +312,7 @@ fn demo_writes_the_report() {
             (nums[0], nums[1])
         })
         .collect();
-    assert_eq!(refined.len(), 8, "{text}");
+    assert_eq!(refined.len(), 12, "{text}");
     assert!(
         refined.iter().all(|(core, after)| after <= core),
         "{refined:?}"
@@ -337,7 +338,7 @@ fn demo_writes_the_report() {
         "trajectory,model,pos_mae_um,pos_rmse_um,pos_mape_pct,att_mae_mdeg,att_rmse_mdeg,att_mape_pct\n"
     ));
     assert!(table_iii.contains("hilbert,iastgcn-s,") && table_iii.contains("training mean"));
-    for baseline in ["mlp", "bkls-ann", "ann-bfpa", "erc"] {
+    for baseline in iastgcn::model::Variant::ALL.map(|v| v.name()) {
         assert!(
             table_iii.contains(&format!("hilbert,{baseline},")),
             "{baseline} in Table III"
@@ -354,5 +355,7 @@ fn demo_writes_the_report() {
         assert!(out.join(f).exists(), "{f}");
     }
     assert!(out.join("models/iastgcn-refined.safetensors").exists());
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("and every baseline, all at the same budget"));
     std::fs::remove_dir_all(&dir).unwrap();
 }

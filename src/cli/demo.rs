@@ -25,6 +25,10 @@ pub struct DemoArgs {
     /// Length of each training recording, minutes.
     #[arg(long, default_value_t = 2.0)]
     pub minutes: f64,
+    /// Also train and evaluate the spatio-temporal baselines of Table III (ConvLSTM, T-GCN,
+    /// EAT-GCN, ST-GAT) at the same budget (beyond the demo's 15 minutes on 2 CPU cores).
+    #[arg(long)]
+    pub all_models: bool,
     #[command(flatten)]
     pub held_out: HeldOutArgs,
 }
@@ -94,6 +98,7 @@ pub fn demo(gpu: Gpu, args: &DemoArgs) -> anyhow::Result<()> {
     let mut config = DemoConfig {
         minutes: args.minutes,
         held_out: args.held_out.config(),
+        all_models: args.all_models,
         ..DemoConfig::default()
     };
     if let Some(p) = &args.config {
