@@ -4,18 +4,19 @@
 //! GPU network's forward, loss, parameter gradients and input gradient against the
 //! reference.
 
+mod common;
+
 use iastgcn::graph::Graph;
 use iastgcn::model::recurrent::supports;
 use iastgcn::model::reference::{loss, recurrent, Loss};
 use iastgcn::model::{param_specs, ModelConfig, Network, Parameters, Variant};
-use iastgcn::testing::{compare, gpu, rng, to_f32, uniform, Tolerance};
+use iastgcn::testing::{gpu, rng, to_f32, uniform};
 
 const BATCH: usize = 2;
 const LOSS: Loss = Loss {
     attitude_penalty: 1.7,
     weight_decay: 3e-3,
 };
-const H: f64 = 1e-6;
 
 /// The 14-node graph, F = 3, T = 4, H = 5 (and K = 3 Chebyshev supports for EAT-GCN).
 fn config(variant: Variant) -> ModelConfig {
@@ -142,38 +143,7 @@ fn reference_backward_matches_finite_differences(variant: Variant) {
     };
     let tape = recurrent::forward(&c, &a, &p.specs, &params, &x, BATCH);
     let (grads, dx) = recurrent::backward(&c, &a, &p.specs, &params, &tape, &y, BATCH, &LOSS);
-    let tol = Tolerance::new(1e-7, 1e-5);
-    for (t, spec) in p.specs.iter().enumerate() {
-        let want: Vec<f64> = (0..spec.numel())
-            .map(|i| {
-                let mut q = params.clone();
-                q[t][i] += H;
-                let up = eval(&q, &x);
-                q[t][i] -= 2.0 * H;
-                (up - eval(&q, &x)) / (2.0 * H)
-            })
-            .collect();
-        compare(&format!("d{}", spec.name), &grads[t], &want, tol).unwrap();
-        assert!(
-            want.iter().any(|v| v.abs() > 1e-9),
-            "{} has no effect",
-            spec.name
-        );
-    }
-    let want: Vec<f64> = (0..x.len())
-        .map(|i| {
-            let mut q = x.clone();
-            q[i] += H;
-            let up = eval(&params, &q);
-            q[i] -= 2.0 * H;
-            (up - eval(&params, &q)) / (2.0 * H)
-        })
-        .collect();
-    compare("dx", &dx, &want, tol).unwrap();
-    // Every step of x matters (the state carries it to the end).
-    for t in 0..4 {
-        assert!((0..dx.len() / 4).any(|r| dx[r * 4 + t] != 0.0), "step {t}");
-    }
+    common::check_reference_gradients(&p.specs, (&params, &x), (&grads, &dx), 4, eval);
 }
 
 #[test]
@@ -205,32 +175,11 @@ fn gpu_matches_reference(variant: Variant) {
         weight_decay: 0.0,
     };
     let (grads, dx) = recurrent::backward(&c, &a, &p.specs, &params, &tape, &y, BATCH, &no_decay);
-    let scaled = |v: &[f64], rel: f64| {
-        Tolerance::new(rel * v.iter().fold(1e-30f64, |m, x| m.max(x.abs())), rel)
+    let want = common::Reference {
+        output: &tape.output,
+        loss: loss(&c, &p.specs, &params, &tape.output, &y, BATCH, &no_decay),
+        grads: &grads,
+        dx: &dx,
     };
-    let out = f64s(&g.read_f32(&net.output).unwrap()[..BATCH * 6]);
-    compare("y_hat", &out, &tape.output, scaled(&tape.output, 1e-5)).unwrap();
-    let want = loss(&c, &p.specs, &params, &tape.output, &y, BATCH, &no_decay);
-    let got = g.read_f32(&net.loss).unwrap()[0] as f64;
-    compare("loss", &[got], &[want], Tolerance::new(0.0, 1e-5)).unwrap();
-    let gpu_grads = net.read_gradients(&g).unwrap();
-    for ((spec, got), want) in p.specs.iter().zip(&gpu_grads).zip(&grads) {
-        compare(
-            &format!("d{}", spec.name),
-            &f64s(got),
-            want,
-            scaled(want, 1e-4),
-        )
-        .unwrap();
-    }
-    let gdx = f64s(&g.read_f32(&net.input_grad).unwrap()[..dx.len()]);
-    compare("dx", &gdx, &dx, scaled(&dx, 1e-4)).unwrap();
-    let yi = net.predict(&g, &to_f32(&x)).unwrap();
-    compare(
-        "inference",
-        &f64s(&yi),
-        &tape.output,
-        scaled(&tape.output, 1e-5),
-    )
-    .unwrap();
+    common::compare_network(&g, &net, &x, want);
 }

@@ -226,15 +226,6 @@ impl RecurrentBody {
         })
     }
 
-    /// What the head reads, `[B, N·H]`: the last state h_{T−1}, or with the attention over
-    /// time the context Σ_t α_t h_t.
-    fn output(&self) -> &Tensor {
-        match &self.attention {
-            Some(a) => &a.context,
-            None => &self.steps[self.window - 1].h,
-        }
-    }
-
     fn rows(&self) -> usize {
         self.batch * self.nodes
     }
@@ -328,36 +319,6 @@ impl RecurrentBody {
             out,
             Accumulate::Overwrite,
         ))?;
-        Ok(())
-    }
-
-    /// Appends the time loop from x (`input` `[B, N, F, T]`) to the head's input.
-    fn forward(
-        &self,
-        gpu: &Gpu,
-        table: &dyn ParamTable,
-        input: &Tensor,
-        steps: &mut Steps,
-    ) -> Result<(), GpuError> {
-        for (t, s) in self.steps.iter().enumerate() {
-            let h = self.previous(t);
-            steps.run(self.gather(t).forward(gpu, input, &s.x))?;
-            self.gate_forward(gpu, table, "r", &s.x, h, Unary::Sigmoid, &s.r, steps)?;
-            self.gate_forward(gpu, table, "u", &s.x, h, Unary::Sigmoid, &s.u, steps)?;
-            steps.run(binary_forward(
-                gpu,
-                Binary::Mul,
-                &s.r,
-                h,
-                &s.rh,
-                Accumulate::Overwrite,
-            ))?;
-            self.gate_forward(gpu, table, "c", &s.x, &s.rh, Unary::Tanh, &s.c, steps)?;
-            steps.run(gru::forward(gpu, &s.u, h, &s.c, &s.h))?;
-        }
-        if let Some(a) = &self.attention {
-            self.attention_forward(gpu, table, a, steps)?;
-        }
         Ok(())
     }
 
@@ -536,6 +497,108 @@ impl RecurrentBody {
         Ok(())
     }
 
+    /// Appends the backward of one gate `out = act(Σ_k S_k (x·Wx_k + h·Wh_k) + b)` given
+    /// `d_out`: the gate's parameter gradients (`acc`), ∂ℒ/∂h into `dh` and ∂ℒ/∂x into
+    /// `dx` (each with its own mode for the first support; later supports add).
+    /// `scratch` is (∂ℒ/∂ mixed, ∂ℒ/∂ pre).
+    #[allow(clippy::too_many_arguments)]
+    fn gate_backward(
+        &self,
+        gpu: &Gpu,
+        table: &dyn ParamTable,
+        g: &str,
+        act: Unary,
+        (out, d_out): (&Tensor, &Tensor),
+        (x, h): (&Tensor, &Tensor),
+        (dz, dp): (&Tensor, &Tensor),
+        acc: Accumulate,
+        (dh, dh_acc): (&Tensor, Accumulate),
+        (dx, dx_acc): (&Tensor, Accumulate),
+        steps: &mut Steps,
+    ) -> Result<(), GpuError> {
+        steps.run(unary_backward(
+            gpu,
+            act,
+            out,
+            d_out,
+            dz,
+            Accumulate::Overwrite,
+        ))?;
+        steps.run(
+            self.bias()
+                .backward(gpu, dz, table.grad(&format!("cell.{g}.bias")), acc),
+        )?;
+        let (mx, mh) = (self.input_product(), self.state_product());
+        let terms = self.supports.len();
+        for (k, support) in self.supports.iter().enumerate() {
+            // ∂ℒ/∂(x·Wx_k + h·Wh_k) = S_kᵀ dz (dz itself where S_k = I).
+            let d_pre = match support {
+                Some(s) => {
+                    steps.run(self.graph_mix().backward_b(
+                        gpu,
+                        s,
+                        dz,
+                        dp,
+                        Accumulate::Overwrite,
+                    ))?;
+                    dp
+                }
+                None => dz,
+            };
+            let (wx, wh) = (
+                weight_name(g, "wx", k, terms),
+                weight_name(g, "wh", k, terms),
+            );
+            let later = |first: Accumulate| if k == 0 { first } else { Accumulate::Add };
+            steps.run(mx.backward_b(gpu, x, d_pre, table.grad(&wx), acc))?;
+            steps.run(mx.backward_a(gpu, table.param(&wx), d_pre, dx, later(dx_acc)))?;
+            steps.run(mh.backward_b(gpu, h, d_pre, table.grad(&wh), acc))?;
+            steps.run(mh.backward_a(gpu, table.param(&wh), d_pre, dh, later(dh_acc)))?;
+        }
+        Ok(())
+    }
+}
+
+impl TimeLoop for RecurrentBody {
+    /// What the head reads, `[B, N·H]`: the last state h_{T−1}, or with the attention over
+    /// time the context Σ_t α_t h_t.
+    fn output(&self) -> &Tensor {
+        match &self.attention {
+            Some(a) => &a.context,
+            None => &self.steps[self.window - 1].h,
+        }
+    }
+
+    /// Appends the time loop from x (`input` `[B, N, F, T]`) to the head's input.
+    fn forward(
+        &self,
+        gpu: &Gpu,
+        table: &dyn ParamTable,
+        input: &Tensor,
+        steps: &mut Steps,
+    ) -> Result<(), GpuError> {
+        for (t, s) in self.steps.iter().enumerate() {
+            let h = self.previous(t);
+            steps.run(self.gather(t).forward(gpu, input, &s.x))?;
+            self.gate_forward(gpu, table, "r", &s.x, h, Unary::Sigmoid, &s.r, steps)?;
+            self.gate_forward(gpu, table, "u", &s.x, h, Unary::Sigmoid, &s.u, steps)?;
+            steps.run(binary_forward(
+                gpu,
+                Binary::Mul,
+                &s.r,
+                h,
+                &s.rh,
+                Accumulate::Overwrite,
+            ))?;
+            self.gate_forward(gpu, table, "c", &s.x, &s.rh, Unary::Tanh, &s.c, steps)?;
+            steps.run(gru::forward(gpu, &s.u, h, &s.c, &s.h))?;
+        }
+        if let Some(a) = &self.attention {
+            self.attention_forward(gpu, table, a, steps)?;
+        }
+        Ok(())
+    }
+
     /// Appends backpropagation through time from ∂ℒ/∂(head input) (`d_output`; without
     /// the attention it is ∂ℒ/∂h_{T−1} and is overwritten as scratch) to the cell's
     /// parameter gradients and ∂ℒ/∂x (`input_grad`).
@@ -636,94 +699,6 @@ impl RecurrentBody {
             steps.run(self.gather(t).backward(gpu, &dx, input_grad, acc))?;
         }
         Ok(())
-    }
-
-    /// Appends the backward of one gate `out = act(Σ_k S_k (x·Wx_k + h·Wh_k) + b)` given
-    /// `d_out`: the gate's parameter gradients (`acc`), ∂ℒ/∂h into `dh` and ∂ℒ/∂x into
-    /// `dx` (each with its own mode for the first support; later supports add).
-    /// `scratch` is (∂ℒ/∂ mixed, ∂ℒ/∂ pre).
-    #[allow(clippy::too_many_arguments)]
-    fn gate_backward(
-        &self,
-        gpu: &Gpu,
-        table: &dyn ParamTable,
-        g: &str,
-        act: Unary,
-        (out, d_out): (&Tensor, &Tensor),
-        (x, h): (&Tensor, &Tensor),
-        (dz, dp): (&Tensor, &Tensor),
-        acc: Accumulate,
-        (dh, dh_acc): (&Tensor, Accumulate),
-        (dx, dx_acc): (&Tensor, Accumulate),
-        steps: &mut Steps,
-    ) -> Result<(), GpuError> {
-        steps.run(unary_backward(
-            gpu,
-            act,
-            out,
-            d_out,
-            dz,
-            Accumulate::Overwrite,
-        ))?;
-        steps.run(
-            self.bias()
-                .backward(gpu, dz, table.grad(&format!("cell.{g}.bias")), acc),
-        )?;
-        let (mx, mh) = (self.input_product(), self.state_product());
-        let terms = self.supports.len();
-        for (k, support) in self.supports.iter().enumerate() {
-            // ∂ℒ/∂(x·Wx_k + h·Wh_k) = S_kᵀ dz (dz itself where S_k = I).
-            let d_pre = match support {
-                Some(s) => {
-                    steps.run(self.graph_mix().backward_b(
-                        gpu,
-                        s,
-                        dz,
-                        dp,
-                        Accumulate::Overwrite,
-                    ))?;
-                    dp
-                }
-                None => dz,
-            };
-            let (wx, wh) = (
-                weight_name(g, "wx", k, terms),
-                weight_name(g, "wh", k, terms),
-            );
-            let later = |first: Accumulate| if k == 0 { first } else { Accumulate::Add };
-            steps.run(mx.backward_b(gpu, x, d_pre, table.grad(&wx), acc))?;
-            steps.run(mx.backward_a(gpu, table.param(&wx), d_pre, dx, later(dx_acc)))?;
-            steps.run(mh.backward_b(gpu, h, d_pre, table.grad(&wh), acc))?;
-            steps.run(mh.backward_a(gpu, table.param(&wh), d_pre, dh, later(dh_acc)))?;
-        }
-        Ok(())
-    }
-}
-
-impl TimeLoop for RecurrentBody {
-    fn forward(
-        &self,
-        gpu: &Gpu,
-        table: &dyn ParamTable,
-        input: &Tensor,
-        steps: &mut Steps,
-    ) -> Result<(), GpuError> {
-        RecurrentBody::forward(self, gpu, table, input, steps)
-    }
-
-    fn backward(
-        &self,
-        gpu: &Gpu,
-        table: &dyn ParamTable,
-        d_output: &Tensor,
-        input_grad: &Tensor,
-        steps: &mut Steps,
-    ) -> Result<(), GpuError> {
-        RecurrentBody::backward(self, gpu, table, d_output, input_grad, steps)
-    }
-
-    fn output(&self) -> &Tensor {
-        RecurrentBody::output(self)
     }
 }
 

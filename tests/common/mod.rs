@@ -70,3 +70,92 @@ pub fn twin_session(dir: &Path, paths: &[&str], seconds: f64) -> (PathBuf, Vec<P
         .collect();
     (cal, recordings)
 }
+
+/// The f64 reference of a recurrent baseline, as its tests check it: the gradients it
+/// computed by hand (every parameter tensor, in spec order, and x) against central
+/// differences (step 1e-6) of `eval(params, x)`, the loss. Each tensor must matter, and
+/// so must every one of the `window` steps of x `[…, T]`.
+pub fn check_reference_gradients(
+    specs: &[iastgcn::model::ParamSpec],
+    (params, x): (&[Vec<f64>], &[f64]),
+    (grads, dx): (&[Vec<f64>], &[f64]),
+    window: usize,
+    eval: impl Fn(&[Vec<f64>], &[f64]) -> f64,
+) {
+    use iastgcn::testing::{check_gradient, Tolerance};
+    const H: f64 = 1e-6;
+    let tol = Tolerance::new(1e-7, 1e-5);
+    for (t, spec) in specs.iter().enumerate() {
+        let of_tensor = |v: &[f64]| {
+            let mut q = params.to_vec();
+            q[t] = v.to_vec();
+            eval(&q, x)
+        };
+        check_gradient(
+            &format!("d{}", spec.name),
+            &grads[t],
+            of_tensor,
+            &params[t],
+            H,
+            tol,
+        )
+        .unwrap();
+        assert!(
+            grads[t].iter().any(|v| v.abs() > 1e-9),
+            "{} has no effect",
+            spec.name
+        );
+    }
+    check_gradient("dx", dx, |v| eval(params, v), x, H, tol).unwrap();
+    for t in 0..window {
+        let rows = dx.len() / window;
+        assert!(
+            (0..rows).any(|r| dx[r * window + t] != 0.0),
+            "step {t} of x has no effect"
+        );
+    }
+}
+
+/// What the f64 reference computed for one batch: ŷ, the loss (without weight decay), the
+/// parameter gradients and ∂ℒ/∂x.
+pub struct Reference<'a> {
+    pub output: &'a [f64],
+    pub loss: f64,
+    pub grads: &'a [Vec<f64>],
+    pub dx: &'a [f64],
+}
+
+/// Compares the network's last `gradients` pass (ŷ, loss, every parameter gradient, ∂ℒ/∂x)
+/// and its inference on `x` with the reference, each to a tolerance relative to the
+/// largest reference value.
+pub fn compare_network(
+    g: &iastgcn::gpu::Gpu,
+    net: &iastgcn::model::Network,
+    x: &[f64],
+    want: Reference,
+) {
+    use iastgcn::testing::{compare, to_f32, Tolerance};
+    let f64s = |v: &[f32]| v.iter().map(|&x| x as f64).collect::<Vec<f64>>();
+    let scaled = |v: &[f64], rel: f64| {
+        Tolerance::new(rel * v.iter().fold(1e-30f64, |m, x| m.max(x.abs())), rel)
+    };
+    let n = want.output.len();
+    let out = f64s(&g.read_f32(&net.output).unwrap()[..n]);
+    compare("y_hat", &out, want.output, scaled(want.output, 1e-5)).unwrap();
+    let loss = g.read_f32(&net.loss).unwrap()[0] as f64;
+    compare("loss", &[loss], &[want.loss], Tolerance::new(0.0, 1e-5)).unwrap();
+    let grads = net.read_gradients(g).unwrap();
+    for ((spec, got), w) in net.specs.iter().zip(&grads).zip(want.grads) {
+        compare(&format!("d{}", spec.name), &f64s(got), w, scaled(w, 1e-4)).unwrap();
+    }
+    let dx = f64s(&g.read_f32(&net.input_grad).unwrap()[..want.dx.len()]);
+    compare("dx", &dx, want.dx, scaled(want.dx, 1e-4)).unwrap();
+    let inferred = f64s(&net.predict(g, &to_f32(x)).unwrap());
+    compare(
+        "inference",
+        &inferred,
+        want.output,
+        scaled(want.output, 1e-5),
+    )
+    .unwrap();
+}

@@ -3,6 +3,7 @@
 //! backpropagation through time by hand, on the ops' own references
 //! (`ops::unfold2d::cpu`, `ops::lstm::cpu`). The loss is [`super::loss`].
 
+use super::head::{flat_head, flat_head_backward};
 use super::{add_weight_decay, axpy, output_gradient, Grads, Loss, Table};
 use crate::model::{ModelConfig, ParamSpec};
 use crate::ops::lstm::{cpu as lstm, Lstm};
@@ -140,19 +141,7 @@ pub fn forward(
             h: h.clone(),
         });
     }
-    let (w, hb) = (table.get("head.weight"), table.get("head.bias"));
-    let (m, o) = (s.c * s.grid, config.outputs);
-    let output = (0..s.b * o)
-        .map(|i| {
-            let (b, k) = (i / o, i % o);
-            hb[k]
-                + w[k * m..(k + 1) * m]
-                    .iter()
-                    .zip(&h[b * m..(b + 1) * m])
-                    .map(|(w, h)| w * h)
-                    .sum::<f64>()
-        })
-        .collect();
+    let output = flat_head(table.get("head.weight"), table.get("head.bias"), &h, s.b);
     ConvLstmTape {
         batch,
         steps,
@@ -183,19 +172,7 @@ pub fn backward(
     // Head.
     let m = s.c * s.grid;
     let last = &tape.steps[s.t - 1].h;
-    let w = table.get("head.weight");
-    let (mut dw, mut db) = (vec![0.0; o * m], vec![0.0; o]);
-    let mut dh = vec![0.0; s.b * m];
-    for b in 0..s.b {
-        for k in 0..o {
-            let g = dout[b * o + k];
-            db[k] += g;
-            axpy(&mut dw[k * m..(k + 1) * m], g, &last[b * m..(b + 1) * m]);
-            axpy(&mut dh[b * m..(b + 1) * m], g, &w[k * m..(k + 1) * m]);
-        }
-    }
-    grads.add("head.weight", &dw);
-    grads.add("head.bias", &db);
+    let mut dh = flat_head_backward(table.get("head.weight"), last, &dout, s.b, &mut grads);
     // Through time.
     let (wx, wh) = (table.get("cell.wx"), table.get("cell.wh"));
     let cells = s.b * s.grid;

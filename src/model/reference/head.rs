@@ -1,7 +1,7 @@
 //! The head: ŷ from the last time step of the last block's output, its backward, and the
 //! per-output weights of the loss (eq. 39).
 
-use super::{row, Grads, Loss};
+use super::{axpy, dot, row, row_mut, Grads, Loss};
 use crate::model::ModelConfig;
 
 /// ŷ[b,o] = head.bias[o] + Σ_{n,c} head.weight[o, n·C + c]·Y_L[b,n,c,T−1].
@@ -53,6 +53,42 @@ pub(super) fn head_backward(
     grads.add("head.weight", &dhw);
     grads.add("head.bias", &dhb);
     dy
+}
+
+/// The head of the recurrent baselines on a flat input `h` `[B, width]` (their last state or
+/// context): ŷ[b,o] = bias[o] + Σ_k w[o, k]·h[b, k].
+pub(super) fn flat_head(w: &[f64], bias: &[f64], h: &[f64], batch: usize) -> Vec<f64> {
+    let (no, width) = (bias.len(), h.len() / batch);
+    (0..batch * no)
+        .map(|i| {
+            let (b, o) = (i / no, i % no);
+            bias[o] + dot(row(w, o, width), row(h, b, width))
+        })
+        .collect()
+}
+
+/// Backward of [`flat_head`] from dL/dŷ `[B,O]`: returns dL/dh, adds the head's gradients.
+pub(super) fn flat_head_backward(
+    w: &[f64],
+    h: &[f64],
+    dout: &[f64],
+    batch: usize,
+    grads: &mut Grads,
+) -> Vec<f64> {
+    let (no, width) = (dout.len() / batch, h.len() / batch);
+    let (mut dw, mut db) = (vec![0.0; w.len()], vec![0.0; no]);
+    let mut dh = vec![0.0; h.len()];
+    for b in 0..batch {
+        for o in 0..no {
+            let g = dout[b * no + o];
+            db[o] += g;
+            axpy(row_mut(&mut dw, o, width), g, row(h, b, width));
+            axpy(row_mut(&mut dh, b, width), g, row(w, o, width));
+        }
+    }
+    grads.add("head.weight", &dw);
+    grads.add("head.bias", &db);
+    dh
 }
 
 /// The weight of output `m` in eq. 39: 1 for position (m < 3), P for attitude.

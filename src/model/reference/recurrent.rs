@@ -3,6 +3,7 @@
 //! attention over time, and backpropagation through time by hand. The loss is
 //! [`super::loss`].
 
+use super::head::{flat_head, flat_head_backward};
 use super::{add_weight_decay, axpy, output_gradient, Grads, Loss, Table};
 use crate::model::recurrent::{attends_over_time, support_count, weight_name};
 use crate::model::{ModelConfig, ParamSpec};
@@ -222,18 +223,7 @@ pub fn forward(
     });
     let head_input = attention.as_ref().map_or(&h, |a| &a.context);
     let (w, bias) = (table.get("head.weight"), table.get("head.bias"));
-    let (nh, o) = (s.n * s.h, config.outputs);
-    let output = (0..s.b * o)
-        .map(|i| {
-            let (b, k) = (i / o, i % o);
-            bias[k]
-                + w[k * nh..(k + 1) * nh]
-                    .iter()
-                    .zip(&head_input[b * nh..(b + 1) * nh])
-                    .map(|(w, h)| w * h)
-                    .sum::<f64>()
-        })
-        .collect();
+    let output = flat_head(w, bias, head_input, s.b);
     RecurrentTape {
         batch,
         steps,
@@ -393,24 +383,7 @@ pub fn backward(
         .attention
         .as_ref()
         .map_or(&tape.steps[s.t - 1].h, |a| &a.context);
-    let w = table.get("head.weight");
-    let mut dw = vec![0.0; o * nh];
-    let mut db = vec![0.0; o];
-    let mut dh = vec![0.0; s.b * nh];
-    for b in 0..s.b {
-        for k in 0..o {
-            let g = dout[b * o + k];
-            db[k] += g;
-            axpy(
-                &mut dw[k * nh..(k + 1) * nh],
-                g,
-                &head_input[b * nh..(b + 1) * nh],
-            );
-            axpy(&mut dh[b * nh..(b + 1) * nh], g, &w[k * nh..(k + 1) * nh]);
-        }
-    }
-    grads.add("head.weight", &dw);
-    grads.add("head.bias", &db);
+    let mut dh = flat_head_backward(table.get("head.weight"), head_input, &dout, s.b, &mut grads);
     // The attention's share of every ∂ℒ/∂h_t; without it, ∂ℒ/∂h_{T−1} is the head's.
     let from_attention = tape
         .attention
