@@ -45,6 +45,19 @@ fn head_dot(a_is_src: bool, b: u32, n: u32, h: u32, t: u32) -> f32 {
     return s;
 }
 
+// (b, t, h, i) of row `id` of α [B, T, H, N, N] (one thread per row).
+fn alpha_row(id: u32) -> vec4<u32> {
+    let n = p.nodes;
+    return vec4<u32>(id / (n * p.heads * p.steps), (id / (n * p.heads)) % p.steps,
+                     (id / n) % p.heads, id % n);
+}
+
+// (b, n, c, t) of element `id` of q [B, N, C, T].
+fn value_at(id: u32) -> vec4<u32> {
+    return vec4<u32>(id / (p.steps * p.channels * p.nodes), (id / (p.steps * p.channels)) % p.nodes,
+                     (id / p.steps) % p.channels, id % p.steps);
+}
+
 fn leaky(x: f32) -> f32 {
     return select(p.slope * x, x, x > 0.0);
 }
@@ -58,10 +71,11 @@ fn gat_weights(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nw
     if id >= p.batch * p.steps * p.heads * n {
         return;
     }
-    let i = id % n;
-    let h = (id / n) % p.heads;
-    let t = (id / (n * p.heads)) % p.steps;
-    let b = id / (n * p.heads * p.steps);
+    let at = alpha_row(id);
+    let b = at.x;
+    let t = at.y;
+    let h = at.z;
+    let i = at.w;
     let row = id * n;
     let s = head_dot(true, b, i, h, t);
     var m = -3.0e38;
@@ -97,10 +111,11 @@ fn gat_aggregate(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
     if id >= p.batch * n * p.channels * p.steps {
         return;
     }
-    let t = id % p.steps;
-    let c = (id / p.steps) % p.channels;
-    let i = (id / (p.steps * p.channels)) % n;
-    let b = id / (p.steps * p.channels * n);
+    let at = value_at(id);
+    let b = at.x;
+    let i = at.y;
+    let c = at.z;
+    let t = at.w;
     let h = c / (p.channels / p.heads);
     let row = (((b * p.steps + t) * p.heads + h) * n + i) * n;
     var s = 0.0;
@@ -123,10 +138,11 @@ fn gat_backward_scores(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgr
     if id >= p.batch * p.steps * p.heads * n {
         return;
     }
-    let i = id % n;
-    let h = (id / n) % p.heads;
-    let t = (id / (n * p.heads)) % p.steps;
-    let b = id / (n * p.heads * p.steps);
+    let at = alpha_row(id);
+    let b = at.x;
+    let t = at.y;
+    let h = at.z;
+    let i = at.w;
     let row = id * n;
     let width = p.channels / p.heads;
     // d_score first holds ∂ℒ/∂α, then the dot product is removed.
@@ -181,10 +197,11 @@ fn gat_backward_values(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgr
     if id >= p.batch * n * p.channels * p.steps {
         return;
     }
-    let t = id % p.steps;
-    let c = (id / p.steps) % p.channels;
-    let j = (id / (p.steps * p.channels)) % n;
-    let b = id / (p.steps * p.channels * n);
+    let at = value_at(id);
+    let b = at.x;
+    let j = at.y;
+    let c = at.z;
+    let t = at.w;
     let h = c / (p.channels / p.heads);
     let base = ((b * p.steps + t) * p.heads + h) * n * n;
     var g = 0.0;
