@@ -4,7 +4,7 @@
 CARGO ?= cargo
 export NODEVICE_SELECT ?= 1
 
-.PHONY: vulkan test demo bench lint
+.PHONY: vulkan test demo bench bench-compare lint
 
 vulkan:
 	@.ci/ensure-vulkan
@@ -30,6 +30,19 @@ demo: vulkan
 ## Criterion benchmarks (matmul GFLOP/s, dispatch and submit costs).
 bench: vulkan
 	$(CARGO) bench
+
+## The engine against PyTorch on the same CPU, in one run (docs/performance.md): a pinned
+## PyTorch in a local venv (benches/pytorch/requirements.txt; from PyPI that is ~5 GB
+## with its CUDA libraries, TORCH_INDEX=https://download.pytorch.org/whl/cpu fetches the
+## CPU-only build where that index is reachable), an interop check of the PyTorch model
+## on the engine's checkpoints, then `cargo bench --bench model` for the two shapes and
+## the same measurements in PyTorch. Table in target/bench-compare/compare.md.
+BENCH_VENV ?= target/bench-venv
+TORCH_INDEX ?=
+bench-compare: vulkan
+	@test -x $(BENCH_VENV)/bin/python || python3 -m venv $(BENCH_VENV)
+	$(BENCH_VENV)/bin/pip install -q $(if $(TORCH_INDEX),--extra-index-url $(TORCH_INDEX)) -r benches/pytorch/requirements.txt
+	$(BENCH_VENV)/bin/python benches/pytorch/compare.py
 
 lint:
 	$(CARGO) fmt --check

@@ -10,6 +10,12 @@
 //! the matmul baseline; each model group first prints its per-family FLOP breakdown, and
 //! a summary table ends the run.
 //!
+//! `IASTGCN_BENCH_GROUPS=prefix,prefix,…` runs only the groups whose names start with one
+//! of the prefixes (criterion's own filter would still build every group's networks).
+//! With `IASTGCN_BENCH_CSV=path` set, the summary is also written to that file as CSV
+//! (`benchmark,mean_s,windows,flops`); `make bench-compare` reads it
+//! (benches/pytorch/compare.py).
+//!
 //! A training step is the training forward + backward (loss and every gradient),
 //! recorded into one command buffer, submitted and waited for. There is no optimiser
 //! yet, so the step updates no parameter (and the dropout step is set once, outside the
@@ -138,6 +144,9 @@ fn new_group<'c>(c: &'c mut Criterion, name: &str) -> BenchmarkGroup<'c, WallTim
 
 /// The baseline product (`common::baseline`), timed like the models.
 fn matmul_baseline(c: &mut Criterion) {
+    if !selected("baseline") {
+        return;
+    }
     let gpu = gpu();
     let (mm, d) = common::baseline(&gpu);
     let mut group = new_group(c, "baseline");
@@ -206,7 +215,17 @@ fn print_breakdown(name: &str, config: &ModelConfig, batch: usize) {
     );
 }
 
+/// Whether `IASTGCN_BENCH_GROUPS` (when set) selects the group `name`.
+fn selected(name: &str) -> bool {
+    std::env::var("IASTGCN_BENCH_GROUPS").map_or(true, |groups| {
+        groups.split(',').any(|g| name.starts_with(g))
+    })
+}
+
 fn model_group(c: &mut Criterion, name: &str, config: &ModelConfig) {
+    if !selected(name) {
+        return;
+    }
     let gpu = gpu();
     print_breakdown(name, config, BATCH);
     let one = network(&gpu, config, 1);
@@ -285,6 +304,26 @@ fn summary(_: &mut Criterion) {
             r.name, r.mean, windows, gflops, ratio
         );
     }
+    if let Some(path) = std::env::var_os("IASTGCN_BENCH_CSV") {
+        write_csv(std::path::Path::new(&path), &rows).expect("writing IASTGCN_BENCH_CSV");
+        eprintln!("wrote {}", path.to_string_lossy());
+    }
+}
+
+/// The summary rows as CSV, written atomically.
+fn write_csv(path: &std::path::Path, rows: &[Row]) -> std::io::Result<()> {
+    let mut w = csv::Writer::from_writer(Vec::new());
+    w.write_record(["benchmark", "mean_s", "windows", "flops"])?;
+    for r in rows {
+        w.write_record([
+            r.name.clone(),
+            format!("{:e}", r.mean.as_secs_f64()),
+            r.windows.map_or(String::new(), |w| w.to_string()),
+            format!("{:e}", r.flops),
+        ])?;
+    }
+    let bytes = w.into_inner().map_err(|e| e.into_error())?;
+    iastgcn::atomic::write(path, &bytes)
 }
 
 criterion_group! {

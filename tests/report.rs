@@ -117,6 +117,8 @@ fn history(stages: &[(&str, usize)]) -> Vec<EpochRecord> {
                 lr: 1e-3,
                 seconds: 2.5,
                 windows_per_s: 800.0,
+                validation_seconds: 0.2,
+                readback_seconds: 0.01,
             });
         }
     }

@@ -214,6 +214,7 @@ fn resume_reproduces_the_uninterrupted_next_epoch() {
         let mut p = p.clone();
         for r in &mut p.history {
             (r.seconds, r.windows_per_s) = (0.0, 0.0);
+            (r.validation_seconds, r.readback_seconds) = (0.0, 0.0);
         }
         p
     };

@@ -95,6 +95,8 @@ pub fn run_stage(
 ) -> Result<()> {
     reporter.begin(&format!("{label} epoch"), trainer.stage.max_epochs as u64);
     reporter.update(trainer.progress.epoch as u64, "");
+    let first = trainer.progress.history.len();
+    let mut files_seconds = 0.0;
     while !trainer.finished() {
         let (r, improved) = trainer.run_epoch()?;
         reporter.update(
@@ -108,10 +110,93 @@ pub fn run_stage(
                 if improved { " *" } else { "" }
             ),
         );
+        let began = std::time::Instant::now();
         on_epoch(trainer, improved)?;
+        files_seconds += began.elapsed().as_secs_f64();
     }
     reporter.end();
+    if let Some(cost) = EpochCost::of(&trainer.progress.history[first..], files_seconds) {
+        reporter.note(&format!("{label}: {cost}"));
+    }
     trainer.restore_best()?;
+    Ok(())
+}
+
+/// Where a stage's epochs spent their time beyond the training steps.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EpochCost {
+    /// Epochs counted.
+    pub epochs: usize,
+    /// Training steps (submitted back to back, one readback of the step losses), s.
+    pub steps: f64,
+    /// Validation passes, s.
+    pub validation: f64,
+    /// Parameter and optimiser-state readbacks, s.
+    pub readbacks: f64,
+    /// Checkpoint, state, log and plot files written after each epoch, s.
+    pub files: f64,
+}
+
+impl EpochCost {
+    /// The totals over `history` plus the file writes timed by the caller; None for no
+    /// epoch.
+    pub fn of(history: &[super::EpochRecord], files: f64) -> Option<EpochCost> {
+        (!history.is_empty()).then(|| EpochCost {
+            epochs: history.len(),
+            steps: history.iter().map(|r| r.seconds).sum(),
+            validation: history.iter().map(|r| r.validation_seconds).sum(),
+            readbacks: history.iter().map(|r| r.readback_seconds).sum(),
+            files,
+        })
+    }
+
+    /// Everything beyond the steps, as a fraction of the steps' time.
+    pub fn overhead(&self) -> f64 {
+        (self.validation + self.readbacks + self.files) / self.steps
+    }
+}
+
+impl std::fmt::Display for EpochCost {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let share = |s: f64| 100.0 * s / self.steps;
+        write!(
+            f,
+            "{} epochs, steps {:.1} s; beyond them {:.1} % (validation {:.1} %, readbacks {:.1} %, files {:.1} %)",
+            self.epochs,
+            self.steps,
+            100.0 * self.overhead(),
+            share(self.validation),
+            share(self.readbacks),
+            share(self.files)
+        )
+    }
+}
+
+/// What `iastgcn train` writes after each epoch: the checkpoint `out` when the
+/// validation loss improved, and always the resumable training state, the log CSV and
+/// the loss PNG beside it (`<stem>.state.safetensors`, `<stem>.log.csv`,
+/// `<stem>.loss.png`).
+pub fn write_epoch_files(
+    trainer: &Trainer,
+    config: &RunConfig,
+    graph: &Graph,
+    data: &Dataset,
+    out: &Path,
+    improved: bool,
+) -> Result<()> {
+    if improved {
+        checkpoint(&config.model, graph, &trainer.best, &data.normalization).save(out)?;
+    }
+    TrainState {
+        run: config.clone(),
+        normalization: normalization(&data.normalization),
+        snapshot: trainer.snapshot().clone(),
+    }
+    .save(&sibling(out, ".state.safetensors"))?;
+    let history = &trainer.progress.history;
+    log::write_csv(&sibling(out, ".log.csv"), history)?;
+    let name = config.model.variant.name().to_string();
+    log::plot_losses(&sibling(out, ".loss.png"), &[(name, history.clone())])?;
     Ok(())
 }
 
@@ -205,23 +290,9 @@ pub fn train(
         trainer.batch(),
         trainer.steps_per_epoch()
     ));
-    let state_path = sibling(out, ".state.safetensors");
-    let log_path = sibling(out, ".log.csv");
-    let png_path = sibling(out, ".loss.png");
     let name = config.model.variant.name();
     let result = run_stage(&mut trainer, name, reporter, |t, improved| {
-        if improved {
-            checkpoint(&config.model, graph, &t.best, &data.normalization).save(out)?;
-        }
-        TrainState {
-            run: config.clone(),
-            normalization: stats.clone(),
-            snapshot: t.snapshot().clone(),
-        }
-        .save(&state_path)?;
-        log::write_csv(&log_path, &t.progress.history)?;
-        log::plot_losses(&png_path, &[(name.to_string(), t.progress.history.clone())])?;
-        Ok(())
+        write_epoch_files(t, config, graph, data, out, improved)
     });
     if let Err(e) = result {
         return Err(diverged(e, &trainer, config, graph, data, out));

@@ -17,6 +17,8 @@ pub fn write_csv(path: &Path, history: &[EpochRecord]) -> Result<()> {
         "lr",
         "seconds",
         "windows_per_s",
+        "validation_seconds",
+        "readback_seconds",
     ]
     .join(",");
     let rows = history
@@ -31,6 +33,8 @@ pub fn write_csv(path: &Path, history: &[EpochRecord]) -> Result<()> {
                 format!("{:.6e}", r.lr),
                 format!("{:.3}", r.seconds),
                 format!("{:.1}", r.windows_per_s),
+                format!("{:.3}", r.validation_seconds),
+                format!("{:.3}", r.readback_seconds),
             ]
         })
         .collect();

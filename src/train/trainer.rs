@@ -84,6 +84,14 @@ pub struct EpochRecord {
     pub seconds: f64,
     /// Training throughput: windows per second of `seconds`.
     pub windows_per_s: f64,
+    /// Wall time of the validation pass, s.
+    #[serde(default)]
+    pub validation_seconds: f64,
+    /// Wall time of the rest of the epoch: parameter and optimiser-state readbacks and the
+    /// snapshot kept for a replay, s. (Files written after the epoch are timed by the
+    /// caller: [`super::fit::run_stage`].)
+    #[serde(default)]
+    pub readback_seconds: f64,
 }
 
 /// Where a stage stands; saved with the training state so a run can resume.
@@ -412,13 +420,17 @@ impl<'a> Trainer<'a> {
         if let Some(bad) = losses.iter().position(|l| !l.is_finite()) {
             return Err(self.diagnose(epoch, &order, bad, first_step));
         }
+        let validation_began = Instant::now();
         let val_loss = self.validation_loss()?;
+        let validation_seconds = validation_began.elapsed().as_secs_f64();
+        let readback_began = Instant::now();
         let params = self.net.read_parameters(self.gpu)?;
         if first_non_finite(&params.specs, &params.values).is_some() {
             // The replay names the step and the tensor.
             let last = self.steps_per_epoch - 1;
             return Err(self.diagnose(epoch, &order, last, first_step));
         }
+        let (adam_m, adam_v) = self.opt.read_state(self.gpu)?;
         let record = EpochRecord {
             stage: self.stage.name.clone(),
             epoch,
@@ -428,6 +440,8 @@ impl<'a> Trainer<'a> {
             lr: self.lr(self.progress.step - 1),
             seconds,
             windows_per_s: (self.steps_per_epoch * self.net.batch) as f64 / seconds,
+            validation_seconds,
+            readback_seconds: readback_began.elapsed().as_secs_f64(),
         };
         self.progress.epoch = epoch;
         self.progress.history.push(record.clone());
@@ -440,7 +454,6 @@ impl<'a> Trainer<'a> {
         } else {
             self.progress.bad_epochs += 1;
         }
-        let (adam_m, adam_v) = self.opt.read_state(self.gpu)?;
         self.start = Snapshot {
             stage: self.stage.clone(),
             progress: self.progress.clone(),

@@ -1,0 +1,157 @@
+//! What a training epoch costs beyond its steps, on the demo's data and config.
+//!
+//! Writes a twin session with the `iastgcn` binary (a 60-pose calibration set, its EKF
+//! calibration, three 2-minute recordings: the demo's training data), builds the
+//! dataset of `assets/demo.toml`, and trains IASTGCN for a few epochs through
+//! `train::run_stage`, writing the same files after each epoch as `iastgcn train`
+//! (checkpoint when improved, training state, log CSV, loss PNG). Then, on the same
+//! network, it times one isolated step (training forward + backward, submitted alone and
+//! waited for, as in `cargo bench --bench model`) and prints:
+//!
+//! - epoch time against steps × isolated step time (what pipelining, input writes and
+//!   Adam add or save);
+//! - each epoch's validation, readbacks and files as a share of its steps (the 10 %
+//!   target of docs/performance.md).
+//!
+//! `cargo bench --bench epoch` takes about two minutes on the 2-core lavapipe machine.
+//! The variant can be chosen: `cargo bench --bench epoch -- tgcn`.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+use iastgcn::data::DataSources;
+use iastgcn::gpu::{Gpu, Recorder};
+use iastgcn::model::Variant;
+use iastgcn::progress::Silent;
+use iastgcn::train::{self, fit, RunConfig, Trainer};
+
+const EPOCHS: usize = 3;
+
+fn cli(args: &[&str]) {
+    let status = Command::new(env!("CARGO_BIN_EXE_iastgcn"))
+        .args(args)
+        .stdout(std::process::Stdio::null())
+        .status()
+        .expect("running iastgcn");
+    assert!(status.success(), "iastgcn {args:?} failed");
+}
+
+/// The demo's training data in `dir`: calibration and three 2-minute recordings.
+fn session(dir: &Path) -> (PathBuf, Vec<PathBuf>) {
+    std::fs::create_dir_all(dir).unwrap();
+    let p = |name: &str| dir.join(name).to_str().unwrap().to_string();
+    let (set, cal) = (p("set.csv"), p("cal.toml"));
+    cli(&[
+        "simulate",
+        "--trajectory",
+        "calibration",
+        "--poses",
+        "60",
+        "--seed",
+        "7",
+        "--out",
+        &set,
+    ]);
+    cli(&["calibrate", "--measurements", &set, "--out", &cal]);
+    let recordings = ["grid", "fermat", "hilbert"]
+        .iter()
+        .enumerate()
+        .map(|(i, path)| {
+            let out = p(&format!("{path}.csv"));
+            cli(&[
+                "simulate",
+                "--trajectory",
+                path,
+                "--minutes",
+                "2",
+                "--seed",
+                &(5 + i).to_string(),
+                "--out",
+                &out,
+            ]);
+            PathBuf::from(out)
+        })
+        .collect();
+    (PathBuf::from(cal), recordings)
+}
+
+fn main() {
+    let variant = std::env::args()
+        .skip(1)
+        .find_map(|a| Variant::parse(&a))
+        .unwrap_or(Variant::Iastgcn);
+    let dir = std::env::temp_dir().join(format!("iastgcn-epoch-bench-{}", std::process::id()));
+    let (cal, recordings) = session(&dir);
+    let mut config = RunConfig::demo();
+    config.model.variant = variant;
+    config.train.max_epochs = EPOCHS;
+    config.train.patience = EPOCHS;
+    let sources = DataSources::new(recordings, cal);
+    let (graph, data) = fit::build_dataset(&sources, &config, None).unwrap();
+    let gpu = Gpu::new().expect("a GPU adapter (make bench installs lavapipe)");
+    let init = iastgcn::model::Parameters::init(&config.model, config.train.seed);
+    let mut trainer = Trainer::new(
+        &gpu,
+        &data,
+        &graph,
+        &config.model,
+        &config.train,
+        train::core_stage(&config),
+        &init,
+    )
+    .unwrap();
+    let out = dir.join("model.safetensors");
+    let mut files = Vec::new();
+    fit::run_stage(&mut trainer, "epoch bench", &mut Silent, |t, improved| {
+        let began = Instant::now();
+        fit::write_epoch_files(t, &config, &graph, &data, &out, improved)?;
+        files.push(began.elapsed().as_secs_f64());
+        Ok(())
+    })
+    .unwrap();
+
+    // One step alone, as the model bench times it (mean of 5 after a warm-up).
+    let net = &trainer.net;
+    let step = || {
+        let t0 = Instant::now();
+        let mut rec = Recorder::new(&gpu);
+        net.record_train_forward(&mut rec).unwrap();
+        net.record_backward(&mut rec).unwrap();
+        rec.submit();
+        gpu.wait().unwrap();
+        t0.elapsed().as_secs_f64()
+    };
+    step();
+    let isolated = (0..5).map(|_| step()).sum::<f64>() / 5.0;
+    let steps = trainer.steps_per_epoch();
+
+    eprintln!(
+        "\n{variant} on {} ({} training and {} validation windows, batch {}, {steps} steps \
+         per epoch); isolated step {:.1} ms",
+        gpu.info().name,
+        data.split_ranges()[0].len(),
+        data.split_ranges()[1].len(),
+        trainer.batch(),
+        isolated * 1e3
+    );
+    eprintln!(
+        "{:>5} {:>9} {:>13} {:>11} {:>10} {:>9} {:>9} {:>10}",
+        "epoch", "steps s", "steps/isol.", "validation", "readbacks", "files", "total", "overhead"
+    );
+    for (r, f) in trainer.progress.history.iter().zip(&files) {
+        let beyond = r.validation_seconds + r.readback_seconds + f;
+        eprintln!(
+            "{:>5} {:>9.2} {:>12.2}× {:>10.2}s {:>9.3}s {:>8.3}s {:>8.2}s {:>9.1}%",
+            r.epoch,
+            r.seconds,
+            r.seconds / (steps as f64 * isolated),
+            r.validation_seconds,
+            r.readback_seconds,
+            f,
+            r.seconds + beyond,
+            100.0 * beyond / r.seconds
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
