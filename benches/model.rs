@@ -1,4 +1,5 @@
-//! Whole-network throughput: inference forward at B = 1 (latency) and B = 64, and one
+//! Whole-network throughput: inference forward at B = 1 (latency; on the device and, for
+//! the IASTGCN variants, on the native CPU path `model::NativeForward`) and B = 64, and one
 //! training step at B = 64, for the paper shape (C 64, T 100, L 5) and a small shape
 //! (C 16, T 48, L 3), then the same three for each baseline (tgcn, eat-gcn, mlp,
 //! bkls-ann, ann-bfpa, erc) at both windows, against the project's best matmul measured in the
@@ -33,7 +34,11 @@ use criterion::{
     Throughput,
 };
 use iastgcn::gpu::{Gpu, Recorder};
-use iastgcn::model::{flops, ModelConfig, Network, Variant};
+use iastgcn::model::{
+    flops, Backend, Checkpoint, ModelConfig, NativeForward, Network, Normalization, Parameters,
+    Pass, Predictor, Variant,
+};
+use iastgcn::testing::{rng, to_f32, uniform};
 
 mod common;
 
@@ -239,6 +244,21 @@ fn model_group(c: &mut Criterion, name: &str, config: &ModelConfig) {
         flops::forward_flops(config, 1),
         || forward(&gpu, &one),
     );
+    if NativeForward::supports(config) {
+        let graph = iastgcn::graph::Graph::default_asset();
+        let mut native = NativeForward::new(config, &graph, &Parameters::init(config, 1)).unwrap();
+        let len = config.nodes * config.features * config.window;
+        let x = to_f32(&uniform(&mut rng(2), len, -1.0, 1.0));
+        let mut y = vec![0f32; config.outputs];
+        bench(
+            &mut group,
+            name,
+            "native forward B=1",
+            Some(1),
+            flops::forward_flops(config, 1),
+            || native.forward(&x, &mut y).unwrap(),
+        );
+    }
     bench(
         &mut group,
         name,
@@ -278,6 +298,92 @@ fn baselines(c: &mut Criterion) {
             let config = ModelConfig { variant, ..base };
             let name = format!("{shape} {variant} (T {})", config.window);
             model_group(c, &name, &config);
+        }
+    }
+}
+
+/// The controller's streaming case: one new frame per tick through `Predictor::push`
+/// (the ring keeps the older frames; each tick standardises the window and runs one
+/// forward), at the paper's C 64 and L 5 for T = 25 … 200, natively and on the device.
+fn streaming(c: &mut Criterion) {
+    let name = "streaming C64 L5";
+    if !selected(name) {
+        return;
+    }
+    let gpu = std::sync::Arc::new(gpu());
+    let mut group = new_group(c, name);
+    for window in [25, 50, 100, 200] {
+        let config = ModelConfig {
+            window,
+            ..ModelConfig::default()
+        };
+        let checkpoint = Checkpoint {
+            parameters: Parameters::init(&config, 1),
+            graph: iastgcn::graph::Graph::default_asset(),
+            normalization: Normalization::identity(&config),
+            config: config.clone(),
+        };
+        let frame = to_f32(&uniform(
+            &mut rng(3),
+            config.nodes * config.features,
+            -1.0,
+            1.0,
+        ));
+        for (label, mut predictor) in [
+            ("native", Predictor::native(&checkpoint).unwrap()),
+            (
+                "device",
+                Predictor::with_backend(gpu.clone(), &checkpoint, 1, Backend::Device).unwrap(),
+            ),
+        ] {
+            for _ in 0..window {
+                predictor.push_step(&frame).unwrap();
+            }
+            bench(
+                &mut group,
+                name,
+                &format!("{label} push T={window}"),
+                Some(1),
+                flops::forward_flops(&config, 1),
+                || {
+                    predictor.push(&frame).unwrap();
+                },
+            );
+        }
+    }
+    group.finish();
+}
+
+/// Device memory per window and the largest batch the adapter's limits allow
+/// (`model::memory::footprint`), for the training and the inference network at both
+/// shapes. Printed, not timed.
+fn memory(_: &mut Criterion) {
+    if !selected("memory") {
+        return;
+    }
+    let gpu = gpu();
+    let graph = iastgcn::graph::Graph::default_asset();
+    let mib = |b: u64| b as f64 / (1024.0 * 1024.0);
+    eprintln!(
+        "\n{:<20} {:<10} {:>10} {:>14} {:>12} {:>10}  largest buffer at B = {BATCH}",
+        "shape", "network", "MiB at B=1", "MiB per window", "MiB at B=64", "max batch"
+    );
+    for (shape, config) in [
+        ("small C16 T48 L3", common::small_config()),
+        ("paper C64 T100 L5", ModelConfig::default()),
+    ] {
+        for (label, pass) in [("training", Pass::Train), ("inference", Pass::Inference)] {
+            let f = iastgcn::model::memory::footprint(&gpu, &config, &graph, pass, BATCH).unwrap();
+            eprintln!(
+                "{shape:<20} {label:<10} {:>10.2} {:>14.3} {:>12.1} {:>10}  {} ({:.1} MiB; limit {:.0} MiB)",
+                mib(f.bytes_at_one),
+                mib(f.per_window_bytes()),
+                mib(f.bytes),
+                f.max_batch,
+                f.largest.0,
+                mib(f.largest.1),
+                mib(f.limit_bytes),
+            );
         }
     }
 }
@@ -330,6 +436,6 @@ criterion_group! {
     name = benches;
     // No plots: the plotters backend panics for want of a font on this machine.
     config = Criterion::default().without_plots();
-    targets = matmul_baseline, small_shape, paper_shape, baselines, summary
+    targets = matmul_baseline, memory, small_shape, paper_shape, streaming, baselines, summary
 }
 criterion_main!(benches);

@@ -9,7 +9,7 @@ use iastgcn::error::Error;
 use iastgcn::graph::Graph;
 use iastgcn::interop;
 use iastgcn::model::{
-    Checkpoint, ModelConfig, Network, Normalization, Parameters, Predictor, Variant,
+    Backend, Checkpoint, ModelConfig, Network, Normalization, Parameters, Predictor, Variant,
 };
 use iastgcn::testing::{gpu, rng, to_f32, uniform};
 use safetensors::tensor::{Dtype, SafeTensors, TensorView};
@@ -225,26 +225,58 @@ fn predictor_matches_network_in_every_mode() {
     let expected: Vec<[f64; 6]> = (0..windows)
         .map(|w| std::array::from_fn(|m| y[w * 6 + m] as f64 * nz.label_std[m] + nz.label_mean[m]))
         .collect();
+    let tol: [f64; 6] = std::array::from_fn(|m| 1e-5 * nz.label_std[m]);
+
+    // On lavapipe `new` runs single windows natively; `Device` forces the WGSL path;
+    // `native` has no device at all.
+    let auto = Predictor::new(g.clone(), &ck, 2).unwrap();
+    assert_eq!(
+        auto.backend(),
+        if g.is_software() {
+            Backend::Native
+        } else {
+            Backend::Device
+        }
+    );
+    let forced = Predictor::with_backend(g.clone(), &ck, 2, Backend::Device).unwrap();
+    assert_eq!(forced.backend(), Backend::Device);
+    let native = Predictor::native(&ck).unwrap();
+    assert_eq!((native.backend(), native.capacity()), (Backend::Native, 1));
+    for (mode, p) in [("auto", auto), ("device", forced), ("native", native)] {
+        check_predictor(&g, mode, p, &raw, &expected, (n, f, t), &tol);
+    }
+}
+
+/// Every way of calling `p` on `raw` (predict, predict_batch, push after unrelated
+/// steps, reset) gives `expected` within `tol` per output, and no call creates a pipeline.
+fn check_predictor(
+    g: &iastgcn::gpu::Gpu,
+    mode: &str,
+    mut p: Predictor,
+    raw: &[f32],
+    expected: &[[f64; 6]],
+    (n, f, t): (usize, usize, usize),
+    tol: &[f64; 6],
+) {
     let close = |a: &[f64; 6], b: &[f64; 6], what: &str| {
         for m in 0..6 {
-            let tol = 1e-5 * nz.label_std[m];
             assert!(
-                (a[m] - b[m]).abs() <= tol,
-                "{what}: output {m}: {} vs {}",
+                (a[m] - b[m]).abs() <= tol[m],
+                "{mode}: {what}: output {m}: {} vs {}",
                 a[m],
                 b[m]
             );
         }
     };
-
-    let mut p = Predictor::new(g.clone(), &ck, 2).unwrap();
+    let len = n * f * t;
+    let windows = expected.len();
     let pipelines = g.pipeline_count();
     for w in 0..windows {
         let r = p.predict(&raw[w * len..][..len]).unwrap();
         close(&r, &expected[w], &format!("predict window {w}"));
     }
     let mut out = Vec::new();
-    p.predict_batch(&raw, iastgcn::model::Features::Raw, &mut out)
+    p.predict_batch(raw, iastgcn::model::Features::Raw, &mut out)
         .unwrap();
     assert_eq!(out.len(), windows);
     for w in 0..windows {

@@ -4,30 +4,17 @@
 //! the forward pass at the paper's shape. (The reference's own backward is checked
 //! against finite differences in tests/model_reference.rs.)
 
+use common::parameters;
 use iastgcn::graph::Graph;
 use iastgcn::model::reference::{self, DropoutStep, Loss};
-use iastgcn::model::{graph_basis, Init, ModelConfig, Network, Parameters, Variant};
+use iastgcn::model::{graph_basis, ModelConfig, Network, Variant};
 use iastgcn::testing::{compare, gpu, rng, to_f32, uniform, Tolerance};
+
+mod common;
 
 const DROPOUT_SEED: u32 = 77;
 /// A non-default attitude penalty P, set through `Network::set_attitude_penalty`.
 const PENALTY: f64 = 1.7;
-
-/// He-initialised parameters with biases, be/bs, θ and ln.* moved off their initial
-/// values (so their gradients are generic), rounded to f32.
-fn parameters(config: &ModelConfig, seed: u64) -> Parameters {
-    let mut p = Parameters::init(config, seed);
-    let mut r = rng(seed + 1);
-    for (s, v) in p.specs.iter().zip(p.values.iter_mut()) {
-        let (lo, hi) = match s.init {
-            Init::HeUniform { .. } => continue,
-            Init::Zeros => (-0.3, 0.3),
-            Init::Ones => (0.7, 1.3),
-        };
-        *v = to_f32(&uniform(&mut r, v.len(), lo, hi));
-    }
-    p
-}
 
 fn f64s(v: &[f32]) -> Vec<f64> {
     v.iter().map(|&x| x as f64).collect()

@@ -197,12 +197,14 @@ fn synthetic() -> Report {
             epoch_seconds: 12.5,
             infer_ms: 1.75,
             adapter: "Test GPU (Vulkan)".into(),
+            inference_on: "native CPU forward (f32, 1 thread)".into(),
         },
         Timing {
             model: "lstm".into(),
             epoch_seconds: 4.25,
             infer_ms: 0.5,
             adapter: "Test GPU (Vulkan)".into(),
+            inference_on: "Test GPU (Vulkan)".into(),
         },
     ];
     let traces = vec![
@@ -340,7 +342,10 @@ fn writes_every_file_of_the_report_folder() {
 
     let t = lines(&dir.join("timings.csv"));
     assert_eq!(t.len(), 3);
-    assert_eq!(t[1], "iastgcn,12.5000,1.7500,Test GPU (Vulkan)");
+    assert_eq!(
+        t[1],
+        "iastgcn,12.5000,1.7500,Test GPU (Vulkan),native CPU forward (f32, 1 thread)"
+    );
 
     // The Markdown report.
     let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
@@ -442,6 +447,7 @@ fn one_model_gets_no_bold_and_odd_names_get_safe_file_names() {
             epoch_seconds: 1.0,
             infer_ms: 0.25,
             adapter: "cpu".into(),
+            inference_on: "native CPU forward (f32, 1 thread)".into(),
         }],
         ..Report::default()
     };

@@ -5,7 +5,8 @@
    LayerNorm affine are not at their neutral start), `iastgcn forward` runs it on random
    windows, and the PyTorch model of iastgcn_torch.py, loaded from the same file, must
    give the same outputs to 1e-4 (max |difference|, standardised label space).
-2. Speed: the engine's `cargo bench --bench model` groups for the two shapes (criterion,
+2. Speed: the engine's `cargo bench --bench model` groups for the two shapes (the WGSL
+   path on the adapter, and at B = 1 also the native CPU forward; criterion,
    its summary written as CSV through IASTGCN_BENCH_CSV) and the same three measurements
    in PyTorch (forward B = 1 and B = 64 under no_grad in eval mode; a training step at
    B = 64: forward with dropout, the eq. 39 data loss, backward, no optimiser, exactly
@@ -47,6 +48,10 @@ SHAPES = [
     ("paper C64 T100 L5", "paper C64 T100 L5", "assets/paper.toml"),
 ]
 MEASURES = ["forward B=1", "forward B=64", "train step B=64"]
+# Engine rows: the device's three, plus the native CPU forward (model::NativeForward)
+# against the same PyTorch forward at B = 1.
+ENGINE_ROWS = [("forward B=1", "forward B=1"), ("native forward B=1", "forward B=1"),
+               ("forward B=64", "forward B=64"), ("train step B=64", "train step B=64")]
 TOLERANCE = 1e-4
 
 
@@ -211,13 +216,13 @@ def report(args, pt, engine, peak, cpu, checks):
     data = {"date": str(datetime.date.today()), "cpu": cpu, "peak_gflops": peak, "torch": torch.__version__,
             "threads": args.threads, "rows": [], "interop": checks}
     for label, group, _ in SHAPES:
-        for m in MEASURES:
+        for m, torch_m in ENGINE_ROWS:
             key = f"{group}/{m}"
             if key not in engine:
                 lines.append(f"| {label} | {m} | not run | | | | |")
                 continue
             es, flops = engine[key]
-            ts = pt[(label, m)][0]
+            ts = pt[(label, torch_m)][0]
             lines.append(
                 f"| {label} | {m} | {es * 1e3:.1f} ms | {ts * 1e3:.1f} ms | {es / ts:.2f}× | "
                 f"{flops / es / 1e9:.2f} | {flops / ts / 1e9:.2f} |"

@@ -15,7 +15,7 @@ use crate::data::{DataSources, Dataset};
 use crate::error::{ensure, Error, Result};
 use crate::gpu::Gpu;
 use crate::graph::Graph;
-use crate::model::{Checkpoint, Features, ModelError, Predictor};
+use crate::model::{Backend, Checkpoint, Features, ModelError, Predictor};
 use crate::progress::Reporter;
 use crate::robot::Robot;
 use crate::train::metrics::per_recording;
@@ -324,6 +324,14 @@ pub fn evaluate(
         .map(|m| (m.name.clone(), m.checkpoint.clone()))
         .collect();
     let mut preds = predictors(gpu, &checkpoints)?;
+    // Where each model's online predictions ran (the native CPU path or the adapter).
+    let ran_on: Vec<String> = preds
+        .iter()
+        .map(|(_, p)| match p.backend() {
+            Backend::Native => "native CPU forward (f32, 1 thread)".to_string(),
+            Backend::Device => gpu.info().name.clone(),
+        })
+        .collect();
     let mut latency = vec![(0.0, 0usize); models.len()];
     // One held-out session: the machine warms up, then every path runs in turn; each
     // stage of a path starts from the same state, and the session carries on from the
@@ -412,11 +420,13 @@ pub fn evaluate(
     report.timings = models
         .iter()
         .zip(&latency)
-        .map(|(m, (ms, n))| Timing {
+        .zip(ran_on)
+        .map(|((m, (ms, n)), inference_on)| Timing {
             model: m.name.clone(),
             epoch_seconds: m.epoch_seconds,
             infer_ms: ms / (*n).max(1) as f64,
             adapter: gpu.info().name.clone(),
+            inference_on,
         })
         .collect();
     Ok(())

@@ -35,6 +35,17 @@ pub struct Gpu {
     limits: wgpu::Limits,
     adapter_features: wgpu::Features,
     pub(crate) pipelines: Mutex<PipelineCache>,
+    /// Every buffer created while [`Gpu::allocations_during`] runs (None otherwise).
+    pub(crate) allocations: Mutex<Option<Vec<Allocation>>>,
+}
+
+/// One device buffer: its label and size in bytes.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Allocation {
+    /// The tensor's name.
+    pub name: String,
+    /// Bytes (rounded up to whole 16-byte vectors).
+    pub bytes: u64,
 }
 
 /// Rank of an adapter type: a real GPU first, the CPU (lavapipe) last.
@@ -143,6 +154,7 @@ impl Gpu {
             limits,
             adapter_features,
             pipelines: Mutex::new(PipelineCache::default()),
+            allocations: Mutex::new(None),
         })
     }
 

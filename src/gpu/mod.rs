@@ -8,7 +8,7 @@ mod recorder;
 mod tensor;
 
 pub use device::{
-    choose_adapter, describe, Gpu, ADAPTER_ENV, BACKENDS, INSTALL_HINT, SUBGROUPS_ENV,
+    choose_adapter, describe, Allocation, Gpu, ADAPTER_ENV, BACKENDS, INSTALL_HINT, SUBGROUPS_ENV,
 };
 pub use pipeline::{validate_wgsl, Access, Binding, Kernel, PipelineCache, Shader, COMMON_WGSL};
 pub use recorder::{Dispatch, Recorder};

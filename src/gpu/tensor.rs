@@ -1,6 +1,6 @@
 //! Device-resident tensors: a storage buffer with a shape and an element type.
 
-use super::{Gpu, GpuError};
+use super::{Allocation, Gpu, GpuError};
 
 /// Element type of a tensor.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -139,12 +139,33 @@ impl Gpu {
                 | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
+        if let Ok(mut log) = self.allocations.lock() {
+            if let Some(log) = log.as_mut() {
+                log.push(Allocation {
+                    name: name.to_string(),
+                    bytes: size,
+                });
+            }
+        }
         Tensor {
             buffer,
             shape: shape.to_vec(),
             dtype,
             name: name.to_string(),
         }
+    }
+
+    /// Runs `f` and returns what it returned with every tensor it created on this device
+    /// (by [`Gpu::zeros`] or [`Gpu::upload`]), in creation order: how much device memory
+    /// a network takes. Not reentrant: a nested call sees nothing.
+    pub fn allocations_during<T>(&self, f: impl FnOnce() -> T) -> (T, Vec<Allocation>) {
+        let set = |log: Option<Vec<Allocation>>| match self.allocations.lock() {
+            Ok(mut slot) => std::mem::replace(&mut *slot, log),
+            Err(poisoned) => std::mem::replace(&mut *poisoned.into_inner(), log),
+        };
+        set(Some(Vec::new()));
+        let out = f();
+        (out, set(None).unwrap_or_default())
     }
 
     /// A new f32 tensor holding `data`.

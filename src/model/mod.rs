@@ -5,6 +5,8 @@ pub mod config;
 pub mod conv_lstm;
 pub mod dense;
 pub mod flops;
+pub mod memory;
+pub mod native;
 pub mod params;
 pub mod predictor;
 pub mod recurrent;
@@ -18,6 +20,7 @@ mod block;
 pub mod network;
 pub mod schedule;
 
+pub use native::NativeForward;
 pub use network::{ModelError, Network, Pass};
-pub use predictor::{Features, Predictor, Residual};
+pub use predictor::{Backend, Features, Predictor, Residual};
 pub use schedule::StepTime;

@@ -159,3 +159,21 @@ pub fn compare_network(
     )
     .unwrap();
 }
+
+/// He-initialised parameters with biases, be/bs, θ and ln.* moved off their initial
+/// values (so their gradients are generic), rounded to f32.
+pub fn parameters(config: &iastgcn::model::ModelConfig, seed: u64) -> iastgcn::model::Parameters {
+    use iastgcn::model::{Init, Parameters};
+    use iastgcn::testing::{rng, to_f32, uniform};
+    let mut p = Parameters::init(config, seed);
+    let mut r = rng(seed + 1);
+    for (s, v) in p.specs.iter().zip(p.values.iter_mut()) {
+        let (lo, hi) = match s.init {
+            Init::HeUniform { .. } => continue,
+            Init::Zeros => (-0.3, 0.3),
+            Init::Ones => (0.7, 1.3),
+        };
+        *v = to_f32(&uniform(&mut r, v.len(), lo, hi));
+    }
+    p
+}

@@ -217,17 +217,18 @@ fn markdown_timings(out: &mut String, timings: &[Timing]) {
         return;
     }
     out.push_str(
-        "| Model | Training (s/epoch) | Inference (ms/window) | Adapter |\n\
-         |---|---:|---:|---|\n",
+        "| Model | Training (s/epoch) | Inference (ms/window) | Trained on | Inference on |\n\
+         |---|---:|---:|---|---|\n",
     );
     for t in timings {
         let _ = writeln!(
             out,
-            "| {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} |",
             md(&t.model),
             num(t.epoch_seconds, 3),
             num(t.infer_ms, 3),
-            md(&t.adapter)
+            md(&t.adapter),
+            md(&t.inference_on)
         );
     }
     out.push('\n');

@@ -58,8 +58,10 @@ pub struct Timing {
     pub epoch_seconds: f64,
     /// Latency of one online prediction (B = 1, `Predictor::push`), milliseconds.
     pub infer_ms: f64,
-    /// The GPU adapter it ran on.
+    /// The GPU adapter it trained on.
     pub adapter: String,
+    /// Where its online predictions ran: the adapter's name, or the native CPU forward.
+    pub inference_on: String,
 }
 
 /// Per-tracker-sample pose error of one compensation run (for Fig. 11).
@@ -114,7 +116,7 @@ trk_pos_mean_um,trk_pos_sd_um,trk_pos_max_um,trk_att_mean_mdeg,trk_att_sd_mdeg,t
 pub const TABLE_III_HEADER: &str =
     "trajectory,model,pos_mae_um,pos_rmse_um,pos_mape_pct,att_mae_mdeg,att_rmse_mdeg,att_mape_pct";
 /// Header of `timings.csv`.
-pub const TIMINGS_HEADER: &str = "model,epoch_seconds,infer_ms,adapter";
+pub const TIMINGS_HEADER: &str = "model,epoch_seconds,infer_ms,adapter,inference_on";
 
 /// What one file of the report folder is.
 #[derive(Clone, Debug, PartialEq)]
@@ -305,6 +307,7 @@ pub fn timings_csv(rows: &[Timing]) -> String {
                     format!("{:.4}", t.epoch_seconds),
                     format!("{:.4}", t.infer_ms),
                     t.adapter.clone(),
+                    t.inference_on.clone(),
                 ]
             })
             .collect(),
@@ -399,6 +402,7 @@ fn plot_compensated(path: &Path, rows: &[TableVRow]) -> Result<(), plot::PlotErr
 
 fn plot_fig10(path: &Path, timings: &[Timing]) -> Result<(), plot::PlotError> {
     let adapters = distinct(timings.iter().map(|t| t.adapter.as_str())).join(", ");
+    let inference = distinct(timings.iter().map(|t| t.inference_on.as_str())).join(", ");
     let bars = |pick: fn(&Timing) -> f64| -> Vec<Series> {
         timings
             .iter()
@@ -415,7 +419,7 @@ fn plot_fig10(path: &Path, timings: &[Timing]) -> Result<(), plot::PlotError> {
             equal_aspect: false,
         },
         Panel {
-            title: format!("inference time per window ({adapters})"),
+            title: format!("inference time per window ({inference})"),
             x_label: "model".into(),
             y_label: "ms / window".into(),
             series: bars(|t| t.infer_ms),

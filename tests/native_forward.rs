@@ -1,0 +1,141 @@
+//! The native CPU forward (`model::NativeForward`) against the WGSL inference forward and
+//! the f64 reference: every IASTGCN variant at a small shape, and IASTGCN at the demo and
+//! the paper shape; the variants it does not cover and bad inputs are refused.
+
+mod common;
+
+use common::parameters;
+use iastgcn::graph::Graph;
+use iastgcn::model::reference;
+use iastgcn::model::{graph_basis, ModelConfig, NativeForward, Network, Variant};
+use iastgcn::testing::{compare, gpu, rng, to_f32, uniform, Tolerance};
+
+fn f64s(v: &[f32]) -> Vec<f64> {
+    v.iter().map(|&x| x as f64).collect()
+}
+
+/// `windows` random windows through the native path, one at a time.
+fn native(config: &ModelConfig, p: &iastgcn::model::Parameters, x: &[f32]) -> Vec<f64> {
+    let mut net = NativeForward::new(config, &Graph::default_asset(), p).unwrap();
+    let len = config.nodes * config.features * config.window;
+    let mut y = vec![0f32; config.outputs];
+    let mut out = Vec::new();
+    for w in x.chunks(len) {
+        net.forward(w, &mut y).unwrap();
+        out.extend(f64s(&y));
+    }
+    out
+}
+
+/// Tolerance `rel` of the largest output (f32 sums lose absolute precision).
+fn scaled(expected: &[f64], rel: f64) -> Tolerance {
+    let scale = expected.iter().fold(0f64, |m, v| m.max(v.abs()));
+    Tolerance::new(rel * scale.max(1e-30), rel)
+}
+
+/// Native against the GPU and the reference at `config`, `windows` windows.
+fn check(config: &ModelConfig, seed: u64, windows: usize, rel: f64) {
+    let g = gpu();
+    let graph = Graph::default_asset();
+    let p = parameters(config, seed);
+    let len = config.nodes * config.features * config.window;
+    let x = to_f32(&uniform(&mut rng(seed + 50), windows * len, -1.0, 1.0));
+    let ours = native(config, &p, &x);
+    let net = Network::for_inference(&g, config, &graph, windows).unwrap();
+    net.load_parameters(&g, &p).unwrap();
+    let device = f64s(&net.predict(&g, &x).unwrap());
+    let name = format!(
+        "{} C{} T{} L{}",
+        config.variant, config.channels, config.window, config.blocks
+    );
+    compare(
+        &format!("{name}: native vs WGSL"),
+        &ours,
+        &device,
+        scaled(&device, rel),
+    )
+    .unwrap();
+    let params: Vec<Vec<f64>> = p.values.iter().map(|v| f64s(v)).collect();
+    let basis = graph_basis(&graph, config);
+    let tape = reference::forward(config, &basis, &p.specs, &params, &f64s(&x), windows, None);
+    compare(
+        &format!("{name}: native vs f64 reference"),
+        &ours,
+        &tape.output,
+        scaled(&tape.output, rel),
+    )
+    .unwrap();
+}
+
+#[test]
+fn every_variant_matches_the_wgsl_forward_and_the_reference() {
+    for (i, variant) in Variant::IASTGCN.into_iter().enumerate() {
+        check(
+            &ModelConfig::gradient_check(variant),
+            30 + i as u64,
+            3,
+            1e-5,
+        );
+    }
+}
+
+/// Dilations whose reach d·(K−1) exceeds the window (16·2 = 32 > 12 in the last block):
+/// those taps read only the zeros before the window.
+#[test]
+fn dilation_beyond_the_window_matches() {
+    let config = ModelConfig {
+        window: 12,
+        blocks: 5,
+        ..ModelConfig::gradient_check(Variant::Iastgcn)
+    };
+    check(&config, 35, 2, 1e-5);
+}
+
+#[test]
+fn demo_shape_matches() {
+    let config = ModelConfig {
+        window: 48,
+        channels: 16,
+        blocks: 3,
+        ..ModelConfig::default()
+    };
+    check(&config, 40, 2, 1e-5);
+}
+
+#[test]
+fn paper_shape_matches() {
+    check(&ModelConfig::default(), 41, 1, 1e-5);
+}
+
+#[test]
+fn refuses_other_variants_and_bad_inputs() {
+    let graph = Graph::default_asset();
+    for variant in [
+        Variant::StGat,
+        Variant::Tgcn,
+        Variant::Mlp,
+        Variant::ConvLstm,
+    ] {
+        let config = ModelConfig::gradient_check(variant);
+        let p = parameters(&config, 1);
+        let e = NativeForward::new(&config, &graph, &p)
+            .err()
+            .expect("refused");
+        assert!(e.to_string().contains(variant.name()), "{e}");
+    }
+    let config = ModelConfig::gradient_check(Variant::Iastgcn);
+    let mut net = NativeForward::new(&config, &graph, &parameters(&config, 1)).unwrap();
+    let mut y = [0f32; 6];
+    let e = net.forward(&[0.0; 5], &mut y).unwrap_err().to_string();
+    assert!(e.contains("N·F·T"), "{e}");
+    // Parameters of another shape name the tensor.
+    let other = ModelConfig {
+        channels: config.channels + 2,
+        ..config.clone()
+    };
+    let e = NativeForward::new(&config, &graph, &parameters(&other, 1))
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(e.contains("blocks.0."), "{e}");
+}
