@@ -197,7 +197,7 @@ fn synthetic() -> Report {
             epoch_seconds: 12.5,
             infer_ms: 1.75,
             adapter: "Test GPU (Vulkan)".into(),
-            inference_on: "native CPU forward (f32, 1 thread)".into(),
+            inference_on: "native CPU forward".into(),
         },
         Timing {
             model: "lstm".into(),
@@ -344,7 +344,7 @@ fn writes_every_file_of_the_report_folder() {
     assert_eq!(t.len(), 3);
     assert_eq!(
         t[1],
-        "iastgcn,12.5000,1.7500,Test GPU (Vulkan),native CPU forward (f32, 1 thread)"
+        "iastgcn,12.5000,1.7500,Test GPU (Vulkan),native CPU forward"
     );
 
     // The Markdown report.
@@ -447,7 +447,7 @@ fn one_model_gets_no_bold_and_odd_names_get_safe_file_names() {
             epoch_seconds: 1.0,
             infer_ms: 0.25,
             adapter: "cpu".into(),
-            inference_on: "native CPU forward (f32, 1 thread)".into(),
+            inference_on: "native CPU forward".into(),
         }],
         ..Report::default()
     };

@@ -328,7 +328,7 @@ pub fn evaluate(
     let ran_on: Vec<String> = preds
         .iter()
         .map(|(_, p)| match p.backend() {
-            Backend::Native => "native CPU forward (f32, 1 thread)".to_string(),
+            Backend::Native => "native CPU forward".to_string(),
             Backend::Device => gpu.info().name.clone(),
         })
         .collect();

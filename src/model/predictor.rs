@@ -8,10 +8,11 @@
 //! de-standardises the output. After [`Predictor::new`] no call allocates host
 //! memory, buffers or pipelines.
 //!
-//! Single windows (`predict`, `push`, `predict_latest`) run on the native CPU forward
-//! ([`NativeForward`]) when the adapter is a CPU implementation and the variant is one it
-//! covers: on lavapipe it is 6–12× faster than the WGSL path (docs/performance.md "The
-//! native CPU forward"). [`Predictor::native`] needs no device at all.
+//! Every window runs on the native CPU forward ([`NativeForward`], one at a time) when
+//! the adapter is a CPU implementation and the variant is one it covers: on lavapipe it
+//! is about 10× faster than the WGSL path, at B = 1 and per window at B = 64 alike
+//! (docs/performance.md "The native CPU forward"). [`Predictor::native`] needs no device
+//! at all.
 
 use std::sync::Arc;
 
@@ -35,12 +36,13 @@ pub enum Features {
     Standardised,
 }
 
-/// Where a predictor runs single windows (the latency path).
+/// Where a predictor runs its windows.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Backend {
     /// The WGSL forward on the device.
     Device,
-    /// The native CPU forward ([`NativeForward`]), one window at a time.
+    /// The native CPU forward ([`NativeForward`]), one window at a time; no device
+    /// network is built.
     Native,
 }
 
@@ -54,8 +56,8 @@ struct DevicePath {
     readback: Readback,
 }
 
-/// The forward pass of one checkpoint, for up to `capacity` windows per submit: on a
-/// device, on the CPU, or both (batches on the device, single windows on the CPU).
+/// The forward pass of one checkpoint: on a device, up to `capacity` windows per
+/// submit, or on the CPU, one window at a time.
 pub struct Predictor {
     device: Option<DevicePath>,
     native: Option<NativeForward>,
@@ -74,8 +76,9 @@ pub struct Predictor {
 
 impl Predictor {
     /// Builds the inference schedule for `capacity` windows per submit and uploads
-    /// the weights. Compiles every pipeline (the warm-up). Single windows run natively
-    /// when the adapter is a CPU and the variant is covered ([`Predictor::backend`]).
+    /// the weights. Compiles every pipeline (the warm-up). When the adapter is a CPU and
+    /// the variant is covered, builds the native CPU forward instead
+    /// ([`Predictor::backend`]).
     pub fn new(
         gpu: Arc<Gpu>,
         checkpoint: &Checkpoint,
@@ -89,22 +92,22 @@ impl Predictor {
         Predictor::with_backend(gpu, checkpoint, capacity, backend)
     }
 
-    /// As [`Predictor::new`], with the single-window path chosen by the caller
-    /// ([`Backend::Native`] fails for a variant the native forward does not cover).
+    /// As [`Predictor::new`], with the path chosen by the caller ([`Backend::Native`]
+    /// fails for a variant the native forward does not cover, and ignores `gpu` and
+    /// `capacity`).
     pub fn with_backend(
         gpu: Arc<Gpu>,
         checkpoint: &Checkpoint,
         capacity: usize,
         backend: Backend,
     ) -> Result<Predictor, ModelError> {
+        if backend == Backend::Native {
+            return Predictor::native(checkpoint);
+        }
         let config = &checkpoint.config;
         let net = Network::for_inference(&gpu, config, &checkpoint.graph, capacity)?;
         net.load_parameters(&gpu, &checkpoint.parameters)?;
-        let native = match backend {
-            Backend::Native => Some(native_forward(checkpoint)?),
-            Backend::Device => None,
-        };
-        let single = if capacity > 1 && native.is_none() {
+        let single = if capacity > 1 {
             let single = Network::for_inference(&gpu, config, &checkpoint.graph, 1)?;
             single.load_parameters(&gpu, &checkpoint.parameters)?;
             Some(single)
@@ -118,11 +121,12 @@ impl Predictor {
             single,
             readback,
         };
-        Predictor::build(checkpoint, Some(device), native, capacity)
+        Predictor::build(checkpoint, Some(device), None, capacity)
     }
 
     /// A predictor without a device: every window on the CPU, one at a time (the four
-    /// IASTGCN variants only). For controllers with no Vulkan, Metal or DX12 driver.
+    /// IASTGCN variants only); its capacity is 1. For controllers with no Vulkan, Metal
+    /// or DX12 driver, and what [`Predictor::new`] builds on a CPU adapter.
     pub fn native(checkpoint: &Checkpoint) -> Result<Predictor, ModelError> {
         let native = native_forward(checkpoint)?;
         Predictor::build(checkpoint, None, Some(native), 1)
@@ -200,13 +204,12 @@ impl Predictor {
         }
     }
 
-    /// Runs the forward pass on the first `windows` staged windows: natively one by one
-    /// when single or without a device, else on the device in one submit.
+    /// Runs the forward pass on the first `windows` staged windows: natively one by one,
+    /// or on the device in one submit.
     fn run(&mut self, windows: usize) -> Result<(), ModelError> {
         let (len, o) = (self.window_len(), self.config.outputs);
-        let one_by_one = windows == 1 || self.device.is_none();
         match (&mut self.native, &self.device) {
-            (Some(native), _) if one_by_one => {
+            (Some(native), _) => {
                 for w in 0..windows {
                     native.forward(
                         &self.staging[w * len..][..len],
@@ -215,7 +218,7 @@ impl Predictor {
                 }
                 Ok(())
             }
-            (_, Some(d)) => {
+            (None, Some(d)) => {
                 let net = match &d.single {
                     Some(single) if windows == 1 => single,
                     _ => &d.net,
@@ -230,8 +233,8 @@ impl Predictor {
                 d.readback.read_into(&d.gpu, &mut self.output[..outputs])?;
                 Ok(())
             }
-            // The constructors give every predictor one path or both.
-            _ => Err(ModelError::Config(
+            // The constructors give every predictor one of the two.
+            (None, None) => Err(ModelError::Config(
                 "this predictor has neither a device nor a native forward".into(),
             )),
         }
