@@ -44,7 +44,9 @@ fn main() -> anyhow::Result<()> {
         gpu.info().name
     );
     // Up to 8 windows per submit; builds every buffer and pipeline now (the warm-up).
+    // On a CPU adapter (lavapipe) it builds the native CPU forward instead.
     let mut predictor = Predictor::new(gpu, &checkpoint, 8)?;
+    println!("runs on: {:?}", predictor.backend());
 
     // Synthetic raw features [N, F, T]: a slow sine per node and feature.
     let (n, f, t) = (c.nodes, c.features, c.window);
