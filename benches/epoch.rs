@@ -16,8 +16,6 @@
 //! `cargo bench --bench epoch` takes about two minutes on the 2-core lavapipe machine.
 //! The variant can be chosen: `cargo bench --bench epoch -- tgcn`.
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::time::Instant;
 
 use iastgcn::data::DataSources;
@@ -26,55 +24,11 @@ use iastgcn::model::Variant;
 use iastgcn::progress::Silent;
 use iastgcn::train::{self, fit, RunConfig, Trainer};
 
+/// The training tests' twin session (calibration and recordings written by the CLI).
+#[path = "../tests/common/mod.rs"]
+mod twin;
+
 const EPOCHS: usize = 3;
-
-fn cli(args: &[&str]) {
-    let status = Command::new(env!("CARGO_BIN_EXE_iastgcn"))
-        .args(args)
-        .stdout(std::process::Stdio::null())
-        .status()
-        .expect("running iastgcn");
-    assert!(status.success(), "iastgcn {args:?} failed");
-}
-
-/// The demo's training data in `dir`: calibration and three 2-minute recordings.
-fn session(dir: &Path) -> (PathBuf, Vec<PathBuf>) {
-    std::fs::create_dir_all(dir).unwrap();
-    let p = |name: &str| dir.join(name).to_str().unwrap().to_string();
-    let (set, cal) = (p("set.csv"), p("cal.toml"));
-    cli(&[
-        "simulate",
-        "--trajectory",
-        "calibration",
-        "--poses",
-        "60",
-        "--seed",
-        "7",
-        "--out",
-        &set,
-    ]);
-    cli(&["calibrate", "--measurements", &set, "--out", &cal]);
-    let recordings = ["grid", "fermat", "hilbert"]
-        .iter()
-        .enumerate()
-        .map(|(i, path)| {
-            let out = p(&format!("{path}.csv"));
-            cli(&[
-                "simulate",
-                "--trajectory",
-                path,
-                "--minutes",
-                "2",
-                "--seed",
-                &(5 + i).to_string(),
-                "--out",
-                &out,
-            ]);
-            PathBuf::from(out)
-        })
-        .collect();
-    (PathBuf::from(cal), recordings)
-}
 
 fn main() {
     let variant = std::env::args()
@@ -82,7 +36,8 @@ fn main() {
         .find_map(|a| Variant::parse(&a))
         .unwrap_or(Variant::Iastgcn);
     let dir = std::env::temp_dir().join(format!("iastgcn-epoch-bench-{}", std::process::id()));
-    let (cal, recordings) = session(&dir);
+    // The demo's training data: three 2-minute recordings.
+    let (cal, recordings) = twin::twin_session(&dir, &["grid", "fermat", "hilbert"], 120.0);
     let mut config = RunConfig::demo();
     config.model.variant = variant;
     config.train.max_epochs = EPOCHS;
