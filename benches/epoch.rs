@@ -14,13 +14,15 @@
 //!   target of docs/performance.md).
 //!
 //! `cargo bench --bench epoch` takes about two minutes on the 2-core lavapipe machine.
-//! The variant can be chosen: `cargo bench --bench epoch -- tgcn`.
+//! The variant and the backend (`[train] backend`: auto, device or native) can be
+//! chosen: `cargo bench --bench epoch -- tgcn`, `cargo bench --bench epoch -- device`.
+//! On the native path the isolated step is `NativeTraining::step` on the same batch size.
 
 use std::time::Instant;
 
 use iastgcn::data::DataSources;
 use iastgcn::gpu::{Gpu, Recorder};
-use iastgcn::model::Variant;
+use iastgcn::model::{NativeAdam, NativeStepShape, NativeTraining, Variant};
 use iastgcn::progress::Silent;
 use iastgcn::train::{self, fit, RunConfig, Trainer};
 
@@ -38,8 +40,13 @@ fn main() {
     let dir = std::env::temp_dir().join(format!("iastgcn-epoch-bench-{}", std::process::id()));
     // The demo's training data: three 2-minute recordings.
     let (cal, recordings) = twin::twin_session(&dir, &["grid", "fermat", "hilbert"], 120.0);
+    let backend = std::env::args()
+        .skip(1)
+        .find(|a| ["auto", "device", "native"].contains(&a.as_str()))
+        .unwrap_or_else(|| "auto".into());
     let mut config = RunConfig::demo();
     config.model.variant = variant;
+    config.train.backend = backend;
     config.train.max_epochs = EPOCHS;
     config.train.patience = EPOCHS;
     let sources = DataSources::new(recordings, cal);
@@ -67,22 +74,57 @@ fn main() {
     .unwrap();
 
     // One step alone, as the model bench times it (mean of 5 after a warm-up).
-    let net = &trainer.net;
-    let step = || {
-        let t0 = Instant::now();
-        let mut rec = Recorder::new(&gpu);
-        net.record_train_forward(&mut rec).unwrap();
-        net.record_backward(&mut rec).unwrap();
-        rec.submit();
-        gpu.wait().unwrap();
-        t0.elapsed().as_secs_f64()
+    let isolated = match trainer.network() {
+        Some(net) => {
+            let step = || {
+                let t0 = Instant::now();
+                let mut rec = Recorder::new(&gpu);
+                net.record_train_forward(&mut rec).unwrap();
+                net.record_backward(&mut rec).unwrap();
+                rec.submit();
+                gpu.wait().unwrap();
+                t0.elapsed().as_secs_f64()
+            };
+            step();
+            (0..5).map(|_| step()).sum::<f64>() / 5.0
+        }
+        None => {
+            let c = &config.train;
+            let shape = NativeStepShape {
+                batch: trainer.batch(),
+                group: 1,
+                seed: 1,
+                penalty: c.attitude_penalty,
+                threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            };
+            let adam = NativeAdam {
+                beta1: c.beta1,
+                beta2: c.beta2,
+                eps: c.adam_eps,
+                weight_decay: c.weight_decay,
+            };
+            let mut native = NativeTraining::new(&config.model, &graph, shape, adam).unwrap();
+            native.load_parameters(&trainer.best).unwrap();
+            let positions: Vec<usize> = (0..trainer.batch()).collect();
+            let (x, y) = data.gather(&positions);
+            let mut step = |s: u64| {
+                let t0 = Instant::now();
+                native.step(&x, &y, s, 1e-4).unwrap();
+                t0.elapsed().as_secs_f64()
+            };
+            step(0);
+            (1..6).map(&mut step).sum::<f64>() / 5.0
+        }
     };
-    step();
-    let isolated = (0..5).map(|_| step()).sum::<f64>() / 5.0;
     let steps = trainer.steps_per_epoch();
 
+    let on = if trainer.network().is_some() {
+        "the device"
+    } else {
+        "the native CPU path"
+    };
     eprintln!(
-        "\n{variant} on {} ({} training and {} validation windows, batch {}, {steps} steps \
+        "\n{variant} on {on}, {} ({} training and {} validation windows, batch {}, {steps} steps \
          per epoch); isolated step {:.1} ms",
         gpu.info().name,
         data.split_ranges()[0].len(),

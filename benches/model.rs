@@ -1,6 +1,7 @@
 //! Whole-network throughput: inference forward at B = 1 (latency; on the device and, for
 //! the IASTGCN variants, on the native CPU path `model::NativeForward`) and B = 64, and one
-//! training step at B = 64, for the paper shape (C 64, T 100, L 5) and a small shape
+//! training step at B = 64 (on the device and, for the IASTGCN variants, on the native
+//! CPU path `model::NativeTraining` with every core), for the paper shape (C 64, T 100, L 5) and a small shape
 //! (C 16, T 48, L 3), then the same three for each baseline (tgcn, eat-gcn, mlp,
 //! bkls-ann, ann-bfpa, erc) at both windows, against the project's best matmul measured in the
 //! same run.
@@ -18,9 +19,9 @@
 //! (benches/pytorch/compare.py).
 //!
 //! A training step is the training forward + backward (loss and every gradient),
-//! recorded into one command buffer, submitted and waited for. There is no optimiser
-//! yet, so the step updates no parameter (and the dropout step is set once, outside the
-//! loop). Networks, parameters (`Parameters::init(config, 1)`) and random inputs are
+//! recorded into one command buffer, submitted and waited for (natively:
+//! `NativeTraining::gradients`). No optimiser runs, so the step updates no parameter
+//! (and the device's dropout step is set once, outside the loop). Networks, parameters (`Parameters::init(config, 1)`) and random inputs are
 //! built once, outside the timing. `cargo bench --bench model` takes about 6 minutes on
 //! the 2-core lavapipe machine.
 
@@ -35,8 +36,8 @@ use criterion::{
 };
 use iastgcn::gpu::{Gpu, Recorder};
 use iastgcn::model::{
-    flops, Backend, Checkpoint, ModelConfig, NativeForward, Network, Normalization, Parameters,
-    Pass, Predictor, Variant,
+    flops, Backend, Checkpoint, ModelConfig, NativeAdam, NativeForward, NativeStepShape,
+    NativeTraining, Network, Normalization, Parameters, Pass, Predictor, Variant,
 };
 use iastgcn::testing::{rng, to_f32, uniform};
 
@@ -275,6 +276,43 @@ fn model_group(c: &mut Criterion, name: &str, config: &ModelConfig) {
         flops::training_flops(config, BATCH),
         || training_step(&gpu, &big),
     );
+    if NativeTraining::supports(config) {
+        let graph = iastgcn::graph::Graph::default_asset();
+        let shape = NativeStepShape {
+            batch: BATCH,
+            group: 1,
+            seed: 1,
+            penalty: 1.0,
+            threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        };
+        let adam = NativeAdam {
+            beta1: 0.9,
+            beta2: 0.999,
+            eps: 1e-8,
+            weight_decay: 1e-4,
+        };
+        let mut native = NativeTraining::new(config, &graph, shape, adam).unwrap();
+        native
+            .load_parameters(&Parameters::init(config, 1))
+            .unwrap();
+        let len = config.nodes * config.features * config.window;
+        let x = to_f32(&uniform(&mut rng(3), BATCH * len, -1.0, 1.0));
+        let y = to_f32(&uniform(&mut rng(4), BATCH * config.outputs, -1.0, 1.0));
+        let mut step = 0u32;
+        bench(
+            &mut group,
+            name,
+            "native train step B=64",
+            Some(BATCH),
+            flops::training_flops(config, BATCH),
+            // Forward, loss and backward, no update: what the device's step and
+            // PyTorch's (make bench-compare) time.
+            || {
+                native.gradients(&x, &y, step).unwrap();
+                step += 1;
+            },
+        );
+    }
     group.finish();
 }
 

@@ -119,6 +119,7 @@ fn history(stages: &[(&str, usize)]) -> Vec<EpochRecord> {
                 windows_per_s: 800.0,
                 validation_seconds: 0.2,
                 readback_seconds: 0.01,
+                trained_on: "Test GPU (Vulkan)".into(),
             });
         }
     }
@@ -196,14 +197,14 @@ fn synthetic() -> Report {
             model: "iastgcn".into(),
             epoch_seconds: 12.5,
             infer_ms: 1.75,
-            adapter: "Test GPU (Vulkan)".into(),
+            trained_on: "native CPU (2 threads)".into(),
             inference_on: "native CPU forward".into(),
         },
         Timing {
             model: "lstm".into(),
             epoch_seconds: 4.25,
             infer_ms: 0.5,
-            adapter: "Test GPU (Vulkan)".into(),
+            trained_on: "Test GPU (Vulkan)".into(),
             inference_on: "Test GPU (Vulkan)".into(),
         },
     ];
@@ -344,7 +345,7 @@ fn writes_every_file_of_the_report_folder() {
     assert_eq!(t.len(), 3);
     assert_eq!(
         t[1],
-        "iastgcn,12.5000,1.7500,Test GPU (Vulkan),native CPU forward"
+        "iastgcn,12.5000,1.7500,native CPU (2 threads),native CPU forward"
     );
 
     // The Markdown report.
@@ -393,7 +394,7 @@ fn writes_every_file_of_the_report_folder() {
     // raster: iastgcn best in position, lstm in attitude MAE.
     assert!(md.contains("| MAE (µm / mdeg) | **1.235** / 0.250 | 2.500 / **0.200** |"));
     // Fig. 10 table.
-    assert!(md.contains("| iastgcn | 12.500 | 1.750 | Test GPU (Vulkan) |"));
+    assert!(md.contains("| iastgcn | 12.500 | 1.750 | native CPU (2 threads) |"));
     // Every file listed, the PNGs linked as images.
     for name in expected {
         assert!(md.contains(&format!("- `{name}`: ")), "{name} listed");
@@ -446,7 +447,7 @@ fn one_model_gets_no_bold_and_odd_names_get_safe_file_names() {
             model: "iastgcn".into(),
             epoch_seconds: 1.0,
             infer_ms: 0.25,
-            adapter: "cpu".into(),
+            trained_on: "cpu".into(),
             inference_on: "native CPU forward".into(),
         }],
         ..Report::default()

@@ -6,7 +6,8 @@
    windows, and the PyTorch model of iastgcn_torch.py, loaded from the same file, must
    give the same outputs to 1e-4 (max |difference|, standardised label space).
 2. Speed: the engine's `cargo bench --bench model` groups for the two shapes (the WGSL
-   path on the adapter, and at B = 1 also the native CPU forward; criterion,
+   path on the adapter, and also the native CPU path: forward at B = 1 and the
+   training step at B = 64; criterion,
    its summary written as CSV through IASTGCN_BENCH_CSV) and the same three measurements
    in PyTorch (forward B = 1 and B = 64 under no_grad in eval mode; a training step at
    B = 64: forward with dropout, the eq. 39 data loss, backward, no optimiser, exactly
@@ -49,9 +50,11 @@ SHAPES = [
 ]
 MEASURES = ["forward B=1", "forward B=64", "train step B=64"]
 # Engine rows: the device's three, plus the native CPU forward (model::NativeForward)
-# against the same PyTorch forward at B = 1.
+# against the same PyTorch forward at B = 1 and the native training step
+# (model::NativeTraining, gradients only) against PyTorch's step.
 ENGINE_ROWS = [("forward B=1", "forward B=1"), ("native forward B=1", "forward B=1"),
-               ("forward B=64", "forward B=64"), ("train step B=64", "train step B=64")]
+               ("forward B=64", "forward B=64"), ("train step B=64", "train step B=64"),
+               ("native train step B=64", "train step B=64")]
 TOLERANCE = 1e-4
 
 

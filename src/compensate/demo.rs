@@ -253,6 +253,7 @@ pub fn demo(
             p.best_val, p.best_epoch, p.epoch
         ));
         let secs = epoch_seconds(&p.history);
+        let trained_on = trainer.trained_on();
         histories.push((name.to_string(), p.history.clone()));
         drop(trainer);
         let r = refine(&gpu, &data, &graph, &c, &ck.parameters, reporter)?;
@@ -268,6 +269,7 @@ pub fn demo(
             name: name.to_string(),
             checkpoint: refined,
             epoch_seconds: secs,
+            trained_on,
         });
     }
 

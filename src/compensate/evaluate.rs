@@ -219,38 +219,60 @@ pub struct NamedModel {
     pub checkpoint: Checkpoint,
     /// Mean wall time of a training epoch, s (NaN when unknown).
     pub epoch_seconds: f64,
+    /// Where it trained (`unknown` without a training log).
+    pub trained_on: String,
 }
 
 impl NamedModel {
     /// The checkpoint at `path`, named by its file stem; a `<stem>.log.csv` beside it
-    /// gives its training time per epoch.
+    /// gives its training time per epoch and where it trained.
     pub fn load(path: &std::path::Path) -> Result<NamedModel> {
         let name = path
             .file_stem()
             .map_or("model".into(), |s| s.to_string_lossy().into_owned());
+        let (epoch_seconds, trained_on) =
+            read_training_log(&sibling(path, ".log.csv")).unwrap_or((f64::NAN, "unknown".into()));
         Ok(NamedModel {
             name,
             checkpoint: Checkpoint::load(path)?,
-            epoch_seconds: read_epoch_seconds(&sibling(path, ".log.csv")).unwrap_or(f64::NAN),
+            epoch_seconds,
+            trained_on,
         })
     }
 }
 
-/// Mean `seconds` of the core epochs in a training log (of every epoch when it has no
-/// core stage, as a refined model's log), if the log exists.
-fn read_epoch_seconds(log: &std::path::Path) -> Option<f64> {
-    let text = std::fs::read_to_string(log).ok()?;
-    let seconds = |core: bool| -> Vec<f64> {
-        text.lines()
-            .skip(1)
-            .filter(|l| !core || l.starts_with("core,"))
-            .filter_map(|l| l.split(',').nth(6)?.parse().ok())
-            .collect()
+/// The mean `seconds` of the core epochs in a training log (of every epoch when it has
+/// no core stage, as a refined model's log) and where they ran (`trained_on` of the
+/// first such epoch; `unknown` in logs written before that column), if the log exists
+/// and has epochs.
+fn read_training_log(log: &std::path::Path) -> Option<(f64, String)> {
+    let mut reader = csv::Reader::from_path(log).ok()?;
+    let header = reader.headers().ok()?.clone();
+    let column = |name: &str| header.iter().position(|h| h == name);
+    let (stage, seconds, on) = (column("stage")?, column("seconds")?, column("trained_on"));
+    let rows: Vec<csv::StringRecord> = reader.records().filter_map(|r| r.ok()).collect();
+    let core: Vec<&csv::StringRecord> = rows
+        .iter()
+        .filter(|r| r.get(stage) == Some("core"))
+        .collect();
+    let picked = if core.is_empty() {
+        rows.iter().collect()
+    } else {
+        core
     };
-    let v = Some(seconds(true))
-        .filter(|v| !v.is_empty())
-        .unwrap_or_else(|| seconds(false));
-    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+    let values: Vec<f64> = picked
+        .iter()
+        .filter_map(|r| r.get(seconds)?.parse().ok())
+        .collect();
+    if values.is_empty() {
+        return None;
+    }
+    let trained_on = on
+        .and_then(|c| picked.first()?.get(c))
+        .filter(|s| !s.is_empty())
+        .unwrap_or("unknown")
+        .to_string();
+    Some((values.iter().sum::<f64>() / values.len() as f64, trained_on))
 }
 
 /// Table III (each model on the test split of `sources`, windowed as `config` says and
@@ -425,7 +447,7 @@ pub fn evaluate(
             model: m.name.clone(),
             epoch_seconds: m.epoch_seconds,
             infer_ms: ms / (*n).max(1) as f64,
-            adapter: gpu.info().name.clone(),
+            trained_on: m.trained_on.clone(),
             inference_on,
         })
         .collect();

@@ -20,7 +20,7 @@ mod block;
 pub mod network;
 pub mod schedule;
 
-pub use native::NativeForward;
+pub use native::{NativeAdam, NativeForward, NativeStepShape, NativeTraining};
 pub use network::{ModelError, Network, Pass};
 pub use predictor::{Backend, Features, Predictor, Residual};
 pub use schedule::StepTime;

@@ -58,6 +58,12 @@ pub struct TrainConfig {
     pub patience: usize,
     /// Seed of the initial weights, the shuffling and the dropout masks.
     pub seed: u64,
+    /// Where the steps run: `auto` (the native CPU path on a CPU adapter for the IASTGCN
+    /// variants, the device otherwise), `device` (WGSL on the adapter) or `native`.
+    pub backend: String,
+    /// Threads of the native path; 0 = every core. The gradient sums in a fixed order
+    /// for a given count: a run repeats bit for bit with the same count.
+    pub threads: usize,
 }
 
 impl Default for TrainConfig {
@@ -74,6 +80,8 @@ impl Default for TrainConfig {
             max_epochs: 150,
             patience: 10,
             seed: 1,
+            backend: "auto".into(),
+            threads: 0,
         }
     }
 }
@@ -202,6 +210,18 @@ impl RunConfig {
         )?;
         let t = &self.train;
         check(t.batch > 0, "train.batch", t.batch, "must be positive")?;
+        check(
+            ["auto", "device", "native"].contains(&t.backend.as_str()),
+            "train.backend",
+            format!("{:?}", t.backend),
+            "must be \"auto\", \"device\" or \"native\"",
+        )?;
+        check(
+            t.threads <= 1024,
+            "train.threads",
+            t.threads,
+            "must be at most 1024 (0 = every core)",
+        )?;
         check(
             t.lr > 0.0 && t.lr.is_finite(),
             "train.lr",

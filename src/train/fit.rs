@@ -200,12 +200,15 @@ pub fn write_epoch_files(
     Ok(())
 }
 
-/// Every setting that must match for a resumed run (the epoch limit and patience may change).
+/// Every setting that must match for a resumed run (the epoch limit and patience may
+/// change, and so may where the steps run: both paths read and write the same state).
 fn resumable(a: &RunConfig, b: &RunConfig) -> bool {
     let strip = |c: &RunConfig| {
         let mut c = c.clone();
         c.train.max_epochs = 0;
         c.train.patience = 0;
+        c.train.backend.clear();
+        c.train.threads = 0;
         c.refine = Default::default();
         c
     };
@@ -286,7 +289,7 @@ pub fn train(
     reporter.note(&format!(
         "training {} on {}: {} windows per step, {} steps per epoch",
         config.model.variant,
-        gpu.info().name,
+        trainer.trained_on(),
         trainer.batch(),
         trainer.steps_per_epoch()
     ));

@@ -19,6 +19,7 @@ pub fn write_csv(path: &Path, history: &[EpochRecord]) -> Result<()> {
         "windows_per_s",
         "validation_seconds",
         "readback_seconds",
+        "trained_on",
     ]
     .join(",");
     let rows = history
@@ -35,6 +36,7 @@ pub fn write_csv(path: &Path, history: &[EpochRecord]) -> Result<()> {
                 format!("{:.1}", r.windows_per_s),
                 format!("{:.3}", r.validation_seconds),
                 format!("{:.3}", r.readback_seconds),
+                r.trained_on.clone(),
             ]
         })
         .collect();

@@ -3,6 +3,8 @@
 //! resumable states, metrics, logs and plots.
 
 pub mod config;
+pub mod engine;
+pub mod error;
 pub mod fit;
 pub mod log;
 pub mod metrics;

@@ -107,14 +107,14 @@ pub fn refine(
         params = trainer.best.clone();
         last = Some(trainer);
     }
-    let (Some(trainer), Some((before, metrics_before))) = (last, before) else {
+    let (Some(mut trainer), Some((before, metrics_before))) = (last, before) else {
         return Err(Error::Invalid(
             "refine.magnifications is empty: nothing to refine".into(),
         ));
     };
     // The stages score ensembles; the model is used window by window, so it is kept only
     // if the per-window validation loss improves too.
-    let judge = Trainer::new(
+    let mut judge = Trainer::new(
         gpu,
         data,
         graph,

@@ -1,9 +1,9 @@
-//! One training stage on the device: seeded shuffled mini-batches (single windows, or
-//! ensembles of consecutive windows for refinement), forward + loss + backward + Adam in
-//! one submit per step with no readback, the step losses copied into a per-epoch log on
-//! the device and read once per epoch, validation, early stopping with the best weights
-//! kept, and a divergence guard that replays the failing epoch step by step to say which
-//! step and which tensor went bad.
+//! One training stage: seeded shuffled mini-batches (single windows, or ensembles of
+//! consecutive windows for refinement), each step forward + loss + backward + Adam on the
+//! stage's engine (`engine.rs`: on the device, one submit per step with no readback and
+//! the step losses read once per epoch; or on the native CPU path), validation, early
+//! stopping with the best weights kept, and a divergence guard that replays the failing
+//! epoch step by step to say which step and which tensor went bad.
 
 use std::time::Instant;
 
@@ -12,42 +12,14 @@ use rand::SeedableRng;
 use serde::{Deserialize, Serialize};
 
 use super::config::TrainConfig;
+use super::engine::Engine;
+pub use super::error::TrainError;
 use super::metrics::ensemble_loss;
-use super::optimizer::{learning_rate, Optimizer};
+use super::optimizer::learning_rate;
 use crate::data::{Dataset, OUTPUTS};
-use crate::gpu::{DType, Gpu, GpuError, Readback, Recorder, Tensor};
+use crate::gpu::Gpu;
 use crate::graph::Graph;
-use crate::model::{ModelConfig, ModelError, NativeForward, Network, Parameters};
-
-/// What stops a training run.
-#[derive(Debug, thiserror::Error)]
-pub enum TrainError {
-    /// The device failed.
-    #[error(transparent)]
-    Gpu(#[from] GpuError),
-    /// The network could not be built or run.
-    #[error(transparent)]
-    Model(#[from] ModelError),
-    /// The data does not fit the model or the stage (shapes, too few windows, a state of
-    /// another stage).
-    #[error("{0}")]
-    Data(String),
-    /// A non-finite loss or parameter. `last_good` holds the parameters just before the
-    /// step that went bad.
-    #[error("training diverged at step {step} (epoch {epoch}, batch {batch}): {what}")]
-    Diverged {
-        /// The optimiser step that went bad, counted from 0 within the stage.
-        step: u64,
-        /// Its epoch, from 1.
-        epoch: usize,
-        /// Its mini-batch within the epoch, from 1.
-        batch: usize,
-        /// What went bad: the loss, or the first non-finite tensor.
-        what: String,
-        /// The parameters just before that step.
-        last_good: Box<Parameters>,
-    },
-}
+use crate::model::{ModelConfig, Network, Parameters};
 
 /// One stage's schedule.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -92,6 +64,9 @@ pub struct EpochRecord {
     /// caller: [`super::fit::run_stage`].)
     #[serde(default)]
     pub readback_seconds: f64,
+    /// Where the steps ran: the adapter's name, or `native CPU (n threads)`.
+    #[serde(default)]
+    pub trained_on: String,
 }
 
 /// Where a stage stands; saved with the training state so a run can resume.
@@ -198,21 +173,17 @@ pub struct Trainer<'a> {
     config: TrainConfig,
     /// The stage's schedule.
     pub stage: Stage,
-    /// The network being trained.
-    pub net: Network,
+    /// The network's shape and variant.
+    model: ModelConfig,
     /// The sensor graph (for the native CPU forward of [`Trainer::predict`]).
     graph: Graph,
-    opt: Optimizer,
+    /// Where the steps run: the device or the native CPU path.
+    engine: Engine,
+    batch: usize,
     train_groups: Vec<Vec<usize>>,
     val_groups: Vec<Vec<usize>>,
     groups_per_batch: usize,
     steps_per_epoch: usize,
-    loss_log: Tensor,
-    loss_rb: Readback,
-    /// ŷ of up to `table_rows` windows per readback.
-    table: Tensor,
-    table_rb: Readback,
-    table_rows: usize,
     /// The current step's windows and their gathered tensors (reused across steps).
     positions: Vec<usize>,
     batch_x: Vec<f32>,
@@ -268,21 +239,8 @@ impl<'a> Trainer<'a> {
         let groups_per_batch = (config.batch / m).max(1).min(train_groups.len());
         let steps_per_epoch = train_groups.len().div_ceil(groups_per_batch);
         let batch = groups_per_batch * m;
-        let seed32 = (config.seed as u32) ^ ((config.seed >> 32) as u32);
-        let net = if m == 1 {
-            Network::new(gpu, model, graph, batch, seed32)?
-        } else {
-            Network::for_ensembles(gpu, model, graph, batch, m, seed32)?
-        };
-        net.set_attitude_penalty(gpu, config.attitude_penalty)?;
-        net.load_parameters(gpu, init)?;
-        let opt = Optimizer::new(gpu, &net, config)?;
-        let loss_log = gpu.zeros("loss log", &[steps_per_epoch], DType::F32);
-        let loss_rb = Readback::new(gpu, "loss log", loss_log.byte_len());
-        let table_rows = batch * 16;
-        let table = gpu.zeros("predictions", &[table_rows, model.outputs], DType::F32);
-        let table_rb = Readback::new(gpu, "predictions", table.byte_len());
-        let (adam_m, adam_v) = opt.read_state(gpu)?;
+        let engine = Engine::new(gpu, model, graph, config, batch, m, steps_per_epoch, init)?;
+        let (adam_m, adam_v) = engine.moments(gpu)?;
         let start = Snapshot {
             stage: stage.clone(),
             progress: Progress::new(),
@@ -296,18 +254,14 @@ impl<'a> Trainer<'a> {
             data,
             config: config.clone(),
             stage,
-            net,
+            model: model.clone(),
             graph: graph.clone(),
-            opt,
+            engine,
+            batch,
             train_groups,
             val_groups,
             groups_per_batch,
             steps_per_epoch,
-            loss_log,
-            loss_rb,
-            table,
-            table_rb,
-            table_rows,
             positions: Vec::with_capacity(batch),
             batch_x: Vec::with_capacity(batch * data.window_len()),
             batch_y: Vec::with_capacity(batch * OUTPUTS),
@@ -327,8 +281,8 @@ impl<'a> Trainer<'a> {
                 s.stage.name, s.stage.group, s.stage.lr0, self.stage.name, self.stage.group, self.stage.lr0
             )));
         }
-        self.net.load_parameters(self.gpu, &s.params)?;
-        self.opt.load_state(self.gpu, &s.adam_m, &s.adam_v)?;
+        self.engine.load(self.gpu, &s.params)?;
+        self.engine.load_moments(self.gpu, &s.adam_m, &s.adam_v)?;
         self.progress = s.progress.clone();
         self.best = s.best.clone();
         self.start = s.clone();
@@ -348,7 +302,19 @@ impl<'a> Trainer<'a> {
 
     /// Windows per optimiser step.
     pub fn batch(&self) -> usize {
-        self.net.batch
+        self.batch
+    }
+
+    /// Where the steps run, for logs and reports: the adapter's name, or
+    /// `native CPU (n threads)`.
+    pub fn trained_on(&self) -> String {
+        self.engine.label(self.gpu)
+    }
+
+    /// The device network being trained; `None` when the steps run on the native CPU
+    /// path (`[train] backend`).
+    pub fn network(&self) -> Option<&Network> {
+        self.engine.network()
     }
 
     /// Sets the epoch limit and patience (e.g. a resumed run allowed more epochs).
@@ -380,10 +346,10 @@ impl<'a> Trainer<'a> {
         order
     }
 
-    /// Writes the inputs of step `s` of an epoch and submits forward + loss + backward +
-    /// Adam (no wait). The step's windows are consecutive groups of the shuffled `order`,
-    /// wrapping around to fill the last batch (every window is seen each epoch); they are
-    /// gathered into buffers kept across steps.
+    /// Gathers the windows of step `s` of an epoch and runs it (forward, loss, backward
+    /// and Adam; submitted without a wait on the device). The step's windows are
+    /// consecutive groups of the shuffled `order`, wrapping around to fill the last batch
+    /// (every window is seen each epoch); they are gathered into buffers kept across steps.
     fn submit_step(&mut self, order: &[usize], s: usize) -> Result<(), TrainError> {
         self.positions.clear();
         for g in 0..self.groups_per_batch {
@@ -392,18 +358,10 @@ impl<'a> Trainer<'a> {
         }
         let data = self.data;
         data.gather_into(&self.positions, &mut self.batch_x, &mut self.batch_y);
-        self.gpu.write(&self.net.input, &self.batch_x)?;
-        self.gpu.write(&self.net.target, &self.batch_y)?;
         let step = self.progress.step;
-        self.net.set_step(self.gpu, step as u32)?;
-        self.opt.set_step(self.gpu, self.lr(step), step + 1)?;
-        let mut rec = Recorder::new(self.gpu);
-        self.net.record_train_forward(&mut rec)?;
-        self.net.record_backward(&mut rec)?;
-        rec.copy_f32(&self.net.loss, 0, &self.loss_log, s, 1)?;
-        self.opt.record(&mut rec);
-        rec.submit();
-        Ok(())
+        let lr = self.lr(step);
+        self.engine
+            .step(self.gpu, &self.batch_x, &self.batch_y, step, lr, s)
     }
 
     /// Trains one epoch, validates, and updates the early-stopping state; true when the
@@ -427,13 +385,13 @@ impl<'a> Trainer<'a> {
         let val_loss = self.validation_loss()?;
         let validation_seconds = validation_began.elapsed().as_secs_f64();
         let readback_began = Instant::now();
-        let params = self.net.read_parameters(self.gpu)?;
+        let params = self.engine.parameters(self.gpu)?;
         if first_non_finite(&params.specs, &params.values).is_some() {
             // The replay names the step and the tensor.
             let last = self.steps_per_epoch - 1;
             return Err(self.diagnose(epoch, &order, last, first_step));
         }
-        let (adam_m, adam_v) = self.opt.read_state(self.gpu)?;
+        let (adam_m, adam_v) = self.engine.moments(self.gpu)?;
         let record = EpochRecord {
             stage: self.stage.name.clone(),
             epoch,
@@ -442,9 +400,10 @@ impl<'a> Trainer<'a> {
             val_loss,
             lr: self.lr(self.progress.step - 1),
             seconds,
-            windows_per_s: (self.steps_per_epoch * self.net.batch) as f64 / seconds,
+            windows_per_s: (self.steps_per_epoch * self.batch) as f64 / seconds,
             validation_seconds,
             readback_seconds: readback_began.elapsed().as_secs_f64(),
+            trained_on: self.trained_on(),
         };
         self.progress.epoch = epoch;
         self.progress.history.push(record.clone());
@@ -469,13 +428,7 @@ impl<'a> Trainer<'a> {
     }
 
     fn read_log(&self, out: &mut [f32]) -> Result<(), TrainError> {
-        let mut rec = Recorder::new(self.gpu);
-        rec.read_into(&self.loss_log, &self.loss_rb)?;
-        rec.submit();
-        let mut all = vec![0f32; self.loss_log.numel()];
-        self.loss_rb.read_into(self.gpu, &mut all)?;
-        out.copy_from_slice(&all[..out.len()]);
-        Ok(())
+        self.engine.losses(self.gpu, out)
     }
 
     /// Replays the failing epoch from its start, one step at a time with readbacks, to
@@ -496,9 +449,9 @@ impl<'a> Trainer<'a> {
         };
         let start = self.start.clone();
         let replay = (|| -> Result<TrainError, TrainError> {
-            self.net.load_parameters(self.gpu, &start.params)?;
-            self.opt
-                .load_state(self.gpu, &start.adam_m, &start.adam_v)?;
+            self.engine.load(self.gpu, &start.params)?;
+            self.engine
+                .load_moments(self.gpu, &start.adam_m, &start.adam_v)?;
             self.progress.step = first_step;
             let mut before = start.params.clone();
             for s in 0..=bad {
@@ -515,8 +468,8 @@ impl<'a> Trainer<'a> {
                     last_good: Box::new(last_good),
                 };
                 if !loss[0].is_finite() {
-                    let grads = self.net.read_gradients(self.gpu)?;
-                    let what = match first_non_finite(&self.net.specs, &grads) {
+                    let grads = self.engine.gradients(self.gpu)?;
+                    let what = match first_non_finite(&start.params.specs, &grads) {
                         Some((name, i)) => format!(
                             "the loss is {}; first non-finite gradient: {name} (element {i})",
                             loss[0]
@@ -525,7 +478,7 @@ impl<'a> Trainer<'a> {
                     };
                     return Ok(fail(what, before));
                 }
-                let after = self.net.read_parameters(self.gpu)?;
+                let after = self.engine.parameters(self.gpu)?;
                 if let Some((name, i)) = first_non_finite(&after.specs, &after.values) {
                     let what = format!(
                         "the Adam update made parameter {name} (element {i}) non-finite (loss {})",
@@ -551,43 +504,12 @@ impl<'a> Trainer<'a> {
     }
 
     /// ŷ (standardised) of the windows at `positions`, `[len, O]` row-major, with the
-    /// current parameters (inference: no dropout). On a CPU adapter the IASTGCN variants
-    /// run on the native CPU forward (the current weights read back once), about 10×
-    /// faster than the WGSL forward there; elsewhere on the device in batches.
+    /// current parameters (inference: no dropout). On a CPU adapter or the native path
+    /// the IASTGCN variants run on the native CPU forward (about 10× faster than the WGSL
+    /// forward there); elsewhere on the device in batches.
     pub fn predict(&self, positions: &[usize]) -> Result<Vec<f32>, TrainError> {
-        if self.gpu.is_software() && NativeForward::supports(&self.net.config) {
-            let params = self.net.read_parameters(self.gpu)?;
-            let mut native = NativeForward::new(&self.net.config, &self.graph, &params)?;
-            let o = self.net.config.outputs;
-            let len = self.data.window_len();
-            let mut out = vec![0f32; positions.len() * o];
-            for (&p, row) in positions.iter().zip(out.chunks_mut(o)) {
-                native.forward(&self.data.x[p * len..][..len], row)?;
-            }
-            return Ok(out);
-        }
-        let b = self.net.batch;
-        let o = self.net.config.outputs;
-        let len = self.data.window_len();
-        let mut out = Vec::with_capacity(positions.len() * o);
-        let mut buf = vec![0f32; self.table.numel()];
-        for segment in positions.chunks(self.table_rows) {
-            for (c, chunk) in segment.chunks(b).enumerate() {
-                let (mut x, _) = self.data.gather(chunk);
-                x.resize(b * len, 0.0);
-                self.gpu.write(&self.net.input, &x)?;
-                let mut rec = Recorder::new(self.gpu);
-                self.net.record_forward(&mut rec)?;
-                rec.copy_f32(&self.net.output, 0, &self.table, c * b * o, b * o)?;
-                rec.submit();
-            }
-            let mut rec = Recorder::new(self.gpu);
-            rec.read_into(&self.table, &self.table_rb)?;
-            rec.submit();
-            self.table_rb.read_into(self.gpu, &mut buf)?;
-            out.extend_from_slice(&buf[..segment.len() * o]);
-        }
-        Ok(out)
+        self.engine
+            .predict(self.gpu, &self.model, &self.graph, self.data, positions)
     }
 
     /// The stage's loss on the validation split (ensemble loss when refining).
@@ -630,21 +552,20 @@ impl<'a> Trainer<'a> {
     }
 
     /// This stage's validation loss of `params` (left loaded in the network).
-    pub fn validation_loss_of(&self, params: &Parameters) -> Result<f64, TrainError> {
+    pub fn validation_loss_of(&mut self, params: &Parameters) -> Result<f64, TrainError> {
         self.load_parameters(params)?;
         self.validation_loss()
     }
 
     /// Loads `params` into the network (what [`Trainer::predict`] then uses).
-    pub fn load_parameters(&self, params: &Parameters) -> Result<(), TrainError> {
-        self.net.load_parameters(self.gpu, params)?;
-        Ok(())
+    pub fn load_parameters(&mut self, params: &Parameters) -> Result<(), TrainError> {
+        self.engine.load(self.gpu, params)
     }
 
     /// Loads the best weights into the network (at the end of a stage).
-    pub fn restore_best(&self) -> Result<(), TrainError> {
-        self.net.load_parameters(self.gpu, &self.best)?;
-        Ok(())
+    pub fn restore_best(&mut self) -> Result<(), TrainError> {
+        let best = self.best.clone();
+        self.engine.load(self.gpu, &best)
     }
 }
 

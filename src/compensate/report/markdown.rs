@@ -227,7 +227,7 @@ fn markdown_timings(out: &mut String, timings: &[Timing]) {
             md(&t.model),
             num(t.epoch_seconds, 3),
             num(t.infer_ms, 3),
-            md(&t.adapter),
+            md(&t.trained_on),
             md(&t.inference_on)
         );
     }

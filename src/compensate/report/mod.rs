@@ -58,8 +58,9 @@ pub struct Timing {
     pub epoch_seconds: f64,
     /// Latency of one online prediction (B = 1, `Predictor::push`), milliseconds.
     pub infer_ms: f64,
-    /// The GPU adapter it trained on.
-    pub adapter: String,
+    /// Where it trained: the adapter's name, or the native CPU path and its threads
+    /// (`unknown` for a checkpoint without a training log beside it).
+    pub trained_on: String,
     /// Where its online predictions ran: the adapter's name, or the native CPU forward.
     pub inference_on: String,
 }
@@ -116,7 +117,7 @@ trk_pos_mean_um,trk_pos_sd_um,trk_pos_max_um,trk_att_mean_mdeg,trk_att_sd_mdeg,t
 pub const TABLE_III_HEADER: &str =
     "trajectory,model,pos_mae_um,pos_rmse_um,pos_mape_pct,att_mae_mdeg,att_rmse_mdeg,att_mape_pct";
 /// Header of `timings.csv`.
-pub const TIMINGS_HEADER: &str = "model,epoch_seconds,infer_ms,adapter,inference_on";
+pub const TIMINGS_HEADER: &str = "model,epoch_seconds,infer_ms,trained_on,inference_on";
 
 /// What one file of the report folder is.
 #[derive(Clone, Debug, PartialEq)]
@@ -306,7 +307,7 @@ pub fn timings_csv(rows: &[Timing]) -> String {
                     t.model.clone(),
                     format!("{:.4}", t.epoch_seconds),
                     format!("{:.4}", t.infer_ms),
-                    t.adapter.clone(),
+                    t.trained_on.clone(),
                     t.inference_on.clone(),
                 ]
             })
@@ -401,7 +402,7 @@ fn plot_compensated(path: &Path, rows: &[TableVRow]) -> Result<(), plot::PlotErr
 }
 
 fn plot_fig10(path: &Path, timings: &[Timing]) -> Result<(), plot::PlotError> {
-    let adapters = distinct(timings.iter().map(|t| t.adapter.as_str())).join(", ");
+    let adapters = distinct(timings.iter().map(|t| t.trained_on.as_str())).join(", ");
     let inference = distinct(timings.iter().map(|t| t.inference_on.as_str())).join(", ");
     let bars = |pick: fn(&Timing) -> f64| -> Vec<Series> {
         timings

@@ -1,106 +1,11 @@
-//! The inference forward pass of the IASTGCN variants on the CPU in f32, one window at a
-//! time, with no device: the controller's latency path where the only adapter is a CPU
-//! (lavapipe) or there is none. [`super::Predictor`] picks it on its own (see
-//! docs/performance.md "The native CPU forward").
-//!
-//! It computes docs/model.md's steps 1–7 (without dropout) and the head, in the order
-//! of the device schedule: X_t = X·(E' + I), the spatial attention folded into
-//! Q = Ψ·(I + S') and M = Q·X_t, and in the last block steps 4–6 at the last time step
-//! only. Every contraction is a `matrixmultiply::sgemm` on a strided view of the
-//! row-major tensors (no copies, no transposes); the rest are loops over contiguous rows.
-//! All working memory is allocated in [`NativeForward::new`].
-//!
-//! Tested against the WGSL path and the f64 reference in tests/native_forward.rs.
+//! The inference forward pass of the IASTGCN variants, one window at a time (see the
+//! module above).
 
-use super::config::{Family, ModelConfig};
-use super::network::ModelError;
-use super::params::{graph_basis, param_specs, Parameters};
+use super::{gemm, rows, sigmoid, softmax_strided, tanh, transposed, View};
 use crate::graph::Graph;
-
-/// A strided read-only matrix view: element (i, j) at `data[i·rs + j·cs]`.
-#[derive(Clone, Copy)]
-struct View<'a> {
-    data: &'a [f32],
-    rs: usize,
-    cs: usize,
-}
-
-/// Row-major `[rows, cols]` (row stride `cols`).
-fn rows(data: &[f32], cols: usize) -> View<'_> {
-    View {
-        data,
-        rs: cols,
-        cs: 1,
-    }
-}
-
-/// The transpose of a row-major `[rows, cols]` matrix, seen as `[cols, rows]`.
-fn transposed(data: &[f32], cols: usize) -> View<'_> {
-    View {
-        data,
-        rs: 1,
-        cs: cols,
-    }
-}
-
-/// `C[m×n] = A[m×k]·B[k×n] + beta·C`, C row-major with row stride `ldc`.
-///
-/// Panics when a view does not cover its extent: the shapes are the network's own, so
-/// that would be a bug here, never bad input. (The BLAS argument list, hence the allow.)
-#[allow(clippy::too_many_arguments)]
-fn gemm(m: usize, k: usize, n: usize, a: View, b: View, beta: f32, c: &mut [f32], ldc: usize) {
-    let last = |v: &View, r: usize, s: usize| (r - 1) * v.rs + (s - 1) * v.cs;
-    assert!(m > 0 && k > 0 && n > 0, "empty product");
-    assert!(last(&a, m, k) < a.data.len(), "A does not cover [{m}, {k}]");
-    assert!(last(&b, k, n) < b.data.len(), "B does not cover [{k}, {n}]");
-    assert!((m - 1) * ldc + n <= c.len(), "C does not cover [{m}, {n}]");
-    // SAFETY: the asserts above keep every element the product reads or writes inside
-    // the three slices; C does not alias A or B (it is borrowed mutably).
-    unsafe {
-        matrixmultiply::sgemm(
-            m,
-            k,
-            n,
-            1.0,
-            a.data.as_ptr(),
-            a.rs as isize,
-            a.cs as isize,
-            b.data.as_ptr(),
-            b.rs as isize,
-            b.cs as isize,
-            beta,
-            c.as_mut_ptr(),
-            ldc as isize,
-            1,
-        );
-    }
-}
-
-fn sigmoid(x: f32) -> f32 {
-    1.0 / (1.0 + (-x).exp())
-}
-
-/// tanh(x) = 2σ(2x) − 1: one `exp` instead of libm's `tanhf` (whose `expm1f` took a
-/// third of the paper-shape forward); absolute error below 1e-7.
-fn tanh(x: f32) -> f32 {
-    2.0 * sigmoid(2.0 * x) - 1.0
-}
-
-/// Softmax of `len` values `x[i·stride]`, in place, max-subtracted.
-fn softmax_strided(x: &mut [f32], len: usize, stride: usize) {
-    let max = (0..len)
-        .map(|i| x[i * stride])
-        .fold(f32::NEG_INFINITY, f32::max);
-    let mut sum = 0.0;
-    for i in 0..len {
-        let e = (x[i * stride] - max).exp();
-        x[i * stride] = e;
-        sum += e;
-    }
-    for i in 0..len {
-        x[i * stride] /= sum;
-    }
-}
+use crate::model::config::{Family, ModelConfig};
+use crate::model::network::ModelError;
+use crate::model::params::{graph_basis, param_specs, Parameters};
 
 /// One block's weights, copied out of the checkpoint in the layouts the products read.
 struct BlockWeights {

@@ -1,0 +1,90 @@
+//! Where each block's tensors sit in the parameter list (`param_specs` order), so that the
+//! training path reads the weights and writes the gradients in place, without copies.
+
+use crate::model::config::ModelConfig;
+use crate::model::network::ModelError;
+use crate::model::params::ParamSpec;
+
+/// The parameter indices of one ST block.
+pub(super) struct BlockSlots {
+    /// `[U1, U2, U3, be, Ve]` of the temporal attention and `[W1, W2, W3, bs, Vs]` of the
+    /// spatial one, when the variant attends.
+    pub temporal: Option<[usize; 5]>,
+    pub spatial: Option<[usize; 5]>,
+    pub theta: usize,
+    /// `gwc.W` `[C_in, C]`.
+    pub w: usize,
+    /// `tcn.filter.weight` `[C, C·K]` and its bias.
+    pub filter: (usize, usize),
+    /// `tcn.gate.weight` and bias (`None` in `iastgcn-t`).
+    pub gate: Option<(usize, usize)>,
+    /// `res.weight` `[C, C_in]` and `res.bias`.
+    pub res: (usize, usize),
+    pub gamma: usize,
+    pub beta: usize,
+    pub c_in: usize,
+    pub dilation: usize,
+}
+
+/// Every block's slots and the head's.
+pub(super) struct Slots {
+    pub blocks: Vec<BlockSlots>,
+    pub head_weight: usize,
+    pub head_bias: usize,
+}
+
+impl Slots {
+    /// Looks up every tensor of `config` in `specs`; an error names a missing one.
+    pub fn new(config: &ModelConfig, specs: &[ParamSpec]) -> Result<Slots, ModelError> {
+        let find = |name: String| {
+            specs
+                .iter()
+                .position(|s| s.name == name)
+                .ok_or_else(|| ModelError::Config(format!("the parameters lack {name}")))
+        };
+        let mut blocks = Vec::with_capacity(config.blocks);
+        for l in 0..config.blocks {
+            let p = |s: &str| find(format!("blocks.{l}.{s}"));
+            let five = |names: [&str; 5]| -> Result<[usize; 5], ModelError> {
+                Ok([
+                    p(names[0])?,
+                    p(names[1])?,
+                    p(names[2])?,
+                    p(names[3])?,
+                    p(names[4])?,
+                ])
+            };
+            let attention = config.variant.attention();
+            blocks.push(BlockSlots {
+                temporal: if attention {
+                    Some(five(["tat.U1", "tat.U2", "tat.U3", "tat.be", "tat.Ve"])?)
+                } else {
+                    None
+                },
+                spatial: if attention {
+                    Some(five(["sat.W1", "sat.W2", "sat.W3", "sat.bs", "sat.Vs"])?)
+                } else {
+                    None
+                },
+                theta: p("gwc.theta")?,
+                w: p("gwc.W")?,
+                filter: (p("tcn.filter.weight")?, p("tcn.filter.bias")?),
+                gate: if config.variant.gated() {
+                    Some((p("tcn.gate.weight")?, p("tcn.gate.bias")?))
+                } else {
+                    None
+                },
+                res: (p("res.weight")?, p("res.bias")?),
+                gamma: p("ln.gamma")?,
+                beta: p("ln.beta")?,
+                c_in: config.block_input(l),
+                dilation: config.dilation(l),
+            });
+        }
+        Ok(Slots {
+            blocks,
+            head_weight: find("head.weight".into())?,
+            head_bias: find("head.bias".into())?,
+        })
+    }
+}

@@ -1,0 +1,384 @@
+//! Training steps of the IASTGCN variants on the CPU in f32: the training forward of
+//! every window of a batch with its dropout (`tape.rs`), the loss of eq. 39 (plain or
+//! over ensembles), the backward pass (`backward.rs`) and Adam, with the windows split
+//! over threads. It is the device schedule's arithmetic (same masks, same loss, same
+//! update as `shaders/adam.wgsl`); summation orders differ, so the two agree to rounding
+//! (tests/native_train.rs).
+
+use super::backward::{backward, Work};
+use super::slots::Slots;
+use super::tape::{forward, Masks, Tape};
+use crate::graph::Graph;
+use crate::model::config::ModelConfig;
+use crate::model::network::ModelError;
+use crate::model::params::{graph_basis, param_specs, ParamSpec, Parameters};
+use crate::model::NativeForward;
+use crate::ops::adam::hyper_values;
+use crate::ops::loss::{cpu as loss_cpu, PoseLoss};
+
+/// Adam's constants (docs/model.md "Optimiser and schedule"); λ acts on the tensors
+/// whose spec has `decay`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NativeAdam {
+    /// β1.
+    pub beta1: f64,
+    /// β2.
+    pub beta2: f64,
+    /// ε.
+    pub eps: f64,
+    /// λ, the weight decay of eq. 39 (applied in the update, as on the device).
+    pub weight_decay: f64,
+}
+
+/// The shape of one training stage's steps.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NativeStepShape {
+    /// Windows per step.
+    pub batch: usize,
+    /// Windows per ensemble of the loss (1 for the plain loss); divides `batch`.
+    pub group: usize,
+    /// The dropout masks' base seed (block l uses seed + l).
+    pub seed: u32,
+    /// The attitude penalty P of eq. 39.
+    pub penalty: f64,
+    /// Threads the batch's ensembles are split over (at least 1). The gradient sums in
+    /// a fixed order for a given count, so a run is reproducible with the same count.
+    pub threads: usize,
+}
+
+/// One worker's tapes (one per window of an ensemble), working memory and gradient sums.
+struct Worker {
+    tapes: Vec<Tape>,
+    work: Work,
+    grads: Vec<Vec<f32>>,
+    loss: f64,
+}
+
+/// Parameters, Adam moments and working memory of one model's training on the CPU.
+pub struct NativeTraining {
+    config: ModelConfig,
+    specs: Vec<ParamSpec>,
+    basis: Vec<f32>,
+    slots: Slots,
+    shape: NativeStepShape,
+    adam: NativeAdam,
+    params: Vec<Vec<f32>>,
+    grads: Vec<Vec<f32>>,
+    m: Vec<Vec<f32>>,
+    v: Vec<Vec<f32>>,
+    workers: Vec<Worker>,
+}
+
+impl NativeTraining {
+    /// True for the variants this path covers (those of [`NativeForward`]).
+    pub fn supports(config: &ModelConfig) -> bool {
+        NativeForward::supports(config)
+    }
+
+    /// Zero parameters and moments for `config`'s variant at `shape`; load weights with
+    /// [`NativeTraining::load_parameters`].
+    pub fn new(
+        config: &ModelConfig,
+        graph: &Graph,
+        shape: NativeStepShape,
+        adam: NativeAdam,
+    ) -> Result<NativeTraining, ModelError> {
+        if !NativeTraining::supports(config) {
+            return Err(ModelError::Config(format!(
+                "native CPU training covers iastgcn, iastgcn-a, iastgcn-t and iastgcn-s, not {}",
+                config.variant
+            )));
+        }
+        config.validate().map_err(ModelError::Config)?;
+        if shape.batch == 0 || shape.group == 0 || !shape.batch.is_multiple_of(shape.group) {
+            return Err(ModelError::Config(format!(
+                "native training: batch {} is not a positive multiple of the ensemble size {}",
+                shape.batch, shape.group
+            )));
+        }
+        let specs = param_specs(config);
+        let slots = Slots::new(config, &specs)?;
+        let zeros = || {
+            specs
+                .iter()
+                .map(|s| vec![0f32; s.numel()])
+                .collect::<Vec<_>>()
+        };
+        let groups = shape.batch / shape.group;
+        let threads = shape.threads.clamp(1, groups);
+        let workers = (0..threads)
+            .map(|_| Worker {
+                tapes: (0..shape.group)
+                    .map(|_| Tape::new(config, &slots))
+                    .collect(),
+                work: Work::new(config),
+                grads: zeros(),
+                loss: 0.0,
+            })
+            .collect();
+        Ok(NativeTraining {
+            basis: graph_basis(graph, config)
+                .iter()
+                .map(|&v| v as f32)
+                .collect(),
+            params: zeros(),
+            grads: zeros(),
+            m: zeros(),
+            v: zeros(),
+            config: config.clone(),
+            slots,
+            specs,
+            shape: NativeStepShape { threads, ..shape },
+            adam,
+            workers,
+        })
+    }
+
+    /// The network's shapes and variant.
+    pub fn config(&self) -> &ModelConfig {
+        &self.config
+    }
+
+    /// The stage's step shape (with the thread count actually used).
+    pub fn shape(&self) -> NativeStepShape {
+        self.shape
+    }
+
+    /// Name and shape of every tensor, in `param_specs` order.
+    pub fn specs(&self) -> &[ParamSpec] {
+        &self.specs
+    }
+
+    /// Replaces the weights; an error names a tensor whose name or size differs.
+    pub fn load_parameters(&mut self, p: &Parameters) -> Result<(), ModelError> {
+        check(&self.specs, &p.specs, &p.values)?;
+        self.params.clone_from(&p.values);
+        Ok(())
+    }
+
+    /// A copy of the weights.
+    pub fn parameters(&self) -> Parameters {
+        Parameters {
+            specs: self.specs.clone(),
+            values: self.params.clone(),
+        }
+    }
+
+    /// Copies of Adam's first and second moments.
+    pub fn moments(&self) -> (Vec<Vec<f32>>, Vec<Vec<f32>>) {
+        (self.m.clone(), self.v.clone())
+    }
+
+    /// Replaces Adam's moments (a resumed run); sizes must match the parameters.
+    pub fn load_moments(&mut self, m: &[Vec<f32>], v: &[Vec<f32>]) -> Result<(), ModelError> {
+        check(&self.specs, &self.specs, m)?;
+        check(&self.specs, &self.specs, v)?;
+        self.m = m.to_vec();
+        self.v = v.to_vec();
+        Ok(())
+    }
+
+    /// ∂ℒ/∂parameter of the last [`NativeTraining::gradients`] (without the decay term,
+    /// which the update adds), in `param_specs` order.
+    pub fn last_gradients(&self) -> &[Vec<f32>] {
+        &self.grads
+    }
+
+    /// ℒ of eq. 39 (no decay term) for the batch `x` `[B, N, F, T]`, `y` `[B, O]` with the
+    /// dropout of optimiser step `step`, and its gradient (kept for the update).
+    pub fn gradients(&mut self, x: &[f32], y: &[f32], step: u32) -> Result<f64, ModelError> {
+        let cfg = &self.config;
+        let (b, o) = (self.shape.batch, cfg.outputs);
+        let per = cfg.nodes * cfg.features * cfg.window;
+        if x.len() != b * per || y.len() != b * o {
+            return Err(ModelError::Config(format!(
+                "native training: x has {} floats and y {}; a batch of {b} needs {} and {}",
+                x.len(),
+                y.len(),
+                b * per,
+                b * o
+            )));
+        }
+        let m = self.shape.group;
+        let groups = b / m;
+        let threads = self.workers.len();
+        let ctx = Context {
+            cfg,
+            basis: &self.basis,
+            slots: &self.slots,
+            params: &self.params,
+            x,
+            y,
+            step,
+            shape: self.shape,
+            groups,
+        };
+        let share = |w: usize| (w * groups / threads)..((w + 1) * groups / threads);
+        if threads == 1 {
+            ctx.run(share(0), &mut self.workers[0]);
+        } else {
+            std::thread::scope(|scope| {
+                for (w, worker) in self.workers.iter_mut().enumerate() {
+                    let ctx = &ctx;
+                    scope.spawn(move || ctx.run(share(w), worker));
+                }
+            });
+        }
+        let mut loss = 0.0;
+        for (w, worker) in self.workers.iter().enumerate() {
+            for (total, part) in self.grads.iter_mut().zip(&worker.grads) {
+                if w == 0 {
+                    total.copy_from_slice(part);
+                } else {
+                    for (a, b) in total.iter_mut().zip(part) {
+                        *a += b;
+                    }
+                }
+            }
+            loss += worker.loss;
+        }
+        Ok(loss)
+    }
+
+    /// Adam update number `t` (1-based) at learning rate `lr` from the last gradients,
+    /// the arithmetic of `shaders/adam.wgsl` in f32.
+    pub fn update(&mut self, lr: f64, t: u64) {
+        let a = self.adam;
+        let [lr, bc1, bc2, _] = hyper_values(lr, a.beta1, a.beta2, t);
+        let (b1, b2, eps) = (a.beta1 as f32, a.beta2 as f32, a.eps as f32);
+        let (c1, c2) = ((1.0 - a.beta1) as f32, (1.0 - a.beta2) as f32);
+        for (i, spec) in self.specs.iter().enumerate() {
+            let decay = if spec.decay {
+                a.weight_decay as f32
+            } else {
+                0.0
+            };
+            let (p, g) = (&mut self.params[i], &self.grads[i]);
+            let (m, v) = (&mut self.m[i], &mut self.v[i]);
+            for (((w, g), m), v) in p.iter_mut().zip(g).zip(m.iter_mut()).zip(v.iter_mut()) {
+                let g = g + 2.0 * decay * *w;
+                *m = b1 * *m + c1 * g;
+                *v = b2 * *v + c2 * g * g;
+                *w -= lr * (*m / bc1) / ((*v / bc2).sqrt() + eps);
+            }
+        }
+    }
+
+    /// One optimiser step: [`NativeTraining::gradients`], then [`NativeTraining::update`]
+    /// number `step + 1`. Returns the loss.
+    pub fn step(&mut self, x: &[f32], y: &[f32], step: u64, lr: f64) -> Result<f64, ModelError> {
+        let loss = self.gradients(x, y, step as u32)?;
+        self.update(lr, step + 1);
+        Ok(loss)
+    }
+}
+
+/// What every worker of one step reads.
+struct Context<'a> {
+    cfg: &'a ModelConfig,
+    basis: &'a [f32],
+    slots: &'a Slots,
+    params: &'a [Vec<f32>],
+    x: &'a [f32],
+    y: &'a [f32],
+    step: u32,
+    shape: NativeStepShape,
+    groups: usize,
+}
+
+impl Context<'_> {
+    /// Forward and backward of the ensembles in `range` into the worker's sums. The
+    /// loss is the mean over ensembles of each ensemble's own loss (for M = 1 the mean
+    /// over windows), so ensemble g adds L_g / G and its gradient / G.
+    fn run(&self, range: std::ops::Range<usize>, w: &mut Worker) {
+        let cfg = self.cfg;
+        let (m, o) = (self.shape.group, cfg.outputs);
+        let per = cfg.nodes * cfg.features * cfg.window;
+        for g in w.grads.iter_mut() {
+            g.fill(0.0);
+        }
+        w.loss = 0.0;
+        let one = PoseLoss {
+            batch: m,
+            outputs: o,
+            penalty: self.shape.penalty,
+            group: m,
+        };
+        let mut pred = vec![0f64; m * o];
+        for g in range {
+            let masks = |k: usize| Masks {
+                seed: self.shape.seed,
+                step: self.step,
+                batch: self.shape.batch,
+                item: g * m + k,
+            };
+            for (k, tape) in w.tapes.iter_mut().enumerate() {
+                let x = &self.x[(g * m + k) * per..][..per];
+                forward(
+                    cfg,
+                    self.basis,
+                    self.slots,
+                    self.params,
+                    x,
+                    Some(masks(k)),
+                    tape,
+                );
+                for (p, &v) in pred[k * o..][..o].iter_mut().zip(&tape.out) {
+                    *p = v as f64;
+                }
+            }
+            let target: Vec<f64> = self.y[g * m * o..][..m * o]
+                .iter()
+                .map(|&v| v as f64)
+                .collect();
+            w.loss += loss_cpu::forward(&one, &pred, &target) / self.groups as f64;
+            let dout: Vec<f32> = loss_cpu::backward(&one, &pred, &target)
+                .iter()
+                .map(|&d| (d / self.groups as f64) as f32)
+                .collect();
+            for (k, tape) in w.tapes.iter().enumerate() {
+                let x = &self.x[(g * m + k) * per..][..per];
+                backward(
+                    cfg,
+                    self.basis,
+                    self.slots,
+                    self.params,
+                    x,
+                    tape,
+                    Some(masks(k)),
+                    &dout[k * o..][..o],
+                    &mut w.grads,
+                    &mut w.work,
+                );
+            }
+        }
+    }
+}
+
+/// Every tensor of `values` has the size of its spec (and `given` names match `specs`).
+fn check(specs: &[ParamSpec], given: &[ParamSpec], values: &[Vec<f32>]) -> Result<(), ModelError> {
+    if given.len() != specs.len() || values.len() != specs.len() {
+        return Err(ModelError::Config(format!(
+            "native training: {} tensors given, the model has {}",
+            values.len(),
+            specs.len()
+        )));
+    }
+    for ((s, g), v) in specs.iter().zip(given).zip(values) {
+        if s.name != g.name || v.len() != s.numel() {
+            return Err(ModelError::Parameter {
+                name: g.name.clone(),
+                message: format!(
+                    "expected {} {:?} ({} values), got {} {:?} ({} values)",
+                    s.name,
+                    s.shape,
+                    s.numel(),
+                    g.name,
+                    g.shape,
+                    v.len()
+                ),
+            });
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,462 @@
+//! The training forward of one window: docs/model.md steps 1–7 with the training step's
+//! dropout, and the head, keeping on a [`Tape`] everything `backward.rs` reads. The order
+//! is the device's: X_t = X·(E' + I), Q = Ψ·(I + S'), M = Q·X_t, Z = ReLU(Wᵀ·M) per node,
+//! and in the last block steps 4–7 at the last time step only (the one the head reads;
+//! its dropout bits are the ones that step has in the whole tensor).
+
+use super::slots::{BlockSlots, Slots};
+use super::{gemm, rows, sigmoid, softmax_strided, tanh, transposed, View};
+use crate::model::config::ModelConfig;
+use crate::ops::dropout::{keep, Dropout};
+
+/// One block's intermediates for one window. Attention fields are empty in `iastgcn-a`.
+pub(super) struct BlockTape {
+    /// Step 1: `Σ_n U1[n]·X[n]` `[C_in, T]`, lhs `[T, N]`, rhs `[N, T]`, σ(lhs·rhs + be)
+    /// `[T, T]`, E' `[T, T]`, X_t `[N, C_in, T]`.
+    pub xu1: Vec<f32>,
+    pub t_lhs: Vec<f32>,
+    pub t_rhs: Vec<f32>,
+    pub t_sig: Vec<f32>,
+    pub e: Vec<f32>,
+    pub xt: Vec<f32>,
+    /// Step 2: `X_t·W1` `[N, C_in]`, lhs `[N, T]`, rhs `[N, T]`, σ(lhs·rhsᵀ + bs) `[N, N]`,
+    /// S' `[N, N]`.
+    pub xw1: Vec<f32>,
+    pub s_lhs: Vec<f32>,
+    pub s_rhs: Vec<f32>,
+    pub s_sig: Vec<f32>,
+    pub s: Vec<f32>,
+    /// Step 3: Ψ and Q = Ψ·(I + S') `[N, N]`, M = Q·X_t `[N, C_in, T]`, Z `[N, C, T]`.
+    pub psi: Vec<f32>,
+    pub q: Vec<f32>,
+    pub m: Vec<f32>,
+    pub z: Vec<f32>,
+    /// Step 4 on the block's output steps (`steps` = T, or 1 in the last block): the
+    /// unfolding `[C·K, N·steps]` and `[G_f; G_g]` `[outs, N·steps]`.
+    pub col: Vec<f32>,
+    pub g: Vec<f32>,
+    /// Step 6: ReLU(H + R) `[N, C, steps]`, and the mean and 1/σ `[N, steps]`.
+    pub act: Vec<f32>,
+    pub mean: Vec<f32>,
+    pub rstd: Vec<f32>,
+    /// The block output after dropout `[N, C, T]` (empty in the last block: the head's
+    /// input is [`Tape::h`]).
+    pub y: Vec<f32>,
+    /// The first output step and how many: (0, T), or (T − 1, 1) in the last block.
+    pub t0: usize,
+    pub steps: usize,
+}
+
+impl BlockTape {
+    fn new(cfg: &ModelConfig, s: &BlockSlots, last: bool) -> BlockTape {
+        let (n, t, c, k) = (cfg.nodes, cfg.window, cfg.channels, cfg.kernel);
+        let ci = s.c_in;
+        let (t0, steps) = if last { (t - 1, 1) } else { (0, t) };
+        let outs = if s.gate.is_some() { 2 * c } else { c };
+        let att = |len: usize| vec![0f32; if s.temporal.is_some() { len } else { 0 }];
+        let z = |len: usize| vec![0f32; len];
+        BlockTape {
+            xu1: att(ci * t),
+            t_lhs: att(t * n),
+            t_rhs: att(n * t),
+            t_sig: att(t * t),
+            e: att(t * t),
+            xt: att(n * ci * t),
+            xw1: att(n * ci),
+            s_lhs: att(n * t),
+            s_rhs: att(n * t),
+            s_sig: att(n * n),
+            s: att(n * n),
+            psi: z(n * n),
+            q: z(n * n),
+            m: z(n * ci * t),
+            z: z(n * c * t),
+            col: z(c * k * n * steps),
+            g: z(outs * n * steps),
+            act: z(n * c * steps),
+            mean: z(n * steps),
+            rstd: z(n * steps),
+            y: z(if last { 0 } else { n * c * t }),
+            t0,
+            steps,
+        }
+    }
+}
+
+/// Everything one window's training forward computed.
+pub(super) struct Tape {
+    pub blocks: Vec<BlockTape>,
+    /// The head's input `[N·C]`: the last block's output at the last step, after dropout.
+    pub h: Vec<f32>,
+    /// ŷ `[O]`.
+    pub out: Vec<f32>,
+}
+
+impl Tape {
+    /// Sized for `config` (the only allocations; a tape is reused window after window).
+    pub fn new(cfg: &ModelConfig, slots: &Slots) -> Tape {
+        let last = slots.blocks.len() - 1;
+        Tape {
+            blocks: slots
+                .blocks
+                .iter()
+                .enumerate()
+                .map(|(l, s)| BlockTape::new(cfg, s, l == last))
+                .collect(),
+            h: vec![0f32; cfg.nodes * cfg.channels],
+            out: vec![0f32; cfg.outputs],
+        }
+    }
+}
+
+/// The dropout of one training step, and where the window sits in its batch: block `l`
+/// keeps element `i` of its output iff `keep(Dropout::new(B·N·C·T, p, seed + l), step,
+/// item·N·C·T + i)` (the device's masks, docs/model.md step 7).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Masks {
+    pub seed: u32,
+    pub step: u32,
+    pub batch: usize,
+    pub item: usize,
+}
+
+impl Masks {
+    /// Block `l`'s mask generator and the window's flat offset in its output.
+    pub fn block(&self, cfg: &ModelConfig, l: usize) -> (Dropout, usize) {
+        let per = cfg.nodes * cfg.channels * cfg.window;
+        let d = Dropout::new(
+            self.batch * per,
+            cfg.dropout,
+            self.seed.wrapping_add(l as u32),
+        );
+        (d, self.item * per)
+    }
+}
+
+/// The training forward of window `x` `[N, F, T]` into `tape` (`params` in
+/// `param_specs` order, `basis` `[terms, N, N]`).
+pub(super) fn forward(
+    cfg: &ModelConfig,
+    basis: &[f32],
+    slots: &Slots,
+    params: &[Vec<f32>],
+    x: &[f32],
+    masks: Option<Masks>,
+    tape: &mut Tape,
+) {
+    let last = slots.blocks.len() - 1;
+    for l in 0..slots.blocks.len() {
+        let (done, rest) = tape.blocks.split_at_mut(l);
+        let input = if l == 0 { x } else { &done[l - 1].y[..] };
+        let mask = masks.map(|m| (m.block(cfg, l), m.step));
+        let h = if l == last {
+            Some(&mut tape.h[..])
+        } else {
+            None
+        };
+        block(
+            cfg,
+            basis,
+            &slots.blocks[l],
+            params,
+            input,
+            &mut rest[0],
+            mask,
+            h,
+        );
+    }
+    let nc = cfg.nodes * cfg.channels;
+    tape.out.copy_from_slice(&params[slots.head_bias]);
+    gemm(
+        cfg.outputs,
+        nc,
+        1,
+        rows(&params[slots.head_weight], nc),
+        rows(&tape.h, 1),
+        1.0,
+        &mut tape.out,
+        1,
+    );
+}
+
+/// One block on `x` `[N, C_in, T]`; the output goes to `bt.y`, or to `h` in the last block.
+#[allow(clippy::too_many_arguments)]
+fn block(
+    cfg: &ModelConfig,
+    basis: &[f32],
+    s: &BlockSlots,
+    p: &[Vec<f32>],
+    x: &[f32],
+    bt: &mut BlockTape,
+    mask: Option<((Dropout, usize), u32)>,
+    h: Option<&mut [f32]>,
+) {
+    let (n, t, c, k) = (cfg.nodes, cfg.window, cfg.channels, cfg.kernel);
+    let ci = s.c_in;
+    // Step 3's Ψ = Σ_k θ_k basis_k.
+    bt.psi.fill(0.0);
+    for (theta, b) in p[s.theta].iter().zip(basis.chunks(n * n)) {
+        for (v, b) in bt.psi.iter_mut().zip(b) {
+            *v += theta * b;
+        }
+    }
+    // Steps 1–2.
+    if let (Some(ts), Some(ss)) = (s.temporal, s.spatial) {
+        temporal_attention(n, ci, t, p, ts, x, bt);
+        spatial_attention(n, ci, t, p, ss, bt);
+    } else {
+        bt.q.copy_from_slice(&bt.psi);
+    }
+    let xt: &[f32] = if s.temporal.is_some() { &bt.xt } else { x };
+    // Step 3: M = Q·X_t, Z[i] = ReLU(Wᵀ·M[i]).
+    gemm(
+        n,
+        n,
+        ci * t,
+        rows(&bt.q, n),
+        rows(xt, ci * t),
+        0.0,
+        &mut bt.m,
+        ci * t,
+    );
+    for i in 0..n {
+        let mi = &bt.m[i * ci * t..][..ci * t];
+        let zi = &mut bt.z[i * c * t..][..c * t];
+        gemm(c, ci, t, transposed(&p[s.w], c), rows(mi, t), 0.0, zi, t);
+    }
+    for v in bt.z.iter_mut() {
+        *v = v.max(0.0);
+    }
+    // Step 4 on the output steps: unfold every node, then G = W·col + bias.
+    let (t0, steps) = (bt.t0, bt.steps);
+    let wide = n * steps;
+    let d = s.dilation;
+    for ch in 0..c {
+        for lag in 0..k {
+            let row = &mut bt.col[(ch * k + lag) * wide..][..wide];
+            let shift = d * lag;
+            let zeros = shift.saturating_sub(t0).min(steps);
+            for (i, seg) in row.chunks_mut(steps).enumerate() {
+                seg[..zeros].fill(0.0);
+                if zeros < steps {
+                    let from = t0 + zeros - shift;
+                    seg[zeros..].copy_from_slice(&bt.z[(i * c + ch) * t + from..][..steps - zeros]);
+                }
+            }
+        }
+    }
+    let ck = c * k;
+    let convs = std::iter::once(s.filter).chain(s.gate);
+    for (half, (w, b)) in convs.enumerate() {
+        let g = &mut bt.g[half * c * wide..][..c * wide];
+        for (row, &bias) in g.chunks_mut(wide).zip(&p[b]) {
+            row.fill(bias);
+        }
+        gemm(
+            c,
+            ck,
+            wide,
+            rows(&p[w], ck),
+            rows(&bt.col, wide),
+            1.0,
+            g,
+            wide,
+        );
+    }
+    // Steps 5–6 per node: A = ReLU(H + R), then LayerNorm over C at each step.
+    let gated = s.gate.is_some();
+    let eps = cfg.eps as f32;
+    let (res_w, res_b) = (&p[s.res.0], &p[s.res.1]);
+    for i in 0..n {
+        let a = &mut bt.act[i * c * steps..][..c * steps];
+        for (row, &bias) in a.chunks_mut(steps).zip(res_b) {
+            row.fill(bias);
+        }
+        let xv = View {
+            data: &x[i * ci * t + t0..],
+            rs: t,
+            cs: 1,
+        };
+        gemm(c, ci, steps, rows(res_w, ci), xv, 1.0, a, steps);
+        for o in 0..c {
+            for tau in 0..steps {
+                let f = bt.g[o * wide + i * steps + tau];
+                let hv = if gated {
+                    tanh(f) * sigmoid(bt.g[(c + o) * wide + i * steps + tau])
+                } else {
+                    f.max(0.0)
+                };
+                let v = &mut a[o * steps + tau];
+                *v = (*v + hv).max(0.0);
+            }
+        }
+        let mean = &mut bt.mean[i * steps..][..steps];
+        let rstd = &mut bt.rstd[i * steps..][..steps];
+        mean.fill(0.0);
+        rstd.fill(0.0);
+        for row in a.chunks(steps) {
+            for (m, v) in mean.iter_mut().zip(row) {
+                *m += v;
+            }
+        }
+        for m in mean.iter_mut() {
+            *m /= c as f32;
+        }
+        for row in a.chunks(steps) {
+            for ((q, v), m) in rstd.iter_mut().zip(row).zip(mean.iter()) {
+                *q += (v - m) * (v - m);
+            }
+        }
+        for q in rstd.iter_mut() {
+            *q = 1.0 / (*q / c as f32 + eps).sqrt();
+        }
+    }
+    // Step 6's affine map and step 7's dropout, into Y (or h at the last step).
+    let scale = 1.0 / (1.0 - cfg.dropout as f32);
+    let (gamma, beta) = (&p[s.gamma], &p[s.beta]);
+    let mut out = h;
+    for i in 0..n {
+        for o in 0..c {
+            for tau in 0..steps {
+                let j = i * steps + tau;
+                let a = bt.act[(i * c + o) * steps + tau];
+                let mut v = gamma[o] * (a - bt.mean[j]) * bt.rstd[j] + beta[o];
+                let full = (i * c + o) * t + t0 + tau;
+                if let Some(((drop, offset), step)) = &mask {
+                    v = if keep(drop, *step, offset + full) {
+                        v * scale
+                    } else {
+                        0.0
+                    };
+                }
+                match out.as_deref_mut() {
+                    Some(h) => h[i * c + o] = v,
+                    None => bt.y[full] = v,
+                }
+            }
+        }
+    }
+}
+
+/// Step 1 on `x` `[N, C_in, T]`: X_t = X·(E' + I), keeping lhs, rhs, σ and E'.
+fn temporal_attention(
+    n: usize,
+    ci: usize,
+    t: usize,
+    p: &[Vec<f32>],
+    ix: [usize; 5],
+    x: &[f32],
+    bt: &mut BlockTape,
+) {
+    let [u1, u2, u3, be, ve] = ix.map(|i| &p[i][..]);
+    gemm(
+        1,
+        n,
+        ci * t,
+        rows(u1, n),
+        rows(x, ci * t),
+        0.0,
+        &mut bt.xu1,
+        ci * t,
+    );
+    gemm(
+        t,
+        ci,
+        n,
+        transposed(&bt.xu1, t),
+        rows(u2, n),
+        0.0,
+        &mut bt.t_lhs,
+        n,
+    );
+    for i in 0..n {
+        let xi = &x[i * ci * t..][..ci * t];
+        gemm(
+            1,
+            ci,
+            t,
+            rows(u3, ci),
+            rows(xi, t),
+            0.0,
+            &mut bt.t_rhs[i * t..][..t],
+            t,
+        );
+    }
+    bt.t_sig.copy_from_slice(be);
+    gemm(
+        t,
+        n,
+        t,
+        rows(&bt.t_lhs, n),
+        rows(&bt.t_rhs, t),
+        1.0,
+        &mut bt.t_sig,
+        t,
+    );
+    for v in bt.t_sig.iter_mut() {
+        *v = sigmoid(*v);
+    }
+    gemm(t, t, t, rows(ve, t), rows(&bt.t_sig, t), 0.0, &mut bt.e, t);
+    for col in 0..t {
+        softmax_strided(&mut bt.e[col..], t, t);
+    }
+    bt.xt.copy_from_slice(x);
+    gemm(n * ci, t, t, rows(x, t), rows(&bt.e, t), 1.0, &mut bt.xt, t);
+}
+
+/// Step 2 on `bt.xt`: S' and Q = Ψ·(I + S').
+fn spatial_attention(
+    n: usize,
+    ci: usize,
+    t: usize,
+    p: &[Vec<f32>],
+    ix: [usize; 5],
+    bt: &mut BlockTape,
+) {
+    let [w1, w2, w3, bs, vs] = ix.map(|i| &p[i][..]);
+    let xt = &bt.xt;
+    gemm(n * ci, t, 1, rows(xt, t), rows(w1, 1), 0.0, &mut bt.xw1, 1);
+    gemm(
+        n,
+        ci,
+        t,
+        rows(&bt.xw1, ci),
+        rows(w2, t),
+        0.0,
+        &mut bt.s_lhs,
+        t,
+    );
+    for m in 0..n {
+        let xm = &xt[m * ci * t..][..ci * t];
+        gemm(
+            1,
+            ci,
+            t,
+            rows(w3, ci),
+            rows(xm, t),
+            0.0,
+            &mut bt.s_rhs[m * t..][..t],
+            t,
+        );
+    }
+    bt.s_sig.copy_from_slice(bs);
+    gemm(
+        n,
+        t,
+        n,
+        rows(&bt.s_lhs, t),
+        transposed(&bt.s_rhs, t),
+        1.0,
+        &mut bt.s_sig,
+        n,
+    );
+    for v in bt.s_sig.iter_mut() {
+        *v = sigmoid(*v);
+    }
+    gemm(n, n, n, rows(vs, n), rows(&bt.s_sig, n), 0.0, &mut bt.s, n);
+    for row in bt.s.chunks_mut(n) {
+        softmax_strided(row, n, 1);
+    }
+    bt.q.copy_from_slice(&bt.psi);
+    gemm(n, n, n, rows(&bt.psi, n), rows(&bt.s, n), 1.0, &mut bt.q, n);
+}
