@@ -247,13 +247,16 @@ impl Engine {
     ) -> Result<Vec<f32>, TrainError> {
         let d = match self {
             Engine::Native(n) => {
-                return native_predict(model, graph, data, positions, &n.train.parameters())
+                let params = n.train.parameters();
+                let threads = n.train.shape().threads;
+                return native_predict(model, graph, data, positions, &params, threads);
             }
             Engine::Device(d) => d,
         };
         if gpu.is_software() && NativeForward::supports(model) {
             let params = d.net.read_parameters(gpu)?;
-            return native_predict(model, graph, data, positions, &params);
+            let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+            return native_predict(model, graph, data, positions, &params, threads);
         }
         let (o, len) = (model.outputs, data.window_len());
         let b = d.net.batch;
@@ -279,19 +282,38 @@ impl Engine {
     }
 }
 
-/// ŷ of the windows at `positions` on [`NativeForward`] with `params`.
+/// ŷ of the windows at `positions` on [`NativeForward`] with `params`, the windows split
+/// into `threads` contiguous shares (each window's output does not depend on the split).
 fn native_predict(
     model: &ModelConfig,
     graph: &Graph,
     data: &Dataset,
     positions: &[usize],
     params: &Parameters,
+    threads: usize,
 ) -> Result<Vec<f32>, TrainError> {
     let (o, len) = (model.outputs, data.window_len());
-    let mut native = NativeForward::new(model, graph, params)?;
     let mut out = vec![0f32; positions.len() * o];
-    for (&p, row) in positions.iter().zip(out.chunks_mut(o)) {
-        native.forward(&data.x[p * len..][..len], row)?;
-    }
+    let share = positions.len().div_ceil(threads.max(1)).max(1);
+    let run = |positions: &[usize], out: &mut [f32]| -> Result<(), TrainError> {
+        let mut native = NativeForward::new(model, graph, params)?;
+        for (&p, row) in positions.iter().zip(out.chunks_mut(o)) {
+            native.forward(&data.x[p * len..][..len], row)?;
+        }
+        Ok(())
+    };
+    std::thread::scope(|scope| {
+        let jobs: Vec<_> = positions
+            .chunks(share)
+            .zip(out.chunks_mut(share * o))
+            .map(|(p, out)| scope.spawn(move || run(p, out)))
+            .collect();
+        jobs.into_iter().try_for_each(|j| match j.join() {
+            Ok(result) => result,
+            Err(_) => Err(TrainError::Data(
+                "a native prediction thread panicked".into(),
+            )),
+        })
+    })?;
     Ok(out)
 }
