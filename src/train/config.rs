@@ -156,7 +156,7 @@ impl RunConfig {
     ///
     /// let config = RunConfig::demo();
     /// assert_eq!((config.model.window, config.model.channels), (48, 16));
-    /// assert_eq!(config.train.max_epochs, 8);
+    /// assert_eq!(config.train.max_epochs, 80);
     /// assert_eq!(config.refine.magnifications, vec![10, 5]);
     /// ```
     pub fn demo() -> RunConfig {
