@@ -90,6 +90,27 @@ fn save_load_round_trip_gives_identical_outputs() {
     }
 }
 
+/// The same checkpoint gives the same bytes every time (the header's keys sorted,
+/// whatever order the metadata map iterates in), and they still load.
+#[test]
+fn saved_bytes_are_the_same_every_time() {
+    let ck = checkpoint(Variant::Iastgcn, 3);
+    let first = ck.to_bytes().unwrap();
+    for _ in 0..8 {
+        assert_eq!(ck.to_bytes().unwrap(), first);
+    }
+    let n = u64::from_le_bytes(first[..8].try_into().unwrap()) as usize;
+    let header = std::str::from_utf8(&first[8..8 + n]).unwrap();
+    let at = |key: &str| header.find(&format!("\"{key}\"")).unwrap();
+    assert!(at("__metadata__") < at("config"));
+    assert!(at("config") < at("format"));
+    assert!(at("format") < at("graph"));
+    assert!(at("graph") < at("normalization"));
+    assert!(at("normalization") < at("variant"));
+    let back = Checkpoint::from_bytes(&first, "sorted").unwrap();
+    assert_eq!(back.parameters.values, ck.parameters.values);
+}
+
 /// Rewrites a checkpoint's tensors and metadata through `edit`, returning the bytes.
 fn edited(
     ck: &Checkpoint,

@@ -148,7 +148,9 @@ impl Checkpoint {
             ("graph".to_string(), json(&graph)?),
             ("normalization".to_string(), json(&self.normalization)?),
         ]);
-        safetensors::serialize(views, Some(metadata)).map_err(|e| e.to_string())
+        safetensors::serialize(views, Some(metadata))
+            .map(sorted_header)
+            .map_err(|e| e.to_string())
     }
 
     /// Writes the checkpoint atomically (temporary file, then rename).
@@ -259,6 +261,48 @@ impl Checkpoint {
             normalization,
         })
     }
+}
+
+/// Safetensors bytes with their JSON header's keys in sorted order. The `safetensors`
+/// crate writes the metadata map in a `HashMap`'s order, which changes from process to
+/// process; sorting makes a file the same bit for bit for the same contents (readers
+/// locate tensors by their offsets, not by the header's order). The bytes come back
+/// unchanged if the header cannot be read, which a freshly serialised one always can.
+pub fn sorted_header(bytes: Vec<u8>) -> Vec<u8> {
+    let Some(n) = bytes
+        .get(..8)
+        .and_then(|b| b.try_into().ok())
+        .map(u64::from_le_bytes)
+        .and_then(|n| usize::try_from(n).ok())
+    else {
+        return bytes;
+    };
+    let Some(header) = bytes.get(8..8 + n) else {
+        return bytes;
+    };
+    type Sorted = std::collections::BTreeMap<String, serde_json::Value>;
+    let Ok(mut top) = serde_json::from_slice::<Sorted>(header) else {
+        return bytes;
+    };
+    if let Some(meta) = top.remove("__metadata__") {
+        let Ok(meta) = serde_json::from_value::<Sorted>(meta) else {
+            return bytes;
+        };
+        let Ok(meta) = serde_json::to_value(meta) else {
+            return bytes;
+        };
+        top.insert("__metadata__".into(), meta);
+    }
+    let Ok(text) = serde_json::to_string(&top) else {
+        return bytes;
+    };
+    if text.len() > n {
+        return bytes;
+    }
+    let mut out = bytes;
+    out[8..8 + n].fill(b' ');
+    out[8..8 + text.len()].copy_from_slice(text.as_bytes());
+    out
 }
 
 /// Parses safetensors bytes into its tensors and its metadata map; the message of a

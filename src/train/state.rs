@@ -66,8 +66,9 @@ impl TrainState {
             ("stage".to_string(), json(&s.stage)?),
             ("progress".to_string(), json(&s.progress)?),
         ]);
-        let bytes =
-            safetensors::serialize(views, Some(metadata)).map_err(|e| err(e.to_string()))?;
+        let bytes = safetensors::serialize(views, Some(metadata))
+            .map(crate::model::checkpoint::sorted_header)
+            .map_err(|e| err(e.to_string()))?;
         crate::atomic::write(path, &bytes).map_err(|e| err(e.to_string()))
     }
 
