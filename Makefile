@@ -4,7 +4,7 @@
 CARGO ?= cargo
 export NODEVICE_SELECT ?= 1
 
-.PHONY: vulkan test demo bench bench-compare lint
+.PHONY: vulkan test demo paper bench bench-compare lint
 
 vulkan:
 	@.ci/ensure-vulkan
@@ -26,6 +26,16 @@ demo: vulkan
 	./target/release/iastgcn smoke
 	./target/release/iastgcn demo --out $(DEMO_DIR)
 	$(CARGO) run --release --example predict -- $(DEMO_DIR)/models/iastgcn-refined.safetensors
+
+PAPER_DIR ?= paper
+PAPER_ARGS ?=
+## The paper's protocol at the paper's sizes (docs/usage.md "reproduce"): every model ×
+## seeds 1–3 on ~42k windows, in resumable jobs; run it again after an interruption.
+## Days on lavapipe (docs/results.md "Reproduce"); meant for a real GPU or a cluster
+## (PAPER_ARGS="--shard k/n" per machine, then once without).
+paper: vulkan
+	$(CARGO) build --release --bin iastgcn
+	./target/release/iastgcn reproduce --out $(PAPER_DIR) $(PAPER_ARGS)
 
 ## Criterion benchmarks (matmul GFLOP/s, dispatch and submit costs).
 bench: vulkan

@@ -52,7 +52,7 @@ pub struct HeldOutArgs {
 }
 
 impl HeldOutArgs {
-    fn config(&self) -> HeldOutConfig {
+    pub fn config(&self) -> HeldOutConfig {
         HeldOutConfig {
             minutes: self.held_out_minutes,
             seed: self.held_out_seed,

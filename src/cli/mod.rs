@@ -8,6 +8,7 @@ mod dataset;
 mod demo;
 mod info;
 mod model;
+mod reproduce;
 mod simulate;
 mod smoke;
 mod train;
@@ -65,6 +66,10 @@ enum Command {
     /// The main job end to end on the embedded twin: simulate, calibrate, train the four
     /// variants, refine, compensate, report.
     Demo(demo::DemoArgs),
+    /// The paper's protocol at the paper's sizes (or any run config): every model over
+    /// several training seeds, in resumable jobs that can be sharded over machines, then
+    /// Tables III and V with mean ± SD over seeds and paired comparisons.
+    Reproduce(reproduce::ReproduceArgs),
 }
 
 fn open_gpu(adapter: Option<&str>) -> anyhow::Result<Gpu> {
@@ -114,6 +119,9 @@ pub fn main() -> ExitCode {
         }
         Command::Demo(args) => {
             open_gpu(cli.adapter.as_deref()).and_then(|gpu| demo::demo(gpu, &args))
+        }
+        Command::Reproduce(args) => {
+            open_gpu(cli.adapter.as_deref()).and_then(|gpu| reproduce::run(gpu, &args))
         }
     };
     match result {

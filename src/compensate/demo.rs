@@ -10,24 +10,15 @@ use std::time::Instant;
 
 use super::evaluate::{evaluate, HeldOutConfig, NamedModel};
 use super::held_out::IDLE_BETWEEN_RUNS;
+use super::protocol::{fit_model, record_data, ModelFiles};
+pub use super::protocol::{CALIBRATION_SEED, TRAINING_SEED};
 use super::report::{self, Report};
-use crate::calibrate::{self, file, hold_out, pose_errors, EkfConfig};
-use crate::data::{read_measurements, record_calibration_set, record_run, DataSources};
+use crate::data::DataSources;
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
 use crate::model::Variant;
 use crate::progress::Reporter;
-use crate::robot::{Geometry, Robot};
-use crate::train::{
-    self, build_dataset, core_stage, initial_parameters, log, refine, run_stage, RunConfig, Trainer,
-};
-use crate::twin::{draw_machine, PathKind, PathParams, RunInfo};
-
-/// Seeds of the demo's runs: every run has its own (written in its `.run.toml`). This one
-/// is the calibration set's.
-pub const CALIBRATION_SEED: u64 = 101;
-/// Seed of the first training recording; the later ones count up from it.
-pub const TRAINING_SEED: u64 = 201;
+use crate::train::{build_dataset, RunConfig};
 
 /// What the demo runs.
 #[derive(Clone, Debug)]
@@ -97,20 +88,6 @@ fn sensor_table() -> String {
     out
 }
 
-/// The mean core-stage epoch time of a history.
-fn epoch_seconds(history: &[train::EpochRecord]) -> f64 {
-    let core: Vec<f64> = history
-        .iter()
-        .filter(|r| r.stage == "core")
-        .map(|r| r.seconds)
-        .collect();
-    if core.is_empty() {
-        f64::NAN
-    } else {
-        core.iter().sum::<f64>() / core.len() as f64
-    }
-}
-
 /// Runs the demo into the folder `out` (`data/`, `models/` and the report files; the
 /// report's entry point is `report.md`). Returns the report as written.
 pub fn demo(
@@ -129,76 +106,10 @@ pub fn demo(
     }
     reporter.note(&format!("demo on {} → {}", gpu.info().name, out.display()));
 
-    reporter.note("== 1/6 twin: calibration measurements (a cold machine at rest)");
-    let geometry = Geometry::default_asset();
-    let machine = draw_machine(geometry.clone(), 1);
-    let nominal = Robot::nominal(geometry.clone());
-    let set = data_dir.join("calibration_set.csv");
-    let info = RunInfo::calibration(CALIBRATION_SEED);
-    let poses = record_calibration_set(&machine, &nominal, 80, &info, &set, reporter)?;
-    reporter.note(&format!(
-        "wrote {} ({poses} measurement poses)",
-        set.display()
-    ));
-
-    reporter.note("== 2/6 geometric calibration (EKF)");
-    let calibration = data_dir.join("calibration.toml");
-    let (fit, held) = hold_out(&read_measurements(&set)?, 5);
-    let cal = calibrate::calibrate(&nominal, &fit, &EkfConfig::default())
-        .map_err(|e| Error::from(e).context(format!("calibrating from {}", set.display())))?;
-    file::save(&calibration, &cal, fit.len())?;
-    let controller = nominal.with_errors(cal.errors.clone());
-    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
-    let (before, after) = (
-        pose_errors(&nominal, &held)?,
-        pose_errors(&controller, &held)?,
-    );
-    reporter.note(&format!(
-        "identified {} parameters from {} poses; wrote {}; on {} held-out poses the mean error \
-         falls from {:.1} µm / {:.1} mdeg to {:.1} µm / {:.1} mdeg",
-        cal.identified.len(),
-        fit.len(),
-        calibration.display(),
-        held.len(),
-        mean(&before.0),
-        mean(&before.1),
-        mean(&after.0),
-        mean(&after.1)
-    ));
-
-    reporter.note("== 3/6 training session: three recordings under the calibrated controller");
-    let mut recordings = Vec::new();
-    let mut state = machine.cold();
-    for (i, kind) in PathKind::TRAINING.into_iter().enumerate() {
-        let path = data_dir.join(format!("{}.csv", kind.name()));
-        let mut info = RunInfo::polishing(
-            kind,
-            &PathParams::default(),
-            demo.minutes * 60.0,
-            TRAINING_SEED + i as u64,
-        );
-        info.controller = calibration.display().to_string();
-        let run = record_run(&machine, &controller, info, state, &path, None, reporter)?;
-        reporter.note(&format!(
-            "wrote {} ({} rows, {} tracker samples, seed {}, {} start)",
-            path.display(),
-            run.rows,
-            run.tracker_samples,
-            run.info.seed,
-            run.info.start
-        ));
-        state = run.end;
-        state.idle(IDLE_BETWEEN_RUNS);
-        recordings.push(path);
-    }
+    reporter.note("== 1/6 … 3/6 twin data: calibration set, EKF calibration, training session");
+    let sources = record_data(&data_dir, demo.minutes, reporter)?;
 
     reporter.note("== 4/6 dataset");
-    let sources = DataSources {
-        recordings,
-        calibration,
-        graph: None,
-        robot: None,
-    };
     let (graph, data) = build_dataset(&sources, config, None)?;
     for line in data.summary().lines() {
         reporter.note(line);
@@ -229,48 +140,19 @@ pub fn demo(
         let mut c = config.clone();
         c.model.variant = variant;
         let name = variant.name();
-        let path = model_dir.join(format!("{name}.safetensors"));
-        let init = initial_parameters(&gpu, &data, &graph, &c, reporter)?;
-        let mut trainer = Trainer::new(
-            &gpu,
-            &data,
-            &graph,
-            &c.model,
-            &c.train,
-            core_stage(&c),
-            &init,
-        )?;
-        run_stage(&mut trainer, name, reporter, |_, _| Ok(()))?;
-        let ck = train::checkpoint(&c.model, &graph, &trainer.best, &data.normalization);
-        ck.save(&path)?;
-        log::write_csv(
-            &train::sibling(&path, ".log.csv"),
-            &trainer.progress.history,
-        )?;
-        let p = &trainer.progress;
-        reporter.note(&format!(
-            "{variant}: best validation loss {:.4} at epoch {} of {}",
-            p.best_val, p.best_epoch, p.epoch
-        ));
-        let secs = epoch_seconds(&p.history);
-        let trained_on = trainer.trained_on();
-        histories.push((name.to_string(), p.history.clone()));
-        drop(trainer);
-        let r = refine(&gpu, &data, &graph, &c, &ck.parameters, reporter)?;
-        reporter.note(&format!("{name}: refinement {}", r.verdict()));
-        refinement.push(format!("{name}: {}", r.verdict()));
+        let files = ModelFiles {
+            core: model_dir.join(format!("{name}.safetensors")),
+            refined: model_dir.join(format!("{name}-refined.safetensors")),
+            resume: false,
+        };
+        let fitted = fit_model(&gpu, &data, &graph, &c, name, &files, reporter)?;
+        refinement.push(format!("{name}: {}", fitted.verdict));
         if variant == Variant::Iastgcn {
-            accumulated = Some((r.before.clone(), r.after.clone()));
+            accumulated = Some(fitted.accumulated.clone());
         }
-        let refined_path = model_dir.join(format!("{name}-refined.safetensors"));
-        let refined = r.save(&ck, &refined_path)?;
-        histories.push((format!("{name}-refined"), r.history.clone()));
-        models.push(NamedModel {
-            name: name.to_string(),
-            checkpoint: refined,
-            epoch_seconds: secs,
-            trained_on,
-        });
+        histories.push((name.to_string(), fitted.core));
+        histories.push((format!("{name}-refined"), fitted.refinement));
+        models.push(fitted.model);
     }
 
     reporter.note("== 6/6 evaluation: Tables III and V, report");
@@ -379,7 +261,7 @@ pub fn evaluation_report(
 /// Tables III and V into `report`, its wall time since `began`, and the report folder
 /// `out` written; returns the report.
 #[allow(clippy::too_many_arguments)]
-fn finish(
+pub(super) fn finish(
     gpu: &Arc<Gpu>,
     mut report: Report,
     models: &[NamedModel],

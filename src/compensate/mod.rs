@@ -5,4 +5,6 @@ pub mod demo;
 pub mod evaluate;
 pub mod held_out;
 pub mod online;
+pub mod protocol;
 pub mod report;
+pub mod reproduce;

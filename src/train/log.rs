@@ -3,7 +3,7 @@
 use std::path::Path;
 
 use super::trainer::EpochRecord;
-use crate::error::{write_file, Result};
+use crate::error::{write_file, Error, Result};
 use crate::plot::{self, Panel, PlotError, Series};
 
 /// Writes the epoch history as CSV (atomically).
@@ -41,6 +41,18 @@ pub fn write_csv(path: &Path, history: &[EpochRecord]) -> Result<()> {
         })
         .collect();
     write_file(path, csv_text(&header, rows).as_bytes())
+}
+
+/// Reads an epoch history written by [`write_csv`]; the error names the file and line.
+pub fn read_csv(path: &Path) -> Result<Vec<EpochRecord>> {
+    let bad = |e: csv::Error| {
+        let line = e
+            .position()
+            .map_or(String::new(), |p| format!(":{}", p.line()));
+        Error::Invalid(format!("{}{line}: {e}", path.display()))
+    };
+    let mut reader = csv::Reader::from_path(path).map_err(bad)?;
+    reader.deserialize().map(|r| r.map_err(bad)).collect()
 }
 
 /// Distinct values in order of first appearance.

@@ -258,6 +258,9 @@ pub fn markdown(r: &Report) -> String {
     }
     markdown_table_v(&mut out, &r.table_v);
     markdown_table_iii(&mut out, &r.table_iii);
+    if let Some(summary) = super::seeds::summarize(r) {
+        out.push_str(&super::seeds::markdown(&summary));
+    }
     markdown_timings(&mut out, &r.timings);
     if !r.notes.is_empty() {
         out.push_str("## Notes\n\n");

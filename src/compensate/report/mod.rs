@@ -12,6 +12,7 @@ use crate::train::log::{accumulated_csv, csv_text, distinct, plot_accumulated};
 use crate::train::{EpochRecord, Metrics};
 
 mod markdown;
+pub mod seeds;
 pub use markdown::markdown;
 
 /// Mean / SD / max of the position (µm) and attitude (mdeg) pose errors of one run.
@@ -133,6 +134,9 @@ enum Kind {
     Losses,
     Accumulated,
     AccumulatedCsv,
+    TableVSeeds,
+    TableIIISeeds,
+    Paired,
 }
 
 struct Entry {
@@ -202,6 +206,32 @@ fn plan(r: &Report) -> Vec<Entry> {
             Kind::Timings,
         ),
     ]);
+    if seeds::summarize(r).is_some() {
+        out.extend([
+            entry(
+                "table_v_seeds.csv",
+                "Table V over training seeds, machine-readable: mean and sample SD over the \
+                 seeds of each model's compensated mean error (truth and tracker) and of the \
+                 share of the calibrated error it removed."
+                    .into(),
+                Kind::TableVSeeds,
+            ),
+            entry(
+                "table_iii_seeds.csv",
+                "Table III over training seeds, machine-readable: mean and sample SD of the \
+                 test-split MAE and RMSE per trajectory and model."
+                    .into(),
+                Kind::TableIIISeeds,
+            ),
+            entry(
+                "paired.csv",
+                "Paired comparison of every model with the main one, seed by seed: wins, \
+                 mean and SD of the difference, verdict."
+                    .into(),
+                Kind::Paired,
+            ),
+        ]);
+    }
     if !r.timings.is_empty() {
         out.push(entry(
             "fig10_timings.png",
@@ -451,6 +481,16 @@ pub fn write(dir: &Path, r: &Report) -> Result<Vec<PathBuf>> {
             Kind::TableV => text(&path, &table_v_csv(&r.table_v))?,
             Kind::TableIII => text(&path, &table_iii_csv(&r.table_iii))?,
             Kind::Timings => text(&path, &timings_csv(&r.timings))?,
+            Kind::TableVSeeds | Kind::TableIIISeeds | Kind::Paired => {
+                if let Some(summary) = seeds::summarize(r) {
+                    let body = match e.kind {
+                        Kind::TableVSeeds => seeds::table_v_csv(&summary),
+                        Kind::TableIIISeeds => seeds::table_iii_csv(&summary),
+                        _ => seeds::paired_csv(&summary),
+                    };
+                    text(&path, &body)?
+                }
+            }
             Kind::Fig10 => plot_fig10(&path, &r.timings)?,
             Kind::Fig11(trajectory) => {
                 let traces: Vec<&Trace> = r

@@ -1,0 +1,73 @@
+//! `iastgcn reproduce`: arguments, then the library's `compensate::reproduce`.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use clap::Args;
+
+use super::demo::HeldOutArgs;
+use super::train::read_run_config;
+use super::Console;
+use iastgcn::compensate::reproduce::{self, Outcome, Protocol, Shard};
+use iastgcn::gpu::Gpu;
+
+#[derive(Args)]
+pub struct ReproduceArgs {
+    /// Output folder: protocol.toml, data/, models/ and, once every job is done, the report.
+    #[arg(long, default_value = "paper")]
+    pub out: PathBuf,
+    /// Run config of every model; the paper's sizes when absent (assets/paper.toml).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Length of each training recording, minutes (135: about 42k windows at the paper's
+    /// window and stride).
+    #[arg(long, default_value_t = 135.0)]
+    pub minutes: f64,
+    /// Training seeds, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "1,2,3")]
+    pub seeds: Vec<u64>,
+    /// Models, comma-separated (default: IASTGCN, its ablations and every baseline).
+    #[arg(long, value_delimiter = ',')]
+    pub models: Vec<String>,
+    /// Run only this shard's jobs, k/n (jobs k−1, k−1+n, …), then stop; a final call
+    /// without --shard writes the report.
+    #[arg(long)]
+    pub shard: Option<Shard>,
+    /// Record (or check) the data and stop: run this once before the shards.
+    #[arg(long)]
+    pub data_only: bool,
+    #[command(flatten)]
+    pub held_out: HeldOutArgs,
+}
+
+pub fn run(gpu: Gpu, args: &ReproduceArgs) -> anyhow::Result<()> {
+    let mut protocol = Protocol::paper();
+    if let Some(p) = &args.config {
+        protocol.run = read_run_config(Some(p), None)?;
+    }
+    protocol.minutes = args.minutes;
+    protocol.seeds = args.seeds.clone();
+    if !args.models.is_empty() {
+        protocol.models = args.models.clone();
+    }
+    let outcome = reproduce::reproduce(
+        Arc::new(gpu),
+        &protocol,
+        &args.held_out.config(),
+        args.shard,
+        args.data_only,
+        &args.out,
+        &mut Console::default(),
+    )?;
+    match outcome {
+        Outcome::Report(r) => println!(
+            "reproduce finished: report in {} ({:.0} s)",
+            args.out.join("report.md").display(),
+            r.wall_seconds
+        ),
+        Outcome::Partial { done, total } => {
+            println!("reproduce stopped: {done} of {total} jobs done")
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,235 @@
+//! What the demo and `iastgcn reproduce` share: the twin data of the protocol (the
+//! calibration set on a cold machine, the EKF calibration, one training session of three
+//! recordings under the calibrated controller) and the fitting of one model (core stage,
+//! then refinement, both written to files as they go).
+
+use std::path::{Path, PathBuf};
+
+use super::evaluate::NamedModel;
+use super::held_out::IDLE_BETWEEN_RUNS;
+use crate::calibrate::{self, file, hold_out, pose_errors, EkfConfig};
+use crate::data::{read_measurements, record_calibration_set, record_run, DataSources, Dataset};
+use crate::error::{Error, Result};
+use crate::gpu::Gpu;
+use crate::graph::Graph;
+use crate::progress::Reporter;
+use crate::robot::{Geometry, Robot};
+use crate::train::refine::AccumulatedCurve;
+use crate::train::{self, refine, sibling, EpochRecord, RunConfig};
+use crate::twin::{draw_machine, PathKind, PathParams, RunInfo};
+
+/// Seeds of the protocol's runs: every run has its own (written in its `.run.toml`). This
+/// one is the calibration set's.
+pub const CALIBRATION_SEED: u64 = 101;
+/// Seed of the first training recording; the later ones count up from it.
+pub const TRAINING_SEED: u64 = 201;
+/// The twin's machine (the seed of its geometric and non-geometric errors).
+pub const MACHINE_SEED: u64 = 1;
+/// Measurement poses of the calibration set.
+const CALIBRATION_POSES: usize = 80;
+
+/// The files of the protocol's data in the folder `dir`: the calibration set, the
+/// calibration, and the training recordings (grid, fermat, hilbert).
+pub fn data_sources(dir: &Path) -> DataSources {
+    DataSources {
+        recordings: PathKind::TRAINING
+            .into_iter()
+            .map(|k| dir.join(format!("{}.csv", k.name())))
+            .collect(),
+        calibration: dir.join("calibration.toml"),
+        graph: None,
+        robot: None,
+    }
+}
+
+/// The protocol's data of an earlier run in `dir`, when every file is there; an error
+/// when they are there but were recorded with another length than `minutes` (the models
+/// trained on them would not belong to this run).
+pub fn existing_data(dir: &Path, minutes: f64) -> Result<Option<DataSources>> {
+    let sources = data_sources(dir);
+    let complete = dir.join("calibration_set.csv").exists()
+        && sources.calibration.exists()
+        && sources
+            .recordings
+            .iter()
+            .all(|r| r.exists() && RunInfo::sidecar(r).exists());
+    if !complete {
+        return Ok(None);
+    }
+    for r in &sources.recordings {
+        let info = RunInfo::read(r).map_err(Error::Invalid)?;
+        if (info.seconds - minutes * 60.0).abs() > 1e-6 {
+            return Err(Error::Invalid(format!(
+                "{}: recorded for {} min, but this run asks for {minutes} min per recording; \
+                 use another output folder or the same --minutes",
+                r.display(),
+                info.seconds / 60.0
+            )));
+        }
+    }
+    Ok(Some(sources))
+}
+
+/// Records the protocol's data into `dir` (created if missing): the calibration set of a
+/// cold machine at rest, the EKF calibration (scored on held-out poses), then one
+/// training session of `minutes` per path under the calibrated controller, starting cold
+/// with the machine left idle between runs. Returns where the files are.
+pub fn record_data(dir: &Path, minutes: f64, reporter: &mut dyn Reporter) -> Result<DataSources> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    reporter.note("== twin: calibration measurements (a cold machine at rest)");
+    let geometry = Geometry::default_asset();
+    let machine = draw_machine(geometry.clone(), MACHINE_SEED);
+    let nominal = Robot::nominal(geometry.clone());
+    let set = dir.join("calibration_set.csv");
+    let info = RunInfo::calibration(CALIBRATION_SEED);
+    let poses =
+        record_calibration_set(&machine, &nominal, CALIBRATION_POSES, &info, &set, reporter)?;
+    reporter.note(&format!(
+        "wrote {} ({poses} measurement poses)",
+        set.display()
+    ));
+
+    reporter.note("== geometric calibration (EKF)");
+    let sources = data_sources(dir);
+    let calibration = &sources.calibration;
+    let (fit, held) = hold_out(&read_measurements(&set)?, 5);
+    let cal = calibrate::calibrate(&nominal, &fit, &EkfConfig::default())
+        .map_err(|e| Error::from(e).context(format!("calibrating from {}", set.display())))?;
+    file::save(calibration, &cal, fit.len())?;
+    let controller = nominal.with_errors(cal.errors.clone());
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let (before, after) = (
+        pose_errors(&nominal, &held)?,
+        pose_errors(&controller, &held)?,
+    );
+    reporter.note(&format!(
+        "identified {} parameters from {} poses; wrote {}; on {} held-out poses the mean error \
+         falls from {:.1} µm / {:.1} mdeg to {:.1} µm / {:.1} mdeg",
+        cal.identified.len(),
+        fit.len(),
+        calibration.display(),
+        held.len(),
+        mean(&before.0),
+        mean(&before.1),
+        mean(&after.0),
+        mean(&after.1)
+    ));
+
+    reporter.note("== training session: three recordings under the calibrated controller");
+    let mut state = machine.cold();
+    for (i, (kind, path)) in PathKind::TRAINING
+        .into_iter()
+        .zip(&sources.recordings)
+        .enumerate()
+    {
+        let mut info = RunInfo::polishing(
+            kind,
+            &PathParams::default(),
+            minutes * 60.0,
+            TRAINING_SEED + i as u64,
+        );
+        info.controller = calibration.display().to_string();
+        let run = record_run(&machine, &controller, info, state, path, None, reporter)?;
+        reporter.note(&format!(
+            "wrote {} ({} rows, {} tracker samples, seed {}, {} start)",
+            path.display(),
+            run.rows,
+            run.tracker_samples,
+            run.info.seed,
+            run.info.start
+        ));
+        state = run.end;
+        state.idle(IDLE_BETWEEN_RUNS);
+    }
+    Ok(sources)
+}
+
+/// The mean core-stage epoch time of a history (NaN without core epochs).
+pub fn epoch_seconds(history: &[EpochRecord]) -> f64 {
+    let core: Vec<f64> = history
+        .iter()
+        .filter(|r| r.stage == "core")
+        .map(|r| r.seconds)
+        .collect();
+    if core.is_empty() {
+        f64::NAN
+    } else {
+        core.iter().sum::<f64>() / core.len() as f64
+    }
+}
+
+/// One model fitted by [`fit_model`].
+pub struct Fitted {
+    /// The model to evaluate (refined, or the core weights when refinement did not help).
+    pub model: NamedModel,
+    /// The core stage's epochs.
+    pub core: Vec<EpochRecord>,
+    /// The refinement stages' epochs.
+    pub refinement: Vec<EpochRecord>,
+    /// Best validation loss of the core stage, and its epoch.
+    pub best_val: f64,
+    /// The epoch of `best_val`.
+    pub best_epoch: usize,
+    /// What refinement did (its per-window validation losses and which weights it kept).
+    pub verdict: String,
+    /// Fig. 9b before and after refinement.
+    pub accumulated: (AccumulatedCurve, AccumulatedCurve),
+}
+
+/// Where [`fit_model`] writes one model: the core stage's best checkpoint (with its
+/// resumable state, log and loss plot beside it) and the refined checkpoint (with its
+/// log, loss plot and Fig. 9b files).
+#[derive(Clone, Debug)]
+pub struct ModelFiles {
+    /// Core stage checkpoint.
+    pub core: PathBuf,
+    /// Refined checkpoint (the one evaluated).
+    pub refined: PathBuf,
+    /// Continue the core stage from its state file when one exists (after an
+    /// interruption) instead of starting afresh.
+    pub resume: bool,
+}
+
+/// Trains `config`'s variant on `data` (core stage with early stopping, resuming from the
+/// core checkpoint's state file when `files.resume` and one exists), then refines it the
+/// same way for every model; the evaluated model is named `name`.
+pub fn fit_model(
+    gpu: &Gpu,
+    data: &Dataset,
+    graph: &Graph,
+    config: &RunConfig,
+    name: &str,
+    files: &ModelFiles,
+    reporter: &mut dyn Reporter,
+) -> Result<Fitted> {
+    let state = sibling(&files.core, ".state.safetensors");
+    let from = (files.resume && state.exists()).then_some(state.as_path());
+    let trained = train::train(gpu, data, graph, config, &files.core, from, reporter)?;
+    reporter.note(&format!(
+        "{name}: best validation loss {:.4} at epoch {} of {}",
+        trained.best_val, trained.best_epoch, trained.epochs
+    ));
+    let core = crate::model::Checkpoint::load(&files.core)?;
+    let r = refine(gpu, data, graph, config, &core.parameters, reporter)?;
+    let verdict = r.verdict();
+    reporter.note(&format!("{name}: refinement {verdict}"));
+    let refined = r.save(&core, &files.refined)?;
+    let trained_on = trained
+        .history
+        .first()
+        .map_or_else(|| "unknown".into(), |r| r.trained_on.clone());
+    Ok(Fitted {
+        model: NamedModel {
+            name: name.to_string(),
+            checkpoint: refined,
+            epoch_seconds: epoch_seconds(&trained.history),
+            trained_on,
+        },
+        core: trained.history,
+        refinement: r.history,
+        best_val: trained.best_val,
+        best_epoch: trained.best_epoch,
+        verdict,
+        accumulated: (r.before, r.after),
+    })
+}

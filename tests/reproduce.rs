@@ -1,0 +1,138 @@
+//! `iastgcn reproduce` end to end at a tiny size: the data once, the jobs split over two
+//! shards, a final run that trains nothing and writes the report with the spread over
+//! seeds; a job whose outputs are lost resumes from its state file to the same model;
+//! another protocol in the same folder and a bad shard are refused.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::cli;
+
+const TINY: &str =
+    "[model]\nwindow = 16\nchannels = 4\nblocks = 2\nhidden = 8\n\n[data]\nstride = 5\n\n\
+[train]\nbatch = 32\nlr = 3e-3\nmax_epochs = 2\n\n[refine]\nmagnifications = [3]\nmax_epochs = 1\n";
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Runs the binary expecting failure; returns stderr.
+fn cli_fails(args: &[&str]) -> String {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(!o.status.success(), "iastgcn {args:?} succeeded");
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+#[test]
+fn reproduce_shards_resumes_and_reports_over_seeds() {
+    let dir: PathBuf =
+        std::env::temp_dir().join(format!("iastgcn-reproduce-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("tiny.toml");
+    std::fs::write(&config, TINY).unwrap();
+    let out = dir.join("out");
+    let run = |extra: &[&str]| {
+        let mut args = vec![
+            "reproduce",
+            "--config",
+            s(&config),
+            "--minutes",
+            "0.5",
+            "--seeds",
+            "1,2",
+            "--models",
+            "iastgcn,mlp",
+            "--held-out-minutes",
+            "0.1",
+            "--warm-up-minutes",
+            "0.2",
+            "--out",
+            s(&out),
+        ];
+        args.extend(extra);
+        cli(&args)
+    };
+
+    let text = run(&["--data-only"]);
+    assert!(text.contains("0 of 4 jobs done"), "{text}");
+    assert!(out.join("data/calibration.toml").exists());
+    assert!(out.join("protocol.toml").exists());
+
+    // Shard 1 of 2 takes jobs 1 and 3 (iastgcn seeds 1 and 2), shard 2 jobs 2 and 4.
+    let text = run(&["--shard", "1/2"]);
+    assert!(text.contains("2 of 4 jobs done"), "{text}");
+    let models = out.join("models");
+    assert!(models.join("iastgcn.seed1.job.toml").exists());
+    assert!(models.join("iastgcn.seed2.job.toml").exists());
+    assert!(!models.join("mlp.seed1.job.toml").exists());
+    assert!(!out.join("report.md").exists());
+    let text = run(&["--shard", "2/2"]);
+    assert!(text.contains("4 of 4 jobs done"), "{text}");
+
+    // A job whose record and refined model are lost resumes from its core state: the
+    // same refined weights, bit for bit.
+    let refined = models.join("iastgcn.seed2.safetensors");
+    let before = std::fs::read(&refined).unwrap();
+    std::fs::remove_file(models.join("iastgcn.seed2.job.toml")).unwrap();
+    std::fs::remove_file(&refined).unwrap();
+
+    // The final run: only the lost job trains, then the report.
+    let text = run(&[]);
+    assert!(text.contains("reproduce finished"), "{text}");
+    assert_eq!(std::fs::read(&refined).unwrap(), before);
+    for name in [
+        "report.md",
+        "table_v.csv",
+        "table_iii.csv",
+        "table_v_seeds.csv",
+        "table_iii_seeds.csv",
+        "paired.csv",
+        "losses.png",
+    ] {
+        assert!(out.join(name).exists(), "{name}");
+    }
+    let table_v = std::fs::read_to_string(out.join("table_v.csv")).unwrap();
+    for model in ["iastgcn.seed1", "iastgcn.seed2", "mlp.seed1", "mlp.seed2"] {
+        assert_eq!(
+            table_v
+                .lines()
+                .filter(|l| l.contains(&format!(",compensated,{model},")))
+                .count(),
+            4,
+            "{model}: one row per held-out path"
+        );
+    }
+    let seeds = std::fs::read_to_string(out.join("table_v_seeds.csv")).unwrap();
+    assert_eq!(
+        seeds.lines().filter(|l| l.contains(",iastgcn,2,")).count(),
+        4
+    );
+    let paired = std::fs::read_to_string(out.join("paired.csv")).unwrap();
+    // mlp against iastgcn: 3 Table III paths × 2 + 4 Table V paths × 2.
+    assert_eq!(paired.lines().count(), 1 + 14, "{paired}");
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("## Spread over training seeds"));
+    assert!(report.contains("## Core training over seeds"));
+    assert!(report.contains("| iastgcn | 2 |"), "{report}");
+
+    // Another protocol in the same folder is refused, naming the file.
+    let mut args = vec!["reproduce", "--config", s(&config), "--minutes", "0.5"];
+    args.extend([
+        "--seeds",
+        "1,3",
+        "--models",
+        "iastgcn,mlp",
+        "--out",
+        s(&out),
+    ]);
+    let err = cli_fails(&args);
+    assert!(err.contains("protocol.toml"), "{err}");
+    let err = cli_fails(&["reproduce", "--shard", "3/2", "--out", s(&out)]);
+    assert!(err.contains("k/n"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
