@@ -198,3 +198,45 @@ fn batches_are_seeded_shuffles_of_a_split() {
     assert_eq!(&x[..len], &ds.x[test.start * len..(test.start + 1) * len]);
     assert_eq!(&y[6..], &ds.y[..6]);
 }
+
+/// A share of the training windows keeps the first windows of the training block,
+/// leaves validation and test alone, and takes the statistics from the kept windows only.
+#[test]
+fn a_training_share_keeps_the_start_of_the_training_block() {
+    let rec = recording();
+    let graph = Graph::default_asset();
+    let model = Robot::nominal(Geometry::default_asset());
+    let with = |kept: f64, mode: SplitMode| {
+        Dataset::build(
+            &[("fermat.csv".to_string(), rec.clone())],
+            &graph,
+            &model,
+            &FeatureConfig::default(),
+            &WindowConfig {
+                train_kept: kept,
+                ..WindowConfig::default()
+            },
+            mode,
+        )
+        .unwrap()
+    };
+    let full = with(1.0, SplitMode::Contiguous);
+    let half = with(0.5, SplitMode::Contiguous);
+    // The windows of the block's first half: those that end before its middle.
+    let limit = (0.7 * 0.5 * rec.rows.len() as f64).round() as usize;
+    let before = full.splits.train.iter().filter(|w| w.end < limit).count();
+    assert!(before > 10 && before < full.splits.train.len());
+    assert_eq!(half.splits.train, full.splits.train[..before]);
+    assert_eq!(half.splits.validation, full.splits.validation);
+    assert_eq!(half.splits.test, full.splits.test);
+    assert_ne!(
+        half.normalization, full.normalization,
+        "statistics of the kept windows"
+    );
+    // The random split keeps the first share of its shuffled training windows.
+    let random = SplitMode::Random { seed: 5 };
+    let (all, quarter) = (with(1.0, random), with(0.25, random));
+    let k = (0.25 * all.splits.train.len() as f64).round() as usize;
+    assert_eq!(quarter.splits.train, all.splits.train[..k]);
+    assert_eq!(quarter.splits.validation, all.splits.validation);
+}

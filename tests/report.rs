@@ -3,6 +3,8 @@
 
 use std::path::{Path, PathBuf};
 
+use iastgcn::compensate::report::curve::{CurvePoint, CURVE_HEADER};
+use iastgcn::compensate::report::seeds::Spread;
 use iastgcn::compensate::report::{
     self, ErrorStats, Report, TableIIIRow, TableVRow, Timing, Trace,
 };
@@ -239,6 +241,20 @@ fn synthetic() -> Report {
         accumulated: Some((before, after)),
         notes: vec!["The compensated cloud shrinks toward the origin.".into()],
         sections: vec![("Sensor models".into(), "| E1 | a scale |".into())],
+        curve: [("iastgcn", 30.0), ("lstm", 36.0)]
+            .into_iter()
+            .flat_map(|(model, mae)| {
+                [(0.25, 1.6), (0.5, 1.2), (1.0, 1.0)].map(|(fraction, k)| CurvePoint {
+                    model: model.into(),
+                    fraction,
+                    windows: (624.0 * fraction) as usize,
+                    val_pos: Spread::of(&[k * mae, k * mae + 2.0, k * mae - 2.0]),
+                    val_att: Spread::of(&[k * mae / 2.0, k * mae / 2.0 + 1.0]),
+                    test_pos: Spread::of(&[k * mae * 1.1]),
+                    test_att: Spread::of(&[k * mae * 0.6]),
+                })
+            })
+            .collect(),
     }
 }
 
@@ -278,6 +294,9 @@ fn writes_every_file_of_the_report_folder() {
         "fig11_hilbert.png",
         "fig11_raster.png",
         "losses.png",
+        "losses.csv",
+        "learning_curve.png",
+        "learning_curve.csv",
         "accumulated.png",
         "accumulated.csv",
     ];
@@ -292,6 +311,18 @@ fn writes_every_file_of_the_report_folder() {
         }
     }
     assert_eq!(written.len(), expected.len(), "{written:?}");
+    // Every epoch of every history, then the learning curve's points in order.
+    let losses = lines(&dir.join("losses.csv"));
+    assert_eq!(losses[0], "model,stage,epoch,train_loss,val_loss");
+    assert_eq!(losses.len(), 1 + 8 + 3 + 6);
+    assert!(losses[9].starts_with("iastgcn,refine×4,1,"), "{losses:?}");
+    let curve = lines(&dir.join("learning_curve.csv"));
+    assert_eq!(curve[0], CURVE_HEADER);
+    assert_eq!(curve.len(), 1 + 6);
+    assert!(
+        curve[1].starts_with("iastgcn,0.25,156,3,48.0000,2.0000,24.5000,0.7071,52.8000,0.0000,"),
+        "{curve:?}"
+    );
     // No temporary files left behind.
     for entry in std::fs::read_dir(&dir).unwrap() {
         let name = entry.unwrap().file_name().to_string_lossy().into_owned();

@@ -47,6 +47,10 @@ fn reproduce_shards_resumes_and_reports_over_seeds() {
             "1,2",
             "--models",
             "iastgcn,mlp",
+            "--fractions",
+            "0.5",
+            "--curve-models",
+            "iastgcn",
             "--held-out-minutes",
             "0.1",
             "--warm-up-minutes",
@@ -59,20 +63,23 @@ fn reproduce_shards_resumes_and_reports_over_seeds() {
     };
 
     let text = run(&["--data-only"]);
-    assert!(text.contains("0 of 4 jobs done"), "{text}");
+    assert!(text.contains("0 of 6 jobs done"), "{text}");
     assert!(out.join("data/calibration.toml").exists());
     assert!(out.join("protocol.toml").exists());
 
-    // Shard 1 of 2 takes jobs 1 and 3 (iastgcn seeds 1 and 2), shard 2 jobs 2 and 4.
+    // The jobs: iastgcn and mlp for seed 1, then for seed 2, then the learning curve's
+    // iastgcn on half the training windows for seeds 1 and 2. Shard 1 of 2 takes jobs 1,
+    // 3 and 5; shard 2 jobs 2, 4 and 6.
     let text = run(&["--shard", "1/2"]);
-    assert!(text.contains("2 of 4 jobs done"), "{text}");
+    assert!(text.contains("3 of 6 jobs done"), "{text}");
     let models = out.join("models");
     assert!(models.join("iastgcn.seed1.job.toml").exists());
     assert!(models.join("iastgcn.seed2.job.toml").exists());
+    assert!(models.join("curve/iastgcn.seed1.train50.job.toml").exists());
     assert!(!models.join("mlp.seed1.job.toml").exists());
     assert!(!out.join("report.md").exists());
     let text = run(&["--shard", "2/2"]);
-    assert!(text.contains("4 of 4 jobs done"), "{text}");
+    assert!(text.contains("6 of 6 jobs done"), "{text}");
 
     // A job whose record and refined model are lost resumes from its core state: the
     // same refined weights, bit for bit.
@@ -119,6 +126,31 @@ fn reproduce_shards_resumes_and_reports_over_seeds() {
     assert!(report.contains("## Spread over training seeds"));
     assert!(report.contains("## Core training over seeds"));
     assert!(report.contains("| iastgcn | 2 |"), "{report}");
+    assert!(report.contains("## Learning curve"), "{report}");
+    // The learning curve: iastgcn at 50 % and 100 % of the training windows, 2 seeds.
+    let curve = std::fs::read_to_string(out.join("learning_curve.csv")).unwrap();
+    let rows: Vec<Vec<&str>> = curve
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    assert_eq!(rows.len(), 2, "{curve}");
+    assert_eq!(
+        (rows[0][0], rows[0][1], rows[0][3]),
+        ("iastgcn", "0.5", "2")
+    );
+    assert_eq!((rows[1][0], rows[1][1], rows[1][3]), ("iastgcn", "1", "2"));
+    let windows = |r: &Vec<&str>| r[2].parse::<f64>().unwrap();
+    let ratio = windows(&rows[0]) / windows(&rows[1]);
+    assert!((0.45..=0.55).contains(&ratio), "{curve}");
+    for r in &rows {
+        assert!(
+            r[4..].iter().all(|v| v.parse::<f64>().unwrap().is_finite()),
+            "{curve}"
+        );
+    }
+    assert!(out.join("learning_curve.png").exists());
+    assert!(out.join("losses.csv").exists());
 
     // Another protocol in the same folder is refused, naming the file.
     let mut args = vec!["reproduce", "--config", s(&config), "--minutes", "0.5"];
@@ -134,5 +166,13 @@ fn reproduce_shards_resumes_and_reports_over_seeds() {
     assert!(err.contains("protocol.toml"), "{err}");
     let err = cli_fails(&["reproduce", "--shard", "3/2", "--out", s(&out)]);
     assert!(err.contains("k/n"), "{err}");
+    let err = cli_fails(&[
+        "reproduce",
+        "--fractions",
+        "1.5",
+        "--out",
+        s(&dir.join("x")),
+    ]);
+    assert!(err.contains("fractions: 1.5"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -32,6 +32,9 @@ pub struct DatasetArgs {
     split: String,
     #[arg(long, default_value_t = 7)]
     seed: u64,
+    /// Share of each recording's training block kept, from its start (0, 1].
+    #[arg(long, default_value_t = 1.0)]
+    train_fraction: f64,
 }
 
 pub fn run(args: &DatasetArgs) -> anyhow::Result<()> {
@@ -44,6 +47,7 @@ pub fn run(args: &DatasetArgs) -> anyhow::Result<()> {
             stride: args.stride,
             split: args.split.clone(),
             split_seed: args.seed,
+            train_fraction: args.train_fraction,
         },
         ..RunConfig::default()
     };
@@ -53,6 +57,7 @@ pub fn run(args: &DatasetArgs) -> anyhow::Result<()> {
         graph: args.graph.clone(),
         robot: args.robot.clone(),
     };
+    config.validate().map_err(anyhow::Error::msg)?;
     let (_, ds) = build_dataset(&data, &config, None)?;
     print!("{}", ds.summary());
     Ok(())

@@ -29,6 +29,16 @@ pub struct ReproduceArgs {
     /// Models, comma-separated (default: IASTGCN, its ablations and every baseline).
     #[arg(long, value_delimiter = ',')]
     pub models: Vec<String>,
+    /// Shares of the training windows for the learning curve, comma-separated, each in
+    /// (0, 1) (default 0.25,0.5).
+    #[arg(long, value_delimiter = ',')]
+    pub fractions: Vec<f64>,
+    /// Models of the learning curve, comma-separated (default iastgcn,tgcn).
+    #[arg(long, value_delimiter = ',')]
+    pub curve_models: Vec<String>,
+    /// No learning curve: only the tables' models.
+    #[arg(long, conflicts_with_all = ["fractions", "curve_models"])]
+    pub no_curve: bool,
     /// Run only this shard's jobs, k/n (jobs k−1, k−1+n, …), then stop; a final call
     /// without --shard writes the report.
     #[arg(long)]
@@ -49,6 +59,16 @@ pub fn run(gpu: Gpu, args: &ReproduceArgs) -> anyhow::Result<()> {
     protocol.seeds = args.seeds.clone();
     if !args.models.is_empty() {
         protocol.models = args.models.clone();
+    }
+    if !args.fractions.is_empty() {
+        protocol.fractions = args.fractions.clone();
+    }
+    if !args.curve_models.is_empty() {
+        protocol.curve_models = args.curve_models.clone();
+    }
+    if args.no_curve {
+        protocol.fractions.clear();
+        protocol.curve_models.clear();
     }
     let outcome = reproduce::reproduce(
         Arc::new(gpu),

@@ -15,7 +15,7 @@ use crate::graph::Graph;
 use crate::progress::Reporter;
 use crate::robot::{Geometry, Robot};
 use crate::train::refine::AccumulatedCurve;
-use crate::train::{self, refine, sibling, EpochRecord, RunConfig};
+use crate::train::{self, refine, sibling, EpochRecord, RunConfig, TestMetrics};
 use crate::twin::{draw_machine, PathKind, PathParams, RunInfo};
 
 /// Seeds of the protocol's runs: every run has its own (written in its `.run.toml`). This
@@ -174,6 +174,10 @@ pub struct Fitted {
     pub verdict: String,
     /// Fig. 9b before and after refinement.
     pub accumulated: (AccumulatedCurve, AccumulatedCurve),
+    /// Validation-split metrics of the core stage's best weights, per recording.
+    pub validation: Vec<TestMetrics>,
+    /// Test-split metrics of the core stage's best weights, per recording.
+    pub test: Vec<TestMetrics>,
 }
 
 /// Where [`fit_model`] writes one model: the core stage's best checkpoint (with its
@@ -231,5 +235,7 @@ pub fn fit_model(
         best_epoch: trained.best_epoch,
         verdict,
         accumulated: (r.before, r.after),
+        validation: trained.validation,
+        test: trained.test,
     })
 }

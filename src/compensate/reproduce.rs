@@ -14,16 +14,19 @@ use serde::{Deserialize, Serialize};
 use super::demo::finish;
 use super::evaluate::{HeldOutConfig, NamedModel};
 use super::protocol::{
-    existing_data, fit_model, record_data, ModelFiles, CALIBRATION_SEED, MACHINE_SEED,
-    TRAINING_SEED,
+    epoch_seconds, existing_data, fit_model, record_data, ModelFiles, CALIBRATION_SEED,
+    MACHINE_SEED, TRAINING_SEED,
 };
+use super::report::curve::CurvePoint;
 use super::report::seeds::{seeded_name, Spread};
 use super::report::Report;
+use crate::data::Dataset;
 use crate::error::{write_file, Error, Result};
 use crate::gpu::Gpu;
+use crate::graph::Graph;
 use crate::model::{Checkpoint, Variant};
 use crate::progress::Reporter;
-use crate::train::{build_dataset, RunConfig};
+use crate::train::{build_dataset, EpochRecord, RunConfig, TestMetrics};
 
 /// What `iastgcn reproduce` runs: the run config of every model, the length of the
 /// training recordings, the training seeds and the models.
@@ -37,37 +40,63 @@ pub struct Protocol {
     pub models: Vec<String>,
     /// The run config every model trains with (its variant and seed set per job).
     pub run: RunConfig,
+    /// Shares of the training windows (each in (0, 1)) at which the learning curve's
+    /// models are trained again, core stage only, for every seed.
+    #[serde(default)]
+    pub fractions: Vec<f64>,
+    /// The learning curve's models.
+    #[serde(default)]
+    pub curve_models: Vec<String>,
 }
 
 impl Protocol {
     /// The paper's protocol: its model and training sizes (the default run config), three
     /// 135-minute training recordings (about 42k windows of 100 steps at stride 20, the
-    /// paper's count), every model, seeds 1–3.
+    /// paper's count), every model, seeds 1–3; the learning curve of IASTGCN and T-GCN
+    /// (the best baseline on the twin so far, docs/results.md) at 25 % and 50 %.
     pub fn paper() -> Protocol {
         Protocol {
             minutes: 135.0,
             seeds: vec![1, 2, 3],
             models: Variant::ALL.iter().map(|v| v.name().to_string()).collect(),
             run: RunConfig::default(),
+            fractions: vec![0.25, 0.5],
+            curve_models: vec!["iastgcn".into(), "tgcn".into()],
         }
     }
 
-    /// The jobs, seed by seed (every model of the first seed before the second seed's).
+    /// The jobs: the models of the tables seed by seed (every model of the first seed
+    /// before the second seed's), then the learning curve's, share by share.
     pub fn jobs(&self) -> Result<Vec<Job>> {
-        let variants = self
-            .models
-            .iter()
-            .map(|m| {
-                Variant::parse(m).ok_or_else(|| {
-                    Error::Invalid(format!("unknown model {m:?} ({})", Variant::names()))
+        let parse = |names: &[String]| {
+            names
+                .iter()
+                .map(|m| {
+                    Variant::parse(m).ok_or_else(|| {
+                        Error::Invalid(format!("unknown model {m:?} ({})", Variant::names()))
+                    })
                 })
-            })
-            .collect::<Result<Vec<_>>>()?;
-        Ok(self
-            .seeds
-            .iter()
-            .flat_map(|&seed| variants.iter().map(move |&variant| Job { variant, seed }))
-            .collect())
+                .collect::<Result<Vec<_>>>()
+        };
+        let (variants, curve) = (parse(&self.models)?, parse(&self.curve_models)?);
+        let mut jobs: Vec<Job> = Vec::new();
+        for &seed in &self.seeds {
+            jobs.extend(variants.iter().map(|&variant| Job {
+                variant,
+                seed,
+                fraction: 1.0,
+            }));
+        }
+        for &fraction in &self.fractions {
+            for &seed in &self.seeds {
+                jobs.extend(curve.iter().map(|&variant| Job {
+                    variant,
+                    seed,
+                    fraction,
+                }));
+            }
+        }
+        Ok(jobs)
     }
 
     /// Checks sizes, seeds, models and the run config.
@@ -88,10 +117,28 @@ impl Protocol {
                 return Err(Error::Invalid(format!("seeds: {s} is listed twice")));
             }
         }
-        for (i, m) in self.models.iter().enumerate() {
-            if self.models[..i].contains(m) {
-                return Err(Error::Invalid(format!("models: {m} is listed twice")));
+        for (field, list) in [
+            ("models", &self.models),
+            ("curve models", &self.curve_models),
+        ] {
+            for (i, m) in list.iter().enumerate() {
+                if list[..i].contains(m) {
+                    return Err(Error::Invalid(format!("{field}: {m} is listed twice")));
+                }
             }
+        }
+        for (i, f) in self.fractions.iter().enumerate() {
+            if !(*f > 0.0 && *f < 1.0) || self.fractions[..i].contains(f) {
+                return Err(Error::Invalid(format!(
+                    "fractions: {f} must be in (0, 1) and listed once (the full set is \
+                     the tables' models)"
+                )));
+            }
+        }
+        if !self.fractions.is_empty() && self.curve_models.is_empty() {
+            return Err(Error::Invalid(
+                "fractions given but no curve models to train at them".into(),
+            ));
         }
         self.jobs()?;
         self.run.validate().map_err(Error::Invalid)
@@ -107,24 +154,47 @@ impl Protocol {
     }
 }
 
-/// One model trained with one seed.
+/// One model trained with one seed on a share of the training windows: the whole set
+/// for the tables' models (trained, refined, evaluated), less for the learning curve's
+/// (core stage only, scored on the validation and test splits).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Job {
     /// The model.
     pub variant: Variant,
     /// Its `[train] seed`.
     pub seed: u64,
+    /// Share of the training windows (1 for the tables' models).
+    pub fraction: f64,
 }
 
 impl Job {
-    /// `<model>.seed<k>`: the name of its files and of its rows in the tables.
-    pub fn name(&self) -> String {
-        seeded_name(self.variant.name(), self.seed)
+    /// Whether it is one of the learning curve's jobs.
+    pub fn is_curve(&self) -> bool {
+        self.fraction < 1.0
     }
 
-    /// Its files in the output folder `out`.
+    /// `<model>.seed<k>` (the name of its files and of its rows in the tables), with
+    /// `.train<percent>` for the learning curve's jobs.
+    pub fn name(&self) -> String {
+        let name = seeded_name(self.variant.name(), self.seed);
+        if self.is_curve() {
+            format!("{name}.train{}", (100.0 * self.fraction).round())
+        } else {
+            name
+        }
+    }
+
+    fn dir(&self, out: &Path) -> PathBuf {
+        if self.is_curve() {
+            out.join("models").join("curve")
+        } else {
+            out.join("models")
+        }
+    }
+
+    /// Its files in the output folder `out` (the learning curve's in `models/curve/`).
     pub fn files(&self, out: &Path) -> ModelFiles {
-        let dir = out.join("models");
+        let dir = self.dir(out);
         ModelFiles {
             core: dir.join(format!("{}.core.safetensors", self.name())),
             refined: dir.join(format!("{}.safetensors", self.name())),
@@ -134,7 +204,7 @@ impl Job {
 
     /// The record written when the job has finished.
     pub fn record_path(&self, out: &Path) -> PathBuf {
-        out.join("models").join(format!("{}.job.toml", self.name()))
+        self.dir(out).join(format!("{}.job.toml", self.name()))
     }
 }
 
@@ -179,6 +249,14 @@ pub struct JobRecord {
     pub model: String,
     /// The training seed.
     pub seed: u64,
+    /// Share of the training windows it trained on.
+    pub fraction: f64,
+    /// Training windows it trained on.
+    pub train_windows: usize,
+    /// Validation MAE of the core stage's best weights, position µm and attitude mdeg.
+    pub val_mae: [f64; 2],
+    /// Test MAE of the same weights.
+    pub test_mae: [f64; 2],
     /// Best validation loss of the core stage (standardised).
     pub best_val: f64,
     /// Its epoch.
@@ -189,7 +267,7 @@ pub struct JobRecord {
     pub epoch_seconds: f64,
     /// Where the core stage trained.
     pub trained_on: String,
-    /// What refinement did.
+    /// What refinement did (empty for the learning curve's jobs).
     pub refinement: String,
     /// Wall time of the job in the run that finished it, s.
     pub wall_seconds: f64,
@@ -294,11 +372,6 @@ pub fn reproduce(
             total: jobs.len(),
         });
     }
-    let (graph, data) = build_dataset(&sources, &protocol.run, None)?;
-    for line in data.summary().lines() {
-        reporter.note(line);
-    }
-
     let mine: Vec<(usize, Job)> = jobs
         .iter()
         .copied()
@@ -314,6 +387,8 @@ pub fn reproduce(
         mine.len() - todo.len(),
         mine.len()
     ));
+    // The dataset of the current job's share (the jobs come share by share).
+    let mut current: Option<(f64, Graph, Dataset)> = None;
     let mut spent = Vec::new();
     for (n, (i, job)) in todo.iter().enumerate() {
         let eta = if spent.is_empty() {
@@ -323,45 +398,42 @@ pub fn reproduce(
             clock(mean * (todo.len() - n) as f64)
         };
         reporter.note(&format!(
-            "== job {}/{} ({} of this run): {} seed {}; elapsed {}, ETA {eta}",
+            "== job {}/{} ({} of this run): {} seed {}{}; elapsed {}, ETA {eta}",
             i + 1,
             jobs.len(),
             n + 1,
             job.variant,
             job.seed,
+            if job.is_curve() {
+                format!(" on {:.0} % of the training windows", 100.0 * job.fraction)
+            } else {
+                String::new()
+            },
             clock(began.elapsed().as_secs_f64())
         ));
         let started = Instant::now();
         let mut config = protocol.run.clone();
         config.model.variant = job.variant;
         config.train.seed = job.seed;
-        let name = job.name();
-        let fitted = fit_model(
-            &gpu,
-            &data,
-            &graph,
-            &config,
-            &name,
-            &job.files(out),
-            reporter,
-        )?;
-        let wall = started.elapsed().as_secs_f64();
-        let record = JobRecord {
-            name: name.clone(),
-            model: job.variant.name().into(),
-            seed: job.seed,
-            best_val: fitted.best_val,
-            best_epoch: fitted.best_epoch,
-            epochs: fitted.core.len(),
-            epoch_seconds: fitted.model.epoch_seconds,
-            trained_on: fitted.model.trained_on.clone(),
-            refinement: fitted.verdict.clone(),
-            wall_seconds: wall,
+        config.data.train_fraction = job.fraction;
+        let share = match current.take() {
+            Some(c) if c.0 == job.fraction => c,
+            old => {
+                drop(old); // free the previous share's dataset first
+                let (graph, data) = build_dataset(&sources, &config, None)?;
+                for line in data.summary().lines() {
+                    reporter.note(line);
+                }
+                (job.fraction, graph, data)
+            }
         };
+        let (_, graph, data) = current.insert(share);
+        let mut record = run_job(&gpu, &config, job, graph, data, out, reporter)?;
+        record.wall_seconds = started.elapsed().as_secs_f64();
         let text = toml::to_string(&record)
-            .map_err(|e| Error::Invalid(format!("{name}: job record: {e}")))?;
+            .map_err(|e| Error::Invalid(format!("{}: job record: {e}", record.name)))?;
         write_file(&job.record_path(out), text.as_bytes())?;
-        spent.push(wall);
+        spent.push(record.wall_seconds);
     }
     let finished = done(&jobs);
     if shard.is_some() || finished < jobs.len() {
@@ -379,6 +451,75 @@ pub fn reproduce(
         gpu, protocol, &jobs, held_out, &sources, began, out, reporter,
     )
     .map(|r| Outcome::Report(Box::new(r)))
+}
+
+/// Mean absolute errors (position µm, attitude mdeg) over every window of per-recording
+/// metrics.
+fn pooled(rows: &[TestMetrics]) -> [f64; 2] {
+    let n: usize = rows.iter().map(|r| r.model.count).sum();
+    let mean = |pick: fn(&TestMetrics) -> f64| {
+        rows.iter()
+            .map(|r| pick(r) * r.model.count as f64)
+            .sum::<f64>()
+            / n.max(1) as f64
+    };
+    [mean(|r| r.model.pos_mae), mean(|r| r.model.att_mae)]
+}
+
+/// Trains one job (a table model: core stage and refinement; a learning-curve model: the
+/// core stage only) and returns its record (wall time left for the caller).
+fn run_job(
+    gpu: &Gpu,
+    config: &RunConfig,
+    job: &Job,
+    graph: &Graph,
+    data: &Dataset,
+    out: &Path,
+    reporter: &mut dyn Reporter,
+) -> Result<JobRecord> {
+    let name = job.name();
+    let files = job.files(out);
+    let dir = job.dir(out);
+    std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+    let record = |best_val, best_epoch, history: &[EpochRecord], validation, test| JobRecord {
+        name: name.clone(),
+        model: job.variant.name().into(),
+        seed: job.seed,
+        fraction: job.fraction,
+        train_windows: data.splits.train.len(),
+        val_mae: pooled(validation),
+        test_mae: pooled(test),
+        best_val,
+        best_epoch,
+        epochs: history.iter().filter(|r| r.stage == "core").count(),
+        epoch_seconds: epoch_seconds(history),
+        trained_on: history
+            .first()
+            .map_or_else(|| "unknown".into(), |r| r.trained_on.clone()),
+        refinement: String::new(),
+        wall_seconds: 0.0,
+    };
+    if job.is_curve() {
+        let state = crate::train::sibling(&files.core, ".state.safetensors");
+        let from = state.exists().then_some(state.as_path());
+        let t = crate::train::train(gpu, data, graph, config, &files.core, from, reporter)?;
+        reporter.note(&format!(
+            "{name}: best validation loss {:.4} at epoch {} of {}",
+            t.best_val, t.best_epoch, t.epochs
+        ));
+        return Ok(record(
+            t.best_val,
+            t.best_epoch,
+            &t.history,
+            &t.validation,
+            &t.test,
+        ));
+    }
+    let f = fit_model(gpu, data, graph, config, &name, &files, reporter)?;
+    Ok(JobRecord {
+        refinement: f.verdict.clone(),
+        ..record(f.best_val, f.best_epoch, &f.core, &f.validation, &f.test)
+    })
 }
 
 /// The report of a protocol whose jobs are all done.
@@ -399,6 +540,10 @@ fn report(
     let mut histories = Vec::new();
     for job in jobs {
         let record = JobRecord::load(&job.record_path(out))?;
+        if job.is_curve() {
+            records.push(record);
+            continue;
+        }
         let files = job.files(out);
         models.push(NamedModel {
             name: record.name.clone(),
@@ -457,6 +602,7 @@ fn report(
             "Core training over seeds".into(),
             training_table(protocol, &records),
         )],
+        curve: learning_curve(protocol, &records),
         ..Report::default()
     };
     finish(
@@ -474,7 +620,10 @@ fn training_table(protocol: &Protocol, records: &[JobRecord]) -> String {
          |---|---:|---:|---:|---:|---:|\n",
     );
     for model in &protocol.models {
-        let of: Vec<&JobRecord> = records.iter().filter(|r| &r.model == model).collect();
+        let of: Vec<&JobRecord> = records
+            .iter()
+            .filter(|r| &r.model == model && r.fraction == 1.0)
+            .collect();
         let spread = |pick: fn(&JobRecord) -> f64| {
             let s = Spread::of(&of.iter().map(|r| pick(r)).collect::<Vec<_>>());
             (s.mean, s.sd)
@@ -489,4 +638,39 @@ fn training_table(protocol: &Protocol, records: &[JobRecord]) -> String {
         ));
     }
     out
+}
+
+/// The learning curve's points: each curve model at each share (and at the full set when
+/// it is one of the tables' models too), over its seeds.
+fn learning_curve(protocol: &Protocol, records: &[JobRecord]) -> Vec<CurvePoint> {
+    let mut points = Vec::new();
+    for model in &protocol.curve_models {
+        let mut shares = protocol.fractions.clone();
+        if protocol.models.contains(model) {
+            shares.push(1.0);
+        }
+        shares.sort_by(f64::total_cmp);
+        for fraction in shares {
+            let of: Vec<&JobRecord> = records
+                .iter()
+                .filter(|r| &r.model == model && r.fraction == fraction)
+                .collect();
+            let Some(first) = of.first() else {
+                continue;
+            };
+            let spread = |pick: fn(&JobRecord) -> f64| {
+                Spread::of(&of.iter().map(|r| pick(r)).collect::<Vec<_>>())
+            };
+            points.push(CurvePoint {
+                model: model.clone(),
+                fraction,
+                windows: first.train_windows,
+                val_pos: spread(|r| r.val_mae[0]),
+                val_att: spread(|r| r.val_mae[1]),
+                test_pos: spread(|r| r.test_mae[0]),
+                test_att: spread(|r| r.test_mae[1]),
+            });
+        }
+    }
+    points
 }

@@ -46,6 +46,11 @@ pub struct WindowConfig {
     pub train: f64,
     /// Fraction of validation.
     pub validation: f64,
+    /// Share of the training windows kept (1: all). With contiguous blocks, each
+    /// recording's training block is cut to its first share, as if the recording's
+    /// training part had been shorter; the validation and test blocks do not change. With
+    /// the random split, the first share of the shuffled training windows.
+    pub train_kept: f64,
 }
 
 impl Default for WindowConfig {
@@ -55,6 +60,7 @@ impl Default for WindowConfig {
             stride: 20,
             train: 0.7,
             validation: 0.2,
+            train_kept: 1.0,
         }
     }
 }
@@ -131,9 +137,12 @@ pub fn split(windows: &[Window], rows: &[usize], config: &WindowConfig, mode: Sp
                 let n = rows[w.recording] as f64;
                 let b1 = (config.train * n).round() as usize;
                 let b2 = ((config.train + config.validation) * n).round() as usize;
+                let kept = (config.train * config.train_kept * n).round() as usize;
                 let start = w.end + 1 - config.length;
                 if w.end < b1 {
-                    s.train.push(w);
+                    if w.end < kept {
+                        s.train.push(w);
+                    }
                 } else if start >= b1 && w.end < b2 {
                     s.validation.push(w);
                 } else if start >= b2 {
@@ -149,6 +158,7 @@ pub fn split(windows: &[Window], rows: &[usize], config: &WindowConfig, mode: Sp
             let b = ((config.train + config.validation) * n).round() as usize;
             s.test = all.split_off(b.min(all.len()));
             s.validation = all.split_off(a.min(all.len()));
+            all.truncate((config.train_kept * all.len() as f64).round() as usize);
             s.train = all;
         }
     }

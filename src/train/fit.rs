@@ -30,6 +30,7 @@ pub fn window_config(config: &RunConfig) -> WindowConfig {
     WindowConfig {
         length: config.model.window,
         stride: config.data.stride,
+        train_kept: config.data.train_fraction,
         ..WindowConfig::default()
     }
 }
@@ -70,7 +71,25 @@ pub struct TestMetrics {
 /// Test-split metrics per recording of the trainer's current weights.
 pub fn test_metrics(trainer: &Trainer, data: &Dataset) -> Result<Vec<TestMetrics>, TrainError> {
     let [_, _, test] = data.split_ranges();
-    let positions: Vec<usize> = test.collect();
+    split_metrics(trainer, data, test)
+}
+
+/// Validation-split metrics per recording of the trainer's current weights (in µm and
+/// mdeg, so comparable between datasets standardised differently).
+pub fn validation_metrics(
+    trainer: &Trainer,
+    data: &Dataset,
+) -> Result<Vec<TestMetrics>, TrainError> {
+    let [_, validation, _] = data.split_ranges();
+    split_metrics(trainer, data, validation)
+}
+
+fn split_metrics(
+    trainer: &Trainer,
+    data: &Dataset,
+    range: std::ops::Range<usize>,
+) -> Result<Vec<TestMetrics>, TrainError> {
+    let positions: Vec<usize> = range.collect();
     let pred = to_physical(&trainer.predict(&positions)?, &data.normalization);
     Ok(data
         .recordings
@@ -228,6 +247,8 @@ pub struct Trained {
     pub history: Vec<super::EpochRecord>,
     /// Test-split metrics of the best weights, per recording.
     pub test: Vec<TestMetrics>,
+    /// Validation-split metrics of the best weights, per recording.
+    pub validation: Vec<TestMetrics>,
 }
 
 /// The core stage of `config` on `data` (a fresh seeded start, or the state file
@@ -307,6 +328,7 @@ pub fn train(
         epochs: p.epoch,
         history: p.history.clone(),
         test: test_metrics(&trainer, data)?,
+        validation: validation_metrics(&trainer, data)?,
     })
 }
 

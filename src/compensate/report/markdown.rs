@@ -261,6 +261,9 @@ pub fn markdown(r: &Report) -> String {
     if let Some(summary) = super::seeds::summarize(r) {
         out.push_str(&super::seeds::markdown(&summary));
     }
+    if !r.curve.is_empty() {
+        out.push_str(&super::curve::markdown(&r.curve));
+    }
     markdown_timings(&mut out, &r.timings);
     if !r.notes.is_empty() {
         out.push_str("## Notes\n\n");

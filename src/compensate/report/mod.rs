@@ -11,6 +11,7 @@ use crate::stats::Summary;
 use crate::train::log::{accumulated_csv, csv_text, distinct, plot_accumulated};
 use crate::train::{EpochRecord, Metrics};
 
+pub mod curve;
 mod markdown;
 pub mod seeds;
 pub use markdown::markdown;
@@ -107,6 +108,8 @@ pub struct Report {
     pub notes: Vec<String>,
     /// Markdown sections (heading, body) placed right after the setup, before the tables.
     pub sections: Vec<(String, String)>,
+    /// The learning curve (error against training-set size), when measured.
+    pub curve: Vec<curve::CurvePoint>,
 }
 
 /// Header of `table_v.csv`: every statistic against the hidden truth (`true_`) and as
@@ -137,6 +140,9 @@ enum Kind {
     TableVSeeds,
     TableIIISeeds,
     Paired,
+    LossesCsv,
+    CurveCsv,
+    CurvePng,
 }
 
 struct Entry {
@@ -266,6 +272,27 @@ fn plan(r: &Report) -> Vec<Entry> {
             "Training and validation loss per epoch (standardised), one panel per model.".into(),
             Kind::Losses,
         ));
+        out.push(entry(
+            "losses.csv",
+            "The same curves, machine-readable: `model,stage,epoch,train_loss,val_loss`.".into(),
+            Kind::LossesCsv,
+        ));
+    }
+    if !r.curve.is_empty() {
+        out.push(entry(
+            "learning_curve.png",
+            "Learning curve: validation MAE (position, attitude) against the number of \
+             training windows, per model, mean over seeds with ± SD marks."
+                .into(),
+            Kind::CurvePng,
+        ));
+        out.push(entry(
+            "learning_curve.csv",
+            "The learning curve, machine-readable: validation and test MAE (mean and SD \
+             over seeds) per model and share of the training windows."
+                .into(),
+            Kind::CurveCsv,
+        ));
     }
     if r.accumulated.is_some() {
         out.push(entry(
@@ -322,6 +349,27 @@ pub fn table_iii_csv(rows: &[TableIIIRow]) -> String {
                     format!("{:.4}", m.att_rmse),
                     format!("{:.3}", m.att_mape),
                 ]
+            })
+            .collect(),
+    )
+}
+
+/// `losses.csv`: every model's loss per epoch, in the order of `histories`.
+pub fn losses_csv(histories: &[(String, Vec<EpochRecord>)]) -> String {
+    csv_text(
+        "model,stage,epoch,train_loss,val_loss",
+        histories
+            .iter()
+            .flat_map(|(model, history)| {
+                history.iter().map(move |r| {
+                    vec![
+                        model.clone(),
+                        r.stage.clone(),
+                        r.epoch.to_string(),
+                        format!("{:.6e}", r.train_loss),
+                        format!("{:.6e}", r.val_loss),
+                    ]
+                })
             })
             .collect(),
     )
@@ -501,6 +549,9 @@ pub fn write(dir: &Path, r: &Report) -> Result<Vec<PathBuf>> {
                 plot_fig11(&path, trajectory, &traces)?
             }
             Kind::Losses => crate::train::log::plot_losses(&path, &r.histories)?,
+            Kind::LossesCsv => text(&path, &losses_csv(&r.histories))?,
+            Kind::CurveCsv => text(&path, &curve::csv(&r.curve))?,
+            Kind::CurvePng => curve::plot(&path, &r.curve)?,
             Kind::Accumulated => {
                 if let Some((before, after)) = &r.accumulated {
                     plot_accumulated(&path, before, after)?
