@@ -388,3 +388,60 @@ fn refinement_stage_trains_on_ensembles_and_lowers_its_loss() {
     );
     assert!(r1.train_loss.is_finite() && r2.train_loss.is_finite());
 }
+
+/// The schedule and the stopping rule as docs/model.md "Optimiser and schedule" states
+/// them (the paper's: inverse time decay from lr0, early stopping on the validation
+/// loss): every epoch's logged learning rate is lr0 / (1 + r · step / steps_per_epoch) at
+/// its last step; an epoch improves only when its validation loss is strictly below the
+/// best so far; the stage ends at the first epoch that completes `patience` epochs
+/// without improvement (or at `max_epochs`), and the restored weights are the best
+/// epoch's (their validation loss is the best one).
+#[test]
+fn schedule_and_early_stopping_follow_the_spec() {
+    let g = gpu();
+    let config = TrainConfig {
+        backend: "native".into(),
+        lr: 2e-2,
+        lr_decay: 0.5,
+        max_epochs: 40,
+        patience: 2,
+        ..train_config()
+    };
+    let mut t = trainer(&g, &config);
+    let per_epoch = t.steps_per_epoch() as u64;
+    while !t.finished() {
+        t.run_epoch().unwrap();
+    }
+    let h = t.progress.history.clone();
+    let (mut best, mut best_epoch, mut bad) = (f64::INFINITY, 0, 0);
+    let mut stop_at = config.max_epochs;
+    for r in &h {
+        assert_eq!(r.step, r.epoch as u64 * per_epoch, "epoch {}", r.epoch);
+        let want = config.lr / (1.0 + config.lr_decay * (r.step - 1) as f64 / per_epoch as f64);
+        assert!(
+            (r.lr - want).abs() <= 1e-12 * want,
+            "epoch {}: lr {} against {want}",
+            r.epoch,
+            r.lr
+        );
+        if r.val_loss < best {
+            (best, best_epoch, bad) = (r.val_loss, r.epoch, 0);
+        } else {
+            bad += 1;
+        }
+        if bad >= config.patience {
+            stop_at = r.epoch;
+            break;
+        }
+    }
+    assert_eq!(h.len(), stop_at, "the stage ends where the rule says");
+    assert!(stop_at < config.max_epochs, "early stopping ended this run");
+    assert_eq!(t.progress.best_epoch, best_epoch);
+    assert_eq!(t.progress.best_val.to_bits(), best.to_bits());
+    t.restore_best().unwrap();
+    let restored = t.validation_loss().unwrap();
+    assert!(
+        (restored - best).abs() <= 1e-6 * best,
+        "restored weights give {restored}, the best epoch {best}"
+    );
+}
