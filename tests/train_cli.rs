@@ -215,6 +215,15 @@ fn run_configs_have_defaults_and_checks() {
         ("[data]\nsplit = \"shuffled\"\n", "data.split"),
         ("[refine]\nmagnifications = [1]\n", "refine.magnifications"),
         ("[model]\nchannels = 0\n", "channels"),
+        ("[model]\nwindow = 1000000000\n", "window = 1000000000"),
+        ("[model]\nchannels = 1000000000\n", "channels = 1000000000"),
+        // Within each size's bound, but a C×C mix per block: 10^10 parameters.
+        (
+            "[model]\nchannels = 100000\n",
+            "parameters (window = 100, channels = 100000",
+        ),
+        ("[model]\nwindow = 100000\n", "parameters (window = 100000"),
+        ("[data]\ntrain_fraction = 0\n", "data.train_fraction"),
         ("[train]\nlearning_rate = 1e-3\n", "learning_rate"),
         ("[training]\n", "training"),
     ] {

@@ -184,4 +184,19 @@ fn bad_arguments_are_clear() {
         out,
     ]);
     assert!(e.contains("--minutes must be positive"), "{e}");
+    // Too short to hold one control tick, too long to hold in memory, too many poses:
+    // refused before anything is simulated or allocated.
+    let simulate = |extra: &[&str]| {
+        let mut args = vec!["simulate", "--out", out];
+        args.extend(extra);
+        stderr(&args)
+    };
+    for minutes in ["1e-6", "1e9"] {
+        let e = simulate(&["--trajectory", "grid", "--minutes", minutes]);
+        assert!(e.contains("a run lasts from one control tick"), "{e}");
+        assert!(!e.contains("panicked"), "{e}");
+    }
+    let e = simulate(&["--trajectory", "calibration", "--poses", "1000000000"]);
+    assert!(e.contains("from 1 to 100000 poses, got 1000000000"), "{e}");
+    assert!(!std::path::Path::new(out).exists());
 }

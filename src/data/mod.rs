@@ -16,6 +16,8 @@ pub use recording::{
     expected_channels, read_calibration_set, tracker_columns, tracker_pose, write_calibration_set,
     CalibrationRow, DataError, Recording, Row, JOINT_COLUMNS, TRACKER_COLUMNS,
 };
-pub use simulated::{record_calibration_set, record_run, RecordedRun};
+pub use simulated::{
+    record_calibration_set, record_run, RecordedRun, MAX_CALIBRATION_POSES, MAX_RUN_SECONDS,
+};
 pub use sources::{DataSources, Inputs};
 pub use windows::{split, window_ends, SplitMode, Splits, Window, WindowConfig};

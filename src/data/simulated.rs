@@ -36,6 +36,12 @@ pub struct RecordedRun {
     pub plot: PathBuf,
 }
 
+/// The longest run the twin records: one day (4.32 million control ticks, about a
+/// gigabyte of rows in memory before they are written).
+pub const MAX_RUN_SECONDS: f64 = 86_400.0;
+/// The most poses of a calibration set.
+pub const MAX_CALIBRATION_POSES: usize = 100_000;
+
 /// Records the polishing run `info` describes on `machine` under `controller` from
 /// `start` (the machine's state from earlier runs of the session; `info.start`, the
 /// session clock and temperatures are filled in from it), and writes the CSV `out`, its
@@ -53,6 +59,18 @@ pub fn record_run(
     crate::error::ensure(info.seconds.is_finite() && info.seconds > 0.0, || {
         format!("a run must last a positive time, got {} s", info.seconds)
     })?;
+    let tick = SimConfig::new(kind, 1.0, info.seed).dt;
+    crate::error::ensure(
+        info.seconds >= tick && info.seconds <= MAX_RUN_SECONDS,
+        || {
+            format!(
+                "a run lasts from one control tick ({tick} s) to {} h, got {} s ({} min)",
+                MAX_RUN_SECONDS / 3600.0,
+                info.seconds,
+                info.seconds / 60.0
+            )
+        },
+    )?;
     let params = PathParams {
         rotation_deg: info.rotation_deg,
         reverse: info.reverse,
@@ -192,8 +210,8 @@ pub fn record_calibration_set(
     out: &Path,
     reporter: &mut dyn Reporter,
 ) -> Result<usize> {
-    crate::error::ensure(poses > 0, || {
-        "a calibration set needs at least one pose".into()
+    crate::error::ensure(poses > 0 && poses <= MAX_CALIBRATION_POSES, || {
+        format!("a calibration set has from 1 to {MAX_CALIBRATION_POSES} poses, got {poses}")
     })?;
     let configs = calibration_configurations(controller, poses, info.seed);
     reporter.begin("measuring", configs.len() as u64);
