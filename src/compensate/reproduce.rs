@@ -101,9 +101,11 @@ impl Protocol {
 
     /// Checks sizes, seeds, models and the run config.
     pub fn validate(&self) -> Result<()> {
-        if !(self.minutes.is_finite() && self.minutes > 0.0) {
+        let seconds = self.minutes * 60.0;
+        if !(seconds.is_finite() && seconds > 0.0 && seconds <= crate::data::MAX_RUN_SECONDS) {
             return Err(Error::Invalid(format!(
-                "minutes: the training recordings must last a positive time, got {}",
+                "minutes: a training recording lasts more than 0 and at most {} min, got {}",
+                crate::data::MAX_RUN_SECONDS / 60.0,
                 self.minutes
             )));
         }
