@@ -10,7 +10,7 @@ use safetensors::tensor::{Dtype, SafeTensors, TensorView};
 use serde::{Deserialize, Serialize};
 
 use super::config::ModelConfig;
-use super::params::{param_specs, Parameters};
+use super::params::{check_parameter_count, param_specs, Parameters};
 use crate::graph::Graph;
 
 /// The value of the `format` metadata key.
@@ -185,6 +185,7 @@ impl Checkpoint {
         let config: ModelConfig = meta.json("config").map_err(err)?;
         config
             .validate()
+            .and_then(|()| check_parameter_count(&config))
             .map_err(|e| err(format!("metadata \"config\": {e}")))?;
         let variant = meta.field("variant").map_err(err)?;
         if variant != config.variant.name() {

@@ -191,9 +191,6 @@ impl std::fmt::Display for Variant {
 
 /// The largest value of any size field (nodes, window, channels, …) a config may have.
 pub const MAX_SIZE: usize = 1 << 20;
-/// The most parameters a model may have: 2^30 f32 values, 4 GiB.
-pub const MAX_PARAMETERS: usize = 1 << 30;
-
 /// Shapes and hyper-parameters of one network. Defaults are docs/model.md's paper shape.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -344,24 +341,6 @@ impl ModelConfig {
         if self.eps.is_nan() || self.eps <= 0.0 || !self.scale.is_finite() {
             return Err("model config: eps must be positive and scale finite".into());
         }
-        // Counted before anything is allocated: a T×T attention or a C×C mix grows fast.
-        let count = super::params::param_specs(self)
-            .iter()
-            .try_fold(0usize, |sum, s| {
-                let n = s.shape.iter().try_fold(1usize, |a, &d| a.checked_mul(d))?;
-                sum.checked_add(n)
-            });
-        match count {
-            Some(n) if n <= MAX_PARAMETERS => Ok(()),
-            n => Err(format!(
-                "model config: {} parameters (window = {}, channels = {}, nodes = {}, hidden = {}) \
-                 is beyond the {MAX_PARAMETERS} (4 GiB of f32) this engine allocates",
-                n.map_or("more than 2^64".to_string(), |n| n.to_string()),
-                self.window,
-                self.channels,
-                self.nodes,
-                self.hidden
-            )),
-        }
+        Ok(())
     }
 }

@@ -14,7 +14,9 @@ pub mod reference;
 
 pub use checkpoint::{Checkpoint, CheckpointError, Normalization};
 pub use config::{Family, ModelConfig, Variant};
-pub use params::{graph_basis, param_specs, Init, ParamSpec, Parameters};
+pub use params::{
+    check_parameter_count, graph_basis, param_specs, Init, ParamSpec, Parameters, MAX_PARAMETERS,
+};
 
 mod block;
 pub mod network;

@@ -8,7 +8,7 @@ use super::config::Family;
 use super::config::ModelConfig;
 use super::conv_lstm::ConvLstmBody;
 use super::dense::{Architecture, DenseBody};
-use super::params::{graph_basis, param_specs, ParamSpec, Parameters};
+use super::params::{check_parameter_count, graph_basis, param_specs, ParamSpec, Parameters};
 use super::recurrent::{RecurrentBody, TimeLoop};
 use super::schedule::{Scratch, StepTime, Steps};
 use crate::gpu::{DType, Gpu, GpuError, Recorder, Tensor};
@@ -158,7 +158,10 @@ impl Network {
         built_for: Pass,
     ) -> Result<Network, ModelError> {
         let training = built_for == Pass::Train;
-        config.validate().map_err(ModelError::Config)?;
+        config
+            .validate()
+            .and_then(|()| check_parameter_count(config))
+            .map_err(ModelError::Config)?;
         if graph.len() != config.nodes {
             return Err(ModelError::Config(format!(
                 "graph has {} nodes, the model config {}",

@@ -59,6 +59,31 @@ fn zeros(name: String, shape: &[usize]) -> ParamSpec {
     spec(name, shape, Init::Zeros, false)
 }
 
+/// The most parameters a model may have: 2^30 f32 values, 4 GiB.
+pub const MAX_PARAMETERS: usize = 1 << 30;
+
+/// Checks that `config` (already validated field by field) has at most
+/// [`MAX_PARAMETERS`] parameters, counted from its shapes with checked arithmetic before
+/// anything is allocated: a T×T attention or a C×C mix grows fast.
+pub fn check_parameter_count(config: &ModelConfig) -> Result<(), String> {
+    let count = param_specs(config).iter().try_fold(0usize, |sum, s| {
+        let n = s.shape.iter().try_fold(1usize, |a, &d| a.checked_mul(d))?;
+        sum.checked_add(n)
+    });
+    match count {
+        Some(n) if n <= MAX_PARAMETERS => Ok(()),
+        n => Err(format!(
+            "model config: {} parameters (window = {}, channels = {}, nodes = {}, hidden = {}) \
+             is beyond the {MAX_PARAMETERS} (4 GiB of f32) this engine allocates",
+            n.map_or("more than 2^64".to_string(), |n| n.to_string()),
+            config.window,
+            config.channels,
+            config.nodes,
+            config.hidden
+        )),
+    }
+}
+
 /// Every parameter of `config`, in the canonical order (blocks in order, then the head;
 /// for a dense baseline, its layers in order, the head last; for a recurrent baseline,
 /// the gates r, u, c, EAT-GCN's attention over time, then the head).

@@ -206,6 +206,7 @@ impl RunConfig {
     /// Checks every field; the message names the first bad one.
     pub fn validate(&self) -> Result<(), String> {
         self.model.validate()?;
+        crate::model::check_parameter_count(&self.model)?;
         let d = &self.data;
         check(d.stride > 0, "data.stride", d.stride, "must be positive")?;
         check(
