@@ -15,7 +15,7 @@ use crate::graph::Graph;
 use crate::progress::Reporter;
 use crate::robot::{Geometry, Robot};
 use crate::train::refine::AccumulatedCurve;
-use crate::train::{self, refine, sibling, EpochRecord, RunConfig, TestMetrics};
+use crate::train::{self, refine, sibling, EpochRecord, RunConfig, TestMetrics, Trained};
 use crate::twin::{draw_machine, PathKind, PathParams, RunInfo};
 
 /// Seeds of the protocol's runs: every run has its own (written in its `.run.toml`). This
@@ -194,6 +194,27 @@ pub struct ModelFiles {
     pub resume: bool,
 }
 
+/// The core stage of `config`'s variant on `data` into `files.core`, resuming from its
+/// state file when `files.resume` and one exists; the model is named `name` in the notes.
+pub fn train_core(
+    gpu: &Gpu,
+    data: &Dataset,
+    graph: &Graph,
+    config: &RunConfig,
+    name: &str,
+    files: &ModelFiles,
+    reporter: &mut dyn Reporter,
+) -> Result<Trained> {
+    let state = sibling(&files.core, ".state.safetensors");
+    let from = (files.resume && state.exists()).then_some(state.as_path());
+    let trained = train::train(gpu, data, graph, config, &files.core, from, reporter)?;
+    reporter.note(&format!(
+        "{name}: best validation loss {:.4} at epoch {} of {}",
+        trained.best_val, trained.best_epoch, trained.epochs
+    ));
+    Ok(trained)
+}
+
 /// Trains `config`'s variant on `data` (core stage with early stopping, resuming from the
 /// core checkpoint's state file when `files.resume` and one exists), then refines it the
 /// same way for every model; the evaluated model is named `name`.
@@ -206,13 +227,7 @@ pub fn fit_model(
     files: &ModelFiles,
     reporter: &mut dyn Reporter,
 ) -> Result<Fitted> {
-    let state = sibling(&files.core, ".state.safetensors");
-    let from = (files.resume && state.exists()).then_some(state.as_path());
-    let trained = train::train(gpu, data, graph, config, &files.core, from, reporter)?;
-    reporter.note(&format!(
-        "{name}: best validation loss {:.4} at epoch {} of {}",
-        trained.best_val, trained.best_epoch, trained.epochs
-    ));
+    let trained = train_core(gpu, data, graph, config, name, files, reporter)?;
     let core = crate::model::Checkpoint::load(&files.core)?;
     let r = refine(gpu, data, graph, config, &core.parameters, reporter)?;
     let verdict = r.verdict();

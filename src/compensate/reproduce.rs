@@ -14,7 +14,7 @@ use serde::{Deserialize, Serialize};
 use super::demo::finish;
 use super::evaluate::{HeldOutConfig, NamedModel};
 use super::protocol::{
-    epoch_seconds, existing_data, fit_model, record_data, ModelFiles, CALIBRATION_SEED,
+    epoch_seconds, existing_data, fit_model, record_data, train_core, ModelFiles, CALIBRATION_SEED,
     MACHINE_SEED, TRAINING_SEED,
 };
 use super::report::curve::CurvePoint;
@@ -502,13 +502,7 @@ fn run_job(
         wall_seconds: 0.0,
     };
     if job.is_curve() {
-        let state = crate::train::sibling(&files.core, ".state.safetensors");
-        let from = state.exists().then_some(state.as_path());
-        let t = crate::train::train(gpu, data, graph, config, &files.core, from, reporter)?;
-        reporter.note(&format!(
-            "{name}: best validation loss {:.4} at epoch {} of {}",
-            t.best_val, t.best_epoch, t.epochs
-        ));
+        let t = train_core(gpu, data, graph, config, &name, &files, reporter)?;
         return Ok(record(
             t.best_val,
             t.best_epoch,
