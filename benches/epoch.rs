@@ -81,7 +81,7 @@ fn main() {
                 let mut rec = Recorder::new(&gpu);
                 net.record_train_forward(&mut rec).unwrap();
                 net.record_backward(&mut rec).unwrap();
-                rec.submit();
+                rec.submit().unwrap();
                 gpu.wait().unwrap();
                 t0.elapsed().as_secs_f64()
             };

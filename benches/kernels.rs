@@ -33,7 +33,7 @@ fn baseline(gpu: &Gpu, (mm, d): &(Matmul, Dispatch)) -> f64 {
         let mut rec = Recorder::new(gpu);
         rec.dispatch(d);
         let t0 = Instant::now();
-        rec.submit();
+        rec.submit().unwrap();
         gpu.wait().unwrap();
         if i > 0 {
             best = best.min(t0.elapsed());

@@ -20,7 +20,7 @@ fn time_dispatches(gpu: &Gpu, d: &Dispatch, iters: u64) -> Duration {
     for _ in 0..iters {
         rec.dispatch(d);
     }
-    rec.submit();
+    rec.submit().unwrap();
     gpu.wait().unwrap();
     t0.elapsed()
 }
@@ -62,14 +62,14 @@ fn gpu_case(gpu: &Gpu, mm: Matmul, pass: Pass) -> Dispatch {
             gpu,
             &b,
             &c,
-            &gpu.zeros("da", &[mm.a_len()], DType::F32),
+            &gpu.zeros("da", &[mm.a_len()], DType::F32).unwrap(),
             Accumulate::Overwrite,
         ),
         Pass::GradB => mm.backward_b(
             gpu,
             &a,
             &c,
-            &gpu.zeros("db", &[mm.b_len()], DType::F32),
+            &gpu.zeros("db", &[mm.b_len()], DType::F32).unwrap(),
             Accumulate::Overwrite,
         ),
     }
@@ -153,12 +153,12 @@ fn matmul(c: &mut Criterion) {
 fn fixed_costs(c: &mut Criterion) {
     let gpu = Gpu::new().expect("a GPU adapter (make bench installs lavapipe)");
     let x = gpu.upload("x", &[64], &[0.5; 64]).unwrap();
-    let y = gpu.zeros("y", &[64], DType::F32);
+    let y = gpu.zeros("y", &[64], DType::F32).unwrap();
     let tiny =
         elementwise::unary_forward(&gpu, Unary::Relu, &x, &y, Accumulate::Overwrite).unwrap();
     gpu.run(std::slice::from_ref(&tiny)).unwrap();
-    let rb = Readback::new(&gpu, "y", 4);
-    let scalar = gpu.zeros("loss", &[1], DType::F32);
+    let rb = Readback::new(&gpu, "y", 4).unwrap();
+    let scalar = gpu.zeros("loss", &[1], DType::F32).unwrap();
     let mut group = c.benchmark_group("fixed_cost");
     group
         .sample_size(20)
@@ -170,7 +170,7 @@ fn fixed_costs(c: &mut Criterion) {
         bch.iter(|| {
             let mut rec = Recorder::new(&gpu);
             rec.dispatch(&tiny);
-            rec.submit();
+            rec.submit().unwrap();
             gpu.wait().unwrap();
         })
     });
@@ -179,7 +179,7 @@ fn fixed_costs(c: &mut Criterion) {
             let mut rec = Recorder::new(&gpu);
             rec.dispatch(&tiny);
             rec.read_into(&scalar, &rb).unwrap();
-            rec.submit();
+            rec.submit().unwrap();
             rb.read_f32(&gpu).unwrap()
         })
     });

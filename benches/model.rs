@@ -165,7 +165,7 @@ fn matmul_baseline(c: &mut Criterion) {
         || {
             let mut rec = Recorder::new(&gpu);
             rec.dispatch(&d);
-            rec.submit();
+            rec.submit().unwrap();
             gpu.wait().unwrap();
         },
     );
@@ -179,7 +179,7 @@ fn matmul_baseline(c: &mut Criterion) {
 fn forward(gpu: &Gpu, net: &Network) {
     let mut rec = Recorder::new(gpu);
     net.record_forward(&mut rec).unwrap();
-    rec.submit();
+    rec.submit().unwrap();
     gpu.wait().unwrap();
 }
 
@@ -187,7 +187,7 @@ fn training_step(gpu: &Gpu, net: &Network) {
     let mut rec = Recorder::new(gpu);
     net.record_train_forward(&mut rec).unwrap();
     net.record_backward(&mut rec).unwrap();
-    rec.submit();
+    rec.submit().unwrap();
     gpu.wait().unwrap();
 }
 

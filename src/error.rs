@@ -122,6 +122,22 @@ impl Error {
     }
 }
 
+/// `error` from building work of `batch` windows, with the fix where the batch is too
+/// large for the adapter: "`--batch 4096`: tensor x needs 9.1 GiB; this adapter allows
+/// 2.0 GiB per buffer (…); try --batch 512".
+pub fn batch_error(error: impl Into<Error>, batch: usize) -> Error {
+    let error = error.into();
+    let gpu = match &error {
+        Error::Gpu(e) => Some(e),
+        Error::Model(ModelError::Gpu(e)) => Some(e),
+        _ => None,
+    };
+    match gpu.and_then(|e| e.fitting_count(batch).map(|n| (e, n))) {
+        Some((e, n)) => Error::Invalid(format!("--batch {batch}: {e}; try --batch {n}")),
+        None => error,
+    }
+}
+
 /// Returns [`Error::Invalid`] with `message` unless `ok`.
 pub fn ensure(ok: bool, message: impl FnOnce() -> String) -> Result<()> {
     if ok {

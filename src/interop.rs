@@ -136,9 +136,11 @@ pub fn forward(
         return Err(TensorFileError::new(input, Some("x"), message).into());
     }
     let windows = shape[0];
-    ensure(windows > 0 && batch > 0, || {
-        format!("nothing to run: B = {windows}, batch {batch}")
-    })?;
+    if windows == 0 {
+        let message = format!("shape {shape:?}: no window to run (B = 0)");
+        return Err(TensorFileError::new(input, Some("x"), message).into());
+    }
+    ensure(batch > 0, || format!("--batch {batch}: must be at least 1"))?;
     if let Some(i) = x.iter().position(|v| !v.is_finite()) {
         let message = format!("element {i} is {}", x[i]);
         return Err(TensorFileError::new(input, Some("x"), message).into());
@@ -172,7 +174,8 @@ pub fn forward_windows(
     })?;
     let windows = x.len() / len;
     let capacity = windows.clamp(1, batch);
-    let net = Network::for_inference(gpu, config, &checkpoint.graph, capacity)?;
+    let net = Network::for_inference(gpu, config, &checkpoint.graph, capacity)
+        .map_err(|e| crate::error::batch_error(e, capacity))?;
     net.load_parameters(gpu, &checkpoint.parameters)?;
     let mut y = Vec::with_capacity(windows * config.outputs);
     let mut staging = vec![0.0f32; capacity * len];

@@ -40,9 +40,9 @@ impl State {
         let n = param.len();
         State {
             param: g.upload("param", &[n], &to_f32(param)).unwrap(),
-            grad: g.zeros("grad", &[n], DType::F32),
-            m: g.zeros("m", &[n], DType::F32),
-            v: g.zeros("v", &[n], DType::F32),
+            grad: g.zeros("grad", &[n], DType::F32).unwrap(),
+            m: g.zeros("m", &[n], DType::F32).unwrap(),
+            v: g.zeros("v", &[n], DType::F32).unwrap(),
         }
     }
 
@@ -54,7 +54,7 @@ impl State {
 #[test]
 fn adam_matches_reference_over_five_steps() {
     let g = gpu();
-    let hyper = g.zeros("adam hyper", &[4], DType::F32);
+    let hyper = g.zeros("adam hyper", &[4], DType::F32).unwrap();
     let mut worst = [0.0f64; 3];
     for (case, &(numel, decay)) in [(7, 0.0), (7, 3e-3), (4099, 0.0), (4099, 3e-3)]
         .iter()
@@ -156,7 +156,7 @@ fn decay_is_two_lambda_w_and_only_when_positive() {
     let g = gpu();
     let n = 1001;
     let lambda = 3e-3;
-    let hyper = g.zeros("adam hyper", &[4], DType::F32);
+    let hyper = g.zeros("adam hyper", &[4], DType::F32).unwrap();
     let mut r = rng(70);
     let w0 = round_f32(&uniform(&mut r, n, -1.0, 1.0));
     let grads: Vec<Vec<f64>> = (0..3)

@@ -48,7 +48,7 @@ fn forward_and_backward_match_reference() {
         let bt = g.upload("bias", &[channels], &to_f32(&bias)).unwrap();
         let yt = g.upload("y", &[b.numel()], &to_f32(&y0)).unwrap();
         let dyt = g.upload("dy", &[b.numel()], &to_f32(&dy)).unwrap();
-        let db = g.zeros("dbias", &[channels], DType::F32);
+        let db = g.zeros("dbias", &[channels], DType::F32).unwrap();
         let db_acc = g.upload("dbias+", &[channels], &to_f32(&bias)).unwrap();
         g.run(&[
             b.forward(&g, &bt, &yt).unwrap(),

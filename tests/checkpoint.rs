@@ -6,10 +6,12 @@
 use std::sync::Arc;
 
 use iastgcn::error::Error;
+use iastgcn::gpu::GpuError;
 use iastgcn::graph::Graph;
 use iastgcn::interop;
 use iastgcn::model::{
-    Backend, Checkpoint, ModelConfig, Network, Normalization, Parameters, Predictor, Variant,
+    Backend, Checkpoint, ModelConfig, ModelError, Network, Normalization, Parameters, Predictor,
+    Variant,
 };
 use iastgcn::testing::{gpu, rng, to_f32, uniform};
 use safetensors::tensor::{Dtype, SafeTensors, TensorView};
@@ -471,7 +473,15 @@ fn interop_init_and_forward_from_the_library() {
         "{text}"
     );
     let err = interop::forward(&g, &model, &input, &out, 0).unwrap_err();
-    assert!(err.to_string().contains("nothing to run"), "{err}");
+    assert!(err.to_string().contains("--batch 0"), "{err}");
+    // No window at all: the file and tensor are named.
+    interop::write_tensor(&input, "x", &[0, 14, 3, 16], &[]).unwrap();
+    let err = interop::forward(&g, &model, &input, &out, 3).unwrap_err();
+    let text = err.to_string();
+    assert!(
+        text.contains("interop-x.safetensors: tensor x") && text.contains("B = 0"),
+        "{text}"
+    );
     let missing = temp("no-such-file.safetensors");
     let err = interop::forward(&g, &model, &missing, &out, 3).unwrap_err();
     assert!(
@@ -482,4 +492,58 @@ fn interop_init_and_forward_from_the_library() {
     std::fs::write(&graph, "not a graph").unwrap();
     let err = interop::init(None, None, Some(&graph), 1).unwrap_err();
     assert!(err.to_string().contains("interop-graph.toml"), "{err}");
+}
+
+#[test]
+fn a_lost_device_is_an_error_and_the_predictor_rebuilds_itself() {
+    let g = Arc::new(gpu());
+    let ck = checkpoint(Variant::Iastgcn, 7);
+    let c = &ck.config;
+    let window = to_f32(&uniform(
+        &mut rng(9),
+        c.nodes * c.features * c.window,
+        -3.0,
+        3.0,
+    ));
+    let mut p = Predictor::with_backend(g.clone(), &ck, 2, Backend::Device).unwrap();
+    let before = p.predict(&window).unwrap();
+    assert!(!p.is_lost());
+
+    // What a driver reset or a removed GPU does: the device goes away under us.
+    g.device().destroy();
+    let err = p.predict(&window).unwrap_err();
+    assert!(
+        matches!(&err, ModelError::Gpu(GpuError::DeviceLost { .. })),
+        "not a device loss: {err}"
+    );
+    assert!(err.to_string().contains("lost"), "{err}");
+    assert!(p.is_lost());
+
+    p.rebuild().unwrap();
+    assert!(!p.is_lost());
+    assert_eq!(
+        p.predict(&window).unwrap(),
+        before,
+        "same weights, same answer"
+    );
+}
+
+#[test]
+fn a_batch_beyond_the_adapter_names_the_limit_before_allocating() {
+    let g = Arc::new(gpu());
+    let ck = checkpoint(Variant::Iastgcn, 7);
+    let limit = g.limits().max_storage_buffer_binding_size;
+    // Enough windows that the input tensor alone exceeds one binding.
+    let c = &ck.config;
+    let capacity = (limit / (4 * (c.nodes * c.features * c.window) as u64) + 1) as usize;
+    let err = match Predictor::with_backend(g, &ck, capacity, Backend::Device) {
+        Ok(_) => panic!("{capacity} windows per submit were accepted"),
+        Err(e) => e,
+    };
+    assert!(
+        matches!(&err, ModelError::Gpu(GpuError::TooLarge { .. })),
+        "{err}"
+    );
+    let text = err.to_string();
+    assert!(text.contains("this adapter allows"), "{text}");
 }

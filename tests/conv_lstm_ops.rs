@@ -45,8 +45,8 @@ fn unfold2d_matches_reference_and_is_the_transpose_of_its_backward() {
         let d_col = round_f32(&uniform(&mut rng(20 + k as u64), u.col_len(), -1.0, 1.0));
         let prior = round_f32(&uniform(&mut rng(40 + k as u64), u.image_len(), -1.0, 1.0));
         let (img_t, dcol_t) = (upload(&g, "img", &img), upload(&g, "d col", &d_col));
-        let col = g.zeros("col", &[u.col_len()], DType::F32);
-        let over = g.zeros("d img", &[u.image_len()], DType::F32);
+        let col = g.zeros("col", &[u.col_len()], DType::F32).unwrap();
+        let over = g.zeros("d img", &[u.image_len()], DType::F32).unwrap();
         let add = upload(&g, "d img (added to)", &prior);
         g.run(&[
             u.forward(&g, &img_t, &col).unwrap(),
@@ -74,8 +74,8 @@ fn unfold2d_matches_reference_and_is_the_transpose_of_its_backward() {
     // An even kernel has no centre: refused.
     let even = shape(1, 1, 4, 3, 2);
     let (a, b) = (
-        g.zeros("img", &[12], DType::F32),
-        g.zeros("col", &[48], DType::F32),
+        g.zeros("img", &[12], DType::F32).unwrap(),
+        g.zeros("col", &[48], DType::F32).unwrap(),
     );
     assert!(even.forward(&g, &a, &b).is_err());
 }
@@ -99,12 +99,12 @@ fn lstm_cell_matches_reference_and_finite_differences() {
             t("d c", &d_c),
         );
         let (c, h) = (
-            g.zeros("c", &[n], DType::F32),
-            g.zeros("h", &[n], DType::F32),
+            g.zeros("c", &[n], DType::F32).unwrap(),
+            g.zeros("h", &[n], DType::F32).unwrap(),
         );
         let (dz, dcp) = (
-            g.zeros("d z", &[4 * n], DType::F32),
-            g.zeros("d c prev", &[n], DType::F32),
+            g.zeros("d z", &[4 * n], DType::F32).unwrap(),
+            g.zeros("d c prev", &[n], DType::F32).unwrap(),
         );
         g.run(&[
             s.forward(&g, &zt, &cpt, &c, &h).unwrap(),

@@ -89,10 +89,10 @@ fn recorder_batches_copy_zero_and_dispatch_in_one_submit() {
     let n = 700;
     let x: Vec<f32> = (0..n).map(|i| (i as f32 - 350.0) / 100.0).collect();
     let a = g.upload("a", &[n], &x).unwrap();
-    let b = g.zeros("b", &[n], DType::F32);
+    let b = g.zeros("b", &[n], DType::F32).unwrap();
     let y = g.upload("y", &[n], &vec![5.0; n]).unwrap();
     let relu = elementwise::unary_forward(&g, Unary::Relu, &b, &y, Accumulate::Add).unwrap();
-    let rb = Readback::new(&g, "y", y.byte_len());
+    let rb = Readback::new(&g, "y", y.byte_len()).unwrap();
     let mut rec = Recorder::new(&g);
     rec.copy(&a, &b).unwrap();
     rec.zero(&y);
@@ -100,7 +100,7 @@ fn recorder_batches_copy_zero_and_dispatch_in_one_submit() {
     rec.dispatch(&relu); // y += relu(a) again: accumulate mode
     rec.read_into(&y, &rb).unwrap();
     assert_eq!(rec.len(), 2);
-    rec.submit();
+    rec.submit().unwrap();
     let got = rb.read_f32(&g).unwrap();
     let want: Vec<f32> = x.iter().map(|v| 2.0 * v.max(0.0)).collect();
     assert_eq!(got, want);
@@ -108,16 +108,16 @@ fn recorder_batches_copy_zero_and_dispatch_in_one_submit() {
     let mut rec = Recorder::new(&g);
     rec.zero(&y);
     rec.read_into(&y, &rb).unwrap();
-    rec.submit();
+    rec.submit().unwrap();
     assert!(rb.read_f32(&g).unwrap().iter().all(|&v| v == 0.0));
 }
 
 #[test]
 fn each_pipeline_is_compiled_once_per_device() {
     let g = gpu();
-    let x = g.zeros("x", &[10], DType::F32);
-    let y = g.zeros("y", &[10], DType::F32);
-    let z = g.zeros("z", &[10], DType::F32);
+    let x = g.zeros("x", &[10], DType::F32).unwrap();
+    let y = g.zeros("y", &[10], DType::F32).unwrap();
+    let z = g.zeros("z", &[10], DType::F32).unwrap();
     assert_eq!(g.pipeline_count(), 0);
     for _ in 0..3 {
         elementwise::unary_forward(&g, Unary::Tanh, &x, &y, Accumulate::Overwrite).unwrap();
@@ -131,8 +131,8 @@ fn each_pipeline_is_compiled_once_per_device() {
 #[test]
 fn mismatched_or_aliased_tensors_are_rejected_by_name() {
     let g = gpu();
-    let x = g.zeros("x", &[10], DType::F32);
-    let y = g.zeros("y", &[11], DType::F32);
+    let x = g.zeros("x", &[10], DType::F32).unwrap();
+    let y = g.zeros("y", &[11], DType::F32).unwrap();
     let err = elementwise::unary_forward(&g, Unary::Relu, &x, &y, Accumulate::Overwrite)
         .unwrap_err()
         .to_string();

@@ -13,7 +13,7 @@ fn mask_matches_the_cpu_hash_and_scales_kept_values() {
     let d = Dropout::new(n, 0.2, 1234);
     let x: Vec<f32> = (0..n).map(|i| 1.0 + (i % 7) as f32).collect();
     let xt = g.upload("x", &[n], &x).unwrap();
-    let y = g.zeros("y", &[n], DType::F32);
+    let y = g.zeros("y", &[n], DType::F32).unwrap();
     g.run(&[d.apply(&g, 5, &xt, &y, Accumulate::Overwrite).unwrap()])
         .unwrap();
     let got = g.read_f32(&y).unwrap();
@@ -37,8 +37,8 @@ fn backward_uses_the_forward_mask_and_steps_change_it() {
     let d = Dropout::new(n, 0.5, 7);
     let ones = g.upload("ones", &[n], &vec![1.0; n]).unwrap();
     let (y, dx) = (
-        g.zeros("y", &[n], DType::F32),
-        g.zeros("dx", &[n], DType::F32),
+        g.zeros("y", &[n], DType::F32).unwrap(),
+        g.zeros("dx", &[n], DType::F32).unwrap(),
     );
     let fwd = d.apply(&g, 11, &ones, &y, Accumulate::Overwrite).unwrap();
     let bwd = d.apply(&g, 11, &ones, &dx, Accumulate::Overwrite).unwrap();
@@ -71,8 +71,8 @@ fn a_strided_subset_gets_the_bits_of_the_whole_tensor() {
     let tail: Vec<f32> = (0..rows).map(|r| x[r * steps + steps - 1]).collect();
     let tt = g.upload("x last", &[rows], &tail).unwrap();
     let (y, yl) = (
-        g.zeros("y", &[x.len()], DType::F32),
-        g.zeros("y last", &[rows], DType::F32),
+        g.zeros("y", &[x.len()], DType::F32).unwrap(),
+        g.zeros("y last", &[rows], DType::F32).unwrap(),
     );
     g.run(&[
         whole.apply(&g, 3, &xt, &y, Accumulate::Overwrite).unwrap(),

@@ -38,8 +38,8 @@ fn unary_forward_and_backward_match_reference() {
             let x = input(op, n, i as u64);
             let dy = round_f32(&uniform(&mut rng(50 + i as u64), n, -1.0, 1.0));
             let (xt, dyt) = (upload(&g, "x", &x), upload(&g, "dy", &dy));
-            let y = g.zeros("y", &[n], DType::F32);
-            let dx = g.zeros("dx", &[n], DType::F32);
+            let y = g.zeros("y", &[n], DType::F32).unwrap();
+            let dx = g.zeros("dx", &[n], DType::F32).unwrap();
             let saved = if op.backward_uses_output() { &y } else { &xt };
             g.run(&[
                 ew::unary_forward(&g, op, &xt, &y, Accumulate::Overwrite).unwrap(),
@@ -90,7 +90,7 @@ fn saturated_inputs_stay_finite() {
     let x = [-1e4, -90.0, -30.0, 0.0, 30.0, 90.0, 1e4];
     let xt = upload(&g, "x", &x);
     for op in Unary::ALL {
-        let y = g.zeros("y", &[x.len()], DType::F32);
+        let y = g.zeros("y", &[x.len()], DType::F32).unwrap();
         g.run(&[ew::unary_forward(&g, op, &xt, &y, Accumulate::Overwrite).unwrap()])
             .unwrap();
         compare_tensor(
@@ -118,9 +118,9 @@ fn binary_forward_and_backward_match_reference() {
                 upload(&g, "b", &b),
                 upload(&g, "dc", &dc),
             );
-            let c = g.zeros("c", &[n], DType::F32);
-            let da = g.zeros("da", &[n], DType::F32);
-            let db = g.zeros("db", &[n], DType::F32);
+            let c = g.zeros("c", &[n], DType::F32).unwrap();
+            let da = g.zeros("da", &[n], DType::F32).unwrap();
+            let db = g.zeros("db", &[n], DType::F32).unwrap();
             g.run(&[
                 ew::binary_forward(&g, op, &at, &bt, &c, Accumulate::Overwrite).unwrap(),
                 ew::binary_backward(&g, op, &bt, &dct, &da, Accumulate::Overwrite).unwrap(),
@@ -178,7 +178,7 @@ fn backward_accumulates_when_asked() {
     let x = round_f32(&uniform(&mut rng(3), 300, -2.0, 2.0));
     let dy = round_f32(&uniform(&mut rng(4), 300, -1.0, 1.0));
     let (xt, dyt) = (upload(&g, "x", &x), upload(&g, "dy", &dy));
-    let dx = g.zeros("dx", &[300], DType::F32);
+    let dx = g.zeros("dx", &[300], DType::F32).unwrap();
     g.run(&[
         ew::binary_backward(&g, Binary::Mul, &xt, &dyt, &dx, Accumulate::Overwrite).unwrap(),
         ew::binary_backward(&g, Binary::Mul, &xt, &dyt, &dx, Accumulate::Add).unwrap(),
@@ -208,7 +208,7 @@ fn folded_grid_covers_every_element_on_the_device() {
         .map(|i| if i % 3 == 0 { -1.0 } else { (i % 1000) as f32 })
         .collect();
     let xt = g.upload("x", &[n], &x).unwrap();
-    let y = g.zeros("y", &[n], DType::F32);
+    let y = g.zeros("y", &[n], DType::F32).unwrap();
     let d = ew::unary_forward(&g, Unary::Relu, &xt, &y, Accumulate::Overwrite).unwrap();
     assert!(
         d.workgroups()[1] > 1,

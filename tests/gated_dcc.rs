@@ -49,7 +49,7 @@ fn unfold_matches_reference() {
         let dcol = round_f32(&uniform(&mut r, u.col_len(), -1.0, 1.0));
         let xt = g.upload("x", &[u.input_len()], &to_f32(&x)).unwrap();
         let dcolt = g.upload("dcol", &[u.col_len()], &to_f32(&dcol)).unwrap();
-        let col = g.zeros("col", &[u.col_len()], DType::F32);
+        let col = g.zeros("col", &[u.col_len()], DType::F32).unwrap();
         let dx = g.upload("dx", &[u.input_len()], &to_f32(&x)).unwrap();
         g.run(&[
             u.forward(&g, &xt, &col).unwrap(),
@@ -91,8 +91,8 @@ fn trimmed_unfolding_is_the_tail_of_the_whole_one() {
         outputs: u.steps + 1,
         ..u
     };
-    let x = g.zeros("x", &[u.input_len()], DType::F32);
-    let col = g.zeros("col", &[bad.col_len()], DType::F32);
+    let x = g.zeros("x", &[u.input_len()], DType::F32).unwrap();
+    let col = g.zeros("col", &[bad.col_len()], DType::F32).unwrap();
     let err = bad.forward(&g, &x, &col).unwrap_err().to_string();
     assert!(err.contains("unfold outputs"), "{err}");
 }
@@ -111,7 +111,7 @@ fn backward_through_relu_masks_by_the_unfolded_relu_output() {
             g.upload("z", &[z.len()], &to_f32(&z)).unwrap(),
             g.upload("dcol", &[dcol.len()], &to_f32(&dcol)).unwrap(),
         );
-        let dg = g.zeros("dg", &[u.input_len()], DType::F32);
+        let dg = g.zeros("dg", &[u.input_len()], DType::F32).unwrap();
         g.run(&[u
             .backward_through_relu(&g, &dcolt, ReluOutput(&zt), &dg)
             .unwrap()])
@@ -139,8 +139,10 @@ fn unfold_then_gemm_is_the_causal_convolution() {
     let w = round_f32(&uniform(&mut r, outputs * u.channels * u.kernel, -0.5, 0.5));
     let xt = g.upload("x", &[u.input_len()], &to_f32(&x)).unwrap();
     let wt = g.upload("w", &[w.len()], &to_f32(&w)).unwrap();
-    let col = g.zeros("col", &[u.col_len()], DType::F32);
-    let out = g.zeros("out", &[u.rows * outputs * u.steps], DType::F32);
+    let col = g.zeros("col", &[u.col_len()], DType::F32).unwrap();
+    let out = g
+        .zeros("out", &[u.rows * outputs * u.steps], DType::F32)
+        .unwrap();
     let mm = Matmul::new(outputs, u.steps, u.channels * u.kernel)
         .batched(u.rows)
         .share_a(true);
@@ -163,10 +165,10 @@ fn gate_matches_reference() {
     let gg = round_f32(&uniform(&mut r, n, -40.0, 40.0));
     let dh = round_f32(&uniform(&mut r, n, -1.0, 1.0));
     let [ft, gt, dht] = [&f, &gg, &dh].map(|v| g.upload("in", &[n], &to_f32(v)).unwrap());
-    let h = g.zeros("h", &[n], DType::F32);
+    let h = g.zeros("h", &[n], DType::F32).unwrap();
     // The gradients stacked per item of 250 elements, [df; dg] for each, as the model's
     // backward reads them.
-    let dfg = g.zeros("dfg", &[2 * n], DType::F32);
+    let dfg = g.zeros("dfg", &[2 * n], DType::F32).unwrap();
     g.run(&[
         gate_forward(&g, &ft, &gt, &h).unwrap(),
         gate_backward_stacked(&g, &ft, &gt, &dht, &dfg, 250).unwrap(),

@@ -101,8 +101,8 @@ fn forward_matches_reference() {
             t("a_dst", &c.a_dst),
             t("mask", &c.mask),
         );
-        let alpha_t = g.zeros("alpha", &[op.weights()], DType::F32);
-        let out_t = g.zeros("out", &[op.values()], DType::F32);
+        let alpha_t = g.zeros("alpha", &[op.weights()], DType::F32).unwrap();
+        let out_t = g.zeros("out", &[op.values()], DType::F32).unwrap();
         let prior = round_f32(&uniform(&mut rng(90 + k as u64), op.values(), -1.0, 1.0));
         let added = t("out (added to)", &prior);
         g.run(&[
@@ -174,8 +174,8 @@ fn backward_matches_reference() {
             t("mask", &c.mask),
         );
         let dout_t = t("d out", &d_out);
-        let alpha = g.zeros("alpha", &[op.weights()], DType::F32);
-        let d_score = g.zeros("d score", &[op.weights()], DType::F32);
+        let alpha = g.zeros("alpha", &[op.weights()], DType::F32).unwrap();
+        let d_score = g.zeros("d score", &[op.weights()], DType::F32).unwrap();
         let prior_q = round_f32(&uniform(&mut rng(70 + k as u64), op.values(), -1.0, 1.0));
         let prior_a = round_f32(&uniform(
             &mut rng(80 + k as u64),
@@ -236,7 +236,7 @@ fn heads_must_divide_the_channels() {
         steps: 2,
         heads: 2,
     };
-    let z = |n: usize| g.zeros("t", &[n], DType::F32);
+    let z = |n: usize| g.zeros("t", &[n], DType::F32).unwrap();
     let (q, a, m, alpha) = (z(op.values()), z(5), z(9), z(op.weights()));
     let err = op
         .attention_weights(&g, &q, &a, &a, &m, &alpha)

@@ -23,7 +23,7 @@ fn last_step_matches_reference() {
     let dh = round_f32(&uniform(&mut r, s.rows, -1.0, 1.0));
     let yt = g.upload("y", &[y.len()], &to_f32(&y)).unwrap();
     let dht = g.upload("dh", &[dh.len()], &to_f32(&dh)).unwrap();
-    let h = g.zeros("h", &[s.rows], DType::F32);
+    let h = g.zeros("h", &[s.rows], DType::F32).unwrap();
     // Filled with garbage first: the scatter must write every element.
     let dy = g.upload("dy", &[y.len()], &to_f32(&y)).unwrap();
     g.run(&[
@@ -51,8 +51,8 @@ fn pose_loss_matches_reference_and_finite_differences() {
         let truth = round_f32(&uniform(&mut r, batch * 6, -2.0, 2.0));
         let pt = g.upload("pred", &[pred.len()], &to_f32(&pred)).unwrap();
         let tt = g.upload("truth", &[pred.len()], &to_f32(&truth)).unwrap();
-        let loss = g.zeros("loss", &[1], DType::F32);
-        let dpred = g.zeros("dpred", &[pred.len()], DType::F32);
+        let loss = g.zeros("loss", &[1], DType::F32).unwrap();
+        let dpred = g.zeros("dpred", &[pred.len()], DType::F32).unwrap();
         g.run(&[
             l.forward(&g, &pt, &tt, &loss).unwrap(),
             l.backward(&g, &pt, &tt, &dpred).unwrap(),
@@ -124,7 +124,7 @@ fn run_loss(
 ) -> (iastgcn::gpu::Tensor, iastgcn::gpu::Tensor) {
     let pt = g.upload("pred", &[pred.len()], &to_f32(pred)).unwrap();
     let tt = g.upload("truth", &[pred.len()], &to_f32(truth)).unwrap();
-    let loss = g.zeros("loss", &[1], DType::F32);
+    let loss = g.zeros("loss", &[1], DType::F32).unwrap();
     // Garbage first: backward must overwrite every element.
     let dpred = g.upload("dpred", &[pred.len()], &to_f32(pred)).unwrap();
     g.run(&[
@@ -243,10 +243,10 @@ fn group_one_is_the_plain_loss() {
 fn batch_not_a_multiple_of_the_group_is_an_error() {
     let g = gpu();
     let n = 61 * 6;
-    let pred = g.zeros("pred", &[n], DType::F32);
-    let truth = g.zeros("truth", &[n], DType::F32);
-    let loss = g.zeros("loss", &[1], DType::F32);
-    let dpred = g.zeros("dpred", &[n], DType::F32);
+    let pred = g.zeros("pred", &[n], DType::F32).unwrap();
+    let truth = g.zeros("truth", &[n], DType::F32).unwrap();
+    let loss = g.zeros("loss", &[1], DType::F32).unwrap();
+    let dpred = g.zeros("dpred", &[n], DType::F32).unwrap();
     for group in [10, 0] {
         let l = PoseLoss {
             batch: 61,

@@ -45,7 +45,7 @@ fn forward_and_backward_match_reference() {
             upload(&g, "beta", &beta),
             upload(&g, "dy", &dy),
         );
-        let z = |n: &str, len: usize| g.zeros(n, &[len], DType::F32);
+        let z = |n: &str, len: usize| g.zeros(n, &[len], DType::F32).unwrap();
         let (y, mean, rstd) = (z("y", ln.len()), z("mean", ln.rows()), z("rstd", ln.rows()));
         let (dx, dg, db) = (
             z("dx", ln.len()),
@@ -143,8 +143,8 @@ fn gradients_accumulate_when_asked() {
         upload(&g, "gamma", &gamma),
         upload(&g, "dy", &dy),
     );
-    let beta = g.zeros("beta", &[8], DType::F32);
-    let z = |n: &str, len: usize| g.zeros(n, &[len], DType::F32);
+    let beta = g.zeros("beta", &[8], DType::F32).unwrap();
+    let z = |n: &str, len: usize| g.zeros(n, &[len], DType::F32).unwrap();
     let (y, mean, rstd) = (z("y", ln.len()), z("mean", ln.rows()), z("rstd", ln.rows()));
     let dx = upload(&g, "dx", &vec![1.0; ln.len()]);
     let (dg, db) = (
@@ -189,7 +189,7 @@ fn relu_input_masks_the_input_gradient() {
             upload(&g, "gamma", &gamma),
             upload(&g, "dy", &dy),
         );
-        let z = |n: &str, len: usize| g.zeros(n, &[len], DType::F32);
+        let z = |n: &str, len: usize| g.zeros(n, &[len], DType::F32).unwrap();
         let beta = z("beta", channels);
         let (y, mean, rstd, dx) = (
             z("y", ln.len()),

@@ -137,7 +137,7 @@ fn forward_matches_reference() {
     for (i, mm) in on_every_kernel(&g, cases()).into_iter().enumerate() {
         let x = inputs(&mm, i as u64);
         let (a, b) = (upload(&g, "a", &x.a), upload(&g, "b", &x.b));
-        let c = g.zeros("c", &[mm.c_len()], DType::F32);
+        let c = g.zeros("c", &[mm.c_len()], DType::F32).unwrap();
         g.run(&[mm.forward(&g, &a, &b, &c, Accumulate::Overwrite).unwrap()])
             .unwrap();
         compare_tensor(
@@ -161,8 +161,8 @@ fn backward_matches_reference() {
             upload(&g, "b", &x.b),
             upload(&g, "dc", &x.dc),
         );
-        let da = g.zeros("da", &[mm.a_len()], DType::F32);
-        let db = g.zeros("db", &[mm.b_len()], DType::F32);
+        let da = g.zeros("da", &[mm.a_len()], DType::F32).unwrap();
+        let db = g.zeros("db", &[mm.b_len()], DType::F32).unwrap();
         g.run(&[
             mm.backward_a(&g, &b, &dc, &da, Accumulate::Overwrite)
                 .unwrap(),
@@ -294,7 +294,7 @@ fn epilogue_adds_one_bias_per_output_row_then_relu() {
         compare_tensor(&g, &format!("{mm:?} + matrix"), &c, &want, gpu_tol(mm.k)).unwrap();
     }
     let mm = Matmul::new(4, 4, 4);
-    let t = |n: &str, len: usize| g.zeros(n, &[len], DType::F32);
+    let t = |n: &str, len: usize| g.zeros(n, &[len], DType::F32).unwrap();
     let bias = t("bias", 3);
     let epilogue = Epilogue {
         bias: Some(&bias),
@@ -338,7 +338,7 @@ fn gate_epilogue_applies_tanh_of_the_filter_times_sigmoid() {
             upload(&g, "f", &f),
             upload(&g, "bias", &bias),
         );
-        let c = g.zeros("h", &[mm.c_len()], DType::F32);
+        let c = g.zeros("h", &[mm.c_len()], DType::F32).unwrap();
         let epilogue = Epilogue {
             bias: Some(&tb),
             gate: Some(&tf),
@@ -356,7 +356,7 @@ fn gate_epilogue_applies_tanh_of_the_filter_times_sigmoid() {
         let want = gated_dcc::cpu::gate(&f, &pre);
         compare_tensor(&g, &format!("{mm:?} gated"), &c, &want, gpu_tol(mm.k)).unwrap();
         // The gate input must be laid out like C.
-        let short = g.zeros("f short", &[mm.c_len() - 1], DType::F32);
+        let short = g.zeros("f short", &[mm.c_len() - 1], DType::F32).unwrap();
         let bad = Epilogue {
             gate: Some(&short),
             ..Epilogue::default()
@@ -492,8 +492,8 @@ fn model_sized_product_matches_reference() {
             upload(&g, "w", &x.b),
             upload(&g, "dy", &x.dc),
         );
-        let c = g.zeros("y", &[mm.c_len()], DType::F32);
-        let db = g.zeros("dw", &[mm.b_len()], DType::F32);
+        let c = g.zeros("y", &[mm.c_len()], DType::F32).unwrap();
+        let db = g.zeros("dw", &[mm.b_len()], DType::F32).unwrap();
         g.run(&[
             mm.forward(&g, &a, &b, &c, Accumulate::Overwrite).unwrap(),
             mm.backward_b(&g, &a, &dc, &db, Accumulate::Overwrite)
@@ -555,9 +555,9 @@ fn aligned_operands_take_vector_loads_and_single_rows_the_row_kernel() {
 fn wrong_lengths_name_the_tensor() {
     let g = gpu();
     let mm = Matmul::new(4, 4, 4);
-    let a = g.zeros("activations", &[15], DType::F32);
-    let b = g.zeros("weights", &[16], DType::F32);
-    let c = g.zeros("out", &[16], DType::F32);
+    let a = g.zeros("activations", &[15], DType::F32).unwrap();
+    let b = g.zeros("weights", &[16], DType::F32).unwrap();
+    let c = g.zeros("out", &[16], DType::F32).unwrap();
     let err = mm
         .forward(&g, &a, &b, &c, Accumulate::Overwrite)
         .unwrap_err()
@@ -588,7 +588,7 @@ fn identity_term_accumulates_onto_existing_gradient() {
         );
         let da0: Vec<f64> = (0..mm.a_len()).map(|i| (i % 7) as f64 - 3.0).collect();
         let da = upload(&g, "da", &da0);
-        let c = g.zeros("c", &[mm.c_len()], DType::F32);
+        let c = g.zeros("c", &[mm.c_len()], DType::F32).unwrap();
         g.run(&[
             mm.forward(&g, &a, &b, &c, Accumulate::Overwrite).unwrap(),
             mm.backward_a(&g, &b, &dc, &da, Accumulate::Add).unwrap(),
@@ -617,9 +617,9 @@ fn identity_term_accumulates_onto_existing_gradient() {
 fn identity_term_needs_a_square_operand() {
     let g = gpu();
     let mm = Matmul::new(4, 6, 5).plus_identity(true);
-    let a = g.zeros("x", &[20], DType::F32);
-    let b = g.zeros("e", &[30], DType::F32);
-    let c = g.zeros("x_t", &[24], DType::F32);
+    let a = g.zeros("x", &[20], DType::F32).unwrap();
+    let b = g.zeros("e", &[30], DType::F32).unwrap();
+    let c = g.zeros("x_t", &[24], DType::F32).unwrap();
     let err = mm
         .forward(&g, &a, &b, &c, Accumulate::Overwrite)
         .unwrap_err()
@@ -627,10 +627,10 @@ fn identity_term_needs_a_square_operand() {
     assert!(err.contains("x_t") && err.contains("square"), "{err}");
     let shared = Matmul::new(4, 5, 5).share_a(true).plus_identity(true);
     let (e, dc) = (
-        g.zeros("e", &[25], DType::F32),
-        g.zeros("dc", &[20], DType::F32),
+        g.zeros("e", &[25], DType::F32).unwrap(),
+        g.zeros("dc", &[20], DType::F32).unwrap(),
     );
-    let dx = g.zeros("dx", &[20], DType::F32);
+    let dx = g.zeros("dx", &[20], DType::F32).unwrap();
     let err = shared
         .backward_a(&g, &e, &dc, &dx, Accumulate::Overwrite)
         .unwrap_err()

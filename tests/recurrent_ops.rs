@@ -28,7 +28,7 @@ fn time_step_gathers_and_scatters_one_step() {
             let dh = round_f32(&uniform(&mut rng(50 + i as u64), rows, -1.0, 1.0));
             let prior = round_f32(&uniform(&mut rng(90 + i as u64), rows * steps, -1.0, 1.0));
             let (yt, dht) = (upload(&g, "y", &y), upload(&g, "dh", &dh));
-            let h = g.zeros("h", &[rows], DType::F32);
+            let h = g.zeros("h", &[rows], DType::F32).unwrap();
             let over = upload(&g, "dy (overwritten)", &prior);
             let add = upload(&g, "dy (added to)", &prior);
             g.run(&[
@@ -54,8 +54,8 @@ fn time_step_gathers_and_scatters_one_step() {
         step: 3,
     };
     let (y, h) = (
-        g.zeros("y", &[6], DType::F32),
-        g.zeros("h", &[2], DType::F32),
+        g.zeros("y", &[6], DType::F32).unwrap(),
+        g.zeros("h", &[2], DType::F32).unwrap(),
     );
     assert!(s.forward(&g, &y, &h).is_err());
 }
@@ -72,10 +72,10 @@ fn gru_update_matches_reference_and_finite_differences() {
         let prior = round_f32(&uniform(&mut r, n, -1.0, 1.0));
         let t = |name, v: &[f64]| upload(&g, name, v);
         let (ut, ht, ct, dt) = (t("u", &u), t("h", &h), t("c", &c), t("d out", &d));
-        let out = g.zeros("out", &[n], DType::F32);
+        let out = g.zeros("out", &[n], DType::F32).unwrap();
         let (du, dc) = (
-            g.zeros("du", &[n], DType::F32),
-            g.zeros("dc", &[n], DType::F32),
+            g.zeros("du", &[n], DType::F32).unwrap(),
+            g.zeros("dc", &[n], DType::F32).unwrap(),
         );
         let (dh_over, dh_add) = (t("dh over", &prior), t("dh add", &prior));
         g.run(&[

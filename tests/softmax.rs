@@ -28,8 +28,8 @@ fn forward_and_backward_match_reference() {
         let dy = round_f32(&uniform(&mut r, s.numel(), -1.0, 1.0));
         let xt = g.upload("x", &[s.numel()], &to_f32(&x)).unwrap();
         let dyt = g.upload("dy", &[s.numel()], &to_f32(&dy)).unwrap();
-        let y = g.zeros("y", &[s.numel()], DType::F32);
-        let dx = g.zeros("dx", &[s.numel()], DType::F32);
+        let y = g.zeros("y", &[s.numel()], DType::F32).unwrap();
+        let dx = g.zeros("dx", &[s.numel()], DType::F32).unwrap();
         g.run(&[
             s.forward(&g, &xt, &y).unwrap(),
             s.backward(&g, &y, &dyt, &dx, Accumulate::Overwrite)
@@ -79,7 +79,7 @@ fn large_scores_do_not_overflow() {
     };
     let x = [1000.0, 999.0, -1000.0, 1000.0];
     let xt = g.upload("x", &[4], &to_f32(&x)).unwrap();
-    let y = g.zeros("y", &[4], DType::F32);
+    let y = g.zeros("y", &[4], DType::F32).unwrap();
     g.run(&[s.forward(&g, &xt, &y).unwrap()]).unwrap();
     compare_tensor(
         &g,

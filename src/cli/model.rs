@@ -41,8 +41,9 @@ pub struct ForwardArgs {
     /// Output safetensors file with the tensor `y` [B, 6] (standardised label space).
     #[arg(long)]
     pub out: PathBuf,
-    /// Windows per submit.
-    #[arg(long, default_value_t = 64)]
+    /// Most windows per submit (all of them when the input has fewer); refused with a
+    /// smaller batch to try when the adapter cannot hold it.
+    #[arg(long, default_value_t = 64, value_parser = super::count(1..))]
     pub batch: usize,
 }
 

@@ -1,6 +1,6 @@
 //! Adapter selection and the device handle every other GPU type hangs off.
 
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 
 use super::pipeline::PipelineCache;
 use super::GpuError;
@@ -37,6 +37,24 @@ pub struct Gpu {
     pub(crate) pipelines: Mutex<PipelineCache>,
     /// Every buffer created while [`Gpu::allocations_during`] runs (None otherwise).
     pub(crate) allocations: Mutex<Option<Vec<Allocation>>>,
+    /// Errors no scope caught and the device's loss, reported by the next
+    /// [`Gpu::check`] (wgpu's default handler would panic instead).
+    faults: Arc<Faults>,
+}
+
+/// What the device reported outside any error scope.
+#[derive(Default)]
+struct Faults {
+    /// The first uncaptured error since the last [`Gpu::check`].
+    uncaptured: Mutex<Option<String>>,
+    /// Why the device was lost, once it is.
+    lost: Mutex<Option<String>>,
+}
+
+/// Locks a mutex whether or not a panicking thread poisoned it (the data are plain
+/// strings and logs, valid either way).
+pub(crate) fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
 /// One device buffer: its label and size in bytes.
@@ -147,6 +165,15 @@ impl Gpu {
             adapter: describe(&infos[index]),
             reason: e.to_string(),
         })?;
+        let faults = Arc::new(Faults::default());
+        let sink = faults.clone();
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            lock(&sink.uncaptured).get_or_insert_with(|| e.to_string());
+        }));
+        let sink = faults.clone();
+        device.set_device_lost_callback(move |reason, message| {
+            *lock(&sink.lost) = Some(format!("{reason:?}: {message}"));
+        });
         Ok(Gpu {
             device,
             queue,
@@ -155,6 +182,7 @@ impl Gpu {
             adapter_features,
             pipelines: Mutex::new(PipelineCache::default()),
             allocations: Mutex::new(None),
+            faults,
         })
     }
 
@@ -204,11 +232,70 @@ impl Gpu {
         self.info.device_type == wgpu::DeviceType::Cpu
     }
 
-    /// Blocks until all submitted work has finished.
+    /// Blocks until all submitted work has finished, then reports what went wrong in
+    /// the meantime ([`Gpu::check`]).
     pub fn wait(&self) -> Result<(), GpuError> {
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
+        let polled = self.device.poll(wgpu::PollType::wait_indefinitely());
+        self.check()?;
+        polled
             .map(|_| ())
             .map_err(|e| GpuError::Device(e.to_string()))
+    }
+
+    /// [`GpuError::DeviceLost`] once the device is lost (driver reset, removed GPU,
+    /// `destroy`); else the first error no error scope caught since the last call, as
+    /// [`GpuError::Device`]; else Ok. A lost device stays lost: build a new [`Gpu`].
+    pub fn check(&self) -> Result<(), GpuError> {
+        let lost = || {
+            lock(&self.faults.lost)
+                .clone()
+                .map(|reason| GpuError::DeviceLost {
+                    adapter: self.info.name.clone(),
+                    reason,
+                })
+        };
+        if let Some(e) = lost() {
+            return Err(e);
+        }
+        let Some(message) = lock(&self.faults.uncaptured).take() else {
+            return Ok(());
+        };
+        // An error on a destroyed or reset device: wgpu reports the loss itself only
+        // when the device is next maintained, so let it, and report the loss first.
+        let _ = self.device.poll(wgpu::PollType::Poll);
+        Err(lost().unwrap_or(GpuError::Device(message)))
+    }
+
+    /// The error to report for `message`, captured by a scope around work on this
+    /// device: [`GpuError::DeviceLost`] when the device turns out to be lost, else
+    /// [`GpuError::Validation`] naming `what`.
+    pub(crate) fn scope_error(&self, what: String, message: String) -> GpuError {
+        let _ = self.device.poll(wgpu::PollType::Poll);
+        match lock(&self.faults.lost).clone() {
+            Some(reason) => GpuError::DeviceLost {
+                adapter: self.info.name.clone(),
+                reason,
+            },
+            None => GpuError::Validation { what, message },
+        }
+    }
+
+    /// True once the device is lost.
+    pub fn is_lost(&self) -> bool {
+        lock(&self.faults.lost).is_some()
+    }
+
+    /// Runs `f` inside an error scope for `filter` and returns the error it captured,
+    /// if any, as text. wgpu-core reports errors synchronously, so the pop resolves at
+    /// once.
+    pub(crate) fn scoped<T>(
+        &self,
+        filter: wgpu::ErrorFilter,
+        f: impl FnOnce() -> T,
+    ) -> (T, Option<String>) {
+        let scope = self.device.push_error_scope(filter);
+        let out = f();
+        let error = pollster::block_on(scope.pop()).map(|e| e.to_string());
+        (out, error)
     }
 }

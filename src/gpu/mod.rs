@@ -72,6 +72,48 @@ pub enum GpuError {
         /// The device's limit per axis.
         limit: u32,
     },
+    /// A tensor larger than one buffer of this adapter may be.
+    #[error(
+        "tensor {tensor} needs {}; this adapter allows {} per buffer ({limit_name})",
+        human_bytes(*bytes), human_bytes(*limit)
+    )]
+    TooLarge {
+        /// The tensor's name.
+        tensor: String,
+        /// The bytes it needs.
+        bytes: u64,
+        /// The adapter's limit in bytes.
+        limit: u64,
+        /// Which wgpu limit that is.
+        limit_name: &'static str,
+    },
+    /// The device had no memory left for a buffer.
+    #[error("out of device memory allocating {tensor} ({}): {message}", human_bytes(*bytes))]
+    OutOfMemory {
+        /// The tensor's name.
+        tensor: String,
+        /// The bytes asked for.
+        bytes: u64,
+        /// What wgpu said.
+        message: String,
+    },
+    /// wgpu refused to build or run something; names the kernel or step.
+    #[error("{what}: {message}")]
+    Validation {
+        /// The kernel, pipeline or submit involved.
+        what: String,
+        /// What wgpu said.
+        message: String,
+    },
+    /// The device is gone (driver reset, GPU removed, destroyed); nothing on it can be
+    /// used again. Open a new [`Gpu`] and rebuild (e.g. `Predictor::rebuild`).
+    #[error("the device on {adapter} was lost ({reason}); open a new device and rebuild")]
+    DeviceLost {
+        /// The adapter's name.
+        adapter: String,
+        /// What the driver said.
+        reason: String,
+    },
     /// Copying a tensor back to the host failed; the text names the tensor.
     #[error("readback of {0} failed")]
     Readback(String),
@@ -107,15 +149,40 @@ impl Gpu {
                 limit,
             });
         }
-        let pipeline = self
-            .pipelines
-            .lock()
-            .expect("pipeline cache poisoned")
-            .get(&self.device, kernel, constants)?;
+        let pipeline = device::lock(&self.pipelines).get(self, kernel, constants)?;
+        let (made, error) = self.scoped(wgpu::ErrorFilter::Validation, || {
+            self.bind(kernel, &label, &pipeline, params, tensors)
+        });
+        match error {
+            Some(message) => Err(self.scope_error(format!("binding {label}"), message)),
+            None => Ok(Dispatch {
+                pipeline,
+                bind_group: made.1,
+                params: made.0,
+                workgroups,
+                label,
+                target: tensors
+                    .last()
+                    .map_or_else(String::new, |t| t.name().to_string()),
+                flops: 0.0,
+                next: None,
+            }),
+        }
+    }
+
+    /// The uniform block and the bind group of one dispatch.
+    fn bind<P: bytemuck::Pod>(
+        &self,
+        kernel: &Kernel,
+        label: &str,
+        pipeline: &pipeline::Pipeline,
+        params: &P,
+        tensors: &[&Tensor],
+    ) -> (wgpu::Buffer, wgpu::BindGroup) {
         let params = self
             .device
             .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(&label),
+                label: Some(label),
                 contents: bytemuck::bytes_of(params),
                 usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             });
@@ -134,38 +201,54 @@ impl Gpu {
                 }),
         );
         let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some(&label),
+            label: Some(label),
             layout: &pipeline.layout,
             entries: &entries,
         });
-        Ok(Dispatch {
-            pipeline,
-            bind_group,
-            params,
-            workgroups,
-            label,
-            target: tensors
-                .last()
-                .map_or_else(String::new, |t| t.name().to_string()),
-            flops: 0.0,
-            next: None,
-        })
+        (params, bind_group)
     }
 
     /// Number of pipelines compiled on this device so far.
     pub fn pipeline_count(&self) -> usize {
-        self.pipelines
-            .lock()
-            .expect("pipeline cache poisoned")
-            .len()
+        device::lock(&self.pipelines).len()
     }
 
     /// Records `dispatches` into one command buffer, submits it and waits.
     pub fn run(&self, dispatches: &[Dispatch]) -> Result<(), GpuError> {
         let mut rec = Recorder::new(self);
         rec.dispatch_all(dispatches);
-        rec.submit();
+        rec.submit()?;
         self.wait()
+    }
+}
+
+impl GpuError {
+    /// For a [`GpuError::TooLarge`] of work that holds `count` items (windows in a
+    /// batch) and grows in proportion to it: the largest power of two of items that
+    /// fits the limit, to suggest (`None` for other errors, or when not even one fits).
+    pub fn fitting_count(&self, count: usize) -> Option<usize> {
+        let GpuError::TooLarge { bytes, limit, .. } = self else {
+            return None;
+        };
+        let per_item = bytes.div_ceil(count.max(1) as u64).max(1);
+        let fits = limit / per_item;
+        (fits >= 1).then(|| 1usize << (usize::BITS - 1 - (fits as usize).leading_zeros()))
+    }
+}
+
+/// Bytes as a short human number: `512 B`, `3.0 MiB`, `9.1 GiB`.
+pub fn human_bytes(bytes: u64) -> String {
+    const UNITS: [&str; 5] = ["B", "KiB", "MiB", "GiB", "TiB"];
+    let mut value = bytes as f64;
+    let mut unit = 0;
+    while value >= 1024.0 && unit + 1 < UNITS.len() {
+        value /= 1024.0;
+        unit += 1;
+    }
+    if unit == 0 {
+        format!("{bytes} B")
+    } else {
+        format!("{value:.1} {}", UNITS[unit])
     }
 }
 

@@ -7,7 +7,7 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use super::GpuError;
+use super::{Gpu, GpuError};
 
 /// The helpers every op shader may use; prepended by [`Shader::full_source`].
 pub const COMMON_WGSL: &str = include_str!("../../shaders/common.wgsl");
@@ -183,7 +183,7 @@ impl PipelineCache {
     /// shader module and the pipeline on first use.
     pub fn get(
         &mut self,
-        device: &wgpu::Device,
+        gpu: &Gpu,
         kernel: &Kernel,
         constants: &[(&'static str, f64)],
     ) -> Result<Arc<Pipeline>, GpuError> {
@@ -195,12 +195,20 @@ impl PipelineCache {
         if let Some(p) = self.pipelines.get(&key) {
             return Ok(p.clone());
         }
+        let device = &gpu.device;
         if !self.modules.contains_key(kernel.shader.name) {
             kernel.shader.validate()?;
-            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some(kernel.shader.name),
-                source: wgpu::ShaderSource::Wgsl(kernel.shader.full_source().into()),
+            let (module, error) = gpu.scoped(wgpu::ErrorFilter::Validation, || {
+                device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                    label: Some(kernel.shader.name),
+                    source: wgpu::ShaderSource::Wgsl(kernel.shader.full_source().into()),
+                })
             });
+            if let Some(message) = error {
+                return Err(
+                    gpu.scope_error(format!("shader module {}", kernel.shader.name), message)
+                );
+            }
             self.modules.insert(kernel.shader.name, module);
         }
         let module = &self.modules[kernel.shader.name];
@@ -236,17 +244,22 @@ impl PipelineCache {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some(&label),
-            layout: Some(&pipeline_layout),
-            module,
-            entry_point: Some(kernel.entry),
-            compilation_options: wgpu::PipelineCompilationOptions {
-                constants,
-                zero_initialize_workgroup_memory: false,
-            },
-            cache: None,
+        let (pipeline, error) = gpu.scoped(wgpu::ErrorFilter::Validation, || {
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(&label),
+                layout: Some(&pipeline_layout),
+                module,
+                entry_point: Some(kernel.entry),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants,
+                    zero_initialize_workgroup_memory: false,
+                },
+                cache: None,
+            })
         });
+        if let Some(message) = error {
+            return Err(gpu.scope_error(format!("pipeline {label}"), message));
+        }
         let p = Arc::new(Pipeline { pipeline, layout });
         self.pipelines.insert(key, p.clone());
         Ok(p)

@@ -89,6 +89,8 @@ pub struct Recorder<'g> {
     encoder: wgpu::CommandEncoder,
     pass: Option<wgpu::ComputePass<'static>>,
     dispatches: usize,
+    /// The first dispatch's label, for errors.
+    first: Option<String>,
 }
 
 impl<'g> Recorder<'g> {
@@ -104,6 +106,7 @@ impl<'g> Recorder<'g> {
             encoder,
             pass: None,
             dispatches: 0,
+            first: None,
         }
     }
 
@@ -122,6 +125,9 @@ impl<'g> Recorder<'g> {
         let [x, y, z] = d.workgroups;
         pass.dispatch_workgroups(x, y, z);
         self.dispatches += 1;
+        if self.first.is_none() {
+            self.first = Some(d.label.clone());
+        }
         if let Some(next) = &d.next {
             self.dispatch(next);
         }
@@ -209,9 +215,27 @@ impl<'g> Recorder<'g> {
         self.dispatches == 0
     }
 
-    /// Submits everything recorded as one command buffer. Does not wait.
-    pub fn submit(mut self) -> wgpu::SubmissionIndex {
+    /// Submits everything recorded as one command buffer. Does not wait. Fails when
+    /// the device is lost or wgpu rejects the commands (the error names the first
+    /// dispatch's kernel and the count).
+    pub fn submit(mut self) -> Result<wgpu::SubmissionIndex, GpuError> {
+        self.gpu.check()?;
         self.end_pass();
-        self.gpu.queue.submit([self.encoder.finish()])
+        let gpu = self.gpu;
+        let (dispatches, first) = (self.dispatches, self.first.take());
+        let encoder = self.encoder;
+        let (index, error) = gpu.scoped(wgpu::ErrorFilter::Validation, || {
+            gpu.queue.submit([encoder.finish()])
+        });
+        match error {
+            None => Ok(index),
+            Some(message) => Err(gpu.scope_error(
+                format!(
+                    "submit of {dispatches} dispatches starting with {}",
+                    first.as_deref().unwrap_or("a copy")
+                ),
+                message,
+            )),
+        }
     }
 }

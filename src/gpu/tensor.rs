@@ -125,20 +125,51 @@ impl Tensor {
 }
 
 impl Gpu {
-    /// A zero-filled tensor.
-    pub fn zeros(&self, name: &str, shape: &[usize], dtype: DType) -> Tensor {
-        let numel: usize = shape.iter().product();
+    /// A zero-filled tensor. Fails with [`GpuError::TooLarge`] before allocating when
+    /// the tensor exceeds what one buffer or one storage binding of this adapter may
+    /// hold, and with [`GpuError::OutOfMemory`] when the device has no room for it.
+    pub fn zeros(&self, name: &str, shape: &[usize], dtype: DType) -> Result<Tensor, GpuError> {
         // Bindings may not be empty, and kernels may view the buffer as vec4s: round up to
         // whole 16-byte vectors (the tail is never read as data).
-        let size = (numel * dtype.size()).max(1).next_multiple_of(16) as u64;
-        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some(name),
-            size,
-            usage: wgpu::BufferUsages::STORAGE
-                | wgpu::BufferUsages::COPY_SRC
-                | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
+        let size = shape
+            .iter()
+            .try_fold(dtype.size() as u64, |n, &d| n.checked_mul(d as u64))
+            .and_then(|bytes| bytes.max(1).checked_next_multiple_of(16))
+            .unwrap_or(u64::MAX);
+        let limits = self.limits();
+        for (limit, limit_name) in [
+            (limits.max_buffer_size, "max_buffer_size"),
+            (
+                limits.max_storage_buffer_binding_size,
+                "max_storage_buffer_binding_size",
+            ),
+        ] {
+            if size > limit {
+                return Err(GpuError::TooLarge {
+                    tensor: name.to_string(),
+                    bytes: size,
+                    limit,
+                    limit_name,
+                });
+            }
+        }
+        let (buffer, error) = self.scoped(wgpu::ErrorFilter::OutOfMemory, || {
+            self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(name),
+                size,
+                usage: wgpu::BufferUsages::STORAGE
+                    | wgpu::BufferUsages::COPY_SRC
+                    | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
         });
+        if let Some(message) = error {
+            return Err(GpuError::OutOfMemory {
+                tensor: name.to_string(),
+                bytes: size,
+                message,
+            });
+        }
         if let Ok(mut log) = self.allocations.lock() {
             if let Some(log) = log.as_mut() {
                 log.push(Allocation {
@@ -147,12 +178,12 @@ impl Gpu {
                 });
             }
         }
-        Tensor {
+        Ok(Tensor {
             buffer,
             shape: shape.to_vec(),
             dtype,
             name: name.to_string(),
-        }
+        })
     }
 
     /// Runs `f` and returns what it returned with every tensor it created on this device
@@ -170,7 +201,7 @@ impl Gpu {
 
     /// A new f32 tensor holding `data`.
     pub fn upload(&self, name: &str, shape: &[usize], data: &[f32]) -> Result<Tensor, GpuError> {
-        let t = self.zeros(name, shape, DType::F32);
+        let t = self.zeros(name, shape, DType::F32)?;
         self.write(&t, data)?;
         Ok(t)
     }
@@ -194,7 +225,7 @@ impl Gpu {
     /// Copies a tensor back to the host and waits for it. Allocates a staging buffer each
     /// call: for repeated reads of the same tensor use a [`Readback`].
     pub fn read_f32(&self, tensor: &Tensor) -> Result<Vec<f32>, GpuError> {
-        let rb = Readback::new(self, tensor.name(), tensor.byte_len());
+        let rb = Readback::new(self, tensor.name(), tensor.byte_len())?;
         let mut enc = self.device.create_command_encoder(&Default::default());
         rb.copy_from(&mut enc, tensor)?;
         self.queue.submit([enc.finish()]);
@@ -211,20 +242,39 @@ pub struct Readback {
 
 impl Readback {
     /// A staging buffer of at least `bytes` bytes (rounded up to a multiple of 4), named
-    /// `name` in errors.
-    pub fn new(gpu: &Gpu, name: &str, bytes: u64) -> Readback {
+    /// `name` in errors; refused like [`Gpu::zeros`] when the adapter cannot hold it.
+    pub fn new(gpu: &Gpu, name: &str, bytes: u64) -> Result<Readback, GpuError> {
         let size = bytes.max(4).next_multiple_of(4);
-        let buffer = gpu.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some(&format!("readback {name}")),
-            size,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
+        let label = format!("readback {name}");
+        let limit = gpu.limits().max_buffer_size;
+        if size > limit {
+            return Err(GpuError::TooLarge {
+                tensor: label,
+                bytes: size,
+                limit,
+                limit_name: "max_buffer_size",
+            });
+        }
+        let (buffer, error) = gpu.scoped(wgpu::ErrorFilter::OutOfMemory, || {
+            gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(&label),
+                size,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
         });
-        Readback {
+        if let Some(message) = error {
+            return Err(GpuError::OutOfMemory {
+                tensor: label,
+                bytes: size,
+                message,
+            });
+        }
+        Ok(Readback {
             buffer,
             size,
             name: name.to_string(),
-        }
+        })
     }
 
     /// Records a copy of `tensor` into this staging buffer.

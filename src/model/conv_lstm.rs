@@ -55,7 +55,11 @@ pub(super) struct ConvLstmBody {
 
 impl ConvLstmBody {
     /// Allocates the per-step state for `batch` windows.
-    pub(super) fn new(gpu: &Gpu, config: &ModelConfig, batch: usize) -> ConvLstmBody {
+    pub(super) fn new(
+        gpu: &Gpu,
+        config: &ModelConfig,
+        batch: usize,
+    ) -> Result<ConvLstmBody, GpuError> {
         let (n, f, c, k) = (
             config.nodes,
             config.features,
@@ -64,29 +68,31 @@ impl ConvLstmBody {
         );
         let state = |name: String| gpu.zeros(&name, &[batch, c, n, f], DType::F32);
         let steps = (0..config.window)
-            .map(|t| Step {
-                x: gpu.zeros(&format!("convlstm.x{t}"), &[batch, 1, n, f], DType::F32),
-                z: gpu.zeros(
-                    &format!("convlstm.z{t}"),
-                    &[batch, 4 * c, n * f],
-                    DType::F32,
-                ),
-                c: state(format!("convlstm.c{t}")),
-                h: state(format!("convlstm.h{t}")),
+            .map(|t| {
+                Ok(Step {
+                    x: gpu.zeros(&format!("convlstm.x{t}"), &[batch, 1, n, f], DType::F32)?,
+                    z: gpu.zeros(
+                        &format!("convlstm.z{t}"),
+                        &[batch, 4 * c, n * f],
+                        DType::F32,
+                    )?,
+                    c: state(format!("convlstm.c{t}"))?,
+                    h: state(format!("convlstm.h{t}"))?,
+                })
             })
-            .collect();
-        ConvLstmBody {
-            zeros: state("convlstm.zeros".into()),
+            .collect::<Result<_, GpuError>>()?;
+        Ok(ConvLstmBody {
+            zeros: state("convlstm.zeros".into())?,
             steps,
-            col_x: gpu.zeros("convlstm.col x", &[batch, k * k, n * f], DType::F32),
-            col_h: gpu.zeros("convlstm.col h", &[batch, c * k * k, n * f], DType::F32),
+            col_x: gpu.zeros("convlstm.col x", &[batch, k * k, n * f], DType::F32)?,
+            col_h: gpu.zeros("convlstm.col h", &[batch, c * k * k, n * f], DType::F32)?,
             batch,
             nodes: n,
             features: f,
             channels: c,
             kernel: k,
             window: config.window,
-        }
+        })
     }
 
     fn unfold(&self, channels: usize) -> Unfold2d {
@@ -187,12 +193,12 @@ impl TimeLoop for ConvLstmBody {
         let shape = [self.batch, self.channels, self.nodes, self.features];
         let state = |name: &str| gpu.zeros(name, &shape, DType::F32);
         // ∂ℒ/∂h and ∂ℒ/∂c of the current step and of the one before.
-        let dh = [d_output.clone(), state("convlstm.dh (other)")];
-        let dc = [state("convlstm.dc"), state("convlstm.dc (other)")];
-        let dz = gpu.zeros("convlstm.dz", self.steps[0].z.shape(), DType::F32);
-        let dcol_x = gpu.zeros("convlstm.dcol x", self.col_x.shape(), DType::F32);
-        let dcol_h = gpu.zeros("convlstm.dcol h", self.col_h.shape(), DType::F32);
-        let dx = gpu.zeros("convlstm.dx", self.steps[0].x.shape(), DType::F32);
+        let dh = [d_output.clone(), state("convlstm.dh (other)")?];
+        let dc = [state("convlstm.dc")?, state("convlstm.dc (other)")?];
+        let dz = gpu.zeros("convlstm.dz", self.steps[0].z.shape(), DType::F32)?;
+        let dcol_x = gpu.zeros("convlstm.dcol x", self.col_x.shape(), DType::F32)?;
+        let dcol_h = gpu.zeros("convlstm.dcol h", self.col_h.shape(), DType::F32)?;
+        let dx = gpu.zeros("convlstm.dx", self.steps[0].x.shape(), DType::F32)?;
         let (ux, uh) = (self.unfold(1), self.unfold(self.channels));
         let (cx, ch) = (self.conv(1), self.conv(self.channels));
         let last = self.window - 1;

@@ -200,8 +200,8 @@ impl DenseBody {
     ) -> Result<DenseBody, GpuError> {
         let nf = config.nodes * config.features;
         let k = indices.len();
-        let last = gpu.zeros("dense.last_step", &[batch, nf], DType::F32);
-        let last_grad = gpu.zeros("dense.d_last_step", &[batch, nf], DType::F32);
+        let last = gpu.zeros("dense.last_step", &[batch, nf], DType::F32)?;
+        let last_grad = gpu.zeros("dense.d_last_step", &[batch, nf], DType::F32)?;
         let selection = match arch.inputs {
             Inputs::EveryNode => None,
             Inputs::JointInputs => {
@@ -213,7 +213,7 @@ impl DenseBody {
             }
         };
         let mut acts = vec![match selection {
-            Some(_) => gpu.zeros("dense.input", &[batch, k], DType::F32),
+            Some(_) => gpu.zeros("dense.input", &[batch, k], DType::F32)?,
             None => last.clone(),
         }];
         let mut pre = Vec::new();
@@ -222,10 +222,10 @@ impl DenseBody {
             let z = if is_head {
                 output.clone()
             } else {
-                gpu.zeros(&format!("{}.z", l.name), &[batch, l.outputs], DType::F32)
+                gpu.zeros(&format!("{}.z", l.name), &[batch, l.outputs], DType::F32)?
             };
             let a = match l.activation {
-                Some(_) => gpu.zeros(&format!("{}.a", l.name), &[batch, l.outputs], DType::F32),
+                Some(_) => gpu.zeros(&format!("{}.a", l.name), &[batch, l.outputs], DType::F32)?,
                 None => z.clone(),
             };
             pre.push(z);
@@ -325,14 +325,14 @@ impl DenseBody {
         let d_acts: Vec<Tensor> = (0..=layers.len())
             .map(|i| {
                 if i == layers.len() {
-                    d_output.clone()
+                    Ok(d_output.clone())
                 } else if i == 0 && self.selection.is_none() {
-                    self.last_grad.clone()
+                    Ok(self.last_grad.clone())
                 } else {
                     gpu.zeros(&format!("dense.d_act{i}"), self.acts[i].shape(), DType::F32)
                 }
             })
-            .collect();
+            .collect::<Result<_, GpuError>>()?;
         let mut written = vec![false; layers.len() + 1];
         written[layers.len()] = true;
         let mode = |written: &mut Vec<bool>, i: usize| {
@@ -364,7 +364,7 @@ impl DenseBody {
                         &format!("{}.dz", l.name),
                         &[self.batch, l.outputs],
                         DType::F32,
-                    );
+                    )?;
                     let saved = if act.backward_uses_output() {
                         &self.acts[i + 1]
                     } else {

@@ -92,6 +92,7 @@ struct Table<'a> {
 
 impl Table<'_> {
     fn index(&self, name: &str) -> usize {
+        // invariant: the schedules ask only for names of param_specs(config), from which the table is built.
         self.specs
             .iter()
             .position(|s| s.name == name)
@@ -102,6 +103,7 @@ impl Table<'_> {
 impl ParamTable for Table<'_> {
     fn param(&self, name: &str) -> &Tensor {
         if name == "graph.basis" {
+            // invariant: only ST blocks ask for graph.basis, and their configs have graph terms.
             return self.basis.expect("the ST blocks have a graph basis");
         }
         &self.params[self.index(name)]
@@ -181,11 +183,11 @@ impl Network {
         let params: Vec<Tensor> = specs
             .iter()
             .map(|s| gpu.zeros(&s.name, &s.shape, DType::F32))
-            .collect();
+            .collect::<Result<_, GpuError>>()?;
         let grads: Vec<Tensor> = specs
             .iter()
             .map(|s| gpu.zeros(&format!("grad {}", s.name), &s.shape, DType::F32))
-            .collect();
+            .collect::<Result<_, GpuError>>()?;
         let (n, t, o) = (config.nodes, config.window, config.outputs);
         let basis_data: Vec<f32> = graph_basis(graph, config)
             .iter()
@@ -195,11 +197,11 @@ impl Network {
             0 => None,
             terms => Some(gpu.upload("graph.basis", &[terms, n, n], &basis_data)?),
         };
-        let input = gpu.zeros("x", &[batch, n, config.features, t], DType::F32);
-        let input_grad = gpu.zeros("dx", &[batch, n, config.features, t], DType::F32);
-        let target = gpu.zeros("y", &[batch, o], DType::F32);
-        let output = gpu.zeros("y_hat", &[batch, o], DType::F32);
-        let loss = gpu.zeros("loss", &[1], DType::F32);
+        let input = gpu.zeros("x", &[batch, n, config.features, t], DType::F32)?;
+        let input_grad = gpu.zeros("dx", &[batch, n, config.features, t], DType::F32)?;
+        let target = gpu.zeros("y", &[batch, o], DType::F32)?;
+        let output = gpu.zeros("y_hat", &[batch, o], DType::F32)?;
+        let loss = gpu.zeros("loss", &[1], DType::F32)?;
         let table = Table {
             specs: &specs,
             params: &params,
@@ -226,7 +228,7 @@ impl Network {
                 recurrent_schedules(gpu, config, group, training, &table, &io, &body)?
             }
             (None, Family::ConvRecurrent) => {
-                let body = ConvLstmBody::new(gpu, config, batch);
+                let body = ConvLstmBody::new(gpu, config, batch)?;
                 recurrent_schedules(gpu, config, group, training, &table, &io, &body)?
             }
             (None, _) => block_schedules(gpu, config, group, dropout_seed, training, &table, &io)?,
@@ -287,7 +289,7 @@ impl Network {
             table.grad("head.weight"),
             Accumulate::Overwrite,
         ))?;
-        let dh = gpu.zeros("head.dh", &[batch, n * c], DType::F32);
+        let dh = gpu.zeros("head.dh", &[batch, n * c], DType::F32)?;
         backward.run(head.backward_a(
             gpu,
             table.param("head.weight"),
@@ -297,8 +299,8 @@ impl Network {
         ))?;
         let hidden = [batch, n, c, t];
         let ping = [
-            gpu.zeros("d block output (even)", &hidden, DType::F32),
-            gpu.zeros("d block output (odd)", &hidden, DType::F32),
+            gpu.zeros("d block output (even)", &hidden, DType::F32)?,
+            gpu.zeros("d block output (odd)", &hidden, DType::F32)?,
         ];
         let mut scratch = Scratch::new(gpu);
         for (l, block) in blocks.iter().enumerate().rev() {
@@ -316,6 +318,7 @@ impl Network {
             let slot = block.backward(gpu, table, &mut scratch, backward, d_out, d_in)?;
             dropout.push(DropoutSlots {
                 dropout: block.dropout(),
+                // invariant: a training schedule records one dropout slot per block.
                 forward: fwd_slots[l].expect("training forward has dropout"),
                 backward: slot,
             });
@@ -333,6 +336,7 @@ impl Network {
         };
         self.expect_training()?;
         for i in self.loss_slots {
+            // invariant: loss_steps stores the indices of the two dispatches it recorded.
             let d = self.backward.dispatch(i).expect("loss slot is a dispatch");
             pose.set_penalty(gpu, d)?;
         }
@@ -429,6 +433,7 @@ impl Network {
     pub fn set_step(&self, gpu: &Gpu, step: u32) -> Result<(), GpuError> {
         for s in &self.dropout {
             for (steps, i) in [(&self.train, s.forward), (&self.backward, s.backward)] {
+                // invariant: the slots were recorded as dispatches when the schedule was built.
                 let d = steps.dispatch(i).expect("dropout slot is a dispatch");
                 s.dropout.set_step(gpu, d, step, Accumulate::Overwrite)?;
             }
@@ -478,7 +483,7 @@ impl Network {
         gpu.write(&self.input, x)?;
         let mut rec = Recorder::new(gpu);
         self.record_forward(&mut rec)?;
-        rec.submit();
+        rec.submit()?;
         let mut y = gpu.read_f32(&self.output)?;
         y.truncate(self.output.numel());
         Ok(y)
@@ -492,7 +497,7 @@ impl Network {
         let mut rec = Recorder::new(gpu);
         self.record_train_forward(&mut rec)?;
         self.record_backward(&mut rec)?;
-        rec.submit();
+        rec.submit()?;
         gpu.wait()
     }
 }
@@ -586,9 +591,10 @@ fn block_schedules(
         } else {
             Extent::Window
         };
-        blocks.push(Block::new(gpu, config, l, batch, &x, dropout_seed, extent));
+        blocks.push(Block::new(gpu, config, l, batch, &x, dropout_seed, extent)?);
     }
     // The trimmed last block's output [B, N, C, 1] is the head's input h [B, N·C].
+    // invariant: ModelConfig::validate requires blocks >= 1.
     let h = blocks.last().expect("at least one block").output.clone();
     let (head, head_bias) = head_ops(config, batch, config.nodes * config.channels);
     let mut fwd_slots = Vec::new();
@@ -683,7 +689,7 @@ fn recurrent_schedules(
             table.grad("head.weight"),
             Accumulate::Overwrite,
         ))?;
-        let d_last = gpu.zeros("d head input", last.shape(), DType::F32);
+        let d_last = gpu.zeros("d head input", last.shape(), DType::F32)?;
         b.run(head.backward_a(
             gpu,
             table.param("head.weight"),
@@ -715,7 +721,7 @@ fn loss_steps(
         penalty: 1.0,
         group,
     };
-    let doutput = gpu.zeros("d y_hat", &[batch, config.outputs], DType::F32);
+    let doutput = gpu.zeros("d y_hat", &[batch, config.outputs], DType::F32)?;
     let slots = [
         backward.run(pose.forward(gpu, output, target, loss))?,
         backward.run(pose.backward(gpu, output, target, &doutput))?,

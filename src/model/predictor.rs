@@ -56,6 +56,8 @@ enum Path {
 /// The device side of a predictor.
 struct DevicePath {
     gpu: Arc<Gpu>,
+    /// The weights, to rebuild on a new device after the old one is lost.
+    checkpoint: Box<Checkpoint>,
     /// `capacity` windows per submit, for batches.
     net: Network,
     /// One window per submit, when the capacity is larger than one.
@@ -110,24 +112,34 @@ impl Predictor {
         if backend == Backend::Native {
             return Predictor::native(checkpoint);
         }
-        let config = &checkpoint.config;
-        let net = Network::for_inference(&gpu, config, &checkpoint.graph, capacity)?;
-        net.load_parameters(&gpu, &checkpoint.parameters)?;
-        let single = if capacity > 1 {
-            let single = Network::for_inference(&gpu, config, &checkpoint.graph, 1)?;
-            single.load_parameters(&gpu, &checkpoint.parameters)?;
-            Some(single)
-        } else {
-            None
-        };
-        let readback = Readback::new(&gpu, "y_hat", net.output.byte_len());
-        let device = DevicePath {
-            gpu,
-            net,
-            single,
-            readback,
-        };
+        let device = DevicePath::new(gpu, checkpoint, capacity)?;
         Predictor::build(checkpoint, Path::Device(Box::new(device)), capacity)
+    }
+
+    /// True once the device under this predictor is lost (a native predictor never
+    /// is); [`Predictor::rebuild`] recovers.
+    pub fn is_lost(&self) -> bool {
+        matches!(&self.path, Path::Device(d) if d.gpu.is_lost())
+    }
+
+    /// After a [`crate::gpu::GpuError::DeviceLost`] (driver reset, GPU removed): opens
+    /// a new device on the same adapter and rebuilds the network and weights on it. The
+    /// pushed steps are kept, so a controller loop goes on with its next tick. A native
+    /// predictor has nothing to rebuild.
+    pub fn rebuild(&mut self) -> Result<(), ModelError> {
+        let Path::Device(d) = &self.path else {
+            return Ok(());
+        };
+        let gpu = Gpu::with_adapter(Some(&d.gpu.info().name))?;
+        self.rebuild_on(Arc::new(gpu))
+    }
+
+    /// As [`Predictor::rebuild`], on a device the caller opened.
+    pub fn rebuild_on(&mut self, gpu: Arc<Gpu>) -> Result<(), ModelError> {
+        if let Path::Device(d) = &mut self.path {
+            **d = DevicePath::new(gpu, &d.checkpoint, self.capacity)?;
+        }
+        Ok(())
     }
 
     /// A predictor without a device: every window on the CPU, one at a time (the four
@@ -231,7 +243,7 @@ impl Predictor {
                 let mut rec = Recorder::new(&d.gpu);
                 net.record_forward(&mut rec)?;
                 rec.read_into(&net.output, &d.readback)?;
-                rec.submit();
+                rec.submit()?;
                 let outputs = net.output.numel();
                 d.readback.read_into(&d.gpu, &mut self.output[..outputs])?;
                 Ok(())
@@ -337,6 +349,31 @@ impl Predictor {
     pub fn reset(&mut self) {
         self.head = 0;
         self.filled = 0;
+    }
+}
+
+impl DevicePath {
+    /// The inference networks for `capacity` windows (and for one) with the
+    /// checkpoint's weights, and the output's staging buffer.
+    fn new(gpu: Arc<Gpu>, checkpoint: &Checkpoint, capacity: usize) -> Result<Self, ModelError> {
+        let config = &checkpoint.config;
+        let net = Network::for_inference(&gpu, config, &checkpoint.graph, capacity)?;
+        net.load_parameters(&gpu, &checkpoint.parameters)?;
+        let single = if capacity > 1 {
+            let single = Network::for_inference(&gpu, config, &checkpoint.graph, 1)?;
+            single.load_parameters(&gpu, &checkpoint.parameters)?;
+            Some(single)
+        } else {
+            None
+        };
+        let readback = Readback::new(&gpu, "y_hat", net.output.byte_len())?;
+        Ok(DevicePath {
+            gpu,
+            checkpoint: Box::new(checkpoint.clone()),
+            net,
+            single,
+            readback,
+        })
     }
 }
 

@@ -186,37 +186,43 @@ impl RecurrentBody {
             .collect::<Result<Vec<_>, GpuError>>()?;
         let state = |name: String| gpu.zeros(&name, &[batch * n, h], DType::F32);
         let steps = (0..t)
-            .map(|t| Step {
-                x: gpu.zeros(&format!("cell.x{t}"), &[batch * n, f], DType::F32),
-                r: state(format!("cell.r{t}")),
-                u: state(format!("cell.u{t}")),
-                rh: state(format!("cell.rh{t}")),
-                c: state(format!("cell.c{t}")),
-                h: state(format!("cell.h{t}")),
+            .map(|t| {
+                Ok(Step {
+                    x: gpu.zeros(&format!("cell.x{t}"), &[batch * n, f], DType::F32)?,
+                    r: state(format!("cell.r{t}"))?,
+                    u: state(format!("cell.u{t}"))?,
+                    rh: state(format!("cell.rh{t}"))?,
+                    c: state(format!("cell.c{t}"))?,
+                    h: state(format!("cell.h{t}"))?,
+                })
             })
-            .collect();
-        let attention = attends_over_time(config.variant).then(|| {
+            .collect::<Result<_, GpuError>>()?;
+        let attention = if attends_over_time(config.variant) {
             let width = h;
             let wide = |name: &str| gpu.zeros(name, &[batch, width], DType::F32);
             let per_step = |name: &str| gpu.zeros(name, &[batch, t], DType::F32);
-            TimeAttention {
-                score_hidden: (0..t).map(|t| wide(&format!("attn.hidden{t}"))).collect(),
-                hidden_scratch: wide("attn.hidden scratch"),
-                d_hidden: wide("attn.d hidden"),
-                column: gpu.zeros("attn.column", &[batch], DType::F32),
-                scores: per_step("attn.e"),
-                weights: per_step("attn.alpha"),
-                d_weights: per_step("attn.d alpha"),
-                context: gpu.zeros("attn.context", &[batch, n * h], DType::F32),
+            Some(TimeAttention {
+                score_hidden: (0..t)
+                    .map(|t| wide(&format!("attn.hidden{t}")))
+                    .collect::<Result<_, GpuError>>()?,
+                hidden_scratch: wide("attn.hidden scratch")?,
+                d_hidden: wide("attn.d hidden")?,
+                column: gpu.zeros("attn.column", &[batch], DType::F32)?,
+                scores: per_step("attn.e")?,
+                weights: per_step("attn.alpha")?,
+                d_weights: per_step("attn.d alpha")?,
+                context: gpu.zeros("attn.context", &[batch, n * h], DType::F32)?,
                 width,
-            }
-        });
+            })
+        } else {
+            None
+        };
         Ok(RecurrentBody {
             supports,
-            h0: state("cell.h0".into()),
+            h0: state("cell.h0".into())?,
             steps,
-            pre: state("cell.pre".into()),
-            mixed: state("cell.mixed".into()),
+            pre: state("cell.pre".into())?,
+            mixed: state("cell.mixed".into())?,
             attention,
             batch,
             nodes: n,
@@ -615,18 +621,18 @@ impl TimeLoop for RecurrentBody {
         let dh = match &self.attention {
             Some(a) => {
                 self.attention_backward_scores(gpu, a, d_output, steps)?;
-                [state("cell.dh"), state("cell.dh (other)")]
+                [state("cell.dh")?, state("cell.dh (other)")?]
             }
-            None => [d_output.clone(), state("cell.dh (other)")],
+            None => [d_output.clone(), state("cell.dh (other)")?],
         };
         let (du, dc, dr, drh) = (
-            state("cell.du"),
-            state("cell.dc"),
-            state("cell.dr"),
-            state("cell.drh"),
+            state("cell.du")?,
+            state("cell.dc")?,
+            state("cell.dr")?,
+            state("cell.drh")?,
         );
-        let (dz, dp) = (state("cell.dz"), state("cell.dp"));
-        let dx = gpu.zeros("cell.dx", &[self.rows(), self.features], DType::F32);
+        let (dz, dp) = (state("cell.dz")?, state("cell.dp")?);
+        let dx = gpu.zeros("cell.dx", &[self.rows(), self.features], DType::F32)?;
         let last = self.window - 1;
         for (t, s) in self.steps.iter().enumerate().rev() {
             let h = self.previous(t);

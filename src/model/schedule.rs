@@ -106,7 +106,7 @@ impl Steps {
                 let mut rec = Recorder::new(gpu);
                 Self::record_step(step, &mut rec)?;
                 let t0 = Instant::now();
-                rec.submit();
+                rec.submit()?;
                 gpu.wait()?;
                 best = best.min(t0.elapsed());
             }
@@ -173,7 +173,7 @@ impl<'g> Scratch<'g> {
                 return Ok(view);
             }
         }
-        let t = self.gpu.zeros(role, shape, DType::F32);
+        let t = self.gpu.zeros(role, shape, DType::F32)?;
         self.buffers.insert(role, t.clone());
         Ok(t)
     }

@@ -109,9 +109,9 @@ fn matmul_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> {
     let xt = gpu.upload("x", &[r, c], &to_f32(&x))?;
     let wt = gpu.upload("w", &[c, c], &to_f32(&w))?;
     let dyt = gpu.upload("dy", &[r, c], &to_f32(&dy))?;
-    let yt = gpu.zeros("y", &[r, c], DType::F32);
-    let dxt = gpu.zeros("dx", &[r, c], DType::F32);
-    let dwt = gpu.zeros("dw", &[c, c], DType::F32);
+    let yt = gpu.zeros("y", &[r, c], DType::F32)?;
+    let dxt = gpu.zeros("dx", &[r, c], DType::F32)?;
+    let dwt = gpu.zeros("dw", &[c, c], DType::F32)?;
     let step = [
         mm.forward(gpu, &xt, &wt, &yt, Accumulate::Overwrite)?,
         mm.backward_a(gpu, &wt, &dyt, &dxt, Accumulate::Overwrite)?,
@@ -124,7 +124,7 @@ fn matmul_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> {
     for _ in 0..reps {
         rec.dispatch_all(&step);
     }
-    rec.submit();
+    rec.submit()?;
     gpu.wait()?;
     let seconds = t0.elapsed().as_secs_f64() / reps as f64;
     let y = matmul::cpu::forward(&mm, &x, &w);
@@ -158,13 +158,13 @@ fn gated_unit_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> 
     let dht = gpu.upload("dH", &shape, &to_f32(&dh))?;
     let z = |name: &str| gpu.zeros(name, &shape, DType::F32);
     let (tf, sg, h, dtf, dsg, df, dg) = (
-        z("tanh"),
-        z("sigma"),
-        z("H"),
-        z("dtanh"),
-        z("dsigma"),
-        z("dF"),
-        z("dG"),
+        z("tanh")?,
+        z("sigma")?,
+        z("H")?,
+        z("dtanh")?,
+        z("dsigma")?,
+        z("dF")?,
+        z("dG")?,
     );
     let new = Accumulate::Overwrite;
     let step = [

@@ -103,11 +103,11 @@ impl Engine {
         net.set_attitude_penalty(gpu, config.attitude_penalty)?;
         net.load_parameters(gpu, init)?;
         let opt = Optimizer::new(gpu, &net, config)?;
-        let loss_log = gpu.zeros("loss log", &[steps], DType::F32);
-        let loss_rb = Readback::new(gpu, "loss log", loss_log.byte_len());
+        let loss_log = gpu.zeros("loss log", &[steps], DType::F32)?;
+        let loss_rb = Readback::new(gpu, "loss log", loss_log.byte_len())?;
         let table_rows = batch * 16;
-        let table = gpu.zeros("predictions", &[table_rows, model.outputs], DType::F32);
-        let table_rb = Readback::new(gpu, "predictions", table.byte_len());
+        let table = gpu.zeros("predictions", &[table_rows, model.outputs], DType::F32)?;
+        let table_rb = Readback::new(gpu, "predictions", table.byte_len())?;
         Ok(Engine::Device(Box::new(DeviceSteps {
             net,
             opt,
@@ -209,7 +209,7 @@ impl Engine {
                 d.net.record_backward(&mut rec)?;
                 rec.copy_f32(&d.net.loss, 0, &d.loss_log, slot, 1)?;
                 d.opt.record(&mut rec);
-                rec.submit();
+                rec.submit()?;
             }
             Engine::Native(n) => {
                 n.losses[slot] = n.train.step(x, y, step, lr)? as f32;
@@ -224,7 +224,7 @@ impl Engine {
             Engine::Device(d) => {
                 let mut rec = Recorder::new(gpu);
                 rec.read_into(&d.loss_log, &d.loss_rb)?;
-                rec.submit();
+                rec.submit()?;
                 let mut all = vec![0f32; d.loss_log.numel()];
                 d.loss_rb.read_into(gpu, &mut all)?;
                 out.copy_from_slice(&all[..out.len()]);
@@ -270,11 +270,11 @@ impl Engine {
                 let mut rec = Recorder::new(gpu);
                 d.net.record_forward(&mut rec)?;
                 rec.copy_f32(&d.net.output, 0, &d.table, c * b * o, b * o)?;
-                rec.submit();
+                rec.submit()?;
             }
             let mut rec = Recorder::new(gpu);
             rec.read_into(&d.table, &d.table_rb)?;
-            rec.submit();
+            rec.submit()?;
             d.table_rb.read_into(gpu, &mut buf)?;
             out.extend_from_slice(&buf[..segment.len() * o]);
         }

@@ -33,11 +33,11 @@ impl Optimizer {
     /// Zero moments for every parameter of `net`; λ (`weight_decay`) acts on the tensors
     /// docs/model.md marks as weights only.
     pub fn new(gpu: &Gpu, net: &Network, config: &TrainConfig) -> Result<Optimizer, GpuError> {
-        let hyper = gpu.zeros("adam.hyper", &[4], DType::F32);
+        let hyper = gpu.zeros("adam.hyper", &[4], DType::F32)?;
         let (mut m, mut v, mut updates) = (Vec::new(), Vec::new(), Vec::new());
         for ((spec, p), g) in net.specs.iter().zip(&net.params).zip(&net.grads) {
-            let mt = gpu.zeros(&format!("adam.m.{}", spec.name), &spec.shape, DType::F32);
-            let vt = gpu.zeros(&format!("adam.v.{}", spec.name), &spec.shape, DType::F32);
+            let mt = gpu.zeros(&format!("adam.m.{}", spec.name), &spec.shape, DType::F32)?;
+            let vt = gpu.zeros(&format!("adam.v.{}", spec.name), &spec.shape, DType::F32)?;
             let adam = Adam {
                 numel: spec.numel(),
                 beta1: config.beta1,

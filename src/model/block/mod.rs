@@ -6,7 +6,7 @@ mod backward;
 mod forward;
 
 use super::config::ModelConfig;
-use crate::gpu::{DType, Gpu, Tensor};
+use crate::gpu::{DType, Gpu, GpuError, Tensor};
 use crate::ops::bias::Bias;
 use crate::ops::dropout::Dropout;
 use crate::ops::gated_dcc::Unfold;
@@ -152,7 +152,7 @@ impl Block {
         input: &Tensor,
         dropout_seed: u32,
         extent: Extent,
-    ) -> Block {
+    ) -> Result<Block, GpuError> {
         let trimmed = extent == Extent::LastStep;
         let d = Dims {
             b: batch,
@@ -169,24 +169,24 @@ impl Block {
         let (b, n, ci, c, t) = (d.b, d.n, d.ci, d.c, d.t);
         let (tat, sat) = if config.variant.attention() {
             let tat = Temporal {
-                xu1: z("tat.xu1", &[b, ci, t]),
-                lhs: z("tat.lhs", &[b, t, n]),
-                rhs: z("tat.rhs", &[b, n, t]),
-                p: z("tat.P", &[b, t, t]),
-                sig: z("tat.sig", &[b, t, t]),
-                e: z("tat.E", &[b, t, t]),
-                ep: z("tat.E'", &[b, t, t]),
+                xu1: z("tat.xu1", &[b, ci, t])?,
+                lhs: z("tat.lhs", &[b, t, n])?,
+                rhs: z("tat.rhs", &[b, n, t])?,
+                p: z("tat.P", &[b, t, t])?,
+                sig: z("tat.sig", &[b, t, t])?,
+                e: z("tat.E", &[b, t, t])?,
+                ep: z("tat.E'", &[b, t, t])?,
             };
             let sat = Spatial {
-                xt: z("X_t", &[b, n, ci, t]),
-                xw1: z("sat.xw1", &[b, n, ci]),
-                lhs: z("sat.lhs", &[b, n, t]),
-                rhs: z("sat.rhs", &[b, n, t]),
-                p: z("sat.P", &[b, n, n]),
-                sig: z("sat.sig", &[b, n, n]),
-                s: z("sat.S", &[b, n, n]),
-                sp: z("sat.S'", &[b, n, n]),
-                q: z("gwc.Q", &[b, n, n]),
+                xt: z("X_t", &[b, n, ci, t])?,
+                xw1: z("sat.xw1", &[b, n, ci])?,
+                lhs: z("sat.lhs", &[b, n, t])?,
+                rhs: z("sat.rhs", &[b, n, t])?,
+                p: z("sat.P", &[b, n, n])?,
+                sig: z("sat.sig", &[b, n, n])?,
+                s: z("sat.S", &[b, n, n])?,
+                sp: z("sat.S'", &[b, n, n])?,
+                q: z("gwc.Q", &[b, n, n])?,
             };
             (Some(tat), Some(sat))
         } else {
@@ -194,18 +194,22 @@ impl Block {
         };
         let hidden = [b, n, c, t];
         let out = [b, n, c, d.to];
-        let gat = config.variant.graph_attention().then(|| GatBuffers {
-            q: z("gat.Q", &hidden),
-            alpha: z("gat.alpha", &[b, t, config.heads, n, n]),
-            g: z("gat.G", &hidden),
-            heads: config.heads,
-        });
+        let gat = if config.variant.graph_attention() {
+            Some(GatBuffers {
+                q: z("gat.Q", &hidden)?,
+                alpha: z("gat.alpha", &[b, t, config.heads, n, n])?,
+                g: z("gat.G", &hidden)?,
+                heads: config.heads,
+            })
+        } else {
+            None
+        };
         let whole = Dropout::new(
             hidden.iter().product(),
             config.dropout,
             dropout_seed.wrapping_add(index as u32),
         );
-        Block {
+        Ok(Block {
             index,
             d,
             gated: config.variant.gated(),
@@ -221,23 +225,24 @@ impl Block {
             tat,
             sat,
             gat,
-            psi: z("gwc.Psi", &[n, n]),
-            m: z("gwc.M", &[b, n, ci, t]),
-            z: z("Z", &hidden),
-            col: z("tcn.col", &[b, n, c, d.k, d.to]),
-            f: z("tcn.G_f", &out),
-            gg: z("tcn.G_g", &out),
-            s: z("relu(H+R)", &out),
-            y: z("Y", &out),
-            mean: z("ln.mean", &[b * n * d.to]),
-            rstd: z("ln.rstd", &[b * n * d.to]),
-            x_last: trimmed.then(|| z("x_last", &[b, n, ci])),
+            psi: z("gwc.Psi", &[n, n])?,
+            m: z("gwc.M", &[b, n, ci, t])?,
+            z: z("Z", &hidden)?,
+            col: z("tcn.col", &[b, n, c, d.k, d.to])?,
+            f: z("tcn.G_f", &out)?,
+            gg: z("tcn.G_g", &out)?,
+            s: z("relu(H+R)", &out)?,
+            y: z("Y", &out)?,
+            mean: z("ln.mean", &[b * n * d.to])?,
+            rstd: z("ln.rstd", &[b * n * d.to])?,
+            x_last: trimmed.then(|| z("x_last", &[b, n, ci])).transpose()?,
             w_fg: config
                 .variant
                 .gated()
-                .then(|| z("tcn.W_fg", &[2 * c, c * d.k])),
-            output: z("output", &out),
-        }
+                .then(|| z("tcn.W_fg", &[2 * c, c * d.k]))
+                .transpose()?,
+            output: z("output", &out)?,
+        })
     }
 
     fn name(&self, s: &str) -> String {

@@ -281,7 +281,7 @@ impl Gemm {
             &format!("{} partials", out.name()),
             &[chunks, len],
             DType::F32,
-        );
+        )?;
         let part = Params {
             batches: chunks as u32,
             chunk: chunk as u32,
