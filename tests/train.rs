@@ -15,7 +15,7 @@ use iastgcn::robot::{Geometry, Robot};
 use iastgcn::testing::gpu;
 use iastgcn::train::{
     self, consecutive_runs, ensembles, Metrics, RunConfig, Stage, TrainConfig, TrainError,
-    TrainState, Trainer,
+    TrainState, Trainer, EXPLOSION_FACTOR,
 };
 
 fn model() -> ModelConfig {
@@ -305,6 +305,38 @@ fn diverge_on(backend: &str) {
                 "names a tensor: {what}"
             );
             assert!(last_good.values.iter().flatten().all(|v| v.is_finite()));
+        }
+        other => panic!("expected a divergence, got {:?}", other.map(|r| r.0)),
+    }
+}
+
+#[test]
+fn an_exploding_but_finite_loss_stops_as_diverged() {
+    // A learning rate of 1e6 made the loss reach 1e28 without ever being NaN; the run
+    // "succeeded". The explosion guard stops it in the first epoch.
+    let g = gpu();
+    let config = TrainConfig {
+        lr: 1e6,
+        ..train_config()
+    };
+    let mut t = trainer(&g, &config);
+    let start = t.snapshot().params.clone();
+    match t.run_epoch() {
+        Err(TrainError::Diverged {
+            epoch,
+            ref what,
+            last_good,
+            ..
+        }) => {
+            assert_eq!(epoch, 1);
+            // Finite all along: the guard, not the NaN check, stopped it.
+            assert!(what.contains("rose to"), "{what}");
+            assert!(what.contains("learning rate"), "{what}");
+            assert!(what.contains(&format!("{EXPLOSION_FACTOR:.0e} times")), "{what}");
+            assert_eq!(
+                *last_good, start,
+                "the epoch's start is the last good state"
+            );
         }
         other => panic!("expected a divergence, got {:?}", other.map(|r| r.0)),
     }

@@ -17,8 +17,10 @@ pub enum TrainError {
     /// another stage).
     #[error("{0}")]
     Data(String),
-    /// A non-finite loss or parameter. `last_good` holds the parameters just before the
-    /// step that went bad.
+    /// A non-finite loss or parameter, or a loss that exploded
+    /// ([`crate::train::EXPLOSION_FACTOR`]). `last_good` holds the parameters just before
+    /// the step that went bad (non-finite), or those at the start of its epoch
+    /// (explosion).
     #[error("training diverged at step {step} (epoch {epoch}, batch {batch}): {what}")]
     Diverged {
         /// The optimiser step that went bad, counted from 0 within the stage.
@@ -29,7 +31,7 @@ pub enum TrainError {
         batch: usize,
         /// What went bad: the loss, or the first non-finite tensor.
         what: String,
-        /// The parameters just before that step.
+        /// The last parameters known good.
         last_good: Box<Parameters>,
     },
 }

@@ -28,6 +28,7 @@ pub use refine::{refine, Refined};
 pub use state::{StateError, TrainState};
 pub use trainer::{
     consecutive_runs, ensembles, EpochRecord, Progress, Snapshot, Stage, TrainError, Trainer,
+    EXPLOSION_FACTOR,
 };
 
 use crate::data;

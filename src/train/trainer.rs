@@ -84,7 +84,19 @@ pub struct Progress {
     pub bad_epochs: usize,
     /// One record per finished epoch.
     pub history: Vec<EpochRecord>,
+    /// The loss of the stage's first step, before any update: the yardstick of the
+    /// explosion guard ([`EXPLOSION_FACTOR`]). `None` until the first epoch is done
+    /// (and in states saved before the guard existed).
+    #[serde(default)]
+    pub first_loss: Option<f64>,
 }
+
+/// A training loss this many times the stage's first loss (or larger) stops the run as
+/// diverged although it is finite: a learning rate far too high makes the loss grow
+/// by orders of magnitude per step, while a healthy run's loss never rises 10⁴-fold.
+/// The stage's first loss is floored at 10⁻³ so that refining an almost perfect fit
+/// is not stopped by noise.
+pub const EXPLOSION_FACTOR: f64 = 1e4;
 
 impl Progress {
     fn new() -> Progress {
@@ -95,6 +107,7 @@ impl Progress {
             best_epoch: 0,
             bad_epochs: 0,
             history: Vec::new(),
+            first_loss: None,
         }
     }
 }
@@ -139,6 +152,7 @@ pub fn consecutive_runs(data: &Dataset, range: std::ops::Range<usize>) -> Vec<Ve
     let key = |p: usize| (data.windows[p].recording, data.windows[p].end);
     let mut all: Vec<(usize, usize)> = (0..data.windows.len()).map(key).collect();
     all.sort_unstable();
+    // invariant: all holds the key of every window.
     let rank = |p: usize| all.binary_search(&key(p)).expect("every window is listed");
     let mut order: Vec<usize> = range.collect();
     order.sort_by_key(|&p| key(p));
@@ -147,6 +161,7 @@ pub fn consecutive_runs(data: &Dataset, range: std::ops::Range<usize>) -> Vec<Ve
         match runs.last_mut() {
             Some(run)
                 if {
+                    // invariant: a run is pushed with its first member.
                     let last = *run.last().expect("runs are never empty");
                     key(last).0 == key(p).0 && rank(last) + 1 == rank(p)
                 } =>
@@ -381,6 +396,23 @@ impl<'a> Trainer<'a> {
         if let Some(bad) = losses.iter().position(|l| !l.is_finite()) {
             return Err(self.diagnose(epoch, &order, bad, first_step));
         }
+        let first_loss = *self.progress.first_loss.get_or_insert(losses[0] as f64);
+        let ceiling = EXPLOSION_FACTOR * first_loss.max(1e-3);
+        if let Some(bad) = losses.iter().position(|&l| l as f64 >= ceiling) {
+            return Err(TrainError::Diverged {
+                step: first_step + bad as u64,
+                epoch,
+                batch: bad + 1,
+                what: format!(
+                    "the loss rose to {:.3e}, {:.0e} times or more the stage's first loss \
+                     ({first_loss:.3e}); the learning rate ({:.3e}) is likely too high",
+                    losses[bad],
+                    EXPLOSION_FACTOR,
+                    self.lr(first_step + bad as u64)
+                ),
+                last_good: Box::new(self.start.params.clone()),
+            });
+        }
         let validation_began = Instant::now();
         let val_loss = self.validation_loss()?;
         let validation_seconds = validation_began.elapsed().as_secs_f64();
@@ -520,6 +552,7 @@ impl<'a> Trainer<'a> {
         let pred = self.predict(&positions)?;
         let o = OUTPUTS;
         let row = |p: usize| {
+            // invariant: positions holds every member of every group.
             positions
                 .binary_search(&p)
                 .expect("group members were predicted")
