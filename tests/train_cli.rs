@@ -79,6 +79,51 @@ fn train_resume_predict_refine() {
         "the resumed run repeats the uninterrupted one"
     );
 
+    // Killed (SIGKILL) in the middle of its second epoch, after the first epoch's
+    // files were written: what it left loads, and --resume finishes the run exactly
+    // as the uninterrupted one did.
+    let k = f("k.safetensors");
+    let mut args: Vec<String> = ["train", "--config", s(&config), "--calibration", s(&cal)]
+        .iter()
+        .map(|a| a.to_string())
+        .collect();
+    args.extend(["--out".into(), s(&k).into(), "--data".into()]);
+    args.extend(data.iter().map(|d| d.to_string()));
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
+        .args(&args)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let state = f("k.state.safetensors");
+    let began = std::time::Instant::now();
+    // The plot is the last of an epoch's files to be put in place.
+    while !f("k.loss.png").exists() {
+        assert!(began.elapsed().as_secs() < 300, "no state after 5 minutes");
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "finished before the kill"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    iastgcn::model::Checkpoint::load(&k).expect("the checkpoint left behind loads");
+    iastgcn::train::TrainState::load(&state).expect("the state left behind loads");
+    assert_eq!(losses(&f("k.log.csv")), want[..1]);
+    let text = train(&k, &["--resume", s(&state)]);
+    assert!(text.contains("resumed"), "{text}");
+    assert_eq!(
+        losses(&f("k.log.csv")),
+        want,
+        "killed and resumed = uninterrupted"
+    );
+    assert_eq!(
+        std::fs::read(&k).unwrap(),
+        std::fs::read(f("straight.safetensors")).unwrap(),
+        "the same best checkpoint, bit for bit"
+    );
+
     // A state from another config is refused, naming the file.
     std::fs::write(&config, TINY.replace("channels = 4", "channels = 5")).unwrap();
     let o = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
@@ -129,6 +174,26 @@ fn train_resume_predict_refine() {
     assert!(rows
         .iter()
         .all(|r| r.len() == 15 && r[3].parse::<f64>().is_ok()));
+
+    // All or nothing: when the plot cannot be written (its path is a folder), the
+    // CSV is not replaced either, and no temporary file stays behind.
+    let blocked = f("blocked.csv");
+    std::fs::write(&blocked, "old").unwrap();
+    std::fs::create_dir_all(f("blocked.png")).unwrap();
+    args[6] = s(&blocked);
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
+        .args(&args)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("blocked.png"), "{err}");
+    assert_eq!(std::fs::read_to_string(&blocked).unwrap(), "old");
+    let leftovers: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().contains(".tmp"))
+        .collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
 
     // A baseline trains from the CLI the same way; ann-bfpa runs its seeded search first,
     // and the same seed on the same data gives the same weights bit for bit.

@@ -55,6 +55,22 @@ pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
         .iter()
         .map(|p| Ok((p, recording_measurements(p)?)))
         .collect::<anyhow::Result<Vec<_>>>()?;
+    // The error table is computed before the calibration file is written: a
+    // recording the robot cannot follow fails the command with no file replaced.
+    let calibrated = nominal.with_errors(cal.errors.clone());
+    let mut rows = Vec::new();
+    if !held.is_empty() {
+        let label = format!("held-out poses ({})", held.len());
+        rows.push(row(&label, "initial", &pose_errors(&nominal, &held)?));
+        rows.push(row("", "calibrated", &pose_errors(&calibrated, &held)?));
+    }
+    for (path, ms) in &recordings {
+        let label = path
+            .file_name()
+            .map_or("recording".into(), |n| n.to_string_lossy().into_owned());
+        rows.push(row(&label, "initial", &pose_errors(&nominal, ms)?));
+        rows.push(row("", "calibrated", &pose_errors(&calibrated, ms)?));
+    }
     file::save(&args.out, &cal, fit.len())?;
     let names = iastgcn::robot::ErrorParams::names();
     println!(
@@ -77,26 +93,13 @@ pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
             s.name, s.round, s.parameters, s.sweeps, s.gamma
         );
     }
-    let calibrated = nominal.with_errors(cal.errors.clone());
     println!(
         "\n{:<22} {:<11} {:>8} {:>8} {:>8}   {:>7} {:>7} {:>7}",
         "data", "stage", "pos mean", "SD", "max", "att mean", "SD", "max"
     );
     println!("{:<22} {:<11} {:>26}   {:>23}", "", "", "(µm)", "(mdeg)");
-    if !held.is_empty() {
-        let label = format!("held-out poses ({})", held.len());
-        println!("{}", row(&label, "initial", &pose_errors(&nominal, &held)?));
-        println!(
-            "{}",
-            row("", "calibrated", &pose_errors(&calibrated, &held)?)
-        );
-    }
-    for (path, ms) in &recordings {
-        let label = path
-            .file_name()
-            .map_or("recording".into(), |n| n.to_string_lossy().into_owned());
-        println!("{}", row(&label, "initial", &pose_errors(&nominal, ms)?));
-        println!("{}", row("", "calibrated", &pose_errors(&calibrated, ms)?));
+    for r in &rows {
+        println!("{r}");
     }
     Ok(())
 }

@@ -194,7 +194,8 @@ impl std::fmt::Display for EpochCost {
 /// What `iastgcn train` writes after each epoch: the checkpoint `out` when the
 /// validation loss improved, and always the resumable training state, the log CSV and
 /// the loss PNG beside it (`<stem>.state.safetensors`, `<stem>.log.csv`,
-/// `<stem>.loss.png`).
+/// `<stem>.loss.png`). All of them are written in full before any replaces its older
+/// version ([`crate::atomic::Batch`]): a failure leaves the previous epoch's set.
 pub fn write_epoch_files(
     trainer: &Trainer,
     config: &RunConfig,
@@ -203,19 +204,37 @@ pub fn write_epoch_files(
     out: &Path,
     improved: bool,
 ) -> Result<()> {
+    let mut batch = crate::atomic::Batch::new();
     if improved {
-        checkpoint(&config.model, graph, &trainer.best, &data.normalization).save(out)?;
+        let ck = checkpoint(&config.model, graph, &trainer.best, &data.normalization);
+        let bytes = ck
+            .to_bytes()
+            .map_err(|message| crate::model::CheckpointError {
+                file: out.display().to_string(),
+                message,
+            })?;
+        batch.add(out, &bytes).map_err(|e| Error::io(out, e))?;
     }
-    TrainState {
+    let state_path = sibling(out, ".state.safetensors");
+    let state = TrainState {
         run: config.clone(),
         normalization: normalization(&data.normalization),
         snapshot: trainer.snapshot().clone(),
     }
-    .save(&sibling(out, ".state.safetensors"))?;
+    .to_bytes(&state_path)?;
+    batch
+        .add(&state_path, &state)
+        .map_err(|e| Error::io(&state_path, e))?;
     let history = &trainer.progress.history;
-    log::write_csv(&sibling(out, ".log.csv"), history)?;
+    let log_path = sibling(out, ".log.csv");
+    batch
+        .add(&log_path, log::history_csv(history).as_bytes())
+        .map_err(|e| Error::io(&log_path, e))?;
     let name = config.model.variant.name().to_string();
-    log::plot_losses(&sibling(out, ".loss.png"), &[(name, history.clone())])?;
+    batch.add_with(&sibling(out, ".loss.png"), |tmp| {
+        log::plot_losses(tmp, &[(name, history.clone())])
+    })?;
+    batch.commit().map_err(|e| Error::io(out, e))?;
     Ok(())
 }
 

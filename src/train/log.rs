@@ -8,6 +8,11 @@ use crate::plot::{self, Panel, PlotError, Series};
 
 /// Writes the epoch history as CSV (atomically).
 pub fn write_csv(path: &Path, history: &[EpochRecord]) -> Result<()> {
+    write_file(path, history_csv(history).as_bytes())
+}
+
+/// The epoch history as CSV text, one row per epoch.
+pub fn history_csv(history: &[EpochRecord]) -> String {
     let header = [
         "stage",
         "epoch",
@@ -40,7 +45,7 @@ pub fn write_csv(path: &Path, history: &[EpochRecord]) -> Result<()> {
             ]
         })
         .collect();
-    write_file(path, csv_text(&header, rows).as_bytes())
+    csv_text(&header, rows)
 }
 
 /// Reads an epoch history written by [`write_csv`]; the error names the file and line.
@@ -122,7 +127,7 @@ pub fn csv_text(header: &str, rows: Vec<Vec<String>>) -> String {
     let mut w = csv::WriterBuilder::new()
         .terminator(csv::Terminator::Any(b'\n'))
         .from_writer(Vec::new());
-    // Writing to a Vec cannot fail.
+    // invariant: writing to a Vec cannot fail, and the fields are UTF-8 strings.
     w.write_record(header.split(',')).expect("in-memory CSV");
     for row in rows {
         w.write_record(&row).expect("in-memory CSV");

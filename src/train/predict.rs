@@ -9,7 +9,7 @@ use std::sync::Arc;
 use super::metrics::Metrics;
 use crate::data::{prepare, split, window_ends, DataSources, FeatureConfig, SplitMode};
 use crate::data::{Window, WindowConfig};
-use crate::error::{write_file, Error, Result};
+use crate::error::{Error, Result};
 use crate::gpu::Gpu;
 use crate::model::{Checkpoint, Features, Predictor, Residual};
 use crate::plot::{self, Panel, Series};
@@ -111,7 +111,8 @@ pub fn predict_recordings(
             ck.graph.nodes, inputs.graph.nodes
         )));
     }
-    let mut predictor = Predictor::new(gpu, ck, options.batch)?;
+    let mut predictor = Predictor::new(gpu, ck, options.batch)
+        .map_err(|e| crate::error::batch_error(e, options.batch))?;
     let window = WindowConfig {
         length: t_len,
         stride: options.stride,
@@ -256,8 +257,14 @@ pub fn write_predictions(
     }
     let png = out.with_extension("png");
     let rows = (panels.len() / 3).max(1);
-    // The plot goes first: a failure leaves neither file replaced.
-    plot::draw(&png, &panels, rows, 3, (1500, 330 * rows as u32))?;
-    write_file(out, predictions_csv(results).as_bytes())?;
+    // Both are written in full before either replaces an older file.
+    let mut batch = crate::atomic::Batch::new();
+    batch.add_with(&png, |tmp| {
+        plot::draw(tmp, &panels, rows, 3, (1500, 330 * rows as u32))
+    })?;
+    batch
+        .add(out, predictions_csv(results).as_bytes())
+        .map_err(|e| Error::io(out, e))?;
+    batch.commit().map_err(|e| Error::io(out, e))?;
     Ok(png)
 }

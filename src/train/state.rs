@@ -43,6 +43,16 @@ impl TrainState {
     /// Writes the state atomically as safetensors (docs/twin.md "Checkpoints and training
     /// states" has the layout).
     pub fn save(&self, path: &Path) -> Result<(), StateError> {
+        let bytes = self.to_bytes(path)?;
+        crate::atomic::write(path, &bytes).map_err(|e| StateError {
+            file: path.display().to_string(),
+            message: e.to_string(),
+        })
+    }
+
+    /// The state as safetensors bytes (what [`TrainState::save`] writes); errors name
+    /// `path`.
+    pub fn to_bytes(&self, path: &Path) -> Result<Vec<u8>, StateError> {
         let err = |message: String| StateError {
             file: path.display().to_string(),
             message,
@@ -66,10 +76,9 @@ impl TrainState {
             ("stage".to_string(), json(&s.stage)?),
             ("progress".to_string(), json(&s.progress)?),
         ]);
-        let bytes = safetensors::serialize(views, Some(metadata))
+        safetensors::serialize(views, Some(metadata))
             .map(crate::model::checkpoint::sorted_header)
-            .map_err(|e| err(e.to_string()))?;
-        crate::atomic::write(path, &bytes).map_err(|e| err(e.to_string()))
+            .map_err(|e| err(e.to_string()))
     }
 
     /// Reads and checks a state written by [`TrainState::save`].
@@ -119,6 +128,7 @@ impl TrainState {
             )));
         }
         let [params, best, adam_m, adam_v]: [Vec<Vec<f32>>; 4] =
+            // invariant: the loop above pushes one set per entry of GROUPS (4).
             sets.try_into().expect("one set per group");
         Ok(TrainState {
             snapshot: Snapshot {
