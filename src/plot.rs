@@ -12,6 +12,7 @@ static REGISTER: Once = Once::new();
 
 fn register_font() {
     REGISTER.call_once(|| {
+        // invariant: the embedded font is loaded by every plot test.
         plotters::style::register_font("sans-serif", FontStyle::Normal, FONT)
             .unwrap_or_else(|_| panic!("embedded DejaVuSans.ttf is a valid font"));
     });

@@ -268,6 +268,7 @@ impl Dataset {
                 (feature_mean[n][f], feature_std[n][f]) = mean_std(values);
             }
         }
+        // invariant: windows are only made to end on labelled rows (windows.rs).
         let label_of =
             |w: &Window| prepared[w.recording].labels[w.end].expect("windows end on labelled rows");
         let mut label_mean = [0.0; OUTPUTS];
@@ -318,6 +319,7 @@ impl Dataset {
             let l = label_of(w);
             y.extend((0..OUTPUTS).map(|k| ((l[k] - label_mean[k]) / label_std[k]) as f32));
             labels.push(l);
+            // invariant: windows are only made to end on labelled rows (windows.rs).
             axes.push(p.axes[w.end].expect("windows end on labelled rows"));
         }
         Ok(Dataset {

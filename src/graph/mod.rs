@@ -46,6 +46,7 @@ impl Graph {
     /// assert_eq!(graph.nodes[0], "E1");
     /// ```
     pub fn default_asset() -> Graph {
+        // invariant: the embedded asset is parsed in tests/graph.rs.
         Graph::parse(DEFAULT_ASSET, "assets/graph.toml").expect("embedded graph asset is valid")
     }
 

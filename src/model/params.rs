@@ -253,6 +253,8 @@ impl Parameters {
 
     /// The values of parameter `name` (panics on an unknown name: names come from the table).
     pub fn get(&self, name: &str) -> &[f32] {
+        // invariant: callers ask for names of param_specs(config); a checkpoint's tensors
+        // are checked against those specs when it is loaded.
         let i = self
             .index(name)
             .unwrap_or_else(|| panic!("no parameter named {name}"));
@@ -261,6 +263,7 @@ impl Parameters {
 
     /// The values of parameter `name`, to change (panics on an unknown name).
     pub fn get_mut(&mut self, name: &str) -> &mut Vec<f32> {
+        // invariant: as for `get`.
         let i = self
             .index(name)
             .unwrap_or_else(|| panic!("no parameter named {name}"));

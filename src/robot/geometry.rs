@@ -80,6 +80,7 @@ pub struct Geometry {
 impl Geometry {
     /// The embedded default asset.
     pub fn default_asset() -> Geometry {
+        // invariant: the embedded asset is parsed in tests/robot.rs.
         Geometry::parse(DEFAULT_ASSET, "assets/robot.toml").expect("embedded robot asset is valid")
     }
 

@@ -172,6 +172,7 @@ pub fn worst(
             });
         }
     }
+    // invariant: the empty case returned above.
     Ok(worst.expect("non-empty"))
 }
 
@@ -203,5 +204,6 @@ pub fn check_gradient(
 
 /// Opens the default adapter or panics with the install hint (tests only).
 pub fn gpu() -> Gpu {
+    // invariant: test support: a test without a device fails with the reason.
     Gpu::new().unwrap_or_else(|e| panic!("{e}"))
 }

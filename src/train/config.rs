@@ -166,6 +166,7 @@ impl RunConfig {
     /// assert_eq!(config.refine.magnifications, vec![10, 5]);
     /// ```
     pub fn demo() -> RunConfig {
+        // invariant: the embedded config is parsed in tests/train_cli.rs.
         RunConfig::parse(include_str!("../../assets/demo.toml"), "assets/demo.toml")
             .expect("the embedded demo config is valid")
     }

@@ -141,6 +141,7 @@ pub(super) fn block_backward(
             temporal_attention_backward(d, x, tp, ta, &dxt, &mut dx, grads, &p.prefix);
         }
         (None, None, None, None) => axpy(&mut dx, 1.0, &dxs),
+        // invariant: the forward pass fills the tape for exactly the parameters it has.
         _ => unreachable!("attention tape and parameters come together"),
     }
     dx

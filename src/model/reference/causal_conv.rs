@@ -132,6 +132,7 @@ pub(super) fn temporal_conv_backward(
             grads.add(&p.name("tcn.filter.weight"), &dw);
             grads.add(&p.name("tcn.filter.bias"), &db);
         }
+        // invariant: the forward pass fills the tape for exactly the parameters it has.
         _ => unreachable!("gate tape and gate parameters come together"),
     }
     dz

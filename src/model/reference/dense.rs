@@ -30,6 +30,7 @@ impl DenseTape {
 }
 
 fn architecture(config: &ModelConfig) -> Architecture {
+    // invariant: the f64 reference is a test oracle, called for dense variants only.
     Architecture::of(config).unwrap_or_else(|| panic!("{} is not a dense baseline", config.variant))
 }
 
@@ -56,6 +57,7 @@ pub fn forward(
     for l in &arch.layers {
         let w = table.get(&format!("{}.weight", l.name));
         let bias = table.get(&format!("{}.bias", l.name));
+        // invariant: acts starts with the input.
         let input = acts.last().expect("the input is activation 0");
         let mut z = vec![0.0; batch * l.outputs];
         for b in 0..batch {
@@ -75,6 +77,7 @@ pub fn forward(
         pre.push(z);
         acts.push(out);
     }
+    // invariant: acts starts with the input.
     let output = acts.last().expect("the head's output").clone();
     DenseTape {
         batch,
@@ -111,6 +114,7 @@ pub fn backward(
         values: specs.iter().map(|s| vec![0.0; s.numel()]).collect(),
     };
     let mut d_acts: Vec<Vec<f64>> = tape.acts.iter().map(|a| vec![0.0; a.len()]).collect();
+    // invariant: acts starts with the input.
     *d_acts.last_mut().expect("the head's output") =
         output_gradient(&tape.output, y, no, batch, loss);
     for (i, l) in arch.layers.iter().enumerate().rev() {

@@ -109,6 +109,7 @@ pub(super) fn graph_attention(
     p: &BlockParams,
     xs: &[f64],
 ) -> (Vec<f64>, Vec<f64>) {
+    // invariant: called only for the st-gat variant, whose parameters include them.
     let (a_src, a_dst) = p.attention_vectors.expect("st-gat has attention vectors");
     let q = channel_mix(d, p.w, xs);
     let (_, g) = gat::forward(&attention_shape(d, heads), &q, a_src, a_dst, mask);
@@ -128,6 +129,7 @@ pub(super) fn graph_attention_backward(
     dz: &[f64],
     grads: &mut Grads,
 ) -> Vec<f64> {
+    // invariant: called only for the st-gat variant, whose parameters include them.
     let (a_src, a_dst) = p.attention_vectors.expect("st-gat has attention vectors");
     let dg: Vec<f64> = dz
         .iter()

@@ -263,6 +263,7 @@ impl<'a> Table<'a> {
 }
 
 fn index(specs: &[ParamSpec], name: &str) -> usize {
+    // invariant: the f64 reference is a test oracle; it looks up the names of param_specs(config).
     specs
         .iter()
         .position(|s| s.name == name)
@@ -299,6 +300,7 @@ pub fn forward(
     batch: usize,
     dropout: Option<DropoutStep>,
 ) -> Tape {
+    // invariant: the f64 reference is a test oracle, not used by any command; its callers pass validated configs.
     config.validate().unwrap_or_else(|e| panic!("{e}"));
     assert!(
         config.variant.family() == super::Family::StBlocks,
