@@ -181,6 +181,28 @@ fn too_few_poses_are_refused() {
 }
 
 #[test]
+fn one_pose_measured_forty_times_is_refused() {
+    // 40 measurements "identified 6 of 110 parameters" from a single pose, silently.
+    let nominal = Robot::nominal(Geometry::default_asset());
+    let machine = geometric_machine(draw_errors(1, &ErrorScales::default()));
+    let one = calibration_configurations(&nominal, 1, 1);
+    let repeated = vec![one[0]; 40];
+    let ms = measure(&machine, &nominal, &repeated, 1);
+    assert_eq!(ms.len(), 40);
+    assert_eq!(iastgcn::calibrate::identify::distinct_poses(&ms), 1);
+    let err = calibrate(&nominal, &ms, &EkfConfig::default()).unwrap_err();
+    let text = err.to_string();
+    assert!(
+        matches!(err, CalibrationError::TooFew { distinct: 1, .. }),
+        "{text}"
+    );
+    assert!(
+        text.contains("40 measurements (distinct poses: 1)"),
+        "{text}"
+    );
+}
+
+#[test]
 fn calibration_file_round_trips_and_residuals_are_the_label() {
     let nominal = Robot::nominal(Geometry::default_asset());
     let truth = draw_errors(1, &ErrorScales::default());

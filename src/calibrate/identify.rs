@@ -121,12 +121,14 @@ pub enum CalibrationError {
     #[error(transparent)]
     Kinematics(#[from] RobotError),
     /// The measurement set cannot identify what a richer set could.
-    #[error("{measurements} measurements are too few: the {stage} stage identifies only {rank} of {needed} parameters it could with a richer set (need at least {min} poses)")]
+    #[error("{measurements} measurements (distinct poses: {distinct}) are too few: the {stage} stage identifies only {rank} of {needed} parameters it could with a richer set (need at least {min} distinct poses; a pose measured again adds no equation)")]
     TooFew {
         /// `serial`, `parallel` or `joint`.
         stage: &'static str,
         /// How many measurements were given.
         measurements: usize,
+        /// How many of them were taken at different joint inputs.
+        distinct: usize,
         /// How many of the stage's parameters the set identifies.
         rank: usize,
         /// How many parameters the stage has.
@@ -339,6 +341,26 @@ pub fn calibrate(
     })
 }
 
+/// How many of `measurements` were taken at different joint inputs (closer than 1 µm
+/// or 1 µrad counts as the same pose).
+pub fn distinct_poses(measurements: &[Measurement]) -> usize {
+    let key = |m: &Measurement| {
+        let j = &m.joints;
+        [
+            j.limbs[0],
+            j.limbs[1],
+            j.limbs[2],
+            j.head[0] * 1e3,
+            j.head[1] * 1e3,
+        ]
+        .map(|v| (v * 1e3).round() as i64)
+    };
+    let mut keys: Vec<[i64; 5]> = measurements.iter().map(key).collect();
+    keys.sort_unstable();
+    keys.dedup();
+    keys.len()
+}
+
 /// The identifiable subset of `cols`, linearised at `estimate`, and its condition number.
 fn select(
     nominal: &Robot,
@@ -367,12 +389,15 @@ fn select(
         }
     }
     let (chosen, cond) = identifiable(&stacked, config.rank_tolerance);
-    // Each pose gives 6 equations; ask for a margin beyond the bare count.
+    // Each distinct pose gives 6 equations (the same pose measured again adds none);
+    // ask for a margin beyond the bare count.
     let min = chosen.len().div_ceil(6) + 2;
-    if measurements.len() < min || chosen.is_empty() {
+    let distinct = distinct_poses(measurements);
+    if distinct < min || chosen.is_empty() {
         return Err(CalibrationError::TooFew {
             stage: name,
             measurements: measurements.len(),
+            distinct,
             rank: chosen.len(),
             needed: cols.len(),
             min,
