@@ -24,7 +24,7 @@ pub struct CompensateArgs {
     #[command(flatten)]
     pub run: RunArgs,
     /// Predict every this many control ticks (the correction is held in between).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = super::count(1..=10_000))]
     pub every: usize,
 }
 

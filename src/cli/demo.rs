@@ -47,7 +47,7 @@ pub struct HeldOutArgs {
     #[arg(long, default_value_t = 2.0)]
     pub warm_up_minutes: f64,
     /// Predict every this many control ticks during compensation.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = 5, value_parser = super::count(1..=10_000))]
     pub every: usize,
 }
 

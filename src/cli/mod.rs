@@ -72,6 +72,12 @@ enum Command {
     Reproduce(reproduce::ReproduceArgs),
 }
 
+/// A count in `range` (e.g. `1..`); clap names the argument and the range when the
+/// value is not in it.
+fn count(range: impl std::ops::RangeBounds<u64>) -> clap::builder::RangedU64ValueParser<usize> {
+    clap::builder::RangedU64ValueParser::<usize>::new().range(range)
+}
+
 fn open_gpu(adapter: Option<&str>) -> anyhow::Result<Gpu> {
     Ok(match adapter {
         Some(name) => Gpu::with_adapter(Some(name))?,

@@ -95,14 +95,15 @@ pub struct PredictArgs {
     pub out: PathBuf,
     /// Steps between window ends (window ends fall on rows the tracker measured when the
     /// recording has tracker data, so every window has a label).
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 20, value_parser = super::count(1..))]
     pub stride: usize,
     /// Only windows of this contiguous split (70/20/10 of each recording): all, train,
     /// validation, test.
     #[arg(long, default_value = "all", value_parser = ["all", "train", "validation", "test"])]
     pub split: String,
-    /// Windows per submit.
-    #[arg(long, default_value_t = 64)]
+    /// Windows per submit; refused with a smaller batch to try when the adapter
+    /// cannot hold it (on a CPU adapter windows run one by one natively).
+    #[arg(long, default_value_t = 64, value_parser = super::count(1..))]
     pub batch: usize,
 }
 

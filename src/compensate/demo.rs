@@ -99,6 +99,7 @@ pub fn demo(
     let began = Instant::now();
     let config = &demo.run;
     config.validate().map_err(Error::Invalid)?;
+    demo.held_out.validate()?;
     let data_dir = out.join("data");
     let model_dir = out.join("models");
     for dir in [&data_dir, &model_dir] {

@@ -196,6 +196,39 @@ pub struct HeldOutConfig {
     pub every: usize,
 }
 
+impl HeldOutConfig {
+    /// Refuses what the held-out session cannot run, naming the setting and its range:
+    /// runs of (0, 1440] minutes, a warm-up of [0, 1440] minutes, a prediction every
+    /// 1 to 10 000 ticks.
+    pub fn validate(&self) -> Result<()> {
+        let day = 1440.0;
+        ensure(
+            self.minutes.is_finite() && self.minutes > 0.0 && self.minutes <= day,
+            || {
+                format!(
+                    "held-out runs must last more than 0 and at most {day} min, got {} min",
+                    self.minutes
+                )
+            },
+        )?;
+        ensure(
+            self.warm_up_minutes.is_finite() && (0.0..=day).contains(&self.warm_up_minutes),
+            || {
+                format!(
+                    "the warm-up lasts 0 to {day} min, got {} min",
+                    self.warm_up_minutes
+                )
+            },
+        )?;
+        ensure((1..=10_000).contains(&self.every), || {
+            format!(
+                "models predict every 1 to 10000 control ticks, got every {}",
+                self.every
+            )
+        })
+    }
+}
+
 impl Default for HeldOutConfig {
     /// The demo's session: 0.5 min runs from seed 301 after 2 min of warm-up, a
     /// prediction every 5 ticks.
@@ -293,12 +326,7 @@ pub fn evaluate(
     let Some(first) = models.first() else {
         return Err(Error::Invalid("no model to evaluate".into()));
     };
-    ensure(held.minutes.is_finite() && held.minutes > 0.0, || {
-        format!(
-            "held-out runs must last a positive time, got {} min",
-            held.minutes
-        )
-    })?;
+    held.validate()?;
     reporter.note("== Table III: prediction accuracy on the held-out split");
     let mut rows: Vec<TableIIIRow> = Vec::new();
     for (i, m) in models.iter().enumerate() {

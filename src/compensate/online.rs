@@ -11,7 +11,7 @@
 
 use std::time::Instant;
 
-use crate::error::{Error, Result};
+use crate::error::{ensure, Error, Result};
 
 use super::report::{ErrorStats, Trace};
 use crate::data::features::Stream;
@@ -109,6 +109,13 @@ pub fn run(
     feedback: Feedback<'_>,
     mut on_tick: impl FnMut(usize),
 ) -> Result<RunResult> {
+    let every = match &feedback {
+        Feedback::Model(_, _, settings) | Feedback::Oracle { settings, .. } => settings.every,
+        Feedback::None => 1,
+    };
+    ensure(every >= 1, || {
+        format!("models predict every 1 or more control ticks, got every {every}")
+    })?;
     let dt = config.dt;
     let registration = controller.tracker_from_base().inverse();
     let mut sim = Simulation::resume(machine, controller, Mirror::default(), config, start)?;
@@ -157,7 +164,7 @@ pub fn run(
                 *o = *f as f32;
             }
             let full = predictor.push_step(&step)?;
-            if full && tick.is_multiple_of(settings.every.max(1)) {
+            if full && tick.is_multiple_of(settings.every) {
                 let began = Instant::now();
                 // `push_step` said the ring is full, so there is a window to predict.
                 let r = predictor.predict_latest()?.unwrap_or_default();
@@ -175,7 +182,7 @@ pub fn run(
             }
         }
         if let Some((window, settings)) = oracle {
-            if tick + 1 >= window && tick.is_multiple_of(settings.every.max(1)) {
+            if tick + 1 >= window && tick.is_multiple_of(settings.every) {
                 let commanded = &s.hidden.commanded;
                 predictions += 1;
                 sim.set_correction(Correction {

@@ -338,6 +338,7 @@ pub fn reproduce(
 ) -> Result<Outcome> {
     let began = Instant::now();
     protocol.validate()?;
+    held_out.validate()?;
     let jobs = protocol.jobs()?;
     std::fs::create_dir_all(out.join("models")).map_err(|e| Error::io(out, e))?;
     pin_protocol(protocol, out)?;

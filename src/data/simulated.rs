@@ -71,6 +71,15 @@ pub fn record_run(
             )
         },
     )?;
+    crate::error::ensure(
+        info.rotation_deg.is_finite() && info.rotation_deg.abs() <= 360.0,
+        || {
+            format!(
+                "the path's rotation is -360 to 360 degrees, got {}",
+                info.rotation_deg
+            )
+        },
+    )?;
     let params = PathParams {
         rotation_deg: info.rotation_deg,
         reverse: info.reverse,
