@@ -117,7 +117,7 @@ fn bad_recordings_name_file_line_and_column() {
         ),
         (
             format!("{header}0,1,700,3,1,2\n"),
-            "bad.csv:2:-: 6 fields, but the header has 10",
+            "bad.csv:2:z: 6 fields, but the header has 10: the cells from column 7 on are missing",
         ),
         (
             format!("{header},1,700,3,,,,,,\n"),

@@ -155,6 +155,45 @@ pub fn load(path: &Path) -> Result<LoadedCalibration, CalibrationFileError> {
     if let Some(bad) = f.identified.iter().find(|n| !names.contains(n)) {
         return Err(err(format!("unknown identified parameter {bad:?}")));
     }
+    for (i, (name, s)) in f.identified.iter().zip(&f.sigma).enumerate() {
+        if !(s.is_finite() && *s >= 0.0) {
+            return Err(err(format!(
+                "sigma[{i}] (of {name}) = {s}: must be a finite number ≥ 0"
+            )));
+        }
+    }
+    // A condition number may be infinite (a rank-deficient Jacobian), never NaN.
+    if let Some(i) = f.condition.iter().position(|c| c.is_nan() || *c < 0.0) {
+        return Err(err(format!(
+            "condition[{i}] = {}: must be a number ≥ 0 (inf for a singular Jacobian)",
+            f.condition[i]
+        )));
+    }
+    if let Some(s) = f
+        .stages
+        .iter()
+        .find(|s| !(s.gamma.is_finite() && s.gamma >= 0.0))
+    {
+        return Err(err(format!(
+            "stages: gamma = {} of stage {:?} (round {}): must be a finite number ≥ 0",
+            s.gamma, s.name, s.round
+        )));
+    }
+    for (i, row) in f.covariance.iter().enumerate() {
+        if row.len() != f.identified.len() {
+            return Err(err(format!(
+                "covariance[{i}] has {} values, expected {} (one per identified parameter)",
+                row.len(),
+                f.identified.len()
+            )));
+        }
+        if let Some(j) = row.iter().position(|v| !v.is_finite()) {
+            return Err(err(format!(
+                "covariance[{i}][{j}] = {}: must be finite",
+                row[j]
+            )));
+        }
+    }
     Ok(LoadedCalibration {
         errors,
         identified: f.identified,

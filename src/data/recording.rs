@@ -5,7 +5,9 @@
 //! Also the calibration measurement set: commanded joint inputs `q1..q3` (mm), `q4,q5`
 //! (deg) and the measured pose per row.
 //!
-//! Readers reject bad input with `file:line:column` and never drop anything silently.
+//! Readers reject bad input with `file:line:column` and never drop anything silently. The
+//! writers end every line with a newline, so a file whose last line has none was cut
+//! short and is refused (`file:line: the file ends inside this line ...`).
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -25,6 +27,16 @@ pub enum DataError {
     File {
         /// The file's path.
         file: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// A problem with one line as a whole (a truncated last line).
+    #[error("{file}:{line}: {message}")]
+    Line {
+        /// The file's path.
+        file: String,
+        /// The line, from 1 (the header is line 1).
+        line: u64,
         /// What is wrong.
         message: String,
     },
@@ -154,18 +166,76 @@ impl Recording {
         let table = Table::parse(text, file)?;
         let header = &table.header;
         if header.first().map(String::as_str) != Some("t") {
-            return Err(table.at(1, 0, "the first column must be `t` (time in seconds)"));
+            return Err(table.at(
+                1,
+                0,
+                format!(
+                    "the first column must be `t` (time in seconds), not {:?}",
+                    header[0]
+                ),
+            ));
         }
+        table.check_unique(1)?;
         let n = header.len();
-        if n < 7
-            || header[n - 6..]
+        // The tracker's six columns end the header; anything after them is extra.
+        let tracker_at = (1..n.saturating_sub(5)).find(|&i| {
+            header[i..i + 6]
                 .iter()
                 .map(String::as_str)
-                .ne(TRACKER_COLUMNS)
-        {
-            return Err(file_err(
-                file,
-                "the last six columns must be the tracker pose x,y,z,rx,ry,rz",
+                .eq(TRACKER_COLUMNS)
+        });
+        let Some(tracker_at) = tracker_at else {
+            let rule = "the last six columns must be the tracker pose x,y,z,rx,ry,rz";
+            if let Some(c) = TRACKER_COLUMNS
+                .iter()
+                .find(|c| !header.iter().any(|h| h == *c))
+            {
+                return Err(file_err(
+                    file,
+                    format!("missing tracker column {c:?}: {rule}"),
+                ));
+            }
+            // All six are there, but not side by side in order: name the first cell that
+            // breaks the run starting at `x`.
+            let x = header.iter().position(|h| h == "x").unwrap_or(0);
+            let Some(i) = (x..n).find(|&i| header[i] != TRACKER_COLUMNS[(i - x).min(5)]) else {
+                // The run from `x` reaches the end in order but is short: the rest of the
+                // tracker's columns stand before it.
+                let i = (1..x)
+                    .find(|&i| TRACKER_COLUMNS.contains(&header[i].as_str()))
+                    .unwrap_or(x);
+                return Err(table.at(
+                    1,
+                    i,
+                    format!(
+                        "column {} is {:?}, before the tracker's x: {rule}",
+                        i + 1,
+                        header[i]
+                    ),
+                ));
+            };
+            return Err(table.at(
+                1,
+                i,
+                format!(
+                    "column {} is {:?} where {:?} belongs: {rule}",
+                    i + 1,
+                    header[i],
+                    TRACKER_COLUMNS[(i - x).min(5)]
+                ),
+            ));
+        };
+        if tracker_at + 6 < n {
+            let i = tracker_at + 6;
+            return Err(table.at(
+                1,
+                i,
+                format!(
+                    "unexpected column {:?} (column {}) after the tracker's rz: the last six \
+                     columns must be the tracker pose x,y,z,rx,ry,rz",
+                    header[i],
+                    i + 1
+                ),
             ));
         }
         let sensor_cols = &header[1..n - 6];
@@ -175,13 +245,11 @@ impl Recording {
                     1,
                     i + 1,
                     format!(
-                        "unexpected column {c:?}; expected channels: {}",
+                        "unexpected column {c:?} (column {}); expected channels: {}",
+                        i + 2,
                         channels.join(",")
                     ),
                 ));
-            }
-            if sensor_cols[..i].contains(c) {
-                return Err(table.at(1, i + 1, format!("column {c:?} appears twice")));
             }
         }
         if let Some(missing) = channels
@@ -212,7 +280,11 @@ impl Recording {
                 .collect::<Result<Vec<_>, _>>()?;
             let tracker = match pose.iter().filter(|v| v.is_some()).count() {
                 0 => None,
-                6 => Some([0, 1, 2, 3, 4, 5].map(|k| pose[k].expect("all six present"))),
+                6 => {
+                    let p = [0, 1, 2, 3, 4, 5].map(|k| pose[k].expect("all six present"));
+                    table.check_rotation(*line, n - 3, &p)?;
+                    Some(p)
+                }
                 _ => {
                     let c = (0..6).find(|&k| pose[k].is_none()).expect("one is empty");
                     return Err(table.at(
@@ -293,6 +365,10 @@ pub fn read_calibration_set(path: &Path) -> Result<Vec<CalibrationRow>, DataErro
 ///
 /// let err = parse_calibration_set("q1,q2\n1,2\n", "bad.csv").unwrap_err();
 /// assert!(err.to_string().starts_with("bad.csv: the header must be"));
+///
+/// // A file that stops inside its last line was cut short.
+/// let err = parse_calibration_set(&text[..text.len() - 2], "cut.csv").unwrap_err();
+/// assert!(err.to_string().starts_with("cut.csv:2: the file ends inside this line"));
 /// # Ok::<(), iastgcn::data::DataError>(())
 /// ```
 pub fn parse_calibration_set(text: &str, file: &str) -> Result<Vec<CalibrationRow>, DataError> {
@@ -302,15 +378,36 @@ pub fn parse_calibration_set(text: &str, file: &str) -> Result<Vec<CalibrationRo
         .chain(&TRACKER_COLUMNS)
         .copied()
         .collect();
-    if table
-        .header
-        .iter()
-        .map(String::as_str)
-        .ne(expected.iter().copied())
-    {
+    let header = &table.header;
+    let rule = format!("the header must be {}", expected.join(","));
+    table.check_unique(0).map_err(|e| with_rule(e, &rule))?;
+    if let Some(i) = header.iter().position(|h| !expected.contains(&h.as_str())) {
+        return Err(table.at(
+            1,
+            i,
+            format!(
+                "unexpected column {:?} (column {}); {rule}",
+                header[i],
+                i + 1
+            ),
+        ));
+    }
+    if let Some(missing) = expected.iter().find(|c| !header.iter().any(|h| h == *c)) {
         return Err(file_err(
             file,
-            format!("the header must be {}", expected.join(",")),
+            format!("{rule}: missing column {missing:?}"),
+        ));
+    }
+    if let Some(i) = (0..header.len()).find(|&i| header[i] != expected[i]) {
+        return Err(table.at(
+            1,
+            i,
+            format!(
+                "column {} is {:?} where {:?} belongs; {rule}",
+                i + 1,
+                header[i],
+                expected[i]
+            ),
         ));
     }
     let mut rows = Vec::with_capacity(table.rows.len());
@@ -321,6 +418,7 @@ pub fn parse_calibration_set(text: &str, file: &str) -> Result<Vec<CalibrationRo
                 .number(*line, c, &cells[c])?
                 .ok_or_else(|| table.at(*line, c, "empty cell"))?;
         }
+        table.check_rotation(*line, 8, &[v[5], v[6], v[7], v[8], v[9], v[10]])?;
         rows.push(CalibrationRow {
             joints: [v[0], v[1], v[2], v[3], v[4]],
             pose: [v[5], v[6], v[7], v[8], v[9], v[10]],
@@ -330,6 +428,24 @@ pub fn parse_calibration_set(text: &str, file: &str) -> Result<Vec<CalibrationRo
         return Err(file_err(file, "no measurements"));
     }
     Ok(rows)
+}
+
+/// `e` with `rule` added to its message.
+fn with_rule(e: DataError, rule: &str) -> DataError {
+    match e {
+        DataError::At {
+            file,
+            line,
+            column,
+            message,
+        } => DataError::At {
+            file,
+            line,
+            column,
+            message: format!("{message}; {rule}"),
+        },
+        other => other,
+    }
 }
 
 /// A parsed CSV: header and rows with their 1-based line numbers.
@@ -344,6 +460,17 @@ impl<'a> Table<'a> {
         let mut reader = csv::ReaderBuilder::new()
             .has_headers(true)
             .from_reader(text.as_bytes());
+        // Our writers end every line with a newline, so a file that stops inside its last
+        // line was cut short (a copy or a write that did not finish).
+        if !text.is_empty() && !text.ends_with('\n') {
+            return Err(DataError::Line {
+                file: file.to_string(),
+                line: text.matches('\n').count() as u64 + 1,
+                message: "the file ends inside this line (no newline at the end): it looks \
+                          truncated; if it is complete, end it with a newline"
+                    .to_string(),
+            });
+        }
         let header: Vec<String> = reader
             .headers()
             .map_err(|e| file_err(file, e.to_string()))?
@@ -356,17 +483,43 @@ impl<'a> Table<'a> {
         let mut rows = Vec::new();
         for record in reader.records() {
             let record = record.map_err(|e| match e.position() {
-                Some(p) => DataError::At {
-                    file: file.to_string(),
-                    line: p.line(),
-                    column: "-".to_string(),
-                    message: match e.kind() {
-                        csv::ErrorKind::UnequalLengths {
-                            expected_len, len, ..
-                        } => {
-                            format!("{len} fields, but the header has {expected_len}")
+                Some(p) => match e.kind() {
+                    csv::ErrorKind::UnequalLengths {
+                        expected_len, len, ..
+                    } => {
+                        let (expected_len, len) = (*expected_len as usize, *len as usize);
+                        let (column, detail) = if len > expected_len {
+                            (
+                                format!("#{}", expected_len + 1),
+                                format!(
+                                    "an extra cell (column {}) after the last column {:?}",
+                                    expected_len + 1,
+                                    header.last().map_or("", String::as_str)
+                                ),
+                            )
+                        } else {
+                            (
+                                header
+                                    .get(len)
+                                    .cloned()
+                                    .unwrap_or_else(|| format!("#{}", len + 1)),
+                                format!("the cells from column {} on are missing", len + 1),
+                            )
+                        };
+                        DataError::At {
+                            file: file.to_string(),
+                            line: p.line(),
+                            column,
+                            message: format!(
+                                "{len} fields, but the header has {expected_len}: {detail}"
+                            ),
                         }
-                        _ => e.to_string(),
+                    }
+                    _ => DataError::At {
+                        file: file.to_string(),
+                        line: p.line(),
+                        column: "-".to_string(),
+                        message: e.to_string(),
                     },
                 },
                 None => file_err(file, e.to_string()),
@@ -388,6 +541,41 @@ impl<'a> Table<'a> {
                 .unwrap_or_else(|| format!("#{}", column + 1)),
             message: message.into(),
         }
+    }
+
+    /// An error at the first header name (from column `from`) that repeats an earlier one.
+    fn check_unique(&self, from: usize) -> Result<(), DataError> {
+        for i in from..self.header.len() {
+            let c = &self.header[i];
+            if let Some(j) = self.header[from..i].iter().position(|h| h == c) {
+                return Err(self.at(
+                    1,
+                    i,
+                    format!(
+                        "column {c:?} appears twice (columns {} and {})",
+                        from + j + 1,
+                        i + 1
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// An error at `rx` (column `rx`) of `line` when the rotation vector of the tracker
+    /// pose `p` (`[x, y, z, rx, ry, rz]`) is too long to be turned into a rotation.
+    fn check_rotation(&self, line: u64, rx: usize, p: &[f64; 6]) -> Result<(), DataError> {
+        if nalgebra::Vector3::new(p[3], p[4], p[5]).norm().is_finite() {
+            return Ok(());
+        }
+        Err(self.at(
+            line,
+            rx,
+            format!(
+                "the rotation vector ({}, {}, {}) is too long to be a rotation (its length overflows)",
+                p[3], p[4], p[5]
+            ),
+        ))
     }
 
     /// A cell as a finite number, `None` when empty.

@@ -43,7 +43,9 @@ impl Normalization {
         }
     }
 
-    fn check(&self, config: &ModelConfig) -> Result<(), String> {
+    /// Checks the shapes against `config` and that every standard deviation is finite and
+    /// positive; the message says which statistic is wrong.
+    pub fn check(&self, config: &ModelConfig) -> Result<(), String> {
         let rows_ok = |v: &[Vec<f64>]| {
             v.len() == config.nodes && v.iter().all(|r| r.len() == config.features)
         };
@@ -312,8 +314,29 @@ pub fn open_safetensors<'b>(
     bytes: &'b [u8],
     hint: &str,
 ) -> Result<(SafeTensors<'b>, Metadata), String> {
-    let st = SafeTensors::deserialize(bytes)
-        .map_err(|e| format!("not a valid safetensors file: {e}"))?;
+    let header = header_entries(bytes);
+    if let Some((_, entries)) = &header {
+        let mut seen = std::collections::HashSet::new();
+        if let Some((twice, _)) = entries.iter().find(|(k, _)| !seen.insert(k.as_str())) {
+            return Err(format!(
+                "not a valid safetensors file: {} appears twice in the header",
+                if twice == "__metadata__" {
+                    "__metadata__".to_string()
+                } else {
+                    format!("tensor {twice}")
+                }
+            ));
+        }
+    }
+    let st = SafeTensors::deserialize(bytes).map_err(|e| {
+        let tensor = header
+            .as_ref()
+            .and_then(|(n, entries)| bad_tensor(entries, bytes.len() - 8 - n));
+        format!(
+            "not a valid safetensors file: {}",
+            tensor.unwrap_or_else(|| e.to_string())
+        )
+    })?;
     let (_, header) = SafeTensors::read_metadata(bytes)
         .map_err(|e| format!("not a valid safetensors file: {e}"))?;
     let meta = header
@@ -321,6 +344,92 @@ pub fn open_safetensors<'b>(
         .clone()
         .ok_or_else(|| format!("no metadata ({hint})"))?;
     Ok((st, Metadata(meta)))
+}
+
+/// The header length and the header's entries (`name` → JSON value) in file order,
+/// duplicates kept; `None` when the header cannot be read as a JSON object.
+type HeaderEntries = (usize, Vec<(String, serde_json::Value)>);
+
+fn header_entries(bytes: &[u8]) -> Option<HeaderEntries> {
+    struct Entries;
+    impl<'de> serde::de::Visitor<'de> for Entries {
+        type Value = Vec<(String, serde_json::Value)>;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str("a JSON object")
+        }
+        fn visit_map<A: serde::de::MapAccess<'de>>(
+            self,
+            mut map: A,
+        ) -> Result<Self::Value, A::Error> {
+            let mut out = Vec::new();
+            while let Some(entry) = map.next_entry()? {
+                out.push(entry);
+            }
+            Ok(out)
+        }
+    }
+    let n = usize::try_from(u64::from_le_bytes(bytes.get(..8)?.try_into().ok()?)).ok()?;
+    let header = bytes.get(8..8usize.checked_add(n)?)?;
+    let mut de = serde_json::Deserializer::from_slice(header);
+    let entries = serde::Deserializer::deserialize_map(&mut de, Entries).ok()?;
+    Some((n, entries))
+}
+
+/// What is wrong with the first tensor (in data order) whose entry cannot be read, whose
+/// shape and dtype disagree with its byte range, or whose range leaves a gap, overlaps or
+/// runs past the `data_len` bytes after the header; `None` when every tensor is fine.
+fn bad_tensor(entries: &[(String, serde_json::Value)], data_len: usize) -> Option<String> {
+    let mut infos = Vec::new();
+    for (name, value) in entries.iter().filter(|(k, _)| k != "__metadata__") {
+        match serde_json::from_value::<safetensors::tensor::TensorInfo>(value.clone()) {
+            Ok(info) => infos.push((name, info)),
+            Err(e) => return Some(format!("tensor {name}: {e}")),
+        }
+    }
+    infos.sort_by_key(|(_, info)| info.data_offsets);
+    let mut start = 0;
+    for (name, info) in &infos {
+        let (s, e) = info.data_offsets;
+        let bits = info
+            .shape
+            .iter()
+            .try_fold(1usize, |a, &d| a.checked_mul(d))
+            .and_then(|n| n.checked_mul(info.dtype.bitsize()));
+        let Some(bits) = bits else {
+            return Some(format!(
+                "tensor {name}: shape {:?} overflows the size of a buffer",
+                info.shape
+            ));
+        };
+        if e < s || e - s != bits.div_ceil(8) {
+            return Some(format!(
+                "tensor {name}: shape {:?} of {:?} needs {} bytes, but its data_offsets \
+                 [{s}, {e}] hold {}",
+                info.shape,
+                info.dtype,
+                bits.div_ceil(8),
+                e.saturating_sub(s)
+            ));
+        }
+        if s != start {
+            return Some(format!(
+                "tensor {name}: data_offsets [{s}, {e}] {} the previous tensor's end {start}",
+                if s > start {
+                    "leave a gap after"
+                } else {
+                    "overlap"
+                }
+            ));
+        }
+        if e > data_len {
+            return Some(format!(
+                "tensor {name}: data_offsets [{s}, {e}] run past the end of the data \
+                 ({data_len} bytes): the file looks truncated"
+            ));
+        }
+        start = e;
+    }
+    None
 }
 
 /// A safetensors file's metadata, read with errors that name the field.

@@ -338,8 +338,17 @@ impl ModelConfig {
                 self.heads, self.channels
             ));
         }
-        if self.eps.is_nan() || self.eps <= 0.0 || !self.scale.is_finite() {
-            return Err("model config: eps must be positive and scale finite".into());
+        if !(self.eps.is_finite() && self.eps > 0.0) {
+            return Err(format!(
+                "model config: eps = {} must be a finite positive number",
+                self.eps
+            ));
+        }
+        if !self.scale.is_finite() {
+            return Err(format!(
+                "model config: scale = {} must be finite",
+                self.scale
+            ));
         }
         Ok(())
     }

@@ -156,20 +156,31 @@ impl Geometry {
             ));
         }
         let mut all = vec![
-            self.tool.alpha_deg,
-            self.tool.a,
-            self.tool.theta_deg,
-            self.tool.d,
+            ("tool.alpha_deg", self.tool.alpha_deg),
+            ("tool.a", self.tool.a),
+            ("tool.theta_deg", self.tool.theta_deg),
+            ("tool.d", self.tool.d),
         ];
-        all.extend(self.tracker.position);
-        all.extend(self.tracker.rpy_deg);
-        for j in &self.serial.joints {
-            all.extend([j.alpha_deg, j.a, j.theta_offset_deg, j.d]);
+        all.extend(self.tracker.position.map(|v| ("tracker.position", v)));
+        all.extend(self.tracker.rpy_deg.map(|v| ("tracker.rpy_deg", v)));
+        let serial = ["serial.joints[0]", "serial.joints[1]"];
+        let mut joint_fields = Vec::new();
+        for (j, prefix) in self.serial.joints.iter().zip(serial) {
+            joint_fields.extend([
+                (format!("{prefix}.alpha_deg"), j.alpha_deg),
+                (format!("{prefix}.a"), j.a),
+                (format!("{prefix}.theta_offset_deg"), j.theta_offset_deg),
+                (format!("{prefix}.d"), j.d),
+            ]);
         }
-        all.extend(p.base_angles_deg);
-        all.extend(p.platform_angles_deg);
-        if all.iter().any(|v| !v.is_finite()) {
-            return Err("every number must be finite".to_string());
+        all.extend(joint_fields.iter().map(|(n, v)| (n.as_str(), *v)));
+        all.extend(p.base_angles_deg.map(|v| ("parallel.base_angles_deg", v)));
+        all.extend(
+            p.platform_angles_deg
+                .map(|v| ("parallel.platform_angles_deg", v)),
+        );
+        if let Some((name, v)) = all.iter().find(|(_, v)| !v.is_finite()) {
+            return Err(format!("{name} must be a finite number, got {v}"));
         }
         Ok(())
     }

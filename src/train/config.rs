@@ -252,10 +252,10 @@ impl RunConfig {
             check((0.0..1.0).contains(&b), name, b, "must be in [0, 1)")?;
         }
         check(
-            t.adam_eps > 0.0,
+            t.adam_eps > 0.0 && t.adam_eps.is_finite(),
             "train.adam_eps",
             t.adam_eps,
-            "must be positive",
+            "must be positive and finite",
         )?;
         check(
             t.weight_decay >= 0.0 && t.weight_decay.is_finite(),

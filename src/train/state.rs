@@ -96,7 +96,17 @@ impl TrainState {
         run.validate()
             .map_err(|e| err(format!("metadata \"run\": {e}")))?;
         let normalization: Normalization = meta.json("normalization").map_err(&err)?;
+        normalization
+            .check(&run.model)
+            .map_err(|e| err(format!("metadata \"normalization\": {e}")))?;
         let stage: Stage = meta.json("stage").map_err(&err)?;
+        if stage.group == 0 || !(stage.lr0.is_finite() && stage.lr0 > 0.0) {
+            return Err(err(format!(
+                "metadata \"stage\": group = {}, lr0 = {}: the group must be positive and \
+                 lr0 a finite positive number",
+                stage.group, stage.lr0
+            )));
+        }
         let progress: Progress = meta.json("progress").map_err(&err)?;
         let specs = param_specs(&run.model);
         let mut sets: Vec<Vec<Vec<f32>>> = Vec::new();
@@ -115,11 +125,28 @@ impl TrainState {
                         spec.shape
                     )));
                 }
-                values.push(f32_values(&t));
+                let v = f32_values(&t);
+                if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+                    return Err(err(format!("tensor {name}: element {i} is {}", v[i])));
+                }
+                values.push(v);
             }
             sets.push(values);
         }
         let expected = GROUPS.len() * specs.len();
+        let known = |n: &str| {
+            GROUPS.iter().any(|g| {
+                n.strip_prefix(g)
+                    .and_then(|rest| rest.strip_prefix('.'))
+                    .is_some_and(|rest| specs.iter().any(|s| s.name == rest))
+            })
+        };
+        if let Some(extra) = st.names().into_iter().find(|n| !known(n)) {
+            return Err(err(format!(
+                "unexpected tensor {extra} for the {} config",
+                run.model.variant
+            )));
+        }
         if st.len() != expected {
             return Err(err(format!(
                 "{} tensors, expected {expected} for the {} config",
