@@ -1168,6 +1168,7 @@ fn train_state() -> TrainState {
                 best_val: 0.75,
                 best_epoch: 1,
                 bad_epochs: 0,
+                first_loss: Some(1.2),
                 history: vec![EpochRecord {
                     stage: "core".into(),
                     epoch: 1,
@@ -1437,6 +1438,26 @@ fn a_calibration_file_with_nan_sigma_is_refused() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("sigma[0]"), "{err}");
+}
+
+#[test]
+fn an_implausible_calibration_value_is_blamed_on_the_parameter() {
+    // 1e300 used to load, and then "forward kinematics did not converge" blamed the
+    // recording the robot could not follow.
+    let path = scratch("huge-error.toml");
+    let text = calibration_toml();
+    let line = text
+        .lines()
+        .find(|l| l.starts_with("\"limb1.db.x\" = "))
+        .expect("the file lists limb1.db.x");
+    std::fs::write(&path, text.replace(line, "\"limb1.db.x\" = 1e300")).unwrap();
+    let err = iastgcn::calibrate::file::load(&path)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("huge-error.toml") && err.contains("errors.\"limb1.db.x\" = 1e300"),
+        "{err}"
+    );
 }
 
 #[test]

@@ -332,7 +332,10 @@ fn an_exploding_but_finite_loss_stops_as_diverged() {
             // Finite all along: the guard, not the NaN check, stopped it.
             assert!(what.contains("rose to"), "{what}");
             assert!(what.contains("learning rate"), "{what}");
-            assert!(what.contains(&format!("{EXPLOSION_FACTOR:.0e} times")), "{what}");
+            assert!(
+                what.contains(&format!("{EXPLOSION_FACTOR:.0e} times")),
+                "{what}"
+            );
             assert_eq!(
                 *last_good, start,
                 "the epoch's start is the last good state"

@@ -112,6 +112,10 @@ pub fn save(
     crate::atomic::write(path, text.as_bytes()).map_err(|e| err(e.to_string()))
 }
 
+/// How many prior SDs (`identify::default_prior_sigma`) a loaded error value may be at
+/// most: 300 mm for a length, 2 to 5 rad for an angle.
+pub const PLAUSIBLE_PRIORS: f64 = 1000.0;
+
 /// Reads a calibration file, checking names, sizes and values.
 pub fn load(path: &Path) -> Result<LoadedCalibration, CalibrationFileError> {
     let name = path.display().to_string();
@@ -125,6 +129,7 @@ pub fn load(path: &Path) -> Result<LoadedCalibration, CalibrationFileError> {
         return Err(err(format!("unsupported version {}", f.version)));
     }
     let names = ErrorParams::names();
+    let prior = super::identify::default_prior_sigma();
     let mut errors = ErrorParams::zero();
     for (k, v) in &f.errors {
         let i = names
@@ -133,6 +138,15 @@ pub fn load(path: &Path) -> Result<LoadedCalibration, CalibrationFileError> {
             .ok_or_else(|| err(format!("unknown parameter {k:?} in [errors]")))?;
         if !v.is_finite() {
             return Err(err(format!("errors.{k:?} is not finite")));
+        }
+        // A value far beyond the identification's prior is no error a robot could have
+        // (and would only fail later, blamed on the recording the robot cannot follow).
+        let bound = PLAUSIBLE_PRIORS * prior[i];
+        if v.abs() > bound {
+            return Err(err(format!(
+                "errors.{k:?} = {v:e}: beyond ±{bound} ({PLAUSIBLE_PRIORS} × its prior SD {} in mm or rad): not a geometric error of this robot",
+                prior[i]
+            )));
         }
         errors.values[i] = *v;
     }

@@ -111,6 +111,7 @@ fn cell(out: &mut String, v: Option<f64>) {
     out.push(',');
     if let Some(v) = v {
         // Rust's shortest round-trip formatting: the file reads back bit for bit.
+        // invariant: writing to a String cannot fail.
         write!(out, "{v}").expect("writing to a String");
     }
 }
@@ -130,6 +131,7 @@ impl Recording {
         }
         out.push('\n');
         for r in &self.rows {
+            // invariant: writing to a String cannot fail.
             write!(out, "{}", r.t).expect("writing to a String");
             for &v in &r.values {
                 cell(&mut out, v);
@@ -281,11 +283,13 @@ impl Recording {
             let tracker = match pose.iter().filter(|v| v.is_some()).count() {
                 0 => None,
                 6 => {
+                    // invariant: this arm counted six present values.
                     let p = [0, 1, 2, 3, 4, 5].map(|k| pose[k].expect("all six present"));
                     table.check_rotation(*line, n - 3, &p)?;
                     Some(p)
                 }
                 _ => {
+                    // invariant: this arm has 1 to 5 of the six present, so one is empty.
                     let c = (0..6).find(|&k| pose[k].is_none()).expect("one is empty");
                     return Err(table.at(
                         *line,
