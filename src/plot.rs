@@ -156,7 +156,8 @@ pub fn draw(
             .map_or("plot".into(), |n| n.to_string_lossy()),
         std::process::id()
     ));
-    {
+    // The temporary file goes on every error (a full disk fails inside the encoder).
+    let drawn = (|| {
         let root = BitMapBackend::new(&tmp, size).into_drawing_area();
         root.fill(&WHITE).map_err(|e| err(&e))?;
         let areas = root.split_evenly((rows, cols));
@@ -249,6 +250,11 @@ pub fn draw(
             }
         }
         root.present().map_err(|e| err(&e))?;
+        drop(root);
+        std::fs::rename(&tmp, path).map_err(|e| err(&e))
+    })();
+    if drawn.is_err() {
+        let _ = std::fs::remove_file(&tmp);
     }
-    std::fs::rename(&tmp, path).map_err(|e| err(&e))
+    drawn
 }

@@ -13,8 +13,9 @@ pub use dataset::{prepare, Dataset, DatasetError, Normalization, Prepared, FEATU
 pub use features::FeatureConfig;
 pub use measurements::{read_measurements, recording_measurements};
 pub use recording::{
-    expected_channels, read_calibration_set, tracker_columns, tracker_pose, write_calibration_set,
-    CalibrationRow, DataError, Recording, Row, JOINT_COLUMNS, TRACKER_COLUMNS,
+    calibration_set_csv, expected_channels, read_calibration_set, tracker_columns, tracker_pose,
+    write_calibration_set, CalibrationRow, DataError, Recording, Row, JOINT_COLUMNS,
+    TRACKER_COLUMNS,
 };
 pub use simulated::{
     record_calibration_set, record_run, RecordedRun, MAX_CALIBRATION_POSES, MAX_RUN_SECONDS,

@@ -329,6 +329,12 @@ pub struct CalibrationRow {
 
 /// Writes a calibration set atomically.
 pub fn write_calibration_set(path: &Path, rows: &[CalibrationRow]) -> Result<(), DataError> {
+    atomic::write(path, calibration_set_csv(rows).as_bytes())
+        .map_err(|e| file_err(&path.display().to_string(), e.to_string()))
+}
+
+/// A calibration set as CSV text (what [`write_calibration_set`] writes).
+pub fn calibration_set_csv(rows: &[CalibrationRow]) -> String {
     let mut out = JOINT_COLUMNS
         .iter()
         .chain(&TRACKER_COLUMNS)
@@ -346,8 +352,7 @@ pub fn write_calibration_set(path: &Path, rows: &[CalibrationRow]) -> Result<(),
         out.push_str(&cells.join(","));
         out.push('\n');
     }
-    atomic::write(path, out.as_bytes())
-        .map_err(|e| file_err(&path.display().to_string(), e.to_string()))
+    out
 }
 
 /// Reads a calibration set: columns q1..q5, x,y,z,rx,ry,rz, every cell a finite number.

@@ -4,7 +4,8 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{tracker_columns, write_calibration_set, CalibrationRow, Recording, Row};
+use super::{calibration_set_csv, tracker_columns, CalibrationRow, Recording, Row};
+use crate::atomic::Batch;
 use crate::error::{Error, Result};
 use crate::plot::{self, Panel, Series};
 use crate::progress::Reporter;
@@ -128,10 +129,14 @@ pub fn record_run(
         rows,
     };
     let plot_path = plot.unwrap_or_else(|| out.with_extension("png"));
-    plot_run(&plot_path, kind, &recording, &truth)?;
-    recording.write(out)?;
-    info.write(out)
-        .map_err(|e| Error::io(&RunInfo::sidecar(out), e))?;
+    // The plot, the CSV and its sidecar replace older files together or not at all.
+    let mut batch = Batch::new();
+    batch.add_with(&plot_path, |tmp| plot_run(tmp, kind, &recording, &truth))?;
+    batch
+        .add(out, recording.to_csv().as_bytes())
+        .map_err(|e| Error::io(out, e))?;
+    stage_sidecar(&mut batch, &info, out)?;
+    batch.commit().map_err(|e| Error::io(out, e))?;
     let n = truth.len().max(1) as f64;
     Ok(RecordedRun {
         end,
@@ -250,8 +255,20 @@ pub fn record_calibration_set(
         .collect();
     reporter.update(rows.len() as u64, "");
     reporter.end();
-    write_calibration_set(out, &rows)?;
-    info.write(out)
-        .map_err(|e| Error::io(&RunInfo::sidecar(out), e))?;
+    let mut batch = Batch::new();
+    batch
+        .add(out, calibration_set_csv(&rows).as_bytes())
+        .map_err(|e| Error::io(out, e))?;
+    stage_sidecar(&mut batch, info, out)?;
+    batch.commit().map_err(|e| Error::io(out, e))?;
     Ok(rows.len())
+}
+
+/// Stages the `.run.toml` sidecar of the recording `csv` in `batch`.
+fn stage_sidecar(batch: &mut Batch, info: &RunInfo, csv: &Path) -> Result<()> {
+    let sidecar = RunInfo::sidecar(csv);
+    let text = info.to_toml().map_err(|e| Error::io(&sidecar, e))?;
+    batch
+        .add(&sidecar, text.as_bytes())
+        .map_err(|e| Error::io(&sidecar, e))
 }

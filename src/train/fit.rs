@@ -333,6 +333,14 @@ pub fn train(
         trainer.batch(),
         trainer.steps_per_epoch()
     ));
+    if trainer.batch() < config.train.batch {
+        // Documented (docs/robustness.md): a batch beyond the split is the whole split.
+        reporter.note(&format!(
+            "warning: train.batch = {} is more than the {} training windows: each step takes all of them",
+            config.train.batch,
+            trainer.batch()
+        ));
+    }
     let name = config.model.variant.name();
     let result = run_stage(&mut trainer, name, reporter, |t, improved| {
         write_epoch_files(t, config, graph, data, out, improved)

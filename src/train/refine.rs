@@ -11,7 +11,7 @@ use super::{
     RunConfig, Trainer,
 };
 use crate::data::Dataset;
-use crate::error::{write_file, Error, Result};
+use crate::error::{Error, Result};
 use crate::gpu::Gpu;
 use crate::graph::Graph;
 use crate::model::{Checkpoint, Parameters};
@@ -167,15 +167,29 @@ impl Refined {
             parameters: self.params.clone(),
             ..base.clone()
         };
-        ck.save(out)?;
-        log::write_csv(&sibling(out, ".log.csv"), &self.history)?;
-        log::plot_losses(
-            &sibling(out, ".loss.png"),
-            &[("refine".to_string(), self.history.clone())],
-        )?;
+        // All five replace older files together or not at all.
+        let mut batch = crate::atomic::Batch::new();
+        let bytes = ck
+            .to_bytes()
+            .map_err(|message| crate::model::CheckpointError {
+                file: out.display().to_string(),
+                message,
+            })?;
+        let mut text =
+            |path: &Path, bytes: &[u8]| batch.add(path, bytes).map_err(|e| Error::io(path, e));
+        text(out, &bytes)?;
+        let log_csv = sibling(out, ".log.csv");
+        text(&log_csv, log::history_csv(&self.history).as_bytes())?;
+        let accumulated = sibling(out, ".accumulated.csv");
         let csv = log::accumulated_csv(&self.before, &self.after);
-        write_file(&sibling(out, ".accumulated.csv"), csv.as_bytes())?;
-        log::plot_accumulated(&sibling(out, ".accumulated.png"), &self.before, &self.after)?;
+        text(&accumulated, csv.as_bytes())?;
+        batch.add_with(&sibling(out, ".loss.png"), |tmp| {
+            log::plot_losses(tmp, &[("refine".to_string(), self.history.clone())])
+        })?;
+        batch.add_with(&sibling(out, ".accumulated.png"), |tmp| {
+            log::plot_accumulated(tmp, &self.before, &self.after)
+        })?;
+        batch.commit().map_err(|e| Error::io(out, e))?;
         Ok(ck)
     }
 }

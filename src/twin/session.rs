@@ -74,8 +74,12 @@ impl RunInfo {
 
     /// Writes the sidecar of the recording at `csv` (atomically).
     pub fn write(&self, csv: &Path) -> std::io::Result<()> {
-        let text = toml::to_string(self).map_err(std::io::Error::other)?;
-        crate::atomic::write(&Self::sidecar(csv), text.as_bytes())
+        crate::atomic::write(&Self::sidecar(csv), self.to_toml()?.as_bytes())
+    }
+
+    /// The sidecar's text.
+    pub fn to_toml(&self) -> std::io::Result<String> {
+        toml::to_string(self).map_err(std::io::Error::other)
     }
 
     /// Reads the sidecar of the recording at `csv`; the error names the file.
