@@ -6,6 +6,7 @@
 use std::fmt::Display;
 use std::path::{Path, PathBuf};
 
+use crate::calibrate::arm::ArmCalibrationError;
 use crate::calibrate::file::CalibrationFileError;
 use crate::calibrate::CalibrationError;
 use crate::data::{DataError, DatasetError};
@@ -29,6 +30,9 @@ pub enum Error {
     /// The identification of the geometric errors.
     #[error(transparent)]
     Calibration(#[from] CalibrationError),
+    /// A serial arm's calibration could not run.
+    #[error(transparent)]
+    ArmCalibration(#[from] ArmCalibrationError),
     /// A calibration file that cannot be written or read.
     #[error(transparent)]
     CalibrationFile(#[from] CalibrationFileError),

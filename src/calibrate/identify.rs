@@ -174,7 +174,7 @@ fn predict(
 
 /// Greedy column selection (pivoted Gram–Schmidt) on the prior-scaled Jacobian: the
 /// parameters whose effects are independent of those already chosen.
-fn identifiable(j: &DMatrix<f64>, tolerance: f64) -> (Vec<usize>, f64) {
+pub(crate) fn identifiable(j: &DMatrix<f64>, tolerance: f64) -> (Vec<usize>, f64) {
     let mut basis: Vec<DVector<f64>> = Vec::new();
     let mut chosen = Vec::new();
     let max_norm = (0..j.ncols())

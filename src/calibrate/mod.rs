@@ -2,6 +2,7 @@
 //! graded iterated EKF, the calibration file and residual extraction. Imports `robot`
 //! only.
 
+pub mod arm;
 pub mod file;
 pub mod identify;
 pub mod jacobian;

@@ -7,15 +7,15 @@ use super::identify::Measurement;
 use super::jacobian::twist;
 use crate::robot::{Robot, RobotError};
 
-/// `(fit, held out)`: every `every`-th measurement is held out (none when `every` is 0).
-pub fn hold_out(all: &[Measurement], every: usize) -> (Vec<Measurement>, Vec<Measurement>) {
+/// `(fit, held out)`: every `every`-th measurement (or arm pose) is held out (none when `every` is 0).
+pub fn hold_out<T: Clone>(all: &[T], every: usize) -> (Vec<T>, Vec<T>) {
     let (fit, held): (Vec<_>, Vec<_>) = all
         .iter()
         .enumerate()
         .partition(|(i, _)| every == 0 || (i + 1) % every != 0);
     (
-        fit.into_iter().map(|(_, m)| *m).collect(),
-        held.into_iter().map(|(_, m)| *m).collect(),
+        fit.into_iter().map(|(_, m)| m.clone()).collect(),
+        held.into_iter().map(|(_, m)| m.clone()).collect(),
     )
 }
 

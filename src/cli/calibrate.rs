@@ -14,13 +14,16 @@ use iastgcn::stats::Summary;
 
 #[derive(clap::Args)]
 pub struct CalibrateArgs {
-    /// Calibration measurement set (CSV: q1..q5, x,y,z,rx,ry,rz).
-    #[arg(long)]
+    /// Calibration measurement set (CSV: q1..q5, x,y,z,rx,ry,rz), or with a serial arm's
+    /// description in `--robot`, its pose file (docs/arms.md).
+    #[arg(long, visible_alias = "data")]
     pub measurements: PathBuf,
     /// Output calibration file (TOML).
     #[arg(long)]
     pub out: PathBuf,
-    /// Robot geometry asset (default: the embedded assets/robot.toml).
+    /// Robot: the hybrid machine's geometry asset (default: the embedded
+    /// assets/robot.toml), or a serial arm's description (`kind = "serial"`,
+    /// docs/arms.md), which writes the calibrated description to `--out`.
     #[arg(long)]
     pub robot: Option<PathBuf>,
     /// Every how many measurements one is held out for the report (0: none).
@@ -42,6 +45,16 @@ fn row(label: &str, stage: &str, (p, a): &(Vec<f64>, Vec<f64>)) -> String {
 }
 
 pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
+    if let Some(robot) = &args.robot {
+        if iastgcn::robot::arm::is_arm_description(robot) {
+            return super::arm::calibrate(
+                robot,
+                &args.measurements,
+                args.hold_out_every,
+                &args.out,
+            );
+        }
+    }
     let nominal = Robot::nominal(Geometry::load_or_default(args.robot.as_deref())?);
     let (fit, held) = hold_out(&read_measurements(&args.measurements)?, args.hold_out_every);
     let spinner = ProgressBar::new_spinner().with_message(format!("EKF on {} poses", fit.len()));

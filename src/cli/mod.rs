@@ -1,6 +1,7 @@
 //! Command line: clap commands that parse, call the library and print; progress bars;
 //! every error turned into one readable message. No pipeline logic lives here.
 
+mod arm;
 mod budget;
 mod calibrate;
 mod compensate;

@@ -12,8 +12,12 @@ use iastgcn::twin::{draw_machine, PathKind, PathParams, RunInfo};
 pub struct SimulateArgs {
     /// Path to polish (grid, fermat, hilbert, rosette) or `calibration` for static
     /// measurement poses.
-    #[arg(long, value_parser = ["grid", "fermat", "hilbert", "rosette", "calibration"])]
-    pub trajectory: String,
+    #[arg(long, value_parser = ["grid", "fermat", "hilbert", "rosette", "calibration"], required_unless_present = "arm", conflicts_with = "arm")]
+    pub trajectory: Option<String>,
+    /// Measure static poses of the serial twin of this arm description instead
+    /// (docs/arms.md): writes a pose CSV and its hidden truth beside it.
+    #[arg(long)]
+    pub arm: Option<PathBuf>,
     /// Rotation of the pattern on the part, degrees.
     #[arg(long, default_value_t = 0.0)]
     pub rotation: f64,
@@ -37,7 +41,7 @@ pub struct SimulateArgs {
     /// Robot geometry asset (default: the embedded assets/robot.toml).
     #[arg(long)]
     pub robot: Option<PathBuf>,
-    /// Number of measurement poses for `--trajectory calibration`.
+    /// Number of measurement poses for `--trajectory calibration` or `--arm`.
     #[arg(long, default_value_t = 80)]
     pub poses: usize,
     /// Output CSV.
@@ -49,6 +53,13 @@ pub struct SimulateArgs {
 }
 
 pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
+    let trajectory = match (&args.arm, &args.trajectory) {
+        (Some(arm), _) => {
+            return super::arm::simulate(arm, args.poses, args.seed, args.machine_seed, &args.out)
+        }
+        (None, Some(t)) => t.as_str(),
+        (None, None) => anyhow::bail!("give --trajectory or --arm"),
+    };
     let geometry = Geometry::load_or_default(args.robot.as_deref())?;
     let machine = draw_machine(geometry.clone(), args.machine_seed);
     let (controller, controller_name) = match &args.calibration {
@@ -59,7 +70,7 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
         None => (Robot::nominal(geometry), "nominal".to_string()),
     };
     let mut console = Console::default();
-    if args.trajectory == "calibration" {
+    if trajectory == "calibration" {
         let mut info = RunInfo::calibration(args.seed);
         info.machine_seed = args.machine_seed;
         info.controller = controller_name;
@@ -77,7 +88,7 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
         );
         return Ok(());
     }
-    let kind: PathKind = args.trajectory.parse().map_err(anyhow::Error::msg)?;
+    let kind: PathKind = trajectory.parse().map_err(anyhow::Error::msg)?;
     anyhow::ensure!(
         args.minutes.is_finite() && args.minutes > 0.0,
         "--minutes must be positive, got {}",

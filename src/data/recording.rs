@@ -54,7 +54,7 @@ pub enum DataError {
     },
 }
 
-fn file_err(file: &str, message: impl Into<String>) -> DataError {
+pub(super) fn file_err(file: &str, message: impl Into<String>) -> DataError {
     DataError::File {
         file: file.to_string(),
         message: message.into(),
@@ -458,14 +458,14 @@ fn with_rule(e: DataError, rule: &str) -> DataError {
 }
 
 /// A parsed CSV: header and rows with their 1-based line numbers.
-struct Table<'a> {
-    file: &'a str,
-    header: Vec<String>,
-    rows: Vec<(u64, Vec<String>)>,
+pub(super) struct Table<'a> {
+    pub(super) file: &'a str,
+    pub(super) header: Vec<String>,
+    pub(super) rows: Vec<(u64, Vec<String>)>,
 }
 
 impl<'a> Table<'a> {
-    fn parse(text: &str, file: &'a str) -> Result<Table<'a>, DataError> {
+    pub(super) fn parse(text: &str, file: &'a str) -> Result<Table<'a>, DataError> {
         let mut reader = csv::ReaderBuilder::new()
             .has_headers(true)
             .from_reader(text.as_bytes());
@@ -539,7 +539,7 @@ impl<'a> Table<'a> {
         Ok(Table { file, header, rows })
     }
 
-    fn at(&self, line: u64, column: usize, message: impl Into<String>) -> DataError {
+    pub(super) fn at(&self, line: u64, column: usize, message: impl Into<String>) -> DataError {
         DataError::At {
             file: self.file.to_string(),
             line,
@@ -553,7 +553,7 @@ impl<'a> Table<'a> {
     }
 
     /// An error at the first header name (from column `from`) that repeats an earlier one.
-    fn check_unique(&self, from: usize) -> Result<(), DataError> {
+    pub(super) fn check_unique(&self, from: usize) -> Result<(), DataError> {
         for i in from..self.header.len() {
             let c = &self.header[i];
             if let Some(j) = self.header[from..i].iter().position(|h| h == c) {
@@ -588,7 +588,12 @@ impl<'a> Table<'a> {
     }
 
     /// A cell as a finite number, `None` when empty.
-    fn number(&self, line: u64, column: usize, cell: &str) -> Result<Option<f64>, DataError> {
+    pub(super) fn number(
+        &self,
+        line: u64,
+        column: usize,
+        cell: &str,
+    ) -> Result<Option<f64>, DataError> {
         if cell.is_empty() {
             return Ok(None);
         }

@@ -1,9 +1,11 @@
 //! The hybrid robot: nominal geometry (asset), 3-UPS/UP inverse and forward kinematics,
-//! the serial MDH head, the full tool pose, and the Table I error parameters.
+//! the serial MDH head, the full tool pose, and the Table I error parameters; and any
+//! serial arm of the user's from its description file (`arm`).
 //!
 //! CPU only (nalgebra). Units inside: mm and rad. The base frame's z axis points down,
 //! towards the workpiece.
 
+pub mod arm;
 mod errors;
 mod geometry;
 mod parallel;

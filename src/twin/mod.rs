@@ -3,6 +3,7 @@
 //! tracker, and the simulation that runs them. Imports `robot` only: the ground truth
 //! never peeks at the estimator.
 
+pub mod arm;
 mod machine;
 mod mirror;
 mod noise;

@@ -1,0 +1,208 @@
+//! The pose CSV of a serial arm (docs/arms.md "The pose file"): one measured pose a line.
+//!
+//! ```text
+//! pose,q1,q2,…,qn,x,y,z[,rx,ry,rz][,channel,…]
+//! ```
+//!
+//! `pose` (a number) or `time` (s) first, increasing; the joint values `q1…qn` in
+//! degrees (revolute) or mm (prismatic), as many as the description has joints; the
+//! measured tool position `x,y,z` in mm in the tracker's frame; optionally its
+//! orientation `rx,ry,rz` (roll, pitch, yaw in degrees, R = Rz·Ry·Rx); then any number of
+//! further sensor channels, named freely. Every cell is a finite number.
+
+use std::path::Path;
+
+use nalgebra::{Point3, UnitQuaternion};
+
+use super::recording::{file_err, DataError, Table};
+use crate::atomic;
+use crate::robot::arm::ArmPose;
+
+/// A pose file: its extra channels' names and its poses.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ArmPoses {
+    /// `pose` or `time`: what the first column counts.
+    pub stamp: String,
+    /// Whether the file has the orientation columns.
+    pub oriented: bool,
+    /// Names of the further sensor channels, in file order.
+    pub channels: Vec<String>,
+    /// The poses, in file order.
+    pub poses: Vec<ArmPose>,
+}
+
+/// Reads a pose file for an arm of `joints` joints; errors name file, line and column.
+pub fn read_arm_poses(path: &Path, joints: usize) -> Result<ArmPoses, DataError> {
+    let file = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|e| file_err(&file, e.to_string()))?;
+    parse_arm_poses(&text, &file, joints)
+}
+
+/// Parses a pose file's text (`file` names it in errors).
+///
+/// ```
+/// use iastgcn::data::arm_poses::parse_arm_poses;
+///
+/// let text = "pose,q1,q2,x,y,z,temp_c\n1,10,20,500.5,20,300,21.5\n2,15,25,490,30,310,21.6\n";
+/// let file = parse_arm_poses(text, "poses.csv", 2)?;
+/// assert_eq!(file.channels, ["temp_c"]);
+/// assert_eq!(file.poses[1].joints, [15.0, 25.0]);
+///
+/// let err = parse_arm_poses(text, "poses.csv", 3).unwrap_err();
+/// assert!(err.to_string().contains("q3"), "{err}");
+/// # Ok::<(), iastgcn::data::DataError>(())
+/// ```
+pub fn parse_arm_poses(text: &str, file: &str, joints: usize) -> Result<ArmPoses, DataError> {
+    let table = Table::parse(text, file)?;
+    let header = &table.header;
+    let rule = format!(
+        "the header must start pose (or time),q1,…,q{joints},x,y,z, then optionally rx,ry,rz and further channels"
+    );
+    table.check_unique(0)?;
+    let mut expected: Vec<String> = vec!["pose".into()];
+    expected.extend((1..=joints).map(|i| format!("q{i}")));
+    expected.extend(["x", "y", "z"].map(String::from));
+    if header.len() < expected.len() {
+        return Err(file_err(
+            file,
+            format!(
+                "{} columns, fewer than the {} the arm's {joints} joints need; {rule}",
+                header.len(),
+                expected.len()
+            ),
+        ));
+    }
+    for (i, want) in expected.iter().enumerate() {
+        let ok = header[i] == *want || (i == 0 && header[i] == "time");
+        if !ok {
+            let hint = if i > joints && header[i].starts_with('q') {
+                " (the description has fewer joints than the file)".to_string()
+            } else if i <= joints && header[i] == "x" {
+                format!(" (the description has {joints} joints, the file fewer)")
+            } else {
+                String::new()
+            };
+            return Err(table.at(
+                1,
+                i,
+                format!(
+                    "column {} is {:?} where {want:?} belongs{hint}; {rule}",
+                    i + 1,
+                    header[i]
+                ),
+            ));
+        }
+    }
+    let mut next = expected.len();
+    if let Some(extra) = header.get(next).filter(|h| is_joint_column(h)) {
+        return Err(table.at(
+            1,
+            next,
+            format!("column {extra:?}: the description has {joints} joints, the file more"),
+        ));
+    }
+    let oriented = header.get(next).is_some_and(|h| h == "rx");
+    if oriented {
+        for (k, want) in ["rx", "ry", "rz"].iter().enumerate() {
+            if header.get(next + k).map(String::as_str) != Some(want) {
+                return Err(table.at(
+                    1,
+                    next + k,
+                    format!("the orientation columns are rx,ry,rz together; {rule}"),
+                ));
+            }
+        }
+        next += 3;
+    }
+    let channels: Vec<String> = header[next..].to_vec();
+    if let Some(i) = channels.iter().position(|c| c.is_empty()) {
+        return Err(table.at(1, next + i, "a channel column without a name"));
+    }
+    let mut poses = Vec::with_capacity(table.rows.len());
+    let mut last = f64::NEG_INFINITY;
+    for (line, cells) in &table.rows {
+        let mut v = Vec::with_capacity(cells.len());
+        for (c, cell) in cells.iter().enumerate() {
+            v.push(
+                table
+                    .number(*line, c, cell)?
+                    .ok_or_else(|| table.at(*line, c, "empty cell"))?,
+            );
+        }
+        if v[0] <= last {
+            return Err(table.at(
+                *line,
+                0,
+                format!(
+                    "{} = {} does not increase (the line before has {last})",
+                    header[0], v[0]
+                ),
+            ));
+        }
+        last = v[0];
+        let p = 1 + joints;
+        let orientation = oriented.then(|| {
+            let [r, pi, y] = [v[p + 3], v[p + 4], v[p + 5]].map(f64::to_radians);
+            UnitQuaternion::from_euler_angles(r, pi, y)
+        });
+        poses.push(ArmPose {
+            stamp: v[0],
+            joints: v[1..p].to_vec(),
+            position: Point3::new(v[p], v[p + 1], v[p + 2]),
+            orientation,
+            channels: v[next..].to_vec(),
+        });
+    }
+    if poses.is_empty() {
+        return Err(file_err(file, "no poses"));
+    }
+    Ok(ArmPoses {
+        stamp: header[0].clone(),
+        oriented,
+        channels,
+        poses,
+    })
+}
+
+fn is_joint_column(h: &str) -> bool {
+    h.strip_prefix('q')
+        .is_some_and(|n| !n.is_empty() && n.chars().all(|c| c.is_ascii_digit()))
+}
+
+impl ArmPoses {
+    /// The file's text (what [`parse_arm_poses`] reads back; numbers round-trip).
+    pub fn to_csv(&self) -> String {
+        let joints = self.poses.first().map_or(0, |p| p.joints.len());
+        let mut header = vec![self.stamp.clone()];
+        header.extend((1..=joints).map(|i| format!("q{i}")));
+        header.extend(["x", "y", "z"].map(String::from));
+        if self.oriented {
+            header.extend(["rx", "ry", "rz"].map(String::from));
+        }
+        header.extend(self.channels.iter().cloned());
+        let mut out = header.join(",");
+        out.push('\n');
+        for p in &self.poses {
+            let mut cells: Vec<String> = vec![p.stamp.to_string()];
+            cells.extend(p.joints.iter().map(f64::to_string));
+            cells.extend(p.position.coords.iter().map(f64::to_string));
+            if self.oriented {
+                let (r, pi, y) = p
+                    .orientation
+                    .unwrap_or_else(UnitQuaternion::identity)
+                    .euler_angles();
+                cells.extend([r, pi, y].map(|a| a.to_degrees().to_string()));
+            }
+            cells.extend(p.channels.iter().map(f64::to_string));
+            out.push_str(&cells.join(","));
+            out.push('\n');
+        }
+        out
+    }
+
+    /// Writes the file atomically.
+    pub fn write(&self, path: &Path) -> Result<(), DataError> {
+        atomic::write(path, self.to_csv().as_bytes())
+            .map_err(|e| file_err(&path.display().to_string(), e.to_string()))
+    }
+}

@@ -1,0 +1,475 @@
+//! A serial arm of the user's (docs/arms.md): joints in modified Denavit–Hartenberg form
+//! with Hayati's β for nearly parallel axes, joint limits, the base transform (the
+//! measurement frame's registration) and the tool transform, read from a TOML
+//! description. Units inside: mm and rad; the file says degrees where it says `_deg`.
+//!
+//! Every kinematic parameter has a name (`<joint>.alpha|a|beta|theta|d`,
+//! `base.x|y|z|rx|ry|rz`, `tool.x|y|z|rx|ry|rz`) and a place in [`Arm::values`], the
+//! vector calibration identifies.
+
+use std::collections::BTreeSet;
+use std::path::Path;
+
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+use super::RobotError;
+
+/// Parameters per joint, in [`Arm::values`] order.
+pub const JOINT_PARAMS: [&str; 5] = ["alpha", "a", "beta", "theta", "d"];
+/// Parameters of the base and of the tool transform, in order.
+pub const FRAME_PARAMS: [&str; 6] = ["x", "y", "z", "rx", "ry", "rz"];
+/// The most joints a description may have.
+pub const MAX_JOINTS: usize = 32;
+
+/// Revolute (the joint value turns θ, degrees in files) or prismatic (it extends d, mm).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum JointKind {
+    /// Rotates about its z axis.
+    Revolute,
+    /// Slides along its z axis.
+    Prismatic,
+}
+
+/// One joint as the file writes it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct JointSpec {
+    /// Unique name (parameters are named after it).
+    pub name: String,
+    /// `revolute` or `prismatic`.
+    pub kind: JointKind,
+    /// Twist about the previous x axis, degrees.
+    pub alpha_deg: f64,
+    /// Length along the previous x axis, mm.
+    pub a_mm: f64,
+    /// Hayati's rotation about the previous y axis, degrees (0 in a plain MDH table).
+    #[serde(default)]
+    pub beta_deg: f64,
+    /// Joint angle offset, degrees.
+    pub theta_deg: f64,
+    /// Offset along the joint's z axis, mm.
+    pub d_mm: f64,
+    /// Lower limit of the joint value (degrees or mm).
+    pub min: f64,
+    /// Upper limit of the joint value (degrees or mm).
+    pub max: f64,
+}
+
+/// A rigid transform as the file writes it: translation (mm), then roll, pitch, yaw
+/// (degrees; R = Rz(yaw)·Ry(pitch)·Rx(roll)).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FrameSpec {
+    /// Translation, mm.
+    pub xyz_mm: [f64; 3],
+    /// Roll, pitch, yaw, degrees.
+    pub rpy_deg: [f64; 3],
+}
+
+/// What a calibration wrote into a calibrated description (absent in a nominal one).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationRecord {
+    /// Poses the parameters were fitted on.
+    pub poses: usize,
+    /// Identified parameters.
+    pub identified: Vec<String>,
+    /// Parameters left at their nominal value, each with the reason.
+    pub kept_nominal: Vec<String>,
+    /// RMS position residual on the fitted poses before and after, mm.
+    pub rms_before_mm: f64,
+    /// RMS position residual on the fitted poses after calibration, mm.
+    pub rms_after_mm: f64,
+}
+
+/// The description file of a serial arm.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ArmSpec {
+    /// Always `serial` (the hybrid machine's asset is assets/robot.toml).
+    pub kind: String,
+    /// The arm's name.
+    pub name: String,
+    /// Where the nominal values come from.
+    #[serde(default)]
+    pub source: String,
+    /// Joints from the base outwards.
+    pub joint: Vec<JointSpec>,
+    /// Robot base in the measurement (tracker) frame.
+    #[serde(default)]
+    pub base: FrameSpec,
+    /// Tool point (TCP) in the last joint's frame.
+    #[serde(default)]
+    pub tool: FrameSpec,
+    /// Parameters calibration may identify (all when absent); `*` ends a prefix
+    /// (`base.*`, `elbow.*`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub identify: Option<Vec<String>>,
+    /// Written by `iastgcn calibrate`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<CalibrationRecord>,
+}
+
+/// A serial arm: its description and the kinematic parameter vector (mm, rad).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Arm {
+    /// The description it was read from (limits, names, what may be identified).
+    pub spec: ArmSpec,
+    /// Every kinematic parameter, named by [`Arm::names`].
+    pub values: Vec<f64>,
+}
+
+/// A joint axis in the measurement frame: a point on it (the joint frame's origin) and
+/// its direction.
+pub type JointAxis = (Point3<f64>, Vector3<f64>);
+
+/// One measured pose of an arm: joint values (degrees or mm), the measured tool
+/// position (mm, measurement frame) and, where measured, its orientation.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ArmPose {
+    /// Pose number or time stamp (s), as the file gives it.
+    pub stamp: f64,
+    /// Joint values, degrees (revolute) or mm (prismatic).
+    pub joints: Vec<f64>,
+    /// Measured tool position, mm.
+    pub position: Point3<f64>,
+    /// Measured tool orientation, where the instrument gives one.
+    pub orientation: Option<UnitQuaternion<f64>>,
+    /// Further sensor channels (names in the file's header).
+    pub channels: Vec<f64>,
+}
+
+fn frame(spec: &FrameSpec) -> [f64; 6] {
+    let [x, y, z] = spec.xyz_mm;
+    let [r, p, w] = spec.rpy_deg.map(f64::to_radians);
+    [x, y, z, r, p, w]
+}
+
+fn frame_spec(v: &[f64]) -> FrameSpec {
+    FrameSpec {
+        xyz_mm: [v[0], v[1], v[2]],
+        rpy_deg: [v[3].to_degrees(), v[4].to_degrees(), v[5].to_degrees()],
+    }
+}
+
+/// The isometry of six frame values (mm, rad: x, y, z, roll, pitch, yaw).
+pub fn frame_isometry(v: &[f64]) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::new(v[0], v[1], v[2]),
+        UnitQuaternion::from_euler_angles(v[3], v[4], v[5]),
+    )
+}
+
+impl Arm {
+    /// Reads and checks a description file; errors name the file and the field.
+    pub fn load(path: &Path) -> Result<Arm, RobotError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| RobotError::Asset {
+            file: file.clone(),
+            message: e.to_string(),
+        })?;
+        Arm::parse(&text, &file)
+    }
+
+    /// Parses and checks a description (`file` names it in errors).
+    pub fn parse(text: &str, file: &str) -> Result<Arm, RobotError> {
+        let err = |message: String| RobotError::Asset {
+            file: file.to_string(),
+            message,
+        };
+        let spec: ArmSpec = toml::from_str(text).map_err(|e| err(e.to_string()))?;
+        Arm::from_spec(spec).map_err(err)
+    }
+
+    /// Checks a description and builds its parameter vector; the error names the field.
+    pub fn from_spec(spec: ArmSpec) -> Result<Arm, String> {
+        if spec.kind != "serial" {
+            return Err(format!(
+                "kind = {:?}: this reader takes serial arms (kind = \"serial\"); the hybrid machine's geometry is a robot asset without `kind`",
+                spec.kind
+            ));
+        }
+        if spec.joint.is_empty() {
+            return Err("no [[joint]]: a serial arm has at least one joint".into());
+        }
+        if spec.joint.len() > MAX_JOINTS {
+            return Err(format!(
+                "{} joints: at most {MAX_JOINTS} are taken",
+                spec.joint.len()
+            ));
+        }
+        let mut seen = BTreeSet::new();
+        for (i, j) in spec.joint.iter().enumerate() {
+            let at = format!("joint[{i}] ({:?})", j.name);
+            let valid_name = !j.name.is_empty()
+                && j.name
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
+            if !valid_name || j.name == "base" || j.name == "tool" {
+                return Err(format!(
+                    "{at}.name: a joint name is letters, digits, '_' or '-', and neither base nor tool"
+                ));
+            }
+            if !seen.insert(j.name.clone()) {
+                return Err(format!(
+                    "{at}.name: duplicate joint name (parameters are named after joints)"
+                ));
+            }
+            for (field, v) in [
+                ("alpha_deg", j.alpha_deg),
+                ("a_mm", j.a_mm),
+                ("beta_deg", j.beta_deg),
+                ("theta_deg", j.theta_deg),
+                ("d_mm", j.d_mm),
+                ("min", j.min),
+                ("max", j.max),
+            ] {
+                if !v.is_finite() || v.abs() > 1e6 {
+                    return Err(format!(
+                        "{at}.{field} = {v}: must be a finite number within ±1e6"
+                    ));
+                }
+            }
+            if j.min >= j.max {
+                return Err(format!(
+                    "{at}: min = {} must be below max = {}",
+                    j.min, j.max
+                ));
+            }
+        }
+        for (name, f) in [("base", &spec.base), ("tool", &spec.tool)] {
+            for (k, v) in f.xyz_mm.iter().chain(&f.rpy_deg).enumerate() {
+                if !v.is_finite() || v.abs() > 1e6 {
+                    return Err(format!(
+                        "{name}.{} = {v}: must be a finite number within ±1e6",
+                        FRAME_PARAMS[k]
+                    ));
+                }
+            }
+        }
+        let mut values = Vec::new();
+        for j in &spec.joint {
+            values.extend([
+                j.alpha_deg.to_radians(),
+                j.a_mm,
+                j.beta_deg.to_radians(),
+                j.theta_deg.to_radians(),
+                j.d_mm,
+            ]);
+        }
+        values.extend(frame(&spec.base));
+        values.extend(frame(&spec.tool));
+        let arm = Arm { spec, values };
+        if let Some(patterns) = &arm.spec.identify {
+            let names = arm.names();
+            let mut listed = BTreeSet::new();
+            for p in patterns {
+                if !listed.insert(p.clone()) {
+                    return Err(format!("identify: {p:?} is listed twice"));
+                }
+                if !names.iter().any(|n| matches(p, n)) {
+                    return Err(format!(
+                        "identify: {p:?} names no parameter (names are <joint>.alpha|a|beta|theta|d, base.x|y|z|rx|ry|rz, tool.x|y|z|rx|ry|rz; a trailing * matches a prefix)"
+                    ));
+                }
+            }
+        }
+        arm.check_moves_tool()?;
+        Ok(arm)
+    }
+
+    /// Refuses a singular chain: a joint that moves the tool point nowhere in its range
+    /// (its axis passes through the tool at every sampled configuration).
+    fn check_moves_tool(&self) -> Result<(), String> {
+        let n = self.joints();
+        let mut moves = vec![false; n];
+        for s in 0..7 {
+            let q: Vec<f64> = self
+                .spec
+                .joint
+                .iter()
+                .enumerate()
+                .map(|(i, j)| {
+                    let f = ((s * 3 + i * 5) % 7) as f64 / 6.0;
+                    j.min + (j.max - j.min) * (0.1 + 0.8 * f)
+                })
+                .collect();
+            let p0 = self.tool_position(&q);
+            for (i, m) in moves.iter_mut().enumerate() {
+                let mut dq = q.clone();
+                let step = 1e-3 * (self.spec.joint[i].max - self.spec.joint[i].min);
+                dq[i] += step;
+                if (self.tool_position(&dq) - p0).norm() > 1e-9 * step.abs().max(1e-12) {
+                    *m = true;
+                }
+            }
+        }
+        match moves.iter().position(|m| !m) {
+            Some(i) => Err(format!(
+                "joint[{i}] ({:?}) does not move the tool point anywhere in its range: the chain is singular (its axis passes through the tool; give the tool an offset or drop the joint)",
+                self.spec.joint[i].name
+            )),
+            None => Ok(()),
+        }
+    }
+
+    /// Number of joints.
+    pub fn joints(&self) -> usize {
+        self.spec.joint.len()
+    }
+
+    /// The name of every kinematic parameter, in [`Arm::values`] order.
+    pub fn names(&self) -> Vec<String> {
+        let mut names = Vec::with_capacity(self.values.len());
+        for j in &self.spec.joint {
+            names.extend(JOINT_PARAMS.iter().map(|p| format!("{}.{p}", j.name)));
+        }
+        for frame in ["base", "tool"] {
+            names.extend(FRAME_PARAMS.iter().map(|p| format!("{frame}.{p}")));
+        }
+        names
+    }
+
+    /// Whether parameter `name` is in the description's `identify` list (all are when
+    /// it has none).
+    pub fn may_identify(&self, name: &str) -> bool {
+        self.spec
+            .identify
+            .as_ref()
+            .is_none_or(|ps| ps.iter().any(|p| matches(p, name)))
+    }
+
+    /// Whether parameter `index` is a length (mm) rather than an angle (rad).
+    pub fn is_length(&self, index: usize) -> bool {
+        let joints = 5 * self.joints();
+        if index < joints {
+            matches!(index % 5, 1 | 4)
+        } else {
+            (index - joints) % 6 < 3
+        }
+    }
+
+    /// The same arm with other parameter values.
+    pub fn with_values(&self, values: Vec<f64>) -> Arm {
+        Arm {
+            spec: self.spec.clone(),
+            values,
+        }
+    }
+
+    /// The base transform (measurement frame ← robot base).
+    pub fn base(&self) -> Isometry3<f64> {
+        let o = 5 * self.joints();
+        frame_isometry(&self.values[o..o + 6])
+    }
+
+    /// The tool transform (last joint frame ← tool point).
+    pub fn tool(&self) -> Isometry3<f64> {
+        let o = 5 * self.joints() + 6;
+        frame_isometry(&self.values[o..o + 6])
+    }
+
+    /// The tool pose in the measurement frame at joint values `q` (degrees or mm).
+    pub fn tool_pose(&self, q: &[f64]) -> Isometry3<f64> {
+        self.tool_pose_with(q, &self.values)
+    }
+
+    /// [`Arm::tool_pose`] with the parameter vector `values` in place of the arm's own.
+    pub fn tool_pose_with(&self, q: &[f64], values: &[f64]) -> Isometry3<f64> {
+        let o = 5 * self.joints();
+        let mut t = frame_isometry(&values[o..o + 6]);
+        for (i, j) in self.spec.joint.iter().enumerate() {
+            let v = &values[5 * i..5 * i + 5];
+            let (mut theta, mut d) = (v[3], v[4]);
+            match j.kind {
+                JointKind::Revolute => theta += q[i].to_radians(),
+                JointKind::Prismatic => d += q[i],
+            }
+            t *= link(v[0], v[1], v[2], theta, d);
+        }
+        t * frame_isometry(&values[o + 6..o + 12])
+    }
+
+    /// The tool point in the measurement frame at joint values `q`.
+    pub fn tool_position(&self, q: &[f64]) -> Point3<f64> {
+        Point3::from(self.tool_pose(q).translation.vector)
+    }
+
+    /// The joint frames' origins and z axes in the measurement frame at `q` (for the
+    /// twin's gravity load), and the tool point last.
+    pub fn joint_axes(&self, q: &[f64]) -> (Vec<JointAxis>, Point3<f64>) {
+        let o = 5 * self.joints();
+        let mut t = frame_isometry(&self.values[o..o + 6]);
+        let mut axes = Vec::with_capacity(self.joints());
+        for (i, j) in self.spec.joint.iter().enumerate() {
+            let v = &self.values[5 * i..5 * i + 5];
+            let (mut theta, mut d) = (v[3], v[4]);
+            match j.kind {
+                JointKind::Revolute => theta += q[i].to_radians(),
+                JointKind::Prismatic => d += q[i],
+            }
+            // The joint's axis is the z axis after Rx(α)·Ry(β)·Tx(a).
+            let before = t * link(v[0], v[1], v[2], 0.0, 0.0);
+            axes.push((
+                Point3::from(before.translation.vector),
+                before.rotation * Vector3::z(),
+            ));
+            t *= link(v[0], v[1], v[2], theta, d);
+        }
+        let tool = t * frame_isometry(&self.values[o + 6..o + 12]);
+        (axes, Point3::from(tool.translation.vector))
+    }
+
+    /// The description with the arm's current values (and `calibration`, if given).
+    pub fn to_spec(&self, calibration: Option<CalibrationRecord>) -> ArmSpec {
+        let mut spec = self.spec.clone();
+        for (i, j) in spec.joint.iter_mut().enumerate() {
+            let v = &self.values[5 * i..5 * i + 5];
+            j.alpha_deg = v[0].to_degrees();
+            j.a_mm = v[1];
+            j.beta_deg = v[2].to_degrees();
+            j.theta_deg = v[3].to_degrees();
+            j.d_mm = v[4];
+        }
+        let o = 5 * self.joints();
+        spec.base = frame_spec(&self.values[o..o + 6]);
+        spec.tool = frame_spec(&self.values[o + 6..o + 12]);
+        spec.calibration = calibration;
+        spec
+    }
+
+    /// The description as TOML (what [`Arm::load`] reads back).
+    pub fn to_toml(&self, calibration: Option<CalibrationRecord>) -> Result<String, String> {
+        toml::to_string(&self.to_spec(calibration)).map_err(|e| e.to_string())
+    }
+}
+
+/// `Rx(α) Ry(β) Tx(a) Rz(θ) Tz(d)`: one modified-DH link with Hayati's β.
+pub fn link(alpha: f64, a: f64, beta: f64, theta: f64, d: f64) -> Isometry3<f64> {
+    let rot = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), alpha)
+        * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), beta);
+    let ab = Isometry3::from_parts(Translation3::from(rot * Vector3::new(a, 0.0, 0.0)), rot);
+    ab * Isometry3::from_parts(
+        Translation3::new(0.0, 0.0, d),
+        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), theta),
+    )
+}
+
+/// Whether the file at `path` is meant as an arm description: it has a top-level `kind`
+/// or `[[joint]]` (the hybrid machine's asset has neither); [`Arm::load`] then judges it.
+pub fn is_arm_description(path: &Path) -> bool {
+    std::fs::read_to_string(path)
+        .ok()
+        .and_then(|t| t.parse::<toml::Table>().ok())
+        .is_some_and(|t| t.contains_key("kind") || t.contains_key("joint"))
+}
+
+/// Whether `pattern` (a name, or a prefix ending in `*`) matches the parameter `name`.
+fn matches(pattern: &str, name: &str) -> bool {
+    match pattern.strip_suffix('*') {
+        Some(prefix) => name.starts_with(prefix),
+        None => pattern == name,
+    }
+}

@@ -1,0 +1,257 @@
+//! A twin of any serial arm (docs/arms.md "The serial twin"): the description's nominal
+//! values plus hidden geometric errors and an unknown tracker registration, and the
+//! usual non-geometric errors of a real arm: joint compliance under gravity (link
+//! masses and a payload), gear backlash that depends on the direction each joint last
+//! moved, and thermal growth of the links as the arm warms up. A laser tracker measures
+//! the tool point at static poses, and a temperature sensor reads the arm's temperature.
+
+use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::noise::gaussian;
+use crate::robot::arm::{Arm, ArmPose, JointKind};
+
+/// Gravity, m/s².
+const GRAVITY: f64 = 9.81;
+
+/// The hidden machine's error sources, with defaults typical of a 5–20 kg payload arm.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ArmTwinConfig {
+    /// SD of each link length (a, d) and tool offset error, mm.
+    pub length_sd_mm: f64,
+    /// SD of each twist, β and joint offset error, degrees.
+    pub angle_sd_deg: f64,
+    /// Where the robot's base really is in the tracker's frame (x, y, z mm; roll,
+    /// pitch, yaw degrees); the description's nominal base is only a guess of it.
+    pub registration: [f64; 6],
+    /// Compliance of every revolute joint, rad per N·m.
+    pub compliance_rad_per_nm: f64,
+    /// Mass of each link (at the middle of the link), kg.
+    pub link_mass_kg: f64,
+    /// Payload at the tool point, kg.
+    pub payload_kg: f64,
+    /// Lost motion of each joint's gear, degrees (mm for prismatic joints).
+    pub backlash: f64,
+    /// Linear expansion of the links, 1/K.
+    pub expansion_per_k: f64,
+    /// Temperature rise of the warm arm over its cold start, K.
+    pub warm_rise_k: f64,
+    /// Time constant of the warm-up, s.
+    pub warm_time_s: f64,
+    /// Time from one measured pose to the next (move, settle, measure), s.
+    pub dwell_s: f64,
+    /// The tracker's noise per axis, mm.
+    pub tracker_sd_mm: f64,
+    /// Measure the tool's orientation too (a 6-DoF probe), with this noise per axis in
+    /// degrees; `None` measures position only, as a plain reflector does.
+    pub orientation_sd_deg: Option<f64>,
+    /// The temperature sensor's noise, K.
+    pub thermometer_sd_k: f64,
+    /// Share of each joint's range left out at either end when poses are drawn.
+    pub limit_margin: f64,
+}
+
+impl Default for ArmTwinConfig {
+    fn default() -> ArmTwinConfig {
+        ArmTwinConfig {
+            length_sd_mm: 0.3,
+            angle_sd_deg: 0.03,
+            registration: [1800.0, -650.0, -420.0, 0.4, -0.3, 32.0],
+            compliance_rad_per_nm: 2e-6,
+            link_mass_kg: 3.0,
+            payload_kg: 3.0,
+            backlash: 0.006,
+            expansion_per_k: 23e-6,
+            warm_rise_k: 6.0,
+            warm_time_s: 1800.0,
+            dwell_s: 10.0,
+            tracker_sd_mm: 0.015,
+            orientation_sd_deg: None,
+            thermometer_sd_k: 0.05,
+            limit_margin: 0.1,
+        }
+    }
+}
+
+/// The hidden machine of a serial arm.
+#[derive(Clone, Debug)]
+pub struct ArmTwin {
+    /// The arm as it really is (geometric errors and the real registration), cold.
+    pub truth: Arm,
+    /// Its non-geometric sources.
+    pub config: ArmTwinConfig,
+}
+
+/// A measured pose list with its hidden truth.
+#[derive(Clone, Debug)]
+pub struct ArmRun {
+    /// What the tracker and the thermometer report, as a pose CSV holds it.
+    pub poses: Vec<ArmPose>,
+    /// The true tool point at each pose (no tracker noise), mm.
+    pub truth: Vec<Point3<f64>>,
+    /// The true tool point of the geometric model alone (cold, no load, no backlash),
+    /// mm: what a perfect geometric calibration could reach.
+    pub geometric: Vec<Point3<f64>>,
+}
+
+/// Names of the sensor channels a twin's pose CSV carries beyond joints and position.
+pub const ARM_CHANNELS: [&str; 1] = ["temp_c"];
+
+impl ArmTwin {
+    /// Draws the hidden machine of `nominal` for `machine_seed`.
+    pub fn draw(nominal: &Arm, machine_seed: u64, config: ArmTwinConfig) -> ArmTwin {
+        let mut rng = ChaCha8Rng::seed_from_u64(machine_seed ^ 0x6172_6d5f_7477_696e);
+        let mut values = nominal.values.clone();
+        let joints = 5 * nominal.joints();
+        let angle = config.angle_sd_deg.to_radians();
+        for (i, v) in values.iter_mut().enumerate().take(joints + 12) {
+            // The base is the tracker's registration, set below; the tool's orientation
+            // does not move a tool point.
+            if (joints..joints + 6).contains(&i) || i >= joints + 9 {
+                continue;
+            }
+            let sd = if nominal.is_length(i) {
+                config.length_sd_mm
+            } else {
+                angle
+            };
+            *v += gaussian(&mut rng, sd);
+        }
+        let r = config.registration;
+        values[joints..joints + 6].copy_from_slice(&[
+            r[0],
+            r[1],
+            r[2],
+            r[3].to_radians(),
+            r[4].to_radians(),
+            r[5].to_radians(),
+        ]);
+        ArmTwin {
+            truth: nominal.with_values(values),
+            config,
+        }
+    }
+
+    /// Temperature of the arm above its cold start at time `t`, K.
+    pub fn warming(&self, t: f64) -> f64 {
+        self.config.warm_rise_k * (1.0 - (-t / self.config.warm_time_s).exp())
+    }
+
+    /// The true tool point at commanded joints `q`, time `t` and motion direction `dir`
+    /// of each joint (+1 or −1: the side its gear's lost motion is taken up on).
+    pub fn tool_point(&self, q: &[f64], t: f64, dir: &[f64]) -> Point3<f64> {
+        Point3::from(self.tool_pose(q, t, dir).translation.vector)
+    }
+
+    /// The true tool pose at commanded joints `q`, time `t` and motion directions `dir`.
+    pub fn tool_pose(&self, q: &[f64], t: f64, dir: &[f64]) -> Isometry3<f64> {
+        let c = &self.config;
+        let arm = &self.truth;
+        // Thermal growth of every link length.
+        let grow = 1.0 + c.expansion_per_k * self.warming(t);
+        let mut values = arm.values.clone();
+        let joints = 5 * arm.joints();
+        for (i, v) in values.iter_mut().enumerate() {
+            if arm.is_length(i) && (i < joints || i >= joints + 6) {
+                *v *= grow;
+            }
+        }
+        let warm = arm.with_values(values);
+        // Backlash, then the deflection of each revolute joint under the gravity load.
+        let mut actual: Vec<f64> = q
+            .iter()
+            .zip(dir)
+            .map(|(q, d)| q + 0.5 * c.backlash * d)
+            .collect();
+        let torques = self.gravity_torques(&warm, &actual);
+        for (i, j) in arm.spec.joint.iter().enumerate() {
+            if j.kind == JointKind::Revolute {
+                actual[i] += (c.compliance_rad_per_nm * torques[i]).to_degrees();
+            }
+        }
+        warm.tool_pose(&actual)
+    }
+
+    /// Gravity torque about each joint axis (N·m; 0 for prismatic joints): link masses
+    /// at the middle of each link, the payload at the tool point, gravity along the
+    /// base's −z.
+    fn gravity_torques(&self, arm: &Arm, q: &[f64]) -> Vec<f64> {
+        let (axes, tool) = arm.joint_axes(q);
+        let g = arm.base().rotation * Vector3::new(0.0, 0.0, -GRAVITY);
+        // Point masses (mm, kg): each link's middle, then the payload.
+        let mut masses: Vec<(Point3<f64>, f64)> = (0..axes.len())
+            .map(|k| {
+                let next = axes.get(k + 1).map_or(tool, |a| a.0);
+                (
+                    nalgebra::center(&axes[k].0, &next),
+                    self.config.link_mass_kg,
+                )
+            })
+            .collect();
+        masses.push((tool, self.config.payload_kg));
+        axes.iter()
+            .enumerate()
+            .map(|(i, (origin, axis))| {
+                if arm.spec.joint[i].kind != JointKind::Revolute {
+                    return 0.0;
+                }
+                // Masses beyond joint i load it (link i's own mass sits beyond its axis).
+                masses[i..]
+                    .iter()
+                    .map(|(p, m)| axis.dot(&((p - origin) * 1e-3).cross(&(g * *m))))
+                    .sum()
+            })
+            .collect()
+    }
+
+    /// Measures `count` static poses drawn uniformly inside the joint limits (less the
+    /// margin), visited in the drawn order from a cold start, with seed `seed`.
+    pub fn measure(&self, count: usize, seed: u64) -> ArmRun {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x6172_6d5f_706f_7365);
+        let spec = &self.truth.spec;
+        let margin = self.config.limit_margin;
+        let mut previous: Vec<f64> = spec.joint.iter().map(|j| j.min).collect();
+        let mut dir = vec![1.0; spec.joint.len()];
+        let (mut poses, mut truth, mut geometric) = (Vec::new(), Vec::new(), Vec::new());
+        for n in 0..count {
+            let t = n as f64 * self.config.dwell_s;
+            let q: Vec<f64> = spec
+                .joint
+                .iter()
+                .map(|j| {
+                    let span = j.max - j.min;
+                    j.min + span * (margin + (1.0 - 2.0 * margin) * rng.random::<f64>())
+                })
+                .collect();
+            for i in 0..q.len() {
+                if q[i] != previous[i] {
+                    dir[i] = (q[i] - previous[i]).signum();
+                }
+            }
+            previous.clone_from(&q);
+            let pose = self.tool_pose(&q, t, &dir);
+            let p = Point3::from(pose.translation.vector);
+            let noise = Vector3::from_fn(|_, _| gaussian(&mut rng, self.config.tracker_sd_mm));
+            let orientation = self.config.orientation_sd_deg.map(|sd| {
+                let turn = Vector3::from_fn(|_, _| gaussian(&mut rng, sd.to_radians()));
+                UnitQuaternion::from_scaled_axis(turn) * pose.rotation
+            });
+            let temp = 20.0 + self.warming(t) + gaussian(&mut rng, self.config.thermometer_sd_k);
+            poses.push(ArmPose {
+                stamp: t,
+                joints: q.clone(),
+                position: p + noise,
+                orientation,
+                channels: vec![temp],
+            });
+            truth.push(p);
+            geometric.push(self.truth.tool_position(&q));
+        }
+        ArmRun {
+            poses,
+            truth,
+            geometric,
+        }
+    }
+}
