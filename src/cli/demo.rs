@@ -7,10 +7,11 @@ use std::sync::Arc;
 
 use clap::Args;
 
-use super::train::{read_run_config, DataArgs};
+use super::train::read_run_config;
 use super::Console;
 use iastgcn::compensate::demo::{self, DemoConfig};
 use iastgcn::compensate::evaluate::HeldOutConfig;
+use iastgcn::data::DataSources;
 use iastgcn::gpu::Gpu;
 
 #[derive(Args)]
@@ -64,13 +65,36 @@ impl HeldOutArgs {
 
 #[derive(Args)]
 pub struct EvaluateArgs {
-    #[command(flatten)]
-    pub data: DataArgs,
-    /// Checkpoints to compare (named by file stem; a `<stem>.log.csv` beside one gives its
-    /// training time per epoch).
+    /// Recordings (CSV, docs/twin.md "File formats"), or with a serial arm's description
+    /// in `--robot`, its pose files (docs/arms.md).
     #[arg(long, num_args = 1.., required = true)]
+    pub data: Vec<PathBuf>,
+    /// Calibration file from `iastgcn calibrate` (the hybrid machine; labels are
+    /// residuals under it). A serial arm is calibrated on the training blocks instead.
+    #[arg(long)]
+    pub calibration: Option<PathBuf>,
+    /// Sensor graph asset (default: the embedded assets/graph.toml; the hybrid machine).
+    #[arg(long)]
+    pub graph: Option<PathBuf>,
+    /// Robot: the hybrid machine's geometry asset (default: the embedded
+    /// assets/robot.toml), or a serial arm's description (`kind = "serial"`): then the
+    /// arm is calibrated, its residual models trained and scored on held-out poses.
+    #[arg(long)]
+    pub robot: Option<PathBuf>,
+    /// Checkpoints to compare (the hybrid machine; named by file stem; a `<stem>.log.csv`
+    /// beside one gives its training time per epoch).
+    #[arg(long, num_args = 1..)]
     pub models: Vec<PathBuf>,
-    /// Run config (its [data] table windows the recordings for Table III).
+    /// A serial arm's desired tool points (CSV: pose,x,y,z and the pose files' channels):
+    /// corrected joint targets into `targets.csv`, from the model with the lowest
+    /// validation loss.
+    #[arg(long)]
+    pub targets: Option<PathBuf>,
+    /// The models to train on a serial arm's residuals, comma-separated.
+    #[arg(long, default_value = "iastgcn,iastgcn-s,mlp")]
+    pub train_models: String,
+    /// Run config (its [data] table windows the recordings for Table III); for a serial
+    /// arm, the residual models' config (default: the embedded assets/arms/residual.toml).
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Report folder.
@@ -81,11 +105,29 @@ pub struct EvaluateArgs {
 }
 
 pub fn evaluate(gpu: Gpu, args: &EvaluateArgs) -> anyhow::Result<()> {
+    if let Some(robot) = &args.robot {
+        if iastgcn::robot::arm::is_arm_description(robot) {
+            return super::arm::evaluate(Arc::new(gpu), robot, args);
+        }
+    }
+    let calibration = args.calibration.clone().ok_or_else(|| {
+        anyhow::anyhow!("--calibration is required (or give a serial arm's description in --robot)")
+    })?;
+    anyhow::ensure!(
+        !args.models.is_empty(),
+        "--models is required: the checkpoints to compare (or give a serial arm's description in --robot)"
+    );
     let config = read_run_config(args.config.as_deref(), None)?;
+    let sources = DataSources {
+        recordings: args.data.clone(),
+        calibration,
+        graph: args.graph.clone(),
+        robot: args.robot.clone(),
+    };
     demo::evaluation_report(
         Arc::new(gpu),
         &args.models,
-        &args.data.sources(),
+        &sources,
         &config,
         &args.held_out.config(),
         &args.out,

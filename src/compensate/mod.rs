@@ -1,5 +1,7 @@
-//! Online compensation in the twin and the report of the paper's Tables III and V.
+//! Online compensation in the twin and the report of the paper's Tables III and V; the
+//! residual models of a serial arm (`arm`).
 
+pub mod arm;
 pub mod budget;
 pub mod demo;
 pub mod evaluate;

@@ -119,27 +119,7 @@ pub fn parse_arm_poses(text: &str, file: &str, joints: usize) -> Result<ArmPoses
         return Err(table.at(1, next + i, "a channel column without a name"));
     }
     let mut poses = Vec::with_capacity(table.rows.len());
-    let mut last = f64::NEG_INFINITY;
-    for (line, cells) in &table.rows {
-        let mut v = Vec::with_capacity(cells.len());
-        for (c, cell) in cells.iter().enumerate() {
-            v.push(
-                table
-                    .number(*line, c, cell)?
-                    .ok_or_else(|| table.at(*line, c, "empty cell"))?,
-            );
-        }
-        if v[0] <= last {
-            return Err(table.at(
-                *line,
-                0,
-                format!(
-                    "{} = {} does not increase (the line before has {last})",
-                    header[0], v[0]
-                ),
-            ));
-        }
-        last = v[0];
+    for v in stamped_rows(&table)? {
         let p = 1 + joints;
         let orientation = oriented.then(|| {
             let [r, pi, y] = [v[p + 3], v[p + 4], v[p + 5]].map(f64::to_radians);
@@ -162,6 +142,35 @@ pub fn parse_arm_poses(text: &str, file: &str, joints: usize) -> Result<ArmPoses
         channels,
         poses,
     })
+}
+
+/// Every row's cells as finite numbers, the first column strictly increasing.
+fn stamped_rows(table: &Table) -> Result<Vec<Vec<f64>>, DataError> {
+    let mut rows = Vec::with_capacity(table.rows.len());
+    let mut last = f64::NEG_INFINITY;
+    for (line, cells) in &table.rows {
+        let mut v = Vec::with_capacity(cells.len());
+        for (c, cell) in cells.iter().enumerate() {
+            v.push(
+                table
+                    .number(*line, c, cell)?
+                    .ok_or_else(|| table.at(*line, c, "empty cell"))?,
+            );
+        }
+        if v[0] <= last {
+            return Err(table.at(
+                *line,
+                0,
+                format!(
+                    "{} = {} does not increase (the line before has {last})",
+                    table.header[0], v[0]
+                ),
+            ));
+        }
+        last = v[0];
+        rows.push(v);
+    }
+    Ok(rows)
 }
 
 fn is_joint_column(h: &str) -> bool {
@@ -205,4 +214,79 @@ impl ArmPoses {
         atomic::write(path, self.to_csv().as_bytes())
             .map_err(|e| file_err(&path.display().to_string(), e.to_string()))
     }
+}
+
+/// A list of desired tool points for corrected joint targets: `pose` (or `time`), `x, y,
+/// z` (mm, tracker frame), then the sensor channels the models were trained with, as
+/// they are expected at each pose.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ArmTargets {
+    /// What the first column counts.
+    pub stamp: String,
+    /// Each target: stamp, point, channel values.
+    pub targets: Vec<(f64, Point3<f64>, Vec<f64>)>,
+}
+
+/// Reads a target list whose channels must be `channels`; errors name file, line and
+/// column.
+pub fn read_arm_targets(path: &Path, channels: &[String]) -> Result<ArmTargets, DataError> {
+    let file = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|e| file_err(&file, e.to_string()))?;
+    parse_arm_targets(&text, &file, channels)
+}
+
+/// Parses a target list (`file` names it in errors).
+///
+/// ```
+/// use iastgcn::data::arm_poses::parse_arm_targets;
+///
+/// let t = parse_arm_targets("pose,x,y,z\n1,500,0,300\n", "t.csv", &[])?;
+/// assert_eq!(t.targets[0].1.x, 500.0);
+/// let err = parse_arm_targets("pose,x,y,z\n1,500,0,300\n", "t.csv", &["temp_c".into()]);
+/// assert!(err.unwrap_err().to_string().contains("temp_c"));
+/// # Ok::<(), iastgcn::data::DataError>(())
+/// ```
+pub fn parse_arm_targets(
+    text: &str,
+    file: &str,
+    channels: &[String],
+) -> Result<ArmTargets, DataError> {
+    let table = Table::parse(text, file)?;
+    let mut expected = vec!["pose".to_string(), "x".into(), "y".into(), "z".into()];
+    expected.extend(channels.iter().cloned());
+    let rule = format!(
+        "the header must be {} (pose or time, the point, then the channels the models were trained with)",
+        expected.join(",")
+    );
+    let header = &table.header;
+    for (i, want) in expected.iter().enumerate() {
+        let ok = header
+            .get(i)
+            .is_some_and(|h| h == want || (i == 0 && h == "time"));
+        if !ok {
+            return match header.get(i) {
+                Some(h) => Err(table.at(
+                    1,
+                    i,
+                    format!("column {} is {h:?} where {want:?} belongs; {rule}", i + 1),
+                )),
+                None => Err(file_err(file, format!("missing column {want:?}; {rule}"))),
+            };
+        }
+    }
+    if header.len() > expected.len() {
+        let i = expected.len();
+        return Err(table.at(1, i, format!("unexpected column {:?}; {rule}", header[i])));
+    }
+    let mut targets = Vec::with_capacity(table.rows.len());
+    for v in stamped_rows(&table)? {
+        targets.push((v[0], Point3::new(v[1], v[2], v[3]), v[4..].to_vec()));
+    }
+    if targets.is_empty() {
+        return Err(file_err(file, "no targets"));
+    }
+    Ok(ArmTargets {
+        stamp: header[0].clone(),
+        targets,
+    })
 }

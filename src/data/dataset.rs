@@ -220,26 +220,39 @@ impl Dataset {
         mode: SplitMode,
         fixed: Option<&Normalization>,
     ) -> Result<Dataset, DatasetError> {
-        let prepared: Vec<Prepared> = recordings
+        let prepared: Vec<(String, Prepared)> = recordings
             .iter()
-            .map(|(name, rec)| prepare(name, rec, graph, model, features))
-            .collect::<Result<_, _>>()?;
+            .map(|(name, rec)| Ok((name.clone(), prepare(name, rec, graph, model, features)?)))
+            .collect::<Result<_, DatasetError>>()?;
+        Dataset::from_prepared(&prepared, &graph.nodes, window, mode, fixed)
+    }
+
+    /// Windows, splits and standardised tensors of recordings already turned into
+    /// features and labels (`prepared`, each with its name; rows are steps in time, or
+    /// measured poses in their order), for a graph of `nodes`.
+    pub fn from_prepared(
+        prepared: &[(String, Prepared)],
+        nodes: &[String],
+        window: &WindowConfig,
+        mode: SplitMode,
+        fixed: Option<&Normalization>,
+    ) -> Result<Dataset, DatasetError> {
         let mut all = Vec::new();
-        for (r, ((name, rec), p)) in recordings.iter().zip(&prepared).enumerate() {
-            let ends = window_ends(rec.rows.len(), window, |e| p.labels[e].is_some());
+        for (r, (name, p)) in prepared.iter().enumerate() {
+            let rows = p.labels.len();
+            let ends = window_ends(rows, window, |e| p.labels[e].is_some());
             if ends.is_empty() {
                 return Err(err(
                     name,
                     format!(
-                        "{} rows give no labelled window of {} steps",
-                        rec.rows.len(),
+                        "{rows} rows give no labelled window of {} steps",
                         window.length
                     ),
                 ));
             }
             all.extend(ends.into_iter().map(|end| Window { recording: r, end }));
         }
-        let rows: Vec<usize> = recordings.iter().map(|(_, r)| r.rows.len()).collect();
+        let rows: Vec<usize> = prepared.iter().map(|(_, p)| p.labels.len()).collect();
         let splits = split(&all, &rows, window, mode);
         if splits.train.is_empty() {
             return Err(err(
@@ -248,7 +261,7 @@ impl Dataset {
             ));
         }
         // Statistics over the steps of training windows only (each step once).
-        let n_nodes = graph.len();
+        let n_nodes = nodes.len();
         let mut in_train: Vec<Vec<bool>> = rows.iter().map(|&n| vec![false; n]).collect();
         for w in &splits.train {
             in_train[w.recording][w.end + 1 - window.length..=w.end].fill(true);
@@ -257,7 +270,7 @@ impl Dataset {
         let mut feature_std = vec![[1.0; FEATURES]; n_nodes];
         for n in 0..n_nodes {
             for f in 0..FEATURES {
-                let values = prepared.iter().enumerate().flat_map(|(r, p)| {
+                let values = prepared.iter().enumerate().flat_map(|(r, (_, p))| {
                     let mask = &in_train[r];
                     p.features[n][f]
                         .iter()
@@ -269,8 +282,9 @@ impl Dataset {
             }
         }
         // invariant: windows are only made to end on labelled rows (windows.rs).
-        let label_of =
-            |w: &Window| prepared[w.recording].labels[w.end].expect("windows end on labelled rows");
+        let label_of = |w: &Window| {
+            prepared[w.recording].1.labels[w.end].expect("windows end on labelled rows")
+        };
         let mut label_mean = [0.0; OUTPUTS];
         let mut label_std = [1.0; OUTPUTS];
         for k in 0..OUTPUTS {
@@ -304,7 +318,7 @@ impl Dataset {
         let mut labels = Vec::with_capacity(windows.len());
         let mut axes = Vec::with_capacity(windows.len());
         for w in &windows {
-            let p = &prepared[w.recording];
+            let p = &prepared[w.recording].1;
             let start = w.end + 1 - t_len;
             for n in 0..n_nodes {
                 for f in 0..FEATURES {
@@ -323,8 +337,8 @@ impl Dataset {
             axes.push(p.axes[w.end].expect("windows end on labelled rows"));
         }
         Ok(Dataset {
-            nodes: graph.nodes.clone(),
-            recordings: recordings.iter().map(|(n, _)| n.clone()).collect(),
+            nodes: nodes.to_vec(),
+            recordings: prepared.iter().map(|(n, _)| n.clone()).collect(),
             window: *window,
             mode,
             windows,

@@ -1,6 +1,7 @@
 //! Recordings and datasets: the CSV formats of docs/twin.md, causal preprocessing (hold,
 //! low-pass, differences, entropy), windows and leakage-free splits.
 
+pub mod arm_dataset;
 pub mod arm_poses;
 pub mod dataset;
 pub mod features;

@@ -422,6 +422,98 @@ impl Arm {
         (axes, Point3::from(tool.translation.vector))
     }
 
+    /// Joint values (degrees or mm) that put the tool point at `target` (measurement
+    /// frame, mm), starting from `seed`: damped least squares on a central-difference
+    /// Jacobian, each joint kept within its limits. The error gives the distance left
+    /// when no solution within 1 µm is found in 1000 iterations from any start (a target out of reach).
+    ///
+    /// When the descent from `seed` stalls (at a joint limit, or in a local minimum) it
+    /// starts again from the middle of the ranges and from 16 fixed spread
+    /// configurations, and returns the first solution found.
+    pub fn inverse_position(&self, target: &Point3<f64>, seed: &[f64]) -> Result<Vec<f64>, String> {
+        let mut best = match self.descend(target, seed) {
+            Ok(q) => return Ok(q),
+            Err(short) => short,
+        };
+        for k in 0..17 {
+            let start: Vec<f64> = self
+                .spec
+                .joint
+                .iter()
+                .enumerate()
+                .map(|(i, j)| {
+                    // k = 0: the middle; then a Kronecker sequence (golden-ratio steps).
+                    let f = if k == 0 {
+                        0.5
+                    } else {
+                        (0.5 + (k * (i + 1)) as f64 * 0.618_033_988_749_895).fract()
+                    };
+                    j.min + (j.max - j.min) * (0.05 + 0.9 * f)
+                })
+                .collect();
+            match self.descend(target, &start) {
+                Ok(q) => return Ok(q),
+                Err(short) => best = best.min(short),
+            }
+        }
+        Err(format!(
+            "no joint values within the limits reach ({:.3}, {:.3}, {:.3}) mm: {best:.3} mm short",
+            target.x, target.y, target.z
+        ))
+    }
+
+    /// Damped least squares from `seed`; the distance left when it stalls.
+    fn descend(&self, target: &Point3<f64>, seed: &[f64]) -> Result<Vec<f64>, f64> {
+        let n = self.joints();
+        let clamp = |q: &mut [f64]| {
+            for (v, j) in q.iter_mut().zip(&self.spec.joint) {
+                *v = v.clamp(j.min, j.max);
+            }
+        };
+        let mut q = seed.to_vec();
+        clamp(&mut q);
+        let mut error = target - self.tool_position(&q);
+        let mut damping = 1e-2;
+        for _ in 0..1000 {
+            if error.norm() < 1e-3 {
+                return Ok(q);
+            }
+            let mut jac = nalgebra::DMatrix::zeros(3, n);
+            for i in 0..n {
+                let h = 1e-6 * (self.spec.joint[i].max - self.spec.joint[i].min).max(1e-3);
+                let (mut plus, mut minus) = (q.clone(), q.clone());
+                plus[i] += h;
+                minus[i] -= h;
+                let d = (self.tool_position(&plus) - self.tool_position(&minus)) / (2.0 * h);
+                jac.set_column(i, &d);
+            }
+            let jjt = &jac * jac.transpose() + nalgebra::Matrix3::identity() * damping;
+            let Some(inv) = jjt.try_inverse() else {
+                break;
+            };
+            let step = jac.transpose() * (inv * error);
+            let mut trial = q.clone();
+            for (v, d) in trial.iter_mut().zip(step.iter()) {
+                *v += d;
+            }
+            clamp(&mut trial);
+            let e = target - self.tool_position(&trial);
+            if e.norm() < error.norm() {
+                (q, error) = (trial, e);
+                damping = (damping * 0.3).max(1e-9);
+            } else {
+                damping *= 10.0;
+                if damping > 1e9 {
+                    break;
+                }
+            }
+        }
+        if error.norm() < 1e-3 {
+            return Ok(q);
+        }
+        Err(error.norm())
+    }
+
     /// The description with the arm's current values (and `calibration`, if given).
     pub fn to_spec(&self, calibration: Option<CalibrationRecord>) -> ArmSpec {
         let mut spec = self.spec.clone();

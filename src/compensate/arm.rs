@@ -1,0 +1,363 @@
+//! Residual models on a serial arm (docs/arms.md "Residual models"): each pose file is
+//! cut into contiguous 70/20/10 % blocks in measurement order; the geometric calibration
+//! is fitted on the training blocks only; IASTGCN and the comparison models learn the
+//! calibrated residual from the training blocks (validation for early stopping); the
+//! table scores the test blocks, which neither step saw: initial (nominal, registered),
+//! calibrated, the training-mean residual, and the calibrated model plus each model's
+//! predicted residual.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use super::evaluate::predict_windows;
+use super::protocol::{fit_model, ModelFiles};
+use crate::calibrate::arm::{calibrate_arm, ArmCalibration, ArmCalibrationConfig};
+use crate::data::arm_dataset::{arm_dataset, prepare_arm};
+use crate::data::arm_poses::{ArmPoses, ArmTargets};
+use crate::data::SplitMode;
+use crate::error::{Error, Result};
+use crate::gpu::Gpu;
+use crate::model::{Checkpoint, Predictor, Variant};
+use crate::progress::Reporter;
+use crate::robot::arm::{Arm, ArmPose};
+use crate::stats::Summary;
+use crate::train::fit::window_config;
+use crate::train::RunConfig;
+use nalgebra::{Point3, Vector3};
+
+/// The embedded run config of the arm residual models (assets/arms/residual.toml).
+pub const ARM_RUN_CONFIG: &str = include_str!("../../assets/arms/residual.toml");
+
+/// The models an arm evaluation trains by default: IASTGCN, its Chebyshev ablation and
+/// the instantaneous MLP (the offline pose→error baselines read the hybrid's five joint
+/// inputs by name and do not apply to another arm).
+pub const ARM_MODELS: [Variant; 3] = [Variant::Iastgcn, Variant::Chebyshev, Variant::Mlp];
+
+/// The default arm run config.
+pub fn arm_run_config() -> RunConfig {
+    // invariant: the embedded config is parsed in tests/arm.rs.
+    RunConfig::parse(ARM_RUN_CONFIG, "assets/arms/residual.toml")
+        .expect("the embedded arm run config is valid")
+}
+
+/// One row of the arm table: a model (or stage) and its position error at each test
+/// pose, mm.
+#[derive(Clone, Debug)]
+pub struct ArmRow {
+    /// `initial`, `calibrated`, `training mean` or a model's name.
+    pub model: String,
+    /// Position error at each test pose, mm.
+    pub errors_mm: Vec<f64>,
+}
+
+/// What an arm evaluation found.
+#[derive(Clone, Debug)]
+pub struct ArmEvaluation {
+    /// The geometric calibration (fitted on the training blocks).
+    pub calibration: ArmCalibration,
+    /// Poses of each split: train, validation, test (windows' last poses).
+    pub split_poses: [usize; 3],
+    /// The test poses: (file index, pose index), in table order.
+    pub test_poses: Vec<(usize, usize)>,
+    /// The table's rows.
+    pub rows: Vec<ArmRow>,
+    /// Each model's predicted residual (µm, mdeg) at each test pose.
+    pub predictions: Vec<(String, Vec<[f64; 6]>)>,
+    /// Each model's best validation loss and its epoch.
+    pub validation: Vec<(String, f64, usize)>,
+    /// Each model's weights as evaluated.
+    pub checkpoints: Vec<(String, Checkpoint)>,
+}
+
+impl ArmEvaluation {
+    /// The model with the lowest validation loss (chosen on validation, never on test).
+    pub fn best_on_validation(&self) -> Option<&(String, Checkpoint)> {
+        let best = self.validation.iter().min_by(|a, b| a.1.total_cmp(&b.1))?;
+        self.checkpoints.iter().find(|(n, _)| *n == best.0)
+    }
+
+    /// The table as Markdown: mean, SD and max position error (µm) on the test poses.
+    pub fn markdown(&self) -> String {
+        let mut out = String::from("| model | mean µm | SD µm | max µm |\n|---|---|---|---|\n");
+        for r in &self.rows {
+            let um: Vec<f64> = r.errors_mm.iter().map(|e| e * 1e3).collect();
+            if let Some(s) = Summary::of(&um) {
+                out.push_str(&format!(
+                    "| {} | {:.1} | {:.1} | {:.1} |\n",
+                    r.model, s.mean, s.sd, s.max
+                ));
+            }
+        }
+        out
+    }
+
+    /// The table as CSV (`model,mean_um,sd_um,max_um,poses`).
+    pub fn csv(&self) -> String {
+        let mut out = String::from("model,mean_um,sd_um,max_um,poses\n");
+        for r in &self.rows {
+            let um: Vec<f64> = r.errors_mm.iter().map(|e| e * 1e3).collect();
+            if let Some(s) = Summary::of(&um) {
+                out.push_str(&format!(
+                    "{},{:.3},{:.3},{:.3},{}\n",
+                    r.model,
+                    s.mean,
+                    s.sd,
+                    s.max,
+                    um.len()
+                ));
+            }
+        }
+        out
+    }
+}
+
+/// Calibrates `nominal` on the training blocks of `files`, trains `variants` on the
+/// calibrated residuals with `config` (checkpoints, logs and plots into `out/models`),
+/// and scores the test blocks.
+pub fn evaluate_arm(
+    gpu: &Arc<Gpu>,
+    nominal: &Arm,
+    files: &[(String, ArmPoses)],
+    config: &RunConfig,
+    variants: &[Variant],
+    out: &Path,
+    reporter: &mut dyn Reporter,
+) -> Result<ArmEvaluation> {
+    config.validate().map_err(Error::Invalid)?;
+    if config.data.split != "contiguous" {
+        return Err(Error::Invalid(format!(
+            "data.split = {:?}: arm evaluations split each pose file into contiguous blocks (a random split would put neighbours of test poses in training)",
+            config.data.split
+        )));
+    }
+    let window = window_config(config);
+    // The calibration sees the training blocks only, as the models do.
+    let train_poses: Vec<ArmPose> = files
+        .iter()
+        .flat_map(|(_, f)| {
+            let n = (window.train * f.poses.len() as f64).round() as usize;
+            f.poses[..n.min(f.poses.len())].iter().cloned()
+        })
+        .collect();
+    reporter.note(&format!(
+        "== calibrating {} on the {} poses of the training blocks",
+        nominal.spec.name,
+        train_poses.len()
+    ));
+    let calibration = calibrate_arm(nominal, &train_poses, &ArmCalibrationConfig::default())?;
+    reporter.note(&format!(
+        "identified {} parameters; RMS {:.1} → {:.1} µm on the training poses",
+        calibration.identified.len(),
+        calibration.rms_before_mm * 1e3,
+        calibration.rms_after_mm * 1e3
+    ));
+    let (graph, data) = arm_dataset(
+        &calibration.arm,
+        files,
+        &window,
+        SplitMode::Contiguous,
+        None,
+    )?;
+    for line in data.summary().lines() {
+        reporter.note(line);
+    }
+    let [_, _, test] = data.split_ranges();
+    let positions: Vec<usize> = test.collect();
+    if positions.is_empty() {
+        return Err(Error::Invalid(
+            "no test window: the pose files are too short for their test blocks".into(),
+        ));
+    }
+    let test_poses: Vec<(usize, usize)> = positions
+        .iter()
+        .map(|&i| (data.windows[i].recording, data.windows[i].end))
+        .collect();
+    let pose = |&(f, p): &(usize, usize)| &files[f].1.poses[p];
+    let error_of = |arm: &Arm| -> Vec<f64> {
+        test_poses
+            .iter()
+            .map(|t| {
+                let p = pose(t);
+                (arm.tool_position(&p.joints) - p.position).norm()
+            })
+            .collect()
+    };
+    // Position error left after subtracting a predicted residual (µm) from the label.
+    let left = |predicted: &dyn Fn(usize) -> [f64; 6]| -> Vec<f64> {
+        positions
+            .iter()
+            .enumerate()
+            .map(|(k, &i)| {
+                let (l, p) = (data.labels[i], predicted(k));
+                ((l[0] - p[0]).powi(2) + (l[1] - p[1]).powi(2) + (l[2] - p[2]).powi(2)).sqrt()
+                    * 1e-3
+            })
+            .collect()
+    };
+    let mean = data.normalization.label_mean;
+    let mut rows = vec![
+        ArmRow {
+            model: "initial".into(),
+            errors_mm: error_of(&calibration.registered),
+        },
+        ArmRow {
+            model: "calibrated".into(),
+            errors_mm: error_of(&calibration.arm),
+        },
+        ArmRow {
+            model: "training mean".into(),
+            errors_mm: left(&|_| mean),
+        },
+    ];
+    let model_dir = out.join("models");
+    std::fs::create_dir_all(&model_dir).map_err(|e| Error::io(&model_dir, e))?;
+    let mut predictions = Vec::new();
+    let mut validation = Vec::new();
+    let mut checkpoints = Vec::new();
+    for &variant in variants {
+        let mut c = config.clone();
+        c.model.variant = variant;
+        c.model.nodes = graph.len();
+        let name = variant.name();
+        reporter.note(&format!("== {name} on the calibrated residuals"));
+        let files = ModelFiles {
+            core: model_dir.join(format!("{name}.safetensors")),
+            refined: model_dir.join(format!("{name}-refined.safetensors")),
+            resume: false,
+        };
+        let fitted = fit_model(gpu, &data, &graph, &c, name, &files, reporter)?;
+        let predicted = predict_windows(gpu, &fitted.model.checkpoint, &data, &positions)?;
+        rows.push(ArmRow {
+            model: name.to_string(),
+            errors_mm: left(&|k| predicted[k]),
+        });
+        validation.push((name.to_string(), fitted.best_val, fitted.best_epoch));
+        predictions.push((name.to_string(), predicted));
+        checkpoints.push((name.to_string(), fitted.model.checkpoint));
+    }
+    let split_poses = {
+        let s = &data.splits;
+        [s.train.len(), s.validation.len(), s.test.len()]
+    };
+    Ok(ArmEvaluation {
+        calibration,
+        split_poses,
+        test_poses,
+        rows,
+        predictions,
+        validation,
+        checkpoints,
+    })
+}
+
+/// One desired tool point and the joint targets that reach it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CorrectedTarget {
+    /// The target's stamp (pose number or time).
+    pub stamp: f64,
+    /// The desired tool point, mm (tracker frame).
+    pub point: Point3<f64>,
+    /// Joint values that reach it under the calibrated model alone.
+    pub calibrated: Vec<f64>,
+    /// The residual the model predicts there (µm, mdeg).
+    pub residual: [f64; 6],
+    /// Joint values that reach the point minus the predicted residual under the
+    /// calibrated model: the compensated command.
+    pub corrected: Vec<f64>,
+}
+
+/// Corrected joint targets for `targets` in order: inverse kinematics of each point under
+/// the calibrated model (from the previous target's solution, the first from the middle
+/// of every joint's range), the residual `checkpoint` predicts over the window of the
+/// targets so far (the first target's features stand in for the poses before it), and
+/// inverse kinematics of the point minus that residual.
+pub fn corrected_targets(
+    gpu: &Arc<Gpu>,
+    checkpoint: &Checkpoint,
+    calibrated: &Arm,
+    targets: &ArmTargets,
+) -> Result<Vec<CorrectedTarget>> {
+    let mut seed: Vec<f64> = calibrated
+        .spec
+        .joint
+        .iter()
+        .map(|j| 0.5 * (j.min + j.max))
+        .collect();
+    let mut poses = Vec::with_capacity(targets.targets.len());
+    for (k, (stamp, point, channels)) in targets.targets.iter().enumerate() {
+        let q = calibrated
+            .inverse_position(point, &seed)
+            .map_err(|e| Error::Invalid(format!("target {} (line {}): {e}", k + 1, k + 2)))?;
+        seed.clone_from(&q);
+        poses.push(ArmPose {
+            stamp: *stamp,
+            joints: q,
+            position: *point,
+            orientation: None,
+            channels: channels.clone(),
+        });
+    }
+    let channels = poses.first().map_or(0, |p| p.channels.len());
+    let file = ArmPoses {
+        stamp: targets.stamp.clone(),
+        oriented: false,
+        channels: (0..channels).map(|c| format!("c{c}")).collect(),
+        poses,
+    };
+    let features = prepare_arm(calibrated, &file).features;
+    let mut predictor = Predictor::new(gpu.clone(), checkpoint, 1)?;
+    let step = |k: usize| -> Vec<f32> {
+        features
+            .iter()
+            .flat_map(|node| node.iter().map(move |f| f[k] as f32))
+            .collect()
+    };
+    for _ in 1..checkpoint.config.window {
+        predictor.push_step(&step(0))?;
+    }
+    let mut out = Vec::with_capacity(file.poses.len());
+    for (k, pose) in file.poses.iter().enumerate() {
+        let residual = predictor
+            .push(&step(k))?
+            .ok_or_else(|| Error::Invalid("the predictor's window did not fill".into()))?;
+        let shifted = pose.position - Vector3::new(residual[0], residual[1], residual[2]) * 1e-3;
+        let corrected = calibrated
+            .inverse_position(&shifted, &pose.joints)
+            .map_err(|e| {
+                Error::Invalid(format!(
+                    "target {} (line {}), compensated: {e}",
+                    k + 1,
+                    k + 2
+                ))
+            })?;
+        out.push(CorrectedTarget {
+            stamp: pose.stamp,
+            point: pose.position,
+            calibrated: pose.joints.clone(),
+            residual,
+            corrected,
+        });
+    }
+    Ok(out)
+}
+
+/// Corrected targets as CSV: `pose,x,y,z,q1…qn` (the corrected command),
+/// `dx_um,dy_um,dz_um` (the predicted residual), `calibrated_q1…` (calibration only).
+pub fn targets_csv(stamp: &str, targets: &[CorrectedTarget]) -> String {
+    let n = targets.first().map_or(0, |t| t.corrected.len());
+    let mut header = vec![stamp.to_string(), "x".into(), "y".into(), "z".into()];
+    header.extend((1..=n).map(|i| format!("q{i}")));
+    header.extend(["dx_um", "dy_um", "dz_um"].map(String::from));
+    header.extend((1..=n).map(|i| format!("calibrated_q{i}")));
+    let mut out = header.join(",") + "\n";
+    for t in targets {
+        let mut cells = vec![t.stamp.to_string()];
+        cells.extend(t.point.coords.iter().map(f64::to_string));
+        cells.extend(t.corrected.iter().map(f64::to_string));
+        cells.extend(t.residual[..3].iter().map(f64::to_string));
+        cells.extend(t.calibrated.iter().map(f64::to_string));
+        out.push_str(&cells.join(","));
+        out.push('\n');
+    }
+    out
+}
