@@ -115,7 +115,7 @@ fn bad_descriptions_are_refused_naming_the_field() {
         ),
         (
             good.replace("rpy_deg = [90.0, 0.0, 0.0]", "rpy_deg = [90.0, 0.0, inf]"),
-            "tool.rz = inf",
+            "tool.rpy_deg[2] = inf",
         ),
     ];
     for (i, (text, needle)) in cases.iter().enumerate() {

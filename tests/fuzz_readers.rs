@@ -1472,3 +1472,68 @@ fn a_rotation_vector_too_long_to_rotate_is_named() {
         "{err}"
     );
 }
+
+// ---------------------------------------------------------------------------------------
+// A serial arm's description and pose CSV (docs/arms.md).
+
+const ARM_NAMES: &[&str] = &["foo", "", "q1", "q4", "q5", "x", "rx", "temp_c", "time"];
+
+/// A WAM pose file with its temperature channel: time,q1..q4,x,y,z,temp_c.
+fn arm_pose_text() -> String {
+    let arm =
+        iastgcn::robot::arm::Arm::parse(include_str!("../assets/arms/wam4.toml"), "wam4.toml")
+            .unwrap();
+    let twin = iastgcn::twin::arm::ArmTwin::draw(&arm, 1, Default::default());
+    iastgcn::data::arm_poses::ArmPoses {
+        stamp: "time".into(),
+        oriented: false,
+        channels: vec!["temp_c".into()],
+        poses: twin.measure(6, 1).poses,
+    }
+    .to_csv()
+}
+
+proptest! {
+    #![proptest_config(config(500))]
+
+    #[test]
+    fn arm_description(case in toml_case()) {
+        let file = "arm.toml";
+        let (bytes, expect) = toml_input(include_str!("../assets/arms/wam4.toml"), &case, &[]);
+        let text = String::from_utf8_lossy(&bytes);
+        let finite = |a: &iastgcn::robot::arm::Arm| a.values.iter().all(|v| v.is_finite());
+        check(iastgcn::robot::arm::Arm::parse(&text, file), file, &expect, finite)?;
+    }
+
+    #[test]
+    fn arm_pose_csv(case in csv_case(ARM_NAMES)) {
+        let file = "poses.csv";
+        let valid = arm_pose_text();
+        let (bytes, mut expect) = csv_input(&valid, file, &case, false);
+        // Columns after z are free sensor channels: one more or one fewer there may be
+        // taken (or refused naming the file, as a repeated name is).
+        let columns = valid.lines().next().unwrap().split(',').count();
+        match &case {
+            CsvCase::Missing(c) if c.index(columns) == columns - 1 => expect = Expect::default(),
+            CsvCase::Extra { at, .. } if at.index(columns + 1) >= columns - 1 => {
+                expect = Expect::default()
+            }
+            _ => {}
+        }
+        let text = String::from_utf8_lossy(&bytes);
+        truncation_rule(&text, file, &mut expect);
+        let finite = |f: &iastgcn::data::arm_poses::ArmPoses| {
+            f.poses.iter().all(|p| {
+                p.stamp.is_finite()
+                    && p.joints.iter().chain(&p.channels).all(|v| v.is_finite())
+                    && p.position.coords.iter().all(|v| v.is_finite())
+            })
+        };
+        check(
+            iastgcn::data::arm_poses::parse_arm_poses(&text, file, 4),
+            file,
+            &expect,
+            finite,
+        )?;
+    }
+}

@@ -82,11 +82,16 @@ pub fn parse_arm_poses(text: &str, file: &str, joints: usize) -> Result<ArmPoses
             } else {
                 String::new()
             };
+            let want = if i == 0 {
+                "\"pose\" or \"time\"".to_string()
+            } else {
+                format!("{want:?}")
+            };
             return Err(table.at(
                 1,
                 i,
                 format!(
-                    "column {} is {:?} where {want:?} belongs{hint}; {rule}",
+                    "column {} is {:?} where {want} belongs{hint}; {rule}",
                     i + 1,
                     header[i]
                 ),

@@ -240,11 +240,11 @@ impl Arm {
             }
         }
         for (name, f) in [("base", &spec.base), ("tool", &spec.tool)] {
-            for (k, v) in f.xyz_mm.iter().chain(&f.rpy_deg).enumerate() {
-                if !v.is_finite() || v.abs() > 1e6 {
+            for (field, values) in [("xyz_mm", &f.xyz_mm), ("rpy_deg", &f.rpy_deg)] {
+                if let Some(k) = values.iter().position(|v| !v.is_finite() || v.abs() > 1e6) {
                     return Err(format!(
-                        "{name}.{} = {v}: must be a finite number within ±1e6",
-                        FRAME_PARAMS[k]
+                        "{name}.{field}[{k}] = {}: must be a finite number within ±1e6",
+                        values[k]
                     ));
                 }
             }
