@@ -157,12 +157,27 @@ impl Checkpoint {
 
     /// Writes the checkpoint atomically (temporary file, then rename).
     pub fn save(&self, path: &Path) -> Result<(), CheckpointError> {
+        let mut batch = crate::atomic::Batch::new();
+        self.stage(&mut batch, path)?;
+        batch.commit().map_err(|e| CheckpointError {
+            file: path.display().to_string(),
+            message: e.to_string(),
+        })
+    }
+
+    /// Stages the checkpoint for `path` in `batch`, to replace it together with the
+    /// batch's other files.
+    pub fn stage(
+        &self,
+        batch: &mut crate::atomic::Batch,
+        path: &Path,
+    ) -> Result<(), CheckpointError> {
         let err = |message: String| CheckpointError {
             file: path.display().to_string(),
             message,
         };
         let bytes = self.to_bytes().map_err(err)?;
-        crate::atomic::write(path, &bytes).map_err(|e| err(e.to_string()))
+        batch.add(path, &bytes).map_err(|e| err(e.to_string()))
     }
 
     /// Reads and validates the checkpoint at `path` (docs/model.md "Parameter names" lists

@@ -206,14 +206,8 @@ pub fn write_epoch_files(
 ) -> Result<()> {
     let mut batch = crate::atomic::Batch::new();
     if improved {
-        let ck = checkpoint(&config.model, graph, &trainer.best, &data.normalization);
-        let bytes = ck
-            .to_bytes()
-            .map_err(|message| crate::model::CheckpointError {
-                file: out.display().to_string(),
-                message,
-            })?;
-        batch.add(out, &bytes).map_err(|e| Error::io(out, e))?;
+        checkpoint(&config.model, graph, &trainer.best, &data.normalization)
+            .stage(&mut batch, out)?;
     }
     let state_path = sibling(out, ".state.safetensors");
     let state = TrainState {

@@ -169,15 +169,9 @@ impl Refined {
         };
         // All five replace older files together or not at all.
         let mut batch = crate::atomic::Batch::new();
-        let bytes = ck
-            .to_bytes()
-            .map_err(|message| crate::model::CheckpointError {
-                file: out.display().to_string(),
-                message,
-            })?;
+        ck.stage(&mut batch, out)?;
         let mut text =
             |path: &Path, bytes: &[u8]| batch.add(path, bytes).map_err(|e| Error::io(path, e));
-        text(out, &bytes)?;
         let log_csv = sibling(out, ".log.csv");
         text(&log_csv, log::history_csv(&self.history).as_bytes())?;
         let accumulated = sibling(out, ".accumulated.csv");
