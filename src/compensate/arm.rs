@@ -277,12 +277,7 @@ pub fn corrected_targets(
     calibrated: &Arm,
     targets: &ArmTargets,
 ) -> Result<Vec<CorrectedTarget>> {
-    let mut seed: Vec<f64> = calibrated
-        .spec
-        .joint
-        .iter()
-        .map(|j| 0.5 * (j.min + j.max))
-        .collect();
+    let mut seed = calibrated.at_shares(|_| 0.5);
     let mut poses = Vec::with_capacity(targets.targets.len());
     for (k, (stamp, point, channels)) in targets.targets.iter().enumerate() {
         let q = calibrated

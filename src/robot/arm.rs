@@ -286,16 +286,7 @@ impl Arm {
         let n = self.joints();
         let mut moves = vec![false; n];
         for s in 0..7 {
-            let q: Vec<f64> = self
-                .spec
-                .joint
-                .iter()
-                .enumerate()
-                .map(|(i, j)| {
-                    let f = ((s * 3 + i * 5) % 7) as f64 / 6.0;
-                    j.min + (j.max - j.min) * (0.1 + 0.8 * f)
-                })
-                .collect();
+            let q = self.at_shares(|i| 0.1 + 0.8 * ((s * 3 + i * 5) % 7) as f64 / 6.0);
             let p0 = self.tool_position(&q);
             for (i, m) in moves.iter_mut().enumerate() {
                 let mut dq = q.clone();
@@ -378,6 +369,18 @@ impl Arm {
 
     /// [`Arm::tool_pose`] with the parameter vector `values` in place of the arm's own.
     pub fn tool_pose_with(&self, q: &[f64], values: &[f64]) -> Isometry3<f64> {
+        self.walk(q, values, |_| {})
+    }
+
+    /// The chain from the base to the tool under `values` at joint values `q`, calling
+    /// `at_joint` with each joint's frame before its own motion (its z axis is the
+    /// joint's axis). Returns the tool pose.
+    fn walk(
+        &self,
+        q: &[f64],
+        values: &[f64],
+        mut at_joint: impl FnMut(&Isometry3<f64>),
+    ) -> Isometry3<f64> {
         let o = 5 * self.joints();
         let mut t = frame_isometry(&values[o..o + 6]);
         for (i, j) in self.spec.joint.iter().enumerate() {
@@ -387,7 +390,9 @@ impl Arm {
                 JointKind::Revolute => theta += q[i].to_radians(),
                 JointKind::Prismatic => d += q[i],
             }
-            t *= link(v[0], v[1], v[2], theta, d);
+            t *= link_offset(v[0], v[1], v[2]);
+            at_joint(&t);
+            t *= joint_motion(theta, d);
         }
         t * frame_isometry(&values[o + 6..o + 12])
     }
@@ -400,26 +405,25 @@ impl Arm {
     /// The joint frames' origins and z axes in the measurement frame at `q` (for the
     /// twin's gravity load), and the tool point last.
     pub fn joint_axes(&self, q: &[f64]) -> (Vec<JointAxis>, Point3<f64>) {
-        let o = 5 * self.joints();
-        let mut t = frame_isometry(&self.values[o..o + 6]);
         let mut axes = Vec::with_capacity(self.joints());
-        for (i, j) in self.spec.joint.iter().enumerate() {
-            let v = &self.values[5 * i..5 * i + 5];
-            let (mut theta, mut d) = (v[3], v[4]);
-            match j.kind {
-                JointKind::Revolute => theta += q[i].to_radians(),
-                JointKind::Prismatic => d += q[i],
-            }
-            // The joint's axis is the z axis after Rx(α)·Ry(β)·Tx(a).
-            let before = t * link(v[0], v[1], v[2], 0.0, 0.0);
+        let tool = self.walk(q, &self.values, |frame| {
             axes.push((
-                Point3::from(before.translation.vector),
-                before.rotation * Vector3::z(),
+                Point3::from(frame.translation.vector),
+                frame.rotation * Vector3::z(),
             ));
-            t *= link(v[0], v[1], v[2], theta, d);
-        }
-        let tool = t * frame_isometry(&self.values[o + 6..o + 12]);
+        });
         (axes, Point3::from(tool.translation.vector))
+    }
+
+    /// Joint values at the share `share(i)` of each joint's range (0: its lower limit,
+    /// 1: its upper one).
+    pub fn at_shares(&self, mut share: impl FnMut(usize) -> f64) -> Vec<f64> {
+        self.spec
+            .joint
+            .iter()
+            .enumerate()
+            .map(|(i, j)| j.min + (j.max - j.min) * share(i))
+            .collect()
     }
 
     /// Joint values (degrees or mm) that put the tool point at `target` (measurement
@@ -436,21 +440,15 @@ impl Arm {
             Err(short) => short,
         };
         for k in 0..17 {
-            let start: Vec<f64> = self
-                .spec
-                .joint
-                .iter()
-                .enumerate()
-                .map(|(i, j)| {
-                    // k = 0: the middle; then a Kronecker sequence (golden-ratio steps).
-                    let f = if k == 0 {
-                        0.5
-                    } else {
-                        (0.5 + (k * (i + 1)) as f64 * 0.618_033_988_749_895).fract()
-                    };
-                    j.min + (j.max - j.min) * (0.05 + 0.9 * f)
-                })
-                .collect();
+            let start = self.at_shares(|i| {
+                // k = 0: the middle; then a Kronecker sequence (golden-ratio steps).
+                let f = if k == 0 {
+                    0.5
+                } else {
+                    (0.5 + (k * (i + 1)) as f64 * 0.618_033_988_749_895).fract()
+                };
+                0.05 + 0.9 * f
+            });
             match self.descend(target, &start) {
                 Ok(q) => return Ok(q),
                 Err(short) => best = best.min(short),
@@ -538,12 +536,17 @@ impl Arm {
     }
 }
 
-/// `Rx(α) Ry(β) Tx(a) Rz(θ) Tz(d)`: one modified-DH link with Hayati's β.
-pub fn link(alpha: f64, a: f64, beta: f64, theta: f64, d: f64) -> Isometry3<f64> {
+/// `Rx(α) Ry(β) Tx(a)`: from the previous joint's frame to this joint's axis; with
+/// [`joint_motion`] one modified-DH link with Hayati's β, `Rx(α) Ry(β) Tx(a) Rz(θ) Tz(d)`.
+fn link_offset(alpha: f64, a: f64, beta: f64) -> Isometry3<f64> {
     let rot = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), alpha)
         * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), beta);
-    let ab = Isometry3::from_parts(Translation3::from(rot * Vector3::new(a, 0.0, 0.0)), rot);
-    ab * Isometry3::from_parts(
+    Isometry3::from_parts(Translation3::from(rot * Vector3::new(a, 0.0, 0.0)), rot)
+}
+
+/// `Rz(θ) Tz(d)`: the motion along and about the joint's axis.
+fn joint_motion(theta: f64, d: f64) -> Isometry3<f64> {
+    Isometry3::from_parts(
         Translation3::new(0.0, 0.0, d),
         UnitQuaternion::from_axis_angle(&Vector3::z_axis(), theta),
     )

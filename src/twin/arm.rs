@@ -216,14 +216,9 @@ impl ArmTwin {
         let (mut poses, mut truth, mut geometric) = (Vec::new(), Vec::new(), Vec::new());
         for n in 0..count {
             let t = n as f64 * self.config.dwell_s;
-            let q: Vec<f64> = spec
-                .joint
-                .iter()
-                .map(|j| {
-                    let span = j.max - j.min;
-                    j.min + span * (margin + (1.0 - 2.0 * margin) * rng.random::<f64>())
-                })
-                .collect();
+            let q = self
+                .truth
+                .at_shares(|_| margin + (1.0 - 2.0 * margin) * rng.random::<f64>());
             for i in 0..q.len() {
                 if q[i] != previous[i] {
                     dir[i] = (q[i] - previous[i]).signum();
