@@ -479,7 +479,7 @@ fn simulate_and_calibrate_from_the_command_line() {
         "{commands}"
     );
     assert_eq!(commands.lines().count(), 6);
-    assert!(std::fs::read_to_string(report.join("arm_report.md"))
+    assert!(std::fs::read_to_string(report.join("report.md"))
         .unwrap()
         .contains("static poses"));
     // Without an arm description, evaluate needs the hybrid's calibration and models.

@@ -307,6 +307,7 @@ pub fn calibrate_arm(
         .map(|k| j.column(k).norm())
         .fold(0.0, f64::max);
     let basis = DMatrix::from_fn(j.nrows(), chosen.len(), |r, k| j[(r, chosen[k])]);
+    let basis_svd = basis.clone().svd(true, true);
     for (k, &i) in allowed.iter().enumerate() {
         if chosen.contains(&k) {
             continue;
@@ -316,9 +317,7 @@ pub fn calibrate_arm(
             "no effect on the measured poses".to_string()
         } else {
             // Which identified parameters explain its effect (least squares).
-            let coef = basis
-                .clone()
-                .svd(true, true)
+            let coef = basis_svd
                 .solve(&col, 1e-12)
                 .unwrap_or_else(|_| DVector::zeros(chosen.len()));
             let mut weight: Vec<(f64, usize)> = coef

@@ -246,10 +246,7 @@ Pose files: {}. Each file is cut into contiguous 70/20/10 %          blocks in m
         result.calibration.identified.len(),
     );
     let mut batch = Batch::new();
-    let (md, csv) = (
-        args.out.join("arm_report.md"),
-        args.out.join("arm_table.csv"),
-    );
+    let (md, csv) = (args.out.join("report.md"), args.out.join("arm_table.csv"));
     batch
         .add(&md, report.as_bytes())
         .with_context(|| md.display().to_string())?;

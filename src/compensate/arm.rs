@@ -11,7 +11,9 @@ use std::sync::Arc;
 
 use super::evaluate::predict_windows;
 use super::protocol::{fit_model, ModelFiles};
-use crate::calibrate::arm::{calibrate_arm, ArmCalibration, ArmCalibrationConfig};
+use crate::calibrate::arm::{
+    arm_position_errors, calibrate_arm, ArmCalibration, ArmCalibrationConfig,
+};
 use crate::data::arm_dataset::{arm_dataset, prepare_arm};
 use crate::data::arm_poses::{ArmPoses, ArmTargets};
 use crate::data::SplitMode;
@@ -76,17 +78,22 @@ impl ArmEvaluation {
         self.checkpoints.iter().find(|(n, _)| *n == best.0)
     }
 
+    /// Each row's name, number of test poses and summary in µm.
+    fn summaries(&self) -> impl Iterator<Item = (&str, usize, Summary)> {
+        self.rows.iter().filter_map(|r| {
+            let um: Vec<f64> = r.errors_mm.iter().map(|e| e * 1e3).collect();
+            Summary::of(&um).map(|s| (r.model.as_str(), um.len(), s))
+        })
+    }
+
     /// The table as Markdown: mean, SD and max position error (µm) on the test poses.
     pub fn markdown(&self) -> String {
         let mut out = String::from("| model | mean µm | SD µm | max µm |\n|---|---|---|---|\n");
-        for r in &self.rows {
-            let um: Vec<f64> = r.errors_mm.iter().map(|e| e * 1e3).collect();
-            if let Some(s) = Summary::of(&um) {
-                out.push_str(&format!(
-                    "| {} | {:.1} | {:.1} | {:.1} |\n",
-                    r.model, s.mean, s.sd, s.max
-                ));
-            }
+        for (model, _, s) in self.summaries() {
+            out.push_str(&format!(
+                "| {model} | {:.1} | {:.1} | {:.1} |\n",
+                s.mean, s.sd, s.max
+            ));
         }
         out
     }
@@ -94,18 +101,11 @@ impl ArmEvaluation {
     /// The table as CSV (`model,mean_um,sd_um,max_um,poses`).
     pub fn csv(&self) -> String {
         let mut out = String::from("model,mean_um,sd_um,max_um,poses\n");
-        for r in &self.rows {
-            let um: Vec<f64> = r.errors_mm.iter().map(|e| e * 1e3).collect();
-            if let Some(s) = Summary::of(&um) {
-                out.push_str(&format!(
-                    "{},{:.3},{:.3},{:.3},{}\n",
-                    r.model,
-                    s.mean,
-                    s.sd,
-                    s.max,
-                    um.len()
-                ));
-            }
+        for (model, n, s) in self.summaries() {
+            out.push_str(&format!(
+                "{model},{:.3},{:.3},{:.3},{n}\n",
+                s.mean, s.sd, s.max
+            ));
         }
         out
     }
@@ -172,16 +172,10 @@ pub fn evaluate_arm(
         .iter()
         .map(|&i| (data.windows[i].recording, data.windows[i].end))
         .collect();
-    let pose = |&(f, p): &(usize, usize)| &files[f].1.poses[p];
-    let error_of = |arm: &Arm| -> Vec<f64> {
-        test_poses
-            .iter()
-            .map(|t| {
-                let p = pose(t);
-                (arm.tool_position(&p.joints) - p.position).norm()
-            })
-            .collect()
-    };
+    let measured: Vec<ArmPose> = test_poses
+        .iter()
+        .map(|&(f, p)| files[f].1.poses[p].clone())
+        .collect();
     // Position error left after subtracting a predicted residual (µm) from the label.
     let left = |predicted: &dyn Fn(usize) -> [f64; 6]| -> Vec<f64> {
         positions
@@ -198,11 +192,11 @@ pub fn evaluate_arm(
     let mut rows = vec![
         ArmRow {
             model: "initial".into(),
-            errors_mm: error_of(&calibration.registered),
+            errors_mm: arm_position_errors(&calibration.registered, &measured),
         },
         ArmRow {
             model: "calibrated".into(),
-            errors_mm: error_of(&calibration.arm),
+            errors_mm: arm_position_errors(&calibration.arm, &measured),
         },
         ArmRow {
             model: "training mean".into(),
