@@ -782,12 +782,18 @@ proptest! {
     fn robot_asset(case in toml_case()) {
         let file = "robot.toml";
         let (bytes, mut expect) = toml_input(iastgcn::robot::DEFAULT_ASSET, &case, &[]);
-        // `limits_deg` is optional.
-        if matches!(case, TomlCase::Remove(_)) && expect.all == ["limits_deg"] {
+        // `limits_deg` and `kind` are optional.
+        if matches!(case, TomlCase::Remove(_))
+            && (expect.all == ["limits_deg"] || expect.all == ["kind"])
+        {
             expect = Expect::default();
         }
         let text = String::from_utf8_lossy(&bytes);
-        check(Geometry::parse(&text, file), file, &expect, geometry_finite)?;
+        // Through the reader every `--robot` goes through: `kind` picks the hybrid.
+        let hybrid = |d: &iastgcn::robot::Description| {
+            matches!(d, iastgcn::robot::Description::Hybrid(g) if geometry_finite(g))
+        };
+        check(iastgcn::robot::Description::parse(&text, file), file, &expect, hybrid)?;
     }
 
     #[test]

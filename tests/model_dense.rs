@@ -292,3 +292,63 @@ fn offline_models_need_the_joint_inputs_in_the_graph() {
     };
     Network::for_inference(&g, &mlp, &graph, 2).unwrap();
 }
+
+#[test]
+fn offline_models_read_the_joint_inputs_the_config_names() {
+    // A serial arm's graph: its joints, then a sensor channel. The offline models read the
+    // joints named in `joint_inputs`, in that order, whatever the graph calls them.
+    let graph = Graph::parse(
+        "nodes = [\"shoulder\", \"elbow\", \"wrist\", \"temp_c\"]\nedges = [[\"shoulder\", \"elbow\"]]\n",
+        "arm.toml",
+    )
+    .unwrap();
+    let names = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+    let c = ModelConfig {
+        nodes: 4,
+        joint_inputs: names(&["wrist", "shoulder", "elbow"]),
+        ..config(Variant::BklsAnn)
+    };
+    c.validate().unwrap();
+    let arch = Architecture::of(&c).unwrap();
+    assert_eq!(arch.input_indices(&graph, 3).unwrap(), vec![6, 0, 3]);
+    assert_eq!(param_specs(&c)[0].shape, vec![6, 3]);
+    let g = gpu();
+    Network::for_inference(&g, &c, &graph, 2).unwrap();
+    // The error names the field and the missing node.
+    let missing = ModelConfig {
+        joint_inputs: names(&["shoulder", "ankle"]),
+        ..c.clone()
+    };
+    let e = Network::for_inference(&g, &missing, &graph, 2)
+        .err()
+        .expect("no ankle");
+    assert!(
+        e.to_string().contains("model.joint_inputs") && e.to_string().contains("ankle"),
+        "{e}"
+    );
+    // Empty and repeated lists are refused for the offline models only.
+    let empty = ModelConfig {
+        joint_inputs: vec![],
+        ..c.clone()
+    };
+    assert!(empty
+        .validate()
+        .unwrap_err()
+        .contains("joint_inputs is empty"));
+    let twice = ModelConfig {
+        joint_inputs: names(&["elbow", "wrist", "elbow"]),
+        ..c.clone()
+    };
+    assert_eq!(
+        twice.validate().unwrap_err(),
+        "model config: joint_inputs names \"elbow\" twice (entries 1 and 3)"
+    );
+    let mlp = ModelConfig {
+        variant: Variant::Mlp,
+        ..empty
+    };
+    mlp.validate().unwrap();
+    // Checkpoints written before the field existed read as the hybrid's Q1–Q5.
+    let old: ModelConfig = serde_json::from_str(r#"{"variant": "erc", "nodes": 14}"#).unwrap();
+    assert_eq!(old.joint_inputs, ["Q1", "Q2", "Q3", "Q4", "Q5"]);
+}

@@ -1,4 +1,4 @@
-//! The serial-arm side of `iastgcn simulate --arm` and `iastgcn calibrate --robot
+//! The serial-arm side of `iastgcn simulate --robot ARM.toml` and `iastgcn calibrate --robot
 //! ARM.toml` (docs/arms.md): parse, call the library, print.
 
 use std::path::Path;
@@ -20,9 +20,10 @@ pub fn truth_path(csv: &Path) -> std::path::PathBuf {
     csv.with_extension("truth.toml")
 }
 
-/// `simulate --arm`: measures `poses` static poses of the serial twin of `arm_path`.
+/// `simulate --robot ARM.toml`: measures `poses` static poses of the serial twin of
+/// `nominal`.
 pub fn simulate(
-    arm_path: &Path,
+    nominal: &Arm,
     poses: usize,
     seed: u64,
     machine_seed: u64,
@@ -32,8 +33,7 @@ pub fn simulate(
         (1..=100_000).contains(&poses),
         "--poses: a pose list has from 1 to 100000 poses, got {poses}"
     );
-    let nominal = Arm::load(arm_path)?;
-    let twin = ArmTwin::draw(&nominal, machine_seed, ArmTwinConfig::default());
+    let twin = ArmTwin::draw(nominal, machine_seed, ArmTwinConfig::default());
     let run = twin.measure(poses, seed);
     let file = ArmPoses {
         stamp: "time".into(),
@@ -45,9 +45,19 @@ pub fn simulate(
         .truth
         .to_toml(None)
         .map_err(|e| anyhow::anyhow!("{}: {e}", truth_path(out).display()))?;
+    let c = &twin.config;
     let truth_text = format!(
         "# The hidden truth of the serial twin (machine seed {machine_seed}): its geometry, cold and \
-         unloaded, with the tracker registration as its base. Not for calibration: for checking it.\n{truth}"
+         unloaded, with the tracker registration as its base. Not for calibration: for checking it.\n\
+         # This machine's non-geometric constants: compliance {:.3e} rad/(N·m), link mass {:.2} kg, \
+         payload {:.2} kg, backlash {:.4}, expansion {:.2e} 1/K, warm rise {:.2} K over {:.0} s.\n{truth}",
+        c.compliance_rad_per_nm,
+        c.link_mass_kg,
+        c.payload_kg,
+        c.backlash,
+        c.expansion_per_k,
+        c.warm_rise_k,
+        c.warm_time_s
     );
     let mut batch = Batch::new();
     batch
@@ -91,16 +101,15 @@ fn row(label: &str, stage: &str, errors_mm: &[f64]) -> String {
 /// `calibrate --robot ARM.toml --data POSES.csv`: registration, identifiability and
 /// Levenberg–Marquardt; writes the calibrated description to `out`.
 pub fn calibrate(
-    arm_path: &Path,
+    nominal: &Arm,
     data: &Path,
     hold_out_every: usize,
     out: &Path,
 ) -> anyhow::Result<()> {
-    let nominal = Arm::load(arm_path)?;
     let file = read_arm_poses(data, nominal.joints())?;
     let (fit, held) = hold_out(&file.poses, hold_out_every);
-    let cal = calibrate_arm(&nominal, &fit, &ArmCalibrationConfig::default())
-        .with_context(|| format!("calibrating {} from {}", arm_path.display(), data.display()))?;
+    let cal = calibrate_arm(nominal, &fit, &ArmCalibrationConfig::default())
+        .with_context(|| format!("calibrating {} from {}", nominal.spec.name, data.display()))?;
     let text = cal
         .arm
         .to_toml(Some(cal.record()))
@@ -178,10 +187,9 @@ pub fn calibrate(
 /// the residual models, and the table on the test blocks; report files into `--out`.
 pub fn evaluate(
     gpu: std::sync::Arc<iastgcn::gpu::Gpu>,
-    robot: &Path,
+    nominal: &Arm,
     args: &super::demo::EvaluateArgs,
 ) -> anyhow::Result<()> {
-    let nominal = Arm::load(robot)?;
     let files = args
         .data
         .iter()
@@ -211,7 +219,7 @@ pub fn evaluate(
     std::fs::create_dir_all(&args.out).with_context(|| args.out.display().to_string())?;
     let result = evaluate_arm(
         &gpu,
-        &nominal,
+        nominal,
         &files,
         &config,
         &variants,
@@ -231,11 +239,16 @@ pub fn evaluate(
     let [train, validation, test] = result.split_poses;
     let table = result.markdown();
     let report = format!(
-        "# {} — residual models
-
-Pose files: {}. Each file is cut into contiguous 70/20/10 %          blocks in measurement order; a window is the last {} poses in that order (the data          are static poses, not a time series). The geometric calibration ({} parameters          identified) and the models saw the training blocks only ({train} windows;          validation {validation} for early stopping); the table scores the {test} test poses          against the tracker's measurement. `initial`: the nominal description with the          tracker registration fitted; `training mean`: the calibrated model plus the          training blocks' mean residual; each model: the calibrated model plus its          predicted residual.
-
-{table}",
+        "# {} — residual models\n\n\
+         Pose files: {}. Each file is cut into contiguous 70/20/10 % blocks in measurement \
+         order; a window is the last {} poses in that order (the data are static poses, not \
+         a time series). The geometric calibration ({} parameters identified) and the models \
+         saw the training blocks only ({train} windows; validation {validation} for early \
+         stopping); the table scores the {test} test poses against the tracker's \
+         measurement. `initial`: the nominal description with the tracker registration \
+         fitted; `training mean`: the calibrated model plus the training blocks' mean \
+         residual; each model: the calibrated model plus its predicted residual.\n\n\
+         {table}",
         nominal.spec.name,
         args.data
             .iter()

@@ -9,7 +9,7 @@ use indicatif::ProgressBar;
 
 use iastgcn::calibrate::{self, file, hold_out, pose_errors, EkfConfig};
 use iastgcn::data::{read_measurements, recording_measurements};
-use iastgcn::robot::{Geometry, Robot};
+use iastgcn::robot::{Description, Robot};
 use iastgcn::stats::Summary;
 
 #[derive(clap::Args)]
@@ -21,9 +21,9 @@ pub struct CalibrateArgs {
     /// Output calibration file (TOML).
     #[arg(long)]
     pub out: PathBuf,
-    /// Robot: the hybrid machine's geometry asset (default: the embedded
-    /// assets/robot.toml), or a serial arm's description (`kind = "serial"`,
-    /// docs/arms.md), which writes the calibrated description to `--out`.
+    /// Robot description (default: the embedded hybrid machine, assets/robot.toml): its
+    /// `kind` picks the chain; a serial arm's (`kind = "serial"`, docs/arms.md) writes
+    /// the calibrated description to `--out`.
     #[arg(long)]
     pub robot: Option<PathBuf>,
     /// Every how many measurements one is held out for the report (0: none).
@@ -45,17 +45,13 @@ fn row(label: &str, stage: &str, (p, a): &(Vec<f64>, Vec<f64>)) -> String {
 }
 
 pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
-    if let Some(robot) = &args.robot {
-        if iastgcn::robot::arm::is_arm_description(robot) {
-            return super::arm::calibrate(
-                robot,
-                &args.measurements,
-                args.hold_out_every,
-                &args.out,
-            );
+    let geometry = match Description::load_or_default(args.robot.as_deref())? {
+        Description::Hybrid(geometry) => geometry,
+        Description::Serial(arm) => {
+            return super::arm::calibrate(&arm, &args.measurements, args.hold_out_every, &args.out);
         }
-    }
-    let nominal = Robot::nominal(Geometry::load_or_default(args.robot.as_deref())?);
+    };
+    let nominal = Robot::nominal(geometry);
     let (fit, held) = hold_out(&read_measurements(&args.measurements)?, args.hold_out_every);
     let spinner = ProgressBar::new_spinner().with_message(format!("EKF on {} poses", fit.len()));
     spinner.enable_steady_tick(std::time::Duration::from_millis(200));

@@ -13,6 +13,7 @@ use iastgcn::compensate::demo::{self, DemoConfig};
 use iastgcn::compensate::evaluate::HeldOutConfig;
 use iastgcn::data::DataSources;
 use iastgcn::gpu::Gpu;
+use iastgcn::robot::Description;
 
 #[derive(Args)]
 pub struct DemoArgs {
@@ -76,9 +77,9 @@ pub struct EvaluateArgs {
     /// Sensor graph asset (default: the embedded assets/graph.toml; the hybrid machine).
     #[arg(long)]
     pub graph: Option<PathBuf>,
-    /// Robot: the hybrid machine's geometry asset (default: the embedded
-    /// assets/robot.toml), or a serial arm's description (`kind = "serial"`): then the
-    /// arm is calibrated, its residual models trained and scored on held-out poses.
+    /// Robot description (default: the embedded hybrid machine, assets/robot.toml); a
+    /// serial arm's (`kind = "serial"`) is calibrated, its residual models trained and
+    /// scored on held-out poses.
     #[arg(long)]
     pub robot: Option<PathBuf>,
     /// Checkpoints to compare (the hybrid machine; named by file stem; a `<stem>.log.csv`
@@ -91,7 +92,7 @@ pub struct EvaluateArgs {
     #[arg(long)]
     pub targets: Option<PathBuf>,
     /// The models to train on a serial arm's residuals, comma-separated.
-    #[arg(long, default_value = "iastgcn,iastgcn-s,mlp")]
+    #[arg(long, default_value_t = iastgcn::compensate::arm::ARM_MODELS.map(iastgcn::model::Variant::name).join(","))]
     pub train_models: String,
     /// Run config (its [data] table windows the recordings for Table III); for a serial
     /// arm, the residual models' config (default: the embedded assets/arms/residual.toml).
@@ -105,10 +106,8 @@ pub struct EvaluateArgs {
 }
 
 pub fn evaluate(gpu: Gpu, args: &EvaluateArgs) -> anyhow::Result<()> {
-    if let Some(robot) = &args.robot {
-        if iastgcn::robot::arm::is_arm_description(robot) {
-            return super::arm::evaluate(Arc::new(gpu), robot, args);
-        }
+    if let Description::Serial(arm) = Description::load_or_default(args.robot.as_deref())? {
+        return super::arm::evaluate(Arc::new(gpu), &arm, args);
     }
     let calibration = args.calibration.clone().ok_or_else(|| {
         anyhow::anyhow!("--calibration is required (or give a serial arm's description in --robot)")

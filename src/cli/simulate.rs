@@ -5,19 +5,16 @@ use std::path::PathBuf;
 
 use super::Console;
 use iastgcn::data::{record_calibration_set, record_run};
-use iastgcn::robot::{Geometry, Robot};
+use iastgcn::robot::{Description, Robot};
 use iastgcn::twin::{draw_machine, PathKind, PathParams, RunInfo};
 
 #[derive(clap::Args)]
 pub struct SimulateArgs {
     /// Path to polish (grid, fermat, hilbert, rosette) or `calibration` for static
     /// measurement poses.
-    #[arg(long, value_parser = ["grid", "fermat", "hilbert", "rosette", "calibration"], required_unless_present = "arm", conflicts_with = "arm")]
+    /// Required for the hybrid machine; a serial arm's twin measures static poses.
+    #[arg(long, value_parser = ["grid", "fermat", "hilbert", "rosette", "calibration"])]
     pub trajectory: Option<String>,
-    /// Measure static poses of the serial twin of this arm description instead
-    /// (docs/arms.md): writes a pose CSV and its hidden truth beside it.
-    #[arg(long)]
-    pub arm: Option<PathBuf>,
     /// Rotation of the pattern on the part, degrees.
     #[arg(long, default_value_t = 0.0)]
     pub rotation: f64,
@@ -38,10 +35,12 @@ pub struct SimulateArgs {
     /// default machine is 1).
     #[arg(long, default_value_t = 1)]
     pub machine_seed: u64,
-    /// Robot geometry asset (default: the embedded assets/robot.toml).
-    #[arg(long)]
+    /// Robot description (default: the embedded hybrid machine, assets/robot.toml). With
+    /// a serial arm's (`kind = "serial"`, docs/arms.md; `--arm` is the same flag) the
+    /// twin measures static poses of that arm: a pose CSV and its hidden truth beside it.
+    #[arg(long, visible_alias = "arm")]
     pub robot: Option<PathBuf>,
-    /// Number of measurement poses for `--trajectory calibration` or `--arm`.
+    /// Number of measurement poses for `--trajectory calibration` or a serial arm.
     #[arg(long, default_value_t = 80)]
     pub poses: usize,
     /// Output CSV.
@@ -53,14 +52,20 @@ pub struct SimulateArgs {
 }
 
 pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
-    let trajectory = match (&args.arm, &args.trajectory) {
-        (Some(arm), _) => {
-            return super::arm::simulate(arm, args.poses, args.seed, args.machine_seed, &args.out)
+    let description = Description::load_or_default(args.robot.as_deref())?;
+    let (geometry, trajectory) = match (description, args.trajectory.as_deref()) {
+        (Description::Serial(arm), None) => {
+            return super::arm::simulate(&arm, args.poses, args.seed, args.machine_seed, &args.out)
         }
-        (None, Some(t)) => t.as_str(),
-        (None, None) => anyhow::bail!("give --trajectory or --arm"),
+        (Description::Serial(arm), Some(t)) => anyhow::bail!(
+            "--trajectory {t}: {} is a serial arm, whose twin measures static poses (--poses); leave --trajectory out",
+            arm.spec.name
+        ),
+        (Description::Hybrid(_), None) => anyhow::bail!(
+            "give --trajectory (a polishing path, or `calibration` for static poses), or a serial arm's description in --robot"
+        ),
+        (Description::Hybrid(geometry), Some(t)) => (geometry, t),
     };
-    let geometry = Geometry::load_or_default(args.robot.as_deref())?;
     let machine = draw_machine(geometry.clone(), args.machine_seed);
     let (controller, controller_name) = match &args.calibration {
         Some(p) => (

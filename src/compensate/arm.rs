@@ -30,10 +30,17 @@ use nalgebra::{Point3, Vector3};
 /// The embedded run config of the arm residual models (assets/arms/residual.toml).
 pub const ARM_RUN_CONFIG: &str = include_str!("../../assets/arms/residual.toml");
 
-/// The models an arm evaluation trains by default: IASTGCN, its Chebyshev ablation and
-/// the instantaneous MLP (the offline pose→error baselines read the hybrid's five joint
-/// inputs by name and do not apply to another arm).
-pub const ARM_MODELS: [Variant; 3] = [Variant::Iastgcn, Variant::Chebyshev, Variant::Mlp];
+/// The models an arm evaluation trains by default: IASTGCN, its Chebyshev ablation, the
+/// instantaneous MLP and the three offline pose→error baselines (which read the arm's
+/// joints, `ModelConfig::joint_inputs`).
+pub const ARM_MODELS: [Variant; 6] = [
+    Variant::Iastgcn,
+    Variant::Chebyshev,
+    Variant::Mlp,
+    Variant::BklsAnn,
+    Variant::AnnBfpa,
+    Variant::Erc,
+];
 
 /// The default arm run config.
 pub fn arm_run_config() -> RunConfig {
@@ -212,6 +219,8 @@ pub fn evaluate_arm(
         let mut c = config.clone();
         c.model.variant = variant;
         c.model.nodes = graph.len();
+        // The offline baselines read the arm's joints (the graph's first nodes).
+        c.model.joint_inputs = nominal.spec.joint.iter().map(|j| j.name.clone()).collect();
         let name = variant.name();
         reporter.note(&format!("== {name} on the calibrated residuals"));
         let files = ModelFiles {

@@ -22,7 +22,7 @@ pub enum Variant {
     #[serde(rename = "mlp")]
     Mlp,
     /// Offline pose→error baseline of Table V [15]: a tanh feed-forward ANN on the joint
-    /// inputs Q1–Q5 at the last step.
+    /// inputs (`ModelConfig::joint_inputs`, Q1–Q5 on the hybrid) at the last step.
     #[serde(rename = "bkls-ann")]
     BklsAnn,
     /// Offline pose→error baseline of Table V [17]: a one-hidden-layer tanh ANN on the
@@ -225,7 +225,14 @@ pub struct ModelConfig {
     pub dropout: f64,
     /// LayerNorm ε.
     pub eps: f64,
+    /// The graph nodes the offline pose→error baselines (`bkls-ann`, `ann-bfpa`, `erc`)
+    /// read: the robot's joint inputs, Q1–Q5 on the hybrid machine, the joints' names on a
+    /// serial arm. Unused by the other variants.
+    pub joint_inputs: Vec<String>,
 }
+
+/// The hybrid machine's joint inputs: the three limb lengths and the two head angles.
+pub const HYBRID_JOINT_INPUTS: [&str; 5] = ["Q1", "Q2", "Q3", "Q4", "Q5"];
 
 impl Default for ModelConfig {
     fn default() -> ModelConfig {
@@ -244,6 +251,7 @@ impl Default for ModelConfig {
             heads: 4,
             dropout: 0.2,
             eps: 1e-5,
+            joint_inputs: HYBRID_JOINT_INPUTS.map(String::from).to_vec(),
         }
     }
 }
@@ -337,6 +345,33 @@ impl ModelConfig {
                 "model config: heads = {} must divide channels = {} (each head attends over C/heads channels)",
                 self.heads, self.channels
             ));
+        }
+        if matches!(
+            self.variant,
+            Variant::BklsAnn | Variant::AnnBfpa | Variant::Erc
+        ) {
+            if self.joint_inputs.is_empty() {
+                return Err(format!(
+                    "model config: joint_inputs is empty: {} reads the joint-input nodes it names",
+                    self.variant
+                ));
+            }
+            if let Some((i, name)) = self
+                .joint_inputs
+                .iter()
+                .enumerate()
+                .find(|(i, n)| self.joint_inputs[..*i].contains(n))
+            {
+                return Err(format!(
+                    "model config: joint_inputs names {name:?} twice (entries {} and {})",
+                    self.joint_inputs[..i]
+                        .iter()
+                        .position(|n| n == name)
+                        .unwrap_or(0)
+                        + 1,
+                    i + 1
+                ));
+            }
         }
         if !(self.eps.is_finite() && self.eps > 0.0) {
             return Err(format!(

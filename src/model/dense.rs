@@ -16,18 +16,15 @@ use crate::ops::head::LastStep;
 use crate::ops::matmul::Matmul;
 use crate::ops::Accumulate;
 
-/// The joint-input nodes the offline models read (the r feature of each, at the last
-/// step): with the pose a function of them, they are the commanded pose.
-pub const JOINT_INPUTS: [&str; 5] = ["Q1", "Q2", "Q3", "Q4", "Q5"];
-
 /// What a dense baseline reads from the last step of its window.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Inputs {
     /// All N·F features (the instantaneous MLP).
     EveryNode,
-    /// The first feature (r, the low-passed value) of the nodes of [`JOINT_INPUTS`]
-    /// (the offline pose→error models).
-    JointInputs,
+    /// The first feature (r, the low-passed value) of the named joint-input nodes
+    /// (`ModelConfig::joint_inputs`; the offline pose→error models): with the pose a
+    /// function of them, they are the commanded pose.
+    JointInputs(Vec<String>),
 }
 
 /// One fully connected layer: `out = act(in · weightᵀ + bias) (+ skip)`.
@@ -61,7 +58,8 @@ impl Architecture {
     pub fn of(config: &ModelConfig) -> Option<Architecture> {
         let (h, o) = (config.hidden, config.outputs);
         let nf = config.nodes * config.features;
-        let joints = JOINT_INPUTS.len();
+        let joints = config.joint_inputs.len();
+        let joint_inputs = || Inputs::JointInputs(config.joint_inputs.clone());
         let layer = |name: &str, inputs, outputs, activation, skip| Layer {
             name: name.to_string(),
             inputs,
@@ -80,7 +78,7 @@ impl Architecture {
                 ],
             ),
             Variant::BklsAnn => (
-                Inputs::JointInputs,
+                joint_inputs(),
                 vec![
                     layer("dense.0", joints, h, Some(Unary::Tanh), None),
                     layer("dense.1", h, h, Some(Unary::Tanh), None),
@@ -88,14 +86,14 @@ impl Architecture {
                 ],
             ),
             Variant::AnnBfpa => (
-                Inputs::JointInputs,
+                joint_inputs(),
                 vec![
                     layer("dense.0", joints, h, Some(Unary::Tanh), None),
                     head(h),
                 ],
             ),
             Variant::Erc => (
-                Inputs::JointInputs,
+                joint_inputs(),
                 vec![
                     layer("stem", joints, h, Some(Unary::Relu), None),
                     layer("res.0.fc1", h, h, Some(Unary::Relu), None),
@@ -125,9 +123,9 @@ impl Architecture {
     /// Positions `n·F + f` in a step's `[N, F]` features of the selected inputs, in order;
     /// the error names a joint input missing from the graph.
     pub fn input_indices(&self, graph: &Graph, features: usize) -> Result<Vec<usize>, String> {
-        match self.inputs {
+        match &self.inputs {
             Inputs::EveryNode => Ok((0..graph.len() * features).collect()),
-            Inputs::JointInputs => JOINT_INPUTS
+            Inputs::JointInputs(names) => names
                 .iter()
                 .map(|name| {
                     graph
@@ -137,8 +135,8 @@ impl Architecture {
                         .map(|n| n * features)
                         .ok_or_else(|| {
                             format!(
-                                "the offline baselines read the joint inputs {}, and the graph has no node named {name}",
-                                JOINT_INPUTS.join(", ")
+                                "the offline baselines read the joint inputs {} (model.joint_inputs), and the graph has no node named {name}",
+                                names.join(", ")
                             )
                         })
                 })
@@ -157,7 +155,7 @@ impl Architecture {
             .sum();
         let selection = match self.inputs {
             Inputs::EveryNode => 0.0,
-            Inputs::JointInputs => {
+            Inputs::JointInputs(_) => {
                 2.0 * b * (config.nodes * config.features * self.input_width()) as f64
             }
         };
@@ -204,7 +202,7 @@ impl DenseBody {
         let last_grad = gpu.zeros("dense.d_last_step", &[batch, nf], DType::F32)?;
         let selection = match arch.inputs {
             Inputs::EveryNode => None,
-            Inputs::JointInputs => {
+            Inputs::JointInputs(_) => {
                 let mut s = vec![0f32; nf * k];
                 for (j, &i) in indices.iter().enumerate() {
                     s[i * k + j] = 1.0;

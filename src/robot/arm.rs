@@ -13,6 +13,7 @@ use std::path::Path;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
+use super::serial::{mdh_link, mdh_motion};
 use super::RobotError;
 
 /// Parameters per joint, in [`Arm::values`] order.
@@ -88,7 +89,8 @@ pub struct CalibrationRecord {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ArmSpec {
-    /// Always `serial` (the hybrid machine's asset is assets/robot.toml).
+    /// Always `serial` (the hybrid machine's description is `hybrid`,
+    /// [`super::Description`]).
     pub kind: String,
     /// The arm's name.
     pub name: String,
@@ -165,12 +167,7 @@ pub fn frame_isometry(v: &[f64]) -> Isometry3<f64> {
 impl Arm {
     /// Reads and checks a description file; errors name the file and the field.
     pub fn load(path: &Path) -> Result<Arm, RobotError> {
-        let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| RobotError::Asset {
-            file: file.clone(),
-            message: e.to_string(),
-        })?;
-        Arm::parse(&text, &file)
+        Arm::parse(&super::read_description(path)?, &path.display().to_string())
     }
 
     /// Parses and checks a description (`file` names it in errors).
@@ -187,7 +184,7 @@ impl Arm {
     pub fn from_spec(spec: ArmSpec) -> Result<Arm, String> {
         if spec.kind != "serial" {
             return Err(format!(
-                "kind = {:?}: this reader takes serial arms (kind = \"serial\"); the hybrid machine's geometry is a robot asset without `kind`",
+                "kind = {:?}: this reader takes serial arms (kind = \"serial\"); the hybrid machine's description is kind = \"hybrid\" (assets/robot.toml)",
                 spec.kind
             ));
         }
@@ -390,9 +387,9 @@ impl Arm {
                 JointKind::Revolute => theta += q[i].to_radians(),
                 JointKind::Prismatic => d += q[i],
             }
-            t *= link_offset(v[0], v[1], v[2]);
+            t *= mdh_link(v[0], v[1], v[2]);
             at_joint(&t);
-            t *= joint_motion(theta, d);
+            t *= mdh_motion(theta, d);
         }
         t * frame_isometry(&values[o + 6..o + 12])
     }
@@ -534,31 +531,6 @@ impl Arm {
     pub fn to_toml(&self, calibration: Option<CalibrationRecord>) -> Result<String, String> {
         toml::to_string(&self.to_spec(calibration)).map_err(|e| e.to_string())
     }
-}
-
-/// `Rx(α) Ry(β) Tx(a)`: from the previous joint's frame to this joint's axis; with
-/// [`joint_motion`] one modified-DH link with Hayati's β, `Rx(α) Ry(β) Tx(a) Rz(θ) Tz(d)`.
-fn link_offset(alpha: f64, a: f64, beta: f64) -> Isometry3<f64> {
-    let rot = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), alpha)
-        * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), beta);
-    Isometry3::from_parts(Translation3::from(rot * Vector3::new(a, 0.0, 0.0)), rot)
-}
-
-/// `Rz(θ) Tz(d)`: the motion along and about the joint's axis.
-fn joint_motion(theta: f64, d: f64) -> Isometry3<f64> {
-    Isometry3::from_parts(
-        Translation3::new(0.0, 0.0, d),
-        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), theta),
-    )
-}
-
-/// Whether the file at `path` is meant as an arm description: it has a top-level `kind`
-/// or `[[joint]]` (the hybrid machine's asset has neither); [`Arm::load`] then judges it.
-pub fn is_arm_description(path: &Path) -> bool {
-    std::fs::read_to_string(path)
-        .ok()
-        .and_then(|t| t.parse::<toml::Table>().ok())
-        .is_some_and(|t| t.contains_key("kind") || t.contains_key("joint"))
 }
 
 /// Whether `pattern` (a name, or a prefix ending in `*`) matches the parameter `name`.

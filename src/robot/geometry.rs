@@ -67,6 +67,10 @@ pub struct TrackerGeometry {
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Geometry {
+    /// `hybrid` (the description's kind, see [`super::Description`]); absent in assets
+    /// written before the field existed.
+    #[serde(default)]
+    pub kind: Option<String>,
     /// The 3-UPS/UP parallel module.
     pub parallel: ParallelGeometry,
     /// The 2R serial head.
@@ -86,11 +90,7 @@ impl Geometry {
 
     /// Reads and checks a geometry file.
     pub fn load(path: &std::path::Path) -> Result<Geometry, RobotError> {
-        let text = std::fs::read_to_string(path).map_err(|e| RobotError::Asset {
-            file: path.display().to_string(),
-            message: e.to_string(),
-        })?;
-        Geometry::parse(&text, &path.display().to_string())
+        Geometry::parse(&super::read_description(path)?, &path.display().to_string())
     }
 
     /// The file at `path`, or the embedded default asset when there is none.
@@ -112,6 +112,11 @@ impl Geometry {
     }
 
     fn check(&self) -> Result<(), String> {
+        if let Some(kind) = self.kind.as_deref().filter(|k| *k != "hybrid") {
+            return Err(format!(
+                "kind = {kind:?}: this reader takes the hybrid machine (kind = \"hybrid\"); a serial arm is read by `--robot` as kind = \"serial\" (docs/arms.md)"
+            ));
+        }
         let p = &self.parallel;
         let positive = [
             ("parallel.base_radius", p.base_radius),

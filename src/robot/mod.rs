@@ -1,22 +1,33 @@
 //! The hybrid robot: nominal geometry (asset), 3-UPS/UP inverse and forward kinematics,
 //! the serial MDH head, the full tool pose, and the Table I error parameters; and any
-//! serial arm of the user's from its description file (`arm`).
+//! serial arm of the user's from its description file (`arm`); one reader of description
+//! files for both (`Description`, keyed by their `kind`).
 //!
 //! CPU only (nalgebra). Units inside: mm and rad. The base frame's z axis points down,
 //! towards the workpiece.
 
 pub mod arm;
+mod description;
 mod errors;
 mod geometry;
 mod parallel;
 mod serial;
 
+pub use description::{Description, KINDS};
 pub use errors::{ErrorParams, LimbErrors, MdhErrors, LIMB_PARAMS, LIMB_VECTORS, N_PARAMS};
 pub use geometry::{Geometry, MdhJoint, DEFAULT_ASSET};
 pub use parallel::{platform_frame, tilt, Limb, PlatformPose};
 pub use serial::mdh;
 
 use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
+
+/// The text of a description file; the error names the file.
+fn read_description(path: &std::path::Path) -> Result<String, RobotError> {
+    std::fs::read_to_string(path).map_err(|e| RobotError::Asset {
+        file: path.display().to_string(),
+        message: e.to_string(),
+    })
+}
 
 /// What can go wrong in the robot model, with the numbers that explain it.
 #[derive(Debug, thiserror::Error)]

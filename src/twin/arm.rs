@@ -50,6 +50,11 @@ pub struct ArmTwinConfig {
     pub thermometer_sd_k: f64,
     /// Share of each joint's range left out at either end when poses are drawn.
     pub limit_margin: f64,
+    /// Machine-to-machine spread of the non-geometric constants: each machine seed draws
+    /// its compliance, link mass, payload, backlash, expansion, warm rise and warm-up time
+    /// as this config's value times a factor uniform in [1 − spread, 1 + spread] (0: every
+    /// machine has the config's values; at most 0.9).
+    pub spread: f64,
 }
 
 impl Default for ArmTwinConfig {
@@ -70,6 +75,7 @@ impl Default for ArmTwinConfig {
             orientation_sd_deg: None,
             thermometer_sd_k: 0.05,
             limit_margin: 0.1,
+            spread: 0.3,
         }
     }
 }
@@ -117,6 +123,21 @@ impl ArmTwin {
                 angle
             };
             *v += gaussian(&mut rng, sd);
+        }
+        // Drawn after the geometric errors, so a machine seed keeps its geometry whatever
+        // the spread.
+        let mut config = config;
+        let spread = config.spread.clamp(0.0, 0.9);
+        for constant in [
+            &mut config.compliance_rad_per_nm,
+            &mut config.link_mass_kg,
+            &mut config.payload_kg,
+            &mut config.backlash,
+            &mut config.expansion_per_k,
+            &mut config.warm_rise_k,
+            &mut config.warm_time_s,
+        ] {
+            *constant *= 1.0 + spread * (2.0 * rng.random::<f64>() - 1.0);
         }
         let r = config.registration;
         values[joints..joints + 6].copy_from_slice(&[
