@@ -1,7 +1,8 @@
 //! `iastgcn reproduce` end to end at a tiny size: the data once, the jobs split over two
 //! shards, a final run that trains nothing and writes the report with the spread over
 //! seeds; a job whose outputs are lost resumes from its state file to the same model;
-//! another protocol in the same folder and a bad shard are refused.
+//! another protocol in the same folder and a bad shard are refused; another twin
+//! machine's data say which machine they come from.
 
 mod common;
 
@@ -174,5 +175,34 @@ fn reproduce_shards_resumes_and_reports_over_seeds() {
         s(&dir.join("x")),
     ]);
     assert!(err.contains("fractions: 1.5"), "{err}");
+
+    // Another twin machine: its own folder, its data recorded on that machine (the
+    // sidecars say so, and an evaluation's held-out session follows them); the first
+    // folder refuses it, and recordings of two machines do not mix.
+    let out2 = dir.join("out2");
+    let mut args = vec!["reproduce", "--config", s(&config), "--minutes", "0.5"];
+    args.extend(["--machine-seed", "2", "--data-only", "--out", s(&out2)]);
+    let text = cli(&args);
+    assert!(text.contains("0 of"), "{text}");
+    let data = |o: &Path| iastgcn::compensate::protocol::data_sources(&o.join("data"));
+    assert_eq!(data(&out2).machine_seed().unwrap(), 2);
+    assert_eq!(data(&out).machine_seed().unwrap(), 1);
+    let mut mixed = data(&out);
+    mixed.recordings[1] = data(&out2).recordings[1].clone();
+    let e = mixed.machine_seed().unwrap_err().to_string();
+    assert!(e.contains("recorded on twin machine 2"), "{e}");
+    args.pop();
+    args.push(s(&out));
+    let err = cli_fails(&args);
+    assert!(err.contains("protocol.toml"), "{err}");
+    let err = cli_fails(&[
+        "reproduce",
+        "--merge",
+        s(&out),
+        s(&out2),
+        "--out",
+        s(&dir.join("m")),
+    ]);
+    assert!(err.contains("another protocol"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }

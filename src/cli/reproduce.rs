@@ -46,12 +46,36 @@ pub struct ReproduceArgs {
     /// Record (or check) the data and stop: run this once before the shards.
     #[arg(long)]
     pub data_only: bool,
+    /// The twin machine (seed of its geometric and non-geometric errors) the data and
+    /// the held-out session come from; one folder holds one machine.
+    #[arg(long, default_value_t = iastgcn::compensate::protocol::MACHINE_SEED)]
+    pub machine_seed: u64,
+    /// Merge finished reproduce folders of one protocol, one per twin machine, into
+    /// --out: Tables V and III over machines and seeds (machines.md); nothing trains.
+    #[arg(long, num_args = 2.., conflicts_with_all = ["shard", "data_only"])]
+    pub merge: Vec<PathBuf>,
     #[command(flatten)]
     pub held_out: HeldOutArgs,
 }
 
 pub fn run(gpu: Gpu, args: &ReproduceArgs) -> anyhow::Result<()> {
+    if !args.merge.is_empty() {
+        let summary = iastgcn::compensate::machines::merge_machines(&args.merge, &args.out)?;
+        println!(
+            "merged {} twin machines ({}): {}",
+            summary.folders.len(),
+            summary
+                .folders
+                .iter()
+                .map(|(_, m)| m.to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
+            args.out.join("machines.md").display()
+        );
+        return Ok(());
+    }
     let mut protocol = Protocol::paper();
+    protocol.machine_seed = args.machine_seed;
     if let Some(p) = &args.config {
         protocol.run = read_run_config(Some(p), None)?;
     }

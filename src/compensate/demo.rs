@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use super::evaluate::{evaluate, HeldOutConfig, NamedModel};
 use super::held_out::IDLE_BETWEEN_RUNS;
-use super::protocol::{fit_model, record_data, ModelFiles};
+use super::protocol::{fit_model, record_data, ModelFiles, MACHINE_SEED};
 pub use super::protocol::{CALIBRATION_SEED, TRAINING_SEED};
 use super::report::{self, Report};
 use crate::data::DataSources;
@@ -108,7 +108,7 @@ pub fn demo(
     reporter.note(&format!("demo on {} → {}", gpu.info().name, out.display()));
 
     reporter.note("== 1/6 … 3/6 twin data: calibration set, EKF calibration, training session");
-    let sources = record_data(&data_dir, demo.minutes, reporter)?;
+    let sources = record_data(&data_dir, demo.minutes, MACHINE_SEED, reporter)?;
 
     reporter.note("== 4/6 dataset");
     let (graph, data) = build_dataset(&sources, config, None)?;

@@ -365,7 +365,9 @@ pub fn evaluate(
     reporter.note("== Table V: compensation of held-out runs in the twin");
     let geometry = sources.geometry()?;
     let cal = file::load(&sources.calibration)?;
-    let machine = draw_machine(geometry.clone(), 1);
+    // The held-out session runs on the machine the recordings were taken on.
+    let machine_seed = sources.machine_seed()?;
+    let machine = draw_machine(geometry.clone(), machine_seed);
     let nominal = Robot::nominal(geometry.clone());
     let calibrated = Robot::new(geometry, cal.errors);
     let graph = first.checkpoint.graph.clone();

@@ -6,6 +6,7 @@ pub mod budget;
 pub mod demo;
 pub mod evaluate;
 pub mod held_out;
+pub mod machines;
 pub mod online;
 pub mod protocol;
 pub mod report;

@@ -23,7 +23,7 @@ use crate::twin::{draw_machine, PathKind, PathParams, RunInfo};
 pub const CALIBRATION_SEED: u64 = 101;
 /// Seed of the first training recording; the later ones count up from it.
 pub const TRAINING_SEED: u64 = 201;
-/// The twin's machine (the seed of its geometric and non-geometric errors).
+/// The twin's default machine (the seed of its geometric and non-geometric errors).
 pub const MACHINE_SEED: u64 = 1;
 /// Measurement poses of the calibration set.
 const CALIBRATION_POSES: usize = 80;
@@ -43,9 +43,10 @@ pub fn data_sources(dir: &Path) -> DataSources {
 }
 
 /// The protocol's data of an earlier run in `dir`, when every file is there; an error
-/// when they are there but were recorded with another length than `minutes` (the models
-/// trained on them would not belong to this run).
-pub fn existing_data(dir: &Path, minutes: f64) -> Result<Option<DataSources>> {
+/// when they are there but were recorded with another length than `minutes` or on
+/// another machine than `machine_seed` (the models trained on them would not belong to
+/// this run).
+pub fn existing_data(dir: &Path, minutes: f64, machine_seed: u64) -> Result<Option<DataSources>> {
     let sources = data_sources(dir);
     let complete = dir.join("calibration_set.csv").exists()
         && sources.calibration.exists()
@@ -66,6 +67,14 @@ pub fn existing_data(dir: &Path, minutes: f64) -> Result<Option<DataSources>> {
                 info.seconds / 60.0
             )));
         }
+        if info.machine_seed != machine_seed {
+            return Err(Error::Invalid(format!(
+                "{}: recorded on twin machine {}, but this run asks for machine {machine_seed}; \
+                 use another output folder or the same --machine-seed",
+                r.display(),
+                info.machine_seed
+            )));
+        }
     }
     Ok(Some(sources))
 }
@@ -73,15 +82,24 @@ pub fn existing_data(dir: &Path, minutes: f64) -> Result<Option<DataSources>> {
 /// Records the protocol's data into `dir` (created if missing): the calibration set of a
 /// cold machine at rest, the EKF calibration (scored on held-out poses), then one
 /// training session of `minutes` per path under the calibrated controller, starting cold
-/// with the machine left idle between runs. Returns where the files are.
-pub fn record_data(dir: &Path, minutes: f64, reporter: &mut dyn Reporter) -> Result<DataSources> {
+/// with the machine left idle between runs, all on twin machine `machine_seed`. Returns
+/// where the files are.
+pub fn record_data(
+    dir: &Path,
+    minutes: f64,
+    machine_seed: u64,
+    reporter: &mut dyn Reporter,
+) -> Result<DataSources> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    reporter.note("== twin: calibration measurements (a cold machine at rest)");
+    reporter.note(&format!(
+        "== twin machine {machine_seed}: calibration measurements (a cold machine at rest)"
+    ));
     let geometry = Geometry::default_asset();
-    let machine = draw_machine(geometry.clone(), MACHINE_SEED);
+    let machine = draw_machine(geometry.clone(), machine_seed);
     let nominal = Robot::nominal(geometry.clone());
     let set = dir.join("calibration_set.csv");
-    let info = RunInfo::calibration(CALIBRATION_SEED);
+    let mut info = RunInfo::calibration(CALIBRATION_SEED);
+    info.machine_seed = machine_seed;
     let poses =
         record_calibration_set(&machine, &nominal, CALIBRATION_POSES, &info, &set, reporter)?;
     reporter.note(&format!(
@@ -129,6 +147,7 @@ pub fn record_data(dir: &Path, minutes: f64, reporter: &mut dyn Reporter) -> Res
             TRAINING_SEED + i as u64,
         );
         info.controller = calibration.display().to_string();
+        info.machine_seed = machine_seed;
         let run = record_run(&machine, &controller, info, state, path, None, reporter)?;
         reporter.note(&format!(
             "wrote {} ({} rows, {} tracker samples, seed {}, {} start)",

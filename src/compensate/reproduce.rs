@@ -47,6 +47,15 @@ pub struct Protocol {
     /// The learning curve's models.
     #[serde(default)]
     pub curve_models: Vec<String>,
+    /// The twin machine (seed of its geometric and non-geometric errors) the data and
+    /// the held-out session come from. One folder holds one machine; spread over
+    /// machines comes from several folders merged (`reproduce --merge`).
+    #[serde(default = "default_machine")]
+    pub machine_seed: u64,
+}
+
+fn default_machine() -> u64 {
+    MACHINE_SEED
 }
 
 impl Protocol {
@@ -62,6 +71,7 @@ impl Protocol {
             run: RunConfig::default(),
             fractions: vec![0.25, 0.5],
             curve_models: vec!["iastgcn".into(), "tgcn".into()],
+            machine_seed: MACHINE_SEED,
         }
     }
 
@@ -144,6 +154,15 @@ impl Protocol {
         }
         self.jobs()?;
         self.run.validate().map_err(Error::Invalid)
+    }
+
+    /// Whether `other` is this protocol on another twin machine (or the same): every
+    /// setting but the machine and where the steps run agrees.
+    pub fn same_but_machine(&self, other: &Protocol) -> bool {
+        let (mut a, mut b) = (self.comparable(), other.comparable());
+        a.machine_seed = 0;
+        b.machine_seed = 0;
+        a == b
     }
 
     /// The protocol with what may change between runs of one output folder cleared:
@@ -343,9 +362,10 @@ pub fn reproduce(
     std::fs::create_dir_all(out.join("models")).map_err(|e| Error::io(out, e))?;
     pin_protocol(protocol, out)?;
     reporter.note(&format!(
-        "reproduce on {} → {}: {} models × {} seeds = {} jobs{}",
+        "reproduce on {} → {}: twin machine {}, {} models × {} seeds = {} jobs{}",
         gpu.info().name,
         out.display(),
+        protocol.machine_seed,
         protocol.models.len(),
         protocol.seeds.len(),
         jobs.len(),
@@ -358,7 +378,7 @@ pub fn reproduce(
     ));
 
     let data_dir = out.join("data");
-    let sources = match existing_data(&data_dir, protocol.minutes)? {
+    let sources = match existing_data(&data_dir, protocol.minutes, protocol.machine_seed)? {
         Some(s) => {
             reporter.note(&format!(
                 "using the data of an earlier run in {}",
@@ -366,7 +386,7 @@ pub fn reproduce(
             ));
             s
         }
-        None => record_data(&data_dir, protocol.minutes, reporter)?,
+        None => record_data(&data_dir, protocol.minutes, protocol.machine_seed, reporter)?,
     };
     let done = |jobs: &[Job]| jobs.iter().filter(|j| j.record_path(out).exists()).count();
     if data_only {
@@ -572,11 +592,12 @@ fn report(
             seeds.join(", ")
         ),
         format!(
-            "data: machine {MACHINE_SEED}; calibration set at rest on a cold machine (seed \
+            "data: twin machine {}; calibration set at rest on a cold machine (seed \
              {CALIBRATION_SEED}); one training session under the calibrated controller: grid, \
              fermat, hilbert, {} min each, seeds {TRAINING_SEED}–{}; a separate held-out session: \
              {} min of warm-up, then every path turned or reversed on the part, plus the \
              rosette, {} min each, seeds from {}; prediction every {} ticks",
+            protocol.machine_seed,
             protocol.minutes,
             TRAINING_SEED + 2,
             held_out.warm_up_minutes,

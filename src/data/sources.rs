@@ -64,6 +64,34 @@ impl DataSources {
         Ok(Geometry::load_or_default(self.robot.as_deref())?)
     }
 
+    /// The twin machine the recordings were taken on, from their `.run.toml` sidecars
+    /// (`machine_seed`): the held-out session of an evaluation runs on the same machine.
+    /// Recordings without a sidecar say nothing (the twin's default machine, 1, when none
+    /// has one); sidecars that name different machines are an error naming both files.
+    pub fn machine_seed(&self) -> Result<u64> {
+        let mut found: Option<(u64, &PathBuf)> = None;
+        for path in &self.recordings {
+            if !crate::twin::RunInfo::sidecar(path).exists() {
+                continue;
+            }
+            let info = crate::twin::RunInfo::read(path).map_err(crate::error::Error::Invalid)?;
+            match found {
+                Some((seed, first)) if seed != info.machine_seed => {
+                    return Err(crate::error::Error::Invalid(format!(
+                        "{}: recorded on twin machine {}, but {} on machine {seed}; the \
+                         recordings of one evaluation come from one machine",
+                        path.display(),
+                        info.machine_seed,
+                        first.display()
+                    )))
+                }
+                Some(_) => {}
+                None => found = Some((info.machine_seed, path)),
+            }
+        }
+        Ok(found.map_or(1, |(seed, _)| seed))
+    }
+
     /// Graph, calibrated robot and the recordings, read with the graph's channels and
     /// at least `window` rows each.
     pub fn load(&self, window: usize) -> Result<Inputs> {

@@ -50,6 +50,12 @@ pub fn history_csv(history: &[EpochRecord]) -> String {
 
 /// Reads an epoch history written by [`write_csv`]; the error names the file and line.
 pub fn read_csv(path: &Path) -> Result<Vec<EpochRecord>> {
+    read_rows(path)
+}
+
+/// Reads every row of a CSV file with a header into `T` (columns by name; others are
+/// ignored); the error names the file and line.
+pub fn read_rows<T: serde::de::DeserializeOwned>(path: &Path) -> Result<Vec<T>> {
     let bad = |e: csv::Error| {
         let line = e
             .position()

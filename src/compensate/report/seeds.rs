@@ -50,7 +50,8 @@ impl Spread {
         Spread { mean, sd, n }
     }
 
-    fn text(&self, decimals: usize) -> String {
+    /// `mean ± sd` with `decimals` decimals (`n/a` for no value).
+    pub fn text(&self, decimals: usize) -> String {
         if !self.mean.is_finite() {
             return "n/a".into();
         }
@@ -267,18 +268,8 @@ pub fn summarize(report: &Report) -> Option<SeedSummary> {
     }
 
     let mut paired = Vec::new();
-    let pair = |measure: &str, t: &str, g: &str, main: BySeed, other: BySeed| -> Option<Paired> {
-        let diffs: Vec<(f64, f64)> = main
-            .iter()
-            .filter_map(|(seed, m)| other.iter().find(|o| o.0 == *seed).map(|o| (*m, o.1)))
-            .collect();
-        (!diffs.is_empty()).then(|| Paired {
-            measure: measure.into(),
-            trajectory: t.into(),
-            model: g.into(),
-            wins: diffs.iter().filter(|(m, o)| m < o).count(),
-            difference: Spread::of(&diffs.iter().map(|(m, o)| o - m).collect::<Vec<_>>()),
-        })
+    let pair = |measure: &str, t: &str, g: &str, main: BySeed, other: BySeed| {
+        pair_up(measure, t, g, &main, &other)
     };
     for (g, _) in groups.iter().filter(|g| g.0 != main) {
         for t in distinct(report.table_iii.iter().map(|r| r.trajectory.as_str())) {
@@ -319,7 +310,8 @@ fn beyond_spread(values: &[Spread]) -> Option<usize> {
     (n.mean - b.mean > b.sd.max(n.sd)).then_some(best)
 }
 
-fn cells(values: &[Spread], decimals: usize) -> Vec<String> {
+/// Each value as text, the one [`beyond_spread`] picks in bold.
+pub fn beyond_spread_cells(values: &[Spread], decimals: usize) -> Vec<String> {
     let bold = beyond_spread(values);
     values
         .iter()
@@ -375,12 +367,12 @@ pub fn markdown(s: &SeedSummary) -> String {
             rows.iter().map(|r| pick(r)).collect()
         };
         let (p, a) = (
-            cells(&col(|r| r.truth_pos), 1),
-            cells(&col(|r| r.truth_att), 2),
+            beyond_spread_cells(&col(|r| r.truth_pos), 1),
+            beyond_spread_cells(&col(|r| r.truth_att), 2),
         );
         let (tp, ta) = (
-            cells(&col(|r| r.tracker_pos), 1),
-            cells(&col(|r| r.tracker_att), 2),
+            beyond_spread_cells(&col(|r| r.tracker_pos), 1),
+            beyond_spread_cells(&col(|r| r.tracker_att), 2),
         );
         for (i, r) in rows.iter().enumerate() {
             let _ = writeln!(
@@ -406,7 +398,7 @@ pub fn markdown(s: &SeedSummary) -> String {
     for t in distinct(s.table_iii.iter().map(|r| r.trajectory.as_str())) {
         let rows: Vec<&SeedRowIII> = s.table_iii.iter().filter(|r| r.trajectory == t).collect();
         let col = |pick: fn(&SeedRowIII) -> Spread| -> Vec<String> {
-            cells(&rows.iter().map(|r| pick(r)).collect::<Vec<_>>(), 2)
+            beyond_spread_cells(&rows.iter().map(|r| pick(r)).collect::<Vec<_>>(), 2)
         };
         let (pm, am) = (col(|r| r.pos_mae), col(|r| r.att_mae));
         let (pr, ar) = (col(|r| r.pos_rmse), col(|r| r.att_rmse));
@@ -431,7 +423,15 @@ pub fn markdown(s: &SeedSummary) -> String {
          |---|---|---|---:|---:|---|",
         main = s.main
     );
-    for p in &s.paired {
+    out.push_str(&paired_rows(&s.main, &s.paired));
+    out.push('\n');
+    out
+}
+
+/// The rows of a paired-comparison table (after its header) and the tally of verdicts.
+pub fn paired_rows(main: &str, paired: &[Paired]) -> String {
+    let mut out = String::new();
+    for p in paired {
         let _ = writeln!(
             out,
             "| {} | {} | {} | {}/{} | {} | {} |",
@@ -444,18 +444,38 @@ pub fn markdown(s: &SeedSummary) -> String {
             p.verdict()
         );
     }
-    let (better, worse) = (
-        s.paired.iter().filter(|p| p.verdict() == "better").count(),
-        s.paired.iter().filter(|p| p.verdict() == "worse").count(),
-    );
+    let count = |v: &str| paired.iter().filter(|p| p.verdict() == v).count();
     let _ = writeln!(
         out,
-        "\nOf {} comparisons, {} is better beyond the spread in {better}, worse in {worse}, \
-         and within the spread in the rest.\n",
-        s.paired.len(),
-        s.main
+        "\nOf {} comparisons, {main} is better beyond the spread in {}, worse in {}, and \
+         within the spread in the rest.",
+        paired.len(),
+        count("better"),
+        count("worse")
     );
     out
+}
+
+/// Another model against the main one on the samples both have (`key`: a seed, or a
+/// (machine, seed) pair); `None` when they share none.
+pub fn pair_up<K: PartialEq>(
+    measure: &str,
+    trajectory: &str,
+    model: &str,
+    main: &[(K, f64)],
+    other: &[(K, f64)],
+) -> Option<Paired> {
+    let diffs: Vec<(f64, f64)> = main
+        .iter()
+        .filter_map(|(k, m)| other.iter().find(|o| o.0 == *k).map(|o| (*m, o.1)))
+        .collect();
+    (!diffs.is_empty()).then(|| Paired {
+        measure: measure.into(),
+        trajectory: trajectory.into(),
+        model: model.into(),
+        wins: diffs.iter().filter(|(m, o)| m < o).count(),
+        difference: Spread::of(&diffs.iter().map(|(m, o)| o - m).collect::<Vec<_>>()),
+    })
 }
 
 fn spread_fields(s: &Spread) -> [String; 2] {
