@@ -166,7 +166,14 @@ pub fn summarize_machines(folders: &[PathBuf]) -> Result<MachineSummary> {
                         l.trajectory
                     ))
                 })?;
-            let removed = |b: f64, a: f64| 100.0 * (b - a) / b;
+            // A calibrated run without error has no share to remove (NaN, shown as n/a).
+            let removed = |b: f64, a: f64| {
+                if b > 0.0 {
+                    100.0 * (b - a) / b
+                } else {
+                    f64::NAN
+                }
+            };
             let at = match v.iter().position(|r| r.0 == l.trajectory && r.1 == group) {
                 Some(i) => i,
                 None => {
