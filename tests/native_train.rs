@@ -1,6 +1,6 @@
 //! Native CPU training (`model::NativeTraining`) against the f64 reference and the WGSL
 //! training step: the loss and every parameter gradient with dropout in all four IASTGCN
-//! variants at a small shape, the ensemble loss of refinement, a deeper shape with
+//! variants at a small shape, the dense baselines, the ensemble loss of refinement, a deeper shape with
 //! dilations beyond the window, the threads' split, the Adam update, and refusals.
 //! (The reference's own backward is checked against finite differences in
 //! tests/model_reference.rs.)
@@ -94,6 +94,31 @@ fn compare_grads(name: &str, p: &Parameters, got: &[Vec<f32>], expected: &[Vec<f
     );
 }
 
+/// eq. 39's data term with this file's attitude penalty (the update adds the decay).
+const LOSS: Loss = Loss {
+    attitude_penalty: PENALTY,
+    weight_decay: 0.0,
+};
+
+/// The native loss (to 1e-5) and gradients (to `rel` of each tensor's scale) of one step
+/// against expected ones.
+fn check_step(
+    name: &str,
+    p: &Parameters,
+    (loss, grads): (f64, &[Vec<f32>]),
+    (expected_loss, expected): (f64, &[Vec<f64>]),
+    rel: f64,
+) {
+    compare(
+        &format!("{name} loss"),
+        &[loss],
+        &[expected_loss],
+        Tolerance::new(0.0, 1e-5),
+    )
+    .unwrap();
+    compare_grads(name, p, grads, expected, rel);
+}
+
 #[test]
 fn gradients_match_reference_in_every_variant() {
     let graph = Graph::default_asset();
@@ -112,22 +137,49 @@ fn gradients_match_reference_in_every_variant() {
             step: STEP,
         });
         let tape = reference::forward(&config, &basis, &p.specs, &params, &f64s(&x), b, dropout);
-        let l = Loss {
-            attitude_penalty: PENALTY,
-            weight_decay: 0.0,
-        };
         let y64 = f64s(&y);
         let (expected, _) =
-            reference::backward(&config, &basis, &p.specs, &params, &tape, &y64, b, &l);
-        let expected_loss = reference::loss(&config, &p.specs, &params, &tape.output, &y64, b, &l);
-        compare(
-            &format!("{variant} loss"),
-            &[loss],
-            &[expected_loss],
-            Tolerance::new(0.0, 1e-5),
-        )
-        .unwrap();
-        compare_grads(&variant.to_string(), &p, &grads, &expected, 1e-4);
+            reference::backward(&config, &basis, &p.specs, &params, &tape, &y64, b, &LOSS);
+        let expected_loss =
+            reference::loss(&config, &p.specs, &params, &tape.output, &y64, b, &LOSS);
+        let name = variant.to_string();
+        check_step(&name, &p, (loss, &grads), (expected_loss, &expected), 1e-4);
+    }
+}
+
+#[test]
+fn dense_baselines_match_the_reference_and_the_device() {
+    use iastgcn::model::dense::Architecture;
+    let graph = Graph::default_asset();
+    // B = 3 over 2 threads: an uneven split.
+    let b = 3;
+    for (vi, variant) in Variant::DENSE.into_iter().enumerate() {
+        let config = ModelConfig {
+            variant,
+            window: 5,
+            hidden: 6,
+            ..ModelConfig::default()
+        };
+        let p = parameters(&config, 40 + vi as u64);
+        let (x, y) = batch(&config, b, 140 + vi as u64);
+        let (loss, grads) = native(&config, &p, shape(b, 1, 2), &x, &y);
+        let inputs = Architecture::of(&config)
+            .unwrap()
+            .input_indices(&graph, config.features)
+            .unwrap();
+        let params: Vec<Vec<f64>> = p.values.iter().map(|v| f64s(v)).collect();
+        let tape = reference::dense::forward(&config, &inputs, &p.specs, &params, &f64s(&x), b);
+        let y64 = f64s(&y);
+        let (expected, _) =
+            reference::dense::backward(&config, &inputs, &p.specs, &params, &tape, &y64, b, &LOSS);
+        let expected_loss =
+            reference::loss(&config, &p.specs, &params, &tape.output, &y64, b, &LOSS);
+        let name = variant.to_string();
+        check_step(&name, &p, (loss, &grads), (expected_loss, &expected), 1e-4);
+        // And the WGSL step's.
+        let (dl, dg) = device(&config, &p, b, 1, &x, &y);
+        let name = format!("{variant} vs device");
+        check_step(&name, &p, (loss, &grads), (dl, &dg), 1e-4);
     }
 }
 

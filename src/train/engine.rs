@@ -47,7 +47,7 @@ pub fn runs_native(backend: &str, gpu: &Gpu, model: &ModelConfig) -> Result<bool
         "device" => Ok(false),
         "native" if covered => Ok(true),
         "native" => Err(TrainError::Data(format!(
-            "train.backend = \"native\": the native CPU path trains iastgcn, iastgcn-a, iastgcn-t and iastgcn-s, not {}",
+            "train.backend = \"native\": the native CPU path trains iastgcn, iastgcn-a, iastgcn-t, iastgcn-s and the dense baselines, not {}",
             model.variant
         ))),
         other => Err(TrainError::Data(format!(

@@ -1,7 +1,8 @@
-//! The inference forward pass of the IASTGCN variants, one window at a time (see the
-//! module above): the training forward of `tape.rs` without dropout, on a tape that is
-//! allocated once and reused window after window.
+//! The inference forward pass of the IASTGCN variants and the dense baselines, one window
+//! at a time (see the module above): the training forward of `tape.rs` (or `dense.rs`)
+//! without dropout, on a tape that is allocated once and reused window after window.
 
+use super::dense::{DenseNet, DenseTape};
 use super::slots::Slots;
 use super::tape::{forward, Tape};
 use crate::graph::Graph;
@@ -9,24 +10,38 @@ use crate::model::config::{Family, ModelConfig};
 use crate::model::network::ModelError;
 use crate::model::params::{graph_basis, param_specs, Parameters};
 
-/// The CPU forward pass of one IASTGCN-family checkpoint (`iastgcn`, `iastgcn-a`,
-/// `iastgcn-t`, `iastgcn-s`) for one window at a time.
+/// The CPU forward pass of one checkpoint of an IASTGCN variant (`iastgcn`, `iastgcn-a`,
+/// `iastgcn-t`, `iastgcn-s`) or a dense baseline (`mlp`, `bkls-ann`, `ann-bfpa`, `erc`)
+/// for one window at a time.
 pub struct NativeForward {
     config: ModelConfig,
-    /// `[terms, N, N]` (f32 of [`graph_basis`]).
-    basis: Vec<f32>,
-    slots: Slots,
     /// The weights in `param_specs` order.
     params: Vec<Vec<f32>>,
-    /// Every intermediate of one window (the working memory).
-    tape: Tape,
+    body: Body,
+}
+
+/// What the network is built from, with the working memory of one window.
+enum Body {
+    /// ST blocks: `[terms, N, N]` (f32 of [`graph_basis`]), the tensors' slots, and every
+    /// intermediate of one window.
+    Blocks {
+        basis: Vec<f32>,
+        slots: Slots,
+        tape: Box<Tape>,
+    },
+    /// Dense layers on the last step.
+    Dense { net: DenseNet, tape: DenseTape },
 }
 
 impl NativeForward {
-    /// True when this path covers `config`'s variant (the four IASTGCN variants; not
-    /// ST-GAT or the baselines).
+    /// True when this path covers `config`'s variant (the four IASTGCN variants and the
+    /// dense baselines; not ST-GAT or the recurrent baselines).
     pub fn supports(config: &ModelConfig) -> bool {
-        config.variant.family() == Family::StBlocks && !config.variant.graph_attention()
+        match config.variant.family() {
+            Family::StBlocks => !config.variant.graph_attention(),
+            Family::Dense => true,
+            Family::Recurrent | Family::ConvRecurrent => false,
+        }
     }
 
     /// Copies the weights and sizes the working memory; the only allocations.
@@ -37,7 +52,7 @@ impl NativeForward {
     ) -> Result<NativeForward, ModelError> {
         if !NativeForward::supports(config) {
             return Err(ModelError::Config(format!(
-                "the native CPU forward covers iastgcn, iastgcn-a, iastgcn-t and iastgcn-s, not {}",
+                "the native CPU forward covers iastgcn, iastgcn-a, iastgcn-t, iastgcn-s and the dense baselines, not {}",
                 config.variant
             )));
         }
@@ -59,14 +74,25 @@ impl NativeForward {
             }
             values.push(params.values[i].clone());
         }
-        let slots = Slots::new(config, &specs)?;
+        let body = if config.variant.family() == Family::Dense {
+            let net = DenseNet::new(config, graph, &specs)?;
+            Body::Dense {
+                tape: net.tape(),
+                net,
+            }
+        } else {
+            let slots = Slots::new(config, &specs)?;
+            Body::Blocks {
+                basis: graph_basis(graph, config)
+                    .iter()
+                    .map(|&v| v as f32)
+                    .collect(),
+                tape: Box::new(Tape::new(config, &slots)),
+                slots,
+            }
+        };
         Ok(NativeForward {
-            basis: graph_basis(graph, config)
-                .iter()
-                .map(|&v| v as f32)
-                .collect(),
-            tape: Tape::new(config, &slots),
-            slots,
+            body,
             params: values,
             config: config.clone(),
         })
@@ -90,16 +116,16 @@ impl NativeForward {
                 cfg.outputs
             )));
         }
-        forward(
-            cfg,
-            &self.basis,
-            &self.slots,
-            &self.params,
-            x,
-            None,
-            &mut self.tape,
-        );
-        out.copy_from_slice(&self.tape.out);
+        match &mut self.body {
+            Body::Blocks { basis, slots, tape } => {
+                forward(cfg, basis, slots, &self.params, x, None, tape);
+                out.copy_from_slice(&tape.out);
+            }
+            Body::Dense { net, tape } => {
+                net.forward(&self.params, x, tape);
+                out.copy_from_slice(tape.output());
+            }
+        }
         Ok(())
     }
 }

@@ -18,6 +18,7 @@
 //! reference in tests/native_forward.rs and tests/native_train.rs.
 
 mod backward;
+mod dense;
 mod forward;
 mod slots;
 mod step;

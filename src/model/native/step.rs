@@ -6,10 +6,11 @@
 //! (tests/native_train.rs).
 
 use super::backward::{backward, Work};
+use super::dense::{DenseNet, DenseTape};
 use super::slots::Slots;
 use super::tape::{forward, Masks, Tape};
 use crate::graph::Graph;
-use crate::model::config::ModelConfig;
+use crate::model::config::{Family, ModelConfig};
 use crate::model::network::ModelError;
 use crate::model::params::{graph_basis, param_specs, ParamSpec, Parameters};
 use crate::model::NativeForward;
@@ -48,18 +49,29 @@ pub struct NativeStepShape {
 
 /// One worker's tapes (one per window of an ensemble), working memory and gradient sums.
 struct Worker {
-    tapes: Vec<Tape>,
-    work: Work,
+    tapes: Tapes,
     grads: Vec<Vec<f32>>,
     loss: f64,
+}
+
+/// What the network is built from: the ST blocks (the graph basis and every tensor's
+/// slot) or dense layers.
+enum Body {
+    Blocks { basis: Vec<f32>, slots: Slots },
+    Dense(DenseNet),
+}
+
+/// A worker's tapes for its body, one per window of an ensemble.
+enum Tapes {
+    Blocks { tapes: Vec<Tape>, work: Box<Work> },
+    Dense(Vec<DenseTape>),
 }
 
 /// Parameters, Adam moments and working memory of one model's training on the CPU.
 pub struct NativeTraining {
     config: ModelConfig,
     specs: Vec<ParamSpec>,
-    basis: Vec<f32>,
-    slots: Slots,
+    body: Body,
     shape: NativeStepShape,
     adam: NativeAdam,
     params: Vec<Vec<f32>>,
@@ -70,7 +82,8 @@ pub struct NativeTraining {
 }
 
 impl NativeTraining {
-    /// True for the variants this path covers (those of [`NativeForward`]).
+    /// True for the variants this path covers (those of [`NativeForward`]: the IASTGCN
+    /// variants and the dense baselines).
     pub fn supports(config: &ModelConfig) -> bool {
         NativeForward::supports(config)
     }
@@ -85,7 +98,7 @@ impl NativeTraining {
     ) -> Result<NativeTraining, ModelError> {
         if !NativeTraining::supports(config) {
             return Err(ModelError::Config(format!(
-                "native CPU training covers iastgcn, iastgcn-a, iastgcn-t and iastgcn-s, not {}",
+                "native CPU training covers iastgcn, iastgcn-a, iastgcn-t, iastgcn-s and the dense baselines, not {}",
                 config.variant
             )));
         }
@@ -97,7 +110,17 @@ impl NativeTraining {
             )));
         }
         let specs = param_specs(config);
-        let slots = Slots::new(config, &specs)?;
+        let body = if config.variant.family() == Family::Dense {
+            Body::Dense(DenseNet::new(config, graph, &specs)?)
+        } else {
+            Body::Blocks {
+                basis: graph_basis(graph, config)
+                    .iter()
+                    .map(|&v| v as f32)
+                    .collect(),
+                slots: Slots::new(config, &specs)?,
+            }
+        };
         let zeros = || {
             specs
                 .iter()
@@ -108,25 +131,26 @@ impl NativeTraining {
         let threads = shape.threads.clamp(1, groups);
         let workers = (0..threads)
             .map(|_| Worker {
-                tapes: (0..shape.group)
-                    .map(|_| Tape::new(config, &slots))
-                    .collect(),
-                work: Work::new(config),
+                tapes: match &body {
+                    Body::Blocks { slots, .. } => Tapes::Blocks {
+                        tapes: (0..shape.group).map(|_| Tape::new(config, slots)).collect(),
+                        work: Box::new(Work::new(config)),
+                    },
+                    Body::Dense(net) => {
+                        Tapes::Dense((0..shape.group).map(|_| net.tape()).collect())
+                    }
+                },
                 grads: zeros(),
                 loss: 0.0,
             })
             .collect();
         Ok(NativeTraining {
-            basis: graph_basis(graph, config)
-                .iter()
-                .map(|&v| v as f32)
-                .collect(),
+            body,
             params: zeros(),
             grads: zeros(),
             m: zeros(),
             v: zeros(),
             config: config.clone(),
-            slots,
             specs,
             shape: NativeStepShape { threads, ..shape },
             adam,
@@ -204,8 +228,7 @@ impl NativeTraining {
         let threads = self.workers.len();
         let ctx = Context {
             cfg,
-            basis: &self.basis,
-            slots: &self.slots,
+            body: &self.body,
             params: &self.params,
             x,
             y,
@@ -276,8 +299,7 @@ impl NativeTraining {
 /// What every worker of one step reads.
 struct Context<'a> {
     cfg: &'a ModelConfig,
-    basis: &'a [f32],
-    slots: &'a Slots,
+    body: &'a Body,
     params: &'a [Vec<f32>],
     x: &'a [f32],
     y: &'a [f32],
@@ -312,18 +334,22 @@ impl Context<'_> {
                 batch: self.shape.batch,
                 item: g * m + k,
             };
-            for (k, tape) in w.tapes.iter_mut().enumerate() {
-                let x = &self.x[(g * m + k) * per..][..per];
-                forward(
-                    cfg,
-                    self.basis,
-                    self.slots,
-                    self.params,
-                    x,
-                    Some(masks(k)),
-                    tape,
-                );
-                for (p, &v) in pred[k * o..][..o].iter_mut().zip(&tape.out) {
+            let x = |k: usize| &self.x[(g * m + k) * per..][..per];
+            for k in 0..m {
+                let out = match (self.body, &mut w.tapes) {
+                    (Body::Blocks { basis, slots }, Tapes::Blocks { tapes, .. }) => {
+                        let tape = &mut tapes[k];
+                        forward(cfg, basis, slots, self.params, x(k), Some(masks(k)), tape);
+                        &tape.out[..]
+                    }
+                    (Body::Dense(net), Tapes::Dense(tapes)) => {
+                        net.forward(self.params, x(k), &mut tapes[k]);
+                        tapes[k].output()
+                    }
+                    // invariant: a worker's tapes are built for the body (NativeTraining::new).
+                    _ => unreachable!("a worker's tapes match the body"),
+                };
+                for (p, &v) in pred[k * o..][..o].iter_mut().zip(out) {
                     *p = v as f64;
                 }
             }
@@ -336,20 +362,27 @@ impl Context<'_> {
                 .iter()
                 .map(|&d| (d / self.groups as f64) as f32)
                 .collect();
-            for (k, tape) in w.tapes.iter().enumerate() {
-                let x = &self.x[(g * m + k) * per..][..per];
-                backward(
-                    cfg,
-                    self.basis,
-                    self.slots,
-                    self.params,
-                    x,
-                    tape,
-                    Some(masks(k)),
-                    &dout[k * o..][..o],
-                    &mut w.grads,
-                    &mut w.work,
-                );
+            for k in 0..m {
+                let dout = &dout[k * o..][..o];
+                match (self.body, &mut w.tapes) {
+                    (Body::Blocks { basis, slots }, Tapes::Blocks { tapes, work }) => backward(
+                        cfg,
+                        basis,
+                        slots,
+                        self.params,
+                        x(k),
+                        &tapes[k],
+                        Some(masks(k)),
+                        dout,
+                        &mut w.grads,
+                        work,
+                    ),
+                    (Body::Dense(net), Tapes::Dense(tapes)) => {
+                        net.backward(self.params, &mut tapes[k], dout, &mut w.grads)
+                    }
+                    // invariant: a worker's tapes are built for the body (NativeTraining::new).
+                    _ => unreachable!("a worker's tapes match the body"),
+                }
             }
         }
     }
