@@ -130,7 +130,7 @@ fn machines_merge_by_pair_against_each_machines_calibration() {
     // The files.
     let out = root.join("merged");
     merge_machines(&[a.clone(), b.clone()], &out).unwrap();
-    let md = std::fs::read_to_string(out.join("machines.md")).unwrap();
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(md.contains("| hilbert | 2 | 200.0 | 100.00 |"), "{md}");
     assert!(md.contains("removes 40.0 ± 8.2 %"), "{md}");
     let csv = std::fs::read_to_string(out.join("table_v_machines.csv")).unwrap();

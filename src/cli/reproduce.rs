@@ -51,7 +51,7 @@ pub struct ReproduceArgs {
     #[arg(long, default_value_t = iastgcn::compensate::protocol::MACHINE_SEED)]
     pub machine_seed: u64,
     /// Merge finished reproduce folders of one protocol, one per twin machine, into
-    /// --out: Tables V and III over machines and seeds (machines.md); nothing trains.
+    /// --out: Tables V and III over machines and seeds, as a report; nothing trains.
     #[arg(long, num_args = 2.., conflicts_with_all = ["shard", "data_only"])]
     pub merge: Vec<PathBuf>,
     #[command(flatten)]
@@ -70,7 +70,7 @@ pub fn run(gpu: Gpu, args: &ReproduceArgs) -> anyhow::Result<()> {
                 .map(|(_, m)| m.to_string())
                 .collect::<Vec<_>>()
                 .join(", "),
-            args.out.join("machines.md").display()
+            args.out.join("report.md").display()
         );
         return Ok(());
     }

@@ -274,7 +274,7 @@ pub fn summarize_machines(folders: &[PathBuf]) -> Result<MachineSummary> {
 }
 
 impl MachineSummary {
-    /// The Markdown report (`machines.md`).
+    /// The Markdown report, the merged folder's entry point.
     pub fn markdown(&self) -> String {
         let mut out = String::from("# Spread over twin machines\n\n");
         for (folder, m) in &self.folders {
@@ -444,14 +444,14 @@ impl MachineSummary {
 }
 
 /// Merges the reproduce folders `folders` into `out` (created if missing):
-/// `machines.md`, `table_v_machines.csv`, `table_iii_machines.csv` and
+/// the Markdown report, `table_v_machines.csv`, `table_iii_machines.csv` and
 /// `paired_machines.csv`, replaced together.
 pub fn merge_machines(folders: &[PathBuf], out: &Path) -> Result<MachineSummary> {
     let summary = summarize_machines(folders)?;
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let mut batch = Batch::new();
     for (name, text) in [
-        ("machines.md", summary.markdown()),
+        ("report.md", summary.markdown()),
         ("table_v_machines.csv", summary.table_v_csv()),
         ("table_iii_machines.csv", summary.table_iii_csv()),
         ("paired_machines.csv", summary.paired_csv()),
