@@ -13,9 +13,6 @@ use crate::robot::{Joints, PlatformPose, Robot};
 pub const FEATURES: usize = 3;
 /// Label components: dx, dy, dz (µm), rx, ry, rz (mdeg).
 pub const OUTPUTS: usize = 6;
-/// The joint-input channels the labels need.
-const JOINT_CHANNELS: [&str; 5] = ["Q1", "Q2", "Q3", "Q4", "Q5"];
-
 /// A recording that cannot be turned into a dataset (uneven clock, missing channel, no
 /// labelled window, ...).
 #[derive(Debug, thiserror::Error)]
@@ -145,7 +142,7 @@ pub fn prepare(
             .ok_or_else(|| err(name, format!("sensor {node:?} has no sample at all")))?;
         features.push(node_features(&held, dt, config));
     }
-    let q: Vec<Vec<f64>> = JOINT_CHANNELS
+    let q: Vec<Vec<f64>> = crate::graph::HYBRID_JOINT_INPUTS
         .iter()
         .map(|c| {
             let col = column(c)?;

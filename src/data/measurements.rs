@@ -33,7 +33,8 @@ pub fn recording_measurements(path: &Path) -> Result<Vec<Measurement>, DataError
     let channels: Vec<&str> = channels.iter().map(String::as_str).collect();
     let rec = Recording::read(path, &channels, 1)?;
     let file = path.display().to_string();
-    let q = ["Q1", "Q2", "Q3", "Q4", "Q5"].map(|name| rec.channels.iter().position(|c| c == name));
+    let q =
+        crate::graph::HYBRID_JOINT_INPUTS.map(|name| rec.channels.iter().position(|c| c == name));
     let Some(q) = q.into_iter().collect::<Option<Vec<usize>>>() else {
         return Err(DataError::File {
             file,

@@ -9,6 +9,11 @@ use serde::Deserialize;
 /// The asset shipped with the engine.
 pub const DEFAULT_ASSET: &str = include_str!("../../assets/graph.toml");
 
+/// The joint-input nodes of the hybrid machine's graph: the motor encoders of the three
+/// limb lengths (Q1–Q3) and the two head angles (Q4, Q5). With the pose a function of
+/// them, they are the commanded pose (calibration's inputs, the offline baselines' inputs).
+pub const HYBRID_JOINT_INPUTS: [&str; 5] = ["Q1", "Q2", "Q3", "Q4", "Q5"];
+
 /// A graph asset that cannot be read or breaks a rule of docs/twin.md "Sensor graph asset".
 #[derive(Debug, thiserror::Error)]
 #[error("{file}: {message}")]

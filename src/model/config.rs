@@ -231,9 +231,6 @@ pub struct ModelConfig {
     pub joint_inputs: Vec<String>,
 }
 
-/// The hybrid machine's joint inputs: the three limb lengths and the two head angles.
-pub const HYBRID_JOINT_INPUTS: [&str; 5] = ["Q1", "Q2", "Q3", "Q4", "Q5"];
-
 impl Default for ModelConfig {
     fn default() -> ModelConfig {
         ModelConfig {
@@ -251,7 +248,7 @@ impl Default for ModelConfig {
             heads: 4,
             dropout: 0.2,
             eps: 1e-5,
-            joint_inputs: HYBRID_JOINT_INPUTS.map(String::from).to_vec(),
+            joint_inputs: crate::graph::HYBRID_JOINT_INPUTS.map(String::from).to_vec(),
         }
     }
 }
@@ -356,21 +353,14 @@ impl ModelConfig {
                     self.variant
                 ));
             }
-            if let Some((i, name)) = self
-                .joint_inputs
-                .iter()
-                .enumerate()
-                .find(|(i, n)| self.joint_inputs[..*i].contains(n))
-            {
-                return Err(format!(
-                    "model config: joint_inputs names {name:?} twice (entries {} and {})",
-                    self.joint_inputs[..i]
-                        .iter()
-                        .position(|n| n == name)
-                        .unwrap_or(0)
-                        + 1,
-                    i + 1
-                ));
+            for (i, name) in self.joint_inputs.iter().enumerate() {
+                if let Some(first) = self.joint_inputs[..i].iter().position(|n| n == name) {
+                    return Err(format!(
+                        "model config: joint_inputs names {name:?} twice (entries {} and {})",
+                        first + 1,
+                        i + 1
+                    ));
+                }
             }
         }
         if !(self.eps.is_finite() && self.eps > 0.0) {
