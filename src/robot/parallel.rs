@@ -5,7 +5,7 @@
 //! axis, then `beta` about the rotated y axis (its universal joint), and the extension `w`
 //! of its slide. The platform centre is at `w · R e` with `R = Rx(alpha) Ry(beta)`.
 
-use nalgebra::{Isometry3, Matrix2, Matrix3, Matrix3x2, Rotation3, Translation3, Vector2, Vector3};
+use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, Vector3};
 
 use super::errors::LimbErrors;
 
@@ -58,31 +58,24 @@ pub fn platform_frame(p: &PlatformPose) -> Isometry3<f64> {
 }
 
 /// Angles of a two-axis Hooke joint `Rx(φ1) · err · Ry(φ2)` that point `e` along the unit
-/// vector `v`, where `err` is the small attitude error between the axes. Closed form for
-/// `err = I`, then Gauss–Newton corrections (a fixed count keeps the map smooth).
+/// vector `v`, where `err` is the attitude error between the axes. Exact and closed form:
+/// `Rx` keeps the x component, so `[err · Ry(φ2) e]_x = v_x` is `r · sin(φ2 + ψ) = v_x`
+/// with `(r cos ψ, r sin ψ) = (err₀₀, err₀₂)`; φ1 is then the signed angle from
+/// `err · Ry(φ2) e` to `v` about x. Of the two solutions it takes the one near zero (the
+/// joint's working range, |φ2 + ψ| < 90°), which for `err = I` is `φ2 = asin v_x`,
+/// `φ1 = atan2(−v_y, v_z)`. (It replaced Gauss–Newton steps with a finite-difference
+/// Jacobian that made the twin spend nine tenths of its time here; the test below checks
+/// the equation and agreement with those steps.)
 fn hooke_angles(v: &Vector3<f64>, between: &Rotation3<f64>) -> (f64, f64) {
-    let mut phi2 = v.x.clamp(-1.0, 1.0).asin();
-    let mut phi1 = (-v.y).atan2(v.z);
-    let axis = |p1: f64, p2: f64| {
-        Rotation3::from_axis_angle(&Vector3::x_axis(), p1)
-            * between
-            * Rotation3::from_axis_angle(&Vector3::y_axis(), p2)
-            * e()
-    };
-    for _ in 0..3 {
-        let r = axis(phi1, phi2) - v;
-        let h = 1e-7;
-        let j = Matrix3x2::from_columns(&[
-            (axis(phi1 + h, phi2) - axis(phi1 - h, phi2)) / (2.0 * h),
-            (axis(phi1, phi2 + h) - axis(phi1, phi2 - h)) / (2.0 * h),
-        ]);
-        let jtj: Matrix2<f64> = j.transpose() * j;
-        if let Some(inv) = jtj.try_inverse() {
-            let d: Vector2<f64> = inv * (j.transpose() * r);
-            phi1 -= d.x;
-            phi2 -= d.y;
-        }
-    }
+    let m = between.matrix();
+    let (c0, c2) = (m[(0, 0)], m[(0, 2)]);
+    let r = c0.hypot(c2);
+    let psi = c2.atan2(c0);
+    let phi2 = (v.x / r).clamp(-1.0, 1.0).asin() - psi;
+    let (s, c) = phi2.sin_cos();
+    // w = err · Ry(φ2) e = s · err[:, 0] + c · err[:, 2]; only its y and z matter now.
+    let (wy, wz) = (s * m[(1, 0)] + c * m[(1, 2)], s * m[(2, 0)] + c * m[(2, 2)]);
+    let phi1 = (wy * v.z - wz * v.y).atan2(wy * v.y + wz * v.z);
     (phi1, phi2)
 }
 
@@ -149,4 +142,67 @@ impl Limb {
 /// Solves the 3×3 Newton step `J d = r`; `None` when `J` is singular.
 pub(crate) fn newton_step(j: &Matrix3<f64>, r: &Vector3<f64>) -> Option<Vector3<f64>> {
     j.lu().solve(r)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{e, hooke_angles, rot};
+    use nalgebra::{Matrix2, Matrix3x2, Rotation3, Vector3};
+    use rand::{RngExt, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    fn joint(p1: f64, between: &Rotation3<f64>, p2: f64) -> Vector3<f64> {
+        Rotation3::from_axis_angle(&Vector3::x_axis(), p1)
+            * between
+            * Rotation3::from_axis_angle(&Vector3::y_axis(), p2)
+            * e()
+    }
+
+    /// The iteration the closed form replaced: the `err = I` solution, then three
+    /// Gauss–Newton steps with a central-difference Jacobian.
+    fn gauss_newton(v: &Vector3<f64>, between: &Rotation3<f64>) -> (f64, f64) {
+        let mut phi2 = v.x.clamp(-1.0, 1.0).asin();
+        let mut phi1 = (-v.y).atan2(v.z);
+        for _ in 0..3 {
+            let r = joint(phi1, between, phi2) - v;
+            let h = 1e-7;
+            let j = Matrix3x2::from_columns(&[
+                (joint(phi1 + h, between, phi2) - joint(phi1 - h, between, phi2)) / (2.0 * h),
+                (joint(phi1, between, phi2 + h) - joint(phi1, between, phi2 - h)) / (2.0 * h),
+            ]);
+            let jtj: Matrix2<f64> = j.transpose() * j;
+            let d = jtj.try_inverse().unwrap() * (j.transpose() * r);
+            phi1 -= d.x;
+            phi2 -= d.y;
+        }
+        (phi1, phi2)
+    }
+
+    #[test]
+    fn hooke_angles_solve_the_joint_exactly_and_match_the_iteration() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        for case in 0..2000 {
+            // Joint errors up to 3 mrad per axis (the twin's are below 1), directions
+            // over ±60° of both joint angles.
+            let theta = Vector3::from_fn(|_, _| rng.random_range(-3e-3..3e-3));
+            let between = rot(&theta);
+            let (a1, a2) = (rng.random_range(-1.05..1.05), rng.random_range(-1.05..1.05));
+            let v = joint(a1, &between, a2);
+            let (p1, p2) = hooke_angles(&v, &between);
+            let miss = (joint(p1, &between, p2) - v).norm();
+            assert!(miss < 1e-14, "case {case}: the joint misses v by {miss:e}");
+            assert!(
+                (p1 - a1).abs() < 1e-12 && (p2 - a2).abs() < 1e-12,
+                "case {case}"
+            );
+            let (g1, g2) = gauss_newton(&v, &between);
+            assert!(
+                (p1 - g1).abs() < 1e-9 && (p2 - g2).abs() < 1e-9,
+                "case {case}: closed form ({p1}, {p2}), iteration ({g1}, {g2})"
+            );
+        }
+        // Exactly along a joint axis limit the closed form clamps instead of failing.
+        let (p1, p2) = hooke_angles(&Vector3::x(), &Rotation3::identity());
+        assert!(p1.is_finite() && (p2 - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+    }
 }
