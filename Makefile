@@ -16,16 +16,18 @@ test: vulkan
 DEMO_DIR ?= report
 
 ## The main job: the adapter and its kernels checked against the CPU, then `iastgcn demo`
-## (twin recordings, EKF calibration, dataset, IASTGCN and its three ablations trained
-## with assets/demo.toml, refinement, Table III on the held-out split, online compensation
-## of held-out runs for Table V, the report folder), and the Predictor example on the
-## refined model. Outputs land in $(DEMO_DIR)/ (report.md is the entry point).
+## (twin recordings, EKF calibration, dataset, IASTGCN, its three ablations and the dense
+## baselines trained with assets/demo.toml for training seeds 1–3, refinement, Table III
+## on the held-out split, online compensation of held-out runs for Table V, both as
+## mean ± SD over the seeds with paired comparisons, the report folder), and the Predictor
+## example on seed 1's refined IASTGCN. Outputs land in $(DEMO_DIR)/ (report.md is the
+## entry point).
 demo: vulkan
 	$(CARGO) build --release --bin iastgcn --example predict
 	./target/release/iastgcn info
 	./target/release/iastgcn smoke
 	./target/release/iastgcn demo --out $(DEMO_DIR)
-	$(CARGO) run --release --example predict -- $(DEMO_DIR)/models/iastgcn-refined.safetensors
+	$(CARGO) run --release --example predict -- $(DEMO_DIR)/models/iastgcn.seed1-refined.safetensors
 
 PAPER_DIR ?= paper
 PAPER_ARGS ?=

@@ -44,7 +44,7 @@ fn a_trained_model_beats_calibration_on_the_hidden_truth() {
         ]);
         data.push(f(&format!("{path}.csv")));
     }
-    // The demo's model and schedule (T = 48, C = 16, L = 3, 8 epochs).
+    // The demo's model and schedule (T = 48, C = 16, L = 2).
     let config = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/demo.toml");
     let model = f("m.safetensors");
     let mut args = vec![

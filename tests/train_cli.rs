@@ -300,11 +300,10 @@ fn run_configs_have_defaults_and_checks() {
     }
 }
 
-/// `iastgcn demo --all-models` end to end at a tiny size: every stage runs, every model is
-/// trained, and the report folder has the two tables with the promised columns and rows.
-#[test]
-fn demo_writes_the_report() {
-    let dir: PathBuf = std::env::temp_dir().join(format!("iastgcn-demo-{}", std::process::id()));
+/// A fresh folder `<prefix>-<pid>` in the temporary directory with `tiny.toml`, the tiny
+/// config at one epoch and one short refinement stage: the demo tests' budget.
+fn tiny_demo_config(prefix: &str) -> (PathBuf, PathBuf) {
+    let dir = std::env::temp_dir().join(format!("{prefix}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let config = dir.join("tiny.toml");
     std::fs::write(
@@ -313,6 +312,15 @@ fn demo_writes_the_report() {
             .replace("magnifications = [5]", "magnifications = [3]"),
     )
     .unwrap();
+    (dir, config)
+}
+
+/// `iastgcn demo --all-models` end to end at a tiny size with one training seed: every
+/// stage runs, every model is trained, and the report folder has the two tables with the
+/// promised columns and rows.
+#[test]
+fn demo_writes_the_report() {
+    let (dir, config) = tiny_demo_config("iastgcn-demo");
     let out = dir.join("report");
     let text = cli(&[
         "demo",
@@ -323,6 +331,8 @@ fn demo_writes_the_report() {
         "--held-out-minutes",
         "0.1",
         "--all-models",
+        "--seeds",
+        "1",
         "--out",
         s(&out),
     ]);
@@ -431,5 +441,89 @@ fn demo_writes_the_report() {
     assert!(out.join("models/iastgcn-refined.safetensors").exists());
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(report.contains("and every baseline, all at the same budget"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The demo over two training seeds at a tiny size: every model trained with each seed
+/// under its seeded name, the seeds giving different weights, the tables over seeds and
+/// the paired comparisons written, the core stage summarised over seeds; a seed listed
+/// twice is refused.
+#[test]
+fn demo_over_seeds_reports_the_spread() {
+    let (dir, config) = tiny_demo_config("iastgcn-demo-seeds");
+    let out = dir.join("report");
+    let args = |seeds: &'static str| {
+        vec![
+            "demo".to_string(),
+            "--config".into(),
+            s(&config).into(),
+            "--minutes".into(),
+            "0.5".into(),
+            "--held-out-minutes".into(),
+            "0.1".into(),
+            "--warm-up-minutes".into(),
+            "0".into(),
+            "--seeds".into(),
+            seeds.into(),
+            "--out".into(),
+            s(&out).into(),
+        ]
+    };
+    let refused = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
+        .args(args("1,2,1"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success() && stderr.contains("training seed 1 is listed twice"));
+
+    let a = args("1,2");
+    let text = cli(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(text.contains("demo finished"), "{text}");
+    let models: Vec<&str> = iastgcn::model::Variant::IASTGCN
+        .into_iter()
+        .chain(iastgcn::model::Variant::DENSE)
+        .map(|v| v.name())
+        .collect();
+    let table_v = std::fs::read_to_string(out.join("table_v.csv")).unwrap();
+    for model in &models {
+        for seed in [1, 2] {
+            let name = format!("{model}.seed{seed}");
+            assert!(
+                out.join(format!("models/{name}-refined.safetensors"))
+                    .exists(),
+                "{name}"
+            );
+            assert!(
+                table_v.contains(&format!("hilbert,compensated,{name},")),
+                "{name}"
+            );
+        }
+    }
+    let weights = |seed: u64| {
+        iastgcn::model::Checkpoint::load(
+            &out.join(format!("models/iastgcn.seed{seed}.safetensors")),
+        )
+        .unwrap()
+        .parameters
+        .values
+    };
+    assert_ne!(weights(1), weights(2), "the seeds trained the same weights");
+    for f in ["table_v_seeds.csv", "table_iii_seeds.csv", "paired.csv"] {
+        assert!(out.join(f).exists(), "{f}");
+    }
+    let paired = std::fs::read_to_string(out.join("paired.csv")).unwrap();
+    assert!(
+        paired.contains("iastgcn-s") && paired.contains("mlp"),
+        "{paired}"
+    );
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("## Core training over seeds"), "{report}");
+    for model in &models {
+        assert!(
+            report.contains(&format!("| {model} | 2 | ")),
+            "{model} over 2 seeds"
+        );
+    }
+    assert!(report.contains("training seeds 1, 2"));
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -27,6 +27,10 @@ pub struct DemoArgs {
     /// Length of each training recording, minutes.
     #[arg(long, default_value_t = 2.0)]
     pub minutes: f64,
+    /// Training seeds, comma-separated: every model is trained with each, and the tables
+    /// report mean ± SD over them with paired comparisons (one seed: a single run).
+    #[arg(long, value_delimiter = ',', default_value = "1,2,3")]
+    pub seeds: Vec<u64>,
     /// Also train and evaluate the spatio-temporal baselines of Table III (ConvLSTM, T-GCN,
     /// EAT-GCN, ST-GAT) at the same budget (beyond the demo's 15 minutes on 2 CPU cores).
     #[arg(long)]
@@ -140,6 +144,7 @@ pub fn demo(gpu: Gpu, args: &DemoArgs) -> anyhow::Result<()> {
         minutes: args.minutes,
         held_out: args.held_out.config(),
         all_models: args.all_models,
+        seeds: args.seeds.clone(),
         ..DemoConfig::default()
     };
     if let Some(p) = &args.config {

@@ -12,7 +12,9 @@ use super::evaluate::{evaluate, HeldOutConfig, NamedModel};
 use super::held_out::IDLE_BETWEEN_RUNS;
 use super::protocol::{fit_model, record_data, ModelFiles, MACHINE_SEED};
 pub use super::protocol::{CALIBRATION_SEED, TRAINING_SEED};
+use super::report::seeds::seeded_name;
 use super::report::{self, Report};
+use super::reproduce::{training_table, JobRecord};
 use crate::data::DataSources;
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
@@ -31,6 +33,10 @@ pub struct DemoConfig {
     pub minutes: f64,
     /// The held-out session.
     pub held_out: HeldOutConfig,
+    /// Training seeds (`[train] seed`): every model is trained with each, and Tables III
+    /// and V report mean ± SD over them with IASTGCN compared seed by seed. With one seed
+    /// the models keep their plain names; with more they are `<model>.seed<k>`.
+    pub seeds: Vec<u64>,
     /// Also train and evaluate the spatio-temporal baselines of Table III (ConvLSTM, T-GCN,
     /// EAT-GCN, ST-GAT) at the same budget; they take longer than the demo's 15 minutes on
     /// 2 CPU cores (docs/results.md), so they are off by default.
@@ -44,6 +50,7 @@ impl Default for DemoConfig {
             run_source: "assets/demo.toml (embedded)".into(),
             minutes: 2.0,
             held_out: HeldOutConfig::default(),
+            seeds: vec![1, 2, 3],
             all_models: false,
         }
     }
@@ -100,6 +107,18 @@ pub fn demo(
     let config = &demo.run;
     config.validate().map_err(Error::Invalid)?;
     demo.held_out.validate()?;
+    if demo.seeds.is_empty() {
+        return Err(Error::Invalid(
+            "demo: give at least one training seed".into(),
+        ));
+    }
+    for (i, s) in demo.seeds.iter().enumerate() {
+        if demo.seeds[..i].contains(s) {
+            return Err(Error::Invalid(format!(
+                "demo: training seed {s} is listed twice"
+            )));
+        }
+    }
     let data_dir = out.join("data");
     let model_dir = out.join("models");
     for dir in [&data_dir, &model_dir] {
@@ -130,43 +149,76 @@ pub fn demo(
         "== 5/6 training and refining IASTGCN, its ablations and the dense baselines (the same treatment for each; --all-models adds the spatio-temporal ones)"
     });
     let mut models: Vec<NamedModel> = Vec::new();
+    let mut records = Vec::new();
     let mut histories = Vec::new();
     let mut accumulated = None;
     let mut refinement = Vec::new();
-    let variants = Variant::IASTGCN
+    let variants: Vec<Variant> = Variant::IASTGCN
         .into_iter()
         .chain(Variant::DENSE)
-        .chain(spatio_temporal.iter().copied());
-    for variant in variants {
-        let mut c = config.clone();
-        c.model.variant = variant;
-        let name = variant.name();
-        let files = ModelFiles {
-            core: model_dir.join(format!("{name}.safetensors")),
-            refined: model_dir.join(format!("{name}-refined.safetensors")),
-            resume: false,
-        };
-        let fitted = fit_model(&gpu, &data, &graph, &c, name, &files, reporter)?;
-        refinement.push(format!("{name}: {}", fitted.verdict));
-        if variant == Variant::Iastgcn {
-            accumulated = Some(fitted.accumulated.clone());
+        .chain(spatio_temporal.iter().copied())
+        .collect();
+    let seeded = demo.seeds.len() > 1;
+    for (s, &seed) in demo.seeds.iter().enumerate() {
+        if seeded {
+            reporter.note(&format!(
+                "== training seed {seed} ({} of {})",
+                s + 1,
+                demo.seeds.len()
+            ));
         }
-        histories.push((name.to_string(), fitted.core));
-        histories.push((format!("{name}-refined"), fitted.refinement));
-        models.push(fitted.model);
+        for &variant in &variants {
+            let mut c = config.clone();
+            c.model.variant = variant;
+            c.train.seed = seed;
+            let name = if seeded {
+                seeded_name(variant.name(), seed)
+            } else {
+                variant.name().to_string()
+            };
+            let files = ModelFiles {
+                core: model_dir.join(format!("{name}.safetensors")),
+                refined: model_dir.join(format!("{name}-refined.safetensors")),
+                resume: false,
+            };
+            let fitted = fit_model(&gpu, &data, &graph, &c, &name, &files, reporter)?;
+            refinement.push(format!("{name}: {}", fitted.verdict));
+            records.push(JobRecord::of_fitted(
+                &name,
+                variant.name(),
+                seed,
+                data.splits.train.len(),
+                &fitted,
+            ));
+            // The loss curves and Fig. 9b of the first seed.
+            if s == 0 {
+                if variant == Variant::Iastgcn {
+                    accumulated = Some(fitted.accumulated.clone());
+                }
+                histories.push((name.clone(), fitted.core));
+                histories.push((format!("{name}-refined"), fitted.refinement));
+            }
+            models.push(fitted.model);
+        }
     }
 
     reporter.note("== 6/6 evaluation: Tables III and V, report");
     let held_out = &demo.held_out;
     let mut setup = vec![
         format!(
-            "config: {} (T = {}, C = {}, L = {}, at most {} epochs, patience {})",
+            "config: {} (T = {}, C = {}, L = {}, at most {} epochs, patience {}); training \
+             seeds {}",
             demo.run_source,
             config.model.window,
             config.model.channels,
             config.model.blocks,
             config.train.max_epochs,
-            config.train.patience
+            config.train.patience,
+            demo.seeds
+                .iter()
+                .map(u64::to_string)
+                .collect::<Vec<_>>()
+                .join(", ")
         ),
         format!(
             "protocol: machine 1; calibration set at rest on a cold machine (seed {CALIBRATION_SEED}); \
@@ -196,13 +248,21 @@ pub fn demo(
         "every model is refined the same way and keeps its core weights unless refinement lowers its per-window validation loss".into(),
     ];
     setup.extend(refinement);
+    let mut sections = vec![("Sensor models".into(), sensor_table())];
+    if seeded {
+        let names: Vec<String> = variants.iter().map(|v| v.name().to_string()).collect();
+        sections.push((
+            "Core training over seeds".into(),
+            training_table(&names, &records),
+        ));
+    }
     let report = Report {
         title: "IASTGCN on the digital twin — demo report".into(),
         adapter: gpu.info().name.clone(),
         setup,
         histories,
         accumulated,
-        sections: vec![("Sensor models".into(), sensor_table())],
+        sections,
         ..Report::default()
     };
     finish(

@@ -14,8 +14,8 @@ use serde::{Deserialize, Serialize};
 use super::demo::finish;
 use super::evaluate::{HeldOutConfig, NamedModel};
 use super::protocol::{
-    epoch_seconds, existing_data, fit_model, record_data, train_core, ModelFiles, CALIBRATION_SEED,
-    MACHINE_SEED, TRAINING_SEED,
+    epoch_seconds, existing_data, fit_model, record_data, train_core, Fitted, ModelFiles,
+    CALIBRATION_SEED, MACHINE_SEED, TRAINING_SEED,
 };
 use super::report::curve::CurvePoint;
 use super::report::seeds::{seeded_name, Spread};
@@ -504,39 +504,83 @@ fn run_job(
     let files = job.files(out);
     let dir = job.dir(out);
     std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
-    let record = |best_val, best_epoch, history: &[EpochRecord], validation, test| JobRecord {
-        name: name.clone(),
-        model: job.variant.name().into(),
-        seed: job.seed,
-        fraction: job.fraction,
-        train_windows: data.splits.train.len(),
-        val_mae: pooled(validation),
-        test_mae: pooled(test),
-        best_val,
-        best_epoch,
-        epochs: history.iter().filter(|r| r.stage == "core").count(),
-        epoch_seconds: epoch_seconds(history),
-        trained_on: history
-            .first()
-            .map_or_else(|| "unknown".into(), |r| r.trained_on.clone()),
-        refinement: String::new(),
-        wall_seconds: 0.0,
-    };
+    let model = job.variant.name();
+    let windows = data.splits.train.len();
     if job.is_curve() {
         let t = train_core(gpu, data, graph, config, &name, &files, reporter)?;
-        return Ok(record(
-            t.best_val,
-            t.best_epoch,
+        return Ok(JobRecord::new(
+            &name,
+            model,
+            job.seed,
+            job.fraction,
+            windows,
+            (t.best_val, t.best_epoch),
             &t.history,
-            &t.validation,
-            &t.test,
+            (&t.validation, &t.test),
         ));
     }
     let f = fit_model(gpu, data, graph, config, &name, &files, reporter)?;
-    Ok(JobRecord {
-        refinement: f.verdict.clone(),
-        ..record(f.best_val, f.best_epoch, &f.core, &f.validation, &f.test)
-    })
+    Ok(JobRecord::of_fitted(&name, model, job.seed, windows, &f))
+}
+
+impl JobRecord {
+    /// The record of `name` (`model` with `seed` on `fraction` of the training windows,
+    /// `train_windows` of them) from its core stage: the best validation loss and its
+    /// epoch, the epochs, and the validation and test metrics of the best weights. No
+    /// refinement and no wall time yet.
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        name: &str,
+        model: &str,
+        seed: u64,
+        fraction: f64,
+        train_windows: usize,
+        (best_val, best_epoch): (f64, usize),
+        history: &[EpochRecord],
+        (validation, test): (&[TestMetrics], &[TestMetrics]),
+    ) -> JobRecord {
+        JobRecord {
+            name: name.into(),
+            model: model.into(),
+            seed,
+            fraction,
+            train_windows,
+            val_mae: pooled(validation),
+            test_mae: pooled(test),
+            best_val,
+            best_epoch,
+            epochs: history.iter().filter(|r| r.stage == "core").count(),
+            epoch_seconds: epoch_seconds(history),
+            trained_on: history
+                .first()
+                .map_or_else(|| "unknown".into(), |r| r.trained_on.clone()),
+            refinement: String::new(),
+            wall_seconds: 0.0,
+        }
+    }
+
+    /// The record of a model [`fit_model`] trained and refined on the whole training set.
+    pub(super) fn of_fitted(
+        name: &str,
+        model: &str,
+        seed: u64,
+        train_windows: usize,
+        f: &Fitted,
+    ) -> JobRecord {
+        JobRecord {
+            refinement: f.verdict.clone(),
+            ..JobRecord::new(
+                name,
+                model,
+                seed,
+                1.0,
+                train_windows,
+                (f.best_val, f.best_epoch),
+                &f.core,
+                (&f.validation, &f.test),
+            )
+        }
+    }
 }
 
 /// The report of a protocol whose jobs are all done.
@@ -618,7 +662,7 @@ fn report(
         histories,
         sections: vec![(
             "Core training over seeds".into(),
-            training_table(protocol, &records),
+            training_table(&protocol.models, &records),
         )],
         curve: learning_curve(protocol, &records),
         ..Report::default()
@@ -628,8 +672,8 @@ fn report(
     )
 }
 
-/// Best validation loss, its epoch and the epochs run per model, over seeds.
-fn training_table(protocol: &Protocol, records: &[JobRecord]) -> String {
+/// Best validation loss, its epoch and the epochs run per model of `models`, over seeds.
+pub(super) fn training_table(models: &[String], records: &[JobRecord]) -> String {
     let mut out = String::from(
         "Core stage per model over its seeds (mean ± sample SD): the best validation loss \
          (standardised, eq. 39's data term), the epoch it was reached in, the epochs run \
@@ -637,7 +681,7 @@ fn training_table(protocol: &Protocol, records: &[JobRecord]) -> String {
          | Model | Seeds | Best validation loss | Best epoch | Epochs | s / epoch |\n\
          |---|---:|---:|---:|---:|---:|\n",
     );
-    for model in &protocol.models {
+    for model in models {
         let of: Vec<&JobRecord> = records
             .iter()
             .filter(|r| &r.model == model && r.fraction == 1.0)

@@ -155,13 +155,16 @@ fn check(ok: bool, field: &str, value: impl std::fmt::Display, rule: &str) -> Re
 
 impl RunConfig {
     /// The embedded `assets/demo.toml`: the paper's config with a smaller network (T 48,
-    /// C 16, L 3) and a shorter schedule.
+    /// C 16, L 2) and a shorter schedule.
     ///
     /// ```
     /// use iastgcn::train::RunConfig;
     ///
     /// let config = RunConfig::demo();
-    /// assert_eq!((config.model.window, config.model.channels), (48, 16));
+    /// assert_eq!(
+    ///     (config.model.window, config.model.channels, config.model.blocks),
+    ///     (48, 16, 2)
+    /// );
     /// assert_eq!(config.train.max_epochs, 80);
     /// assert_eq!(config.refine.magnifications, vec![10, 5]);
     /// ```
