@@ -8,12 +8,12 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
 
-use super::evaluate::{evaluate, HeldOutConfig, NamedModel};
+use super::evaluate::{finish, HeldOutConfig, NamedModel};
 use super::held_out::IDLE_BETWEEN_RUNS;
 use super::protocol::{fit_model, record_data, ModelFiles, MACHINE_SEED};
 pub use super::protocol::{CALIBRATION_SEED, TRAINING_SEED};
 use super::report::seeds::seeded_name;
-use super::report::{self, Report};
+use super::report::Report;
 use super::reproduce::{training_table, JobRecord};
 use crate::data::DataSources;
 use crate::error::{Error, Result};
@@ -317,38 +317,4 @@ pub fn evaluation_report(
     finish(
         &gpu, report, &named, sources, config, held_out, began, out, reporter,
     )
-}
-
-/// Tables III and V into `report`, its wall time since `began`, and the report folder
-/// `out` written; returns the report.
-#[allow(clippy::too_many_arguments)]
-pub(super) fn finish(
-    gpu: &Arc<Gpu>,
-    mut report: Report,
-    models: &[NamedModel],
-    sources: &DataSources,
-    config: &RunConfig,
-    held_out: &HeldOutConfig,
-    began: Instant,
-    out: &std::path::Path,
-    reporter: &mut dyn Reporter,
-) -> Result<Report> {
-    evaluate(
-        gpu,
-        &mut report,
-        models,
-        sources,
-        config,
-        held_out,
-        reporter,
-    )?;
-    report.wall_seconds = began.elapsed().as_secs_f64();
-    let files = report::write(out, &report)?;
-    reporter.note(&format!(
-        "report: {} ({} files), {:.0} s in all",
-        out.join("report.md").display(),
-        files.len(),
-        report.wall_seconds
-    ));
-    Ok(report)
 }

@@ -3,6 +3,7 @@
 //! calibrated, compensated per model).
 
 use std::sync::Arc;
+use std::time::Instant;
 
 use super::budget::{error_budget, markdown as budget_markdown};
 use super::held_out::{warm_up, HeldOut, IDLE_BETWEEN_RUNS};
@@ -483,4 +484,38 @@ pub fn evaluate(
         })
         .collect();
     Ok(())
+}
+
+/// Tables III and V into `report`, its wall time since `began`, and the report folder
+/// `out` written; returns the report.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn finish(
+    gpu: &Arc<Gpu>,
+    mut report: Report,
+    models: &[NamedModel],
+    sources: &DataSources,
+    config: &RunConfig,
+    held_out: &HeldOutConfig,
+    began: Instant,
+    out: &std::path::Path,
+    reporter: &mut dyn Reporter,
+) -> Result<Report> {
+    evaluate(
+        gpu,
+        &mut report,
+        models,
+        sources,
+        config,
+        held_out,
+        reporter,
+    )?;
+    report.wall_seconds = began.elapsed().as_secs_f64();
+    let files = super::report::write(out, &report)?;
+    reporter.note(&format!(
+        "report: {} ({} files), {:.0} s in all",
+        out.join("report.md").display(),
+        files.len(),
+        report.wall_seconds
+    ));
+    Ok(report)
 }

@@ -11,8 +11,7 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use super::demo::finish;
-use super::evaluate::{HeldOutConfig, NamedModel};
+use super::evaluate::{finish, HeldOutConfig, NamedModel};
 use super::protocol::{
     epoch_seconds, existing_data, fit_model, record_data, train_core, Fitted, ModelFiles,
     CALIBRATION_SEED, MACHINE_SEED, TRAINING_SEED,
