@@ -208,6 +208,9 @@ fn the_report_shows_the_spread_and_bolds_only_beyond_it() {
     }
     let text = std::fs::read_to_string(tmp.join("report.md")).unwrap();
     assert!(text.contains("## Spread over training seeds"), "{text}");
+    // The answer first: the summary over seeds comes before the per-seed tables.
+    let at = |heading: &str| text.find(heading).unwrap_or_else(|| panic!("{heading}"));
+    assert!(at("## Spread over training seeds") < at("## Table V analog"));
     // Position: 42 ± 2 against 50.7 ± 2.1 and 90 ± 0: the gap exceeds both SDs.
     assert!(
         text.contains("| hilbert | iastgcn | **42.0 ± 2.0** |"),

@@ -253,14 +253,16 @@ pub fn markdown(r: &Report) -> String {
     };
     let _ = writeln!(out, "- Adapter: {adapter}");
     let _ = writeln!(out, "- Wall time: {}\n", duration(r.wall_seconds));
+    // Over several seeds the summary (means, SDs, paired comparisons) answers the
+    // question, so it comes before the sections and the per-seed tables.
+    if let Some(summary) = super::seeds::summarize(r) {
+        out.push_str(&super::seeds::markdown(&summary));
+    }
     for (heading, body) in &r.sections {
         let _ = writeln!(out, "## {heading}\n\n{}\n", body.trim_end());
     }
     markdown_table_v(&mut out, &r.table_v);
     markdown_table_iii(&mut out, &r.table_iii);
-    if let Some(summary) = super::seeds::summarize(r) {
-        out.push_str(&super::seeds::markdown(&summary));
-    }
     if !r.curve.is_empty() {
         out.push_str(&super::curve::markdown(&r.curve));
     }
