@@ -109,3 +109,51 @@ fn wavelet_basis_and_its_inverse_multiply_to_identity() {
     let lt = &t[1];
     assert!((&t[2] - (lt * lt * 2.0 - nalgebra::DMatrix::identity(14, 14))).amax() < 1e-12);
 }
+
+/// `model::graph_mixing`: the wavelet convolution at θ = 1 (or any equal θ) is a multiple
+/// of the identity and mixes nothing; θ apart mix; the Chebyshev convolution at θ = 1 is
+/// T₀ + T₁ + T₂ of the scaled Laplacian, summed here independently; baselines have none.
+#[test]
+fn graph_mixing_measures_the_graph_convolution() {
+    use iastgcn::model::{graph_mixing, Parameters, Variant};
+    let g = Graph::default_asset();
+    let mut config = iastgcn::train::RunConfig::demo().model;
+    config.variant = Variant::Iastgcn;
+    let mut p = Parameters::init(&config, 1);
+    let at_start = graph_mixing(&config, &g, &p);
+    assert_eq!(at_start.len(), config.blocks);
+    assert!(at_start.iter().all(|&v| v < 1e-12), "{at_start:?}");
+    for t in p.get_mut("blocks.0.gwc.theta").iter_mut() {
+        *t = 2.5;
+    }
+    assert!(
+        graph_mixing(&config, &g, &p)[0] < 1e-12,
+        "equal θ: a multiple of I"
+    );
+    for (k, t) in p.get_mut("blocks.1.gwc.theta").iter_mut().enumerate() {
+        *t = 1.0 + 0.1 * k as f32;
+    }
+    let apart = graph_mixing(&config, &g, &p);
+    assert!(apart[0] < 1e-12 && apart[1] > 0.05, "{apart:?}");
+
+    config.variant = Variant::Chebyshev;
+    let p = Parameters::init(&config, 1);
+    let cheb = graph_mixing(&config, &g, &p);
+    let t = g.spectral().chebyshev(config.chebyshev_order);
+    let psi = t
+        .iter()
+        .fold(nalgebra::DMatrix::zeros(g.len(), g.len()), |a, m| a + m);
+    let diag = psi.diagonal().norm();
+    let off = (psi.norm_squared() - diag * diag).sqrt();
+    for v in &cheb {
+        assert!(
+            (v - off / diag).abs() < 1e-6,
+            "{cheb:?} against {}",
+            off / diag
+        );
+    }
+    assert!(cheb[0] > 0.5, "{cheb:?}");
+
+    config.variant = Variant::Mlp;
+    assert!(graph_mixing(&config, &g, &Parameters::init(&config, 1)).is_empty());
+}

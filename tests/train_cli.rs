@@ -525,5 +525,12 @@ fn demo_over_seeds_reports_the_spread() {
         );
     }
     assert!(report.contains("training seeds 1, 2"));
+    let mixing = report
+        .split("## Graph convolution after training")
+        .nth(1)
+        .expect("the graph convolution's table");
+    let mixing = mixing.split("\n## ").next().unwrap();
+    assert!(mixing.contains("| iastgcn.seed1 | 0.") && mixing.contains("| iastgcn-s.seed2 | 0."));
+    assert!(!mixing.contains("mlp"), "{mixing}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

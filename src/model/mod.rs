@@ -15,7 +15,8 @@ pub mod reference;
 pub use checkpoint::{Checkpoint, CheckpointError, Normalization};
 pub use config::{Family, ModelConfig, Variant};
 pub use params::{
-    check_parameter_count, graph_basis, param_specs, Init, ParamSpec, Parameters, MAX_PARAMETERS,
+    check_parameter_count, graph_basis, graph_mixing, param_specs, Init, ParamSpec, Parameters,
+    MAX_PARAMETERS,
 };
 
 mod block;

@@ -325,3 +325,42 @@ pub fn graph_basis(graph: &Graph, config: &ModelConfig) -> Vec<f64> {
     }
     out
 }
+
+/// How much each block's graph convolution mixes nodes: ‖Ψ − diag Ψ‖_F / ‖diag Ψ‖_F with
+/// Ψ = Σ_k θ_k · basis_k ([`graph_basis`], docs/model.md step 3). 0 for the wavelet
+/// convolution with every θ equal (it is then a multiple of the identity), about 0.95 for
+/// the Chebyshev one at θ = 1 on the embedded graph. One value per block, in order;
+/// empty for a variant without `blocks.{l}.gwc.theta` (the baselines).
+pub fn graph_mixing(config: &ModelConfig, graph: &Graph, params: &Parameters) -> Vec<f64> {
+    let (n, terms) = (graph.len(), config.graph_terms());
+    let theta = |l: usize| {
+        params
+            .index(&format!("blocks.{l}.gwc.theta"))
+            .map(|i| &params.values[i])
+            .filter(|t| t.len() == terms && terms > 0)
+    };
+    if config.variant.graph_attention() || theta(0).is_none() {
+        return Vec::new();
+    }
+    let basis = graph_basis(graph, config);
+    (0..config.blocks)
+        .map_while(theta)
+        .map(|theta| {
+            let mut psi = vec![0f64; n * n];
+            for (&t, b) in theta.iter().zip(basis.chunks(n * n)) {
+                for (p, b) in psi.iter_mut().zip(b) {
+                    *p += t as f64 * b;
+                }
+            }
+            let (mut off, mut diag) = (0.0, 0.0);
+            for (k, p) in psi.iter().enumerate() {
+                if k / n == k % n {
+                    diag += p * p;
+                } else {
+                    off += p * p;
+                }
+            }
+            (off / diag.max(f64::MIN_POSITIVE)).sqrt()
+        })
+        .collect()
+}
