@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use super::evaluate::{finish, HeldOutConfig, NamedModel};
 use super::held_out::IDLE_BETWEEN_RUNS;
-use super::protocol::{fit_model, record_data, ModelFiles, MACHINE_SEED};
+use super::protocol::{check_seeds, fit_model, record_data, ModelFiles, MACHINE_SEED};
 pub use super::protocol::{CALIBRATION_SEED, TRAINING_SEED};
 use super::report::seeds::seeded_name;
 use super::report::Report;
@@ -107,18 +107,7 @@ pub fn demo(
     let config = &demo.run;
     config.validate().map_err(Error::Invalid)?;
     demo.held_out.validate()?;
-    if demo.seeds.is_empty() {
-        return Err(Error::Invalid(
-            "demo: give at least one training seed".into(),
-        ));
-    }
-    for (i, s) in demo.seeds.iter().enumerate() {
-        if demo.seeds[..i].contains(s) {
-            return Err(Error::Invalid(format!(
-                "demo: training seed {s} is listed twice"
-            )));
-        }
-    }
+    check_seeds(&demo.seeds)?;
     let data_dir = out.join("data");
     let model_dir = out.join("models");
     for dir in [&data_dir, &model_dir] {

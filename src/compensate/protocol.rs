@@ -199,6 +199,21 @@ pub struct Fitted {
     pub test: Vec<TestMetrics>,
 }
 
+/// Training seeds as `demo` and `reproduce` take them: at least one, none twice.
+pub fn check_seeds(seeds: &[u64]) -> Result<()> {
+    if seeds.is_empty() {
+        return Err(Error::Invalid("give at least one training seed".into()));
+    }
+    for (i, s) in seeds.iter().enumerate() {
+        if seeds[..i].contains(s) {
+            return Err(Error::Invalid(format!(
+                "seeds: training seed {s} is listed twice"
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// Where [`fit_model`] writes one model: the core stage's best checkpoint (with its
 /// resumable state, log and loss plot beside it) and the refined checkpoint (with its
 /// log, loss plot and Fig. 9b files).

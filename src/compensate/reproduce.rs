@@ -13,8 +13,8 @@ use serde::{Deserialize, Serialize};
 
 use super::evaluate::{finish, HeldOutConfig, NamedModel};
 use super::protocol::{
-    epoch_seconds, existing_data, fit_model, record_data, train_core, Fitted, ModelFiles,
-    CALIBRATION_SEED, MACHINE_SEED, TRAINING_SEED,
+    check_seeds, epoch_seconds, existing_data, fit_model, record_data, train_core, Fitted,
+    ModelFiles, CALIBRATION_SEED, MACHINE_SEED, TRAINING_SEED,
 };
 use super::report::curve::CurvePoint;
 use super::report::seeds::{seeded_name, Spread};
@@ -118,15 +118,9 @@ impl Protocol {
                 self.minutes
             )));
         }
-        if self.seeds.is_empty() || self.models.is_empty() {
-            return Err(Error::Invalid(
-                "reproduce needs at least one seed and one model".into(),
-            ));
-        }
-        for (i, s) in self.seeds.iter().enumerate() {
-            if self.seeds[..i].contains(s) {
-                return Err(Error::Invalid(format!("seeds: {s} is listed twice")));
-            }
+        check_seeds(&self.seeds)?;
+        if self.models.is_empty() {
+            return Err(Error::Invalid("reproduce needs at least one model".into()));
         }
         for (field, list) in [
             ("models", &self.models),

@@ -339,7 +339,7 @@ pub fn graph_mixing(config: &ModelConfig, graph: &Graph, params: &Parameters) ->
             .map(|i| &params.values[i])
             .filter(|t| t.len() == terms && terms > 0)
     };
-    if config.variant.graph_attention() || theta(0).is_none() {
+    if theta(0).is_none() {
         return Vec::new();
     }
     let basis = graph_basis(graph, config);
