@@ -416,67 +416,126 @@ fn accumulate_adds_to_existing_values() {
 
 #[test]
 fn split_weight_gradients_match_reference() {
-    // Shared operands whose per-item operands are large enough that the batch-summed
-    // gradient is split into chunks (~1 MiB of operands each, the last one short) and
-    // summed by a second launch; ragged output blocks, every transpose, with and without
-    // accumulation into the gradient.
+    // Shared operands whose batch-summed gradient is split into chunks and summed by a
+    // second launch: chunks of at most 1024 steps of k per invocation (k = 100 over 35
+    // items: chunks of 10, the last one short), and chunks of ~1 MiB of operands where
+    // rows and columns of C are many (m + n > 256: 268 rows, 24 items per chunk of 30);
+    // ragged output blocks, every transpose, with and without accumulation.
     let g = gpu();
     for (i, (ta, tb)) in [(false, false), (true, false), (false, true), (true, true)]
         .into_iter()
         .enumerate()
     {
-        let shared_a = i % 2 == 0;
-        // The gradient's own reduction per item (n for dA, m for dB) is the long one.
-        let (m, n, k) = if shared_a {
-            (12, 600, 20)
-        } else {
-            (600, 20, 12)
-        };
-        let shape = Matmul::new(m, n, k)
-            .batched(30)
-            .transpose_a(ta)
-            .transpose_b(tb)
-            .share_a(shared_a)
-            .share_b(!shared_a);
-        for mm in on_every_kernel(&g, [shape]) {
-            let x = inputs(&mm, 500 + i as u64);
-            let (a, b, dc) = (
-                upload(&g, "a", &x.a),
-                upload(&g, "b", &x.b),
-                upload(&g, "dc", &x.dc),
-            );
-            let (da_ref, db_ref) = cpu::backward(&mm, &x.a, &x.b, &x.dc);
-            let (grad_ref, len, k) = if shared_a {
-                (da_ref, mm.a_len(), mm.n * mm.batch)
-            } else {
-                (db_ref, mm.b_len(), mm.m * mm.batch)
-            };
-            for accumulate in Accumulate::ALL {
-                let g0: Vec<f64> = (0..len).map(|j| 0.5 - j as f64 * 0.01).collect();
-                let grad = upload(&g, "dw", &g0);
-                let d = if shared_a {
-                    mm.backward_a(&g, &b, &dc, &grad, accumulate)
+        for (j, (rows, k, items)) in [(12, 100, 35), (260, 40, 30)].into_iter().enumerate() {
+            let shared_a = i % 2 == 0;
+            // The gradient is [rows, 8] (or its transpose), reduced over k steps of `items`.
+            let (m, n, kk) = if shared_a { (rows, k, 8) } else { (k, 8, rows) };
+            let shape = Matmul::new(m, n, kk)
+                .batched(items)
+                .transpose_a(ta)
+                .transpose_b(tb)
+                .share_a(shared_a)
+                .share_b(!shared_a);
+            let i = 2 * i + j;
+            for mm in on_every_kernel(&g, [shape]) {
+                let x = inputs(&mm, 500 + i as u64);
+                let (a, b, dc) = (
+                    upload(&g, "a", &x.a),
+                    upload(&g, "b", &x.b),
+                    upload(&g, "dc", &x.dc),
+                );
+                let (da_ref, db_ref) = cpu::backward(&mm, &x.a, &x.b, &x.dc);
+                let (grad_ref, len, k) = if shared_a {
+                    (da_ref, mm.a_len(), mm.n * mm.batch)
                 } else {
-                    mm.backward_b(&g, &a, &dc, &grad, accumulate)
+                    (db_ref, mm.b_len(), mm.m * mm.batch)
+                };
+                for accumulate in Accumulate::ALL {
+                    let g0: Vec<f64> = (0..len).map(|j| 0.5 - j as f64 * 0.01).collect();
+                    let grad = upload(&g, "dw", &g0);
+                    let d = if shared_a {
+                        mm.backward_a(&g, &b, &dc, &grad, accumulate)
+                    } else {
+                        mm.backward_b(&g, &a, &dc, &grad, accumulate)
+                    }
+                    .unwrap();
+                    assert_eq!(d.launches(), 2, "{mm:?} was not split");
+                    assert_eq!(d.target(), "dw");
+                    g.run(&[d]).unwrap();
+                    let want: Vec<f64> = grad_ref
+                        .iter()
+                        .zip(&g0)
+                        .map(|(r, g0)| {
+                            r + if accumulate == Accumulate::Add {
+                                *g0
+                            } else {
+                                0.0
+                            }
+                        })
+                        .collect();
+                    let what = format!("{mm:?} split gradient, accumulate {accumulate:?}");
+                    compare_tensor(&g, &what, &grad, &want, gpu_tol(k)).unwrap();
                 }
-                .unwrap();
-                assert_eq!(d.launches(), 2, "{mm:?} was not split");
-                assert_eq!(d.target(), "dw");
-                g.run(&[d]).unwrap();
-                let want: Vec<f64> = grad_ref
-                    .iter()
-                    .zip(&g0)
-                    .map(|(r, g0)| {
-                        r + if accumulate == Accumulate::Add {
-                            *g0
-                        } else {
-                            0.0
-                        }
-                    })
-                    .collect();
-                let what = format!("{mm:?} split gradient, accumulate {accumulate:?}");
-                compare_tensor(&g, &what, &grad, &want, gpu_tol(k)).unwrap();
             }
+        }
+    }
+}
+
+#[test]
+fn single_row_gradients_are_split_into_chunks() {
+    // One row of C reduced over many items or a long k (the attentions' rank-1 weights:
+    // U1, U3, W3 summed over the batch; W1 over B·N·C_in rows of one product): the row
+    // kernel sums chunks of ~4096 multiply-adds into partial rows, and a second launch
+    // adds them. Ragged chunk counts, both layouts of each operand, with and without
+    // accumulation; a k with no divisor to split at stays one launch.
+    let g = gpu();
+    let mut shapes = Vec::new();
+    for (ta, tb) in [(false, false), (true, false), (false, true), (true, true)] {
+        // dA: m = 1, n = 10, k = 700 summed over 12 items in chunks of 5 (the last short).
+        let by_items = Matmul::new(1, 700, 10)
+            .batched(12)
+            .share_a(true)
+            .transpose_a(ta)
+            .transpose_b(tb);
+        // dB: op(B) is [20, 1], its gradient one row of k = 12 288 = 24 chunks of 512.
+        let by_k = Matmul::new(12288, 1, 20).transpose_a(ta).transpose_b(tb);
+        shapes.push((by_items, true, 2));
+        shapes.push((by_k, false, 2));
+    }
+    // 12 289 is prime: no chunk length divides it.
+    shapes.push((Matmul::new(12289, 1, 20), false, 1));
+    for (i, (mm, grad_a, launches)) in shapes.into_iter().enumerate() {
+        let x = inputs(&mm, 700 + i as u64);
+        let (a, b, dc) = (
+            upload(&g, "a", &x.a),
+            upload(&g, "b", &x.b),
+            upload(&g, "dc", &x.dc),
+        );
+        let (da_ref, db_ref) = cpu::backward(&mm, &x.a, &x.b, &x.dc);
+        let (grad_ref, len, k) = if grad_a {
+            (da_ref, mm.a_len(), mm.n * mm.batch)
+        } else {
+            (db_ref, mm.b_len(), mm.m * mm.batch)
+        };
+        for accumulate in Accumulate::ALL {
+            let g0: Vec<f64> = (0..len).map(|j| 0.25 - j as f64 * 0.02).collect();
+            let grad = upload(&g, "dw", &g0);
+            let d = if grad_a {
+                mm.backward_a(&g, &b, &dc, &grad, accumulate)
+            } else {
+                mm.backward_b(&g, &a, &dc, &grad, accumulate)
+            }
+            .unwrap();
+            assert_eq!(d.launches(), launches, "{mm:?}");
+            g.run(&[d]).unwrap();
+            let add = accumulate == Accumulate::Add;
+            let want: Vec<f64> = grad_ref
+                .iter()
+                .zip(&g0)
+                .map(|(r, g0)| r + if add { *g0 } else { 0.0 })
+                .collect();
+            let what = format!("{mm:?} single-row gradient, accumulate {accumulate:?}");
+            compare_tensor(&g, &what, &grad, &want, gpu_tol(k)).unwrap();
         }
     }
 }

@@ -463,6 +463,13 @@ impl<'a> Trainer<'a> {
         self.engine.losses(self.gpu, out)
     }
 
+    /// The loss of each step of the last epoch, in order (standardised label space).
+    pub fn step_losses(&self) -> Result<Vec<f32>, TrainError> {
+        let mut losses = vec![0f32; self.steps_per_epoch];
+        self.read_log(&mut losses)?;
+        Ok(losses)
+    }
+
     /// Replays the failing epoch from its start, one step at a time with readbacks, to
     /// find the first step whose loss or updated parameters are not finite.
     fn diagnose(

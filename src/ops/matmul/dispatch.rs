@@ -251,6 +251,12 @@ impl Gemm {
         Ok(Some((&KERNEL_SUBGROUP, groups)))
     }
 
+    /// The row kernel's grid for `batches` items of C: 256 columns per workgroup.
+    fn row_grid(&self, batches: usize) -> [u32; 3] {
+        let per_group = ROW_BLOCK * ROW_WORKGROUP;
+        [self.n.div_ceil(per_group).max(1) as u32, 1, batches as u32]
+    }
+
     /// The kernel and grid for a product of more than one row: a subgroup kernel where
     /// [`Gemm::subgroup_grid`] allows it, else the block kernel.
     fn tiled_grid(
@@ -290,7 +296,11 @@ impl Gemm {
         };
         let mut constants = self.constants(&Epilogue::default(), false);
         constants.push(("REDUCE", 1.0));
-        let (kernel, groups) = self.tiled_grid(gpu, chunks, &mut constants)?;
+        let (kernel, groups) = if self.m == 1 {
+            (&KERNEL_ROW, self.row_grid(chunks))
+        } else {
+            self.tiled_grid(gpu, chunks, &mut constants)?
+        };
         let tensors = [lhs, rhs, lhs, rhs, lhs, lhs, &partials, &partials];
         let first = gpu.dispatch(kernel, &constants, &part, &tensors, groups)?;
         let sum = Params {
@@ -338,6 +348,9 @@ impl Gemm {
         let flops = 2.0 * (self.batch * self.m * self.n * self.k) as f64;
         let (gemm, swapped) = self.canonical();
         let (lhs, rhs) = if swapped { (rhs, lhs) } else { (lhs, rhs) };
+        if let Some(split) = gemm.k_split().filter(|_| epilogue.is_plain()) {
+            return split.dispatch_with(gpu, lhs, rhs, out, accumulate, epilogue);
+        }
         let (out_batches, reduce) = if gemm.out_shared {
             (1, gemm.batch)
         } else {
@@ -372,24 +385,14 @@ impl Gemm {
             batches: out_batches as u32,
             chunk: 0,
         };
-        let plain = epilogue.bias.is_none()
-            && epilogue.matrix.is_none()
-            && epilogue.gate.is_none()
-            && !epilogue.relu
-            && gemm.plus == Plus::None;
+        let plain = epilogue.is_plain() && gemm.plus == Plus::None;
         if let Some(chunk) = gemm.split_chunk(reduce).filter(|_| plain) {
             return gemm.dispatch_split(gpu, [lhs, rhs, out], params, chunk, flops);
         }
         let mut constants = gemm.constants(&epilogue, swapped);
         constants.push(("REDUCE", f64::from(u8::from(reduce > 1))));
         let (kernel, groups) = if gemm.m == 1 {
-            let per_group = ROW_BLOCK * ROW_WORKGROUP;
-            let groups = [
-                gemm.n.div_ceil(per_group).max(1) as u32,
-                1,
-                out_batches as u32,
-            ];
-            (&KERNEL_ROW, groups)
+            (&KERNEL_ROW, gemm.row_grid(out_batches))
         } else {
             gemm.tiled_grid(gpu, out_batches, &mut constants)?
         };

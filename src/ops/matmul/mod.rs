@@ -132,6 +132,13 @@ pub struct Epilogue<'t> {
     pub gate: Option<&'t Tensor>,
 }
 
+impl Epilogue<'_> {
+    /// Nothing added or applied: the product alone.
+    pub(super) fn is_plain(&self) -> bool {
+        self.bias.is_none() && self.matrix.is_none() && self.gate.is_none() && !self.relu
+    }
+}
+
 /// How `matmul.wgsl` loads each operand (its override constants).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Loads {

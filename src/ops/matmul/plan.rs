@@ -23,6 +23,12 @@ pub enum Tiling {
 /// scratch its partial results may take (see [`Gemm::split_chunk`]).
 const SPLIT_CHUNK_BYTES: usize = 1 << 20;
 const SPLIT_PARTIALS_BYTES: usize = 32 << 20;
+/// Multiply-adds along the reduction (items × k) that one invocation of the row kernel
+/// sums in a split product (see [`Gemm::split_chunk`] and [`Gemm::k_split`]).
+const ROW_CHUNK_MACS: usize = 4096;
+/// Steps along the reduction (items × k) that one invocation of a tiled kernel sums in a
+/// split product, at most (see [`Gemm::split_chunk`]).
+const TILED_CHUNK_STEPS: usize = 1024;
 
 /// Shape of one (batched) product.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -377,16 +383,69 @@ impl Gemm {
     /// (the paper's conv weight gradient ran at 0.6 of the best matmul). Chunks whose
     /// operands fit in one core's L2 let the blocks of C that run together share them:
     /// 1.8× on that product (7.7 → 14–15.7 GFLOP/s, best with ~1 MiB chunks).
+    ///
+    /// A single row of C (the gradient of a rank-1 weight such as the attentions' U1, U3
+    /// and W3) is split into chunks of about [`ROW_CHUNK_MACS`] multiply-adds per
+    /// invocation: the row kernel covers 256 columns per workgroup, so unsplit such a
+    /// gradient ran as one workgroup sweeping every item, a few invocations busy (on an
+    /// NVIDIA H200 these products took 70 % of the paper shape's training step).
+    ///
+    /// A chunk of the tiled kernels also sums at most [`TILED_CHUNK_STEPS`] steps of k per
+    /// invocation: a gradient with a small C and a short k per item (the graph
+    /// convolution's W and the residual weight, [C_in, C] over B·N items of T steps) fits
+    /// a core's L2 in few chunks, which left a GPU a few dozen invocations each summing
+    /// thousands of items. The extra partial sums cost lavapipe nothing measurable.
     pub(super) fn split_chunk(&self, reduce: usize) -> Option<usize> {
-        if !self.out_shared || self.m == 1 {
+        if !self.out_shared {
             return None;
         }
-        let item_bytes = 4 * self.k * (self.m + self.n);
         let partial_bytes = 4 * self.m * self.n;
-        let chunk = (SPLIT_CHUNK_BYTES / item_bytes)
+        let k = self.k.max(1);
+        let chunk = if self.m == 1 {
+            ROW_CHUNK_MACS / k
+        } else {
+            (SPLIT_CHUNK_BYTES / (4 * k * (self.m + self.n))).min(TILED_CHUNK_STEPS / k)
+        };
+        let chunk = chunk
             .max(1)
             .max((reduce * partial_bytes).div_ceil(SPLIT_PARTIALS_BYTES));
         (chunk < reduce).then_some(chunk)
+    }
+
+    /// A single row of C with a long reduction and no batch (`xw1`'s weight gradient
+    /// sums over B·N·C_in = 57 344 rows at the paper's shape) as the same product summed
+    /// over chunks of k: k' = a divisor of k of at most [`ROW_CHUNK_MACS`] / 8 (a multiple
+    /// of 4 where one exists, for vector loads), each chunk a reduction item whose
+    /// operands start k' further along, so [`Gemm::split_chunk`] then spreads the chunks
+    /// over workgroups. `None` where k has no divisor in [k'/4, k'] or is short already.
+    pub(super) fn k_split(&self) -> Option<Gemm> {
+        let target = ROW_CHUNK_MACS / 8;
+        if self.m != 1 || self.batch != 1 || self.out_shared || self.plus != Plus::None {
+            return None;
+        }
+        if self.k < 4 * target {
+            return None;
+        }
+        let divides = |d: &usize| self.k.is_multiple_of(*d);
+        let range = || (target / 4..=target).rev();
+        let kc = range()
+            .filter(|d| d % 4 == 0)
+            .find(divides)
+            .or_else(|| range().find(divides))?;
+        Some(Gemm {
+            k: kc,
+            lhs: View {
+                batch: kc * self.lhs.col,
+                ..self.lhs
+            },
+            rhs: View {
+                batch: kc * self.rhs.row,
+                ..self.rhs
+            },
+            out_shared: true,
+            batch: self.k / kc,
+            ..*self
+        })
     }
 }
 
