@@ -1,5 +1,6 @@
 //! Whole-network throughput: inference forward at B = 1 (latency; on the device and, for
-//! the IASTGCN variants, on the native CPU path `model::NativeForward`) and B = 64, and one
+//! the IASTGCN variants, on the native CPU path `model::NativeForward`, on one thread and
+//! split over every core as `Predictor::set_threads` allows) and B = 64, and one
 //! training step at B = 64 (on the device and, for the IASTGCN variants, on the native
 //! CPU path `model::NativeTraining` with every core), for the paper shape (C 64, T 100, L 5) and a small shape
 //! (C 16, T 48, L 3), then the same three for each baseline (tgcn, eat-gcn, mlp,
@@ -247,18 +248,27 @@ fn model_group(c: &mut Criterion, name: &str, config: &ModelConfig) {
     );
     if NativeForward::supports(config) {
         let graph = iastgcn::graph::Graph::default_asset();
-        let mut native = NativeForward::new(config, &graph, &Parameters::init(config, 1)).unwrap();
         let len = config.nodes * config.features * config.window;
         let x = to_f32(&uniform(&mut rng(2), len, -1.0, 1.0));
         let mut y = vec![0f32; config.outputs];
-        bench(
-            &mut group,
-            name,
-            "native forward B=1",
-            Some(1),
-            flops::forward_flops(config, 1),
-            || native.forward(&x, &mut y).unwrap(),
-        );
+        // One thread (the default), then every core (`Predictor::set_threads`).
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        for (label, threads) in [
+            ("native forward B=1", 1),
+            ("native forward B=1 all cores", cores),
+        ] {
+            let mut native =
+                NativeForward::new(config, &graph, &Parameters::init(config, 1)).unwrap();
+            native.set_threads(threads);
+            bench(
+                &mut group,
+                name,
+                label,
+                Some(1),
+                flops::forward_flops(config, 1),
+                || native.forward(&x, &mut y).unwrap(),
+            );
+        }
     }
     bench(
         &mut group,

@@ -107,6 +107,51 @@ fn paper_shape_matches() {
     check(&ModelConfig::default(), 41, 1, 1e-5);
 }
 
+/// One window split over threads (`NativeForward::set_threads`) gives the outputs of one
+/// thread bit for bit, in every variant, at a size large enough that the convolution,
+/// X·E' and the per-node loops are split (C 64, T 64: 410k multiply-adds per node); the
+/// demo's size stays on one thread and agrees too.
+#[test]
+fn threads_do_not_change_the_outputs() {
+    let graph = Graph::default_asset();
+    let large = |variant| ModelConfig {
+        variant,
+        window: 64,
+        blocks: 2,
+        ..ModelConfig::default()
+    };
+    let demo = ModelConfig {
+        window: 48,
+        channels: 16,
+        blocks: 2,
+        ..ModelConfig::default()
+    };
+    let configs = Variant::IASTGCN.into_iter().map(large).chain([demo]);
+    for (i, config) in configs.enumerate() {
+        let p = parameters(&config, 60 + i as u64);
+        let len = config.nodes * config.features * config.window;
+        let x = to_f32(&uniform(&mut rng(70 + i as u64), 2 * len, -1.0, 1.0));
+        let mut one = NativeForward::new(&config, &graph, &p).unwrap();
+        let mut three = NativeForward::new(&config, &graph, &p).unwrap();
+        three.set_threads(3);
+        assert_eq!((one.threads(), three.threads()), (1, 3));
+        let (mut y1, mut y3) = (vec![0f32; 6], vec![0f32; 6]);
+        for w in x.chunks(len) {
+            one.forward(w, &mut y1).unwrap();
+            three.forward(w, &mut y3).unwrap();
+            assert!(y1.iter().all(|v| v.is_finite()));
+            let bits = |y: &[f32]| y.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            assert_eq!(
+                bits(&y1),
+                bits(&y3),
+                "{} C{}",
+                config.variant,
+                config.channels
+            );
+        }
+    }
+}
+
 /// The dense baselines (14-node graph, F = 3, T = 5, H = 6): native against the WGSL
 /// forward and the f64 reference of `model::reference::dense`.
 #[test]

@@ -144,10 +144,31 @@ impl Predictor {
 
     /// A predictor without a device: every window on the CPU, one at a time (the four
     /// IASTGCN variants only); its capacity is 1. For controllers with no Vulkan, Metal
-    /// or DX12 driver, and what [`Predictor::new`] builds on a CPU adapter.
+    /// or DX12 driver, and what [`Predictor::new`] builds on a CPU adapter. A window runs
+    /// on the calling thread unless [`Predictor::set_threads`] says otherwise.
     pub fn native(checkpoint: &Checkpoint) -> Result<Predictor, ModelError> {
         let native = native_forward(checkpoint)?;
         Predictor::build(checkpoint, Path::Native(Box::new(native)), 1)
+    }
+
+    /// The tasks the native forward splits one window into (default 1: the calling
+    /// thread alone; `NativeForward::set_threads` says what is split, on rayon's global
+    /// pool). For a controller with idle cores and a large network: on the 2-core
+    /// development machine the paper's shape ran 1.1× faster on both cores than on one;
+    /// many-core machines were not measured (docs/performance.md "The native CPU
+    /// forward"). The outputs do not depend on it. The device path ignores it.
+    pub fn set_threads(&mut self, threads: usize) {
+        if let Path::Native(native) = &mut self.path {
+            native.set_threads(threads);
+        }
+    }
+
+    /// The tasks the native forward splits one window into; 1 on the device path.
+    pub fn threads(&self) -> usize {
+        match &self.path {
+            Path::Native(native) => native.threads(),
+            Path::Device(_) => 1,
+        }
     }
 
     fn build(

@@ -18,6 +18,8 @@ pub struct NativeForward {
     /// The weights in `param_specs` order.
     params: Vec<Vec<f32>>,
     body: Body,
+    /// The tasks one window is split into ([`NativeForward::set_threads`]).
+    threads: usize,
 }
 
 /// What the network is built from, with the working memory of one window.
@@ -95,7 +97,28 @@ impl NativeForward {
             body,
             params: values,
             config: config.clone(),
+            threads: 1,
         })
+    }
+
+    /// Splits each window's large products (the gated convolution and X·E', in tasks of
+    /// at least 2^19 multiply-adds) and its per-node loops (Z = ReLU(Wᵀ·M), the residual,
+    /// gating and LayerNorm) into at most `threads` tasks on rayon's global pool; 1 (the
+    /// default) runs on the calling thread alone. Small networks (the demo's C = 16) stay
+    /// on one thread whatever is asked, where a task would cost more than it saves. The
+    /// outputs do not depend on it: each value is the same sum in the same order. The
+    /// dense baselines always run on one thread.
+    pub fn set_threads(&mut self, threads: usize) {
+        let threads = threads.max(1);
+        if let Body::Blocks { tape, .. } = &mut self.body {
+            tape.threads = threads;
+        }
+        self.threads = threads;
+    }
+
+    /// The threads one window is split over ([`NativeForward::set_threads`]).
+    pub fn threads(&self) -> usize {
+        self.threads
     }
 
     /// The network's shapes and variant.

@@ -86,6 +86,47 @@ fn gemm(m: usize, k: usize, n: usize, a: View, b: View, beta: f32, c: &mut [f32]
     }
 }
 
+/// Multiply-adds per task below which [`par_gemm`] does not split a product (a rayon task
+/// costs a few microseconds; 2^19 multiply-adds take ~25 µs on one core).
+const PAR_MIN_MACS: usize = 1 << 19;
+
+/// [`gemm`] with C's rows split into up to `threads` tasks on the current rayon pool, each
+/// of at least [`PAR_MIN_MACS`] multiply-adds; one call when `threads` is 1 or the product
+/// is small. Every element of C is the same sum in the same order either way (the split
+/// only chooses which rows each call computes), so the result does not depend on it.
+#[allow(clippy::too_many_arguments)]
+fn par_gemm(
+    threads: usize,
+    m: usize,
+    k: usize,
+    n: usize,
+    a: View,
+    b: View,
+    beta: f32,
+    c: &mut [f32],
+    ldc: usize,
+) {
+    let tasks = threads.min(m).min(m * k * n / PAR_MIN_MACS);
+    if tasks < 2 {
+        return gemm(m, k, n, a, b, beta, c, ldc);
+    }
+    let rows = m.div_ceil(tasks);
+    rayon::scope(|scope| {
+        let mut rest = c;
+        for r0 in (0..m).step_by(rows) {
+            let r = rows.min(m - r0);
+            let take = if r0 + r < m { r * ldc } else { rest.len() };
+            let (chunk, tail) = std::mem::take(&mut rest).split_at_mut(take);
+            rest = tail;
+            let a = View {
+                data: &a.data[r0 * a.rs..],
+                ..a
+            };
+            scope.spawn(move |_| gemm(r, k, n, a, b, beta, chunk, ldc));
+        }
+    });
+}
+
 fn sigmoid(x: f32) -> f32 {
     1.0 / (1.0 + (-x).exp())
 }

@@ -5,7 +5,9 @@
 //! its dropout bits are the ones that step has in the whole tensor).
 
 use super::slots::{BlockSlots, Slots};
-use super::{gemm, rows, sigmoid, softmax_strided, tanh, transposed, View};
+use rayon::prelude::*;
+
+use super::{gemm, par_gemm, rows, sigmoid, softmax_strided, tanh, transposed, View, PAR_MIN_MACS};
 use crate::model::config::ModelConfig;
 use crate::ops::dropout::{keep, Dropout};
 
@@ -90,6 +92,10 @@ pub(super) struct Tape {
     pub h: Vec<f32>,
     /// ŷ `[O]`.
     pub out: Vec<f32>,
+    /// Tasks the large products and the per-node loops of one window are split into, on
+    /// rayon's global pool (1: none; the inference forward may set more, see
+    /// `NativeForward::set_threads`; training parallelises over windows instead).
+    pub threads: usize,
 }
 
 impl Tape {
@@ -105,6 +111,7 @@ impl Tape {
                 .collect(),
             h: vec![0f32; cfg.nodes * cfg.channels],
             out: vec![0f32; cfg.outputs],
+            threads: 1,
         }
     }
 }
@@ -145,6 +152,7 @@ pub(super) fn forward(
     tape: &mut Tape,
 ) {
     let last = slots.blocks.len() - 1;
+    let threads = tape.threads;
     for l in 0..slots.blocks.len() {
         let (done, rest) = tape.blocks.split_at_mut(l);
         let input = if l == 0 { x } else { &done[l - 1].y[..] };
@@ -163,6 +171,7 @@ pub(super) fn forward(
             &mut rest[0],
             mask,
             h,
+            threads,
         );
     }
     let nc = cfg.nodes * cfg.channels;
@@ -180,6 +189,7 @@ pub(super) fn forward(
 }
 
 /// One block on `x` `[N, C_in, T]`; the output goes to `bt.y`, or to `h` in the last block.
+/// `threads` > 1 splits the large products and the per-node loops (see [`Tape::threads`]).
 #[allow(clippy::too_many_arguments)]
 fn block(
     cfg: &ModelConfig,
@@ -190,9 +200,19 @@ fn block(
     bt: &mut BlockTape,
     mask: Option<((Dropout, usize), u32)>,
     h: Option<&mut [f32]>,
+    threads: usize,
 ) {
     let (n, t, c, k) = (cfg.nodes, cfg.window, cfg.channels, cfg.kernel);
     let ci = s.c_in;
+    // The per-node loops split only where a node's product is worth a task (the paper's
+    // C = 64: 410k multiply-adds; the demo's C = 16: 12k, which stays on one thread).
+    let split = |node_macs: usize| {
+        if node_macs >= PAR_MIN_MACS / 2 {
+            threads
+        } else {
+            1
+        }
+    };
     // Step 3's Ψ = Σ_k θ_k basis_k.
     bt.psi.fill(0.0);
     for (theta, b) in p[s.theta].iter().zip(basis.chunks(n * n)) {
@@ -202,7 +222,7 @@ fn block(
     }
     // Steps 1–2.
     if let (Some(ts), Some(ss)) = (s.temporal, s.spatial) {
-        temporal_attention(n, ci, t, p, ts, x, bt);
+        temporal_attention(n, ci, t, p, ts, x, bt, threads);
         spatial_attention(n, ci, t, p, ss, bt);
     } else {
         bt.q.copy_from_slice(&bt.psi);
@@ -219,14 +239,15 @@ fn block(
         &mut bt.m,
         ci * t,
     );
-    for i in 0..n {
-        let mi = &bt.m[i * ci * t..][..ci * t];
-        let zi = &mut bt.z[i * c * t..][..c * t];
-        gemm(c, ci, t, transposed(&p[s.w], c), rows(mi, t), 0.0, zi, t);
-    }
-    for v in bt.z.iter_mut() {
-        *v = v.max(0.0);
-    }
+    let w = &p[s.w];
+    let mix = &bt.m;
+    for_each_node(split(c * ci * t), &mut bt.z, c * t, |i, zi| {
+        let mi = &mix[i * ci * t..][..ci * t];
+        gemm(c, ci, t, transposed(w, c), rows(mi, t), 0.0, zi, t);
+        for v in zi.iter_mut() {
+            *v = v.max(0.0);
+        }
+    });
     // Step 4 on the output steps: unfold every node, then G = W·col + bias.
     let (t0, steps) = (bt.t0, bt.steps);
     let wide = n * steps;
@@ -252,7 +273,8 @@ fn block(
         for (row, &bias) in g.chunks_mut(wide).zip(&p[b]) {
             row.fill(bias);
         }
-        gemm(
+        par_gemm(
+            threads,
             c,
             ck,
             wide,
@@ -267,8 +289,8 @@ fn block(
     let gated = s.gate.is_some();
     let eps = cfg.eps as f32;
     let (res_w, res_b) = (&p[s.res.0], &p[s.res.1]);
-    for i in 0..n {
-        let a = &mut bt.act[i * c * steps..][..c * steps];
+    let g = &bt.g;
+    let node = |i: usize, a: &mut [f32], mean: &mut [f32], rstd: &mut [f32]| {
         for (row, &bias) in a.chunks_mut(steps).zip(res_b) {
             row.fill(bias);
         }
@@ -280,9 +302,9 @@ fn block(
         gemm(c, ci, steps, rows(res_w, ci), xv, 1.0, a, steps);
         for o in 0..c {
             for tau in 0..steps {
-                let f = bt.g[o * wide + i * steps + tau];
+                let f = g[o * wide + i * steps + tau];
                 let hv = if gated {
-                    tanh(f) * sigmoid(bt.g[(c + o) * wide + i * steps + tau])
+                    tanh(f) * sigmoid(g[(c + o) * wide + i * steps + tau])
                 } else {
                     f.max(0.0)
                 };
@@ -290,8 +312,6 @@ fn block(
                 *v = (*v + hv).max(0.0);
             }
         }
-        let mean = &mut bt.mean[i * steps..][..steps];
-        let rstd = &mut bt.rstd[i * steps..][..steps];
         mean.fill(0.0);
         rstd.fill(0.0);
         for row in a.chunks(steps) {
@@ -309,6 +329,33 @@ fn block(
         }
         for q in rstd.iter_mut() {
             *q = 1.0 / (*q / c as f32 + eps).sqrt();
+        }
+    };
+    let tasks = split(c * ci * steps);
+    if tasks > 1 {
+        // Nodes in `tasks` groups of `per` consecutive ones.
+        let per = n.div_ceil(tasks);
+        let act = bt.act.par_chunks_mut(per * c * steps);
+        act.zip(bt.mean.par_chunks_mut(per * steps))
+            .zip(bt.rstd.par_chunks_mut(per * steps))
+            .enumerate()
+            .for_each(|(j, ((a, m), r))| {
+                let nodes = a
+                    .chunks_mut(c * steps)
+                    .zip(m.chunks_mut(steps))
+                    .zip(r.chunks_mut(steps));
+                for (u, ((a, m), r)) in nodes.enumerate() {
+                    node(j * per + u, a, m, r);
+                }
+            });
+    } else {
+        let act = bt.act.chunks_mut(c * steps);
+        for (i, ((a, m), r)) in act
+            .zip(bt.mean.chunks_mut(steps))
+            .zip(bt.rstd.chunks_mut(steps))
+            .enumerate()
+        {
+            node(i, a, m, r);
         }
     }
     // Step 6's affine map and step 7's dropout, into Y (or h at the last step).
@@ -339,6 +386,7 @@ fn block(
 }
 
 /// Step 1 on `x` `[N, C_in, T]`: X_t = X·(E' + I), keeping lhs, rhs, σ and E'.
+#[allow(clippy::too_many_arguments)]
 fn temporal_attention(
     n: usize,
     ci: usize,
@@ -347,6 +395,7 @@ fn temporal_attention(
     ix: [usize; 5],
     x: &[f32],
     bt: &mut BlockTape,
+    threads: usize,
 ) {
     let [u1, u2, u3, be, ve] = ix.map(|i| &p[i][..]);
     gemm(
@@ -401,7 +450,17 @@ fn temporal_attention(
         softmax_strided(&mut bt.e[col..], t, t);
     }
     bt.xt.copy_from_slice(x);
-    gemm(n * ci, t, t, rows(x, t), rows(&bt.e, t), 1.0, &mut bt.xt, t);
+    par_gemm(
+        threads,
+        n * ci,
+        t,
+        t,
+        rows(x, t),
+        rows(&bt.e, t),
+        1.0,
+        &mut bt.xt,
+        t,
+    );
 }
 
 /// Step 2 on `bt.xt`: S' and Q = Ψ·(I + S').
@@ -459,4 +518,28 @@ fn spatial_attention(
     }
     bt.q.copy_from_slice(&bt.psi);
     gemm(n, n, n, rows(&bt.psi, n), rows(&bt.s, n), 1.0, &mut bt.q, n);
+}
+
+/// `f(i, chunk)` for each node's `size`-long chunk of `data`, in `tasks` rayon tasks of
+/// consecutive nodes when `tasks` > 1.
+fn for_each_node(
+    tasks: usize,
+    data: &mut [f32],
+    size: usize,
+    f: impl Fn(usize, &mut [f32]) + Sync + Send,
+) {
+    if tasks > 1 {
+        let per = (data.len() / size).div_ceil(tasks);
+        data.par_chunks_mut(per * size)
+            .enumerate()
+            .for_each(|(j, group)| {
+                for (u, c) in group.chunks_mut(size).enumerate() {
+                    f(j * per + u, c);
+                }
+            });
+    } else {
+        for (i, c) in data.chunks_mut(size).enumerate() {
+            f(i, c);
+        }
+    }
 }
