@@ -43,19 +43,34 @@ from iastgcn_torch import VARIANTS, load_checkpoint  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 BATCH = 64
-# (label, engine bench group, run config)
+# (label, engine bench group, run config). The small shape is the model bench's
+# (benches/common `small_config`: the demo's C and T at L = 3), written out here because
+# assets/demo.toml trains at L = 2.
+SMALL_CONFIG = "[model]\nchannels = 16\nwindow = 48\nblocks = 3\n"
 SHAPES = [
-    ("demo C16 T48 L3", "small C16 T48 L3", "assets/demo.toml"),
+    ("small C16 T48 L3", "small C16 T48 L3", "small.toml"),
     ("paper C64 T100 L5", "paper C64 T100 L5", "assets/paper.toml"),
 ]
 MEASURES = ["forward B=1", "forward B=64", "train step B=64"]
-# Engine rows: the device's three, plus the native CPU forward (model::NativeForward)
-# against the same PyTorch forward at B = 1 and the native training step
+# Engine rows: the device's three, plus the native CPU forward (model::NativeForward, on
+# one thread and with one window split over every core) against the same
+# PyTorch forward at B = 1 and the native training step
 # (model::NativeTraining, gradients only) against PyTorch's step.
 ENGINE_ROWS = [("forward B=1", "forward B=1"), ("native forward B=1", "forward B=1"),
+               ("native forward B=1 all cores", "forward B=1"),
                ("forward B=64", "forward B=64"), ("train step B=64", "train step B=64"),
                ("native train step B=64", "train step B=64")]
 TOLERANCE = 1e-4
+
+
+def config_path(config, work):
+    """A shape's run config: a file of the repository, or the small shape's own."""
+    if config == "small.toml":
+        path = work / config
+        if not path.exists():
+            path.write_text(SMALL_CONFIG)
+        return path
+    return ROOT / config
 
 
 def run(cmd, **kw):
@@ -71,7 +86,8 @@ def interop(binary, work):
         for variant in VARIANTS:
             base = work / f"{variant}-{label.split()[0]}"
             ckpt, perturbed = base.with_suffix(".init.safetensors"), base.with_suffix(".safetensors")
-            run([binary, "init", "--config", config, "--variant", variant, "--seed", "3", "--out", ckpt],
+            run([binary, "init", "--config", config_path(config, work), "--variant", variant, "--seed", "3",
+                 "--out", ckpt],
                 stdout=subprocess.DEVNULL)
             with safe_open(ckpt, framework="np") as f:
                 meta = f.metadata()
@@ -95,31 +111,39 @@ def interop(binary, work):
     return rows
 
 
-def time_call(fn, min_seconds=3.0, min_iters=5):
+def time_call(fn, min_seconds=3.0, min_iters=5, sync=lambda: None):
     """Mean seconds per call after one warm-up call, over at least min_iters calls and
-    min_seconds (at most 10 calls when one takes over 2 s)."""
+    min_seconds (at most 10 calls when one takes over 2 s). `sync` waits for queued work
+    (a CUDA device's), so that the clock stops when the work is done."""
     fn()
+    sync()
     t0 = time.perf_counter()
     fn()
+    sync()
     once = time.perf_counter() - t0
     iters = 10 if once > 2.0 else max(min_iters, int(min_seconds / max(once, 1e-6)))
     t0 = time.perf_counter()
     for _ in range(iters):
         fn()
+    sync()
     return (time.perf_counter() - t0) / iters, iters
 
 
-def torch_timings(binary, work):
-    """PyTorch: seconds per call for each shape and measure, and the baseline matmul."""
+def torch_timings(binary, work, device):
+    """PyTorch on `device` ("cpu" or "cuda"): seconds per call for each shape and
+    measure, and the baseline matmul."""
+    dev = torch.device(device)
+    sync = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
     out = {}
     for label, _, config in SHAPES:
         ckpt = work / f"speed-{label.split()[0]}.safetensors"
-        run([binary, "init", "--config", config, "--seed", "1", "--out", ckpt], stdout=subprocess.DEVNULL)
-        model = load_checkpoint(ckpt)
+        run([binary, "init", "--config", config_path(config, work), "--seed", "1", "--out", ckpt],
+            stdout=subprocess.DEVNULL)
+        model = load_checkpoint(ckpt).to(dev)
         cfg = model.cfg
         shape = (cfg["nodes"], cfg["features"], cfg["window"])
-        x1, x64 = torch.randn(1, *shape), torch.randn(BATCH, *shape)
-        y64 = torch.randn(BATCH, cfg["outputs"])
+        x1, x64 = torch.randn(1, *shape, device=dev), torch.randn(BATCH, *shape, device=dev)
+        y64 = torch.randn(BATCH, cfg["outputs"], device=dev)
 
         def forward(x):
             with torch.no_grad():
@@ -131,15 +155,15 @@ def torch_timings(binary, work):
             loss.backward()
 
         model.eval()
-        out[(label, "forward B=1")] = time_call(lambda: forward(x1))
-        out[(label, "forward B=64")] = time_call(lambda: forward(x64))
+        out[(label, "forward B=1")] = time_call(lambda: forward(x1), sync=sync)
+        out[(label, "forward B=64")] = time_call(lambda: forward(x64), sync=sync)
         model.train()
-        out[(label, "train step B=64")] = time_call(train_step)
+        out[(label, "train step B=64")] = time_call(train_step, sync=sync)
         for m in MEASURES:
             print(f"torch {label} {m}: {out[(label, m)][0] * 1e3:.2f} ms ({out[(label, m)][1]} calls)")
-    a, b = torch.randn(64, 192), torch.randn(896, 192, 100)
-    c = torch.empty(896, 64, 100)
-    out["matmul"] = time_call(lambda: torch.matmul(a, b, out=c))
+    a, b = torch.randn(64, 192, device=dev), torch.randn(896, 192, 100, device=dev)
+    c = torch.empty(896, 64, 100, device=dev)
+    out["matmul"] = time_call(lambda: torch.matmul(a, b, out=c), sync=sync)
     return out
 
 
@@ -182,11 +206,18 @@ def main():
     p.add_argument("--threads", type=int, default=os.cpu_count())
     p.add_argument("--check-only", action="store_true", help="interop check only, no timings")
     p.add_argument("--engine-csv", type=Path, help="reuse an engine CSV instead of running cargo bench")
+    p.add_argument("--torch-device", default="cpu",
+                   help="where PyTorch runs: cpu (the comparison on the same CPU) or cuda")
+    p.add_argument("--binary", type=Path,
+                   help="a built iastgcn binary to use instead of building target/release/iastgcn")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
+    if args.torch_device != "cpu" and not torch.cuda.is_available():
+        sys.exit(f"--torch-device {args.torch_device}: this PyTorch sees no CUDA device")
     args.out.mkdir(parents=True, exist_ok=True)
-    binary = ROOT / "target" / "release" / "iastgcn"
-    run(["cargo", "build", "--release", "--bin", "iastgcn"])
+    binary = args.binary or ROOT / "target" / "release" / "iastgcn"
+    if args.binary is None:
+        run(["cargo", "build", "--release", "--bin", "iastgcn"])
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         checks = interop(binary, work)
@@ -198,26 +229,32 @@ def main():
         print(f"interop: all {len(checks)} checkpoints agree within {TOLERANCE}")
         if args.check_only:
             return
-        pt = torch_timings(binary, work)
+        pt = torch_timings(binary, work, args.torch_device)
     engine = engine_timings(args.engine_csv or args.out / "engine.csv", args.engine_csv is not None)
     peak, cpu = peak_estimate()
     report(args, pt, engine, peak, cpu, checks)
 
 
 def report(args, pt, engine, peak, cpu, checks):
+    if args.torch_device == "cpu":
+        title = "on the same CPU"
+        where = f"PyTorch on {args.threads} threads"
+    else:
+        title = f"on {torch.cuda.get_device_name()}"
+        where = f"PyTorch on {torch.cuda.get_device_name()} (CUDA)"
     lines = [
-        f"# Engine vs PyTorch {torch.__version__} on the same CPU",
+        f"# Engine vs PyTorch {torch.__version__} {title}",
         "",
-        f"{datetime.date.today()}, {cpu}; PyTorch on {args.threads} threads; engine on "
-        f"lavapipe or whatever adapter `iastgcn info` picks; batch {BATCH}. fp32 peak estimate: "
-        + (f"{peak:.0f} GFLOP/s." if peak else "unknown."),
+        f"{datetime.date.today()}, {cpu}; {where}; engine on "
+        f"whatever adapter `iastgcn info` picks (native rows: the CPU's cores); batch {BATCH}. "
+        "CPU fp32 peak estimate: " + (f"{peak:.0f} GFLOP/s." if peak else "unknown."),
         "GFLOP/s on both sides use the engine's FLOP count of the network.",
         "",
         "| shape | measure | engine | PyTorch | engine / PyTorch time | engine GFLOP/s | PyTorch GFLOP/s |",
         "|---|---|---|---|---|---|---|",
     ]
     data = {"date": str(datetime.date.today()), "cpu": cpu, "peak_gflops": peak, "torch": torch.__version__,
-            "threads": args.threads, "rows": [], "interop": checks}
+            "torch_device": args.torch_device, "threads": args.threads, "rows": [], "interop": checks}
     for label, group, _ in SHAPES:
         for m, torch_m in ENGINE_ROWS:
             key = f"{group}/{m}"
