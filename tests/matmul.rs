@@ -414,6 +414,45 @@ fn accumulate_adds_to_existing_values() {
     }
 }
 
+/// The gradient of A (`grad_a`) or B of `mm` on the device, over a gradient that starts
+/// non-zero, with and without accumulation: recorded as `launches` launches (2: a split
+/// product and the sum of its partial results) and equal to the f64 reference.
+fn check_gradient_launches(g: &Gpu, mm: &Matmul, grad_a: bool, launches: usize, seed: u64) {
+    let x = inputs(mm, seed);
+    let (a, b, dc) = (
+        upload(g, "a", &x.a),
+        upload(g, "b", &x.b),
+        upload(g, "dc", &x.dc),
+    );
+    let (da_ref, db_ref) = cpu::backward(mm, &x.a, &x.b, &x.dc);
+    let (grad_ref, len, k) = if grad_a {
+        (da_ref, mm.a_len(), mm.n * mm.batch)
+    } else {
+        (db_ref, mm.b_len(), mm.m * mm.batch)
+    };
+    for accumulate in Accumulate::ALL {
+        let g0: Vec<f64> = (0..len).map(|j| 0.5 - j as f64 * 0.01).collect();
+        let grad = upload(g, "dw", &g0);
+        let d = if grad_a {
+            mm.backward_a(g, &b, &dc, &grad, accumulate)
+        } else {
+            mm.backward_b(g, &a, &dc, &grad, accumulate)
+        }
+        .unwrap();
+        assert_eq!(d.launches(), launches, "{mm:?}");
+        assert_eq!(d.target(), "dw");
+        g.run(&[d]).unwrap();
+        let add = accumulate == Accumulate::Add;
+        let want: Vec<f64> = grad_ref
+            .iter()
+            .zip(&g0)
+            .map(|(r, g0)| r + if add { *g0 } else { 0.0 })
+            .collect();
+        let what = format!("{mm:?} gradient, accumulate {accumulate:?}");
+        compare_tensor(g, &what, &grad, &want, gpu_tol(k)).unwrap();
+    }
+}
+
 #[test]
 fn split_weight_gradients_match_reference() {
     // Shared operands whose batch-summed gradient is split into chunks and summed by a
@@ -436,46 +475,8 @@ fn split_weight_gradients_match_reference() {
                 .transpose_b(tb)
                 .share_a(shared_a)
                 .share_b(!shared_a);
-            let i = 2 * i + j;
             for mm in on_every_kernel(&g, [shape]) {
-                let x = inputs(&mm, 500 + i as u64);
-                let (a, b, dc) = (
-                    upload(&g, "a", &x.a),
-                    upload(&g, "b", &x.b),
-                    upload(&g, "dc", &x.dc),
-                );
-                let (da_ref, db_ref) = cpu::backward(&mm, &x.a, &x.b, &x.dc);
-                let (grad_ref, len, k) = if shared_a {
-                    (da_ref, mm.a_len(), mm.n * mm.batch)
-                } else {
-                    (db_ref, mm.b_len(), mm.m * mm.batch)
-                };
-                for accumulate in Accumulate::ALL {
-                    let g0: Vec<f64> = (0..len).map(|j| 0.5 - j as f64 * 0.01).collect();
-                    let grad = upload(&g, "dw", &g0);
-                    let d = if shared_a {
-                        mm.backward_a(&g, &b, &dc, &grad, accumulate)
-                    } else {
-                        mm.backward_b(&g, &a, &dc, &grad, accumulate)
-                    }
-                    .unwrap();
-                    assert_eq!(d.launches(), 2, "{mm:?} was not split");
-                    assert_eq!(d.target(), "dw");
-                    g.run(&[d]).unwrap();
-                    let want: Vec<f64> = grad_ref
-                        .iter()
-                        .zip(&g0)
-                        .map(|(r, g0)| {
-                            r + if accumulate == Accumulate::Add {
-                                *g0
-                            } else {
-                                0.0
-                            }
-                        })
-                        .collect();
-                    let what = format!("{mm:?} split gradient, accumulate {accumulate:?}");
-                    compare_tensor(&g, &what, &grad, &want, gpu_tol(k)).unwrap();
-                }
+                check_gradient_launches(&g, &mm, shared_a, 2, 500 + (2 * i + j) as u64);
             }
         }
     }
@@ -505,38 +506,7 @@ fn single_row_gradients_are_split_into_chunks() {
     // 12 289 is prime: no chunk length divides it.
     shapes.push((Matmul::new(12289, 1, 20), false, 1));
     for (i, (mm, grad_a, launches)) in shapes.into_iter().enumerate() {
-        let x = inputs(&mm, 700 + i as u64);
-        let (a, b, dc) = (
-            upload(&g, "a", &x.a),
-            upload(&g, "b", &x.b),
-            upload(&g, "dc", &x.dc),
-        );
-        let (da_ref, db_ref) = cpu::backward(&mm, &x.a, &x.b, &x.dc);
-        let (grad_ref, len, k) = if grad_a {
-            (da_ref, mm.a_len(), mm.n * mm.batch)
-        } else {
-            (db_ref, mm.b_len(), mm.m * mm.batch)
-        };
-        for accumulate in Accumulate::ALL {
-            let g0: Vec<f64> = (0..len).map(|j| 0.25 - j as f64 * 0.02).collect();
-            let grad = upload(&g, "dw", &g0);
-            let d = if grad_a {
-                mm.backward_a(&g, &b, &dc, &grad, accumulate)
-            } else {
-                mm.backward_b(&g, &a, &dc, &grad, accumulate)
-            }
-            .unwrap();
-            assert_eq!(d.launches(), launches, "{mm:?}");
-            g.run(&[d]).unwrap();
-            let add = accumulate == Accumulate::Add;
-            let want: Vec<f64> = grad_ref
-                .iter()
-                .zip(&g0)
-                .map(|(r, g0)| r + if add { *g0 } else { 0.0 })
-                .collect();
-            let what = format!("{mm:?} single-row gradient, accumulate {accumulate:?}");
-            compare_tensor(&g, &what, &grad, &want, gpu_tol(k)).unwrap();
-        }
+        check_gradient_launches(&g, &mm, grad_a, launches, 700 + i as u64);
     }
 }
 

@@ -390,8 +390,7 @@ impl<'a> Trainer<'a> {
             self.submit_step(&order, s)?;
             self.progress.step += 1;
         }
-        let mut losses = vec![0f32; self.steps_per_epoch];
-        self.read_log(&mut losses)?;
+        let losses = self.step_losses()?;
         let seconds = began.elapsed().as_secs_f64();
         if let Some(bad) = losses.iter().position(|l| !l.is_finite()) {
             return Err(self.diagnose(epoch, &order, bad, first_step));
@@ -459,14 +458,10 @@ impl<'a> Trainer<'a> {
         Ok((record, improved))
     }
 
-    fn read_log(&self, out: &mut [f32]) -> Result<(), TrainError> {
-        self.engine.losses(self.gpu, out)
-    }
-
     /// The loss of each step of the last epoch, in order (standardised label space).
     pub fn step_losses(&self) -> Result<Vec<f32>, TrainError> {
         let mut losses = vec![0f32; self.steps_per_epoch];
-        self.read_log(&mut losses)?;
+        self.engine.losses(self.gpu, &mut losses)?;
         Ok(losses)
     }
 
@@ -536,9 +531,7 @@ impl<'a> Trainer<'a> {
     }
 
     fn read_log_at(&self, s: usize, out: &mut [f32]) -> Result<(), TrainError> {
-        let mut all = vec![0f32; self.steps_per_epoch];
-        self.read_log(&mut all)?;
-        out[0] = all[s];
+        out[0] = self.step_losses()?[s];
         Ok(())
     }
 
