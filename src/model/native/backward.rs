@@ -234,18 +234,25 @@ fn block(
     let gated = s.gate.is_some();
     let outs = if gated { 2 * c } else { c };
     let dg = &mut w.dg[..outs * wide];
+    let (dg_f, dg_g) = dg.split_at_mut(c * wide);
     for i in 0..n {
         for o in 0..c {
-            for tau in 0..steps {
-                let dh = da[(i * c + o) * steps + tau];
-                let at = i * steps + tau;
-                let f = bt.g[o * wide + at];
-                if gated {
-                    let (th, sg) = (tanh(f), sigmoid(bt.g[(c + o) * wide + at]));
-                    dg[o * wide + at] = dh * sg * (1.0 - th * th);
-                    dg[(c + o) * wide + at] = dh * th * sg * (1.0 - sg);
-                } else {
-                    dg[o * wide + at] = if f > 0.0 { dh } else { 0.0 };
+            // Node i's steps of output channel o: dH, G_f, G_g and their gradients.
+            let dh = &da[(i * c + o) * steps..][..steps];
+            let at = o * wide + i * steps;
+            let f = &bt.g[at..][..steps];
+            let df = &mut dg_f[at..][..steps];
+            if gated {
+                let q = &bt.g[c * wide + at..][..steps];
+                let dq = &mut dg_g[at..][..steps];
+                for ((((df, dq), dh), f), q) in df.iter_mut().zip(dq).zip(dh).zip(f).zip(q) {
+                    let (th, sg) = (tanh(*f), sigmoid(*q));
+                    *df = dh * sg * (1.0 - th * th);
+                    *dq = dh * th * sg * (1.0 - sg);
+                }
+            } else {
+                for ((df, dh), f) in df.iter_mut().zip(dh).zip(f) {
+                    *df = if *f > 0.0 { *dh } else { 0.0 };
                 }
             }
         }

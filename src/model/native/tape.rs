@@ -7,7 +7,10 @@
 use super::slots::{BlockSlots, Slots};
 use rayon::prelude::*;
 
-use super::{gemm, par_gemm, rows, sigmoid, softmax_strided, tanh, transposed, View, PAR_MIN_MACS};
+use super::{
+    gemm, par_gemm, rows, sigmoid, softmax_columns, softmax_rows, tanh, transposed, View,
+    PAR_MIN_MACS,
+};
 use crate::model::config::ModelConfig;
 use crate::ops::dropout::{keep, Dropout};
 
@@ -21,6 +24,8 @@ pub(super) struct BlockTape {
     pub t_sig: Vec<f32>,
     pub e: Vec<f32>,
     pub xt: Vec<f32>,
+    /// Scratch for E's column softmax: each column's max and sum `[2, T]`.
+    pub e_cols: Vec<f32>,
     /// Step 2: `X_t·W1` `[N, C_in]`, lhs `[N, T]`, rhs `[N, T]`, σ(lhs·rhsᵀ + bs) `[N, N]`,
     /// S' `[N, N]`.
     pub xw1: Vec<f32>,
@@ -64,6 +69,7 @@ impl BlockTape {
             t_sig: att(t * t),
             e: att(t * t),
             xt: att(n * ci * t),
+            e_cols: att(2 * t),
             xw1: att(n * ci),
             s_lhs: att(n * t),
             s_rhs: att(n * t),
@@ -300,16 +306,18 @@ fn block(
             cs: 1,
         };
         gemm(c, ci, steps, rows(res_w, ci), xv, 1.0, a, steps);
-        for o in 0..c {
-            for tau in 0..steps {
-                let f = g[o * wide + i * steps + tau];
-                let hv = if gated {
-                    tanh(f) * sigmoid(g[(c + o) * wide + i * steps + tau])
-                } else {
-                    f.max(0.0)
-                };
-                let v = &mut a[o * steps + tau];
-                *v = (*v + hv).max(0.0);
+        // Contiguous runs of steps, so that the gate's exp and divisions vectorise.
+        for (o, a) in a.chunks_mut(steps).enumerate() {
+            let f = &g[o * wide + i * steps..][..steps];
+            if gated {
+                let q = &g[(c + o) * wide + i * steps..][..steps];
+                for ((v, f), q) in a.iter_mut().zip(f).zip(q) {
+                    *v = (*v + tanh(*f) * sigmoid(*q)).max(0.0);
+                }
+            } else {
+                for (v, f) in a.iter_mut().zip(f) {
+                    *v = (*v + f.max(0.0)).max(0.0);
+                }
             }
         }
         mean.fill(0.0);
@@ -363,22 +371,26 @@ fn block(
     let (gamma, beta) = (&p[s.gamma], &p[s.beta]);
     let mut out = h;
     for i in 0..n {
+        let mean = &bt.mean[i * steps..][..steps];
+        let rstd = &bt.rstd[i * steps..][..steps];
         for o in 0..c {
-            for tau in 0..steps {
-                let j = i * steps + tau;
-                let a = bt.act[(i * c + o) * steps + tau];
-                let mut v = gamma[o] * (a - bt.mean[j]) * bt.rstd[j] + beta[o];
-                let full = (i * c + o) * t + t0 + tau;
-                if let Some(((drop, offset), step)) = &mask {
-                    v = if keep(drop, *step, offset + full) {
-                        v * scale
+            let a = &bt.act[(i * c + o) * steps..][..steps];
+            // Where (node i, channel o, step t0) sits in the whole [N, C, T] output.
+            let full = (i * c + o) * t + t0;
+            let dst = match out.as_deref_mut() {
+                Some(h) => &mut h[i * c + o..][..steps],
+                None => &mut bt.y[full..][..steps],
+            };
+            for (((d, a), m), r) in dst.iter_mut().zip(a).zip(mean).zip(rstd) {
+                *d = gamma[o] * (a - m) * r + beta[o];
+            }
+            if let Some(((drop, offset), step)) = &mask {
+                for (tau, d) in dst.iter_mut().enumerate() {
+                    *d = if keep(drop, *step, offset + full + tau) {
+                        *d * scale
                     } else {
                         0.0
                     };
-                }
-                match out.as_deref_mut() {
-                    Some(h) => h[i * c + o] = v,
-                    None => bt.y[full] = v,
                 }
             }
         }
@@ -446,9 +458,8 @@ fn temporal_attention(
         *v = sigmoid(*v);
     }
     gemm(t, t, t, rows(ve, t), rows(&bt.t_sig, t), 0.0, &mut bt.e, t);
-    for col in 0..t {
-        softmax_strided(&mut bt.e[col..], t, t);
-    }
+    let (max, sum) = bt.e_cols.split_at_mut(t);
+    softmax_columns(&mut bt.e, t, max, sum);
     bt.xt.copy_from_slice(x);
     par_gemm(
         threads,
@@ -513,9 +524,7 @@ fn spatial_attention(
         *v = sigmoid(*v);
     }
     gemm(n, n, n, rows(vs, n), rows(&bt.s_sig, n), 0.0, &mut bt.s, n);
-    for row in bt.s.chunks_mut(n) {
-        softmax_strided(row, n, 1);
-    }
+    softmax_rows(&mut bt.s, n);
     bt.q.copy_from_slice(&bt.psi);
     gemm(n, n, n, rows(&bt.psi, n), rows(&bt.s, n), 1.0, &mut bt.q, n);
 }
