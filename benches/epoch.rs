@@ -108,9 +108,11 @@ fn main() {
 
     let out = dir.join("model.safetensors");
     let mut files = Vec::new();
+    let mut plotted = None;
     fit::run_stage(&mut trainer, "epoch bench", &mut Silent, |t, improved| {
         let began = Instant::now();
-        fit::write_epoch_files(t, &config, &graph, &data, &out, improved)?;
+        let plot = fit::plot_due(t, &mut plotted);
+        fit::write_epoch_files(t, &config, &graph, &data, &out, improved, plot)?;
         files.push(began.elapsed().as_secs_f64());
         Ok(())
     })

@@ -152,6 +152,62 @@ fn threads_do_not_change_the_outputs() {
     }
 }
 
+/// New weights through `set_parameters` give what a forward built with them gives, bit for
+/// bit (the working memory left by the old weights is not read), for a block variant and
+/// a dense baseline; parameters of another shape are refused and leave the old ones.
+#[test]
+fn set_parameters_equals_a_new_forward() {
+    let graph = Graph::default_asset();
+    let configs = [
+        ModelConfig {
+            window: 24,
+            channels: 8,
+            blocks: 2,
+            ..ModelConfig::default()
+        },
+        ModelConfig {
+            variant: Variant::Mlp,
+            window: 5,
+            hidden: 6,
+            ..ModelConfig::default()
+        },
+    ];
+    for (i, config) in configs.iter().enumerate() {
+        let (old, new) = (
+            parameters(config, 80 + i as u64),
+            parameters(config, 90 + i as u64),
+        );
+        let len = config.nodes * config.features * config.window;
+        let x = to_f32(&uniform(&mut rng(95 + i as u64), len, -1.0, 1.0));
+        let mut reused = NativeForward::new(config, &graph, &old).unwrap();
+        let mut fresh = NativeForward::new(config, &graph, &new).unwrap();
+        let (mut y_old, mut y_reused, mut y_fresh) = (vec![0f32; 6], vec![0f32; 6], vec![0f32; 6]);
+        reused.forward(&x, &mut y_old).unwrap();
+        reused.set_parameters(&new).unwrap();
+        reused.forward(&x, &mut y_reused).unwrap();
+        fresh.forward(&x, &mut y_fresh).unwrap();
+        assert_ne!(
+            y_old, y_fresh,
+            "{}: the two weight sets differ",
+            config.variant
+        );
+        assert_eq!(y_reused, y_fresh, "{}", config.variant);
+        let other = ModelConfig {
+            channels: config.channels + 1,
+            hidden: config.hidden + 1,
+            ..config.clone()
+        };
+        let err = reused.set_parameters(&parameters(&other, 1));
+        assert!(err.is_err(), "{}: another shape was taken", config.variant);
+        reused.forward(&x, &mut y_reused).unwrap();
+        assert_eq!(
+            y_reused, y_fresh,
+            "{}: a refused set changed the weights",
+            config.variant
+        );
+    }
+}
+
 /// The dense baselines (14-node graph, F = 3, T = 5, H = 6): native against the WGSL
 /// forward and the f64 reference of `model::reference::dense`.
 #[test]

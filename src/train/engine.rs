@@ -37,6 +37,9 @@ pub(super) struct NativeSteps {
     train: NativeTraining,
     /// One loss per step of the epoch.
     losses: Vec<f32>,
+    /// One inference forward per thread for the predictions (validation), built at the
+    /// first and given the current weights at each.
+    forwards: std::sync::Mutex<Vec<NativeForward>>,
 }
 
 /// True when `[train] backend` (`auto`, `device`, `native`) puts `model` on the CPU here.
@@ -93,6 +96,7 @@ impl Engine {
             return Ok(Engine::Native(Box::new(NativeSteps {
                 train,
                 losses: vec![0.0; steps],
+                forwards: Default::default(),
             })));
         }
         let net = if group == 1 {
@@ -248,15 +252,29 @@ impl Engine {
         let d = match self {
             Engine::Native(n) => {
                 let params = n.train.parameters();
-                let threads = n.train.shape().threads;
-                return native_predict(model, graph, data, positions, &params, threads);
+                // A poisoned lock (a panic while it was held) still holds whole
+                // forwards: each is given the weights again below.
+                let mut forwards = n.forwards.lock().unwrap_or_else(|e| e.into_inner());
+                if forwards.is_empty() {
+                    for _ in 0..n.train.shape().threads {
+                        forwards.push(NativeForward::new(model, graph, &params)?);
+                    }
+                } else {
+                    for f in forwards.iter_mut() {
+                        f.set_parameters(&params)?;
+                    }
+                }
+                return native_predict(&mut forwards, data, positions);
             }
             Engine::Device(d) => d,
         };
         if gpu.is_software() && NativeForward::supports(model) {
             let params = d.net.read_parameters(gpu)?;
             let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-            return native_predict(model, graph, data, positions, &params, threads);
+            let mut forwards = (0..threads)
+                .map(|_| NativeForward::new(model, graph, &params))
+                .collect::<Result<Vec<_>, _>>()?;
+            return native_predict(&mut forwards, data, positions);
         }
         let (o, len) = (model.outputs, data.window_len());
         let b = d.net.batch;
@@ -282,31 +300,31 @@ impl Engine {
     }
 }
 
-/// ŷ of the windows at `positions` on [`NativeForward`] with `params`, the windows split
-/// into `threads` contiguous shares (each window's output does not depend on the split).
+/// ŷ of the windows at `positions`, split into `forwards.len()` contiguous shares, one
+/// thread and one [`NativeForward`] each (a window's output does not depend on the split).
 fn native_predict(
-    model: &ModelConfig,
-    graph: &Graph,
+    forwards: &mut [NativeForward],
     data: &Dataset,
     positions: &[usize],
-    params: &Parameters,
-    threads: usize,
 ) -> Result<Vec<f32>, TrainError> {
-    let (o, len) = (model.outputs, data.window_len());
+    let Some(o) = forwards.first().map(|f| f.config().outputs) else {
+        return Err(TrainError::Data("no native forward to predict with".into()));
+    };
+    let len = data.window_len();
     let mut out = vec![0f32; positions.len() * o];
-    let share = positions.len().div_ceil(threads.max(1)).max(1);
-    let run = |positions: &[usize], out: &mut [f32]| -> Result<(), TrainError> {
-        let mut native = NativeForward::new(model, graph, params)?;
+    let share = positions.len().div_ceil(forwards.len().max(1)).max(1);
+    let run = |native: &mut NativeForward, positions: &[usize], out: &mut [f32]| {
         for (&p, row) in positions.iter().zip(out.chunks_mut(o)) {
             native.forward(&data.x[p * len..][..len], row)?;
         }
-        Ok(())
+        Ok::<(), TrainError>(())
     };
     std::thread::scope(|scope| {
         let jobs: Vec<_> = positions
             .chunks(share)
             .zip(out.chunks_mut(share * o))
-            .map(|(p, out)| scope.spawn(move || run(p, out)))
+            .zip(forwards.iter_mut())
+            .map(|((p, out), native)| scope.spawn(move || run(native, p, out)))
             .collect();
         jobs.into_iter().try_for_each(|j| match j.join() {
             Ok(result) => result,

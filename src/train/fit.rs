@@ -191,11 +191,28 @@ impl std::fmt::Display for EpochCost {
     }
 }
 
+/// How often `iastgcn train` renders the loss PNG while a stage runs: after its first
+/// epoch, then when this much time has passed since the last rendering, and after its
+/// last epoch. (Rendering takes a few milliseconds, ~1 % of a demo epoch; the log CSV
+/// beside it has every epoch.)
+pub const LOSS_PLOT_EVERY: std::time::Duration = std::time::Duration::from_secs(5);
+
+/// Whether the epoch just run should render the loss PNG ([`LOSS_PLOT_EVERY`]); `last`
+/// is when the previous rendering was, and becomes now when it says yes.
+pub fn plot_due(trainer: &Trainer, last: &mut Option<std::time::Instant>) -> bool {
+    let due = trainer.finished() || last.is_none_or(|t| t.elapsed() >= LOSS_PLOT_EVERY);
+    if due {
+        *last = Some(std::time::Instant::now());
+    }
+    due
+}
+
 /// What `iastgcn train` writes after each epoch: the checkpoint `out` when the
-/// validation loss improved, and always the resumable training state, the log CSV and
-/// the loss PNG beside it (`<stem>.state.safetensors`, `<stem>.log.csv`,
-/// `<stem>.loss.png`). All of them are written in full before any replaces its older
-/// version ([`crate::atomic::Batch`]): a failure leaves the previous epoch's set.
+/// validation loss improved, and always the resumable training state and the log CSV
+/// beside it (`<stem>.state.safetensors`, `<stem>.log.csv`), and the loss PNG
+/// (`<stem>.loss.png`) when `plot` says so ([`plot_due`]). All of them are written in
+/// full before any replaces its older version ([`crate::atomic::Batch`]): a failure
+/// leaves the previous epoch's set.
 pub fn write_epoch_files(
     trainer: &Trainer,
     config: &RunConfig,
@@ -203,6 +220,7 @@ pub fn write_epoch_files(
     data: &Dataset,
     out: &Path,
     improved: bool,
+    plot: bool,
 ) -> Result<()> {
     let mut batch = crate::atomic::Batch::new();
     if improved {
@@ -224,10 +242,12 @@ pub fn write_epoch_files(
     batch
         .add(&log_path, log::history_csv(history).as_bytes())
         .map_err(|e| Error::io(&log_path, e))?;
-    let name = config.model.variant.name().to_string();
-    batch.add_with(&sibling(out, ".loss.png"), |tmp| {
-        log::plot_losses(tmp, &[(name, history.clone())])
-    })?;
+    if plot {
+        let name = config.model.variant.name().to_string();
+        batch.add_with(&sibling(out, ".loss.png"), |tmp| {
+            log::plot_losses(tmp, &[(name, history.clone())])
+        })?;
+    }
     batch.commit().map_err(|e| Error::io(out, e))?;
     Ok(())
 }
@@ -336,8 +356,10 @@ pub fn train(
         ));
     }
     let name = config.model.variant.name();
+    let mut plotted = None;
     let result = run_stage(&mut trainer, name, reporter, |t, improved| {
-        write_epoch_files(t, config, graph, data, out, improved)
+        let plot = plot_due(t, &mut plotted);
+        write_epoch_files(t, config, graph, data, out, improved, plot)
     });
     if let Err(e) = result {
         return Err(diverged(e, &trainer, config, graph, data, out));

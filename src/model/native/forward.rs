@@ -60,22 +60,7 @@ impl NativeForward {
         }
         config.validate().map_err(ModelError::Config)?;
         let specs = param_specs(config);
-        let mut values = Vec::with_capacity(specs.len());
-        for spec in &specs {
-            let i = params
-                .index(&spec.name)
-                .ok_or_else(|| ModelError::Config(format!("the parameters lack {}", spec.name)))?;
-            if params.values[i].len() != spec.numel() {
-                return Err(ModelError::Config(format!(
-                    "{} has {} values; the config's shape {:?} needs {}",
-                    spec.name,
-                    params.values[i].len(),
-                    spec.shape,
-                    spec.numel()
-                )));
-            }
-            values.push(params.values[i].clone());
-        }
+        let values = values_in_spec_order(&specs, params)?;
         let body = if config.variant.family() == Family::Dense {
             let net = DenseNet::new(config, graph, &specs)?;
             Body::Dense {
@@ -99,6 +84,14 @@ impl NativeForward {
             config: config.clone(),
             threads: 1,
         })
+    }
+
+    /// Replaces the weights with `params` (same variant and shapes), keeping the working
+    /// memory and the graph basis: cheaper than a new [`NativeForward`] where the
+    /// weights change often (validation after every training epoch).
+    pub fn set_parameters(&mut self, params: &Parameters) -> Result<(), ModelError> {
+        self.params = values_in_spec_order(&param_specs(&self.config), params)?;
+        Ok(())
     }
 
     /// Splits each window's large products (the gated convolution and X·E', in tasks of
@@ -151,4 +144,29 @@ impl NativeForward {
         }
         Ok(())
     }
+}
+
+/// `params`' tensors in the order of `specs`, each checked against its shape.
+fn values_in_spec_order(
+    specs: &[crate::model::ParamSpec],
+    params: &Parameters,
+) -> Result<Vec<Vec<f32>>, ModelError> {
+    specs
+        .iter()
+        .map(|spec| {
+            let i = params
+                .index(&spec.name)
+                .ok_or_else(|| ModelError::Config(format!("the parameters lack {}", spec.name)))?;
+            if params.values[i].len() != spec.numel() {
+                return Err(ModelError::Config(format!(
+                    "{} has {} values; the config's shape {:?} needs {}",
+                    spec.name,
+                    params.values[i].len(),
+                    spec.shape,
+                    spec.numel()
+                )));
+            }
+            Ok(params.values[i].clone())
+        })
+        .collect()
 }
