@@ -225,16 +225,31 @@ fn store_row(z: u32, row: u32, col0: u32, v: vec4<f32>) {
 // loop costs lavapipe up to 1.2x on the subgroup kernel.
 override REDUCE: bool = true;
 
+// A split reduction's chunks per batch item of the operands: item z of C is chunk
+// z % chunks of operand item z / chunks (a weight gradient has one operand item, whose
+// batch strides are 0; a product split along k within each item has one per item).
+fn split_chunks() -> u32 {
+    return (p.reduce + p.chunk - 1u) / p.chunk;
+}
+
 // The reduction items batch item `z` of C sums over: [x, y).
 fn reduce_range(z: u32) -> vec2<u32> {
     if !REDUCE {
         return vec2<u32>(0u, 1u);
     }
     if p.chunk != 0u {
-        let begin = z * p.chunk;
+        let begin = (z % split_chunks()) * p.chunk;
         return vec2<u32>(begin, min(p.reduce, begin + p.chunk));
     }
     return vec2<u32>(0u, p.reduce);
+}
+
+// The batch item of the operands that batch item `z` of C reads.
+fn operand_item(z: u32) -> u32 {
+    if REDUCE && p.chunk != 0u {
+        return z / split_chunks();
+    }
+    return z;
 }
 
 // Indices of four rows of op(A) (columns of op(B)) from `i0`, clamped to the last one so
@@ -298,9 +313,10 @@ fn matmul(@builtin(global_invocation_id) gid: vec3<u32>) {
     var acc_hi_r = mat4x4<f32>();
     let k4 = p.k & ~3u;
     let rr = reduce_range(z);
+    let item = operand_item(z);
     for (var r = rr.x; r < rr.y; r++) {
-        let abase = z * p.a_batch + r * p.a_reduce;
-        let bbase = z * p.b_batch + r * p.b_reduce;
+        let abase = item * p.a_batch + r * p.a_reduce;
+        let bbase = item * p.b_batch + r * p.b_reduce;
         var kk = 0u;
         for (; kk < k4; kk += 4u) {
             let xl = a_rows(abase, kk, r0, rows_lo);
@@ -344,18 +360,22 @@ fn outer4(y: vec4<f32>, x: vec4<f32>) -> mat4x4<f32> {
     return mat4x4<f32>(x.x * y, x.y * y, x.z * y, x.w * y);
 }
 
-// The second launch of a split reduction: c[i] (+)= sum over z of a[z * n + i], the
-// `batches` partial results of a `matmul` launch with `chunk` set, summed in order (the
-// result does not depend on the grid). A 1-D grid folded into x and y.
+// The second launch of a split reduction: the `batches` partial results of each batch
+// item of C, as a `matmul` launch with `chunk` set wrote them, summed in order (the
+// result does not depend on the grid): c[i] (+)= sum over z of a[(item * batches + z) * m
+// + j] for i = item * m + j, m the length of one item of C, n the length of C. A 1-D grid
+// folded into x and y.
 @compute @workgroup_size(64, 1, 1)
 fn sum_partials(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
     let i = gid.y * groups.x * 64u + gid.x;
     if i >= p.n {
         return;
     }
+    let item = i / p.m;
+    let j = i - item * p.m;
     var s = 0.0;
     for (var z = 0u; z < p.batches; z++) {
-        s += a[z * p.n + i];
+        s += a[(item * p.batches + z) * p.m + j];
     }
     if p.accumulate != 0u {
         s += c[i];
@@ -376,9 +396,10 @@ fn matmul_row(@builtin(global_invocation_id) gid: vec3<u32>) {
     var acc = vec4<f32>(0.0);
     let k4 = p.k & ~3u;
     let rr = reduce_range(z);
+    let item = operand_item(z);
     for (var r = rr.x; r < rr.y; r++) {
-        let abase = z * p.a_batch + r * p.a_reduce;
-        let bbase = z * p.b_batch + r * p.b_reduce;
+        let abase = item * p.a_batch + r * p.a_reduce;
+        let bbase = item * p.b_batch + r * p.b_reduce;
         var kk = 0u;
         for (; kk < k4; kk += 4u) {
             // One row: A is only ever read as vectors along k here.

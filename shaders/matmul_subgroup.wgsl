@@ -55,9 +55,10 @@ fn matmul_subgroup(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup_id) 
     var acc_3 = mat4x4<f32>();
     let k4 = p.k & ~3u;
     let rr = reduce_range(z);
+    let item = operand_item(z);
     for (var r = rr.x; r < rr.y; r++) {
-        let abase = z * p.a_batch + r * p.a_reduce;
-        let bbase = z * p.b_batch + r * p.b_reduce;
+        let abase = item * p.a_batch + r * p.a_reduce;
+        let bbase = item * p.b_batch + r * p.b_reduce;
         var kk = 0u;
         for (; kk < k4; kk += 4u) {
             let x = a_rows(abase, kk, r0, rows);
@@ -149,9 +150,10 @@ fn matmul_subgroup_cols(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup
     var acc_3 = mat4x4<f32>();
     let k4 = p.k & ~3u;
     let rr = reduce_range(z);
+    let item = operand_item(z);
     for (var r = rr.x; r < rr.y; r++) {
-        let abase = z * p.a_batch + r * p.a_reduce;
-        let bbase = z * p.b_batch + r * p.b_reduce;
+        let abase = item * p.a_batch + r * p.a_reduce;
+        let bbase = item * p.b_batch + r * p.b_reduce;
         var kk = 0u;
         for (; kk < k4; kk += 4u) {
             let y = b_cols(bbase, kk, c0, cols);

@@ -511,6 +511,53 @@ fn single_row_gradients_are_split_into_chunks() {
 }
 
 #[test]
+fn long_reductions_are_split_within_batch_items() {
+    // A batched product with few blocks of C and a long k (the graph convolution's
+    // dQ = dM·X_tᵀ, 14 × 14 per window over k = C·T) is cut along k into slices of a
+    // multiple-of-4 divisor of k in [256, 1024], each slice summed by its own
+    // invocations and an item's slices added by a second launch.
+    let g = gpu();
+    for (ta, tb) in [(false, false), (true, false), (false, true), (true, true)] {
+        // k = 4160 = 5 slices of 832: the row kernel for m = 1, every tiled kernel the
+        // device has for the others (subgroup ones from 32 columns).
+        let shapes = [(6, 7), (1, 5), (6, 40), (20, 40)].map(|(m, n)| {
+            Matmul::new(m, n, 4160)
+                .batched(3)
+                .transpose_a(ta)
+                .transpose_b(tb)
+        });
+        for (i, mm) in on_every_kernel(&g, shapes).into_iter().enumerate() {
+            let x = inputs(&mm, 900 + i as u64);
+            let (a, b) = (upload(&g, "a", &x.a), upload(&g, "b", &x.b));
+            let want = cpu::forward(&mm, &x.a, &x.b);
+            for accumulate in Accumulate::ALL {
+                let c0: Vec<f64> = (0..mm.c_len()).map(|j| 0.25 - j as f64 * 0.01).collect();
+                let c = upload(&g, "c", &c0);
+                let d = mm.forward(&g, &a, &b, &c, accumulate).unwrap();
+                assert_eq!(d.launches(), 2, "{mm:?}");
+                g.run(&[d]).unwrap();
+                let add = accumulate == Accumulate::Add;
+                let want: Vec<f64> = want
+                    .iter()
+                    .zip(&c0)
+                    .map(|(w, c0)| w + if add { *c0 } else { 0.0 })
+                    .collect();
+                let what = format!("{mm:?}, accumulate {accumulate:?}");
+                compare_tensor(&g, &what, &c, &want, gpu_tol(4160)).unwrap();
+            }
+        }
+        // dQ of M = Q·X_t: [2, 14, 14] from dM and X_t over k = 6400 (8 slices of 800).
+        let mix = Matmul::new(14, 6400, 14)
+            .batched(2)
+            .transpose_a(ta)
+            .transpose_b(tb);
+        check_gradient_launches(&g, &mix, true, 2, 910);
+    }
+    // No multiple of 4 in [256, 1024] divides 4099: one launch, as before.
+    check_gradient_launches(&g, &Matmul::new(6, 4099, 7).batched(2), true, 1, 920);
+}
+
+#[test]
 fn model_sized_product_matches_reference() {
     // One window of the 1×1 residual convolution: [14·100, 64] × [64, 64], plus dW.
     let g = gpu();

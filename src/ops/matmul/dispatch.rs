@@ -281,7 +281,11 @@ impl Gemm {
         chunk: usize,
         flops: f64,
     ) -> Result<Dispatch, GpuError> {
-        let chunks = (params.reduce as usize).div_ceil(chunk);
+        // Chunks per item of C (one item for a batch-summed gradient, one per batch item
+        // for a product split along k), laid out item by item.
+        let per_item = (params.reduce as usize).div_ceil(chunk);
+        let items = if self.out_shared { 1 } else { self.batch };
+        let chunks = items * per_item;
         let len = self.m * self.n;
         let partials = gpu.zeros(
             &format!("{} partials", out.name()),
@@ -304,12 +308,13 @@ impl Gemm {
         let tensors = [lhs, rhs, lhs, rhs, lhs, lhs, &partials, &partials];
         let first = gpu.dispatch(kernel, &constants, &part, &tensors, groups)?;
         let sum = Params {
-            n: len as u32,
-            batches: chunks as u32,
+            m: len as u32,
+            n: (items * len) as u32,
+            batches: per_item as u32,
             ..params
         };
         let limit = gpu.limits().max_compute_workgroups_per_dimension;
-        let groups = grid_1d(len, 64, limit);
+        let groups = grid_1d(items * len, 64, limit);
         let tensors = [&partials; 6]
             .into_iter()
             .chain([out, out])
@@ -348,23 +353,26 @@ impl Gemm {
         let flops = 2.0 * (self.batch * self.m * self.n * self.k) as f64;
         let (gemm, swapped) = self.canonical();
         let (lhs, rhs) = if swapped { (rhs, lhs) } else { (lhs, rhs) };
-        if let Some(split) = gemm.k_split().filter(|_| epilogue.is_plain()) {
+        let split = gemm.k_split().or_else(|| gemm.item_k_split());
+        if let Some(split) = split.filter(|_| epilogue.is_plain()) {
             return split.dispatch_with(gpu, lhs, rhs, out, accumulate, epilogue);
         }
+        // The reduction: over batch items into one C, or over the slices of k of each
+        // item (a single slice unless split); the slices of an item lie k apart.
         let (out_batches, reduce) = if gemm.out_shared {
             (1, gemm.batch)
         } else {
-            (gemm.batch, 1)
+            (gemm.batch, gemm.parts)
         };
         let (lb, lr) = if gemm.out_shared {
             (0, gemm.lhs.batch)
         } else {
-            (gemm.lhs.batch, 0)
+            (gemm.lhs.batch, gemm.k * gemm.lhs.col)
         };
         let (rb, rr) = if gemm.out_shared {
             (0, gemm.rhs.batch)
         } else {
-            (gemm.rhs.batch, 0)
+            (gemm.rhs.batch, gemm.k * gemm.rhs.row)
         };
         let params = Params {
             m: gemm.m as u32,
