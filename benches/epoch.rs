@@ -3,8 +3,9 @@
 //! Writes a twin session with the `iastgcn` binary (a 60-pose calibration set, its EKF
 //! calibration, three 2-minute recordings: the demo's training data), builds the
 //! dataset of `assets/demo.toml`, and trains IASTGCN for a few epochs through
-//! `train::run_stage`, writing the same files after each epoch as `iastgcn train`
-//! (checkpoint when improved, training state, log CSV, loss PNG). Before the epochs, on
+//! `train::run_stage`, writing the epoch files when `iastgcn train` does
+//! (`fit::EpochFiles`: checkpoint when improved, training state, log CSV, loss PNG, after
+//! the first and the last epoch and at most every 2 s between). Before the epochs, on
 //! the same network, it times one isolated step (training forward + backward, submitted
 //! alone and waited for, as in `cargo bench --bench model`); after them it prints:
 //!
@@ -108,11 +109,12 @@ fn main() {
 
     let out = dir.join("model.safetensors");
     let mut files = Vec::new();
-    let mut plotted = None;
+    let mut due = fit::EpochFiles::default();
     fit::run_stage(&mut trainer, "epoch bench", &mut Silent, |t, improved| {
         let began = Instant::now();
-        let plot = fit::plot_due(t, &mut plotted);
-        fit::write_epoch_files(t, &config, &graph, &data, &out, improved, plot)?;
+        if let Some(improved) = due.due(t, improved) {
+            fit::write_epoch_files(t, &config, &graph, &data, &out, improved)?;
+        }
         files.push(began.elapsed().as_secs_f64());
         Ok(())
     })

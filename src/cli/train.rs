@@ -58,8 +58,9 @@ pub struct TrainArgs {
     /// Override train.max_epochs (e.g. to continue a resumed run further).
     #[arg(long)]
     pub max_epochs: Option<usize>,
-    /// Best checkpoint (written atomically whenever the validation loss improves). Beside
-    /// it: `<stem>.state.safetensors` (resumable state), `<stem>.log.csv`, `<stem>.loss.png`.
+    /// Best checkpoint. Beside it: `<stem>.state.safetensors` (resumable state),
+    /// `<stem>.log.csv`, `<stem>.loss.png`; all written atomically after the first epoch,
+    /// at most every 2 s after it, and after the last (docs/usage.md).
     #[arg(long)]
     pub out: PathBuf,
     /// Continue from a training state written by an earlier run.
