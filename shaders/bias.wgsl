@@ -8,6 +8,12 @@ struct BiasParams {
     channels: u32,
     inner: u32,
     accumulate: u32,
+    // `bias_grad` split along the outer axis: rows per slice and number of slices (the
+    // whole axis and 1 when unsplit).
+    slice: u32,
+    slices: u32,
+    pad0: u32,
+    pad1: u32,
 }
 
 const BIAS_WG: u32 = 256u;
@@ -30,10 +36,13 @@ fn bias_add(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     y[i] = y[i] + bias[c];
 }
 
-// dbias[c] (+)= Σ_{o,i} dy[o, c, i]: one workgroup per channel, a strided sum per
-// invocation over the flat (o, i) index (consecutive invocations read consecutive i),
-// then a tree reduction. The (o, i) pair advances by a fixed step (`flat_walk`, which
-// lifted this kernel from ~1 GB/s with a division per term).
+// dbias[c] (+)= Σ_{o,i} dy[o, c, i]: one workgroup per channel and slice of the outer
+// axis, a strided sum per invocation over the flat (o, i) index (consecutive invocations
+// read consecutive i), then a tree reduction. The (o, i) pair advances by a fixed step
+// (`flat_walk`, which lifted this kernel from ~1 GB/s with a division per term). Split
+// into `slices` (a GPU has far more workgroups to fill than channels), workgroup (c, s)
+// writes its slice's sum to dbias[s * channels + c] of a scratch buffer, which
+// `bias_grad_sum` then adds up.
 @group(0) @binding(1) var<storage, read> dy: array<f32>;
 @group(0) @binding(2) var<storage, read_write> dbias: array<f32>;
 
@@ -42,12 +51,16 @@ var<workgroup> partial: array<f32, GRAD_WG>;
 @compute @workgroup_size(64)
 fn bias_grad(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
              @builtin(local_invocation_index) li: u32) {
-    let c = wg.y * nwg.x + wg.x;
-    let in_range = c < p.channels;
+    let g = wg.y * nwg.x + wg.x;
+    let c = g % p.channels;
+    let slice = g / p.channels;
+    let in_range = slice < p.slices;
     var s = 0.0;
     if in_range {
         let row = p.channels * p.inner;
-        for (var at = flat_walk(li, GRAD_WG, p.inner); at.o < p.outer; at = flat_walk_next(at)) {
+        let begin = slice * p.slice;
+        let end = min(begin + p.slice, p.outer);
+        for (var at = flat_walk(begin * p.inner + li, GRAD_WG, p.inner); at.o < end; at = flat_walk_next(at)) {
             s += dy[at.o * row + c * p.inner + at.i];
         }
     }
@@ -60,11 +73,32 @@ fn bias_grad(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg:
         workgroupBarrier();
     }
     if in_range && li == 0u {
+        let o = slice * p.channels + c;
         if p.accumulate != 0u {
-            dbias[c] = dbias[c] + partial[0];
+            dbias[o] = dbias[o] + partial[0];
         } else {
-            dbias[c] = partial[0];
+            dbias[o] = partial[0];
         }
+    }
+}
+
+// The second launch of a split `bias_grad`: dbias[c] (+)= Σ_s partial[s * channels + c],
+// the slices in order (`dy` is the scratch buffer here), one invocation per channel.
+@compute @workgroup_size(64)
+fn bias_grad_sum(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                 @builtin(local_invocation_index) li: u32) {
+    let c = flat_index(wg, nwg, li, GRAD_WG);
+    if c >= p.channels {
+        return;
+    }
+    var s = 0.0;
+    for (var k = 0u; k < p.slices; k++) {
+        s += dy[k * p.channels + c];
+    }
+    if p.accumulate != 0u {
+        dbias[c] = dbias[c] + s;
+    } else {
+        dbias[c] = s;
     }
 }
 

@@ -10,8 +10,12 @@ use iastgcn::testing::{
 
 /// (outer, channels, inner): conv bias over B·N rows and T steps, be broadcast over the
 /// batch (T·T channels), the head bias, ragged; steps longer than, equal to and
-/// shorter than the 64 invocations of a channel's workgroup.
-const SHAPES: [(usize, usize, usize); 8] = [
+/// shorter than the 64 invocations of a channel's workgroup; sums long enough to be split
+/// over workgroups along the outer axis (3 slices of 100 rows, 2 of 19 and 18, 2 of 1).
+const SHAPES: [(usize, usize, usize); 11] = [
+    (300, 4, 100),
+    (37, 3, 500),
+    (2, 2, 9000),
     (9, 5, 100),
     (6, 3, 64),
     (28, 16, 48),
@@ -35,6 +39,16 @@ fn forward_and_backward_match_reference() {
         .per_channel_invocations()
     });
     assert!(columns.contains(&true) && columns.contains(&false));
+    let slices = SHAPES.map(|(outer, channels, inner)| {
+        Bias {
+            outer,
+            channels,
+            inner,
+        }
+        .grad_slices()
+    });
+    assert_eq!(slices[..3], [(3, 100), (2, 19), (2, 1)]);
+    assert!(slices[3..].iter().all(|&(s, _)| s == 1), "{slices:?}");
     for (i, &(outer, channels, inner)) in SHAPES.iter().enumerate() {
         let b = Bias {
             outer,

@@ -1,11 +1,11 @@
 //! Per-channel bias: broadcast add (in place) and the gradient reduction, with the f64
 //! CPU reference.
 
-use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
+use crate::gpu::{grid_1d, Binding, DType, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
 use crate::ops::Accumulate;
 
 /// The WGSL module of this family (`shaders/bias.wgsl`: `bias_add`, `bias_grad`,
-/// `bias_grad_columns`).
+/// `bias_grad_sum`, `bias_grad_columns`).
 pub static SHADER: Shader = Shader {
     name: "bias",
     source: include_str!("../../shaders/bias.wgsl"),
@@ -20,6 +20,11 @@ static ADD: Kernel = Kernel {
 static GRAD: Kernel = Kernel {
     shader: &SHADER,
     entry: "bias_grad",
+    bindings: &[Binding::read(1), Binding::read_write(2)],
+};
+static GRAD_SUM: Kernel = Kernel {
+    shader: &SHADER,
+    entry: "bias_grad_sum",
     bindings: &[Binding::read(1), Binding::read_write(2)],
 };
 static GRAD_COLUMNS: Kernel = Kernel {
@@ -49,7 +54,14 @@ struct Params {
     channels: u32,
     inner: u32,
     accumulate: u32,
+    slice: u32,
+    slices: u32,
+    pad: [u32; 2],
 }
+
+/// Terms of a channel's sum that one workgroup of the gradient takes at least
+/// ([`Bias::grad_slices`]): 128 per invocation.
+const SLICE_TERMS: usize = 8192;
 
 impl Bias {
     /// Number of elements of the biased tensor, `outer · channels · inner`.
@@ -63,7 +75,22 @@ impl Bias {
             channels: self.channels as u32,
             inner: self.inner as u32,
             accumulate: accumulate.flag(),
+            slice: self.outer as u32,
+            slices: 1,
+            pad: [0; 2],
         }
+    }
+
+    /// Slices of the outer axis the workgroup-per-channel gradient is split into, each
+    /// summed by its own workgroup per channel (at least [`SLICE_TERMS`] terms each), and
+    /// the rows per slice. A convolution bias has few channels with many terms each (the
+    /// gated convolution's at the paper's shape: 128 channels of 89 600 terms over a
+    /// batch of 64), which left a GPU 128 workgroups; split, 1 408.
+    pub fn grad_slices(&self) -> (usize, usize) {
+        let terms = self.outer * self.inner;
+        let wanted = (terms / SLICE_TERMS).clamp(1, self.outer.max(1));
+        let rows = self.outer.div_ceil(wanted).max(1);
+        (self.outer.div_ceil(rows).max(1), rows)
     }
 
     /// `y += bias` (broadcast), in place.
@@ -106,13 +133,45 @@ impl Bias {
                 grid_1d(self.channels, 64, max),
             )
         } else {
-            gpu.dispatch(
+            let (slices, rows) = self.grad_slices();
+            if slices == 1 {
+                return gpu.dispatch(
+                    &GRAD,
+                    &[],
+                    &self.params(accumulate),
+                    &[dy, dbias],
+                    grid_1d(self.channels, 1, max),
+                );
+            }
+            let split = Params {
+                slice: rows as u32,
+                slices: slices as u32,
+                ..self.params(Accumulate::Overwrite)
+            };
+            let partials = gpu.zeros(
+                &format!("{} partials", dbias.name()),
+                &[slices, self.channels],
+                DType::F32,
+            )?;
+            let first = gpu.dispatch(
                 &GRAD,
                 &[],
-                &self.params(accumulate),
-                &[dy, dbias],
-                grid_1d(self.channels, 1, max),
-            )
+                &split,
+                &[dy, &partials],
+                grid_1d(slices * self.channels, 1, max),
+            )?;
+            let sum = Params {
+                accumulate: accumulate.flag(),
+                ..split
+            };
+            let second = gpu.dispatch(
+                &GRAD_SUM,
+                &[],
+                &sum,
+                &[&partials, dbias],
+                grid_1d(self.channels, 64, max),
+            )?;
+            Ok(first.then(second))
         }
     }
 }
