@@ -42,7 +42,7 @@ fn bias_add(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
 // (`flat_walk`, which lifted this kernel from ~1 GB/s with a division per term). Split
 // into `slices` (a GPU has far more workgroups to fill than channels), workgroup (c, s)
 // writes its slice's sum to dbias[s * channels + c] of a scratch buffer, which
-// `bias_grad_sum` then adds up.
+// `bias_grad_columns` then adds up (as a [slices, channels, 1] tensor, slices in order).
 @group(0) @binding(1) var<storage, read> dy: array<f32>;
 @group(0) @binding(2) var<storage, read_write> dbias: array<f32>;
 
@@ -82,29 +82,10 @@ fn bias_grad(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg:
     }
 }
 
-// The second launch of a split `bias_grad`: dbias[c] (+)= Σ_s partial[s * channels + c],
-// the slices in order (`dy` is the scratch buffer here), one invocation per channel.
-@compute @workgroup_size(64)
-fn bias_grad_sum(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
-                 @builtin(local_invocation_index) li: u32) {
-    let c = flat_index(wg, nwg, li, GRAD_WG);
-    if c >= p.channels {
-        return;
-    }
-    var s = 0.0;
-    for (var k = 0u; k < p.slices; k++) {
-        s += dy[k * p.channels + c];
-    }
-    if p.accumulate != 0u {
-        dbias[c] = dbias[c] + s;
-    } else {
-        dbias[c] = s;
-    }
-}
-
 // The same sum with one invocation per channel looping over (o, i): for many channels with
 // few terms each (be, bs: T·T or N·N channels over a batch of B), where a workgroup and a
-// tree reduction per channel cost far more than the terms (5x faster on lavapipe).
+// tree reduction per channel cost far more than the terms (5x faster on lavapipe), and
+// for the slices of a split `bias_grad`.
 @compute @workgroup_size(64)
 fn bias_grad_columns(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                      @builtin(local_invocation_index) li: u32) {

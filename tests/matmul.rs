@@ -417,6 +417,17 @@ fn accumulate_adds_to_existing_values() {
 /// The gradient of A (`grad_a`) or B of `mm` on the device, over a gradient that starts
 /// non-zero, with and without accumulation: recorded as `launches` launches (2: a split
 /// product and the sum of its partial results) and equal to the f64 reference.
+/// What a launch leaves in a tensor that held `start`: `result`, plus `start` when it
+/// accumulates.
+fn onto_start(result: &[f64], start: &[f64], accumulate: Accumulate) -> Vec<f64> {
+    let add = accumulate == Accumulate::Add;
+    result
+        .iter()
+        .zip(start)
+        .map(|(r, s)| r + if add { *s } else { 0.0 })
+        .collect()
+}
+
 fn check_gradient_launches(g: &Gpu, mm: &Matmul, grad_a: bool, launches: usize, seed: u64) {
     let x = inputs(mm, seed);
     let (a, b, dc) = (
@@ -442,12 +453,7 @@ fn check_gradient_launches(g: &Gpu, mm: &Matmul, grad_a: bool, launches: usize, 
         assert_eq!(d.launches(), launches, "{mm:?}");
         assert_eq!(d.target(), "dw");
         g.run(&[d]).unwrap();
-        let add = accumulate == Accumulate::Add;
-        let want: Vec<f64> = grad_ref
-            .iter()
-            .zip(&g0)
-            .map(|(r, g0)| r + if add { *g0 } else { 0.0 })
-            .collect();
+        let want = onto_start(&grad_ref, &g0, accumulate);
         let what = format!("{mm:?} gradient, accumulate {accumulate:?}");
         compare_tensor(g, &what, &grad, &want, gpu_tol(k)).unwrap();
     }
@@ -536,12 +542,7 @@ fn long_reductions_are_split_within_batch_items() {
                 let d = mm.forward(&g, &a, &b, &c, accumulate).unwrap();
                 assert_eq!(d.launches(), 2, "{mm:?}");
                 g.run(&[d]).unwrap();
-                let add = accumulate == Accumulate::Add;
-                let want: Vec<f64> = want
-                    .iter()
-                    .zip(&c0)
-                    .map(|(w, c0)| w + if add { *c0 } else { 0.0 })
-                    .collect();
+                let want = onto_start(&want, &c0, accumulate);
                 let what = format!("{mm:?}, accumulate {accumulate:?}");
                 compare_tensor(&g, &what, &c, &want, gpu_tol(4160)).unwrap();
             }

@@ -5,7 +5,7 @@ use crate::gpu::{grid_1d, Binding, DType, Dispatch, Gpu, GpuError, Kernel, Shade
 use crate::ops::Accumulate;
 
 /// The WGSL module of this family (`shaders/bias.wgsl`: `bias_add`, `bias_grad`,
-/// `bias_grad_sum`, `bias_grad_columns`).
+/// `bias_grad_columns`).
 pub static SHADER: Shader = Shader {
     name: "bias",
     source: include_str!("../../shaders/bias.wgsl"),
@@ -20,11 +20,6 @@ static ADD: Kernel = Kernel {
 static GRAD: Kernel = Kernel {
     shader: &SHADER,
     entry: "bias_grad",
-    bindings: &[Binding::read(1), Binding::read_write(2)],
-};
-static GRAD_SUM: Kernel = Kernel {
-    shader: &SHADER,
-    entry: "bias_grad_sum",
     bindings: &[Binding::read(1), Binding::read_write(2)],
 };
 static GRAD_COLUMNS: Kernel = Kernel {
@@ -160,14 +155,16 @@ impl Bias {
                 &[dy, &partials],
                 grid_1d(slices * self.channels, 1, max),
             )?;
-            let sum = Params {
-                accumulate: accumulate.flag(),
-                ..split
+            // The slices' sums in order: the per-channel kernel on [slices, channels, 1].
+            let slices_sum = Bias {
+                outer: slices,
+                channels: self.channels,
+                inner: 1,
             };
             let second = gpu.dispatch(
-                &GRAD_SUM,
+                &GRAD_COLUMNS,
                 &[],
-                &sum,
+                &slices_sum.params(accumulate),
                 &[&partials, dbias],
                 grid_1d(self.channels, 64, max),
             )?;
