@@ -1,6 +1,7 @@
 //! The native CPU forward (`model::NativeForward`) against the WGSL inference forward and
-//! the f64 reference: every IASTGCN variant at a small shape, and IASTGCN at the demo and
-//! the paper shape; the variants it does not cover and bad inputs are refused.
+//! the f64 reference: every IASTGCN variant at a small shape, IASTGCN at the demo and the
+//! paper shape, the dense and recurrent baselines; the variants it does not cover and bad
+//! inputs are refused.
 
 mod common;
 
@@ -254,10 +255,59 @@ fn dense_baselines_match_the_wgsl_forward_and_the_reference() {
     }
 }
 
+/// The recurrent baselines (14-node graph, F = 3, T = 5, H = 6; EAT-GCN with its
+/// Chebyshev supports, T_0 = I among them): native against the WGSL forward and the f64
+/// reference of `model::reference::recurrent`.
+#[test]
+fn recurrent_baselines_match_the_wgsl_forward_and_the_reference() {
+    use iastgcn::model::recurrent::supports;
+    let g = gpu();
+    let graph = Graph::default_asset();
+    let windows = 3;
+    for (i, variant) in Variant::RECURRENT.into_iter().enumerate() {
+        let config = ModelConfig {
+            variant,
+            window: 5,
+            hidden: 6,
+            ..ModelConfig::default()
+        };
+        let p = parameters(&config, 80 + i as u64);
+        let len = config.nodes * config.features * config.window;
+        let x = to_f32(&uniform(&mut rng(90 + i as u64), windows * len, -1.5, 1.5));
+        let ours = native(&config, &p, &x);
+        let net = Network::for_inference(&g, &config, &graph, windows).unwrap();
+        net.load_parameters(&g, &p).unwrap();
+        let device = f64s(&net.predict(&g, &x).unwrap());
+        compare(
+            &format!("{variant}: native vs WGSL"),
+            &ours,
+            &device,
+            scaled(&device, 1e-5),
+        )
+        .unwrap();
+        let params: Vec<Vec<f64>> = p.values.iter().map(|v| f64s(v)).collect();
+        let tape = reference::recurrent::forward(
+            &config,
+            &supports(&graph, &config),
+            &p.specs,
+            &params,
+            &f64s(&x),
+            windows,
+        );
+        compare(
+            &format!("{variant}: native vs f64 reference"),
+            &ours,
+            &tape.output,
+            scaled(&tape.output, 1e-5),
+        )
+        .unwrap();
+    }
+}
+
 #[test]
 fn refuses_other_variants_and_bad_inputs() {
     let graph = Graph::default_asset();
-    for variant in [Variant::StGat, Variant::Tgcn, Variant::ConvLstm] {
+    for variant in [Variant::StGat, Variant::ConvLstm] {
         let config = ModelConfig::gradient_check(variant);
         let p = parameters(&config, 1);
         let e = NativeForward::new(&config, &graph, &p)

@@ -1,6 +1,6 @@
 //! Native CPU training (`model::NativeTraining`) against the f64 reference and the WGSL
 //! training step: the loss and every parameter gradient with dropout in all four IASTGCN
-//! variants at a small shape, the dense baselines, the ensemble loss of refinement, a deeper shape with
+//! variants at a small shape, the dense and recurrent baselines, the ensemble loss of refinement, a deeper shape with
 //! dilations beyond the window, the threads' split, the Adam update, and refusals.
 //! (The reference's own backward is checked against finite differences in
 //! tests/model_reference.rs.)
@@ -180,6 +180,49 @@ fn dense_baselines_match_the_reference_and_the_device() {
         let (dl, dg) = device(&config, &p, b, 1, &x, &y);
         let name = format!("{variant} vs device");
         check_step(&name, &p, (loss, &grads), (dl, &dg), 1e-4);
+    }
+}
+
+#[test]
+fn recurrent_baselines_match_the_reference_and_the_device() {
+    use iastgcn::model::recurrent::supports;
+    let graph = Graph::default_asset();
+    // B = 3 over 2 threads: an uneven split.
+    let b = 3;
+    for (vi, variant) in Variant::RECURRENT.into_iter().enumerate() {
+        let config = ModelConfig {
+            variant,
+            window: 5,
+            hidden: 6,
+            ..ModelConfig::default()
+        };
+        let p = parameters(&config, 60 + vi as u64);
+        let (x, y) = batch(&config, b, 160 + vi as u64);
+        let (loss, grads) = native(&config, &p, shape(b, 1, 2), &x, &y);
+        let params: Vec<Vec<f64>> = p.values.iter().map(|v| f64s(v)).collect();
+        let s = supports(&graph, &config);
+        let tape = reference::recurrent::forward(&config, &s, &p.specs, &params, &f64s(&x), b);
+        let y64 = f64s(&y);
+        let (expected, _) =
+            reference::recurrent::backward(&config, &s, &p.specs, &params, &tape, &y64, b, &LOSS);
+        let expected_loss =
+            reference::loss(&config, &p.specs, &params, &tape.output, &y64, b, &LOSS);
+        let name = variant.to_string();
+        check_step(&name, &p, (loss, &grads), (expected_loss, &expected), 1e-4);
+        // And the WGSL step's, plain and over ensembles of 3 (refinement's loss).
+        let (dl, dg) = device(&config, &p, b, 1, &x, &y);
+        check_step(
+            &format!("{variant} vs device"),
+            &p,
+            (loss, &grads),
+            (dl, &dg),
+            1e-4,
+        );
+        let (x6, y6) = batch(&config, 6, 170 + vi as u64);
+        let (loss, grads) = native(&config, &p, shape(6, 3, 2), &x6, &y6);
+        let (dl, dg) = device(&config, &p, 6, 3, &x6, &y6);
+        let name = format!("{variant} ensembles vs device");
+        check_step(&name, &p, (loss, &grads), (dl, &dg), 2e-4);
     }
 }
 

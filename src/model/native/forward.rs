@@ -1,8 +1,10 @@
-//! The inference forward pass of the IASTGCN variants and the dense baselines, one window
-//! at a time (see the module above): the training forward of `tape.rs` (or `dense.rs`)
-//! without dropout, on a tape that is allocated once and reused window after window.
+//! The inference forward pass of the IASTGCN variants, the dense and the recurrent
+//! baselines, one window at a time (see the module above): the training forward of
+//! `tape.rs` (or `dense.rs`, `recurrent.rs`) without dropout, on a tape that is allocated
+//! once and reused window after window.
 
 use super::dense::{DenseNet, DenseTape};
+use super::recurrent::{RecurrentNet, RecurrentTape};
 use super::slots::Slots;
 use super::tape::{forward, Tape};
 use crate::graph::Graph;
@@ -11,8 +13,8 @@ use crate::model::network::ModelError;
 use crate::model::params::{graph_basis, param_specs, Parameters};
 
 /// The CPU forward pass of one checkpoint of an IASTGCN variant (`iastgcn`, `iastgcn-a`,
-/// `iastgcn-t`, `iastgcn-s`) or a dense baseline (`mlp`, `bkls-ann`, `ann-bfpa`, `erc`)
-/// for one window at a time.
+/// `iastgcn-t`, `iastgcn-s`), a dense baseline (`mlp`, `bkls-ann`, `ann-bfpa`, `erc`) or
+/// a recurrent baseline (`tgcn`, `eat-gcn`) for one window at a time.
 pub struct NativeForward {
     config: ModelConfig,
     /// The weights in `param_specs` order.
@@ -33,16 +35,21 @@ enum Body {
     },
     /// Dense layers on the last step.
     Dense { net: DenseNet, tape: DenseTape },
+    /// A graph-convolutional GRU over the steps.
+    Recurrent {
+        net: RecurrentNet,
+        tape: Box<RecurrentTape>,
+    },
 }
 
 impl NativeForward {
-    /// True when this path covers `config`'s variant (the four IASTGCN variants and the
-    /// dense baselines; not ST-GAT or the recurrent baselines).
+    /// True when this path covers `config`'s variant (the four IASTGCN variants, the
+    /// dense and the recurrent baselines; not ST-GAT or ConvLSTM).
     pub fn supports(config: &ModelConfig) -> bool {
         match config.variant.family() {
             Family::StBlocks => !config.variant.graph_attention(),
-            Family::Dense => true,
-            Family::Recurrent | Family::ConvRecurrent => false,
+            Family::Dense | Family::Recurrent => true,
+            Family::ConvRecurrent => false,
         }
     }
 
@@ -54,7 +61,7 @@ impl NativeForward {
     ) -> Result<NativeForward, ModelError> {
         if !NativeForward::supports(config) {
             return Err(ModelError::Config(format!(
-                "the native CPU forward covers iastgcn, iastgcn-a, iastgcn-t, iastgcn-s and the dense baselines, not {}",
+                "the native CPU forward covers iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, the dense baselines, tgcn and eat-gcn, not {}",
                 config.variant
             )));
         }
@@ -65,6 +72,12 @@ impl NativeForward {
             let net = DenseNet::new(config, graph, &specs)?;
             Body::Dense {
                 tape: net.tape(),
+                net,
+            }
+        } else if config.variant.family() == Family::Recurrent {
+            let net = RecurrentNet::new(config, graph, &specs)?;
+            Body::Recurrent {
+                tape: Box::new(net.tape()),
                 net,
             }
         } else {
@@ -100,7 +113,7 @@ impl NativeForward {
     /// default) runs on the calling thread alone. Small networks (the demo's C = 16) stay
     /// on one thread whatever is asked, where a task would cost more than it saves. The
     /// outputs do not depend on it: each value is the same sum in the same order. The
-    /// dense baselines always run on one thread.
+    /// dense and recurrent baselines always run on one thread.
     pub fn set_threads(&mut self, threads: usize) {
         let threads = threads.max(1);
         if let Body::Blocks { tape, .. } = &mut self.body {
@@ -138,6 +151,10 @@ impl NativeForward {
                 out.copy_from_slice(&tape.out);
             }
             Body::Dense { net, tape } => {
+                net.forward(&self.params, x, tape);
+                out.copy_from_slice(tape.output());
+            }
+            Body::Recurrent { net, tape } => {
                 net.forward(&self.params, x, tape);
                 out.copy_from_slice(tape.output());
             }

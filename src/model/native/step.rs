@@ -7,6 +7,7 @@
 
 use super::backward::{backward, Work};
 use super::dense::{DenseNet, DenseTape};
+use super::recurrent::{RecurrentNet, RecurrentTape};
 use super::slots::Slots;
 use super::tape::{forward, Masks, Tape};
 use crate::graph::Graph;
@@ -55,16 +56,18 @@ struct Worker {
 }
 
 /// What the network is built from: the ST blocks (the graph basis and every tensor's
-/// slot) or dense layers.
+/// slot), dense layers or a graph-convolutional GRU.
 enum Body {
     Blocks { basis: Vec<f32>, slots: Slots },
     Dense(DenseNet),
+    Recurrent(RecurrentNet),
 }
 
 /// A worker's tapes for its body, one per window of an ensemble.
 enum Tapes {
     Blocks { tapes: Vec<Tape>, work: Box<Work> },
     Dense(Vec<DenseTape>),
+    Recurrent(Vec<RecurrentTape>),
 }
 
 /// Parameters, Adam moments and working memory of one model's training on the CPU.
@@ -83,7 +86,7 @@ pub struct NativeTraining {
 
 impl NativeTraining {
     /// True for the variants this path covers (those of [`NativeForward`]: the IASTGCN
-    /// variants and the dense baselines).
+    /// variants, the dense and the recurrent baselines).
     pub fn supports(config: &ModelConfig) -> bool {
         NativeForward::supports(config)
     }
@@ -98,7 +101,7 @@ impl NativeTraining {
     ) -> Result<NativeTraining, ModelError> {
         if !NativeTraining::supports(config) {
             return Err(ModelError::Config(format!(
-                "native CPU training covers iastgcn, iastgcn-a, iastgcn-t, iastgcn-s and the dense baselines, not {}",
+                "native CPU training covers iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, the dense baselines, tgcn and eat-gcn, not {}",
                 config.variant
             )));
         }
@@ -112,6 +115,8 @@ impl NativeTraining {
         let specs = param_specs(config);
         let body = if config.variant.family() == Family::Dense {
             Body::Dense(DenseNet::new(config, graph, &specs)?)
+        } else if config.variant.family() == Family::Recurrent {
+            Body::Recurrent(RecurrentNet::new(config, graph, &specs)?)
         } else {
             Body::Blocks {
                 basis: graph_basis(graph, config)
@@ -138,6 +143,9 @@ impl NativeTraining {
                     },
                     Body::Dense(net) => {
                         Tapes::Dense((0..shape.group).map(|_| net.tape()).collect())
+                    }
+                    Body::Recurrent(net) => {
+                        Tapes::Recurrent((0..shape.group).map(|_| net.tape()).collect())
                     }
                 },
                 grads: zeros(),
@@ -346,6 +354,10 @@ impl Context<'_> {
                         net.forward(self.params, x(k), &mut tapes[k]);
                         tapes[k].output()
                     }
+                    (Body::Recurrent(net), Tapes::Recurrent(tapes)) => {
+                        net.forward(self.params, x(k), &mut tapes[k]);
+                        tapes[k].output()
+                    }
                     // invariant: a worker's tapes are built for the body (NativeTraining::new).
                     _ => unreachable!("a worker's tapes match the body"),
                 };
@@ -378,6 +390,9 @@ impl Context<'_> {
                         work,
                     ),
                     (Body::Dense(net), Tapes::Dense(tapes)) => {
+                        net.backward(self.params, &mut tapes[k], dout, &mut w.grads)
+                    }
+                    (Body::Recurrent(net), Tapes::Recurrent(tapes)) => {
                         net.backward(self.params, &mut tapes[k], dout, &mut w.grads)
                     }
                     // invariant: a worker's tapes are built for the body (NativeTraining::new).
