@@ -13,7 +13,9 @@
 //! - [`model`] on [`ops`] on [`gpu`]: the network as WGSL kernels, its f64 reference,
 //!   checkpoints and the embeddable [`model::Predictor`];
 //! - [`train`]: training, refinement and prediction on recordings;
-//! - [`compensate`]: online compensation in the twin, Tables III and V, the demo.
+//! - [`compensate`]: online compensation in the twin (held-out runs, the error budget);
+//! - [`experiment`]: the protocol's experiments: Tables III and V, the demo, `reproduce`,
+//!   twin machines, serial arms.
 //!
 //! Long calls report through a [`progress::Reporter`] and return [`error::Result`].
 //!
@@ -34,6 +36,7 @@ pub mod calibrate;
 pub mod compensate;
 pub mod data;
 pub mod error;
+pub mod experiment;
 pub mod gpu;
 pub mod graph;
 pub mod interop;

@@ -62,6 +62,25 @@ const ALLOWED: &[(&str, &[&str])] = &[
         ],
     ),
     (
+        "experiment",
+        &[
+            "compensate",
+            "twin",
+            "calibrate",
+            "data",
+            "train",
+            "model",
+            "gpu",
+            "graph",
+            "robot",
+            "plot",
+            "progress",
+            "stats",
+            "atomic",
+            "error",
+        ],
+    ),
+    (
         "error",
         &[
             "gpu",
@@ -91,6 +110,7 @@ const NEVER: &[(&str, &[&str])] = &[
             "model",
             "train",
             "compensate",
+            "experiment",
         ],
     ),
     (
@@ -103,11 +123,20 @@ const NEVER: &[(&str, &[&str])] = &[
             "model",
             "train",
             "compensate",
+            "experiment",
         ],
     ),
     (
         "robot",
-        &["gpu", "ops", "model", "train", "data", "compensate"],
+        &[
+            "gpu",
+            "ops",
+            "model",
+            "train",
+            "data",
+            "compensate",
+            "experiment",
+        ],
     ),
     (
         "twin",
@@ -119,12 +148,22 @@ const NEVER: &[(&str, &[&str])] = &[
             "calibrate",
             "data",
             "compensate",
+            "experiment",
         ],
     ),
     (
         "calibrate",
-        &["gpu", "ops", "model", "train", "data", "compensate"],
+        &[
+            "gpu",
+            "ops",
+            "model",
+            "train",
+            "data",
+            "compensate",
+            "experiment",
+        ],
     ),
+    ("compensate", &["experiment"]),
 ];
 
 fn src() -> PathBuf {

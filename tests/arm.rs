@@ -533,7 +533,7 @@ fn simulate_and_calibrate_from_the_command_line() {
     let config = dir.join("quick.toml");
     std::fs::write(
         &config,
-        iastgcn::compensate::arm::ARM_RUN_CONFIG.replace("max_epochs = 400", "max_epochs = 3"),
+        iastgcn::experiment::arm::ARM_RUN_CONFIG.replace("max_epochs = 400", "max_epochs = 3"),
     )
     .unwrap();
     let report = dir.join("report");
@@ -609,8 +609,8 @@ fn simulate_and_calibrate_from_the_command_line() {
 
 #[test]
 fn residual_models_learn_what_calibration_leaves_on_held_out_poses() {
-    use iastgcn::compensate::arm::{arm_run_config, corrected_targets, evaluate_arm};
     use iastgcn::data::arm_poses::ArmTargets;
+    use iastgcn::experiment::arm::{arm_run_config, corrected_targets, evaluate_arm};
     use iastgcn::model::Variant;
     // A twin whose non-geometric error is gear backlash: it depends on the direction
     // each joint came from, which no geometric model can express and the pose history

@@ -1,13 +1,13 @@
-//! Spread over twin machines (`compensate::machines`, `iastgcn reproduce --merge`):
+//! Spread over twin machines (`experiment::machines`, `iastgcn reproduce --merge`):
 //! reproduce folders of one protocol on different twin machines, merged by (machine,
 //! seed) pair, with the share removed taken against each machine's own calibrated run.
 //! Hand-made folders with known numbers; tests/reproduce.rs runs the real thing.
 
 use std::path::{Path, PathBuf};
 
-use iastgcn::compensate::machines::{merge_machines, summarize_machines};
-use iastgcn::compensate::report::{TABLE_III_HEADER, TABLE_V_HEADER};
-use iastgcn::compensate::reproduce::Protocol;
+use iastgcn::experiment::machines::{merge_machines, summarize_machines};
+use iastgcn::experiment::report::{TABLE_III_HEADER, TABLE_V_HEADER};
+use iastgcn::experiment::reproduce::Protocol;
 
 /// A finished reproduce folder of machine `machine`: Table V on the Hilbert path
 /// (calibrated and compensated position / attitude means) and Table III on the grid.

@@ -3,9 +3,9 @@
 
 use std::path::{Path, PathBuf};
 
-use iastgcn::compensate::report::curve::{CurvePoint, CURVE_HEADER};
-use iastgcn::compensate::report::seeds::Spread;
-use iastgcn::compensate::report::{
+use iastgcn::experiment::report::curve::{CurvePoint, CURVE_HEADER};
+use iastgcn::experiment::report::seeds::Spread;
+use iastgcn::experiment::report::{
     self, ErrorStats, Report, TableIIIRow, TableVRow, Timing, Trace,
 };
 use iastgcn::stats::Summary;

@@ -2,8 +2,8 @@
 //! mean ± sample SD per cell, the share of the calibrated error removed, the paired
 //! comparison with IASTGCN (wins, difference, verdict), the bold rule and the CSV files.
 
-use iastgcn::compensate::report::seeds::{self, split_name, Spread};
-use iastgcn::compensate::report::{self, ErrorStats, Report, TableIIIRow, TableVRow};
+use iastgcn::experiment::report::seeds::{self, split_name, Spread};
+use iastgcn::experiment::report::{self, ErrorStats, Report, TableIIIRow, TableVRow};
 use iastgcn::stats::Summary;
 use iastgcn::train::Metrics;
 

@@ -8,10 +8,10 @@ use std::sync::Arc;
 use anyhow::Context;
 
 use super::Console;
-use iastgcn::compensate::evaluate::{predictors, table_v, HeldOutResult};
 use iastgcn::compensate::held_out::{Prepared, RunSpec};
 use iastgcn::compensate::online::Online;
-use iastgcn::compensate::report::table_v_lines;
+use iastgcn::experiment::evaluate::{predictors, table_v, HeldOutResult};
+use iastgcn::experiment::report::table_v_lines;
 use iastgcn::gpu::Gpu;
 use iastgcn::model::Checkpoint;
 use iastgcn::progress::Reporter;

@@ -1,6 +1,6 @@
 //! `iastgcn demo` (the main job end to end on the embedded twin) and `iastgcn evaluate`
 //! (Tables III and V and the report folder for models you trained): arguments, then the
-//! library's `compensate::demo`.
+//! library's `experiment::demo`.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -9,9 +9,9 @@ use clap::Args;
 
 use super::train::read_run_config;
 use super::Console;
-use iastgcn::compensate::demo::{self, DemoConfig};
-use iastgcn::compensate::evaluate::HeldOutConfig;
 use iastgcn::data::DataSources;
+use iastgcn::experiment::demo::{self, DemoConfig};
+use iastgcn::experiment::evaluate::HeldOutConfig;
 use iastgcn::gpu::Gpu;
 use iastgcn::robot::Description;
 
@@ -96,7 +96,7 @@ pub struct EvaluateArgs {
     #[arg(long)]
     pub targets: Option<PathBuf>,
     /// The models to train on a serial arm's residuals, comma-separated.
-    #[arg(long, default_value_t = iastgcn::compensate::arm::ARM_MODELS.map(iastgcn::model::Variant::name).join(","))]
+    #[arg(long, default_value_t = iastgcn::experiment::arm::ARM_MODELS.map(iastgcn::model::Variant::name).join(","))]
     pub train_models: String,
     /// Run config (its [data] table windows the recordings for Table III); for a serial
     /// arm, the residual models' config (default: the embedded assets/arms/residual.toml).

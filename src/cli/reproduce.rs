@@ -1,4 +1,4 @@
-//! `iastgcn reproduce`: arguments, then the library's `compensate::reproduce`.
+//! `iastgcn reproduce`: arguments, then the library's `experiment::reproduce`.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -8,7 +8,7 @@ use clap::Args;
 use super::demo::HeldOutArgs;
 use super::train::read_run_config;
 use super::Console;
-use iastgcn::compensate::reproduce::{self, Outcome, Protocol, Shard};
+use iastgcn::experiment::reproduce::{self, Outcome, Protocol, Shard};
 use iastgcn::gpu::Gpu;
 
 #[derive(Args)]
@@ -48,7 +48,7 @@ pub struct ReproduceArgs {
     pub data_only: bool,
     /// The twin machine (seed of its geometric and non-geometric errors) the data and
     /// the held-out session come from; one folder holds one machine.
-    #[arg(long, default_value_t = iastgcn::compensate::protocol::MACHINE_SEED)]
+    #[arg(long, default_value_t = iastgcn::experiment::protocol::MACHINE_SEED)]
     pub machine_seed: u64,
     /// Merge finished reproduce folders of one protocol, one per twin machine, into
     /// --out: Tables V and III over machines and seeds, as a report; nothing trains.
@@ -60,7 +60,7 @@ pub struct ReproduceArgs {
 
 pub fn run(gpu: Gpu, args: &ReproduceArgs) -> anyhow::Result<()> {
     if !args.merge.is_empty() {
-        let summary = iastgcn::compensate::machines::merge_machines(&args.merge, &args.out)?;
+        let summary = iastgcn::experiment::machines::merge_machines(&args.merge, &args.out)?;
         println!(
             "merged {} twin machines ({}): {}",
             summary.folders.len(),

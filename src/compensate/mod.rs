@@ -1,13 +1,8 @@
-//! Online compensation in the twin and the report of the paper's Tables III and V; the
-//! residual models of a serial arm (`arm`).
+//! Online compensation in the twin: the controller loop that streams sensor values into a
+//! [`crate::model::Predictor`] and corrects the commanded pose (`online`), held-out runs
+//! and sessions (`held_out`), and the error budget of a run by source (`budget`). The
+//! experiments that train models and score them this way live in [`crate::experiment`].
 
-pub mod arm;
 pub mod budget;
-pub mod demo;
-pub mod evaluate;
 pub mod held_out;
-pub mod machines;
 pub mod online;
-pub mod protocol;
-pub mod report;
-pub mod reproduce;

@@ -13,7 +13,6 @@ use std::time::Instant;
 
 use crate::error::{ensure, Error, Result};
 
-use super::report::{ErrorStats, Trace};
 use crate::data::features::Stream;
 use crate::data::FeatureConfig;
 use crate::graph::Graph;
@@ -227,4 +226,24 @@ pub fn trace(trajectory: PathKind, label: &str, r: &RunResult) -> Trace {
         label: label.to_string(),
         points: r.trace.clone(),
     }
+}
+
+/// Mean / SD / max of the position (µm) and attitude (mdeg) pose errors of one run.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ErrorStats {
+    /// Pad position error, µm.
+    pub position: Summary,
+    /// Tool-axis angle error, mdeg.
+    pub attitude: Summary,
+}
+
+/// Per-tracker-sample pose error of one compensation run (for Fig. 11).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Trace {
+    /// The held-out path.
+    pub trajectory: String,
+    /// e.g. `calibrated`, `compensated (iastgcn)`.
+    pub label: String,
+    /// (t s, ex µm, ey µm, ez µm): measured minus target position, base frame.
+    pub points: Vec<(f64, f64, f64, f64)>,
 }

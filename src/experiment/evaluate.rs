@@ -5,13 +5,13 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use super::budget::{error_budget, markdown as budget_markdown};
-use super::held_out::{warm_up, HeldOut, IDLE_BETWEEN_RUNS};
-use super::online::{self, Feedback, Online, RunResult};
 use super::report::{
     table_iii_lines, table_v_lines, Report, TableIIIRow, TableVRow, Timing, Trace,
 };
 use crate::calibrate::file;
+use crate::compensate::budget::{error_budget, markdown as budget_markdown};
+use crate::compensate::held_out::{warm_up, HeldOut, IDLE_BETWEEN_RUNS};
+use crate::compensate::online::{self, Feedback, Online, RunResult};
 use crate::data::{DataSources, Dataset};
 use crate::error::{ensure, Error, Result};
 use crate::gpu::Gpu;
@@ -448,7 +448,7 @@ pub fn evaluate(
         }
         report.table_v.extend(result.rows);
         for (model, n, of, ticks) in result.refused.iter().filter(|r| r.1 + r.3 > 0) {
-            let (mm, deg) = super::online::MAX_CORRECTION;
+            let (mm, deg) = crate::compensate::online::MAX_CORRECTION;
             let line = format!(
                 "{}: the controller refused {n} of {of} corrections predicted by {model} (beyond {mm} mm or {deg}°; it kept its last accepted correction) and ran {ticks} ticks uncorrected because the corrected target was unreachable",
                 path.name()

@@ -6,8 +6,8 @@
 use std::path::{Path, PathBuf};
 
 use super::evaluate::NamedModel;
-use super::held_out::IDLE_BETWEEN_RUNS;
 use crate::calibrate::{self, file, hold_out, pose_errors, EkfConfig};
+use crate::compensate::held_out::IDLE_BETWEEN_RUNS;
 use crate::data::{read_measurements, record_calibration_set, record_run, DataSources, Dataset};
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;

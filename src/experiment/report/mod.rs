@@ -7,7 +7,6 @@ use std::path::{Path, PathBuf};
 use crate::error::{write_file, Error, Result};
 
 use crate::plot::{self, Panel, Series};
-use crate::stats::Summary;
 use crate::train::log::{accumulated_csv, csv_text, distinct, plot_accumulated};
 use crate::train::{EpochRecord, Metrics};
 
@@ -16,14 +15,7 @@ mod markdown;
 pub mod seeds;
 pub use markdown::markdown;
 
-/// Mean / SD / max of the position (µm) and attitude (mdeg) pose errors of one run.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct ErrorStats {
-    /// Pad position error, µm.
-    pub position: Summary,
-    /// Tool-axis angle error, mdeg.
-    pub attitude: Summary,
-}
+pub use crate::compensate::online::{ErrorStats, Trace};
 
 /// One row of the Table V analog.
 #[derive(Clone, Debug, PartialEq)]
@@ -65,17 +57,6 @@ pub struct Timing {
     pub trained_on: String,
     /// Where its online predictions ran: the adapter's name, or the native CPU forward.
     pub inference_on: String,
-}
-
-/// Per-tracker-sample pose error of one compensation run (for Fig. 11).
-#[derive(Clone, Debug, PartialEq)]
-pub struct Trace {
-    /// The held-out path.
-    pub trajectory: String,
-    /// e.g. `calibrated`, `compensated (iastgcn)`.
-    pub label: String,
-    /// (t s, ex µm, ey µm, ez µm): measured minus target position, base frame.
-    pub points: Vec<(f64, f64, f64, f64)>,
 }
 
 /// Fig. 9b curve: (k, mean accumulated position error µm, attitude error mdeg) per horizon.

@@ -1,0 +1,14 @@
+//! The experiments on the twin and on serial arms, built on the pipeline: the protocol's
+//! data and the fitting of one model (`protocol`), Tables III and V and the report folder
+//! they go into (`evaluate`, `report/`), the demo over training seeds (`demo`), the
+//! protocol over seeds in resumable, shardable jobs (`reproduce`), the merge of reproduce
+//! folders of several twin machines (`machines`), and a serial arm's residual models on
+//! held-out poses (`arm`).
+
+pub mod arm;
+pub mod demo;
+pub mod evaluate;
+pub mod machines;
+pub mod protocol;
+pub mod report;
+pub mod reproduce;
