@@ -118,6 +118,35 @@ pub struct Panel {
     pub series: Vec<Series>,
     /// Same scale on both axes (for paths in a plane).
     pub equal_aspect: bool,
+    /// The x axis on a log scale (ticks labelled with the values); points with x ≤ 0
+    /// are left out.
+    pub log_x: bool,
+}
+
+impl Panel {
+    /// The panel with every x replaced by its log10, for a linear chart whose ticks are
+    /// labelled 10^x.
+    fn with_log10_x(&self) -> Panel {
+        let mut p = self.clone();
+        for s in &mut p.series {
+            s.points.retain(|pt| pt.0 > 0.0);
+            for pt in &mut s.points {
+                pt.0 = pt.0.log10();
+            }
+        }
+        p
+    }
+}
+
+/// A tick label of a log axis at log10 value `v`: the value, with two significant
+/// decimals below 10.
+fn log_tick(v: &f64) -> String {
+    let x = 10f64.powf(*v);
+    if x >= 10.0 {
+        format!("{x:.0}")
+    } else {
+        format!("{x:.2}")
+    }
 }
 
 fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
@@ -162,6 +191,13 @@ pub fn draw(
         root.fill(&WHITE).map_err(|e| err(&e))?;
         let areas = root.split_evenly((rows, cols));
         for (panel, area) in panels.iter().zip(areas.iter()) {
+            let logged;
+            let panel = if panel.log_x {
+                logged = panel.with_log10_x();
+                &logged
+            } else {
+                panel
+            };
             let (mut x0, mut x1) = range(panel.series.iter().flat_map(Series::x_extent));
             let (mut y0, mut y1) = range(panel.series.iter().flat_map(Series::y_extent));
             if panel.equal_aspect {
@@ -197,6 +233,9 @@ pub fn draw(
             mesh.x_desc(&panel.x_label)
                 .y_desc(&panel.y_label)
                 .label_style(("sans-serif", 12));
+            if panel.log_x {
+                mesh.x_label_formatter(&log_tick);
+            }
             if categorical {
                 mesh.x_labels(bars.len() + 1)
                     .x_label_formatter(&bar_label)

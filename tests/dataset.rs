@@ -240,3 +240,50 @@ fn a_training_share_keeps_the_start_of_the_training_block() {
     assert_eq!(quarter.splits.train, all.splits.train[..k]);
     assert_eq!(quarter.splits.validation, all.splits.validation);
 }
+
+/// A share of the validation windows keeps the first windows of each validation block and
+/// leaves training and test alone (the scaling study's shorter sessions).
+#[test]
+fn a_validation_share_keeps_the_start_of_the_validation_block() {
+    let rec = recording();
+    let graph = Graph::default_asset();
+    let model = Robot::nominal(Geometry::default_asset());
+    let with = |kept: f64, mode: SplitMode| {
+        Dataset::build(
+            &[("fermat.csv".to_string(), rec.clone())],
+            &graph,
+            &model,
+            &FeatureConfig::default(),
+            &WindowConfig {
+                validation_kept: kept,
+                ..WindowConfig::default()
+            },
+            mode,
+        )
+        .unwrap()
+    };
+    let full = with(1.0, SplitMode::Contiguous);
+    let half = with(0.5, SplitMode::Contiguous);
+    let n = rec.rows.len() as f64;
+    let limit = (0.7 * n).round() as usize + (0.2 * 0.5 * n).round() as usize;
+    let before = full
+        .splits
+        .validation
+        .iter()
+        .filter(|w| w.end < limit)
+        .count();
+    assert!(before > 2 && before < full.splits.validation.len());
+    assert_eq!(half.splits.validation, full.splits.validation[..before]);
+    assert_eq!(half.splits.train, full.splits.train);
+    assert_eq!(half.splits.test, full.splits.test);
+    assert_eq!(
+        half.normalization, full.normalization,
+        "training statistics"
+    );
+    let random = SplitMode::Random { seed: 5 };
+    let (all, quarter) = (with(1.0, random), with(0.25, random));
+    let k = (0.25 * all.splits.validation.len() as f64).round() as usize;
+    assert_eq!(quarter.splits.validation, all.splits.validation[..k]);
+    assert_eq!(quarter.splits.train, all.splits.train);
+    assert_eq!(quarter.splits.test, all.splits.test);
+}

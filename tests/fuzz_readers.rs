@@ -678,6 +678,7 @@ fn run_config_finite(c: &RunConfig) -> bool {
         m.eps,
         m.dropout,
         d.train_fraction,
+        d.validation_fraction,
         t.lr,
         t.lr_decay,
         t.beta1,

@@ -8,7 +8,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::cli;
+use common::{cli, cli_fails};
 
 const TINY: &str =
     "[model]\nwindow = 16\nchannels = 4\nblocks = 2\nhidden = 8\n\n[data]\nstride = 5\n\n\
@@ -16,16 +16,6 @@ const TINY: &str =
 
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()
-}
-
-/// Runs the binary expecting failure; returns stderr.
-fn cli_fails(args: &[&str]) -> String {
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
-        .args(args)
-        .output()
-        .unwrap();
-    assert!(!o.status.success(), "iastgcn {args:?} succeeded");
-    String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
 #[test]

@@ -289,6 +289,10 @@ fn run_configs_have_defaults_and_checks() {
         ),
         ("[model]\nwindow = 100000\n", "parameters (window = 100000"),
         ("[data]\ntrain_fraction = 0\n", "data.train_fraction"),
+        (
+            "[data]\nvalidation_fraction = 1.5\n",
+            "data.validation_fraction",
+        ),
         ("[train]\nlearning_rate = 1e-3\n", "learning_rate"),
         ("[training]\n", "training"),
     ] {

@@ -35,6 +35,9 @@ pub struct DatasetArgs {
     /// Share of each recording's training block kept, from its start (0, 1].
     #[arg(long, default_value_t = 1.0)]
     train_fraction: f64,
+    /// Share of each recording's validation block kept, from its start (0, 1].
+    #[arg(long, default_value_t = 1.0)]
+    validation_fraction: f64,
 }
 
 pub fn run(args: &DatasetArgs) -> anyhow::Result<()> {
@@ -48,6 +51,7 @@ pub fn run(args: &DatasetArgs) -> anyhow::Result<()> {
             split: args.split.clone(),
             split_seed: args.seed,
             train_fraction: args.train_fraction,
+            validation_fraction: args.validation_fraction,
         },
         ..RunConfig::default()
     };

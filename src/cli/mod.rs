@@ -10,6 +10,7 @@ mod demo;
 mod info;
 mod model;
 mod reproduce;
+mod scale;
 mod simulate;
 mod smoke;
 mod train;
@@ -71,6 +72,9 @@ enum Command {
     /// several training seeds, in resumable jobs that can be sharded over machines, then
     /// Tables III and V with mean ± SD over seeds and paired comparisons.
     Reproduce(reproduce::ReproduceArgs),
+    /// The scaling study: error removed and test MAE against training data (sizes × models
+    /// × seeds in resumable, shardable jobs), with a summary after every job.
+    Scale(scale::ScaleArgs),
 }
 
 /// A count in `range` (e.g. `1..`); clap names the argument and the range when the
@@ -129,6 +133,9 @@ pub fn main() -> ExitCode {
         }
         Command::Reproduce(args) => {
             open_gpu(cli.adapter.as_deref()).and_then(|gpu| reproduce::run(gpu, &args))
+        }
+        Command::Scale(args) => {
+            open_gpu(cli.adapter.as_deref()).and_then(|gpu| scale::run(gpu, &args))
         }
     };
     match result {

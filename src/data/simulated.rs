@@ -179,6 +179,7 @@ fn plot_run(
                 truth.iter().map(|t| (t.3[0], t.3[1])).collect(),
             )],
             equal_aspect: true,
+            log_x: false,
         },
         Panel {
             title: "driving errors E1-E4".into(),
@@ -188,6 +189,7 @@ fn plot_run(
                 .map(|i| Series::new(CHANNELS[i], channel(i)))
                 .collect(),
             equal_aspect: false,
+            log_x: false,
         },
         Panel {
             title: "true pad position error (hidden)".into(),
@@ -198,6 +200,7 @@ fn plot_run(
                 truth.iter().map(|t| (t.0, t.1 * 1e3)).collect(),
             )],
             equal_aspect: false,
+            log_x: false,
         },
         Panel {
             title: "true pad attitude error (hidden)".into(),
@@ -208,6 +211,7 @@ fn plot_run(
                 truth.iter().map(|t| (t.0, t.2 * 1e3)).collect(),
             )],
             equal_aspect: false,
+            log_x: false,
         },
     ];
     Ok(plot::draw(path, &panels, 2, 2, (1400, 1000))?)

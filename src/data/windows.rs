@@ -51,6 +51,10 @@ pub struct WindowConfig {
     /// training part had been shorter; the validation and test blocks do not change. With
     /// the random split, the first share of the shuffled training windows.
     pub train_kept: f64,
+    /// Share of the validation windows kept (1: all), as `train_kept` does for training:
+    /// the first share of each recording's validation block; the test blocks do not
+    /// change.
+    pub validation_kept: f64,
 }
 
 impl Default for WindowConfig {
@@ -61,6 +65,7 @@ impl Default for WindowConfig {
             train: 0.7,
             validation: 0.2,
             train_kept: 1.0,
+            validation_kept: 1.0,
         }
     }
 }
@@ -138,13 +143,17 @@ pub fn split(windows: &[Window], rows: &[usize], config: &WindowConfig, mode: Sp
                 let b1 = (config.train * n).round() as usize;
                 let b2 = ((config.train + config.validation) * n).round() as usize;
                 let kept = (config.train * config.train_kept * n).round() as usize;
+                let kept_validation =
+                    b1 + (config.validation * config.validation_kept * n).round() as usize;
                 let start = w.end + 1 - config.length;
                 if w.end < b1 {
                     if w.end < kept {
                         s.train.push(w);
                     }
                 } else if start >= b1 && w.end < b2 {
-                    s.validation.push(w);
+                    if w.end < kept_validation {
+                        s.validation.push(w);
+                    }
                 } else if start >= b2 {
                     s.test.push(w);
                 }
@@ -158,6 +167,8 @@ pub fn split(windows: &[Window], rows: &[usize], config: &WindowConfig, mode: Sp
             let b = ((config.train + config.validation) * n).round() as usize;
             s.test = all.split_off(b.min(all.len()));
             s.validation = all.split_off(a.min(all.len()));
+            s.validation
+                .truncate((config.validation_kept * s.validation.len() as f64).round() as usize);
             all.truncate((config.train_kept * all.len() as f64).round() as usize);
             s.train = all;
         }

@@ -364,6 +364,86 @@ pub fn evaluate(
     report.table_iii = rows;
 
     reporter.note("== Table V: compensation of held-out runs in the twin");
+    let checkpoints: Vec<(String, Checkpoint)> = models
+        .iter()
+        .map(|m| (m.name.clone(), m.checkpoint.clone()))
+        .collect();
+    let session = held_out_session(gpu, &checkpoints, sources, held, true, reporter)?;
+    if let Some(budget) = session.budget {
+        report.sections.push((
+            format!("Error budget: {} (held-out run)", PathKind::Hilbert.name()),
+            format!(
+                "The hidden tool-pose error of this run split by source (RMS over every tick, \
+                 against the path target; `iastgcn budget` gives it for any run):\n\n{budget}"
+            ),
+        ));
+    }
+    report.table_v.extend(session.rows);
+    report.setup.extend(session.refusals);
+    // Fig. 11 shows before/after: calibration only, and the main model.
+    let main = models
+        .iter()
+        .find(|m| super::report::seeds::split_name(&m.name).0 == "iastgcn")
+        .unwrap_or(first)
+        .name
+        .clone();
+    let keep = format!("compensated ({main})");
+    report.traces.extend(
+        session
+            .traces
+            .into_iter()
+            .filter(|t| t.label == "calibrated" || t.label == keep),
+    );
+    report.timings = models
+        .iter()
+        .zip(session.latency_ms)
+        .zip(session.ran_on)
+        .map(|((m, infer_ms), inference_on)| Timing {
+            model: m.name.clone(),
+            epoch_seconds: m.epoch_seconds,
+            infer_ms,
+            trained_on: m.trained_on.clone(),
+            inference_on,
+        })
+        .collect();
+    Ok(())
+}
+
+/// What one held-out session gave ([`held_out_session`]).
+pub struct Session {
+    /// Table V rows of every path: initial, calibrated, oracle, then each model.
+    pub rows: Vec<TableVRow>,
+    /// Every run's tracker trace (Fig. 11), path by path.
+    pub traces: Vec<Trace>,
+    /// Each model's mean latency of one online prediction, ms.
+    pub latency_ms: Vec<f64>,
+    /// Where each model's online predictions ran (the native CPU forward or the adapter).
+    pub ran_on: Vec<String>,
+    /// A line per path where the controller refused a model's corrections.
+    pub refusals: Vec<String>,
+    /// The Hilbert run's error budget as Markdown, when asked for.
+    pub budget: Option<String>,
+}
+
+/// One held-out session on the machine the recordings of `sources` were taken on, under
+/// their calibration: the machine warms up, then every path runs in turn, each stage of
+/// a path (initial, calibrated, oracle, each of `models` in the loop) from the same
+/// state, and the session carries on from the calibrated run's end, so the rows of the
+/// initial, calibrated and oracle stages do not depend on the models. The first model
+/// gives the graph and window of the online runs. With `budget`, the Hilbert run's error
+/// budget by source too.
+pub fn held_out_session(
+    gpu: &Arc<Gpu>,
+    models: &[(String, Checkpoint)],
+    sources: &DataSources,
+    held: &HeldOutConfig,
+    budget: bool,
+    reporter: &mut dyn Reporter,
+) -> Result<Session> {
+    let Some((_, first)) = models.first() else {
+        return Err(Error::Invalid("no model to compensate with".into()));
+    };
+    held.validate()?;
     let geometry = sources.geometry()?;
     let cal = file::load(&sources.calibration)?;
     // The held-out session runs on the machine the recordings were taken on.
@@ -371,14 +451,9 @@ pub fn evaluate(
     let machine = draw_machine(geometry.clone(), machine_seed);
     let nominal = Robot::nominal(geometry.clone());
     let calibrated = Robot::new(geometry, cal.errors);
-    let graph = first.checkpoint.graph.clone();
-    let window = first.checkpoint.config.window;
-    let checkpoints: Vec<(String, Checkpoint)> = models
-        .iter()
-        .map(|m| (m.name.clone(), m.checkpoint.clone()))
-        .collect();
-    let mut preds = predictors(gpu, &checkpoints)?;
-    // Where each model's online predictions ran (the native CPU path or the adapter).
+    let graph = first.graph.clone();
+    let window = first.config.window;
+    let mut preds = predictors(gpu, models)?;
     let ran_on: Vec<String> = preds
         .iter()
         .map(|(_, p)| match p.backend() {
@@ -387,21 +462,20 @@ pub fn evaluate(
         })
         .collect();
     let mut latency = vec![(0.0, 0usize); models.len()];
-    // One held-out session: the machine warms up, then every path runs in turn; each
-    // stage of a path starts from the same state, and the session carries on from the
-    // calibrated run's end.
+    let mut session = Session {
+        rows: Vec::new(),
+        traces: Vec::new(),
+        latency_ms: Vec::new(),
+        ran_on,
+        refusals: Vec::new(),
+        budget: None,
+    };
     let mut state = warm_up(
         &machine,
         &calibrated,
         held.warm_up_minutes * 60.0,
         held.seed.wrapping_add(1000),
     )?;
-    let main = models
-        .iter()
-        .find(|m| super::report::seeds::split_name(&m.name).0 == "iastgcn")
-        .unwrap_or(first)
-        .name
-        .clone();
     for (i, path) in PathKind::ALL.into_iter().enumerate() {
         let run = HeldOut {
             path,
@@ -412,16 +486,9 @@ pub fn evaluate(
         };
         // One budget (the Hilbert run's) keeps the demo in its time; `iastgcn budget`
         // gives any other.
-        if path == PathKind::Hilbert {
-            let budget = error_budget(&machine, &calibrated, &run.config(), &run.start)?;
-            report.sections.push((
-                format!("Error budget: {} (held-out run)", path.name()),
-                format!(
-                    "The hidden tool-pose error of this run split by source (RMS over every tick, \
-                 against the path target; `iastgcn budget` gives it for any run):\n\n{}",
-                    budget_markdown(&budget)
-                ),
-            ));
+        if budget && path == PathKind::Hilbert {
+            let b = error_budget(&machine, &calibrated, &run.config(), &run.start)?;
+            session.budget = Some(budget_markdown(&b));
         }
         let ticks = run.config().steps() * (3 + preds.len());
         reporter.begin(&format!("compensating {}", path.name()), ticks as u64);
@@ -446,7 +513,7 @@ pub fn evaluate(
         for line in table_v_lines(&result.rows) {
             reporter.note(&line);
         }
-        report.table_v.extend(result.rows);
+        session.rows.extend(result.rows);
         for (model, n, of, ticks) in result.refused.iter().filter(|r| r.1 + r.3 > 0) {
             let (mm, deg) = crate::compensate::online::MAX_CORRECTION;
             let line = format!(
@@ -454,36 +521,21 @@ pub fn evaluate(
                 path.name()
             );
             reporter.note(&line);
-            report.setup.push(line);
+            session.refusals.push(line);
         }
         state = result.end;
         state.idle(IDLE_BETWEEN_RUNS);
-        // Fig. 11 shows before/after: calibration only, and the main model.
-        let keep = format!("compensated ({main})");
-        report.traces.extend(
-            result
-                .traces
-                .into_iter()
-                .filter(|t| t.label == "calibrated" || t.label == keep),
-        );
+        session.traces.extend(result.traces);
         for (slot, (_, ms)) in latency.iter_mut().zip(result.latency) {
             slot.0 += ms;
             slot.1 += 1;
         }
     }
-    report.timings = models
+    session.latency_ms = latency
         .iter()
-        .zip(&latency)
-        .zip(ran_on)
-        .map(|((m, (ms, n)), inference_on)| Timing {
-            model: m.name.clone(),
-            epoch_seconds: m.epoch_seconds,
-            infer_ms: ms / (*n).max(1) as f64,
-            trained_on: m.trained_on.clone(),
-            inference_on,
-        })
+        .map(|(ms, n)| ms / (*n).max(1) as f64)
         .collect();
-    Ok(())
+    Ok(session)
 }
 
 /// Tables III and V into `report`, its wall time since `began`, and the report folder

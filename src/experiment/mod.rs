@@ -2,8 +2,8 @@
 //! data and the fitting of one model (`protocol`), Tables III and V and the report folder
 //! they go into (`evaluate`, `report/`), the demo over training seeds (`demo`), the
 //! protocol over seeds in resumable, shardable jobs (`reproduce`), the merge of reproduce
-//! folders of several twin machines (`machines`), and a serial arm's residual models on
-//! held-out poses (`arm`).
+//! folders of several twin machines (`machines`), the scaling study of error against
+//! training data (`scale`), and a serial arm's residual models on held-out poses (`arm`).
 
 pub mod arm;
 pub mod demo;
@@ -12,3 +12,4 @@ pub mod machines;
 pub mod protocol;
 pub mod report;
 pub mod reproduce;
+pub mod scale;

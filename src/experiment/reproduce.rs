@@ -311,26 +311,39 @@ pub enum Outcome {
 /// Writes `out/protocol.toml`, or checks that an earlier run of the folder used the same
 /// protocol (only where the steps run may differ).
 fn pin_protocol(protocol: &Protocol, out: &Path) -> Result<()> {
-    let path = out.join("protocol.toml");
+    pin_toml(
+        protocol,
+        &out.join("protocol.toml"),
+        |a, b| a.comparable() == b.comparable(),
+        "this folder holds a run of another protocol (minutes, seeds, models or run config \
+         differ); use another --out, or the same options",
+    )
+}
+
+/// Writes `value` to `path` as TOML, or, where an earlier run wrote one, checks that it
+/// holds the same value as `same` compares them; otherwise the error is `refusal`.
+pub(super) fn pin_toml<T: Serialize + serde::de::DeserializeOwned>(
+    value: &T,
+    path: &Path,
+    same: impl Fn(&T, &T) -> bool,
+    refusal: &str,
+) -> Result<()> {
     if path.exists() {
-        let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
-        let earlier: Protocol = toml::from_str(&text)
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let earlier: T = toml::from_str(&text)
             .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
-        if earlier.comparable() != protocol.comparable() {
-            return Err(Error::Invalid(format!(
-                "{}: this folder holds a run of another protocol (minutes, seeds, models or \
-                 run config differ); use another --out, or the same options",
-                path.display()
-            )));
+        if !same(&earlier, value) {
+            return Err(Error::Invalid(format!("{}: {refusal}", path.display())));
         }
         return Ok(());
     }
-    let text = toml::to_string(protocol)
-        .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
-    write_file(&path, text.as_bytes())
+    let text =
+        toml::to_string(value).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+    write_file(path, text.as_bytes())
 }
 
-fn clock(seconds: f64) -> String {
+/// `h:mm:ss`.
+pub(super) fn clock(seconds: f64) -> String {
     let s = seconds.max(0.0).round() as u64;
     format!("{}:{:02}:{:02}", s / 3600, s / 60 % 60, s % 60)
 }

@@ -25,6 +25,11 @@ pub struct DataConfig {
     /// time); validation and test stay the same. The learning curve of
     /// `iastgcn reproduce` trains with 0.25 and 0.5.
     pub train_fraction: f64,
+    /// Share of the validation windows used, in (0, 1]: with contiguous blocks, the first
+    /// share of each recording's validation block; the test blocks stay the same. The
+    /// scaling study (`iastgcn scale`) sets both shares to what a shorter session would
+    /// have had, so that early stopping sees what it would have seen.
+    pub validation_fraction: f64,
 }
 
 impl Default for DataConfig {
@@ -34,6 +39,7 @@ impl Default for DataConfig {
             split: "contiguous".into(),
             split_seed: 7,
             train_fraction: 1.0,
+            validation_fraction: 1.0,
         }
     }
 }
@@ -217,6 +223,12 @@ impl RunConfig {
             d.train_fraction > 0.0 && d.train_fraction <= 1.0,
             "data.train_fraction",
             d.train_fraction,
+            "must be in (0, 1]",
+        )?;
+        check(
+            d.validation_fraction > 0.0 && d.validation_fraction <= 1.0,
+            "data.validation_fraction",
+            d.validation_fraction,
             "must be in (0, 1]",
         )?;
         check(

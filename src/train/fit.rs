@@ -31,6 +31,7 @@ pub fn window_config(config: &RunConfig) -> WindowConfig {
         length: config.model.window,
         stride: config.data.stride,
         train_kept: config.data.train_fraction,
+        validation_kept: config.data.validation_fraction,
         ..WindowConfig::default()
     }
 }

@@ -113,6 +113,7 @@ pub fn plot_losses(path: &Path, histories: &[(String, Vec<EpochRecord>)]) -> Res
                 y_label: "loss (standardised)".into(),
                 series,
                 equal_aspect: false,
+                log_x: false,
             }
         })
         .collect();
@@ -186,6 +187,7 @@ pub fn plot_accumulated(
             series(after, pick, "after refinement"),
         ],
         equal_aspect: false,
+        log_x: false,
     };
     plot::draw(
         path,

@@ -252,6 +252,7 @@ pub fn write_predictions(
                     Series::new("predicted", line(&|l| l.0.predicted[k])),
                 ],
                 equal_aspect: false,
+                log_x: false,
             });
         }
     }

@@ -20,6 +20,16 @@ pub fn cli(args: &[&str]) -> String {
     String::from_utf8_lossy(&o.stdout).into_owned()
 }
 
+/// Runs the binary expecting failure; returns stderr.
+pub fn cli_fails(args: &[&str]) -> String {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(!o.status.success(), "iastgcn {args:?} succeeded");
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
 /// In `dir` (created if missing): `set.csv`, 60 calibration poses measured with `seed`,
 /// and `cal.toml`, their EKF calibration. Returns the calibration's path.
 pub fn calibration(dir: &Path, seed: u64) -> PathBuf {

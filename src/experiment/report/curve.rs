@@ -115,6 +115,7 @@ pub fn plot(path: &Path, points: &[CurvePoint]) -> Result<(), PlotError> {
             y_label: format!("{what} MAE ({unit})"),
             series,
             equal_aspect: false,
+            log_x: false,
         }
     };
     let panels = [

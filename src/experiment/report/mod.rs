@@ -398,6 +398,7 @@ fn plot_fig11(path: &Path, trajectory: &str, traces: &[&Trace]) -> Result<(), pl
             y_label: "ey (µm)".into(),
             series: cloud,
             equal_aspect: true,
+            log_x: false,
         },
         Panel {
             title: format!("{trajectory}: |e_xy| over time"),
@@ -405,6 +406,7 @@ fn plot_fig11(path: &Path, trajectory: &str, traces: &[&Trace]) -> Result<(), pl
             y_label: "|e_xy| (µm)".into(),
             series: magnitude,
             equal_aspect: false,
+            log_x: false,
         },
     ];
     plot::draw(path, &panels, 1, 2, (1300, 600))
@@ -445,6 +447,7 @@ fn plot_compensated(path: &Path, rows: &[TableVRow]) -> Result<(), plot::PlotErr
                 y_label: format!("{what} ({unit})"),
                 series: bars(pick),
                 equal_aspect: false,
+                log_x: false,
             });
         }
     }
@@ -477,6 +480,7 @@ fn plot_fig10(path: &Path, timings: &[Timing]) -> Result<(), plot::PlotError> {
             y_label: "s / epoch".into(),
             series: bars(|t| t.epoch_seconds),
             equal_aspect: false,
+            log_x: false,
         },
         Panel {
             title: format!("inference time per window ({inference})"),
@@ -484,6 +488,7 @@ fn plot_fig10(path: &Path, timings: &[Timing]) -> Result<(), plot::PlotError> {
             y_label: "ms / window".into(),
             series: bars(|t| t.infer_ms),
             equal_aspect: false,
+            log_x: false,
         },
     ];
     let width = (260 + 110 * timings.len() as u32).clamp(520, 900);

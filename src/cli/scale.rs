@@ -1,0 +1,98 @@
+//! `iastgcn scale`: arguments, then the library's `experiment::scale`.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use clap::Args;
+
+use super::train::read_run_config;
+use super::Console;
+use iastgcn::experiment::reproduce::Shard;
+use iastgcn::experiment::scale::{self, Study};
+use iastgcn::gpu::Gpu;
+
+#[derive(Args)]
+pub struct ScaleArgs {
+    /// Output folder: study.toml, data/, models/ and the summary (scale.md, scale.csv,
+    /// scale_summary.csv, scale.png), rewritten after every job.
+    #[arg(long, default_value = "scale")]
+    pub out: PathBuf,
+    /// Run config of every model; the demo's (assets/demo.toml) when absent.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Training data per path, minutes of recording, ascending, comma-separated, each at
+    /// most --recording-minutes.
+    #[arg(long, value_delimiter = ',', default_value = "2,8,32,128")]
+    pub sizes: Vec<f64>,
+    /// Length of each training recording, minutes (default: the largest size); its
+    /// validation and test blocks score every size. A folder keeps its length: give the
+    /// largest size a study will reach, then grow sizes, seeds and models call by call.
+    #[arg(long)]
+    pub recording_minutes: Option<f64>,
+    /// Training seeds, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "1,2,3")]
+    pub seeds: Vec<u64>,
+    /// Models, comma-separated.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "iastgcn,iastgcn-s,tgcn,mlp"
+    )]
+    pub models: Vec<String>,
+    /// Run only this shard's jobs, k/n (jobs k−1, k−1+n, …), then stop.
+    #[arg(long)]
+    pub shard: Option<Shard>,
+    /// Record (or check) the data and stop: run this once before the shards.
+    #[arg(long)]
+    pub data_only: bool,
+    /// The twin machine (seed of its geometric and non-geometric errors) of the data and
+    /// the held-out session.
+    #[arg(long, default_value_t = iastgcn::experiment::protocol::MACHINE_SEED)]
+    pub machine_seed: u64,
+    /// Length of each held-out compensation run, minutes.
+    #[arg(long, default_value_t = 2.0)]
+    pub held_out_minutes: f64,
+    /// Seed of the first held-out run; the next paths take the following seeds.
+    #[arg(long, default_value_t = 301)]
+    pub held_out_seed: u64,
+    /// Minutes of polishing that warm the machine before the held-out session's first
+    /// scored run (0: it starts cold).
+    #[arg(long, default_value_t = 2.0)]
+    pub warm_up_minutes: f64,
+    /// Predict every this many control ticks during compensation.
+    #[arg(long, default_value_t = 5, value_parser = super::count(1..=10_000))]
+    pub every: usize,
+}
+
+pub fn run(gpu: Gpu, args: &ScaleArgs) -> anyhow::Result<()> {
+    let mut study = Study::demo_shape();
+    if let Some(p) = &args.config {
+        study.run = read_run_config(Some(p), None)?;
+    }
+    study.sizes = args.sizes.clone();
+    study.recording_minutes = args
+        .recording_minutes
+        .unwrap_or_else(|| args.sizes.iter().copied().fold(0.0, f64::max));
+    study.seeds = args.seeds.clone();
+    study.models = args.models.clone();
+    study.machine_seed = args.machine_seed;
+    study.held_out_minutes = args.held_out_minutes;
+    study.held_out_seed = args.held_out_seed;
+    study.warm_up_minutes = args.warm_up_minutes;
+    study.every = args.every;
+    let progress = scale::scale(
+        Arc::new(gpu),
+        &study,
+        args.shard,
+        args.data_only,
+        &args.out,
+        &mut Console::default(),
+    )?;
+    println!(
+        "scale: {} of {} jobs done; summary in {}",
+        progress.done,
+        progress.total,
+        args.out.join("scale.md").display()
+    );
+    Ok(())
+}

@@ -1,0 +1,784 @@
+//! `iastgcn scale`: the scaling study (docs/results.md "Scaling study"). How much does
+//! each model gain from more training data, and where does that stop? One training
+//! session of three recordings is recorded at the largest size M; a job trains one model
+//! with one seed (core stage, to early stopping) on the first `m / M` of each
+//! recording's training block and stops early on the first `m / M` of its validation
+//! block, so it sees what an `m`-minute session would have given it, while the test
+//! blocks stay those of the M-minute recordings: every size is scored on the same test
+//! windows (`0.1·M` minutes per path) and on the same held-out session in the twin,
+//! against hidden truth. Jobs are resumable and shardable
+//! as `reproduce`'s; the summary (`scale.csv`, `scale_summary.csv`, `scale.md`,
+//! `scale.png`) is rewritten from every finished job after each one, so a study stopped
+//! early still reports what it has.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use super::evaluate::{held_out_session, HeldOutConfig};
+use super::protocol::{
+    check_seeds, epoch_seconds, existing_data, record_data, train_core, ModelFiles, MACHINE_SEED,
+};
+use super::report::seeds::{seeded_name, Spread};
+use super::report::TableVRow;
+use super::reproduce::{clock, pin_toml, Shard};
+use crate::data::{DataSources, Dataset};
+use crate::error::{Error, Result};
+use crate::gpu::Gpu;
+use crate::graph::Graph;
+use crate::model::{Checkpoint, Variant};
+use crate::plot::{self, Panel, Series};
+use crate::progress::Reporter;
+use crate::train::log::csv_text;
+use crate::train::{build_dataset, RunConfig, TestMetrics};
+use crate::twin::PathKind;
+
+/// The paper's Table V on its Hilbert run (its only compensated path): the share of the
+/// calibrated error its IASTGCN removed, position and attitude, % (0.1393 → 0.0591 mm,
+/// 0.0811 → 0.0183°).
+pub const PAPER_HILBERT_REMOVED: [f64; 2] = [57.6, 77.4];
+
+/// What `iastgcn scale` runs. A folder holds one setup (the recordings' length, the run
+/// config, the machine and the held-out session, pinned in `study.toml`); sizes, seeds
+/// and models may grow from one call to the next, since each job stands alone.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Study {
+    /// Length of each training recording, minutes: the largest size there can be.
+    pub recording_minutes: f64,
+    /// Training data per path, minutes of recording, ascending, each at most
+    /// `recording_minutes`.
+    pub sizes: Vec<f64>,
+    /// Training seeds.
+    pub seeds: Vec<u64>,
+    /// Models by name.
+    pub models: Vec<String>,
+    /// The run config every model trains with (its variant, seed and training share set
+    /// per job).
+    pub run: RunConfig,
+    /// The twin machine of the data and the held-out session.
+    pub machine_seed: u64,
+    /// Length of each held-out run, minutes.
+    pub held_out_minutes: f64,
+    /// Seed of the first held-out run.
+    pub held_out_seed: u64,
+    /// Minutes of polishing before the held-out session's first scored run.
+    pub warm_up_minutes: f64,
+    /// Predict every this many control ticks during compensation.
+    pub every: usize,
+}
+
+impl Study {
+    /// The study of issue 39 at the demo's model and training settings: 2, 8, 32 and 128
+    /// minutes per path, IASTGCN, its Chebyshev ablation, T-GCN and the MLP, seeds 1–3,
+    /// a held-out session of 2-minute runs.
+    pub fn demo_shape() -> Study {
+        let held = HeldOutConfig::default();
+        Study {
+            recording_minutes: 128.0,
+            sizes: vec![2.0, 8.0, 32.0, 128.0],
+            seeds: vec![1, 2, 3],
+            models: ["iastgcn", "iastgcn-s", "tgcn", "mlp"]
+                .map(String::from)
+                .to_vec(),
+            run: RunConfig::demo(),
+            machine_seed: MACHINE_SEED,
+            held_out_minutes: 2.0,
+            held_out_seed: held.seed,
+            warm_up_minutes: held.warm_up_minutes,
+            every: held.every,
+        }
+    }
+
+    /// The held-out session every job is scored on.
+    pub fn held_out(&self) -> HeldOutConfig {
+        HeldOutConfig {
+            minutes: self.held_out_minutes,
+            seed: self.held_out_seed,
+            warm_up_minutes: self.warm_up_minutes,
+            every: self.every,
+        }
+    }
+
+    /// The jobs, seed by seed, then size by size (smallest first), then model by model:
+    /// a study stopped early has whole curves of its first seeds.
+    pub fn jobs(&self) -> Result<Vec<ScaleJob>> {
+        let variants = self
+            .models
+            .iter()
+            .map(|m| {
+                Variant::parse(m).ok_or_else(|| {
+                    Error::Invalid(format!("unknown model {m:?} ({})", Variant::names()))
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let mut jobs = Vec::new();
+        for &seed in &self.seeds {
+            for &minutes in &self.sizes {
+                jobs.extend(variants.iter().map(|&variant| ScaleJob {
+                    variant,
+                    seed,
+                    minutes,
+                }));
+            }
+        }
+        Ok(jobs)
+    }
+
+    /// Checks sizes, seeds, models, the run config and the held-out session.
+    pub fn validate(&self) -> Result<()> {
+        let longest = crate::data::MAX_RUN_SECONDS / 60.0;
+        let max = self.recording_minutes;
+        if !(max.is_finite() && max > 0.0 && max <= longest) {
+            return Err(Error::Invalid(format!(
+                "recording minutes: more than 0 and at most {longest} min, got {max}"
+            )));
+        }
+        if self.sizes.is_empty() {
+            return Err(Error::Invalid("sizes: give at least one size".into()));
+        }
+        for (i, &m) in self.sizes.iter().enumerate() {
+            if !(m.is_finite() && m > 0.0 && m <= max) || (i > 0 && m <= self.sizes[i - 1]) {
+                return Err(Error::Invalid(format!(
+                    "sizes: each size is more than 0 and at most the recordings' {max} min, in \
+                     ascending order and listed once; got {:?}",
+                    self.sizes
+                )));
+            }
+        }
+        check_seeds(&self.seeds)?;
+        if self.models.is_empty() {
+            return Err(Error::Invalid("the study needs at least one model".into()));
+        }
+        for (i, m) in self.models.iter().enumerate() {
+            if self.models[..i].contains(m) {
+                return Err(Error::Invalid(format!("models: {m} is listed twice")));
+            }
+        }
+        self.jobs()?;
+        self.run.validate().map_err(Error::Invalid)?;
+        self.held_out().validate()
+    }
+
+    /// The study with what may change between runs of one folder cleared: its sizes,
+    /// seeds and models, and where and on how many threads the steps run.
+    fn setup(&self) -> Study {
+        let mut s = self.clone();
+        s.sizes.clear();
+        s.seeds.clear();
+        s.models.clear();
+        s.run.train.backend.clear();
+        s.run.train.threads = 0;
+        s
+    }
+}
+
+/// One model trained with one seed on `minutes` of training data per path.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ScaleJob {
+    /// The model.
+    pub variant: Variant,
+    /// Its `[train] seed`.
+    pub seed: u64,
+    /// Training data per path, minutes.
+    pub minutes: f64,
+}
+
+impl ScaleJob {
+    /// `<model>.min<m>.seed<k>`: grouped by `<model>.min<m>` over the seeds.
+    pub fn name(&self) -> String {
+        seeded_name(
+            &format!("{}.min{}", self.variant.name(), self.minutes),
+            self.seed,
+        )
+    }
+
+    /// Its checkpoint (the core stage's best weights; state, log and loss plot beside).
+    pub fn checkpoint(&self, out: &Path) -> PathBuf {
+        out.join("models")
+            .join(format!("{}.safetensors", self.name()))
+    }
+
+    /// The record written when the job has finished.
+    pub fn record_path(&self, out: &Path) -> PathBuf {
+        out.join("models").join(format!("{}.job.toml", self.name()))
+    }
+}
+
+/// One path's scores of a job: the test split (the three training paths) and the
+/// held-out run, against hidden truth, position µm and attitude mdeg.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PathScore {
+    /// `grid`, `fermat`, `hilbert` or `rosette`.
+    pub path: String,
+    /// Test windows of the path's recording (0 for the rosette, never recorded).
+    pub test_windows: usize,
+    /// The model's test MAE (NaN for the rosette).
+    pub test_mae: [f64; 2],
+    /// Mean true pose error of the held-out run: nominal controller, calibrated, the
+    /// true residual fed back (oracle), compensated by the model.
+    pub initial: [f64; 2],
+    /// Calibrated controller.
+    pub calibrated: [f64; 2],
+    /// The oracle.
+    pub oracle: [f64; 2],
+    /// Compensated by the model.
+    pub compensated: [f64; 2],
+}
+
+impl PathScore {
+    /// Share of the calibrated error that compensation (or the oracle) removed, %.
+    pub fn removed(&self, by: [f64; 2]) -> [f64; 2] {
+        [0, 1].map(|i| 100.0 * (self.calibrated[i] - by[i]) / self.calibrated[i])
+    }
+}
+
+/// What a finished job left.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ScaleRecord {
+    /// `<model>.min<m>.seed<k>`.
+    pub name: String,
+    /// The model.
+    pub model: String,
+    /// The training seed.
+    pub seed: u64,
+    /// Training data per path, minutes.
+    pub minutes: f64,
+    /// Training windows it trained on.
+    pub train_windows: usize,
+    /// Best validation loss (standardised) and its epoch, epochs run.
+    pub best_val: f64,
+    /// Its epoch.
+    pub best_epoch: usize,
+    /// Core epochs run.
+    pub epochs: usize,
+    /// Mean epoch time, s.
+    pub epoch_seconds: f64,
+    /// Where it trained.
+    pub trained_on: String,
+    /// Wall time of the job in the run that finished it, s.
+    pub wall_seconds: f64,
+    /// Scores per path: grid, fermat, hilbert, rosette.
+    pub paths: Vec<PathScore>,
+}
+
+impl ScaleRecord {
+    fn load(path: &Path) -> Result<ScaleRecord> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        toml::from_str(&text).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))
+    }
+}
+
+/// How far a call got: jobs with a record, of all.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Progress {
+    /// Jobs with a record.
+    pub done: usize,
+    /// Jobs in the study.
+    pub total: usize,
+}
+
+/// Runs the study into `out` (`study.toml`, `data/`, `models/`, the summary files).
+/// With `shard`, only that shard's jobs; with `data_only`, stops once the data exist.
+/// Jobs with a record are skipped; an interrupted job resumes from its state file.
+pub fn scale(
+    gpu: Arc<Gpu>,
+    study: &Study,
+    shard: Option<Shard>,
+    data_only: bool,
+    out: &Path,
+    reporter: &mut dyn Reporter,
+) -> Result<Progress> {
+    let began = Instant::now();
+    study.validate()?;
+    let jobs = study.jobs()?;
+    std::fs::create_dir_all(out.join("models")).map_err(|e| Error::io(out, e))?;
+    pin_toml(
+        study,
+        &out.join("study.toml"),
+        |a: &Study, b| a.setup() == b.setup(),
+        "this folder holds another study (the recordings' length, the run config, the \
+         machine or the held-out session differ); use another --out, or the same options",
+    )?;
+    let minutes = study.recording_minutes;
+    reporter.note(&format!(
+        "scaling study on {} → {}: {} sizes × {} seeds × {} models = {} jobs; recordings of \
+         {minutes} min per path, twin machine {}",
+        gpu.info().name,
+        out.display(),
+        study.sizes.len(),
+        study.seeds.len(),
+        study.models.len(),
+        jobs.len(),
+        study.machine_seed
+    ));
+    let data_dir = out.join("data");
+    let sources = match existing_data(&data_dir, minutes, study.machine_seed)? {
+        Some(s) => s,
+        None => record_data(&data_dir, minutes, study.machine_seed, reporter)?,
+    };
+    let done = |jobs: &[ScaleJob]| jobs.iter().filter(|j| j.record_path(out).exists()).count();
+    if data_only {
+        return Ok(Progress {
+            done: done(&jobs),
+            total: jobs.len(),
+        });
+    }
+    let todo: Vec<(usize, ScaleJob)> = jobs
+        .iter()
+        .copied()
+        .enumerate()
+        .filter(|(i, j)| shard.is_none_or(|s| s.owns(*i)) && !j.record_path(out).exists())
+        .collect();
+    let mut current: Option<(f64, Graph, Dataset)> = None;
+    let mut spent = Vec::new();
+    for (n, (i, job)) in todo.iter().enumerate() {
+        let eta = match spent.len() {
+            0 => "unknown until a job finishes".to_string(),
+            k => clock(spent.iter().sum::<f64>() / k as f64 * (todo.len() - n) as f64),
+        };
+        reporter.note(&format!(
+            "== job {}/{} ({} of this run): {} seed {} on {} min per path; elapsed {}, ETA {eta}",
+            i + 1,
+            jobs.len(),
+            n + 1,
+            job.variant,
+            job.seed,
+            job.minutes,
+            clock(began.elapsed().as_secs_f64())
+        ));
+        let started = Instant::now();
+        let mut config = study.run.clone();
+        config.model.variant = job.variant;
+        config.train.seed = job.seed;
+        config.data.train_fraction = job.minutes / minutes;
+        config.data.validation_fraction = job.minutes / minutes;
+        let size = match current.take() {
+            Some(c) if c.0 == job.minutes => c,
+            old => {
+                drop(old); // free the previous size's dataset first
+                let (graph, data) = build_dataset(&sources, &config, None)?;
+                for line in data.summary().lines() {
+                    reporter.note(line);
+                }
+                (job.minutes, graph, data)
+            }
+        };
+        let (_, graph, data) = current.insert(size);
+        let mut record = run_job(
+            &gpu,
+            study,
+            &config,
+            job,
+            (graph, data),
+            &sources,
+            out,
+            reporter,
+        )?;
+        record.wall_seconds = started.elapsed().as_secs_f64();
+        let text = toml::to_string(&record)
+            .map_err(|e| Error::Invalid(format!("{}: job record: {e}", record.name)))?;
+        crate::error::write_file(&job.record_path(out), text.as_bytes())?;
+        spent.push(record.wall_seconds);
+        write_summary(study, out, reporter)?;
+    }
+    Ok(Progress {
+        done: done(&jobs),
+        total: jobs.len(),
+    })
+}
+
+/// The core stage of one job, then its scores: the test split per path from the best
+/// weights, and the held-out session with the model in the loop.
+#[allow(clippy::too_many_arguments)]
+fn run_job(
+    gpu: &Arc<Gpu>,
+    study: &Study,
+    config: &RunConfig,
+    job: &ScaleJob,
+    (graph, data): (&Graph, &Dataset),
+    sources: &DataSources,
+    out: &Path,
+    reporter: &mut dyn Reporter,
+) -> Result<ScaleRecord> {
+    let name = job.name();
+    let files = ModelFiles {
+        core: job.checkpoint(out),
+        refined: job.checkpoint(out),
+        resume: true,
+    };
+    let trained = train_core(gpu, data, graph, config, &name, &files, reporter)?;
+    let checkpoint = Checkpoint::load(&files.core)?;
+    let session = held_out_session(
+        gpu,
+        &[(name.clone(), checkpoint)],
+        sources,
+        &study.held_out(),
+        false,
+        reporter,
+    )?;
+    let paths = PathKind::ALL
+        .into_iter()
+        .map(|p| path_score(p.name(), &trained.test, &session.rows, &name))
+        .collect::<Result<Vec<_>>>()?;
+    Ok(ScaleRecord {
+        name: name.clone(),
+        model: job.variant.name().into(),
+        seed: job.seed,
+        minutes: job.minutes,
+        train_windows: data.splits.train.len(),
+        best_val: trained.best_val,
+        best_epoch: trained.best_epoch,
+        epochs: trained.epochs,
+        epoch_seconds: epoch_seconds(&trained.history),
+        trained_on: trained
+            .history
+            .first()
+            .map_or_else(|| "unknown".into(), |r| r.trained_on.clone()),
+        wall_seconds: 0.0,
+        paths,
+    })
+}
+
+/// One path's scores from the test metrics (recordings named after their path) and the
+/// session's Table V rows.
+fn path_score(
+    path: &str,
+    test: &[TestMetrics],
+    rows: &[TableVRow],
+    model: &str,
+) -> Result<PathScore> {
+    let truth = |stage: &str, who: Option<&str>| -> Result<[f64; 2]> {
+        rows.iter()
+            .find(|r| r.trajectory == path && r.stage == stage && who.is_none_or(|m| r.model == m))
+            .map(|r| [r.truth.position.mean, r.truth.attitude.mean])
+            .ok_or_else(|| Error::Invalid(format!("no {stage} row for {path} in the session")))
+    };
+    let recorded = test.iter().find(|t| {
+        Path::new(&t.recording)
+            .file_stem()
+            .is_some_and(|s| s.to_string_lossy() == path)
+    });
+    Ok(PathScore {
+        path: path.into(),
+        test_windows: recorded.map_or(0, |t| t.model.count),
+        test_mae: recorded.map_or([f64::NAN; 2], |t| [t.model.pos_mae, t.model.att_mae]),
+        initial: truth("initial", None)?,
+        calibrated: truth("calibrated", None)?,
+        oracle: truth("oracle", None)?,
+        compensated: truth("compensated", Some(model))?,
+    })
+}
+
+/// The records of every job finished in the folder (by this study or an earlier call
+/// with other sizes, seeds or models), by size, seed and name.
+fn records(out: &Path) -> Result<Vec<ScaleRecord>> {
+    let dir = out.join("models");
+    let mut records = Vec::new();
+    for entry in std::fs::read_dir(&dir).map_err(|e| Error::io(&dir, e))? {
+        let path = entry.map_err(|e| Error::io(&dir, e))?.path();
+        if path.to_string_lossy().ends_with(".job.toml") {
+            records.push(ScaleRecord::load(&path)?);
+        }
+    }
+    records.sort_by(|a, b| {
+        (a.minutes, a.seed, &a.name)
+            .partial_cmp(&(b.minutes, b.seed, &b.name))
+            .unwrap_or(std::cmp::Ordering::Equal)
+    });
+    Ok(records)
+}
+
+/// One point of the summary: a model at a size on a path, over its seeds.
+struct Point {
+    model: String,
+    minutes: f64,
+    path: String,
+    train_windows: usize,
+    pos_removed: Spread,
+    att_removed: Spread,
+    test_pos: Spread,
+    test_att: Spread,
+    oracle_removed: [f64; 2],
+}
+
+/// The summary's points, model by model (those of `order` first, in its order), each by
+/// size.
+fn points(records: &[ScaleRecord], order: &[String]) -> Vec<Point> {
+    let mut keys: Vec<(String, f64)> = Vec::new();
+    for r in records {
+        if !keys.iter().any(|k| k.0 == r.model && k.1 == r.minutes) {
+            keys.push((r.model.clone(), r.minutes));
+        }
+    }
+    let first = |m: &str| order.iter().position(|o| o == m).unwrap_or(order.len());
+    let mut sorted = keys.clone();
+    sorted.sort_by(|a, b| {
+        (first(&a.0), &a.0, a.1)
+            .partial_cmp(&(first(&b.0), &b.0, b.1))
+            .unwrap_or(std::cmp::Ordering::Equal)
+    });
+    let mut out = Vec::new();
+    for (model, minutes) in sorted {
+        let group: Vec<&ScaleRecord> = records
+            .iter()
+            .filter(|r| r.model == model && r.minutes == minutes)
+            .collect();
+        for path in PathKind::ALL.map(PathKind::name) {
+            let scores: Vec<&PathScore> = group
+                .iter()
+                .filter_map(|r| r.paths.iter().find(|p| p.path == path))
+                .collect();
+            let each = |f: &dyn Fn(&PathScore) -> f64| {
+                Spread::of(&scores.iter().map(|s| f(s)).collect::<Vec<_>>())
+            };
+            out.push(Point {
+                model: model.clone(),
+                minutes,
+                path: path.into(),
+                train_windows: group[0].train_windows,
+                pos_removed: each(&|s| s.removed(s.compensated)[0]),
+                att_removed: each(&|s| s.removed(s.compensated)[1]),
+                test_pos: each(&|s| s.test_mae[0]),
+                test_att: each(&|s| s.test_mae[1]),
+                oracle_removed: [0, 1].map(|i| each(&|s| s.removed(s.oracle)[i]).mean),
+            });
+        }
+    }
+    out
+}
+
+/// `scale.csv` (a row per job and path), `scale_summary.csv` (mean and SD over seeds per
+/// model, size and path), `scale.md` and `scale.png` from every finished job.
+pub fn write_summary(study: &Study, out: &Path, reporter: &mut dyn Reporter) -> Result<()> {
+    let records = records(out)?;
+    if records.is_empty() {
+        return Ok(());
+    }
+    let f = |v: f64| format!("{v:.3}");
+    let rows: Vec<Vec<String>> = records
+        .iter()
+        .flat_map(|r| {
+            r.paths.iter().map(move |p| {
+                let [pr, ar] = p.removed(p.compensated);
+                vec![
+                    r.model.clone(),
+                    r.minutes.to_string(),
+                    r.seed.to_string(),
+                    r.train_windows.to_string(),
+                    r.epochs.to_string(),
+                    p.path.clone(),
+                    p.test_windows.to_string(),
+                    f(p.test_mae[0]),
+                    f(p.test_mae[1]),
+                    f(p.calibrated[0]),
+                    f(p.oracle[0]),
+                    f(p.compensated[0]),
+                    f(p.calibrated[1]),
+                    f(p.oracle[1]),
+                    f(p.compensated[1]),
+                    f(pr),
+                    f(ar),
+                ]
+            })
+        })
+        .collect();
+    let jobs_csv = csv_text(
+        "model,minutes,seed,train_windows,epochs,path,test_windows,test_pos_mae_um,\
+         test_att_mae_mdeg,calibrated_pos_um,oracle_pos_um,compensated_pos_um,\
+         calibrated_att_mdeg,oracle_att_mdeg,compensated_att_mdeg,pos_removed_pct,\
+         att_removed_pct",
+        rows,
+    );
+    let points = points(&records, &study.models);
+    let sd = |s: &Spread| [f(s.mean), f(s.sd)];
+    let summary_rows = points
+        .iter()
+        .map(|p| {
+            let mut row = vec![
+                p.model.clone(),
+                p.minutes.to_string(),
+                p.train_windows.to_string(),
+                p.pos_removed.n.to_string(),
+                p.path.clone(),
+            ];
+            for s in [&p.pos_removed, &p.att_removed, &p.test_pos, &p.test_att] {
+                row.extend(sd(s));
+            }
+            row.extend(p.oracle_removed.map(f));
+            row
+        })
+        .collect();
+    let summary_csv = csv_text(
+        "model,minutes,train_windows,seeds,path,pos_removed_mean_pct,pos_removed_sd_pct,\
+         att_removed_mean_pct,att_removed_sd_pct,test_pos_mae_mean_um,test_pos_mae_sd_um,\
+         test_att_mae_mean_mdeg,test_att_mae_sd_mdeg,oracle_pos_removed_pct,\
+         oracle_att_removed_pct",
+        summary_rows,
+    );
+    let mut batch = crate::atomic::Batch::new();
+    let io = |p: &Path, e: std::io::Error| Error::io(p, e);
+    for (name, text) in [
+        ("scale.csv", jobs_csv),
+        ("scale_summary.csv", summary_csv),
+        ("scale.md", markdown(study, &records, &points)),
+    ] {
+        let path = out.join(name);
+        batch
+            .add(&path, text.as_bytes())
+            .map_err(|e| io(&path, e))?;
+    }
+    let png = out.join("scale.png");
+    batch.add_with(&png, |tmp| {
+        plot::draw(tmp, &panels(&points), 2, 3, (1500, 900))
+    })?;
+    batch.commit().map_err(|e| io(out, e))?;
+    reporter.note(&format!(
+        "summary of {} finished jobs: {}",
+        records.len(),
+        out.join("scale.md").display()
+    ));
+    Ok(())
+}
+
+/// The plot: position error removed on each held-out path, Hilbert's attitude, and the
+/// test MAE over the three training paths, against training windows (log axis); the
+/// calibration (0 %), the oracle and on Hilbert the paper's figure as lines.
+fn panels(points: &[Point]) -> Vec<Panel> {
+    let mut models: Vec<&str> = Vec::new();
+    for p in points {
+        if !models.contains(&p.model.as_str()) {
+            models.push(&p.model);
+        }
+    }
+    let span = points
+        .iter()
+        .map(|p| p.train_windows as f64)
+        .fold((f64::MAX, 0f64), |(a, b), w| (a.min(w), b.max(w)));
+    let level = |name: &str, y: f64| Series::new(name, vec![(span.0, y), (span.1, y)]);
+    let removed = |path: &str, att: bool| {
+        let at = |p: &&Point| p.path == path;
+        let mut series: Vec<Series> = models
+            .iter()
+            .map(|&m| {
+                let pts = points
+                    .iter()
+                    .filter(|p| at(p) && p.model == m)
+                    .map(|p| {
+                        let s = if att { &p.att_removed } else { &p.pos_removed };
+                        (p.train_windows as f64, s.mean)
+                    })
+                    .collect();
+                Series::new(m, pts)
+            })
+            .collect();
+        let oracle = points
+            .iter()
+            .filter(at)
+            .map(|p| p.oracle_removed[usize::from(att)]);
+        let n = points.iter().filter(at).count().max(1) as f64;
+        series.push(level("oracle", oracle.sum::<f64>() / n));
+        series.push(level("calibration", 0.0));
+        if path == PathKind::Hilbert.name() {
+            series.push(level("paper", PAPER_HILBERT_REMOVED[usize::from(att)]));
+        }
+        Panel {
+            title: format!(
+                "{path}: {} error removed",
+                if att { "attitude" } else { "position" }
+            ),
+            x_label: "training windows".into(),
+            y_label: "% of calibrated error".into(),
+            series,
+            log_x: true,
+            ..Panel::default()
+        }
+    };
+    let mut out: Vec<Panel> = PathKind::ALL
+        .iter()
+        .map(|p| removed(p.name(), false))
+        .collect();
+    out.push(removed(PathKind::Hilbert.name(), true));
+    let test = models
+        .iter()
+        .map(|&m| {
+            let mut by_size: Vec<(f64, f64, usize)> = Vec::new();
+            for p in points
+                .iter()
+                .filter(|p| p.model == m && p.test_pos.mean.is_finite())
+            {
+                match by_size.iter_mut().find(|s| s.0 == p.train_windows as f64) {
+                    Some(s) => (s.1, s.2) = (s.1 + p.test_pos.mean, s.2 + 1),
+                    None => by_size.push((p.train_windows as f64, p.test_pos.mean, 1)),
+                }
+            }
+            Series::new(m, by_size.iter().map(|s| (s.0, s.1 / s.2 as f64)).collect())
+        })
+        .collect();
+    out.push(Panel {
+        title: "test split: position MAE (mean of 3 paths)".into(),
+        x_label: "training windows".into(),
+        y_label: "µm".into(),
+        series: test,
+        log_x: true,
+        ..Panel::default()
+    });
+    out
+}
+
+/// `scale.md`: what ran, then per path a table of error removed and test MAE per model
+/// and size.
+fn markdown(study: &Study, records: &[ScaleRecord], points: &[Point]) -> String {
+    let minutes = study.recording_minutes;
+    let mut s = format!(
+        "# Scaling study\n\n- Recordings of {minutes} min per path; a size of m minutes \
+         trains on the first m/{minutes} of each recording's training block and stops early \
+         on the first m/{minutes} of its validation block; every size is scored on the same \
+         test blocks, those of the {minutes}-minute recordings\n- Core stage to early stopping (no refinement)\n- Held-out session: {} \
+         min runs from seed {} after {} min of warm-up, a prediction every {} ticks, scored \
+         against hidden truth\n- Jobs finished in this folder: {} (the last call's study: \
+         sizes {:?}, seeds {:?}, models {})\n\nMean ± SD over seeds. Removed: share of the \
+         calibrated controller's mean true error removed by compensation. Test MAE: the \
+         model's on the path's test block (µm / mdeg). The paper's Table V (Hilbert): {} % / \
+         {} %.\n",
+        study.held_out_minutes,
+        study.held_out_seed,
+        study.warm_up_minutes,
+        study.every,
+        records.len(),
+        study.sizes,
+        study.seeds,
+        study.models.join(", "),
+        PAPER_HILBERT_REMOVED[0],
+        PAPER_HILBERT_REMOVED[1],
+    );
+    for path in PathKind::ALL.map(PathKind::name) {
+        s.push_str(&format!(
+            "\n## {path}\n\n| Model | Min/path | Train windows | Seeds | Pos. removed (%) | \
+             Att. removed (%) | Test MAE pos (µm) | Test MAE att (mdeg) |\n\
+             |---|---:|---:|---:|---:|---:|---:|---:|\n"
+        ));
+        let mut oracle = None;
+        for p in points.iter().filter(|p| p.path == path) {
+            s.push_str(&format!(
+                "| {} | {} | {} | {} | {} | {} | {} | {} |\n",
+                p.model,
+                p.minutes,
+                p.train_windows,
+                p.pos_removed.n,
+                p.pos_removed.text(1),
+                p.att_removed.text(1),
+                p.test_pos.text(2),
+                p.test_att.text(2)
+            ));
+            oracle = Some(p.oracle_removed);
+        }
+        if let Some([pos, att]) = oracle {
+            s.push_str(&format!(
+                "| oracle (true residual) | | | | {pos:.1} | {att:.1} | | |\n"
+            ));
+        }
+    }
+    s
+}

@@ -1,0 +1,156 @@
+//! `iastgcn scale` end to end at a tiny size: the data once at the largest size, the jobs
+//! split over two shards, the summary after them; every size is scored on the same test
+//! windows and the same held-out session (the calibrated and oracle rows do not depend
+//! on the model); a job whose record is lost is redone from its state to the same scores;
+//! a study grows by seeds; another setup in the same folder and bad sizes are refused.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::{cli, cli_fails};
+use iastgcn::experiment::scale::ScaleRecord;
+
+const TINY: &str = "[model]\nwindow = 16\nchannels = 4\nblocks = 2\nhidden = 8\n\n\
+[data]\nstride = 5\n\n[train]\nbatch = 32\nlr = 3e-3\nmax_epochs = 2\n";
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn record(path: &Path) -> ScaleRecord {
+    toml::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+#[test]
+fn scale_shards_scores_every_size_alike_and_resumes() {
+    let dir: PathBuf = std::env::temp_dir().join(format!("iastgcn-scale-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("tiny.toml");
+    std::fs::write(&config, TINY).unwrap();
+    let out = dir.join("out");
+    let run = |extra: &[&str]| {
+        let mut args = vec!["scale", "--config", s(&config), "--sizes", "0.25,0.5"];
+        args.extend(["--seeds", "1,2", "--models", "tgcn,mlp"]);
+        args.extend(["--held-out-minutes", "0.1", "--warm-up-minutes", "0.2"]);
+        args.extend(["--out", s(&out)]);
+        args.extend(extra);
+        cli(&args)
+    };
+    let text = run(&["--data-only"]);
+    assert!(text.contains("0 of 8 jobs done"), "{text}");
+    assert!(out.join("study.toml").exists());
+    // Jobs: seed 1 (tgcn, mlp on 0.25, then on 0.5), then seed 2; shard 1 has the tgcn.
+    let text = run(&["--shard", "1/2"]);
+    assert!(text.contains("4 of 8 jobs done"), "{text}");
+    let models = out.join("models");
+    assert!(models.join("tgcn.min0.25.seed1.job.toml").exists());
+    assert!(!models.join("mlp.min0.25.seed1.job.toml").exists());
+    let text = run(&["--shard", "2/2"]);
+    assert!(text.contains("8 of 8 jobs done"), "{text}");
+
+    let records: Vec<ScaleRecord> = ["tgcn", "mlp"]
+        .iter()
+        .flat_map(|m| {
+            ["0.25", "0.5"]
+                .iter()
+                .flat_map(move |min| [1, 2].map(|k| format!("{m}.min{min}.seed{k}.job.toml")))
+        })
+        .map(|name| record(&models.join(name)))
+        .collect();
+    let first = &records[0];
+    for r in &records {
+        assert_eq!(r.paths.len(), 4, "{}", r.name);
+        // About half the training windows at half the size (a window's length less).
+        let full = records[2].train_windows as f64;
+        let want = if r.minutes == 0.5 {
+            1.0..=1.0
+        } else {
+            0.35..=0.55
+        };
+        assert!(
+            want.contains(&(r.train_windows as f64 / full)),
+            "{}: {} training windows against {full}",
+            r.name,
+            r.train_windows
+        );
+        for (p, q) in r.paths.iter().zip(&first.paths) {
+            // The same test block and held-out session for every size and model.
+            assert_eq!(p.test_windows, q.test_windows, "{} {}", r.name, p.path);
+            assert_eq!(p.calibrated, q.calibrated, "{} {}", r.name, p.path);
+            assert_eq!(p.oracle, q.oracle, "{} {}", r.name, p.path);
+            assert_eq!(p.initial, q.initial, "{} {}", r.name, p.path);
+            assert!(p.compensated.iter().all(|v| v.is_finite()), "{}", r.name);
+            assert!(p.calibrated[0] < p.initial[0], "{}", p.path);
+            if p.path == "rosette" {
+                assert_eq!(p.test_windows, 0);
+            } else {
+                assert!(
+                    p.test_windows > 0 && p.test_mae[0].is_finite(),
+                    "{}",
+                    p.path
+                );
+            }
+        }
+    }
+
+    let summary = std::fs::read_to_string(out.join("scale_summary.csv")).unwrap();
+    // 2 models × 2 sizes × 4 paths, each over 2 seeds.
+    let rows: Vec<Vec<&str>> = summary
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    assert_eq!(rows.len(), 16, "{summary}");
+    assert!(rows.iter().all(|r| r[3] == "2"), "{summary}");
+    assert_eq!(
+        (rows[0][0], rows[0][1], rows[0][4]),
+        ("tgcn", "0.25", "grid")
+    );
+    assert_eq!(
+        std::fs::read_to_string(out.join("scale.csv"))
+            .unwrap()
+            .lines()
+            .count(),
+        1 + 32
+    );
+    let md = std::fs::read_to_string(out.join("scale.md")).unwrap();
+    assert!(md.contains("Jobs finished in this folder: 8 "), "{md}");
+    assert!(
+        md.contains("## hilbert") && md.contains("| oracle (true residual) |"),
+        "{md}"
+    );
+    assert!(out.join("scale.png").exists());
+
+    // A lost record: the job resumes from its state (training is over) to the same scores.
+    let lost = models.join("tgcn.min0.5.seed2.job.toml");
+    let before = record(&lost);
+    std::fs::remove_file(&lost).unwrap();
+    let text = run(&[]);
+    assert!(text.contains("8 of 8 jobs done"), "{text}");
+    let after = record(&lost);
+    // (As text: the rosette's test MAE is NaN.)
+    assert_eq!(format!("{:?}", after.paths), format!("{:?}", before.paths));
+    assert_eq!(after.best_val, before.best_val);
+
+    // The study may grow by seeds (or sizes, models): seed 1's jobs are done already.
+    let mut args = vec!["scale", "--config", s(&config), "--sizes", "0.25,0.5"];
+    args.extend(["--seeds", "1,3", "--models", "tgcn,mlp", "--data-only"]);
+    args.extend(["--held-out-minutes", "0.1", "--warm-up-minutes", "0.2"]);
+    args.extend(["--out", s(&out)]);
+    let text = cli(&args);
+    assert!(text.contains("4 of 8 jobs done"), "{text}");
+    // Another setup in the same folder (here: recordings of another length), and sizes
+    // out of order, are refused.
+    let mut args = vec!["scale", "--config", s(&config), "--sizes", "0.25,0.75"];
+    args.extend(["--out", s(&out)]);
+    let err = cli_fails(&args);
+    assert!(
+        err.contains("study.toml") && err.contains("another study"),
+        "{err}"
+    );
+    let err = cli_fails(&["scale", "--sizes", "8,2", "--out", s(&dir.join("x"))]);
+    assert!(err.contains("ascending"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
