@@ -92,6 +92,7 @@ fn open_gpu(adapter: Option<&str>) -> anyhow::Result<Gpu> {
 
 /// Entry point of the `iastgcn` binary.
 pub fn main() -> ExitCode {
+    restore_sigpipe();
     // Mesa's device-select layer complains on stderr at every enumeration when there is
     // no XDG_RUNTIME_DIR (headless CI); it has nothing to select among here anyway.
     // Safe: no other thread exists yet.
@@ -144,6 +145,18 @@ pub fn main() -> ExitCode {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE
         }
+    }
+}
+
+/// Gives SIGPIPE back its default action, which Rust's runtime sets to "ignore": a
+/// reader that closes the pipe early (`iastgcn info | head -1`) then ends the program
+/// quietly, as it ends `cat`, instead of every `println!` panicking on the broken pipe.
+fn restore_sigpipe() {
+    #[cfg(unix)]
+    // Safe: called first in main, before any other thread exists; SIG_DFL is a valid
+    // disposition for SIGPIPE.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
 }
 
