@@ -262,6 +262,95 @@ fn train_resume_predict_refine() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A run that early stopping ended: resuming it says why nothing more trains and which
+/// flag to raise; `--patience` continues it; `--max-epochs` counts every epoch of the run.
+#[test]
+fn resume_says_why_nothing_trains_and_patience_continues() {
+    let dir: PathBuf =
+        std::env::temp_dir().join(format!("iastgcn-cli-patience-{}", std::process::id()));
+    let (cal, recs) = common::twin_session(&dir, &["grid", "hilbert"], 40.0);
+    let config = dir.join("patience.toml");
+    // Patience 1: the first epoch without a better validation loss ends the run, long
+    // before the epoch limit.
+    std::fs::write(
+        &config,
+        TINY.replace("max_epochs = 2\n\n", "max_epochs = 200\npatience = 1\n\n"),
+    )
+    .unwrap();
+    let out = dir.join("m.safetensors");
+    let (state, log) = (dir.join("m.state.safetensors"), dir.join("m.log.csv"));
+    let train = |extra: &[&str]| {
+        let mut args = vec!["train", "--config", s(&config), "--calibration", s(&cal)];
+        args.extend(["--out", s(&out), "--data"]);
+        args.extend(recs.iter().map(|p| s(p)));
+        args.extend(extra);
+        cli(&args)
+    };
+
+    let text = train(&[]);
+    let n = losses(&log).len();
+    assert!(n < 200, "patience 1 did not stop the run: {text}");
+    let why = format!("patience ran out at epoch {n} (1 epoch without a better validation loss");
+    assert!(text.contains(&format!("stopped: {why}")), "{text}");
+
+    // A larger epoch limit alone trains nothing, and says so.
+    let before = std::fs::read_to_string(&log).unwrap();
+    let text = train(&["--max-epochs", "300", "--resume", s(&state)]);
+    assert!(
+        text.contains(&format!("nothing more to train: {why}"))
+            && text.contains("pass --patience above 1")
+            && !text.contains("training iastgcn on"),
+        "{text}"
+    );
+    assert_eq!(std::fs::read_to_string(&log).unwrap(), before);
+
+    // --patience continues it: two more epochs, up to the total of n + 2.
+    let total = (n + 2).to_string();
+    let text = train(&[
+        "--patience",
+        "3",
+        "--max-epochs",
+        &total,
+        "--resume",
+        s(&state),
+    ]);
+    assert!(text.contains("resumed"), "{text}");
+    let after = std::fs::read_to_string(&log).unwrap();
+    assert_eq!(losses(&log).len(), n + 2, "{text}");
+    assert!(
+        after.starts_with(&before),
+        "the resumed epochs follow the first ones"
+    );
+    let limit = format!(
+        "the epoch limit is reached (epoch {total} of max_epochs = {total}, a total count)"
+    );
+    assert!(text.contains(&format!("stopped: {limit}")), "{text}");
+
+    // The epoch limit is a total count: the same limit again trains nothing.
+    let text = train(&[
+        "--patience",
+        "100",
+        "--max-epochs",
+        &total,
+        "--resume",
+        s(&state),
+    ]);
+    assert!(
+        text.contains(&format!(
+            "nothing more to train: {limit}; to continue, pass --max-epochs above {total}"
+        )),
+        "{text}"
+    );
+    assert_eq!(std::fs::read_to_string(&log).unwrap(), after);
+
+    // Zero patience is refused by the flag's name.
+    let mut args = vec!["train", "--patience", "0", "--calibration", s(&cal)];
+    args.extend(["--out", s(&out), "--data", s(&recs[0])]);
+    let err = common::cli_fails(&args);
+    assert!(err.contains("--patience"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn run_configs_have_defaults_and_checks() {
     let demo = RunConfig::demo();

@@ -55,9 +55,14 @@ pub struct TrainArgs {
     /// Override the config's variant: iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, or a baseline: convlstm, tgcn, eat-gcn, st-gat, mlp, bkls-ann, ann-bfpa, erc.
     #[arg(long)]
     pub variant: Option<String>,
-    /// Override train.max_epochs (e.g. to continue a resumed run further).
-    #[arg(long)]
+    /// Override train.max_epochs, the epochs of the whole run (a total count: a resumed
+    /// run at epoch 72 needs more than 72 to train further).
+    #[arg(long, value_parser = super::count(1..))]
     pub max_epochs: Option<usize>,
+    /// Override train.patience, the epochs without a better validation loss before
+    /// training stops (e.g. to continue a resumed run that stopped early).
+    #[arg(long, value_parser = super::count(1..))]
+    pub patience: Option<usize>,
     /// Best checkpoint. Beside it: `<stem>.state.safetensors` (resumable state),
     /// `<stem>.log.csv`, `<stem>.loss.png`; all written atomically after the first epoch,
     /// at most every 2 s after it, and after the last (docs/usage.md).
@@ -138,6 +143,9 @@ pub fn train(gpu: &Gpu, args: &TrainArgs) -> anyhow::Result<()> {
     if let Some(n) = args.max_epochs {
         config.train.max_epochs = n;
     }
+    if let Some(n) = args.patience {
+        config.train.patience = n;
+    }
     config.validate().map_err(anyhow::Error::msg)?;
     let (graph, data) = build_dataset(&args.data.sources(), &config, None)?;
     print!("{}", data.summary());
@@ -150,6 +158,7 @@ pub fn train(gpu: &Gpu, args: &TrainArgs) -> anyhow::Result<()> {
         args.resume.as_deref(),
         &mut Console::default(),
     )?;
+    println!("stopped: {}", t.stopped);
     println!(
         "best validation loss {:.5} at epoch {} of {}; saved {}",
         t.best_val,

@@ -287,6 +287,8 @@ pub struct Trained {
     pub best_epoch: usize,
     /// Epochs run.
     pub epochs: usize,
+    /// Why training stopped, in words ([`Trainer::stopped`]).
+    pub stopped: String,
     /// One record per epoch.
     pub history: Vec<super::EpochRecord>,
     /// Test-split metrics of the best weights, per recording.
@@ -350,14 +352,22 @@ pub fn train(
             p2.best_val,
             p2.best_epoch
         ));
+        if let Some(why) = trainer.stopped() {
+            reporter.note(&format!(
+                "nothing more to train: {why}; to continue, pass {}",
+                trainer.to_continue()
+            ));
+        }
     }
-    reporter.note(&format!(
-        "training {} on {}: {} windows per step, {} steps per epoch",
-        config.model.variant,
-        trainer.trained_on(),
-        trainer.batch(),
-        trainer.steps_per_epoch()
-    ));
+    if !trainer.finished() {
+        reporter.note(&format!(
+            "training {} on {}: {} windows per step, {} steps per epoch",
+            config.model.variant,
+            trainer.trained_on(),
+            trainer.batch(),
+            trainer.steps_per_epoch()
+        ));
+    }
     if trainer.batch() < config.train.batch {
         // Documented (docs/robustness.md): a batch beyond the split is the whole split.
         reporter.note(&format!(
@@ -382,6 +392,7 @@ pub fn train(
         best_val: p.best_val,
         best_epoch: p.best_epoch,
         epochs: p.epoch,
+        stopped: trainer.stopped().unwrap_or_default(),
         history: p.history.clone(),
         test: test_metrics(&trainer, data)?,
         validation: validation_metrics(&trainer, data)?,

@@ -341,8 +341,52 @@ impl<'a> Trainer<'a> {
 
     /// True when the stage is over (epoch limit or patience).
     pub fn finished(&self) -> bool {
+        self.epoch_limit_reached() || self.patience_ran_out()
+    }
+
+    fn epoch_limit_reached(&self) -> bool {
         self.progress.epoch >= self.stage.max_epochs
-            || self.progress.bad_epochs >= self.stage.patience
+    }
+
+    fn patience_ran_out(&self) -> bool {
+        self.progress.bad_epochs >= self.stage.patience
+    }
+
+    /// Why the stage is over, in words (`None` while it is not): the epoch limit, which
+    /// counts every epoch of the stage, and/or patience run out.
+    pub fn stopped(&self) -> Option<String> {
+        let (p, s) = (&self.progress, &self.stage);
+        let mut why = Vec::new();
+        if self.epoch_limit_reached() {
+            why.push(format!(
+                "the epoch limit is reached (epoch {} of max_epochs = {}, a total count)",
+                p.epoch, s.max_epochs
+            ));
+        }
+        if self.patience_ran_out() {
+            why.push(format!(
+                "patience ran out at epoch {} ({} epoch{} without a better validation loss than epoch {}'s; patience = {})",
+                p.epoch,
+                p.bad_epochs,
+                if p.bad_epochs == 1 { "" } else { "s" },
+                p.best_epoch,
+                s.patience
+            ));
+        }
+        (!why.is_empty()).then(|| why.join(", and "))
+    }
+
+    /// What a resumed run needs to train further when the stage is over: the limits to
+    /// raise, as `train`'s flags.
+    pub fn to_continue(&self) -> String {
+        let mut raise = Vec::new();
+        if self.epoch_limit_reached() {
+            raise.push(format!("--max-epochs above {}", self.progress.epoch));
+        }
+        if self.patience_ran_out() {
+            raise.push(format!("--patience above {}", self.progress.bad_epochs));
+        }
+        raise.join(" and ")
     }
 
     fn lr(&self, step: u64) -> f64 {
