@@ -27,7 +27,7 @@ demo: vulkan
 	./target/release/iastgcn info
 	./target/release/iastgcn smoke
 	./target/release/iastgcn demo --out $(DEMO_DIR)
-	$(CARGO) run --release --example predict -- $(DEMO_DIR)/models/iastgcn.seed1-refined.safetensors
+	$(CARGO) run --release --example predict -- $(DEMO_DIR)/models/iastgcn.seed1.safetensors
 
 PAPER_DIR ?= paper
 PAPER_ARGS ?=

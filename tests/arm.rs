@@ -700,7 +700,9 @@ fn residual_models_learn_what_calibration_leaves_on_held_out_poses() {
         "{model} vs calibrated {calibrated}"
     );
     assert!(mean(&truth_error) < 0.9 * calibrated);
+    // docs/usage.md "Checkpoint names": the refined model, and its core stage beside it.
     assert!(dir.join("models/iastgcn.safetensors").exists());
+    assert!(dir.join("models/iastgcn.core.safetensors").exists());
     // The offline pose→error baseline reads the arm's joints (model.joint_inputs) at the
     // last pose only. Early stopping on validation keeps it from doing worse than the
     // calibration it corrects.

@@ -116,6 +116,32 @@ fn names_split_into_model_and_seed() {
     assert_eq!(Spread::of(&[5.0]).sd, 0.0);
 }
 
+/// One naming scheme for checkpoints: the refined model is `<name>.safetensors`, its core
+/// stage `<name>.core.safetensors`; an older demo's `<model>.seed<k>-refined` is read as
+/// the seeded model, and nothing else loses a `-refined`.
+#[test]
+fn checkpoint_names_follow_one_scheme() {
+    use iastgcn::experiment::protocol::{model_name, ModelFiles};
+    let f = ModelFiles::named(std::path::Path::new("m"), "iastgcn.seed2", true);
+    assert_eq!(
+        f.refined,
+        std::path::Path::new("m/iastgcn.seed2.safetensors")
+    );
+    assert_eq!(
+        f.core,
+        std::path::Path::new("m/iastgcn.seed2.core.safetensors")
+    );
+    assert_eq!(model_name("iastgcn.seed2-refined"), "iastgcn.seed2");
+    assert_eq!(
+        split_name(model_name("iastgcn-s.seed3-refined")),
+        ("iastgcn-s", Some(3))
+    );
+    assert_eq!(model_name("iastgcn.seed2"), "iastgcn.seed2");
+    assert_eq!(model_name("iastgcn.seed2.core"), "iastgcn.seed2.core");
+    assert_eq!(model_name("my-refined"), "my-refined");
+    assert_eq!(model_name("iastgcn-refined"), "iastgcn-refined");
+}
+
 #[test]
 fn one_seed_per_model_has_no_summary() {
     let r = Report {

@@ -531,7 +531,16 @@ fn demo_writes_the_report() {
     ] {
         assert!(out.join(f).exists(), "{f}");
     }
-    assert!(out.join("models/iastgcn-refined.safetensors").exists());
+    // docs/usage.md "Checkpoint names": the refined model under the model's name, the
+    // core stage beside it.
+    for f in [
+        "iastgcn.safetensors",
+        "iastgcn.core.safetensors",
+        "iastgcn.core.state.safetensors",
+    ] {
+        assert!(out.join("models").join(f).exists(), "{f}");
+    }
+    assert!(!out.join("models/iastgcn-refined.safetensors").exists());
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(report.contains("and every baseline, all at the same budget"));
     std::fs::remove_dir_all(&dir).unwrap();
@@ -581,11 +590,12 @@ fn demo_over_seeds_reports_the_spread() {
     for model in &models {
         for seed in [1, 2] {
             let name = format!("{model}.seed{seed}");
-            assert!(
-                out.join(format!("models/{name}-refined.safetensors"))
-                    .exists(),
-                "{name}"
-            );
+            for f in [
+                format!("{name}.safetensors"),
+                format!("{name}.core.safetensors"),
+            ] {
+                assert!(out.join("models").join(&f).exists(), "{f}");
+            }
             assert!(
                 table_v.contains(&format!("hilbert,compensated,{name},")),
                 "{name}"
@@ -625,5 +635,79 @@ fn demo_over_seeds_reports_the_spread() {
     let mixing = mixing.split("\n## ").next().unwrap();
     assert!(mixing.contains("| iastgcn.seed1 | 0.") && mixing.contains("| iastgcn-s.seed2 | 0."));
     assert!(!mixing.contains("mlp"), "{mixing}");
+
+    // A demo folder written before the one naming scheme: its refined models,
+    // `<model>.seed<k>-refined`, are the seeded models for `evaluate`'s tables over seeds.
+    let old = dir.join("old");
+    std::fs::create_dir_all(&old).unwrap();
+    let mut refined = Vec::new();
+    for model in ["iastgcn", "mlp"] {
+        for seed in [1, 2] {
+            let to = old.join(format!("{model}.seed{seed}-refined.safetensors"));
+            std::fs::copy(
+                out.join(format!("models/{model}.seed{seed}.safetensors")),
+                &to,
+            )
+            .unwrap();
+            refined.push(s(&to).to_string());
+        }
+    }
+    let evaluated = dir.join("evaluated");
+    let data = out.join("data");
+    let evaluate = |models: &[String]| {
+        let mut a: Vec<String> = ["evaluate", "--config", s(&config), "--calibration"]
+            .map(String::from)
+            .into();
+        a.push(s(&data.join("calibration.toml")).into());
+        a.extend(
+            [
+                "--held-out-minutes",
+                "0.1",
+                "--warm-up-minutes",
+                "0",
+                "--out",
+            ]
+            .map(String::from),
+        );
+        a.push(s(&evaluated).into());
+        a.push("--data".into());
+        for p in ["grid", "fermat", "hilbert"] {
+            a.push(s(&data.join(format!("{p}.csv"))).into());
+        }
+        a.push("--models".into());
+        a.extend(models.iter().cloned());
+        std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
+            .args(&a)
+            .output()
+            .unwrap()
+    };
+    // The old core file beside its refined one is the same model twice: refused at once.
+    let core = old.join("iastgcn.seed1.safetensors");
+    std::fs::copy(out.join("models/iastgcn.seed1.core.safetensors"), &core).unwrap();
+    let began = std::time::Instant::now();
+    let o = evaluate(&[refined[0].clone(), s(&core).to_string()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success()
+            && err.contains("--models")
+            && err.contains("iastgcn.seed1-refined.safetensors")
+            && err.contains("are both the model iastgcn.seed1"),
+        "{err}"
+    );
+    assert!(
+        began.elapsed().as_secs_f64() < 2.0,
+        "refused only after {:?}",
+        began.elapsed()
+    );
+    let o = evaluate(&refined);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let table_v = std::fs::read_to_string(evaluated.join("table_v.csv")).unwrap();
+    assert!(
+        table_v.contains("hilbert,compensated,mlp.seed2,"),
+        "{table_v}"
+    );
+    for f in ["table_v_seeds.csv", "table_iii_seeds.csv", "paired.csv"] {
+        assert!(evaluated.join(f).exists(), "{f}");
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -223,11 +223,7 @@ pub fn evaluate_arm(
         c.model.joint_inputs = nominal.spec.joint.iter().map(|j| j.name.clone()).collect();
         let name = variant.name();
         reporter.note(&format!("== {name} on the calibrated residuals"));
-        let files = ModelFiles {
-            core: model_dir.join(format!("{name}.safetensors")),
-            refined: model_dir.join(format!("{name}-refined.safetensors")),
-            resume: false,
-        };
+        let files = ModelFiles::named(&model_dir, name, false);
         let fitted = fit_model(gpu, &data, &graph, &c, name, &files, reporter)?;
         let predicted = predict_windows(gpu, &fitted.model.checkpoint, &data, &positions)?;
         rows.push(ArmRow {

@@ -165,11 +165,7 @@ pub fn demo(
             } else {
                 variant.name().to_string()
             };
-            let files = ModelFiles {
-                core: model_dir.join(format!("{name}.safetensors")),
-                refined: model_dir.join(format!("{name}-refined.safetensors")),
-                resume: false,
-            };
+            let files = ModelFiles::named(&model_dir, &name, false);
             let fitted = fit_model(&gpu, &data, &graph, &c, &name, &files, reporter)?;
             refinement.push(format!("{name}: {}", fitted.verdict));
             records.push(JobRecord::of_fitted(
@@ -275,6 +271,19 @@ pub fn evaluation_report(
         .iter()
         .map(|p| NamedModel::load(p))
         .collect::<Result<Vec<_>>>()?;
+    for (i, m) in named.iter().enumerate() {
+        if let Some(j) = named[..i].iter().position(|o| o.name == m.name) {
+            return Err(Error::Invalid(format!(
+                "--models: {} and {} are both the model {}; give each model once (in a demo \
+                 folder written before the naming of docs/usage.md \"Checkpoint names\", \
+                 <model>.seed<k>.safetensors is the core stage of \
+                 <model>.seed<k>-refined.safetensors)",
+                models[j].display(),
+                models[i].display(),
+                m.name
+            )));
+        }
+    }
     let list = |paths: &[PathBuf]| {
         paths
             .iter()

@@ -228,6 +228,34 @@ pub struct ModelFiles {
     pub resume: bool,
 }
 
+impl ModelFiles {
+    /// The files of the model `name` (`<model>.seed<k>` or a plain variant name) in
+    /// `dir`, in the one naming scheme of `demo`, `reproduce` and `evaluate --robot`
+    /// (docs/usage.md "Checkpoint names"): the refined checkpoint, the model that is
+    /// evaluated, is `<name>.safetensors`; the core stage's is `<name>.core.safetensors`,
+    /// with its `.state.safetensors`, `.log.csv` and `.loss.png`.
+    pub fn named(dir: &Path, name: &str, resume: bool) -> ModelFiles {
+        ModelFiles {
+            core: dir.join(format!("{name}{CORE_SUFFIX}.safetensors")),
+            refined: dir.join(format!("{name}.safetensors")),
+            resume,
+        }
+    }
+}
+
+/// What the core stage's checkpoint adds to the model's name in its file name.
+pub const CORE_SUFFIX: &str = ".core";
+
+/// The model a checkpoint's file stem names: the stem itself, except that the refined
+/// checkpoints of demos run before the scheme of [`ModelFiles::named`],
+/// `<model>.seed<k>-refined`, are the model `<model>.seed<k>`.
+pub fn model_name(stem: &str) -> &str {
+    match stem.strip_suffix("-refined") {
+        Some(name) if super::report::seeds::split_name(name).1.is_some() => name,
+        _ => stem,
+    }
+}
+
 /// The core stage of `config`'s variant on `data` into `files.core`, resuming from its
 /// state file when `files.resume` and one exists; the model is named `name` in the notes.
 pub fn train_core(

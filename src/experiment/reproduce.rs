@@ -208,12 +208,7 @@ impl Job {
 
     /// Its files in the output folder `out` (the learning curve's in `models/curve/`).
     pub fn files(&self, out: &Path) -> ModelFiles {
-        let dir = self.dir(out);
-        ModelFiles {
-            core: dir.join(format!("{}.core.safetensors", self.name())),
-            refined: dir.join(format!("{}.safetensors", self.name())),
-            resume: true,
-        }
+        ModelFiles::named(&self.dir(out), &self.name(), true)
     }
 
     /// The record written when the job has finished.
