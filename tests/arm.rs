@@ -473,6 +473,104 @@ fn degenerate_pose_sets_are_refused() {
     );
 }
 
+/// `evaluate` checks every input before the first model trains: a target file without
+/// the pose files' channel, a target the calibrated arm cannot reach, and flags that a
+/// serial arm's evaluation does not use each fail within a second, naming the file or
+/// the flag, and nothing is trained.
+#[test]
+fn evaluate_refuses_bad_input_before_training() {
+    let dir = std::env::temp_dir().join(format!("iastgcn-arm-early-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let (poses, out) = (s(&dir.join("poses.csv")), dir.join("report"));
+    let arm = s(&asset("ur5.toml"));
+    common::cli(&[
+        "simulate", "--arm", &arm, "--poses", "150", "--seed", "1", "--out", &poses,
+    ]);
+    let file = |name: &str, text: &str| {
+        let p = dir.join(name);
+        std::fs::write(&p, text).unwrap();
+        s(&p)
+    };
+    // The pose files carry `temp_c`, so the targets must too.
+    let no_channel = file("no_channel.csv", "pose,x,y,z\n1,500,0,300\n");
+    // A measured point first (reachable), then one 100 m away.
+    let text = std::fs::read_to_string(&poses).unwrap();
+    let (header, row) = (text.lines().next().unwrap(), text.lines().nth(1).unwrap());
+    let cell = |name: &str| {
+        let i = header.split(',').position(|h| h == name).unwrap();
+        row.split(',').nth(i).unwrap().to_string()
+    };
+    let far = file(
+        "far.csv",
+        &format!(
+            "pose,x,y,z,temp_c\n1,{},{},{},20\n2,100000,0,300,20\n",
+            cell("x"),
+            cell("y"),
+            cell("z")
+        ),
+    );
+    let ck = file("m.safetensors", "");
+    let cal = file("cal.toml", "");
+    let on_arm = |extra: &[&str]| {
+        let mut a = vec!["evaluate", "--robot", &arm, "--data", &poses, "--out"];
+        let out = s(&out);
+        a.push(&out);
+        a.extend(extra);
+        a.iter().map(|x| x.to_string()).collect::<Vec<_>>()
+    };
+    let grid = s(&dir.join("grid.csv"));
+    for (args, wants) in [
+        (
+            on_arm(&["--targets", &no_channel]),
+            vec!["no_channel.csv", "missing column \"temp_c\""],
+        ),
+        (
+            on_arm(&["--targets", &far]),
+            vec!["far.csv", "target 2 (line 3)", "reach"],
+        ),
+        (
+            on_arm(&["--models", &ck]),
+            vec!["--models does not apply to a serial arm", "--train-models"],
+        ),
+        (
+            on_arm(&["--calibration", &cal]),
+            vec!["--calibration does not apply to a serial arm"],
+        ),
+        (
+            [
+                "evaluate",
+                "--data",
+                &grid,
+                "--calibration",
+                &cal,
+                "--models",
+                &ck,
+            ]
+            .iter()
+            .chain(&["--targets", far.as_str()])
+            .map(|x| x.to_string())
+            .collect(),
+            vec!["--targets is for a serial arm", "--robot"],
+        ),
+    ] {
+        let began = std::time::Instant::now();
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
+            .args(&args)
+            .output()
+            .unwrap();
+        let took = began.elapsed().as_secs_f64();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?} succeeded");
+        for want in wants {
+            assert!(err.contains(want), "{args:?}: {want:?} not in\n{err}");
+        }
+        assert!(took < 1.0, "{args:?} failed only after {took:.2} s");
+        assert!(!out.join("models").exists(), "{args:?} trained a model");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn simulate_and_calibrate_from_the_command_line() {
     let dir = std::env::temp_dir().join(format!("iastgcn-arm-{}", std::process::id()));
@@ -644,6 +742,7 @@ fn residual_models_learn_what_calibration_leaves_on_held_out_poses() {
         &[("backlash".into(), file)],
         &config,
         &[Variant::Iastgcn, Variant::Erc],
+        None,
         &dir,
         &mut iastgcn::progress::Silent,
     )
@@ -720,6 +819,7 @@ fn residual_models_learn_what_calibration_leaves_on_held_out_poses() {
     // point of the true arm under the calibrated one (inverse kinematics refuses it).
     let fresh = twin.measure(80, 99);
     let targets = ArmTargets {
+        file: "fresh targets".into(),
         stamp: "time".into(),
         targets: fresh
             .poses

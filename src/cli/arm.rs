@@ -216,6 +216,12 @@ pub fn evaluate(
             })
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
+    // Every input is read and checked before the first model trains (the targets'
+    // reach once the calibration is known, still before training).
+    let targets = match &args.targets {
+        Some(path) => Some(read_arm_targets(path, &files[0].1.channels)?),
+        None => None,
+    };
     std::fs::create_dir_all(&args.out).with_context(|| args.out.display().to_string())?;
     let result = evaluate_arm(
         &gpu,
@@ -223,14 +229,14 @@ pub fn evaluate(
         &files,
         &config,
         &variants,
+        targets.as_ref(),
         &args.out,
         &mut super::Console::default(),
     )?;
     // Corrected joint targets, from the model chosen on validation.
-    let targets = match (&args.targets, result.best_on_validation()) {
-        (Some(path), Some((name, ck))) => {
-            let list = read_arm_targets(path, &files[0].1.channels)?;
-            let corrected = corrected_targets(&gpu, ck, &result.calibration.arm, &list)?;
+    let targets = match (&targets, result.best_on_validation()) {
+        (Some(list), Some((name, ck))) => {
+            let corrected = corrected_targets(&gpu, ck, &result.calibration.arm, list)?;
             Some((name.clone(), targets_csv(&list.stamp, &corrected)))
         }
         (Some(_), None) => anyhow::bail!("--targets needs a model: --train-models is empty"),

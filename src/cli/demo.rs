@@ -2,7 +2,7 @@
 //! (Tables III and V and the report folder for models you trained): arguments, then the
 //! library's `experiment::demo`.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use clap::Args;
@@ -111,8 +111,35 @@ pub struct EvaluateArgs {
 
 pub fn evaluate(gpu: Gpu, args: &EvaluateArgs) -> anyhow::Result<()> {
     if let Description::Serial(arm) = Description::load_or_default(args.robot.as_deref())? {
+        // The arm's models are trained here and its calibration fitted here: flags of
+        // the hybrid machine's evaluation would be ignored, so they are refused.
+        let robot = args.robot.as_deref().unwrap_or(Path::new("")).display();
+        let unused = [
+            (
+                !args.models.is_empty(),
+                "--models",
+                "its residual models are trained here (--train-models picks them)",
+            ),
+            (
+                args.calibration.is_some(),
+                "--calibration",
+                "it is calibrated here on the training blocks of its pose files",
+            ),
+            (
+                args.graph.is_some(),
+                "--graph",
+                "its sensor graph comes from its description",
+            ),
+        ];
+        if let Some((_, flag, why)) = unused.iter().find(|u| u.0) {
+            anyhow::bail!("{flag} does not apply to a serial arm (--robot {robot}): {why}");
+        }
         return super::arm::evaluate(Arc::new(gpu), &arm, args);
     }
+    anyhow::ensure!(
+        args.targets.is_none(),
+        "--targets is for a serial arm's corrected joint targets: give its description in --robot"
+    );
     let calibration = args.calibration.clone().ok_or_else(|| {
         anyhow::anyhow!("--calibration is required (or give a serial arm's description in --robot)")
     })?;

@@ -226,6 +226,8 @@ impl ArmPoses {
 /// they are expected at each pose.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ArmTargets {
+    /// The file they came from (named in errors about a target).
+    pub file: String,
     /// What the first column counts.
     pub stamp: String,
     /// Each target: stamp, point, channel values.
@@ -291,6 +293,7 @@ pub fn parse_arm_targets(
         return Err(file_err(file, "no targets"));
     }
     Ok(ArmTargets {
+        file: file.to_string(),
         stamp: header[0].clone(),
         targets,
     })

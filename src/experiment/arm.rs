@@ -120,17 +120,25 @@ impl ArmEvaluation {
 
 /// Calibrates `nominal` on the training blocks of `files`, trains `variants` on the
 /// calibrated residuals with `config` (checkpoints, logs and plots into `out/models`),
-/// and scores the test blocks.
+/// and scores the test blocks. `targets`, the points that [`corrected_targets`] will be
+/// asked for, are checked to be reachable by the calibrated arm before any training.
+#[allow(clippy::too_many_arguments)]
 pub fn evaluate_arm(
     gpu: &Arc<Gpu>,
     nominal: &Arm,
     files: &[(String, ArmPoses)],
     config: &RunConfig,
     variants: &[Variant],
+    targets: Option<&ArmTargets>,
     out: &Path,
     reporter: &mut dyn Reporter,
 ) -> Result<ArmEvaluation> {
     config.validate().map_err(Error::Invalid)?;
+    if targets.is_some() && variants.is_empty() {
+        return Err(Error::Invalid(
+            "corrected targets need a model: the list of models to train is empty".into(),
+        ));
+    }
     if config.data.split != "contiguous" {
         return Err(Error::Invalid(format!(
             "data.split = {:?}: arm evaluations split each pose file into contiguous blocks (a random split would put neighbours of test poses in training)",
@@ -158,6 +166,9 @@ pub fn evaluate_arm(
         calibration.rms_before_mm * 1e3,
         calibration.rms_after_mm * 1e3
     ));
+    if let Some(t) = targets {
+        target_poses(&calibration.arm, t)?;
+    }
     let (graph, data) = arm_dataset(
         &calibration.arm,
         files,
@@ -265,6 +276,34 @@ pub struct CorrectedTarget {
     pub corrected: Vec<f64>,
 }
 
+/// The poses that put `calibrated`'s tool on each point of `targets`, in order: inverse
+/// kinematics from the previous target's solution, the first from the middle of every
+/// joint's range. An unreachable point is an error naming the file, the target and its
+/// line.
+fn target_poses(calibrated: &Arm, targets: &ArmTargets) -> Result<Vec<ArmPose>> {
+    let mut seed = calibrated.at_shares(|_| 0.5);
+    let mut poses = Vec::with_capacity(targets.targets.len());
+    for (k, (stamp, point, channels)) in targets.targets.iter().enumerate() {
+        let q = calibrated.inverse_position(point, &seed).map_err(|e| {
+            Error::Invalid(format!(
+                "{}: target {} (line {}): {e}",
+                targets.file,
+                k + 1,
+                k + 2
+            ))
+        })?;
+        seed.clone_from(&q);
+        poses.push(ArmPose {
+            stamp: *stamp,
+            joints: q,
+            position: *point,
+            orientation: None,
+            channels: channels.clone(),
+        });
+    }
+    Ok(poses)
+}
+
 /// Corrected joint targets for `targets` in order: inverse kinematics of each point under
 /// the calibrated model (from the previous target's solution, the first from the middle
 /// of every joint's range), the residual `checkpoint` predicts over the window of the
@@ -276,21 +315,7 @@ pub fn corrected_targets(
     calibrated: &Arm,
     targets: &ArmTargets,
 ) -> Result<Vec<CorrectedTarget>> {
-    let mut seed = calibrated.at_shares(|_| 0.5);
-    let mut poses = Vec::with_capacity(targets.targets.len());
-    for (k, (stamp, point, channels)) in targets.targets.iter().enumerate() {
-        let q = calibrated
-            .inverse_position(point, &seed)
-            .map_err(|e| Error::Invalid(format!("target {} (line {}): {e}", k + 1, k + 2)))?;
-        seed.clone_from(&q);
-        poses.push(ArmPose {
-            stamp: *stamp,
-            joints: q,
-            position: *point,
-            orientation: None,
-            channels: channels.clone(),
-        });
-    }
+    let poses = target_poses(calibrated, targets)?;
     let channels = poses.first().map_or(0, |p| p.channels.len());
     let file = ArmPoses {
         stamp: targets.stamp.clone(),
@@ -319,7 +344,8 @@ pub fn corrected_targets(
             .inverse_position(&shifted, &pose.joints)
             .map_err(|e| {
                 Error::Invalid(format!(
-                    "target {} (line {}), compensated: {e}",
+                    "{}: target {} (line {}), compensated: {e}",
+                    targets.file,
                     k + 1,
                     k + 2
                 ))
