@@ -22,14 +22,16 @@ pub struct DatasetArgs {
     /// Robot geometry asset (default: the embedded assets/robot.toml).
     #[arg(long)]
     robot: Option<PathBuf>,
-    /// Window length T and stride S.
-    #[arg(long, default_value_t = 100)]
+    /// Window length T: the steps each window holds (model.window of a run config).
+    #[arg(long, default_value_t = 100, value_parser = super::count(1..=1 << 20))]
     window: usize,
-    #[arg(long, default_value_t = 20)]
+    /// Stride S: the steps between consecutive window ends (data.stride of a run config).
+    #[arg(long, default_value_t = 20, value_parser = super::count(1..))]
     stride: usize,
     /// `random` reproduces the paper's protocol (windows leak between splits).
     #[arg(long, default_value = "contiguous", value_parser = ["contiguous", "random"])]
     split: String,
+    /// Seed of the shuffle of `--split random` (data.split_seed of a run config).
     #[arg(long, default_value_t = 7)]
     seed: u64,
     /// Share of each recording's training block kept, from its start (0, 1].

@@ -65,8 +65,9 @@ enum Command {
     Budget(budget::BudgetArgs),
     /// Tables III and V and the report folder for trained models.
     Evaluate(demo::EvaluateArgs),
-    /// The main job end to end on the embedded twin: simulate, calibrate, train the four
-    /// variants, refine, compensate, report.
+    /// The main job end to end on the embedded twin: simulate, calibrate, train IASTGCN,
+    /// its three ablations and the four dense baselines (--all-models: every baseline) for
+    /// each training seed, refine, compensate, report.
     Demo(demo::DemoArgs),
     /// The paper's protocol at the paper's sizes (or any run config): every model over
     /// several training seeds, in resumable jobs that can be sharded over machines, then
@@ -191,6 +192,60 @@ impl Reporter for Console {
         match &self.bar {
             Some(bar) => bar.println(line),
             None => println!("{line}"),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::{CommandFactory, Parser};
+
+    /// The flags of `command` and of every subcommand below it that have no help text.
+    fn without_help(command: &clap::Command, path: &str, missing: &mut Vec<String>) {
+        for arg in command.get_arguments() {
+            let help = arg.get_help().map(|h| h.to_string()).unwrap_or_default();
+            if help.trim().is_empty() {
+                missing.push(format!("{path} --{}", arg.get_id()));
+            }
+        }
+        for sub in command.get_subcommands() {
+            let path = format!("{path} {}", sub.get_name());
+            if sub.get_about().is_none() {
+                missing.push(format!("{path} (the command)"));
+            }
+            without_help(sub, &path, missing);
+        }
+    }
+
+    /// Every command and every flag of it says what it is for in `--help`.
+    #[test]
+    fn every_flag_has_a_help_text() {
+        let mut missing = Vec::new();
+        without_help(&super::Cli::command(), "iastgcn", &mut missing);
+        assert!(missing.is_empty(), "without a help text: {missing:?}");
+    }
+
+    /// A count out of range is refused naming the flag, not a config field.
+    #[test]
+    fn dataset_counts_are_refused_by_their_flag() {
+        for (flag, value) in [
+            ("--window", "0"),
+            ("--window", "2000000"),
+            ("--stride", "0"),
+        ] {
+            let args = [
+                "iastgcn",
+                "dataset",
+                "--recordings",
+                "a.csv",
+                "--calibration",
+                "c.toml",
+            ];
+            let err = super::Cli::try_parse_from(args.iter().chain(&[flag, value]))
+                .err()
+                .map(|e| e.to_string())
+                .unwrap_or_default();
+            assert!(err.contains(flag), "{flag} {value}: {err:?}");
         }
     }
 }

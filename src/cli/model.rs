@@ -24,8 +24,10 @@ pub struct InitArgs {
     /// Sensor graph (TOML); the embedded 14-node graph when absent.
     #[arg(long)]
     pub graph: Option<PathBuf>,
+    /// Seed of the He-uniform initialisation of the weights.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Checkpoint to write (safetensors: the weights, the model config, the graph).
     #[arg(long)]
     pub out: PathBuf,
 }

@@ -80,7 +80,8 @@ pub struct RefineArgs {
     /// Trained checkpoint to warm-start from.
     #[arg(long)]
     pub model: PathBuf,
-    /// Run config ([refine] and [train] tables are used; [model] must match the checkpoint's shape).
+    /// Run config: its [data], [train] and [refine] tables are used; the model's shape and
+    /// variant always come from the checkpoint (the config's [model] table is ignored).
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Refined checkpoint; beside it `<stem>.log.csv`, `<stem>.loss.png`,
@@ -93,6 +94,8 @@ pub struct RefineArgs {
 pub struct PredictArgs {
     #[command(flatten)]
     pub data: DataArgs,
+    /// Checkpoint to run (from `train` or `refine`); its normalisation standardises the
+    /// recordings.
     #[arg(long)]
     pub model: PathBuf,
     /// Output CSV: one row per window end with the predicted and (where the tracker
