@@ -121,7 +121,8 @@ fn names_split_into_model_and_seed() {
 /// the seeded model, and nothing else loses a `-refined`.
 #[test]
 fn checkpoint_names_follow_one_scheme() {
-    use iastgcn::experiment::protocol::{model_name, ModelFiles};
+    use iastgcn::experiment::protocol::ModelFiles;
+    use iastgcn::experiment::report::seeds::model_name;
     let f = ModelFiles::named(std::path::Path::new("m"), "iastgcn.seed2", true);
     assert_eq!(
         f.refined,

@@ -259,11 +259,11 @@ pub struct NamedModel {
 
 impl NamedModel {
     /// The checkpoint at `path`, named by its file stem (an older demo's
-    /// `<model>.seed<k>-refined` is `<model>.seed<k>`: [`super::protocol::model_name`]); a
+    /// `<model>.seed<k>-refined` is `<model>.seed<k>`: [`super::report::seeds::model_name`]); a
     /// `<stem>.log.csv` beside it gives its training time per epoch and where it trained.
     pub fn load(path: &std::path::Path) -> Result<NamedModel> {
         let name = path.file_stem().map_or("model".into(), |s| {
-            super::protocol::model_name(&s.to_string_lossy()).to_string()
+            super::report::seeds::model_name(&s.to_string_lossy()).to_string()
         });
         let (epoch_seconds, trained_on) =
             read_training_log(&sibling(path, ".log.csv")).unwrap_or((f64::NAN, "unknown".into()));

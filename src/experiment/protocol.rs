@@ -246,16 +246,6 @@ impl ModelFiles {
 /// What the core stage's checkpoint adds to the model's name in its file name.
 pub const CORE_SUFFIX: &str = ".core";
 
-/// The model a checkpoint's file stem names: the stem itself, except that the refined
-/// checkpoints of demos run before the scheme of [`ModelFiles::named`],
-/// `<model>.seed<k>-refined`, are the model `<model>.seed<k>`.
-pub fn model_name(stem: &str) -> &str {
-    match stem.strip_suffix("-refined") {
-        Some(name) if super::report::seeds::split_name(name).1.is_some() => name,
-        _ => stem,
-    }
-}
-
 /// The core stage of `config`'s variant on `data` into `files.core`, resuming from its
 /// state file when `files.resume` and one exists; the model is named `name` in the notes.
 pub fn train_core(

@@ -21,6 +21,17 @@ pub fn split_name(name: &str) -> (&str, Option<u64>) {
     (name, None)
 }
 
+/// The model a checkpoint's file stem names: the stem itself, except that the refined
+/// checkpoints of demos run before the one naming scheme
+/// ([`crate::experiment::protocol::ModelFiles::named`]), `<model>.seed<k>-refined`, are
+/// the model `<model>.seed<k>`.
+pub fn model_name(stem: &str) -> &str {
+    match stem.strip_suffix("-refined") {
+        Some(name) if split_name(name).1.is_some() => name,
+        _ => stem,
+    }
+}
+
 /// The name of `group` trained with seed `seed` (the inverse of [`split_name`]).
 pub fn seeded_name(group: &str, seed: u64) -> String {
     format!("{group}.seed{seed}")
