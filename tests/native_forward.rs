@@ -1,7 +1,7 @@
 //! The native CPU forward (`model::NativeForward`) against the WGSL inference forward and
 //! the f64 reference: every IASTGCN variant at a small shape, IASTGCN at the demo and the
-//! paper shape, the dense and recurrent baselines; the variants it does not cover and bad
-//! inputs are refused.
+//! paper shape, the dense and recurrent baselines and ConvLSTM; the variant it does not
+//! cover (ST-GAT) and bad inputs are refused.
 
 mod common;
 
@@ -304,17 +304,58 @@ fn recurrent_baselines_match_the_wgsl_forward_and_the_reference() {
     }
 }
 
+/// ConvLSTM (the 14 × 3 grid, T = 5, C = 3 state channels, 3×3 and 5×5 kernels): native
+/// against the WGSL forward and the f64 reference of `model::reference::conv_lstm`.
+#[test]
+fn conv_lstm_matches_the_wgsl_forward_and_the_reference() {
+    let g = gpu();
+    let graph = Graph::default_asset();
+    let windows = 3;
+    for (i, kernel) in [3, 5].into_iter().enumerate() {
+        let config = ModelConfig {
+            variant: Variant::ConvLstm,
+            window: 5,
+            channels: 3,
+            kernel,
+            ..ModelConfig::default()
+        };
+        let p = parameters(&config, 85 + i as u64);
+        let len = config.nodes * config.features * config.window;
+        let x = to_f32(&uniform(&mut rng(95 + i as u64), windows * len, -1.5, 1.5));
+        let ours = native(&config, &p, &x);
+        let net = Network::for_inference(&g, &config, &graph, windows).unwrap();
+        net.load_parameters(&g, &p).unwrap();
+        let device = f64s(&net.predict(&g, &x).unwrap());
+        let name = format!("convlstm k = {kernel}");
+        compare(
+            &format!("{name}: native vs WGSL"),
+            &ours,
+            &device,
+            scaled(&device, 1e-5),
+        )
+        .unwrap();
+        let params: Vec<Vec<f64>> = p.values.iter().map(|v| f64s(v)).collect();
+        let tape = reference::conv_lstm::forward(&config, &p.specs, &params, &f64s(&x), windows);
+        compare(
+            &format!("{name}: native vs f64 reference"),
+            &ours,
+            &tape.output,
+            scaled(&tape.output, 1e-5),
+        )
+        .unwrap();
+    }
+}
+
 #[test]
 fn refuses_other_variants_and_bad_inputs() {
     let graph = Graph::default_asset();
-    for variant in [Variant::StGat, Variant::ConvLstm] {
-        let config = ModelConfig::gradient_check(variant);
-        let p = parameters(&config, 1);
-        let e = NativeForward::new(&config, &graph, &p)
-            .err()
-            .expect("refused");
-        assert!(e.to_string().contains(variant.name()), "{e}");
-    }
+    let variant = Variant::StGat;
+    let config = ModelConfig::gradient_check(variant);
+    let p = parameters(&config, 1);
+    let e = NativeForward::new(&config, &graph, &p)
+        .err()
+        .expect("refused");
+    assert!(e.to_string().contains(variant.name()), "{e}");
     let config = ModelConfig::gradient_check(Variant::Iastgcn);
     let mut net = NativeForward::new(&config, &graph, &parameters(&config, 1)).unwrap();
     let mut y = [0f32; 6];

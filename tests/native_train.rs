@@ -1,6 +1,6 @@
 //! Native CPU training (`model::NativeTraining`) against the f64 reference and the WGSL
 //! training step: the loss and every parameter gradient with dropout in all four IASTGCN
-//! variants at a small shape, the dense and recurrent baselines, the ensemble loss of refinement, a deeper shape with
+//! variants at a small shape, the dense and recurrent baselines and ConvLSTM, the ensemble loss of refinement, a deeper shape with
 //! dilations beyond the window, the threads' split, the Adam update, and refusals.
 //! (The reference's own backward is checked against finite differences in
 //! tests/model_reference.rs.)
@@ -224,6 +224,46 @@ fn recurrent_baselines_match_the_reference_and_the_device() {
         let name = format!("{variant} ensembles vs device");
         check_step(&name, &p, (loss, &grads), (dl, &dg), 2e-4);
     }
+}
+
+#[test]
+fn conv_lstm_matches_the_reference_and_the_device() {
+    // B = 3 over 2 threads: an uneven split.
+    let b = 3;
+    let config = ModelConfig {
+        variant: Variant::ConvLstm,
+        window: 5,
+        channels: 3,
+        ..ModelConfig::default()
+    };
+    let p = parameters(&config, 65);
+    let (x, y) = batch(&config, b, 165);
+    let (loss, grads) = native(&config, &p, shape(b, 1, 2), &x, &y);
+    let params: Vec<Vec<f64>> = p.values.iter().map(|v| f64s(v)).collect();
+    let tape = reference::conv_lstm::forward(&config, &p.specs, &params, &f64s(&x), b);
+    let y64 = f64s(&y);
+    let (expected, _) =
+        reference::conv_lstm::backward(&config, &p.specs, &params, &tape, &y64, b, &LOSS);
+    let expected_loss = reference::loss(&config, &p.specs, &params, &tape.output, &y64, b, &LOSS);
+    check_step(
+        "convlstm",
+        &p,
+        (loss, &grads),
+        (expected_loss, &expected),
+        1e-4,
+    );
+    let (dl, dg) = device(&config, &p, b, 1, &x, &y);
+    check_step("convlstm vs device", &p, (loss, &grads), (dl, &dg), 1e-4);
+    let (x6, y6) = batch(&config, 6, 175);
+    let (loss, grads) = native(&config, &p, shape(6, 3, 2), &x6, &y6);
+    let (dl, dg) = device(&config, &p, 6, 3, &x6, &y6);
+    check_step(
+        "convlstm ensembles vs device",
+        &p,
+        (loss, &grads),
+        (dl, &dg),
+        2e-4,
+    );
 }
 
 /// The WGSL training step's loss and gradients (`group` = 1: `Network::new`).

@@ -3,6 +3,7 @@
 //! `tape.rs` (or `dense.rs`, `recurrent.rs`) without dropout, on a tape that is allocated
 //! once and reused window after window.
 
+use super::conv_lstm::{ConvLstmNet, ConvLstmTape};
 use super::dense::{DenseNet, DenseTape};
 use super::recurrent::{RecurrentNet, RecurrentTape};
 use super::slots::Slots;
@@ -14,7 +15,7 @@ use crate::model::params::{graph_basis, param_specs, Parameters};
 
 /// The CPU forward pass of one checkpoint of an IASTGCN variant (`iastgcn`, `iastgcn-a`,
 /// `iastgcn-t`, `iastgcn-s`), a dense baseline (`mlp`, `bkls-ann`, `ann-bfpa`, `erc`) or
-/// a recurrent baseline (`tgcn`, `eat-gcn`) for one window at a time.
+/// a recurrent baseline (`tgcn`, `eat-gcn`, `convlstm`) for one window at a time.
 pub struct NativeForward {
     config: ModelConfig,
     /// The weights in `param_specs` order.
@@ -40,16 +41,20 @@ enum Body {
         net: RecurrentNet,
         tape: Box<RecurrentTape>,
     },
+    /// ConvLSTM over the steps.
+    ConvLstm {
+        net: ConvLstmNet,
+        tape: Box<ConvLstmTape>,
+    },
 }
 
 impl NativeForward {
     /// True when this path covers `config`'s variant (the four IASTGCN variants, the
-    /// dense and the recurrent baselines; not ST-GAT or ConvLSTM).
+    /// dense baselines, T-GCN, EAT-GCN and ConvLSTM; not ST-GAT).
     pub fn supports(config: &ModelConfig) -> bool {
         match config.variant.family() {
             Family::StBlocks => !config.variant.graph_attention(),
-            Family::Dense | Family::Recurrent => true,
-            Family::ConvRecurrent => false,
+            Family::Dense | Family::Recurrent | Family::ConvRecurrent => true,
         }
     }
 
@@ -61,7 +66,7 @@ impl NativeForward {
     ) -> Result<NativeForward, ModelError> {
         if !NativeForward::supports(config) {
             return Err(ModelError::Config(format!(
-                "the native CPU forward covers iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, the dense baselines, tgcn and eat-gcn, not {}",
+                "the native CPU forward covers iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, the dense baselines, tgcn, eat-gcn and convlstm, not {}",
                 config.variant
             )));
         }
@@ -77,6 +82,12 @@ impl NativeForward {
         } else if config.variant.family() == Family::Recurrent {
             let net = RecurrentNet::new(config, graph, &specs)?;
             Body::Recurrent {
+                tape: Box::new(net.tape()),
+                net,
+            }
+        } else if config.variant.family() == Family::ConvRecurrent {
+            let net = ConvLstmNet::new(config, &specs)?;
+            Body::ConvLstm {
                 tape: Box::new(net.tape()),
                 net,
             }
@@ -113,7 +124,7 @@ impl NativeForward {
     /// default) runs on the calling thread alone. Small networks (the demo's C = 16) stay
     /// on one thread whatever is asked, where a task would cost more than it saves. The
     /// outputs do not depend on it: each value is the same sum in the same order. The
-    /// dense and recurrent baselines always run on one thread.
+    /// baselines always run on one thread.
     pub fn set_threads(&mut self, threads: usize) {
         let threads = threads.max(1);
         if let Body::Blocks { tape, .. } = &mut self.body {
@@ -155,6 +166,10 @@ impl NativeForward {
                 out.copy_from_slice(tape.output());
             }
             Body::Recurrent { net, tape } => {
+                net.forward(&self.params, x, tape);
+                out.copy_from_slice(tape.output());
+            }
+            Body::ConvLstm { net, tape } => {
                 net.forward(&self.params, x, tape);
                 out.copy_from_slice(tape.output());
             }

@@ -1,5 +1,5 @@
-//! The IASTGCN variants and the dense and recurrent baselines on the CPU in f32, with no
-//! device: the inference forward, one
+//! The IASTGCN variants, the dense and recurrent baselines and ConvLSTM on the CPU in f32,
+//! with no device: the inference forward, one
 //! window at a time (the controller's latency path where the only adapter is a CPU, or
 //! there is none; [`super::Predictor`] picks it on its own, docs/performance.md "The
 //! native CPU forward"), and training (`train::Trainer` picks it on a CPU adapter,
@@ -15,11 +15,13 @@
 //! Files: `forward.rs` ([`NativeForward`]), `tape.rs` (the training forward of one
 //! window, keeping its intermediates), `backward.rs` (its backward), `step.rs`
 //! ([`NativeTraining`]: a batch over threads, the loss, Adam), `slots.rs` (where each
-//! tensor sits in the parameter list), `dense.rs` and `recurrent.rs` (the baselines'
-//! forward and backward side by side: the dense layers; T-GCN and EAT-GCN's time loop). Tested against the WGSL path and the f64
+//! tensor sits in the parameter list), `dense.rs`, `recurrent.rs` and `conv_lstm.rs` (the
+//! baselines' forward and backward side by side: the dense layers; T-GCN and EAT-GCN's
+//! time loop; ConvLSTM's). Tested against the WGSL path and the f64
 //! reference in tests/native_forward.rs and tests/native_train.rs.
 
 mod backward;
+mod conv_lstm;
 mod dense;
 mod forward;
 mod recurrent;

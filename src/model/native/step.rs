@@ -6,6 +6,7 @@
 //! (tests/native_train.rs).
 
 use super::backward::{backward, Work};
+use super::conv_lstm::{ConvLstmNet, ConvLstmTape};
 use super::dense::{DenseNet, DenseTape};
 use super::recurrent::{RecurrentNet, RecurrentTape};
 use super::slots::Slots;
@@ -61,6 +62,7 @@ enum Body {
     Blocks { basis: Vec<f32>, slots: Slots },
     Dense(DenseNet),
     Recurrent(RecurrentNet),
+    ConvLstm(ConvLstmNet),
 }
 
 /// A worker's tapes for its body, one per window of an ensemble.
@@ -68,6 +70,7 @@ enum Tapes {
     Blocks { tapes: Vec<Tape>, work: Box<Work> },
     Dense(Vec<DenseTape>),
     Recurrent(Vec<RecurrentTape>),
+    ConvLstm(Vec<ConvLstmTape>),
 }
 
 /// Parameters, Adam moments and working memory of one model's training on the CPU.
@@ -86,7 +89,7 @@ pub struct NativeTraining {
 
 impl NativeTraining {
     /// True for the variants this path covers (those of [`NativeForward`]: the IASTGCN
-    /// variants, the dense and the recurrent baselines).
+    /// variants, the dense baselines, T-GCN, EAT-GCN and ConvLSTM).
     pub fn supports(config: &ModelConfig) -> bool {
         NativeForward::supports(config)
     }
@@ -101,7 +104,7 @@ impl NativeTraining {
     ) -> Result<NativeTraining, ModelError> {
         if !NativeTraining::supports(config) {
             return Err(ModelError::Config(format!(
-                "native CPU training covers iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, the dense baselines, tgcn and eat-gcn, not {}",
+                "native CPU training covers iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, the dense baselines, tgcn, eat-gcn and convlstm, not {}",
                 config.variant
             )));
         }
@@ -117,6 +120,8 @@ impl NativeTraining {
             Body::Dense(DenseNet::new(config, graph, &specs)?)
         } else if config.variant.family() == Family::Recurrent {
             Body::Recurrent(RecurrentNet::new(config, graph, &specs)?)
+        } else if config.variant.family() == Family::ConvRecurrent {
+            Body::ConvLstm(ConvLstmNet::new(config, &specs)?)
         } else {
             Body::Blocks {
                 basis: graph_basis(graph, config)
@@ -146,6 +151,9 @@ impl NativeTraining {
                     }
                     Body::Recurrent(net) => {
                         Tapes::Recurrent((0..shape.group).map(|_| net.tape()).collect())
+                    }
+                    Body::ConvLstm(net) => {
+                        Tapes::ConvLstm((0..shape.group).map(|_| net.tape()).collect())
                     }
                 },
                 grads: zeros(),
@@ -358,6 +366,10 @@ impl Context<'_> {
                         net.forward(self.params, x(k), &mut tapes[k]);
                         tapes[k].output()
                     }
+                    (Body::ConvLstm(net), Tapes::ConvLstm(tapes)) => {
+                        net.forward(self.params, x(k), &mut tapes[k]);
+                        tapes[k].output()
+                    }
                     // invariant: a worker's tapes are built for the body (NativeTraining::new).
                     _ => unreachable!("a worker's tapes match the body"),
                 };
@@ -393,6 +405,9 @@ impl Context<'_> {
                         net.backward(self.params, &mut tapes[k], dout, &mut w.grads)
                     }
                     (Body::Recurrent(net), Tapes::Recurrent(tapes)) => {
+                        net.backward(self.params, &mut tapes[k], dout, &mut w.grads)
+                    }
+                    (Body::ConvLstm(net), Tapes::ConvLstm(tapes)) => {
                         net.backward(self.params, &mut tapes[k], dout, &mut w.grads)
                     }
                     // invariant: a worker's tapes are built for the body (NativeTraining::new).
