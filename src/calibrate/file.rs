@@ -37,6 +37,9 @@ struct CalibrationFile {
     version: u32,
     /// Number of measurement poses the filter used.
     measurements: usize,
+    /// The twin machine the measurement set was taken on, when its sidecar said.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    machine_seed: Option<u64>,
     /// δX of eq. 18 for every parameter (mm, rad); zero where not identified.
     errors: BTreeMap<String, f64>,
     /// Identified parameters, their posterior σ and covariance (same order).
@@ -60,18 +63,33 @@ pub struct LoadedCalibration {
     pub sigma: Vec<f64>,
     /// How many measurement poses the filter used.
     pub measurements: usize,
+    /// The twin machine the measurement set came from, when known (absent from files
+    /// written before this field, and for sets without a `.run.toml` sidecar).
+    pub machine_seed: Option<u64>,
 }
 
-/// Writes `cal` to `path` atomically.
+/// Writes `cal` to `path` atomically, with no word on the machine it came from.
 pub fn save(
     path: &Path,
     cal: &Calibration,
     measurements: usize,
 ) -> Result<(), CalibrationFileError> {
+    save_from(path, cal, measurements, None)
+}
+
+/// Writes `cal` to `path` atomically, recording the twin machine its measurement set was
+/// taken on (`machine_seed`), so that an evaluation on another machine can say so.
+pub fn save_from(
+    path: &Path,
+    cal: &Calibration,
+    measurements: usize,
+    machine_seed: Option<u64>,
+) -> Result<(), CalibrationFileError> {
     let names = ErrorParams::names();
     let file = CalibrationFile {
         version: 1,
         measurements,
+        machine_seed,
         errors: names
             .iter()
             .cloned()
@@ -213,5 +231,6 @@ pub fn load(path: &Path) -> Result<LoadedCalibration, CalibrationFileError> {
         identified: f.identified,
         sigma: f.sigma,
         measurements: f.measurements,
+        machine_seed: f.machine_seed,
     })
 }

@@ -12,6 +12,7 @@ pub struct BudgetArgs {
 }
 
 pub fn run(args: &BudgetArgs) -> anyhow::Result<()> {
+    args.run.warn_other_machine()?;
     let Prepared {
         machine,
         calibrated,

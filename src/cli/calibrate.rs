@@ -24,7 +24,7 @@ pub struct CalibrateArgs {
     /// Robot description (default: the embedded hybrid machine, assets/robot.toml): its
     /// `kind` picks the chain; a serial arm's (`kind = "serial"`, docs/arms.md) writes
     /// the calibrated description to `--out`.
-    #[arg(long)]
+    #[arg(long, visible_alias = "arm")]
     pub robot: Option<PathBuf>,
     /// Every how many measurements one is held out for the report (0: none).
     #[arg(long, default_value_t = 5)]
@@ -52,6 +52,18 @@ pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
         }
     };
     let nominal = Robot::nominal(geometry);
+    // The set's sidecar names the twin machine it was measured on; the file keeps it so
+    // that an evaluation on another machine can warn.
+    let sidecar = iastgcn::twin::RunInfo::sidecar(&args.measurements);
+    let machine_seed = if sidecar.exists() {
+        Some(
+            iastgcn::twin::RunInfo::read(&args.measurements)
+                .map_err(anyhow::Error::msg)?
+                .machine_seed,
+        )
+    } else {
+        None
+    };
     let (fit, held) = hold_out(&read_measurements(&args.measurements)?, args.hold_out_every);
     let spinner = ProgressBar::new_spinner().with_message(format!("EKF on {} poses", fit.len()));
     spinner.enable_steady_tick(std::time::Duration::from_millis(200));
@@ -80,7 +92,7 @@ pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
         rows.push(row(&label, "initial", &pose_errors(&nominal, ms)?));
         rows.push(row("", "calibrated", &pose_errors(&calibrated, ms)?));
     }
-    file::save(&args.out, &cal, fit.len())?;
+    file::save_from(&args.out, &cal, fit.len(), machine_seed)?;
     let names = iastgcn::robot::ErrorParams::names();
     println!(
         "identified {} of {} parameters from {} poses (condition numbers {}); wrote {}",

@@ -10,7 +10,7 @@ use anyhow::Context;
 use super::Console;
 use iastgcn::compensate::held_out::{Prepared, RunSpec};
 use iastgcn::compensate::online::Online;
-use iastgcn::experiment::evaluate::{predictors, table_v, HeldOutResult};
+use iastgcn::experiment::evaluate::{predictors, runs_on, table_v, HeldOutResult};
 use iastgcn::experiment::report::table_v_lines;
 use iastgcn::gpu::Gpu;
 use iastgcn::model::Checkpoint;
@@ -51,11 +51,27 @@ pub struct RunArgs {
     #[arg(long, default_value_t = 1)]
     pub machine_seed: u64,
     /// Robot geometry asset (default: the embedded assets/robot.toml).
-    #[arg(long)]
+    #[arg(long, visible_alias = "arm")]
     pub robot: Option<PathBuf>,
 }
 
 impl RunArgs {
+    /// Warns on stderr when the calibration file says its measurement set came from
+    /// another twin machine than `--machine-seed`.
+    pub fn warn_other_machine(&self) -> anyhow::Result<()> {
+        let cal = iastgcn::calibrate::file::load(&self.calibration)?;
+        if let Some(m) = cal.machine_seed.filter(|&m| m != self.machine_seed) {
+            eprintln!(
+                "warning: the calibration {} was measured on twin machine {m}, but this run is \
+                 on machine {} (--machine-seed): the calibrated controller carries another \
+                 machine's geometric errors",
+                self.calibration.display(),
+                self.machine_seed
+            );
+        }
+        Ok(())
+    }
+
     pub fn spec(&self) -> anyhow::Result<RunSpec> {
         Ok(RunSpec {
             calibration: self.calibration.clone(),
@@ -70,6 +86,7 @@ impl RunArgs {
 }
 
 pub fn run(gpu: Gpu, args: &CompensateArgs) -> anyhow::Result<()> {
+    args.run.warn_other_machine()?;
     let Prepared {
         machine,
         nominal,
@@ -90,6 +107,8 @@ pub fn run(gpu: Gpu, args: &CompensateArgs) -> anyhow::Result<()> {
     let graph = checkpoints[0].1.graph.clone();
     let gpu = Arc::new(gpu);
     let mut models = predictors(&gpu, &checkpoints)?;
+    // Where each model predicts: the native CPU forward on a CPU adapter, else the adapter.
+    let ran_on: Vec<String> = models.iter().map(|(_, p)| runs_on(&gpu, p)).collect();
     let ticks = run.config().steps() * (3 + models.len());
     let mut console = Console::default();
     console.begin(
@@ -119,11 +138,8 @@ pub fn run(gpu: Gpu, args: &CompensateArgs) -> anyhow::Result<()> {
     for line in table_v_lines(&rows) {
         println!("{line}");
     }
-    for (m, ms) in latency {
-        println!(
-            "{m}: {ms:.2} ms per online prediction on {}",
-            gpu.info().name
-        );
+    for ((m, ms), on) in latency.iter().zip(&ran_on) {
+        println!("{m}: {ms:.2} ms per online prediction on {on}");
     }
     Ok(())
 }

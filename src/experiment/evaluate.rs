@@ -380,6 +380,12 @@ pub fn evaluate(
         ));
     }
     report.table_v.extend(session.rows);
+    report.setup.push(format!(
+        "held-out session (Table V): twin machine {}, the machine the recordings were taken \
+         on (their `.run.toml` sidecars; machine 1 when none has one)",
+        session.machine_seed
+    ));
+    report.setup.extend(session.calibration_warning);
     report.setup.extend(session.refusals);
     // Fig. 11 shows before/after: calibration only, and the main model.
     let main = models
@@ -410,6 +416,14 @@ pub fn evaluate(
     Ok(())
 }
 
+/// Where `predictor`'s predictions run: "native CPU forward", or the adapter's name.
+pub fn runs_on(gpu: &Gpu, predictor: &Predictor) -> String {
+    match predictor.backend() {
+        Backend::Native => "native CPU forward".to_string(),
+        Backend::Device => gpu.info().name.clone(),
+    }
+}
+
 /// What one held-out session gave ([`held_out_session`]).
 pub struct Session {
     /// Table V rows of every path: initial, calibrated, oracle, then each model.
@@ -422,6 +436,10 @@ pub struct Session {
     pub ran_on: Vec<String>,
     /// A line per path where the controller refused a model's corrections.
     pub refusals: Vec<String>,
+    /// The twin machine the session ran on (the recordings' machine).
+    pub machine_seed: u64,
+    /// A warning when the calibration was measured on another machine than the session's.
+    pub calibration_warning: Option<String>,
     /// The Hilbert run's error budget as Markdown, when asked for.
     pub budget: Option<String>,
 }
@@ -455,13 +473,7 @@ pub fn held_out_session(
     let graph = first.graph.clone();
     let window = first.config.window;
     let mut preds = predictors(gpu, models)?;
-    let ran_on: Vec<String> = preds
-        .iter()
-        .map(|(_, p)| match p.backend() {
-            Backend::Native => "native CPU forward".to_string(),
-            Backend::Device => gpu.info().name.clone(),
-        })
-        .collect();
+    let ran_on: Vec<String> = preds.iter().map(|(_, p)| runs_on(gpu, p)).collect();
     let mut latency = vec![(0.0, 0usize); models.len()];
     let mut session = Session {
         rows: Vec::new(),
@@ -469,8 +481,20 @@ pub fn held_out_session(
         latency_ms: Vec::new(),
         ran_on,
         refusals: Vec::new(),
+        machine_seed,
+        calibration_warning: None,
         budget: None,
     };
+    if let Some(m) = cal.machine_seed.filter(|&m| m != machine_seed) {
+        let warning = format!(
+            "warning: the calibration {} was measured on twin machine {m}, but the recordings \
+             and this held-out session are on machine {machine_seed}: the calibrated rows \
+             compensate another machine's geometric errors",
+            sources.calibration.display()
+        );
+        reporter.note(&warning);
+        session.calibration_warning = Some(warning);
+    }
     let mut state = warm_up(
         &machine,
         &calibrated,

@@ -113,7 +113,7 @@ pub fn record_data(
     let (fit, held) = hold_out(&read_measurements(&set)?, 5);
     let cal = calibrate::calibrate(&nominal, &fit, &EkfConfig::default())
         .map_err(|e| Error::from(e).context(format!("calibrating from {}", set.display())))?;
-    file::save(calibration, &cal, fit.len())?;
+    file::save_from(calibration, &cal, fit.len(), Some(machine_seed))?;
     let controller = nominal.with_errors(cal.errors.clone());
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
     let (before, after) = (
