@@ -361,6 +361,20 @@ fn run_configs_have_defaults_and_checks() {
         RunConfig::default(),
         "paper.toml spells out the defaults"
     );
+    // Equal values are not enough: docs/usage.md says every field is written out there,
+    // so a field left to its default (as `heads` and `joint_inputs` once were) fails.
+    let spelled: toml::Table = include_str!("../assets/paper.toml").parse().unwrap();
+    let defaults = toml::Table::try_from(RunConfig::default()).unwrap();
+    for (table, fields) in &defaults {
+        let fields = fields.as_table().expect("a run config's tables");
+        let written = spelled.get(table).and_then(|t| t.as_table());
+        for field in fields.keys() {
+            assert!(
+                written.is_some_and(|t| t.contains_key(field)),
+                "assets/paper.toml does not spell out [{table}] {field}"
+            );
+        }
+    }
     let empty = RunConfig::parse("", "empty.toml").unwrap();
     assert_eq!(empty, RunConfig::default());
     for (text, needle) in [

@@ -20,7 +20,7 @@ pub struct DatasetArgs {
     #[arg(long)]
     graph: Option<PathBuf>,
     /// Robot geometry asset (default: the embedded assets/robot.toml).
-    #[arg(long)]
+    #[arg(long, visible_alias = "arm")]
     robot: Option<PathBuf>,
     /// Window length T: the steps each window holds (model.window of a run config).
     #[arg(long, default_value_t = 100, value_parser = super::count(1..=1 << 20))]

@@ -84,7 +84,7 @@ pub struct EvaluateArgs {
     /// Robot description (default: the embedded hybrid machine, assets/robot.toml); a
     /// serial arm's (`kind = "serial"`) is calibrated, its residual models trained and
     /// scored on held-out poses.
-    #[arg(long)]
+    #[arg(long, visible_alias = "arm")]
     pub robot: Option<PathBuf>,
     /// Checkpoints to compare (the hybrid machine; named by file stem; a `<stem>.log.csv`
     /// beside one gives its training time per epoch).

@@ -225,6 +225,30 @@ mod tests {
         assert!(missing.is_empty(), "without a help text: {missing:?}");
     }
 
+    /// `--arm` is another name of `--robot` wherever a command takes a robot description
+    /// (docs/arms.md), not only in `simulate`.
+    #[test]
+    fn every_robot_flag_is_also_arm() {
+        fn walk(command: &clap::Command, path: &str, wrong: &mut Vec<String>, seen: &mut usize) {
+            for arg in command.get_arguments() {
+                if arg.get_id() == "robot" {
+                    *seen += 1;
+                    let aliases = arg.get_visible_aliases().unwrap_or_default();
+                    if !aliases.contains(&"arm") {
+                        wrong.push(path.to_string());
+                    }
+                }
+            }
+            for sub in command.get_subcommands() {
+                walk(sub, &format!("{path} {}", sub.get_name()), wrong, seen);
+            }
+        }
+        let (mut wrong, mut seen) = (Vec::new(), 0);
+        walk(&super::Cli::command(), "iastgcn", &mut wrong, &mut seen);
+        assert!(seen >= 5, "only {seen} commands take --robot");
+        assert!(wrong.is_empty(), "--robot without --arm: {wrong:?}");
+    }
+
     /// A count out of range is refused naming the flag, not a config field.
     #[test]
     fn dataset_counts_are_refused_by_their_flag() {

@@ -30,7 +30,7 @@ pub struct DataArgs {
     #[arg(long)]
     pub graph: Option<PathBuf>,
     /// Robot geometry asset (default: the embedded assets/robot.toml).
-    #[arg(long)]
+    #[arg(long, visible_alias = "arm")]
     pub robot: Option<PathBuf>,
 }
 
