@@ -520,7 +520,18 @@ fn evaluate_refuses_bad_input_before_training() {
         a.iter().map(|x| x.to_string()).collect::<Vec<_>>()
     };
     let grid = s(&dir.join("grid.csv"));
+    // 30 poses leave no test window: refused before the calibration, with the minimum.
+    let short = s(&dir.join("short.csv"));
+    common::cli(&[
+        "simulate", "--arm", &arm, "--poses", "30", "--seed", "1", "--out", &short,
+    ]);
+    let mut too_few = on_arm(&[]);
+    too_few[4] = short.clone();
     for (args, wants) in [
+        (
+            too_few,
+            vec!["no test window", "at least 76 poses", "short: 30 poses"],
+        ),
         (
             on_arm(&["--targets", &no_channel]),
             vec!["no_channel.csv", "missing column \"temp_c\""],
@@ -568,6 +579,42 @@ fn evaluate_refuses_bad_input_before_training() {
         assert!(took < 1.0, "{args:?} failed only after {took:.2} s");
         assert!(!out.join("models").exists(), "{args:?} trained a model");
     }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A pose file of 150 poses leaves 8 scored test poses: `evaluate --robot` says so with
+/// the size that gives a useful table. And a pose file given without `--robot` is refused
+/// with a hint to add it.
+#[test]
+fn thin_test_blocks_warn_and_pose_files_need_the_arm() {
+    let dir = std::env::temp_dir().join(format!("iastgcn-arm-thin-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let (poses, arm) = (s(&dir.join("poses.csv")), s(&asset("ur5.toml")));
+    common::cli(&[
+        "simulate", "--arm", &arm, "--poses", "150", "--seed", "3", "--out", &poses,
+    ]);
+    // One small model (the MLP) keeps the run to a fraction of a second.
+    let out = s(&dir.join("report"));
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
+        .args(["evaluate", "--robot", &arm, "--data", &poses, "--out", &out])
+        .args(["--train-models", "mlp", "--config"])
+        .arg(asset("residual.toml"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    // The run's notes go to stdout, with its progress.
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        said.contains("warning: only 8 test poses") && said.contains("365 poses gives 30"),
+        "{said}"
+    );
+    let err = common::cli_fails(&["calibrate", "--data", &poses, "--out", "unused.toml"]);
+    assert!(
+        err.contains("serial arm's pose file") && err.contains("--robot"),
+        "{err}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

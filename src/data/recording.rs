@@ -172,8 +172,9 @@ impl Recording {
                 1,
                 0,
                 format!(
-                    "the first column must be `t` (time in seconds), not {:?}",
-                    header[0]
+                    "the first column must be `t` (time in seconds), not {:?}{}",
+                    header[0],
+                    arm_hint(header)
                 ),
             ));
         }
@@ -395,9 +396,10 @@ pub fn parse_calibration_set(text: &str, file: &str) -> Result<Vec<CalibrationRo
             1,
             i,
             format!(
-                "unexpected column {:?} (column {}); {rule}",
+                "unexpected column {:?} (column {}); {rule}{}",
                 header[i],
-                i + 1
+                i + 1,
+                arm_hint(header)
             ),
         ));
     }
@@ -604,5 +606,17 @@ impl<'a> Table<'a> {
             return Err(self.at(line, column, format!("not a finite number: {cell:?}")));
         }
         Ok(Some(v))
+    }
+}
+
+/// A hint for a serial arm's pose file (docs/arms.md: first column `pose` or `time`)
+/// given where the hybrid machine's recording or measurement set was expected.
+fn arm_hint(header: &[String]) -> &'static str {
+    match header.first().map(String::as_str) {
+        Some("pose" | "time") => {
+            "; this looks like a serial arm's pose file: `calibrate` and `evaluate` read one \
+             with the arm's description in --robot (docs/arms.md)"
+        }
+        _ => "",
     }
 }

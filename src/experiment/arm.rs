@@ -118,6 +118,21 @@ impl ArmEvaluation {
     }
 }
 
+/// Test poses below which `evaluate --robot` warns that its table rests on few poses.
+pub const USEFUL_TEST_POSES: usize = 30;
+
+/// The test windows (scored poses) of one pose file of `poses` poses under `window`:
+/// windows ending at every pose, split into contiguous blocks as the dataset does.
+pub fn test_windows(poses: usize, window: &crate::data::WindowConfig) -> usize {
+    let ends: Vec<crate::data::Window> = crate::data::window_ends(poses, window, |_| true)
+        .into_iter()
+        .map(|end| crate::data::Window { recording: 0, end })
+        .collect();
+    crate::data::split(&ends, &[poses], window, SplitMode::Contiguous)
+        .test
+        .len()
+}
+
 /// Calibrates `nominal` on the training blocks of `files`, trains `variants` on the
 /// calibrated residuals with `config` (checkpoints, logs and plots into `out/models`),
 /// and scores the test blocks. `targets`, the points that [`corrected_targets`] will be
@@ -146,6 +161,39 @@ pub fn evaluate_arm(
         )));
     }
     let window = window_config(config);
+    // Too few poses for a test window fail here, before the calibration; a thin test
+    // block is said before anything trains.
+    let counts: Vec<usize> = files
+        .iter()
+        .map(|(_, f)| test_windows(f.poses.len(), &window))
+        .collect();
+    let total: usize = counts.iter().sum();
+    let needed = (1..1_000_000)
+        .find(|&n| test_windows(n, &window) >= 1)
+        .unwrap_or(usize::MAX);
+    let useful = (1..1_000_000)
+        .find(|&n| test_windows(n, &window) >= USEFUL_TEST_POSES)
+        .unwrap_or(usize::MAX);
+    if total == 0 {
+        let sizes: Vec<String> = files
+            .iter()
+            .map(|(name, f)| format!("{name}: {} poses", f.poses.len()))
+            .collect();
+        return Err(Error::Invalid(format!(
+            "no test window: each pose file's last 10 % is its test block, where a window of \
+             T = {} poses must fit; a file needs at least {needed} poses for one test pose \
+             ({useful} for {USEFUL_TEST_POSES}), and the pose files have {} (docs/arms.md \
+             \"How many poses\")",
+            window.length,
+            sizes.join(", ")
+        )));
+    }
+    if total < USEFUL_TEST_POSES {
+        reporter.note(&format!(
+            "warning: only {total} test poses: the table's means rest on few poses; a pose \
+             file of {useful} poses gives {USEFUL_TEST_POSES} (docs/arms.md \"How many poses\")"
+        ));
+    }
     // The calibration sees the training blocks only, as the models do.
     let train_poses: Vec<ArmPose> = files
         .iter()
