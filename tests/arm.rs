@@ -610,6 +610,11 @@ fn thin_test_blocks_warn_and_pose_files_need_the_arm() {
         said.contains("warning: only 8 test poses") && said.contains("365 poses gives 30"),
         "{said}"
     );
+    // Position-only poses: no made-up attitude statistics.
+    assert!(
+        said.contains("no attitude labels (position-only data)") && !said.contains("rx mdeg"),
+        "{said}"
+    );
     let err = common::cli_fails(&["calibrate", "--data", &poses, "--out", "unused.toml"]);
     assert!(
         err.contains("serial arm's pose file") && err.contains("--robot"),

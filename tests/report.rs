@@ -492,3 +492,47 @@ fn one_model_gets_no_bold_and_odd_names_get_safe_file_names() {
     let md = report::markdown(&r);
     assert!(!md.contains("**"), "{md}");
 }
+
+/// The terminal tables keep their columns with model names longer than the default
+/// width (a seed suffix, a file stem): every line of Table V's ends at one column, and
+/// the units line puts "(µm)" over the position numbers.
+#[test]
+fn terminal_tables_stay_aligned_with_long_model_names() {
+    let e = stats((68.1, 30.2, 150.7), (20.5, 9.1, 48.3));
+    let rows = vec![
+        v_row("hilbert", "calibrated", "-", e),
+        v_row("hilbert", "compensated", "iastgcn", e),
+        v_row(
+            "hilbert",
+            "compensated",
+            "iastgcn-s.seed3-refined.train25",
+            e,
+        ),
+    ];
+    let lines = report::table_v_lines(&rows);
+    let width = |l: &str| l.chars().count();
+    let data: Vec<&String> = lines.iter().skip(2).collect();
+    assert_eq!(data.len(), 6);
+    for l in &data {
+        assert_eq!(width(l), width(&lines[0]), "{lines:#?}");
+    }
+    // "(µm)" ends where the position max column ends.
+    let max_end = |l: &str| l.find("150.7").map(|b| l[..b].chars().count()).unwrap() + 5;
+    let units_end = lines[1]
+        .find("(µm)")
+        .map(|b| lines[1][..b].chars().count())
+        .unwrap()
+        + 4;
+    assert_eq!(units_end, max_end(data[0]), "{lines:#?}");
+
+    let iii = [
+        iii_row("hilbert", "iastgcn", [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]),
+        iii_row(
+            "hilbert",
+            "iastgcn-s.seed3-refined.train25",
+            [1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
+        ),
+    ];
+    let lines = report::table_iii_lines(&iii);
+    assert_eq!(width(&lines[0]), width(&lines[1]), "{lines:#?}");
+}

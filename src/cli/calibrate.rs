@@ -84,6 +84,12 @@ pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
         let label = format!("held-out poses ({})", held.len());
         rows.push(row(&label, "initial", &pose_errors(&nominal, &held)?));
         rows.push(row("", "calibrated", &pose_errors(&calibrated, &held)?));
+    } else {
+        // --hold-out-every 0: nothing held out, so the fitted poses (an optimistic score:
+        // the filter saw them) rather than an empty table.
+        let label = format!("fitted poses ({})", fit.len());
+        rows.push(row(&label, "initial", &pose_errors(&nominal, &fit)?));
+        rows.push(row("", "calibrated", &pose_errors(&calibrated, &fit)?));
     }
     for (path, ms) in &recordings {
         let label = path

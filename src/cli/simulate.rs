@@ -53,6 +53,17 @@ pub struct SimulateArgs {
 
 pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
     let description = Description::load_or_default(args.robot.as_deref())?;
+    // Static poses have no plot: refuse --plot rather than ignore it.
+    let static_poses = matches!(description, Description::Serial(_))
+        || args.trajectory.as_deref() == Some("calibration");
+    if let (Some(plot), true) = (&args.plot, static_poses) {
+        anyhow::bail!(
+            "--plot {}: static measurement poses (a calibration set or a serial arm's poses) \
+             have no plot; only a polishing run (--trajectory grid, fermat, hilbert or \
+             rosette) writes one",
+            plot.display()
+        );
+    }
     let (geometry, trajectory) = match (description, args.trajectory.as_deref()) {
         (Description::Serial(arm), None) => {
             return super::arm::simulate(&arm, args.poses, args.seed, args.machine_seed, &args.out)
@@ -127,8 +138,10 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
         r.info.controller
     );
     println!(
-        "twin truth (not in the file): machine {} is off by {:.3} mm and {:.4} deg on average",
-        r.info.machine_seed, r.mean_position_error_mm, r.mean_attitude_error_deg
+        "twin truth (not in the file): machine {} is off by {:.1} µm and {:.1} mdeg on average",
+        r.info.machine_seed,
+        r.mean_position_error_mm * 1e3,
+        r.mean_attitude_error_deg * 1e3
     );
     println!("plot {}", r.plot.display());
     Ok(())

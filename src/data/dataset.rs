@@ -426,9 +426,16 @@ impl Dataset {
         }
         let n = &self.normalization;
         let names = ["dx µm", "dy µm", "dz µm", "rx mdeg", "ry mdeg", "rz mdeg"];
+        // Position-only data (a serial arm without a 6-DoF probe) has no attitude label:
+        // every one is exactly 0, and its statistics would be made up.
+        let attitude = !self.labels.iter().all(|l| l[3..].iter().all(|&v| v == 0.0));
+        let shown = if attitude { OUTPUTS } else { 3 };
         s += "  labels (training mean ± SD):";
-        for ((name, mean), sd) in names.iter().zip(n.label_mean).zip(n.label_std) {
+        for ((name, mean), sd) in names.iter().zip(n.label_mean).zip(n.label_std).take(shown) {
             s += &format!(" {name} {mean:.1}±{sd:.1};");
+        }
+        if !attitude {
+            s += " no attitude labels (position-only data);";
         }
         s.push('\n');
         s

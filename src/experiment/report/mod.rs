@@ -556,11 +556,17 @@ pub fn write(dir: &Path, r: &Report) -> Result<Vec<PathBuf>> {
 
 /// Table III rows as aligned text lines (for a terminal).
 pub fn table_iii_lines(rows: &[TableIIIRow]) -> Vec<String> {
+    let w = rows
+        .iter()
+        .map(|r| r.model.chars().count())
+        .max()
+        .unwrap_or(0)
+        .max(20);
     rows.iter()
         .map(|r| {
             let m = &r.metrics;
             format!(
-                "  {:<10} {:<20} MAE {:>7.2} µm / {:>6.2} mdeg  RMSE {:>7.2} / {:>6.2}  MAPE {:>6.1}% / {:>6.1}%",
+                "  {:<10} {:<w$} MAE {:>7.2} µm / {:>6.2} mdeg  RMSE {:>7.2} / {:>6.2}  MAPE {:>6.1}% / {:>6.1}%",
                 r.trajectory, r.model, m.pos_mae, m.att_mae, m.pos_rmse, m.att_rmse, m.pos_mape, m.att_mape
             )
         })
@@ -569,18 +575,26 @@ pub fn table_iii_lines(rows: &[TableIIIRow]) -> Vec<String> {
 
 /// Table V rows as aligned text lines under a two-line header (for a terminal).
 pub fn table_v_lines(rows: &[TableVRow]) -> Vec<String> {
+    // The model column is as wide as its longest name, so the numbers stay in columns.
+    let w = rows
+        .iter()
+        .map(|r| r.model.chars().count())
+        .max()
+        .unwrap_or(0)
+        .max(14);
+    let units = 32 + w;
     let mut out = vec![
         format!(
-            "{:<10} {:<12} {:<14} {:<7} {:>9} {:>8} {:>9}   {:>8} {:>7} {:>8}",
+            "{:<10} {:<12} {:<w$} {:<7} {:>9} {:>8} {:>9}   {:>8} {:>7} {:>8}",
             "path", "stage", "model", "vs", "pos mean", "SD", "max", "att mean", "SD", "max"
         ),
-        format!("{:<46} {:>28}   {:>25}", "", "(µm)", "(mdeg)"),
+        format!("{:<units$} {:>28}   {:>25}", "", "(µm)", "(mdeg)"),
     ];
     for r in rows {
         for (what, e) in [("truth", &r.truth), ("tracker", &r.tracker)] {
             let (p, a) = (e.position, e.attitude);
             out.push(format!(
-                "{:<10} {:<12} {:<14} {:<7} {:>9.1} {:>8.1} {:>9.1}   {:>8.2} {:>7.2} {:>8.2}",
+                "{:<10} {:<12} {:<w$} {:<7} {:>9.1} {:>8.1} {:>9.1}   {:>8.2} {:>7.2} {:>8.2}",
                 r.trajectory, r.stage, r.model, what, p.mean, p.sd, p.max, a.mean, a.sd, a.max
             ));
         }
