@@ -277,9 +277,28 @@ impl Arm {
         Ok(arm)
     }
 
-    /// Refuses a singular chain: a joint that moves the tool point nowhere in its range
-    /// (its axis passes through the tool at every sampled configuration).
+    /// Refuses a chain that cannot work: one where no joint moves the tool point anywhere
+    /// in its range (every axis passes through it), so that every pose measures the same
+    /// point. A joint whose axis alone passes through the tool point (a reflector on the
+    /// flange axis, the usual set-up) is accepted: a position measurement cannot see its
+    /// angle, and the calibration's identifiability analysis reports the parameters it
+    /// cannot see as having no effect ([`Arm::joints_moving_tool`]).
     fn check_moves_tool(&self) -> Result<(), String> {
+        if self.joints_moving_tool().iter().any(|&m| m) {
+            return Ok(());
+        }
+        Err(format!(
+            "no joint moves the tool point anywhere in its range (every joint axis passes \
+             through it), so every pose would measure the same point: give the tool an \
+             offset from the last axis ([tool] xyz_mm) or check the {} joints' DH values",
+            self.joints()
+        ))
+    }
+
+    /// Per joint, whether turning it moves the tool point at some of 7 configurations
+    /// spread over the joint ranges: false for a joint whose axis passes through the tool
+    /// point wherever the others are (a reflector on the last joint's axis).
+    pub fn joints_moving_tool(&self) -> Vec<bool> {
         let n = self.joints();
         let mut moves = vec![false; n];
         for s in 0..7 {
@@ -294,13 +313,7 @@ impl Arm {
                 }
             }
         }
-        match moves.iter().position(|m| !m) {
-            Some(i) => Err(format!(
-                "joint[{i}] ({:?}) does not move the tool point anywhere in its range: the chain is singular (its axis passes through the tool; give the tool an offset or drop the joint)",
-                self.spec.joint[i].name
-            )),
-            None => Ok(()),
-        }
+        moves
     }
 
     /// Number of joints.
