@@ -955,3 +955,67 @@ fn residual_models_learn_what_calibration_leaves_on_held_out_poses() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A tracker export in another layout (the public real-arm files': commanded point,
+/// commanded minus measured, joints in degrees) becomes a pose file by column names;
+/// units convert, channels carry over, and a missing column or a stamp that does not
+/// increase names the export.
+#[test]
+fn import_maps_a_tracker_export_by_column_names() {
+    use iastgcn::data::arm_import::{parse_export, Difference, PoseColumns};
+    let export = "step_order,x_t,y_t,z_t,x_dif,y_dif,z_dif,joint_1,joint_2,temp\n\
+                  0,-430.5,-6.25,-98.5,-2.5,-3.5,0.75,-22.5,-43.75,21.5\n\
+                  1,-463.5,-3.5,-104.5,-2.0,-2.5,-0.25,-19.5,-45.5,21.75\n";
+    let mut columns = PoseColumns {
+        stamp: Some("step_order".into()),
+        joints: vec!["joint_1".into(), "joint_2".into()],
+        position: ["x_t", "y_t", "z_t"].map(String::from),
+        difference: Some(["x_dif", "y_dif", "z_dif"].map(String::from)),
+        sign: Difference::Minus,
+        joint_scale: 1.0,
+        length_scale: 1.0,
+        channels: vec!["temp".into()],
+    };
+    let poses = parse_export(export, "export.csv", &columns).unwrap();
+    assert_eq!(poses.poses.len(), 2);
+    assert_eq!(
+        poses.poses[0].position.coords.as_slice(),
+        [-428.0, -2.75, -99.25]
+    );
+    assert_eq!(poses.poses[1].joints, [-19.5, -45.5]);
+    assert_eq!(poses.channels, ["temp"]);
+    assert_eq!(poses.poses[1].channels, [21.75]);
+    // The pose file written reads back as the arm's pose file.
+    let again = parse_arm_poses(&poses.to_csv(), "poses.csv", 2).unwrap();
+    assert_eq!(again, poses);
+    // measured minus reference, metres and radians.
+    columns.sign = Difference::Plus;
+    columns.length_scale = 1000.0;
+    columns.joint_scale = 180.0 / std::f64::consts::PI;
+    let plus = parse_export(export, "export.csv", &columns).unwrap();
+    assert_eq!(plus.poses[0].position.x, (-430.5 - 2.5) * 1000.0);
+    assert!((plus.poses[0].joints[0] - (-22.5f64).to_degrees()).abs() < 1e-9);
+    // Errors name the export and what is wrong.
+    columns.joints[1] = "joint_9".into();
+    let e = parse_export(export, "export.csv", &columns)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("export.csv") && e.contains("no column \"joint_9\""),
+        "{e}"
+    );
+    columns.joints[1] = "joint_2".into();
+    let back = export.replace("\n1,", "\n0,");
+    let e = parse_export(&back, "export.csv", &columns)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("export.csv") && e.contains("does not increase"),
+        "{e}"
+    );
+    let bad = export.replace("-6.25", "n/a");
+    let e = parse_export(&bad, "export.csv", &columns)
+        .unwrap_err()
+        .to_string();
+    assert!(e.starts_with("export.csv:2:y_t: not a number"), "{e}");
+}

@@ -7,6 +7,7 @@ mod calibrate;
 mod compensate;
 mod dataset;
 mod demo;
+mod import;
 mod info;
 mod model;
 mod reproduce;
@@ -45,6 +46,8 @@ enum Command {
     Smoke(smoke::SmokeArgs),
     /// Run the digital twin and write a recording CSV (or a calibration measurement set).
     Simulate(simulate::SimulateArgs),
+    /// Read a tracker export (any CSV, columns mapped by name) into a serial arm's pose file.
+    Import(import::ImportArgs),
     /// Identify the geometric errors (graded EKF) from a calibration measurement set.
     Calibrate(calibrate::CalibrateArgs),
     /// Build the dataset (features, labels, splits) from recordings and print its summary.
@@ -110,6 +113,7 @@ pub fn main() -> ExitCode {
         }
         Command::Simulate(args) => simulate::run(&args),
         Command::Calibrate(args) => calibrate::run(&args),
+        Command::Import(args) => import::run(&args),
         Command::Dataset(args) => dataset::run(&args),
         Command::Init(args) => model::init(&args),
         Command::Forward(args) => {

@@ -2,6 +2,7 @@
 //! low-pass, differences, entropy), windows and leakage-free splits.
 
 pub mod arm_dataset;
+pub mod arm_import;
 pub mod arm_poses;
 pub mod dataset;
 pub mod features;
