@@ -1019,3 +1019,66 @@ fn import_maps_a_tracker_export_by_column_names() {
         .to_string();
     assert!(e.starts_with("export.csv:2:y_t: not a number"), "{e}");
 }
+
+/// The vendored real data (assets/real-arms): each file imported by column names and
+/// calibrated with its description (a reflector on the flange axis), every 5th pose held
+/// out, stays at the level measured on 2026-11-26 (UR5 843.4 → 107.9 µm, WAM 5042.2 →
+/// 2170.7 µm held-out mean; a few per cent of slack for another CPU's rounding).
+#[test]
+fn the_real_arms_calibrate_to_the_level_measured() {
+    use iastgcn::data::arm_import::{import_arm_poses, Difference, PoseColumns};
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/real-arms");
+    for (file, desc, joints, before, after) in [
+        (
+            "3D_UR5_uncalibrated_grid_cleaned.csv",
+            "ur5.toml",
+            6,
+            843.4,
+            107.9,
+        ),
+        (
+            "3D_WAM_uncalibrated_grid_cleaned.csv",
+            "wam7.toml",
+            7,
+            5042.2,
+            2170.7,
+        ),
+    ] {
+        let arm = Arm::load(&dir.join(desc)).unwrap();
+        let columns = PoseColumns {
+            stamp: Some("step_order".into()),
+            joints: (1..=joints).map(|i| format!("joint_{i}")).collect(),
+            position: ["x_t", "y_t", "z_t"].map(String::from),
+            difference: Some(["x_dif", "y_dif", "z_dif"].map(String::from)),
+            sign: Difference::Minus,
+            joint_scale: 1.0,
+            length_scale: 1.0,
+            channels: vec![],
+        };
+        let poses = import_arm_poses(&dir.join(file), &columns).unwrap().poses;
+        let (fit, held) = hold_out(&poses, 5);
+        let cal = calibrate_arm(&arm, &fit, &ArmCalibrationConfig::default()).unwrap();
+        let last = format!("j{joints}.theta").replace("j6", "wrist_3");
+        assert!(
+            cal.kept
+                .iter()
+                .any(|k| k.name == last && k.reason == "no effect on the measured poses"),
+            "{desc}: {:?}",
+            cal.kept
+        );
+        let initial = mean(&arm_position_errors(&cal.registered, &held)) * 1e3;
+        let calibrated = mean(&arm_position_errors(&cal.arm, &held)) * 1e3;
+        assert!(
+            (initial - before).abs() < 0.02 * before,
+            "{desc}: {initial} µm before"
+        );
+        assert!(
+            calibrated < 1.03 * after,
+            "{desc}: {calibrated} µm after ({after} measured)"
+        );
+        assert!(
+            calibrated > 0.9 * after,
+            "{desc}: {calibrated} µm: better than measured?"
+        );
+    }
+}
