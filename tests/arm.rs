@@ -1082,3 +1082,96 @@ fn the_real_arms_calibrate_to_the_level_measured() {
         );
     }
 }
+
+/// `calibrate --test FILE` fits every pose of `--data` and scores the other file's poses,
+/// for a serial arm and for the hybrid machine alike; `--hold-out-every` with it is
+/// refused.
+#[test]
+fn calibrate_scores_a_separate_test_file() {
+    let dir = std::env::temp_dir().join(format!("iastgcn-arm-test-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let arm = s(&asset("ur5.toml"));
+    let (fit, test) = (dir.join("grid.csv"), dir.join("random.csv"));
+    for (path, seed, poses) in [(&fit, "4", "60"), (&test, "5", "25")] {
+        let args = ["simulate", "--arm", &arm, "--poses", poses, "--seed", seed];
+        let mut args = args.to_vec();
+        let p = s(path);
+        args.extend(["--out", &p]);
+        common::cli(&args);
+    }
+    let out = s(&dir.join("cal.toml"));
+    let printed = common::cli(&[
+        "calibrate",
+        "--robot",
+        &arm,
+        "--data",
+        &s(&fit),
+        "--test",
+        &s(&test),
+        "--out",
+        &out,
+    ]);
+    assert!(
+        printed.contains("from 60 poses"),
+        "every pose fitted: {printed}"
+    );
+    assert!(printed.contains("test (25): random.csv"), "{printed}");
+    // The same numbers as the library's: fitted on one file, scored on the other.
+    let nominal = ur5();
+    let fitted = read_arm_poses(&fit, 6).unwrap().poses;
+    let scored = read_arm_poses(&test, 6).unwrap().poses;
+    let cal = calibrate_arm(&nominal, &fitted, &ArmCalibrationConfig::default()).unwrap();
+    let want = format!("{:.1}", mean(&arm_position_errors(&cal.arm, &scored)) * 1e3);
+    let line = printed
+        .lines()
+        .skip_while(|l| !l.contains("test (25)"))
+        .find(|l| l.contains("calibrated"))
+        .unwrap();
+    assert!(line.contains(&want), "{line} vs {want}");
+    let err = common::cli_fails(&[
+        "calibrate",
+        "--robot",
+        &arm,
+        "--data",
+        &s(&fit),
+        "--test",
+        &s(&test),
+        "--hold-out-every",
+        "3",
+        "--out",
+        &out,
+    ]);
+    assert!(
+        err.contains("--hold-out-every") && err.contains("--test"),
+        "{err}"
+    );
+    // The hybrid machine: two calibration sets.
+    let (a, b) = (dir.join("set_a.csv"), dir.join("set_b.csv"));
+    for (path, seed) in [(&a, "101"), (&b, "102")] {
+        let p = s(path);
+        common::cli(&[
+            "simulate",
+            "--trajectory",
+            "calibration",
+            "--poses",
+            "40",
+            "--seed",
+            seed,
+            "--out",
+            &p,
+        ]);
+    }
+    let printed = common::cli(&[
+        "calibrate",
+        "--data",
+        &s(&a),
+        "--test",
+        &s(&b),
+        "--out",
+        &s(&dir.join("h.toml")),
+    ]);
+    assert!(printed.contains("from 40 poses"), "{printed}");
+    assert!(printed.contains("test file (40): set_b.csv"), "{printed}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

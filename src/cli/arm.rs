@@ -103,11 +103,24 @@ fn row(label: &str, stage: &str, errors_mm: &[f64]) -> String {
 pub fn calibrate(
     nominal: &Arm,
     data: &Path,
-    hold_out_every: usize,
+    scoring: &super::calibrate::Scoring,
     out: &Path,
 ) -> anyhow::Result<()> {
+    use super::calibrate::Scoring;
     let file = read_arm_poses(data, nominal.joints())?;
-    let (fit, held) = hold_out(&file.poses, hold_out_every);
+    let (fit, held) = match scoring {
+        Scoring::HoldOutEvery(every) => hold_out(&file.poses, *every),
+        Scoring::TestFile(test) => (
+            file.poses.clone(),
+            read_arm_poses(test, nominal.joints())?.poses,
+        ),
+    };
+    let held_label = match scoring {
+        Scoring::HoldOutEvery(_) => format!("held out ({})", held.len()),
+        Scoring::TestFile(test) => {
+            format!("test ({}){}", held.len(), super::calibrate::test_name(test))
+        }
+    };
     let cal = calibrate_arm(nominal, &fit, &ArmCalibrationConfig::default())
         .with_context(|| format!("calibrating {} from {}", nominal.spec.name, data.display()))?;
     let text = cal
@@ -115,11 +128,15 @@ pub fn calibrate(
         .to_toml(Some(cal.record()))
         .map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
     let header = format!(
-        "# {} calibrated by iastgcn from {} ({} poses fitted, {} held out).\n",
+        "# {} calibrated by iastgcn from {} ({} poses fitted, {} {}).\n",
         nominal.spec.name,
         data.display(),
         fit.len(),
-        held.len()
+        held.len(),
+        match scoring {
+            Scoring::HoldOutEvery(_) => "held out".to_string(),
+            Scoring::TestFile(t) => format!("scored from {}", t.display()),
+        }
     );
     iastgcn::atomic::write(out, format!("{header}{text}").as_bytes())
         .with_context(|| out.display().to_string())?;
@@ -161,7 +178,7 @@ pub fn calibrate(
     );
     let groups = [
         (format!("fitted ({})", fit.len()), &fit),
-        (format!("held out ({})", held.len()), &held),
+        (held_label, &held),
     ];
     for (label, poses) in groups {
         if poses.is_empty() {

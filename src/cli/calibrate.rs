@@ -29,6 +29,11 @@ pub struct CalibrateArgs {
     /// Every how many measurements one is held out for the report (0: none).
     #[arg(long, default_value_t = 5)]
     pub hold_out_every: usize,
+    /// A separate file of test poses (same format as --data) to score instead of held-out
+    /// ones: every pose of --data is fitted, and the test poses are used for nothing but
+    /// the report (not the fit, not the registration).
+    #[arg(long, conflicts_with = "hold_out_every")]
+    pub test: Option<PathBuf>,
     /// Polishing recordings to report the error on before and after calibration.
     #[arg(long, num_args = 1..)]
     pub recordings: Vec<PathBuf>,
@@ -44,11 +49,32 @@ fn row(label: &str, stage: &str, (p, a): &(Vec<f64>, Vec<f64>)) -> String {
     )
 }
 
+/// How the poses of `--data` are scored: held out every few, or a separate test file.
+pub enum Scoring {
+    /// Every how many poses one is held out (0: none).
+    HoldOutEvery(usize),
+    /// Every pose is fitted; this file's poses are scored.
+    TestFile(PathBuf),
+}
+
+fn split(args: &CalibrateArgs) -> Scoring {
+    match &args.test {
+        Some(t) => Scoring::TestFile(t.clone()),
+        None => Scoring::HoldOutEvery(args.hold_out_every),
+    }
+}
+
+/// `: NAME` of a test file, for the report's row label.
+pub fn test_name(path: &std::path::Path) -> String {
+    path.file_name()
+        .map_or(String::new(), |n| format!(": {}", n.to_string_lossy()))
+}
+
 pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
     let geometry = match Description::load_or_default(args.robot.as_deref())? {
         Description::Hybrid(geometry) => geometry,
         Description::Serial(arm) => {
-            return super::arm::calibrate(&arm, &args.measurements, args.hold_out_every, &args.out);
+            return super::arm::calibrate(&arm, &args.measurements, &split(args), &args.out);
         }
     };
     let nominal = Robot::nominal(geometry);
@@ -64,7 +90,11 @@ pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
     } else {
         None
     };
-    let (fit, held) = hold_out(&read_measurements(&args.measurements)?, args.hold_out_every);
+    let all = read_measurements(&args.measurements)?;
+    let (fit, held) = match &args.test {
+        Some(test) => (all, read_measurements(test)?),
+        None => hold_out(&all, args.hold_out_every),
+    };
     let spinner = ProgressBar::new_spinner().with_message(format!("EKF on {} poses", fit.len()));
     spinner.enable_steady_tick(std::time::Duration::from_millis(200));
     let cal = calibrate::calibrate(&nominal, &fit, &EkfConfig::default())
@@ -81,7 +111,10 @@ pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
     let calibrated = nominal.with_errors(cal.errors.clone());
     let mut rows = Vec::new();
     if !held.is_empty() {
-        let label = format!("held-out poses ({})", held.len());
+        let label = match &args.test {
+            Some(t) => format!("test file ({})", held.len()) + &test_name(t),
+            None => format!("held-out poses ({})", held.len()),
+        };
         rows.push(row(&label, "initial", &pose_errors(&nominal, &held)?));
         rows.push(row("", "calibrated", &pose_errors(&calibrated, &held)?));
     } else {
