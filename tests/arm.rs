@@ -827,6 +827,7 @@ fn residual_models_learn_what_calibration_leaves_on_held_out_poses() {
         &gpu,
         &arm,
         &[("backlash".into(), file)],
+        &[],
         &config,
         &[Variant::Iastgcn, Variant::Erc],
         None,
@@ -1173,5 +1174,71 @@ fn calibrate_scores_a_separate_test_file() {
     ]);
     assert!(printed.contains("from 40 poses"), "{printed}");
     assert!(printed.contains("test file (40): set_b.csv"), "{printed}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `evaluate --robot … --test FILE`: the pose files are cut into training and validation
+/// blocks only, and every window of the separate test file is scored; the test file
+/// reaches neither the calibration nor the models (other test poses, the same weights).
+#[test]
+fn evaluate_scores_a_separate_test_file_it_never_trains_on() {
+    let dir = std::env::temp_dir().join(format!("iastgcn-arm-evaltest-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let arm = s(&asset("ur5.toml"));
+    let (grid, random) = (dir.join("grid.csv"), dir.join("random.csv"));
+    for (path, seed, poses) in [(&grid, "4", "150"), (&random, "5", "40")] {
+        let p = s(path);
+        common::cli(&[
+            "simulate", "--arm", &arm, "--poses", poses, "--seed", seed, "--out", &p,
+        ]);
+    }
+    let run = |test: &Path, out: &Path| {
+        let (t, o) = (s(test), s(out));
+        common::cli(&[
+            "evaluate",
+            "--robot",
+            &arm,
+            "--data",
+            &s(&grid),
+            "--test",
+            &t,
+            "--train-models",
+            "mlp",
+            "--out",
+            &o,
+        ])
+    };
+    let out = dir.join("report");
+    let printed = run(&random, &out);
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    // 40 poses, the first 7 without a full window of 8.
+    assert!(
+        report.contains("scores the 33 poses of the separate test files"),
+        "{report}"
+    );
+    assert!(
+        report.contains("80/20 % training and validation blocks"),
+        "{report}"
+    );
+    // The calibration saw the first 80 % of the grid file only.
+    let poses = read_arm_poses(&grid, 6).unwrap().poses;
+    let cal = calibrate_arm(&ur5(), &poses[..120], &ArmCalibrationConfig::default()).unwrap();
+    let scored = read_arm_poses(&random, 6).unwrap().poses;
+    let want = mean(&arm_position_errors(&cal.arm, &scored[7..])) * 1e3;
+    assert!(
+        printed.contains(&format!("| calibrated | {want:.1} |")),
+        "{printed} vs {want}"
+    );
+    // Other test poses: the same model, bit for bit.
+    let text = std::fs::read_to_string(&random).unwrap();
+    let mut lines: Vec<&str> = text.lines().collect();
+    lines.truncate(30);
+    let other = dir.join("other.csv");
+    std::fs::write(&other, lines.join("\n") + "\n").unwrap();
+    let out2 = dir.join("report2");
+    run(&other, &out2);
+    let weights = |o: &Path| std::fs::read(o.join("models/mlp.safetensors")).unwrap();
+    assert_eq!(weights(&out), weights(&out2));
     let _ = std::fs::remove_dir_all(&dir);
 }

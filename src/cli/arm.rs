@@ -207,16 +207,19 @@ pub fn evaluate(
     nominal: &Arm,
     args: &super::demo::EvaluateArgs,
 ) -> anyhow::Result<()> {
-    let files = args
-        .data
-        .iter()
-        .map(|p| {
-            let name = p.file_stem().map_or(p.display().to_string(), |s| {
-                s.to_string_lossy().into_owned()
-            });
-            Ok((name, read_arm_poses(p, nominal.joints())?))
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
+    let read = |paths: &[std::path::PathBuf]| {
+        paths
+            .iter()
+            .map(|p| {
+                let name = p.file_stem().map_or(p.display().to_string(), |s| {
+                    s.to_string_lossy().into_owned()
+                });
+                Ok((name, read_arm_poses(p, nominal.joints())?))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()
+    };
+    let files = read(&args.data)?;
+    let tests = read(&args.test)?;
     let config = match &args.config {
         Some(p) => iastgcn::train::RunConfig::load(p)?,
         None => arm_run_config(),
@@ -244,6 +247,7 @@ pub fn evaluate(
         &gpu,
         nominal,
         &files,
+        &tests,
         &config,
         &variants,
         targets.as_ref(),
@@ -261,23 +265,40 @@ pub fn evaluate(
     };
     let [train, validation, test] = result.split_poses;
     let table = result.markdown();
+    let names = |paths: &[std::path::PathBuf]| {
+        paths
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let (blocks, scored) = if args.test.is_empty() {
+        (
+            "contiguous 70/20/10 % blocks".to_string(),
+            "test poses".to_string(),
+        )
+    } else {
+        (
+            "contiguous 80/20 % training and validation blocks".to_string(),
+            format!(
+                "poses of the separate test files {} (used for nothing else)",
+                names(&args.test)
+            ),
+        )
+    };
     let report = format!(
         "# {} — residual models\n\n\
-         Pose files: {}. Each file is cut into contiguous 70/20/10 % blocks in measurement \
+         Pose files: {}. Each file is cut into {blocks} in measurement \
          order; a window is the last {} poses in that order (the data are static poses, not \
          a time series). The geometric calibration ({} parameters identified) and the models \
          saw the training blocks only ({train} windows; validation {validation} for early \
-         stopping); the table scores the {test} test poses against the tracker's \
+         stopping); the table scores the {test} {scored} against the tracker's \
          measurement. `initial`: the nominal description with the tracker registration \
          fitted; `training mean`: the calibrated model plus the training blocks' mean \
          residual; each model: the calibrated model plus its predicted residual.\n\n\
          {table}",
         nominal.spec.name,
-        args.data
-            .iter()
-            .map(|p| p.display().to_string())
-            .collect::<Vec<_>>()
-            .join(", "),
+        names(&args.data),
         config.model.window,
         result.calibration.identified.len(),
     );

@@ -95,6 +95,11 @@ pub struct EvaluateArgs {
     /// validation loss.
     #[arg(long)]
     pub targets: Option<PathBuf>,
+    /// A serial arm's separate test pose files: --data is cut into 80/20 % training and
+    /// validation blocks only, and every pose of these files with a full window is scored
+    /// (they serve nothing else: not the calibration, early stopping or model choice).
+    #[arg(long, num_args = 1..)]
+    pub test: Vec<PathBuf>,
     /// The models to train on a serial arm's residuals, comma-separated.
     #[arg(long, default_value_t = iastgcn::experiment::arm::ARM_MODELS.map(iastgcn::model::Variant::name).join(","))]
     pub train_models: String,
@@ -139,6 +144,10 @@ pub fn evaluate(gpu: Gpu, args: &EvaluateArgs) -> anyhow::Result<()> {
     anyhow::ensure!(
         args.targets.is_none(),
         "--targets is for a serial arm's corrected joint targets: give its description in --robot"
+    );
+    anyhow::ensure!(
+        args.test.is_empty(),
+        "--test is for a serial arm's separate test poses: give its description in --robot (the hybrid machine's Table V scores held-out runs in the twin)"
     );
     let calibration = args.calibration.clone().ok_or_else(|| {
         anyhow::anyhow!("--calibration is required (or give a serial arm's description in --robot)")

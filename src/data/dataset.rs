@@ -251,7 +251,9 @@ impl Dataset {
         }
         let rows: Vec<usize> = prepared.iter().map(|(_, p)| p.labels.len()).collect();
         let splits = split(&all, &rows, window, mode);
-        if splits.train.is_empty() {
+        // Without given statistics the training windows provide them; with them, a
+        // dataset of test windows only is fine (a separate test file).
+        if splits.train.is_empty() && fixed.is_none() {
             return Err(err(
                 "dataset",
                 "no training window: the recordings are too short",

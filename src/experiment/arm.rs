@@ -16,7 +16,7 @@ use crate::calibrate::arm::{
 };
 use crate::data::arm_dataset::{arm_dataset, prepare_arm};
 use crate::data::arm_poses::{ArmPoses, ArmTargets};
-use crate::data::SplitMode;
+use crate::data::{SplitMode, WindowConfig};
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
 use crate::model::{Checkpoint, Predictor, Variant};
@@ -135,13 +135,18 @@ pub fn test_windows(poses: usize, window: &crate::data::WindowConfig) -> usize {
 
 /// Calibrates `nominal` on the training blocks of `files`, trains `variants` on the
 /// calibrated residuals with `config` (checkpoints, logs and plots into `out/models`),
-/// and scores the test blocks. `targets`, the points that [`corrected_targets`] will be
-/// asked for, are checked to be reachable by the calibrated arm before any training.
+/// and scores the test blocks. With `tests` (separate pose files), `files` are cut into
+/// 80/20 % training and validation blocks only, and every window of the test files is
+/// scored instead: they serve nothing else (not the calibration, its registration, early
+/// stopping or the choice of model), and are standardised with the training statistics.
+/// `targets`, the points that [`corrected_targets`] will be asked for, are checked to be
+/// reachable by the calibrated arm before any training.
 #[allow(clippy::too_many_arguments)]
 pub fn evaluate_arm(
     gpu: &Arc<Gpu>,
     nominal: &Arm,
     files: &[(String, ArmPoses)],
+    tests: &[(String, ArmPoses)],
     config: &RunConfig,
     variants: &[Variant],
     targets: Option<&ArmTargets>,
@@ -160,30 +165,49 @@ pub fn evaluate_arm(
             config.data.split
         )));
     }
-    let window = window_config(config);
+    let mut window = window_config(config);
+    // With test files, every window of theirs is a test window and the pose files have
+    // no test block.
+    let scored_window = WindowConfig {
+        train: 0.0,
+        validation: 0.0,
+        ..window
+    };
+    if !tests.is_empty() {
+        (window.train, window.validation) = (0.8, 0.2);
+    }
+    let (scored_files, scored_split) = if tests.is_empty() {
+        (files, &window)
+    } else {
+        (tests, &scored_window)
+    };
     // Too few poses for a test window fail here, before the calibration; a thin test
     // block is said before anything trains.
-    let counts: Vec<usize> = files
+    let counts: Vec<usize> = scored_files
         .iter()
-        .map(|(_, f)| test_windows(f.poses.len(), &window))
+        .map(|(_, f)| test_windows(f.poses.len(), scored_split))
         .collect();
     let total: usize = counts.iter().sum();
     let needed = (1..1_000_000)
-        .find(|&n| test_windows(n, &window) >= 1)
+        .find(|&n| test_windows(n, scored_split) >= 1)
         .unwrap_or(usize::MAX);
     let useful = (1..1_000_000)
-        .find(|&n| test_windows(n, &window) >= USEFUL_TEST_POSES)
+        .find(|&n| test_windows(n, scored_split) >= USEFUL_TEST_POSES)
         .unwrap_or(usize::MAX);
     if total == 0 {
-        let sizes: Vec<String> = files
+        let sizes: Vec<String> = scored_files
             .iter()
             .map(|(name, f)| format!("{name}: {} poses", f.poses.len()))
             .collect();
+        let block = if tests.is_empty() {
+            "each pose file's last 10 % is its test block, where"
+        } else {
+            "in each test file"
+        };
         return Err(Error::Invalid(format!(
-            "no test window: each pose file's last 10 % is its test block, where a window of \
-             T = {} poses must fit; a file needs at least {needed} poses for one test pose \
-             ({useful} for {USEFUL_TEST_POSES}), and the pose files have {} (docs/arms.md \
-             \"How many poses\")",
+            "no test window: {block} a window of T = {} poses must fit; a file needs at \
+             least {needed} poses for one test pose ({useful} for {USEFUL_TEST_POSES}), and \
+             the files have {} (docs/arms.md \"How many poses\")",
             window.length,
             sizes.join(", ")
         )));
@@ -227,7 +251,22 @@ pub fn evaluate_arm(
     for line in data.summary().lines() {
         reporter.note(line);
     }
-    let [_, _, test] = data.split_ranges();
+    // The scored windows: the test blocks, or every window of the test files under the
+    // training statistics.
+    let separate = if tests.is_empty() {
+        None
+    } else {
+        let (_, t) = arm_dataset(
+            &calibration.arm,
+            tests,
+            &scored_window,
+            SplitMode::Contiguous,
+            Some(&data.normalization),
+        )?;
+        Some(t)
+    };
+    let scored = separate.as_ref().unwrap_or(&data);
+    let [_, _, test] = scored.split_ranges();
     let positions: Vec<usize> = test.collect();
     if positions.is_empty() {
         return Err(Error::Invalid(
@@ -236,11 +275,11 @@ pub fn evaluate_arm(
     }
     let test_poses: Vec<(usize, usize)> = positions
         .iter()
-        .map(|&i| (data.windows[i].recording, data.windows[i].end))
+        .map(|&i| (scored.windows[i].recording, scored.windows[i].end))
         .collect();
     let measured: Vec<ArmPose> = test_poses
         .iter()
-        .map(|&(f, p)| files[f].1.poses[p].clone())
+        .map(|&(f, p)| scored_files[f].1.poses[p].clone())
         .collect();
     // Position error left after subtracting a predicted residual (µm) from the label.
     let left = |predicted: &dyn Fn(usize) -> [f64; 6]| -> Vec<f64> {
@@ -248,7 +287,7 @@ pub fn evaluate_arm(
             .iter()
             .enumerate()
             .map(|(k, &i)| {
-                let (l, p) = (data.labels[i], predicted(k));
+                let (l, p) = (scored.labels[i], predicted(k));
                 ((l[0] - p[0]).powi(2) + (l[1] - p[1]).powi(2) + (l[2] - p[2]).powi(2)).sqrt()
                     * 1e-3
             })
@@ -284,7 +323,7 @@ pub fn evaluate_arm(
         reporter.note(&format!("== {name} on the calibrated residuals"));
         let files = ModelFiles::named(&model_dir, name, false);
         let fitted = fit_model(gpu, &data, &graph, &c, name, &files, reporter)?;
-        let predicted = predict_windows(gpu, &fitted.model.checkpoint, &data, &positions)?;
+        let predicted = predict_windows(gpu, &fitted.model.checkpoint, scored, &positions)?;
         rows.push(ArmRow {
             model: name.to_string(),
             errors_mm: left(&|k| predicted[k]),
@@ -293,10 +332,11 @@ pub fn evaluate_arm(
         predictions.push((name.to_string(), predicted));
         checkpoints.push((name.to_string(), fitted.model.checkpoint));
     }
-    let split_poses = {
-        let s = &data.splits;
-        [s.train.len(), s.validation.len(), s.test.len()]
-    };
+    let split_poses = [
+        data.splits.train.len(),
+        data.splits.validation.len(),
+        positions.len(),
+    ];
     Ok(ArmEvaluation {
         calibration,
         split_poses,
