@@ -837,6 +837,25 @@ fn residual_models_learn_what_calibration_leaves_on_held_out_poses() {
     .unwrap();
     // The calibration saw the training block only: the first 70 % of the poses.
     assert_eq!(result.calibration.poses, 700);
+    // The recommendation is made on validation against calibration alone: the model
+    // leaving the least error there if it beats calibration, else none.
+    let names: Vec<&str> = result.validation_um.iter().map(|v| v.0.as_str()).collect();
+    assert_eq!(names, ["calibrated", "iastgcn", "erc"]);
+    let (cal_um, models) = result.validation_um.split_first().unwrap();
+    let best = models.iter().min_by(|a, b| a.1.total_cmp(&b.1)).unwrap();
+    match result.recommended() {
+        Some((name, _)) => assert!(*name == best.0 && best.1 < cal_um.1, "{name}"),
+        None => assert!(best.1 >= cal_um.1),
+    }
+    let mut worse = result.clone();
+    for v in worse.validation_um.iter_mut().skip(1) {
+        v.1 = cal_um.1 + 1.0;
+    }
+    assert!(worse.recommended().is_none());
+    assert!(worse.recommendation().contains("**no residual model**"));
+    let mut better = result.clone();
+    better.validation_um[2].1 = 0.5 * cal_um.1.min(better.validation_um[1].1);
+    assert_eq!(better.recommended().map(|r| r.0.as_str()), Some("erc"));
     assert!(
         result.test_poses.iter().all(|&(_, p)| p >= 900),
         "{:?}",

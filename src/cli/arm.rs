@@ -9,7 +9,9 @@ use iastgcn::atomic::Batch;
 use iastgcn::calibrate::arm::{arm_position_errors, calibrate_arm, ArmCalibrationConfig};
 use iastgcn::calibrate::hold_out;
 use iastgcn::data::arm_poses::{read_arm_poses, read_arm_targets, ArmPoses};
-use iastgcn::experiment::arm::{arm_run_config, corrected_targets, evaluate_arm, targets_csv};
+use iastgcn::experiment::arm::{
+    arm_run_config, calibrated_targets, corrected_targets, evaluate_arm, targets_csv,
+};
 use iastgcn::model::Variant;
 use iastgcn::robot::arm::Arm;
 use iastgcn::stats::Summary;
@@ -254,13 +256,23 @@ pub fn evaluate(
         &args.out,
         &mut super::Console::default(),
     )?;
-    // Corrected joint targets, from the model chosen on validation.
-    let targets = match (&targets, result.best_on_validation()) {
+    // Joint targets from the model recommended on validation, or from calibration alone
+    // where no model beats it there.
+    let targets = match (&targets, result.recommended()) {
         (Some(list), Some((name, ck))) => {
             let corrected = corrected_targets(&gpu, ck, &result.calibration.arm, list)?;
-            Some((name.clone(), targets_csv(&list.stamp, &corrected)))
+            Some((
+                format!("{name} (recommended on validation)"),
+                targets_csv(&list.stamp, &corrected),
+            ))
         }
-        (Some(_), None) => anyhow::bail!("--targets needs a model: --train-models is empty"),
+        (Some(list), None) => {
+            let plain = calibrated_targets(&result.calibration.arm, list)?;
+            Some((
+                "calibration alone (no model beats it on validation)".to_string(),
+                targets_csv(&list.stamp, &plain),
+            ))
+        }
         (None, _) => None,
     };
     let [train, validation, test] = result.split_poses;
@@ -296,11 +308,12 @@ pub fn evaluate(
          measurement. `initial`: the nominal description with the tracker registration \
          fitted; `training mean`: the calibrated model plus the training blocks' mean \
          residual; each model: the calibrated model plus its predicted residual.\n\n\
-         {table}",
+         {table}\n{}\n",
         nominal.spec.name,
         names(&args.data),
         config.model.window,
         result.calibration.identified.len(),
+        result.recommendation(),
     );
     let mut batch = Batch::new();
     let (md, csv) = (args.out.join("report.md"), args.out.join("arm_table.csv"));
@@ -315,13 +328,10 @@ pub fn evaluate(
         batch
             .add(&path, text.as_bytes())
             .with_context(|| path.display().to_string())?;
-        println!(
-            "corrected joint targets from {name} (lowest validation loss): {}",
-            path.display()
-        );
+        println!("joint targets from {name}: {}", path.display());
     }
     batch.commit().with_context(|| md.display().to_string())?;
-    println!("\n{table}");
+    println!("\n{table}\n{}", result.recommendation());
     println!("wrote {} and {}", md.display(), csv.display());
     Ok(())
 }

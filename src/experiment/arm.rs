@@ -74,15 +74,54 @@ pub struct ArmEvaluation {
     pub predictions: Vec<(String, Vec<[f64; 6]>)>,
     /// Each model's best validation loss and its epoch.
     pub validation: Vec<(String, f64, usize)>,
+    /// Mean position error (µm) left on the validation windows: first `calibrated`
+    /// (calibration alone, no residual), then each model's correction.
+    pub validation_um: Vec<(String, f64)>,
     /// Each model's weights as evaluated.
     pub checkpoints: Vec<(String, Checkpoint)>,
 }
 
 impl ArmEvaluation {
-    /// The model with the lowest validation loss (chosen on validation, never on test).
-    pub fn best_on_validation(&self) -> Option<&(String, Checkpoint)> {
-        let best = self.validation.iter().min_by(|a, b| a.1.total_cmp(&b.1))?;
+    /// The model to use: the one leaving the least mean position error on the validation
+    /// windows, if that is less than calibration alone leaves there; `None` when no model
+    /// beats calibration alone on validation (then none should be used). Chosen on
+    /// validation, never on test.
+    pub fn recommended(&self) -> Option<&(String, Checkpoint)> {
+        let (calibrated, models) = self.validation_um.split_first()?;
+        let best = models.iter().min_by(|a, b| a.1.total_cmp(&b.1))?;
+        if best.1 >= calibrated.1 {
+            return None;
+        }
         self.checkpoints.iter().find(|(n, _)| *n == best.0)
+    }
+
+    /// The report's sentence on which model to use, and why.
+    pub fn recommendation(&self) -> String {
+        let Some((calibrated, models)) = self.validation_um.split_first() else {
+            return String::new();
+        };
+        let each: Vec<String> = models
+            .iter()
+            .map(|(m, um)| format!("{m} {um:.1}"))
+            .collect();
+        let head = format!(
+            "Mean position error left on the validation windows (µm): calibration alone \
+             {:.1}; {}.",
+            calibrated.1,
+            each.join(", ")
+        );
+        match self.recommended() {
+            Some((name, _)) => format!(
+                "{head} Recommended: **{name}**, the model that leaves the least error on \
+                 validation and less than calibration alone (chosen on validation, not on \
+                 the test poses)."
+            ),
+            None => format!(
+                "{head} Recommended: **no residual model**: none leaves less error on \
+                 validation than calibration alone, so use the calibrated description alone \
+                 (the table still shows every model on the test poses)."
+            ),
+        }
     }
 
     /// Each row's name, number of test poses and summary in µm.
@@ -312,6 +351,22 @@ pub fn evaluate_arm(
     std::fs::create_dir_all(&model_dir).map_err(|e| Error::io(&model_dir, e))?;
     let mut predictions = Vec::new();
     let mut validation = Vec::new();
+    // Position error left on the validation windows, µm: calibration alone leaves the
+    // label itself.
+    let [_, val_range, _] = data.split_ranges();
+    let val_positions: Vec<usize> = val_range.collect();
+    let left_on_validation = |predicted: &dyn Fn(usize) -> [f64; 3]| -> f64 {
+        let sum: f64 = val_positions
+            .iter()
+            .enumerate()
+            .map(|(k, &i)| {
+                let (l, p) = (data.labels[i], predicted(k));
+                ((l[0] - p[0]).powi(2) + (l[1] - p[1]).powi(2) + (l[2] - p[2]).powi(2)).sqrt()
+            })
+            .sum();
+        sum / val_positions.len().max(1) as f64
+    };
+    let mut validation_um = vec![("calibrated".to_string(), left_on_validation(&|_| [0.0; 3]))];
     let mut checkpoints = Vec::new();
     for &variant in variants {
         let mut c = config.clone();
@@ -329,6 +384,12 @@ pub fn evaluate_arm(
             errors_mm: left(&|k| predicted[k]),
         });
         validation.push((name.to_string(), fitted.best_val, fitted.best_epoch));
+        let on_validation = predict_windows(gpu, &fitted.model.checkpoint, &data, &val_positions)?;
+        let um = left_on_validation(&|k| {
+            let p = on_validation[k];
+            [p[0], p[1], p[2]]
+        });
+        validation_um.push((name.to_string(), um));
         predictions.push((name.to_string(), predicted));
         checkpoints.push((name.to_string(), fitted.model.checkpoint));
     }
@@ -344,6 +405,7 @@ pub fn evaluate_arm(
         rows,
         predictions,
         validation,
+        validation_um,
         checkpoints,
     })
 }
@@ -447,6 +509,22 @@ pub fn corrected_targets(
         });
     }
     Ok(out)
+}
+
+/// Joint targets for `targets` under the calibrated model alone (no residual model: what
+/// [`ArmEvaluation::recommended`] advises when none beats calibration on validation), in
+/// the shape of [`corrected_targets`]' with a zero residual.
+pub fn calibrated_targets(calibrated: &Arm, targets: &ArmTargets) -> Result<Vec<CorrectedTarget>> {
+    Ok(target_poses(calibrated, targets)?
+        .into_iter()
+        .map(|pose| CorrectedTarget {
+            stamp: pose.stamp,
+            point: pose.position,
+            calibrated: pose.joints.clone(),
+            residual: [0.0; 6],
+            corrected: pose.joints,
+        })
+        .collect())
 }
 
 /// Corrected targets as CSV: `pose,x,y,z,q1…qn` (the corrected command),
