@@ -199,26 +199,33 @@ fn batches_are_seeded_shuffles_of_a_split() {
     assert_eq!(&y[6..], &ds.y[..6]);
 }
 
+/// The dataset of one recording (as `fermat.csv`) under `window` and `mode`.
+fn one_recording(rec: &Recording, window: WindowConfig, mode: SplitMode) -> Dataset {
+    Dataset::build(
+        &[("fermat.csv".to_string(), rec.clone())],
+        &Graph::default_asset(),
+        &Robot::nominal(Geometry::default_asset()),
+        &FeatureConfig::default(),
+        &window,
+        mode,
+    )
+    .unwrap()
+}
+
 /// A share of the training windows keeps the first windows of the training block,
 /// leaves validation and test alone, and takes the statistics from the kept windows only.
 #[test]
 fn a_training_share_keeps_the_start_of_the_training_block() {
     let rec = recording();
-    let graph = Graph::default_asset();
-    let model = Robot::nominal(Geometry::default_asset());
     let with = |kept: f64, mode: SplitMode| {
-        Dataset::build(
-            &[("fermat.csv".to_string(), rec.clone())],
-            &graph,
-            &model,
-            &FeatureConfig::default(),
-            &WindowConfig {
+        one_recording(
+            rec,
+            WindowConfig {
                 train_kept: kept,
                 ..WindowConfig::default()
             },
             mode,
         )
-        .unwrap()
     };
     let full = with(1.0, SplitMode::Contiguous);
     let half = with(0.5, SplitMode::Contiguous);
@@ -246,21 +253,15 @@ fn a_training_share_keeps_the_start_of_the_training_block() {
 #[test]
 fn a_validation_share_keeps_the_start_of_the_validation_block() {
     let rec = recording();
-    let graph = Graph::default_asset();
-    let model = Robot::nominal(Geometry::default_asset());
     let with = |kept: f64, mode: SplitMode| {
-        Dataset::build(
-            &[("fermat.csv".to_string(), rec.clone())],
-            &graph,
-            &model,
-            &FeatureConfig::default(),
-            &WindowConfig {
+        one_recording(
+            rec,
+            WindowConfig {
                 validation_kept: kept,
                 ..WindowConfig::default()
             },
             mode,
         )
-        .unwrap()
     };
     let full = with(1.0, SplitMode::Contiguous);
     let half = with(0.5, SplitMode::Contiguous);

@@ -209,14 +209,44 @@ fn set_parameters_equals_a_new_forward() {
     }
 }
 
+/// A baseline's native outputs on 3 random windows (seed `seed`) against the WGSL
+/// forward and against `reference` (the f64 reference's outputs for the parameters and
+/// windows in f64), each within 1e-5 of the output scale.
+fn check_baseline(
+    name: &str,
+    config: &ModelConfig,
+    seed: u64,
+    reference: impl Fn(&iastgcn::model::Parameters, &[Vec<f64>], &[f64], usize) -> Vec<f64>,
+) {
+    let g = gpu();
+    let windows = 3;
+    let p = parameters(config, seed);
+    let len = config.nodes * config.features * config.window;
+    let x = to_f32(&uniform(&mut rng(seed + 10), windows * len, -1.5, 1.5));
+    let ours = native(config, &p, &x);
+    let net = Network::for_inference(&g, config, &Graph::default_asset(), windows).unwrap();
+    net.load_parameters(&g, &p).unwrap();
+    let device = f64s(&net.predict(&g, &x).unwrap());
+    let scale = scaled(&device, 1e-5);
+    compare(&format!("{name}: native vs WGSL"), &ours, &device, scale).unwrap();
+    let params: Vec<Vec<f64>> = p.values.iter().map(|v| f64s(v)).collect();
+    let expected = reference(&p, &params, &f64s(&x), windows);
+    let scale = scaled(&expected, 1e-5);
+    compare(
+        &format!("{name}: native vs f64 reference"),
+        &ours,
+        &expected,
+        scale,
+    )
+    .unwrap();
+}
+
 /// The dense baselines (14-node graph, F = 3, T = 5, H = 6): native against the WGSL
 /// forward and the f64 reference of `model::reference::dense`.
 #[test]
 fn dense_baselines_match_the_wgsl_forward_and_the_reference() {
     use iastgcn::model::dense::Architecture;
-    let g = gpu();
     let graph = Graph::default_asset();
-    let windows = 3;
     for (i, variant) in Variant::DENSE.into_iter().enumerate() {
         let config = ModelConfig {
             variant,
@@ -224,34 +254,13 @@ fn dense_baselines_match_the_wgsl_forward_and_the_reference() {
             hidden: 6,
             ..ModelConfig::default()
         };
-        let p = parameters(&config, 60 + i as u64);
-        let len = config.nodes * config.features * config.window;
-        let x = to_f32(&uniform(&mut rng(70 + i as u64), windows * len, -1.5, 1.5));
-        let ours = native(&config, &p, &x);
-        let net = Network::for_inference(&g, &config, &graph, windows).unwrap();
-        net.load_parameters(&g, &p).unwrap();
-        let device = f64s(&net.predict(&g, &x).unwrap());
-        compare(
-            &format!("{variant}: native vs WGSL"),
-            &ours,
-            &device,
-            scaled(&device, 1e-5),
-        )
-        .unwrap();
         let inputs = Architecture::of(&config)
             .unwrap()
             .input_indices(&graph, config.features)
             .unwrap();
-        let params: Vec<Vec<f64>> = p.values.iter().map(|v| f64s(v)).collect();
-        let tape =
-            reference::dense::forward(&config, &inputs, &p.specs, &params, &f64s(&x), windows);
-        compare(
-            &format!("{variant}: native vs f64 reference"),
-            &ours,
-            &tape.output,
-            scaled(&tape.output, 1e-5),
-        )
-        .unwrap();
+        check_baseline(variant.name(), &config, 60 + i as u64, |p, params, x, b| {
+            reference::dense::forward(&config, &inputs, &p.specs, params, x, b).output
+        });
     }
 }
 
@@ -261,9 +270,7 @@ fn dense_baselines_match_the_wgsl_forward_and_the_reference() {
 #[test]
 fn recurrent_baselines_match_the_wgsl_forward_and_the_reference() {
     use iastgcn::model::recurrent::supports;
-    let g = gpu();
     let graph = Graph::default_asset();
-    let windows = 3;
     for (i, variant) in Variant::RECURRENT.into_iter().enumerate() {
         let config = ModelConfig {
             variant,
@@ -271,36 +278,10 @@ fn recurrent_baselines_match_the_wgsl_forward_and_the_reference() {
             hidden: 6,
             ..ModelConfig::default()
         };
-        let p = parameters(&config, 80 + i as u64);
-        let len = config.nodes * config.features * config.window;
-        let x = to_f32(&uniform(&mut rng(90 + i as u64), windows * len, -1.5, 1.5));
-        let ours = native(&config, &p, &x);
-        let net = Network::for_inference(&g, &config, &graph, windows).unwrap();
-        net.load_parameters(&g, &p).unwrap();
-        let device = f64s(&net.predict(&g, &x).unwrap());
-        compare(
-            &format!("{variant}: native vs WGSL"),
-            &ours,
-            &device,
-            scaled(&device, 1e-5),
-        )
-        .unwrap();
-        let params: Vec<Vec<f64>> = p.values.iter().map(|v| f64s(v)).collect();
-        let tape = reference::recurrent::forward(
-            &config,
-            &supports(&graph, &config),
-            &p.specs,
-            &params,
-            &f64s(&x),
-            windows,
-        );
-        compare(
-            &format!("{variant}: native vs f64 reference"),
-            &ours,
-            &tape.output,
-            scaled(&tape.output, 1e-5),
-        )
-        .unwrap();
+        let s = supports(&graph, &config);
+        check_baseline(variant.name(), &config, 80 + i as u64, |p, params, x, b| {
+            reference::recurrent::forward(&config, &s, &p.specs, params, x, b).output
+        });
     }
 }
 
@@ -308,9 +289,6 @@ fn recurrent_baselines_match_the_wgsl_forward_and_the_reference() {
 /// against the WGSL forward and the f64 reference of `model::reference::conv_lstm`.
 #[test]
 fn conv_lstm_matches_the_wgsl_forward_and_the_reference() {
-    let g = gpu();
-    let graph = Graph::default_asset();
-    let windows = 3;
     for (i, kernel) in [3, 5].into_iter().enumerate() {
         let config = ModelConfig {
             variant: Variant::ConvLstm,
@@ -319,30 +297,10 @@ fn conv_lstm_matches_the_wgsl_forward_and_the_reference() {
             kernel,
             ..ModelConfig::default()
         };
-        let p = parameters(&config, 85 + i as u64);
-        let len = config.nodes * config.features * config.window;
-        let x = to_f32(&uniform(&mut rng(95 + i as u64), windows * len, -1.5, 1.5));
-        let ours = native(&config, &p, &x);
-        let net = Network::for_inference(&g, &config, &graph, windows).unwrap();
-        net.load_parameters(&g, &p).unwrap();
-        let device = f64s(&net.predict(&g, &x).unwrap());
         let name = format!("convlstm k = {kernel}");
-        compare(
-            &format!("{name}: native vs WGSL"),
-            &ours,
-            &device,
-            scaled(&device, 1e-5),
-        )
-        .unwrap();
-        let params: Vec<Vec<f64>> = p.values.iter().map(|v| f64s(v)).collect();
-        let tape = reference::conv_lstm::forward(&config, &p.specs, &params, &f64s(&x), windows);
-        compare(
-            &format!("{name}: native vs f64 reference"),
-            &ours,
-            &tape.output,
-            scaled(&tape.output, 1e-5),
-        )
-        .unwrap();
+        check_baseline(&name, &config, 85 + i as u64, |p, params, x, b| {
+            reference::conv_lstm::forward(&config, &p.specs, params, x, b).output
+        });
     }
 }
 

@@ -13,7 +13,7 @@
 //! Each convolution is an unfolding (`[channels·k², N·F]`, zero outside the grid) and one
 //! `sgemm`; the backward recomputes each step's unfoldings, as the device does.
 
-use super::{gemm, rows, sigmoid, tanh, transposed};
+use super::{flat_head, flat_head_backward, gemm, rows, sigmoid, tanh, transposed};
 use crate::model::config::ModelConfig;
 use crate::model::network::ModelError;
 use crate::model::params::ParamSpec;
@@ -194,10 +194,7 @@ impl ConvLstmNet {
             }
         }
         let last = &tape.h[(t - 1) * m..];
-        let (w, b) = (&params[self.head.0], &params[self.head.1]);
-        for ((o, row), b) in tape.out.iter_mut().zip(w.chunks_exact(m)).zip(b) {
-            *o = b + row.iter().zip(last).map(|(w, v)| w * v).sum::<f32>();
-        }
+        flat_head(params, self.head, last, &mut tape.out);
     }
 
     /// Adds ∂L/∂ every parameter to `grads` (`param_specs` order) for the upstream
@@ -211,24 +208,8 @@ impl ConvLstmNet {
     ) {
         let (g, c, t) = (self.grid(), self.c, self.t);
         let (kk, m) = (self.k * self.k, c * g);
-        let (w, b) = self.head;
         let last = &tape.h[(t - 1) * m..];
-        for (o, &d) in dout.iter().enumerate() {
-            grads[b][o] += d;
-            for (dw, v) in grads[w][o * m..][..m].iter_mut().zip(last) {
-                *dw += d * v;
-            }
-        }
-        gemm(
-            1,
-            self.o,
-            m,
-            rows(dout, self.o),
-            rows(&params[w], m),
-            0.0,
-            &mut tape.dh,
-            m,
-        );
+        flat_head_backward(params, self.head, last, dout, grads, &mut tape.dh);
         tape.dc.fill(0.0);
         for step in (0..t).rev() {
             let (h_prev, c_prev): (&[f32], &[f32]) = if step == 0 {

@@ -132,6 +132,45 @@ fn par_gemm(
     });
 }
 
+/// The flat head of the baselines that end in a state vector: ŷ[o] = b[o] + W[o]·h, with
+/// `head` the (W `[O, |h|]`, b) slots in `params`.
+fn flat_head(params: &[Vec<f32>], head: (usize, usize), h: &[f32], out: &mut [f32]) {
+    let (w, b) = (&params[head.0], &params[head.1]);
+    for ((o, row), b) in out.iter_mut().zip(w.chunks_exact(h.len())).zip(b) {
+        *o = b + row.iter().zip(h).map(|(w, v)| w * v).sum::<f32>();
+    }
+}
+
+/// The backward of [`flat_head`] from ∂ℒ/∂ŷ `dout`: adds ∂ℒ/∂W and ∂ℒ/∂b to `grads`
+/// and writes ∂ℒ/∂h = Wᵀ·dout into `dh`.
+fn flat_head_backward(
+    params: &[Vec<f32>],
+    head: (usize, usize),
+    h: &[f32],
+    dout: &[f32],
+    grads: &mut [Vec<f32>],
+    dh: &mut [f32],
+) {
+    let (w, b, m) = (head.0, head.1, h.len());
+    for (o, &g) in dout.iter().enumerate() {
+        grads[b][o] += g;
+        for (dw, v) in grads[w][o * m..][..m].iter_mut().zip(h) {
+            *dw += g * v;
+        }
+    }
+    let outputs = dout.len();
+    gemm(
+        1,
+        outputs,
+        m,
+        rows(dout, outputs),
+        rows(&params[w], m),
+        0.0,
+        dh,
+        m,
+    );
+}
+
 /// e^x in f32 without a libm call, so that loops over slices vectorise: x = n·ln 2 + r
 /// with |r| ≤ ln 2 / 2, e^r by Cephes' degree-6 polynomial (`expf`), times 2^n built in
 /// the exponent bits. Relative error below 2e-7 on [−87, 88]; inputs are clamped to that

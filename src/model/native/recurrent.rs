@@ -14,7 +14,7 @@
 //! EAT-GCN's Chebyshev supports) skips its graph mix, as on the device. The models have no
 //! dropout, so training and inference share the forward pass.
 
-use super::{gemm, rows, sigmoid, softmax_rows, tanh, transposed};
+use super::{flat_head, flat_head_backward, gemm, rows, sigmoid, softmax_rows, tanh, transposed};
 use crate::graph::Graph;
 use crate::model::config::ModelConfig;
 use crate::model::network::ModelError;
@@ -328,14 +328,7 @@ impl RecurrentNet {
                 .head_input
                 .copy_from_slice(&tape.states[(t - 1) * nh..]),
         }
-        let (w, b) = (&params[self.head.0], &params[self.head.1]);
-        for ((o, row), b) in tape.out.iter_mut().zip(w.chunks_exact(nh)).zip(b) {
-            *o = b + row
-                .iter()
-                .zip(&tape.head_input)
-                .map(|(w, v)| w * v)
-                .sum::<f32>();
-        }
+        flat_head(params, self.head, &tape.head_input, &mut tape.out);
     }
 
     /// The backward of gate `g` given ∂ℒ/∂(pre-activation) `dz` `[N, H]`: adds the gate's
@@ -412,23 +405,8 @@ impl RecurrentNet {
     ) {
         let (n, f, t, nh) = (self.n, self.f, self.t, self.n * self.h);
         // The head: ∂ℒ/∂(its input) into dh.
-        let (w, b) = self.head;
-        for (o, &g) in dout.iter().enumerate() {
-            grads[b][o] += g;
-            for (dw, v) in grads[w][o * nh..][..nh].iter_mut().zip(&tape.head_input) {
-                *dw += g * v;
-            }
-        }
-        gemm(
-            1,
-            self.o,
-            nh,
-            rows(dout, self.o),
-            rows(&params[w], nh),
-            0.0,
-            &mut tape.dh,
-            nh,
-        );
+        let h = &tape.head_input;
+        flat_head_backward(params, self.head, h, dout, grads, &mut tape.dh);
         if let (Some(slots), Some(a)) = (&self.attention, &mut tape.attention) {
             self.attention_backward(params, grads, slots, a, &tape.states, &tape.dh);
             tape.dh.fill(0.0);
