@@ -71,6 +71,7 @@ pub fn test_name(path: &std::path::Path) -> String {
 }
 
 pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
+    super::output_folder_exists("--out", &args.out)?;
     let geometry = match Description::load_or_default(args.robot.as_deref())? {
         Description::Hybrid(geometry) => geometry,
         Description::Serial(arm) => {

@@ -115,6 +115,7 @@ pub struct EvaluateArgs {
 }
 
 pub fn evaluate(gpu: Gpu, args: &EvaluateArgs) -> anyhow::Result<()> {
+    super::make_output_folder("--out", &args.out)?;
     if let Description::Serial(arm) = Description::load_or_default(args.robot.as_deref())? {
         // The arm's models are trained here and its calibration fitted here: flags of
         // the hybrid machine's evaluation would be ignored, so they are refused.

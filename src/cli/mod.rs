@@ -87,6 +87,30 @@ fn count(range: impl std::ops::RangeBounds<u64>) -> clap::builder::RangedU64Valu
     clap::builder::RangedU64ValueParser::<usize>::new().range(range)
 }
 
+/// Refuses an output file whose folder does not exist, naming the flag, before any long
+/// work (a run that fails only when it writes its result has lost that work).
+fn output_folder_exists(flag: &str, path: &std::path::Path) -> anyhow::Result<()> {
+    match path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        Some(dir) if !dir.is_dir() => anyhow::bail!(
+            "{flag} {}: the folder {} does not exist (nothing was run)",
+            path.display(),
+            dir.display()
+        ),
+        _ => Ok(()),
+    }
+}
+
+/// Creates an output folder (and its parents) before any long work, naming the flag when
+/// it cannot be made.
+fn make_output_folder(flag: &str, dir: &std::path::Path) -> anyhow::Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| {
+        anyhow::anyhow!(
+            "{flag} {}: cannot make the folder: {e} (nothing was run)",
+            dir.display()
+        )
+    })
+}
+
 fn open_gpu(adapter: Option<&str>) -> anyhow::Result<Gpu> {
     Ok(match adapter {
         Some(name) => Gpu::with_adapter(Some(name))?,

@@ -52,6 +52,7 @@ pub struct SimulateArgs {
 }
 
 pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
+    super::output_folder_exists("--out", &args.out)?;
     let description = Description::load_or_default(args.robot.as_deref())?;
     // Static poses have no plot: refuse --plot rather than ignore it.
     let static_poses = matches!(description, Description::Serial(_))

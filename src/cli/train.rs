@@ -142,6 +142,7 @@ pub fn print_metrics(rows: &[TestMetrics]) {
 }
 
 pub fn train(gpu: &Gpu, args: &TrainArgs) -> anyhow::Result<()> {
+    super::output_folder_exists("--out", &args.out)?;
     let mut config = read_run_config(args.config.as_deref(), args.variant.as_deref())?;
     if let Some(n) = args.max_epochs {
         config.train.max_epochs = n;
@@ -183,6 +184,7 @@ pub fn print_accumulated(before: &AccumulatedCurve, after: &AccumulatedCurve) {
 }
 
 pub fn refine(gpu: &Gpu, args: &RefineArgs) -> anyhow::Result<()> {
+    super::output_folder_exists("--out", &args.out)?;
     let ck = Checkpoint::load(&args.model)?;
     let mut config = read_run_config(args.config.as_deref(), None)?;
     config.model = ck.config.clone();
@@ -209,6 +211,7 @@ pub fn refine(gpu: &Gpu, args: &RefineArgs) -> anyhow::Result<()> {
 }
 
 pub fn predict(gpu: Arc<Gpu>, args: &PredictArgs) -> anyhow::Result<()> {
+    super::output_folder_exists("--out", &args.out)?;
     let ck = Checkpoint::load(&args.model)?;
     let subset: Subset = args.split.parse().map_err(anyhow::Error::msg)?;
     let options = PredictOptions {
