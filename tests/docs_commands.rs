@@ -3,7 +3,9 @@
 //! binary itself (`--help` appended, so clap checks every subcommand, flag and value
 //! before it prints the help and stops, and nothing runs). A doc that names a flag that
 //! does not exist, a value a flag refuses or a command that is gone fails here, naming
-//! the file and line. The whole test takes well under a second.
+//! the file and line. The whole check takes well under a second. The blocks a doc marks
+//! with `<!-- tests/docs_commands.rs runs the next block -->` (the arm quick start and
+//! the real arms, seconds each) also run for real, as written.
 
 use std::path::Path;
 use std::process::Command;
@@ -269,4 +271,91 @@ fn shell_words_and_variables() {
         invocations("./target/release/iastgcn <command> [options]"),
         [None]
     );
+}
+
+/// The marker that a doc's next ```sh block runs for real in
+/// [`marked_blocks_run_for_real`].
+const RUN_MARK: &str = "<!-- tests/docs_commands.rs runs the next block -->";
+
+/// The text of every ```sh block of `text` that follows a [`RUN_MARK`] line (blank lines
+/// between them allowed), with the line its first command is on.
+fn marked_blocks(text: &str) -> Vec<(usize, String)> {
+    let mut out: Vec<(usize, String)> = Vec::new();
+    let mut block: Option<(usize, String)> = None;
+    let mut armed = false;
+    for (i, line) in text.lines().enumerate() {
+        if line.trim() == RUN_MARK {
+            armed = true;
+            continue;
+        }
+        let fence = line.trim_start().strip_prefix("```");
+        match (&mut block, fence) {
+            (Some(_), Some(_)) => out.push(block.take().unwrap()),
+            (Some((_, b)), None) => {
+                b.push_str(line);
+                b.push('\n');
+            }
+            (None, Some(lang)) if armed && lang.trim() == "sh" => {
+                armed = false;
+                block = Some((i + 2, String::new()));
+            }
+            (None, Some(_)) => armed = false,
+            (None, None) => armed &= line.trim().is_empty(),
+        }
+    }
+    out
+}
+
+/// The blocks the docs mark as quick (a UR5 twin from an empty folder, the real arms)
+/// run as written, in a fresh folder that has the repository's `assets/` beside it, with
+/// `iastgcn` the binary under test: the docs cannot drift from what the program does.
+#[test]
+fn marked_blocks_run_for_real() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut ran = 0;
+    for file in ["README.md", "docs/usage.md", "docs/arms.md"] {
+        let text = std::fs::read_to_string(root.join(file)).unwrap();
+        for (line, block) in marked_blocks(&text) {
+            let dir = std::env::temp_dir().join(format!(
+                "iastgcn-docs-{}-{}-{line}",
+                std::process::id(),
+                file.replace('/', "-")
+            ));
+            let _ = std::fs::remove_dir_all(&dir);
+            std::fs::create_dir_all(&dir).unwrap();
+            std::os::unix::fs::symlink(root.join("assets"), dir.join("assets")).unwrap();
+            let script = format!(
+                "set -e\niastgcn() {{ \"{}\" \"$@\"; }}\n{block}",
+                env!("CARGO_BIN_EXE_iastgcn")
+            );
+            let o = Command::new("sh")
+                .arg("-c")
+                .arg(&script)
+                .current_dir(&dir)
+                .output()
+                .unwrap();
+            assert!(
+                o.status.success(),
+                "{file}:{line}: the block failed:\n{block}\n{}\n{}",
+                String::from_utf8_lossy(&o.stdout),
+                String::from_utf8_lossy(&o.stderr)
+            );
+            ran += 1;
+            let _ = std::fs::remove_dir_all(&dir);
+        }
+    }
+    assert!(
+        ran >= 2,
+        "the docs mark {ran} blocks to run; expected the arm ones at least"
+    );
+}
+
+#[test]
+fn only_marked_sh_blocks_are_picked() {
+    let doc = format!(
+        "a\n\n{RUN_MARK}\n\n```sh\necho one\n```\n\n```sh\necho two\n```\n\n{RUN_MARK}\n\
+         text between\n```sh\necho three\n```\n"
+    );
+    let blocks = marked_blocks(&doc);
+    assert_eq!(blocks, vec![(6, "echo one\n".to_string())]);
 }
