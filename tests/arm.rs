@@ -1168,19 +1168,8 @@ fn calibrate_scores_a_separate_test_file() {
     );
     // The hybrid machine: two calibration sets.
     let (a, b) = (dir.join("set_a.csv"), dir.join("set_b.csv"));
-    for (path, seed) in [(&a, "101"), (&b, "102")] {
-        let p = s(path);
-        common::cli(&[
-            "simulate",
-            "--trajectory",
-            "calibration",
-            "--poses",
-            "40",
-            "--seed",
-            seed,
-            "--out",
-            &p,
-        ]);
+    for (path, seed) in [(&a, 101), (&b, 102)] {
+        common::calibration_set(path, 40, seed, &[]);
     }
     let printed = common::cli(&[
         "calibrate",

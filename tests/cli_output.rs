@@ -6,7 +6,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::{cli, cli_fails};
+use common::{calibration_set, cli, cli_fails};
 
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()
@@ -55,17 +55,7 @@ fn simulate_prints_the_hidden_error_in_micrometres_and_millidegrees() {
 fn calibrate_without_held_out_poses_scores_the_fitted_ones() {
     let dir = folder("out-hold0");
     let set = dir.join("set.csv");
-    cli(&[
-        "simulate",
-        "--trajectory",
-        "calibration",
-        "--poses",
-        "40",
-        "--seed",
-        "101",
-        "--out",
-        s(&set),
-    ]);
+    calibration_set(&set, 40, 101, &[]);
     let out = cli(&[
         "calibrate",
         "--measurements",

@@ -228,10 +228,10 @@ fn the_check_catches_a_wrong_flag() {
                iastgcn trian --out x\n\
                iastgcn simulate --trajectory grid --out g.csv\n```\n\
                ```text\niastgcn --not-shell-so-not-read\n```\n";
-    let commands = commands_in(doc, "doc.md");
+    let commands = commands_in(doc, "inline example");
     let args: Vec<&Vec<String>> = commands.iter().map(|c| &c.args).collect();
     assert_eq!(commands.len(), 4, "{args:?}");
-    assert_eq!(commands[0].at, "doc.md:4");
+    assert_eq!(commands[0].at, "inline example:4");
     assert!(args[0].contains(&"--no-such-flag".to_string()), "{args:?}");
     let why: Vec<Option<String>> = commands.iter().map(|c| refused(&c.args)).collect();
     assert!(

@@ -8,7 +8,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::cli;
+use common::{calibration_set, cli};
 
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()
@@ -21,19 +21,7 @@ fn setup(name: &str) -> (PathBuf, PathBuf, PathBuf, PathBuf) {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     let (set, cal) = (dir.join("set.csv"), dir.join("cal.toml"));
-    cli(&[
-        "simulate",
-        "--trajectory",
-        "calibration",
-        "--poses",
-        "40",
-        "--seed",
-        "101",
-        "--machine-seed",
-        "2",
-        "--out",
-        s(&set),
-    ]);
+    calibration_set(&set, 40, 101, &["--machine-seed", "2"]);
     cli(&["calibrate", "--measurements", s(&set), "--out", s(&cal)]);
     let rec = dir.join("grid.csv");
     cli(&[
@@ -54,6 +42,18 @@ fn setup(name: &str) -> (PathBuf, PathBuf, PathBuf, PathBuf) {
     let model = dir.join("m.safetensors");
     cli(&["init", "--config", s(&config), "--out", s(&model)]);
     (dir, cal, rec, model)
+}
+
+/// `compensate` of a short rosette run with `model` under `cal` (and `extra` flags),
+/// whatever its exit status.
+fn compensate(model: &Path, cal: &Path, extra: &[&str]) -> std::process::Output {
+    let mut args = vec!["compensate", "--model", s(model), "--calibration", s(cal)];
+    args.extend(["--minutes", "0.05", "--warm-up-minutes", "0"]);
+    args.extend(extra);
+    std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
+        .args(args)
+        .output()
+        .unwrap()
 }
 
 #[test]
@@ -95,22 +95,7 @@ fn calibration_records_its_machine_and_evaluate_warns_on_another() {
     );
 
     // On the calibration's own machine no warning.
-    let same = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
-        .args([
-            "compensate",
-            "--model",
-            s(&model),
-            "--calibration",
-            s(&cal),
-            "--minutes",
-            "0.05",
-            "--warm-up-minutes",
-            "0",
-            "--machine-seed",
-            "2",
-        ])
-        .output()
-        .unwrap();
+    let same = compensate(&model, &cal, &["--machine-seed", "2"]);
     assert!(same.status.success());
     assert!(!String::from_utf8_lossy(&same.stderr).contains("warning"));
     std::fs::remove_dir_all(&dir).unwrap();
@@ -119,20 +104,7 @@ fn calibration_records_its_machine_and_evaluate_warns_on_another() {
 #[test]
 fn compensate_warns_on_another_machine_and_says_where_it_predicted() {
     let (dir, cal, _, model) = setup("machine-comp");
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
-        .args([
-            "compensate",
-            "--model",
-            s(&model),
-            "--calibration",
-            s(&cal),
-            "--minutes",
-            "0.05",
-            "--warm-up-minutes",
-            "0",
-        ])
-        .output()
-        .unwrap();
+    let o = compensate(&model, &cal, &[]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let (stdout, stderr) = (
         String::from_utf8_lossy(&o.stdout),

@@ -41,9 +41,10 @@ pub struct DemoArgs {
 
 #[derive(Args, Clone)]
 pub struct HeldOutArgs {
-    /// Length of each held-out compensation run, minutes.
-    #[arg(long, default_value_t = 0.5)]
-    pub held_out_minutes: f64,
+    /// Length of each held-out compensation run, minutes (default 0.5; 2 for `scale`,
+    /// whose held-out runs score every training size).
+    #[arg(long)]
+    pub held_out_minutes: Option<f64>,
     /// Seed of the first held-out run; the next paths take the following seeds (the
     /// demo's training recordings use 201–203, its calibration set 101).
     #[arg(long, default_value_t = 301)]
@@ -58,9 +59,15 @@ pub struct HeldOutArgs {
 }
 
 impl HeldOutArgs {
+    /// The session, with the demo's 0.5-minute runs unless `--held-out-minutes` is given.
     pub fn config(&self) -> HeldOutConfig {
+        self.config_with_minutes(HeldOutConfig::default().minutes)
+    }
+
+    /// The session, with runs of `minutes` unless `--held-out-minutes` is given.
+    pub fn config_with_minutes(&self, minutes: f64) -> HeldOutConfig {
         HeldOutConfig {
-            minutes: self.held_out_minutes,
+            minutes: self.held_out_minutes.unwrap_or(minutes),
             seed: self.held_out_seed,
             warm_up_minutes: self.warm_up_minutes,
             every: self.every,

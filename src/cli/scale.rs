@@ -5,6 +5,7 @@ use std::sync::Arc;
 
 use clap::Args;
 
+use super::demo::HeldOutArgs;
 use super::train::read_run_config;
 use super::Console;
 use iastgcn::experiment::reproduce::Shard;
@@ -49,19 +50,8 @@ pub struct ScaleArgs {
     /// the held-out session.
     #[arg(long, default_value_t = iastgcn::experiment::protocol::MACHINE_SEED)]
     pub machine_seed: u64,
-    /// Length of each held-out compensation run, minutes.
-    #[arg(long, default_value_t = 2.0)]
-    pub held_out_minutes: f64,
-    /// Seed of the first held-out run; the next paths take the following seeds.
-    #[arg(long, default_value_t = 301)]
-    pub held_out_seed: u64,
-    /// Minutes of polishing that warm the machine before the held-out session's first
-    /// scored run (0: it starts cold).
-    #[arg(long, default_value_t = 2.0)]
-    pub warm_up_minutes: f64,
-    /// Predict every this many control ticks during compensation.
-    #[arg(long, default_value_t = 5, value_parser = super::count(1..=10_000))]
-    pub every: usize,
+    #[command(flatten)]
+    pub held_out: HeldOutArgs,
 }
 
 pub fn run(gpu: Gpu, args: &ScaleArgs) -> anyhow::Result<()> {
@@ -76,10 +66,11 @@ pub fn run(gpu: Gpu, args: &ScaleArgs) -> anyhow::Result<()> {
     study.seeds = args.seeds.clone();
     study.models = args.models.clone();
     study.machine_seed = args.machine_seed;
-    study.held_out_minutes = args.held_out_minutes;
-    study.held_out_seed = args.held_out_seed;
-    study.warm_up_minutes = args.warm_up_minutes;
-    study.every = args.every;
+    let held = args.held_out.config_with_minutes(study.held_out_minutes);
+    study.held_out_minutes = held.minutes;
+    study.held_out_seed = held.seed;
+    study.warm_up_minutes = held.warm_up_minutes;
+    study.every = held.every;
     let progress = scale::scale(
         Arc::new(gpu),
         &study,

@@ -16,7 +16,7 @@ use crate::calibrate::arm::{
 };
 use crate::data::arm_dataset::{arm_dataset, prepare_arm};
 use crate::data::arm_poses::{ArmPoses, ArmTargets};
-use crate::data::{SplitMode, WindowConfig};
+use crate::data::{Dataset, SplitMode, WindowConfig};
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
 use crate::model::{Checkpoint, Predictor, Variant};
@@ -322,14 +322,9 @@ pub fn evaluate_arm(
         .collect();
     // Position error left after subtracting a predicted residual (µm) from the label.
     let left = |predicted: &dyn Fn(usize) -> [f64; 6]| -> Vec<f64> {
-        positions
+        position_left_um(scored, &positions, predicted)
             .iter()
-            .enumerate()
-            .map(|(k, &i)| {
-                let (l, p) = (scored.labels[i], predicted(k));
-                ((l[0] - p[0]).powi(2) + (l[1] - p[1]).powi(2) + (l[2] - p[2]).powi(2)).sqrt()
-                    * 1e-3
-            })
+            .map(|um| um * 1e-3)
             .collect()
     };
     let mean = data.normalization.label_mean;
@@ -355,18 +350,11 @@ pub fn evaluate_arm(
     // label itself.
     let [_, val_range, _] = data.split_ranges();
     let val_positions: Vec<usize> = val_range.collect();
-    let left_on_validation = |predicted: &dyn Fn(usize) -> [f64; 3]| -> f64 {
-        let sum: f64 = val_positions
-            .iter()
-            .enumerate()
-            .map(|(k, &i)| {
-                let (l, p) = (data.labels[i], predicted(k));
-                ((l[0] - p[0]).powi(2) + (l[1] - p[1]).powi(2) + (l[2] - p[2]).powi(2)).sqrt()
-            })
-            .sum();
-        sum / val_positions.len().max(1) as f64
+    let left_on_validation = |predicted: &dyn Fn(usize) -> [f64; 6]| -> f64 {
+        let left = position_left_um(&data, &val_positions, predicted);
+        left.iter().sum::<f64>() / left.len().max(1) as f64
     };
-    let mut validation_um = vec![("calibrated".to_string(), left_on_validation(&|_| [0.0; 3]))];
+    let mut validation_um = vec![("calibrated".to_string(), left_on_validation(&|_| [0.0; 6]))];
     let mut checkpoints = Vec::new();
     for &variant in variants {
         let mut c = config.clone();
@@ -385,10 +373,7 @@ pub fn evaluate_arm(
         });
         validation.push((name.to_string(), fitted.best_val, fitted.best_epoch));
         let on_validation = predict_windows(gpu, &fitted.model.checkpoint, &data, &val_positions)?;
-        let um = left_on_validation(&|k| {
-            let p = on_validation[k];
-            [p[0], p[1], p[2]]
-        });
+        let um = left_on_validation(&|k| on_validation[k]);
         validation_um.push((name.to_string(), um));
         predictions.push((name.to_string(), predicted));
         checkpoints.push((name.to_string(), fitted.model.checkpoint));
@@ -408,6 +393,23 @@ pub fn evaluate_arm(
         validation_um,
         checkpoints,
     })
+}
+
+/// The position error (µm) left at each window of `data` at `positions` when the
+/// residual `predicted(k)` (µm, mdeg) of the k-th is subtracted from its label.
+fn position_left_um(
+    data: &Dataset,
+    positions: &[usize],
+    predicted: &dyn Fn(usize) -> [f64; 6],
+) -> Vec<f64> {
+    positions
+        .iter()
+        .enumerate()
+        .map(|(k, &i)| {
+            let (l, p) = (data.labels[i], predicted(k));
+            ((l[0] - p[0]).powi(2) + (l[1] - p[1]).powi(2) + (l[2] - p[2]).powi(2)).sqrt()
+        })
+        .collect()
 }
 
 /// One desired tool point and the joint targets that reach it.

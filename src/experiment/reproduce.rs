@@ -284,8 +284,7 @@ pub struct JobRecord {
 
 impl JobRecord {
     fn load(path: &Path) -> Result<JobRecord> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        toml::from_str(&text).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))
+        read_toml(path)
     }
 }
 
@@ -324,14 +323,23 @@ pub(super) fn pin_toml<T: Serialize + serde::de::DeserializeOwned>(
     refusal: &str,
 ) -> Result<()> {
     if path.exists() {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        let earlier: T = toml::from_str(&text)
-            .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+        let earlier: T = read_toml(path)?;
         if !same(&earlier, value) {
             return Err(Error::Invalid(format!("{}: {refusal}", path.display())));
         }
         return Ok(());
     }
+    write_toml(value, path)
+}
+
+/// A TOML file (a pinned protocol or study, a job record) read back; errors name it.
+pub(super) fn read_toml<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    toml::from_str(&text).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))
+}
+
+/// `value` written to `path` as TOML, atomically.
+pub(super) fn write_toml<T: Serialize>(value: &T, path: &Path) -> Result<()> {
     let text =
         toml::to_string(value).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
     write_file(path, text.as_bytes())
@@ -454,9 +462,7 @@ pub fn reproduce(
         let (_, graph, data) = current.insert(share);
         let mut record = run_job(&gpu, &config, job, graph, data, out, reporter)?;
         record.wall_seconds = started.elapsed().as_secs_f64();
-        let text = toml::to_string(&record)
-            .map_err(|e| Error::Invalid(format!("{}: job record: {e}", record.name)))?;
-        write_file(&job.record_path(out), text.as_bytes())?;
+        write_toml(&record, &job.record_path(out))?;
         spent.push(record.wall_seconds);
     }
     let finished = done(&jobs);

@@ -23,7 +23,7 @@ use super::protocol::{
 };
 use super::report::seeds::{seeded_name, Spread};
 use super::report::TableVRow;
-use super::reproduce::{clock, pin_toml, Shard};
+use super::reproduce::{clock, pin_toml, read_toml, write_toml, Shard};
 use crate::data::{DataSources, Dataset};
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
@@ -194,10 +194,11 @@ impl ScaleJob {
         )
     }
 
-    /// Its checkpoint (the core stage's best weights; state, log and loss plot beside).
-    pub fn checkpoint(&self, out: &Path) -> PathBuf {
-        out.join("models")
-            .join(format!("{}.safetensors", self.name()))
+    /// Its files in the one naming scheme (docs/usage.md "Checkpoint names"): a job
+    /// trains the core stage only, so its weights are `<name>.core.safetensors` (state,
+    /// log and loss plot beside); nothing is ever written as the refined model.
+    pub fn files(&self, out: &Path) -> ModelFiles {
+        ModelFiles::named(&out.join("models"), &self.name(), true)
     }
 
     /// The record written when the job has finished.
@@ -265,8 +266,7 @@ pub struct ScaleRecord {
 
 impl ScaleRecord {
     fn load(path: &Path) -> Result<ScaleRecord> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        toml::from_str(&text).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))
+        read_toml(path)
     }
 }
 
@@ -377,9 +377,7 @@ pub fn scale(
             reporter,
         )?;
         record.wall_seconds = started.elapsed().as_secs_f64();
-        let text = toml::to_string(&record)
-            .map_err(|e| Error::Invalid(format!("{}: job record: {e}", record.name)))?;
-        crate::error::write_file(&job.record_path(out), text.as_bytes())?;
+        write_toml(&record, &job.record_path(out))?;
         spent.push(record.wall_seconds);
         write_summary(study, out, reporter)?;
     }
@@ -403,11 +401,7 @@ fn run_job(
     reporter: &mut dyn Reporter,
 ) -> Result<ScaleRecord> {
     let name = job.name();
-    let files = ModelFiles {
-        core: job.checkpoint(out),
-        refined: job.checkpoint(out),
-        resume: true,
-    };
+    let files = job.files(out);
     let trained = train_core(gpu, data, graph, config, &name, &files, reporter)?;
     let checkpoint = Checkpoint::load(&files.core)?;
     let session = held_out_session(
@@ -513,14 +507,13 @@ fn points(records: &[ScaleRecord], order: &[String]) -> Vec<Point> {
         }
     }
     let first = |m: &str| order.iter().position(|o| o == m).unwrap_or(order.len());
-    let mut sorted = keys.clone();
-    sorted.sort_by(|a, b| {
+    keys.sort_by(|a, b| {
         (first(&a.0), &a.0, a.1)
             .partial_cmp(&(first(&b.0), &b.0, b.1))
             .unwrap_or(std::cmp::Ordering::Equal)
     });
     let mut out = Vec::new();
-    for (model, minutes) in sorted {
+    for (model, minutes) in keys {
         let group: Vec<&ScaleRecord> = records
             .iter()
             .filter(|r| r.model == model && r.minutes == minutes)

@@ -30,24 +30,24 @@ pub fn cli_fails(args: &[&str]) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
+/// A calibration measurement set of the twin at `out`: `poses` static poses measured
+/// with `seed`, and any further `simulate` flags (`--machine-seed`, …).
+pub fn calibration_set(out: &Path, poses: usize, seed: u64, extra: &[&str]) {
+    let (poses, seed) = (poses.to_string(), seed.to_string());
+    let mut args = vec!["simulate", "--trajectory", "calibration"];
+    args.extend(["--poses", &poses, "--seed", &seed]);
+    args.extend(extra);
+    args.extend(["--out", out.to_str().unwrap()]);
+    cli(&args);
+}
+
 /// In `dir` (created if missing): `set.csv`, 60 calibration poses measured with `seed`,
 /// and `cal.toml`, their EKF calibration. Returns the calibration's path.
 pub fn calibration(dir: &Path, seed: u64) -> PathBuf {
     std::fs::create_dir_all(dir).unwrap();
     let p = |name: &str| dir.join(name).to_str().unwrap().to_string();
     let (set, cal) = (p("set.csv"), p("cal.toml"));
-    let seed = seed.to_string();
-    cli(&[
-        "simulate",
-        "--trajectory",
-        "calibration",
-        "--poses",
-        "60",
-        "--seed",
-        &seed,
-        "--out",
-        &set,
-    ]);
+    calibration_set(Path::new(&set), 60, seed, &[]);
     cli(&["calibrate", "--measurements", &set, "--out", &cal]);
     PathBuf::from(cal)
 }
