@@ -1,7 +1,7 @@
 //! Summary statistics of error magnitudes, as the paper's tables report them.
 
 /// Mean, standard deviation and maximum of a set of values.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct Summary {
     /// Arithmetic mean.
     pub mean: f64,

@@ -6,12 +6,11 @@ use std::path::Path;
 use anyhow::Context;
 
 use iastgcn::atomic::Batch;
-use iastgcn::calibrate::arm::{arm_position_errors, calibrate_arm, ArmCalibrationConfig};
-use iastgcn::calibrate::hold_out;
 use iastgcn::data::arm_poses::{read_arm_poses, read_arm_targets, ArmPoses};
 use iastgcn::experiment::arm::{
     arm_run_config, calibrated_targets, corrected_targets, evaluate_arm, targets_csv,
 };
+use iastgcn::experiment::calibration::{calibrate_serial, ErrorRow, Scoring};
 use iastgcn::model::Variant;
 use iastgcn::robot::arm::Arm;
 use iastgcn::stats::Summary;
@@ -89,9 +88,9 @@ pub fn simulate(
     Ok(())
 }
 
-fn row(label: &str, stage: &str, errors_mm: &[f64]) -> String {
-    let um: Vec<f64> = errors_mm.iter().map(|e| e * 1e3).collect();
-    match Summary::of(&um) {
+fn row(r: &ErrorRow) -> String {
+    let (label, stage) = (&r.label, &r.stage);
+    match &r.position {
         Some(s) => format!(
             "{label:<22} {stage:<34} {:>9.1} {:>9.1} {:>9.1}",
             s.mean, s.sd, s.max
@@ -102,52 +101,16 @@ fn row(label: &str, stage: &str, errors_mm: &[f64]) -> String {
 
 /// `calibrate --robot ARM.toml --data POSES.csv`: registration, identifiability and
 /// Levenberg–Marquardt; writes the calibrated description to `out`.
-pub fn calibrate(
-    nominal: &Arm,
-    data: &Path,
-    scoring: &super::calibrate::Scoring,
-    out: &Path,
-) -> anyhow::Result<()> {
-    use super::calibrate::Scoring;
-    let file = read_arm_poses(data, nominal.joints())?;
-    let (fit, held) = match scoring {
-        Scoring::HoldOutEvery(every) => hold_out(&file.poses, *every),
-        Scoring::TestFile(test) => (
-            file.poses.clone(),
-            read_arm_poses(test, nominal.joints())?.poses,
-        ),
-    };
-    let held_label = match scoring {
-        Scoring::HoldOutEvery(_) => format!("held out ({})", held.len()),
-        Scoring::TestFile(test) => {
-            format!("test ({}){}", held.len(), super::calibrate::test_name(test))
-        }
-    };
-    let cal = calibrate_arm(nominal, &fit, &ArmCalibrationConfig::default())
-        .with_context(|| format!("calibrating {} from {}", nominal.spec.name, data.display()))?;
-    let text = cal
-        .arm
-        .to_toml(Some(cal.record()))
-        .map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
-    let header = format!(
-        "# {} calibrated by iastgcn from {} ({} poses fitted, {} {}).\n",
-        nominal.spec.name,
-        data.display(),
-        fit.len(),
-        held.len(),
-        match scoring {
-            Scoring::HoldOutEvery(_) => "held out".to_string(),
-            Scoring::TestFile(t) => format!("scored from {}", t.display()),
-        }
-    );
-    iastgcn::atomic::write(out, format!("{header}{text}").as_bytes())
-        .with_context(|| out.display().to_string())?;
+pub fn calibrate(nominal: &Arm, data: &Path, scoring: &Scoring, out: &Path) -> anyhow::Result<()> {
+    let done = calibrate_serial(nominal, data, scoring)?;
+    done.save(out)?;
+    let cal = &done.calibration;
     let names = nominal.names();
     println!(
         "identified {} of {} parameters from {} poses (condition number {:.0}, {} Levenberg–Marquardt iterations); wrote {}",
         cal.identified.len(),
         names.len(),
-        fit.len(),
+        cal.poses,
         cal.condition,
         cal.iterations,
         out.display()
@@ -178,26 +141,8 @@ pub fn calibrate(
         "\n{:<22} {:<34} {:>9} {:>9} {:>9}",
         "poses", "model", "mean µm", "SD µm", "max µm"
     );
-    let groups = [
-        (format!("fitted ({})", fit.len()), &fit),
-        (held_label, &held),
-    ];
-    for (label, poses) in groups {
-        if poses.is_empty() {
-            continue;
-        }
-        println!(
-            "{}",
-            row(
-                &label,
-                "initial (nominal, registered)",
-                &arm_position_errors(&cal.registered, poses)
-            )
-        );
-        println!(
-            "{}",
-            row("", "calibrated", &arm_position_errors(&cal.arm, poses))
-        );
+    for r in &done.rows {
+        println!("{}", row(r));
     }
     Ok(())
 }

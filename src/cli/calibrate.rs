@@ -4,13 +4,10 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context;
 use indicatif::ProgressBar;
 
-use iastgcn::calibrate::{self, file, hold_out, pose_errors, EkfConfig};
-use iastgcn::data::{read_measurements, recording_measurements};
-use iastgcn::robot::{Description, Robot};
-use iastgcn::stats::Summary;
+use iastgcn::experiment::calibration::{calibrate_hybrid, ErrorRow, Scoring};
+use iastgcn::robot::Description;
 
 #[derive(clap::Args)]
 pub struct CalibrateArgs {
@@ -39,8 +36,10 @@ pub struct CalibrateArgs {
     pub recordings: Vec<PathBuf>,
 }
 
-fn row(label: &str, stage: &str, (p, a): &(Vec<f64>, Vec<f64>)) -> String {
-    let (Some(p), Some(a)) = (Summary::of(p), Summary::of(a)) else {
+/// One row of the error table (µm and mdeg).
+fn row(r: &ErrorRow) -> String {
+    let (label, stage) = (&r.label, &r.stage);
+    let (Some(p), Some(a)) = (&r.position, &r.attitude) else {
         return format!("{label:<22} {stage:<11} (no poses)");
     };
     format!(
@@ -49,25 +48,11 @@ fn row(label: &str, stage: &str, (p, a): &(Vec<f64>, Vec<f64>)) -> String {
     )
 }
 
-/// How the poses of `--data` are scored: held out every few, or a separate test file.
-pub enum Scoring {
-    /// Every how many poses one is held out (0: none).
-    HoldOutEvery(usize),
-    /// Every pose is fitted; this file's poses are scored.
-    TestFile(PathBuf),
-}
-
-fn split(args: &CalibrateArgs) -> Scoring {
+fn scoring(args: &CalibrateArgs) -> Scoring {
     match &args.test {
         Some(t) => Scoring::TestFile(t.clone()),
         None => Scoring::HoldOutEvery(args.hold_out_every),
     }
-}
-
-/// `: NAME` of a test file, for the report's row label.
-pub fn test_name(path: &std::path::Path) -> String {
-    path.file_name()
-        .map_or(String::new(), |n| format!(": {}", n.to_string_lossy()))
 }
 
 pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
@@ -75,70 +60,27 @@ pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
     let geometry = match Description::load_or_default(args.robot.as_deref())? {
         Description::Hybrid(geometry) => geometry,
         Description::Serial(arm) => {
-            return super::arm::calibrate(&arm, &args.measurements, &split(args), &args.out);
+            return super::arm::calibrate(&arm, &args.measurements, &scoring(args), &args.out);
         }
     };
-    let nominal = Robot::nominal(geometry);
-    // The set's sidecar names the twin machine it was measured on; the file keeps it so
-    // that an evaluation on another machine can warn.
-    let sidecar = iastgcn::twin::RunInfo::sidecar(&args.measurements);
-    let machine_seed = if sidecar.exists() {
-        Some(
-            iastgcn::twin::RunInfo::read(&args.measurements)
-                .map_err(anyhow::Error::msg)?
-                .machine_seed,
-        )
-    } else {
-        None
-    };
-    let all = read_measurements(&args.measurements)?;
-    let (fit, held) = match &args.test {
-        Some(test) => (all, read_measurements(test)?),
-        None => hold_out(&all, args.hold_out_every),
-    };
-    let spinner = ProgressBar::new_spinner().with_message(format!("EKF on {} poses", fit.len()));
+    let spinner = ProgressBar::new_spinner().with_message("EKF calibration");
     spinner.enable_steady_tick(std::time::Duration::from_millis(200));
-    let cal = calibrate::calibrate(&nominal, &fit, &EkfConfig::default())
-        .with_context(|| format!("calibrating from {}", args.measurements.display()))?;
+    let done = calibrate_hybrid(
+        geometry,
+        &args.measurements,
+        &scoring(args),
+        &args.recordings,
+    );
     spinner.finish_and_clear();
-    // Every recording is read before anything is written, so a bad one leaves no file.
-    let recordings = args
-        .recordings
-        .iter()
-        .map(|p| Ok((p, recording_measurements(p)?)))
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    // The error table is computed before the calibration file is written: a
-    // recording the robot cannot follow fails the command with no file replaced.
-    let calibrated = nominal.with_errors(cal.errors.clone());
-    let mut rows = Vec::new();
-    if !held.is_empty() {
-        let label = match &args.test {
-            Some(t) => format!("test file ({})", held.len()) + &test_name(t),
-            None => format!("held-out poses ({})", held.len()),
-        };
-        rows.push(row(&label, "initial", &pose_errors(&nominal, &held)?));
-        rows.push(row("", "calibrated", &pose_errors(&calibrated, &held)?));
-    } else {
-        // --hold-out-every 0: nothing held out, so the fitted poses (an optimistic score:
-        // the filter saw them) rather than an empty table.
-        let label = format!("fitted poses ({})", fit.len());
-        rows.push(row(&label, "initial", &pose_errors(&nominal, &fit)?));
-        rows.push(row("", "calibrated", &pose_errors(&calibrated, &fit)?));
-    }
-    for (path, ms) in &recordings {
-        let label = path
-            .file_name()
-            .map_or("recording".into(), |n| n.to_string_lossy().into_owned());
-        rows.push(row(&label, "initial", &pose_errors(&nominal, ms)?));
-        rows.push(row("", "calibrated", &pose_errors(&calibrated, ms)?));
-    }
-    file::save_from(&args.out, &cal, fit.len(), machine_seed)?;
+    let done = done?;
+    done.save(&args.out)?;
+    let cal = &done.calibration;
     let names = iastgcn::robot::ErrorParams::names();
     println!(
         "identified {} of {} parameters from {} poses (condition numbers {}); wrote {}",
         cal.identified.len(),
         names.len(),
-        fit.len(),
+        done.fitted,
         cal.condition
             .iter()
             .map(|c| format!("{c:.0}"))
@@ -159,8 +101,8 @@ pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
         "data", "stage", "pos mean", "SD", "max", "att mean", "SD", "max"
     );
     println!("{:<22} {:<11} {:>26}   {:>23}", "", "", "(µm)", "(mdeg)");
-    for r in &rows {
-        println!("{r}");
+    for r in &done.rows {
+        println!("{}", row(r));
     }
     Ok(())
 }

@@ -10,7 +10,7 @@ use clap::Args;
 use super::Console;
 use iastgcn::data::DataSources;
 use iastgcn::gpu::Gpu;
-use iastgcn::model::{Checkpoint, Variant};
+use iastgcn::model::Checkpoint;
 use iastgcn::train::predict::{overall_metrics, write_predictions};
 use iastgcn::train::refine::AccumulatedCurve;
 use iastgcn::train::{
@@ -119,15 +119,7 @@ pub struct PredictArgs {
 /// The run config at `path` (the paper's values when absent), with `variant` overriding
 /// its model's.
 pub fn read_run_config(path: Option<&Path>, variant: Option<&str>) -> anyhow::Result<RunConfig> {
-    let mut config = match path {
-        Some(p) => RunConfig::load(p)?,
-        None => RunConfig::default(),
-    };
-    if let Some(v) = variant {
-        config.model.variant = Variant::parse(v)
-            .with_context(|| format!("unknown variant {v:?} ({})", Variant::names()))?;
-    }
-    Ok(config)
+    Ok(RunConfig::read(path, variant)?)
 }
 
 pub fn print_metrics(rows: &[TestMetrics]) {

@@ -13,8 +13,7 @@ use std::time::Instant;
 
 use crate::error::{ensure, Error, Result};
 
-use crate::data::features::Stream;
-use crate::data::FeatureConfig;
+use super::sensor_predictor::SensorPredictor;
 use crate::graph::Graph;
 use crate::model::Predictor;
 use crate::robot::Robot;
@@ -125,15 +124,11 @@ pub fn run(
         Feedback::Model(predictor, graph, settings) => {
             predictor.reset();
             let nodes = node_channels(graph)?;
-            let stream = Stream::new(nodes.len(), dt, &FeatureConfig::default());
-            model = Some((predictor, nodes, stream, settings));
+            model = Some((SensorPredictor::new(predictor, dt)?, nodes, settings));
         }
         Feedback::Oracle { window, settings } => oracle = Some((window, settings)),
     }
-    let n = model.as_ref().map_or(0, |o| o.1.len());
-    let mut values = vec![None; n];
-    let mut features = vec![0f64; n * 3];
-    let mut step = vec![0f32; n * 3];
+    let mut values = vec![None; model.as_ref().map_or(0, |o| o.1.len())];
     let (mut pos, mut att, mut trace) = (Vec::new(), Vec::new(), Vec::new());
     let (mut true_pos, mut true_att) = (Vec::new(), Vec::new());
     let (mut predictions, mut predict_time, mut refused) = (0usize, 0f64, 0usize);
@@ -154,15 +149,11 @@ pub fn run(
             att.push(a);
             trace.push((s.t, e.x, e.y, e.z));
         }
-        if let Some((predictor, nodes, stream, settings)) = model.as_mut() {
+        if let Some((predictor, nodes, settings)) = model.as_mut() {
             for (v, &c) in values.iter_mut().zip(nodes.iter()) {
                 *v = s.channels[c];
             }
-            stream.push(&values, &mut features);
-            for (o, f) in step.iter_mut().zip(&features) {
-                *o = *f as f32;
-            }
-            let full = predictor.push_step(&step)?;
+            let full = predictor.push_values(&values)?;
             if full && tick.is_multiple_of(settings.every) {
                 let began = Instant::now();
                 // `push_step` said the ring is full, so there is a window to predict.
@@ -229,7 +220,7 @@ pub fn trace(trajectory: PathKind, label: &str, r: &RunResult) -> Trace {
 }
 
 /// Mean / SD / max of the position (µm) and attitude (mdeg) pose errors of one run.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct ErrorStats {
     /// Pad position error, µm.
     pub position: Summary,

@@ -6,6 +6,7 @@
 //! training data (`scale`), and a serial arm's residual models on held-out poses (`arm`).
 
 pub mod arm;
+pub mod calibration;
 pub mod demo;
 pub mod evaluate;
 pub mod machines;

@@ -180,6 +180,22 @@ impl RunConfig {
             .expect("the embedded demo config is valid")
     }
 
+    /// The config at `path` (the defaults, the paper's shape, without one), with its
+    /// model's variant replaced by `variant` when one is given (`--variant`).
+    pub fn read(path: Option<&Path>, variant: Option<&str>) -> Result<RunConfig, ConfigError> {
+        let mut config = match path {
+            Some(p) => RunConfig::load(p)?,
+            None => RunConfig::default(),
+        };
+        if let Some(v) = variant {
+            config.model.variant = crate::model::Variant::parse(v).ok_or_else(|| ConfigError {
+                file: "variant".into(),
+                message: format!("unknown variant {v:?} ({})", crate::model::Variant::names()),
+            })?;
+        }
+        Ok(config)
+    }
+
     /// Reads and checks a TOML file.
     pub fn load(path: &Path) -> Result<RunConfig, ConfigError> {
         let file = path.display().to_string();

@@ -59,7 +59,7 @@ pub fn build_dataset(
 
 /// Test-split metrics of one recording: the model's, and those of predicting the
 /// training-split mean.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize)]
 pub struct TestMetrics {
     /// The recording's name.
     pub recording: String,
@@ -279,7 +279,7 @@ fn resumable(a: &RunConfig, b: &RunConfig) -> bool {
 }
 
 /// How a core training run ended.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize)]
 pub struct Trained {
     /// The best validation loss (the data term of eq. 39, standardised label space).
     pub best_val: f64,

@@ -18,7 +18,7 @@ pub use markdown::markdown;
 pub use crate::compensate::online::{ErrorStats, Trace};
 
 /// One row of the Table V analog.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct TableVRow {
     /// The held-out path (`grid`, `fermat`, `hilbert`, `rosette`).
     pub trajectory: String,
@@ -33,7 +33,7 @@ pub struct TableVRow {
 }
 
 /// One row of the Table III analog (test-split prediction accuracy).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct TableIIIRow {
     /// The training recording whose test block was scored.
     pub trajectory: String,
@@ -44,7 +44,7 @@ pub struct TableIIIRow {
 }
 
 /// The Fig. 10 analog for one model.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct Timing {
     /// The model's name.
     pub model: String,
