@@ -4,14 +4,36 @@
 CARGO ?= cargo
 export NODEVICE_SELECT ?= 1
 
-.PHONY: vulkan test demo paper bench bench-compare lint
+.PHONY: vulkan test demo paper bench bench-compare bench-embed lint python header
 
 vulkan:
 	@.ci/ensure-vulkan
 
-## Whole test suite (on lavapipe when there is no GPU).
+## Whole test suite (on lavapipe when there is no GPU): the Rust tests (the C ABI's
+## example among them), then the Python package built in the same profile and its
+## pytest suite against the binaries they built.
 test: vulkan
 	$(CARGO) test --no-fail-fast
+	$(MAKE) python PYTHON_PROFILE=dev
+	IASTGCN_PROFILE_DIR=target/debug $(PYTHON_VENV)/bin/python -m pytest -q python/tests
+
+## The Python package (docs/embedding.md "Python"): a venv in $(PYTHON_VENV) with
+## maturin, NumPy and pytest (python/requirements-dev.txt, from PyPI), the abi3 wheel
+## built into target/wheels (compiled in target/python, apart from the plain builds: the
+## module's library needs Python's symbols, the C ABI's must not) and installed there.
+## `. $(PYTHON_VENV)/bin/activate`, then `import iastgcn`.
+PYTHON_VENV ?= target/python-venv
+PYTHON_PROFILE ?= release
+python:
+	@test -x $(PYTHON_VENV)/bin/python || python3 -m venv $(PYTHON_VENV)
+	$(PYTHON_VENV)/bin/pip install -q -r python/requirements-dev.txt
+	rm -f target/wheels/iastgcn-*.whl
+	$(PYTHON_VENV)/bin/maturin build --profile $(PYTHON_PROFILE) --target-dir target/python --out target/wheels
+	$(PYTHON_VENV)/bin/pip install -q --force-reinstall --no-deps target/wheels/iastgcn-*.whl
+
+## Regenerates the C header include/iastgcn.h from src/embed/c_api.rs (cbindgen).
+header:
+	IASTGCN_WRITE_HEADER=1 $(CARGO) test --test c_abi checked_in_header
 
 DEMO_DIR ?= report
 
@@ -56,6 +78,12 @@ bench-compare: vulkan
 	$(BENCH_VENV)/bin/pip install -q $(if $(TORCH_INDEX),--extra-index-url $(TORCH_INDEX)) -r benches/pytorch/requirements.txt
 	$(BENCH_VENV)/bin/python benches/pytorch/compare.py
 
+## Per-tick latency of the predictor from Rust, C and Python in one run (benches/embed.rs,
+## docs/embedding.md "Latency"); table in target/bench-embed/latency.md.
+bench-embed: python
+	$(CARGO) bench --bench embed
+
 lint:
 	$(CARGO) fmt --check
 	$(CARGO) clippy --all-targets -- -D warnings
+	$(CARGO) clippy --lib --features python -- -D warnings

@@ -15,7 +15,8 @@
 //! - [`train`]: training, refinement and prediction on recordings;
 //! - [`compensate`]: online compensation in the twin (held-out runs, the error budget);
 //! - [`experiment`]: the protocol's experiments: Tables III and V, the demo, `reproduce`,
-//!   twin machines, serial arms.
+//!   twin machines, serial arms;
+//! - [`embed`]: the C ABI and the Python module over the same calls.
 //!
 //! Long calls report through a [`progress::Reporter`] and return [`error::Result`].
 //!
@@ -35,6 +36,7 @@ pub mod atomic;
 pub mod calibrate;
 pub mod compensate;
 pub mod data;
+pub mod embed;
 pub mod error;
 pub mod experiment;
 pub mod gpu;

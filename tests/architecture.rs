@@ -81,6 +81,26 @@ const ALLOWED: &[(&str, &[&str])] = &[
         ],
     ),
     (
+        "embed",
+        &[
+            "experiment",
+            "compensate",
+            "twin",
+            "calibrate",
+            "data",
+            "train",
+            "model",
+            "gpu",
+            "graph",
+            "robot",
+            "plot",
+            "progress",
+            "stats",
+            "atomic",
+            "error",
+        ],
+    ),
+    (
         "error",
         &[
             "gpu",

@@ -1,0 +1,126 @@
+"""The demo's steps from Python: the twin's data, the calibrations, training with a
+progress callback, refinement and evaluation; each against the command's own output."""
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import iastgcn
+
+from conftest import ROOT, cli
+
+
+def test_serial_arm_calibration_matches_the_command(profile_dir: Path, tmp_path: Path):
+    arm = ROOT / "assets/real-arms/ur5.toml"
+    poses = tmp_path / "ur5.csv"
+    cli(profile_dir, "import", "--from",
+        str(ROOT / "assets/real-arms/3D_UR5_uncalibrated_grid_cleaned.csv"),
+        "--out", str(poses), "--pose", "step_order", "--position", "x_t,y_t,z_t",
+        "--minus", "x_dif,y_dif,z_dif",
+        "--joints", "joint_1,joint_2,joint_3,joint_4,joint_5,joint_6")
+    result = iastgcn.calibrate_arm(arm, poses, out=tmp_path / "ur5.calibrated.toml")
+    printed = cli(profile_dir, "calibrate", "--robot", str(arm), "--data", str(poses),
+                  "--out", str(tmp_path / "cli.toml"))
+    # The same file, and the same numbers as the command prints.
+    assert (tmp_path / "ur5.calibrated.toml").read_text() == (tmp_path / "cli.toml").read_text()
+    assert f"identified {len(result['parameters'])} of" in printed
+    for p in result["parameters"]:
+        assert re.search(rf"^{re.escape(p['name'])}\s+{p['start']:.5f}\s+{p['calibrated']:.5f}",
+                         printed, re.M), p
+    held = [r for r in result["errors"] if r["label"].startswith("held out")][0]
+    calibrated = result["errors"][result["errors"].index(held) + 1]
+    assert calibrated["stage"] == "calibrated"
+    assert calibrated["position"]["mean"] < held["position"]["mean"] / 5
+    assert result["scored"] == 200 and result["fitted"] == 800
+    assert all(k["reason"] for k in result["kept_nominal"])
+    with pytest.raises(iastgcn.Error, match="not a serial arm"):
+        iastgcn.calibrate_arm(ROOT / "assets/robot.toml", poses)
+
+
+@pytest.fixture(scope="module")
+def twin_data(tmp_path_factory) -> dict:
+    """The demo's data at half a minute per path, with every progress event."""
+    events = []
+    out = tmp_path_factory.mktemp("twin")
+    data = iastgcn.record_data(out, minutes=0.5, progress=lambda *e: events.append(e))
+    data["events"] = events
+    return data
+
+
+def test_record_data_reports_progress_and_writes_the_files(twin_data: dict):
+    assert [Path(r).name for r in twin_data["recordings"]] == [
+        "grid.csv", "fermat.csv", "hilbert.csv"]
+    assert all(Path(f).exists() for f in twin_data["recordings"])
+    kinds = {e[0] for e in twin_data["events"]}
+    assert {"begin", "update", "end", "note"} <= kinds
+    notes = [e[1] for e in twin_data["events"] if e[0] == "note"]
+    assert any("geometric calibration" in n for n in notes)
+
+
+def test_hybrid_calibration_matches_the_command(profile_dir: Path, twin_data: dict,
+                                               tmp_path: Path):
+    measurements = twin_data["calibration_set"]
+    result = iastgcn.calibrate(measurements, out=tmp_path / "py.toml",
+                               recordings=twin_data["recordings"][:1])
+    printed = cli(profile_dir, "calibrate", "--measurements", measurements, "--out",
+                  str(tmp_path / "cli.toml"), "--recordings", twin_data["recordings"][0])
+    assert (tmp_path / "py.toml").read_text() == (tmp_path / "cli.toml").read_text()
+    assert "  identified: " + " ".join(result["identified"]) in printed
+    assert [r["stage"] for r in result["errors"]] == ["initial", "calibrated"] * 2
+    held = result["errors"][0]
+    assert held["label"] == "held-out poses (16)"
+    line = f"{held['position']['mean']:8.1f}"
+    assert line in printed
+
+
+def test_training_refinement_and_evaluation_from_python(twin_data: dict, tmp_path: Path):
+    events = []
+    model = tmp_path / "iastgcn.safetensors"
+    trained = iastgcn.train(twin_data["recordings"], twin_data["calibration"], model,
+                            config=ROOT / "assets/demo.toml", max_epochs=2,
+                            progress=lambda *e: events.append(e))
+    assert model.exists()
+    assert trained["epochs"] == 2 and len(trained["history"]) == 2
+    assert np.isfinite(trained["best_val"])
+    assert [m["recording"] for m in trained["test"]] and all(
+        m["model"]["count"] > 0 for m in trained["test"])
+    assert any(e[0] == "update" for e in events)
+
+    refined = iastgcn.refine(twin_data["recordings"], twin_data["calibration"], model,
+                             tmp_path / "refined.safetensors",
+                             config=ROOT / "assets/demo.toml")
+    assert (tmp_path / "refined.safetensors").exists()
+    assert isinstance(refined["verdict"], str) and refined["test_after"]
+
+    tables = iastgcn.evaluate([model], twin_data["recordings"], twin_data["calibration"],
+                              tmp_path / "report", config=ROOT / "assets/demo.toml",
+                              held_out_minutes=0.1)
+    assert Path(tables["report"]).exists()
+    assert {r["model"] for r in tables["table_iii"]} == {"iastgcn", "training mean"}
+    assert {(r["stage"], r["model"]) for r in tables["table_v"]} == {
+        ("initial", "-"), ("calibrated", "-"), ("compensated", "iastgcn"),
+        ("oracle", "true residual")}
+    paths = {r["trajectory"] for r in tables["table_v"]}
+    assert len(paths) == 4, paths
+    assert all(r["truth"]["position"]["mean"] > 0 for r in tables["table_v"])
+
+
+def test_a_failing_progress_callback_is_raised_after_the_call(twin_data: dict,
+                                                              tmp_path: Path):
+    def fail(event, text, position, total):
+        raise KeyError("stop here")
+
+    with pytest.raises(KeyError, match="stop here"):
+        iastgcn.train(twin_data["recordings"], twin_data["calibration"],
+                      tmp_path / "m.safetensors", config=ROOT / "assets/demo.toml",
+                      max_epochs=1, progress=fail)
+
+
+def test_library_errors_name_the_file(tmp_path: Path):
+    with pytest.raises(iastgcn.Error, match="nowhere.csv"):
+        iastgcn.calibrate(tmp_path / "nowhere.csv")
+    with pytest.raises(iastgcn.Error, match="variant"):
+        iastgcn.train([tmp_path / "a.csv"], tmp_path / "c.toml", tmp_path / "m.safetensors",
+                      variant="resnet")

@@ -1,0 +1,805 @@
+//! The `iastgcn` Python module (feature `python`; built by maturin, `make python`;
+//! docs/embedding.md "Python"). `Predictor` for controllers, and the demo's steps as
+//! functions for notebooks: `record_data`, `calibrate`, `calibrate_arm`, `train`,
+//! `refine`, `evaluate`, each with an optional progress callback. Results come back as
+//! dictionaries (the library's own structures through JSON), errors as `iastgcn.Error`
+//! with the library's message; a panic is caught and raised as `iastgcn.Error` too.
+
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+
+use numpy::{
+    AllowTypeChange, PyArray1, PyArrayLike1, PyArrayLikeDyn, PyArrayMethods, PyUntypedArrayMethods,
+};
+use pyo3::exceptions::PyException;
+use pyo3::prelude::*;
+use serde::Serialize;
+
+use super::{panic_message, Loaded};
+use crate::data::DataSources;
+use crate::experiment::calibration::{calibrate_hybrid, calibrate_serial, ErrorRow, Scoring};
+use crate::experiment::evaluate::HeldOutConfig;
+use crate::gpu::Gpu;
+use crate::model::{Backend, Checkpoint, Features, Residual};
+use crate::progress::Reporter;
+use crate::robot::{Description, ErrorParams};
+use crate::train::{self, build_dataset, RunConfig};
+
+pyo3::create_exception!(
+    iastgcn,
+    Error,
+    PyException,
+    "Every failure of the engine: a file it cannot read, a shape that does not fit the \
+     model, a config it refuses, a device error. The message is the library's, naming \
+     the file, field or tensor."
+);
+
+/// Runs `body` with panics caught and the library's errors raised as `iastgcn.Error`.
+fn guarded<T>(body: impl FnOnce() -> PyResult<T>) -> PyResult<T> {
+    match catch_unwind(AssertUnwindSafe(body)) {
+        Ok(result) => result,
+        Err(panic) => Err(Error::new_err(panic_message(panic.as_ref()))),
+    }
+}
+
+/// The library's error as `iastgcn.Error`.
+fn raise(e: impl std::fmt::Display) -> PyErr {
+    Error::new_err(e.to_string())
+}
+
+/// A Rust value as Python objects (through JSON: numbers, strings, lists, dicts; NaN
+/// becomes None).
+fn to_python<'py>(py: Python<'py>, value: &impl Serialize) -> PyResult<Bound<'py, PyAny>> {
+    let text = serde_json::to_string(value).map_err(raise)?;
+    py.import("json")?.call_method1("loads", (text,))
+}
+
+/// The residual as a float64 array of 6.
+fn residual_array<'py>(py: Python<'py>, r: &Residual) -> Bound<'py, PyArray1<f64>> {
+    PyArray1::from_slice(py, r)
+}
+
+/// A predictor loaded from a checkpoint, for a control loop or for batches of windows.
+///
+/// Predictor(checkpoint, *, dt=None, backend="native", threads=1)
+///
+/// checkpoint: a `.safetensors` file written by iastgcn (train, refine, init).
+/// dt: the control period in seconds of the recordings the model was trained on (the
+///     twin's is 0.02). With it, `push` takes one tick of raw sensor values; without
+///     it, only `push_features`, `predict` and `predict_batch` work.
+/// backend: "native" (the CPU forward on the calling thread; needs no GPU driver) or
+///     "auto" (the default adapter; native on a CPU adapter).
+/// threads: tasks the native forward splits one window into (1: the calling thread).
+///
+/// Residuals are dx, dy, dz in µm and rx, ry, rz in mdeg (base frame): the error to
+/// subtract from the next commanded pose. One thread at a time per predictor (a lock
+/// makes concurrent calls wait); the lock is released around the forward pass.
+#[pyclass(name = "Predictor", module = "iastgcn")]
+struct PyPredictor {
+    inner: Mutex<Loaded>,
+    /// Sensor values of the last frame when the input was not a contiguous float64
+    /// array, reused.
+    frame: Mutex<Vec<f64>>,
+}
+
+impl PyPredictor {
+    fn with<T>(&self, f: impl FnOnce(&mut Loaded) -> PyResult<T>) -> PyResult<T> {
+        let mut loaded = self
+            .inner
+            .lock()
+            .map_err(|_| raise("the predictor was poisoned by an earlier internal error"))?;
+        guarded(|| f(&mut loaded))
+    }
+
+    fn shape(&self) -> PyResult<(usize, usize, usize)> {
+        self.with(|l| {
+            let c = l.predictor().config();
+            Ok((c.nodes, c.features, c.window))
+        })
+    }
+}
+
+/// `got` shape against `expected`, as the error message names them.
+fn check_shape(what: &str, got: &[usize], expected: &[&[usize]]) -> PyResult<()> {
+    if expected.contains(&got) {
+        return Ok(());
+    }
+    let list: Vec<String> = expected.iter().map(|e| format!("{e:?}")).collect();
+    Err(raise(format!(
+        "{what}: expected shape {}, got {got:?}",
+        list.join(" or ")
+    )))
+}
+
+#[pymethods]
+impl PyPredictor {
+    #[new]
+    #[pyo3(signature = (checkpoint, *, dt=None, backend="native", threads=1))]
+    fn new(
+        py: Python<'_>,
+        checkpoint: PathBuf,
+        dt: Option<f64>,
+        backend: &str,
+        threads: usize,
+    ) -> PyResult<PyPredictor> {
+        let native = match backend {
+            "native" => true,
+            "auto" => false,
+            other => {
+                return Err(raise(format!(
+                    "backend: \"native\" or \"auto\", got {other:?}"
+                )))
+            }
+        };
+        if threads == 0 {
+            return Err(raise("threads: 1 or more"));
+        }
+        let mut loaded =
+            py.detach(|| guarded(|| Loaded::load(&checkpoint, dt, native).map_err(raise)))?;
+        loaded.predictor().set_threads(threads);
+        let nodes = loaded.nodes().len();
+        Ok(PyPredictor {
+            inner: Mutex::new(loaded),
+            frame: Mutex::new(vec![0.0; nodes]),
+        })
+    }
+
+    /// The graph's node names: the order of a sensor frame's values.
+    #[getter]
+    fn nodes(&self) -> PyResult<Vec<String>> {
+        self.with(|l| Ok(l.nodes().to_vec()))
+    }
+
+    /// (N, F, T): nodes, features per node, window length in ticks.
+    #[getter]
+    fn window_shape(&self) -> PyResult<(usize, usize, usize)> {
+        self.shape()
+    }
+
+    /// The model's variant ("iastgcn", "tgcn", …).
+    #[getter]
+    fn variant(&self) -> PyResult<String> {
+        self.with(|l| Ok(l.predictor().config().variant.name().to_string()))
+    }
+
+    /// "native" or "device": where windows run.
+    #[getter]
+    fn backend(&self) -> PyResult<&'static str> {
+        self.with(|l| {
+            Ok(match l.predictor().backend() {
+                Backend::Native => "native",
+                Backend::Device => "device",
+            })
+        })
+    }
+
+    /// The control period in seconds, or None when the predictor takes features only.
+    #[getter]
+    fn dt(&self) -> PyResult<Option<f64>> {
+        self.with(|l| Ok(l.dt()))
+    }
+
+    /// Tasks the native forward splits one window into.
+    #[getter]
+    fn get_threads(&self) -> PyResult<usize> {
+        self.with(|l| Ok(l.predictor().threads()))
+    }
+
+    #[setter]
+    fn set_threads(&self, threads: usize) -> PyResult<()> {
+        if threads == 0 {
+            return Err(raise("threads: 1 or more"));
+        }
+        self.with(|l| {
+            l.predictor().set_threads(threads);
+            Ok(())
+        })
+    }
+
+    /// push(frame) -> bool
+    ///
+    /// Pushes one control tick of raw sensor values: N numbers in the order of `nodes`
+    /// (float32 or float64; NaN: no new sample this tick, the last one is held).
+    /// Returns True once T ticks are in, so that `predict_latest` has a window.
+    fn push(&self, frame: PyArrayLike1<'_, f64, AllowTypeChange>) -> PyResult<bool> {
+        let (n, _, _) = self.shape()?;
+        check_shape("frame", frame.shape(), &[&[n]])?;
+        match frame.as_slice() {
+            Ok(values) => self.with(|l| l.push(values).map_err(raise)),
+            Err(_) => {
+                let mut buffer = self.frame.lock().map_err(raise)?;
+                for (b, v) in buffer.iter_mut().zip(frame.as_array().iter()) {
+                    *b = *v;
+                }
+                self.with(|l| l.push(&buffer).map_err(raise))
+            }
+        }
+    }
+
+    /// push_features(step) -> bool
+    ///
+    /// Pushes one step of per-node features, shape (N, F) or (N·F,), before
+    /// standardisation, for callers that compute the features themselves. True once
+    /// T steps are in.
+    fn push_features(&self, step: PyArrayLikeDyn<'_, f32, AllowTypeChange>) -> PyResult<bool> {
+        let (n, f, _) = self.shape()?;
+        check_shape("step", step.shape(), &[&[n, f], &[n * f]])?;
+        let values: Vec<f32>;
+        let step = match step.as_slice() {
+            Ok(s) => s,
+            Err(_) => {
+                values = step.as_array().iter().copied().collect();
+                &values
+            }
+        };
+        self.with(|l| l.predictor().push_step(step).map_err(raise))
+    }
+
+    /// predict_latest() -> numpy.ndarray | None
+    ///
+    /// The residual (6 float64) of the window ending at the last pushed tick, or None
+    /// until T ticks have been pushed.
+    fn predict_latest<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyArray1<f64>>>> {
+        let latest = py.detach(|| self.with(|l| l.predict_latest().map_err(raise)))?;
+        Ok(latest.map(|r| residual_array(py, &r)))
+    }
+
+    /// predict(window) -> numpy.ndarray
+    ///
+    /// The residual (6 float64) of one window of features, shape (N, F, T), oldest step
+    /// first, before standardisation. Leaves the pushed ticks alone.
+    fn predict<'py>(
+        &self,
+        py: Python<'py>,
+        window: PyArrayLikeDyn<'py, f32, AllowTypeChange>,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let (n, f, t) = self.shape()?;
+        check_shape("window", window.shape(), &[&[n, f, t]])?;
+        let copied: Vec<f32>;
+        let data = match window.as_slice() {
+            Ok(s) => s,
+            Err(_) => {
+                copied = window.as_array().iter().copied().collect();
+                &copied
+            }
+        };
+        let r = py.detach(|| self.with(|l| l.predictor().predict(data).map_err(raise)))?;
+        Ok(residual_array(py, &r))
+    }
+
+    /// predict_batch(windows, standardised=False) -> numpy.ndarray
+    ///
+    /// The residuals, shape (W, 6), of W windows of features, shape (W, N, F, T).
+    /// `standardised`: the windows are already standardised with the checkpoint's
+    /// statistics (as a dataset built with them is).
+    #[pyo3(signature = (windows, standardised=false))]
+    fn predict_batch<'py>(
+        &self,
+        py: Python<'py>,
+        windows: PyArrayLikeDyn<'py, f32, AllowTypeChange>,
+        standardised: bool,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let (n, f, t) = self.shape()?;
+        let shape = windows.shape().to_vec();
+        if shape.len() != 4 || shape[1..] != [n, f, t] {
+            return Err(raise(format!(
+                "windows: expected shape (W, {n}, {f}, {t}), got {shape:?}"
+            )));
+        }
+        let copied: Vec<f32>;
+        let data = match windows.as_slice() {
+            Ok(s) => s,
+            Err(_) => {
+                copied = windows.as_array().iter().copied().collect();
+                &copied
+            }
+        };
+        let features = if standardised {
+            Features::Standardised
+        } else {
+            Features::Raw
+        };
+        let out = py.detach(|| {
+            self.with(|l| {
+                let mut out = Vec::new();
+                l.predictor()
+                    .predict_batch(data, features, &mut out)
+                    .map_err(raise)?;
+                Ok(out)
+            })
+        })?;
+        let flat: Vec<f64> = out.iter().flatten().copied().collect();
+        PyArray1::from_vec(py, flat)
+            .reshape([shape[0], 6])
+            .map(Bound::into_any)
+    }
+
+    /// Forgets the pushed ticks and the features' filter state (a new run, or after a
+    /// pause in the trajectory).
+    fn reset(&self) -> PyResult<()> {
+        self.with(|l| {
+            l.reset();
+            Ok(())
+        })
+    }
+
+    fn __repr__(&self) -> PyResult<String> {
+        let (n, f, t) = self.shape()?;
+        let dt = self.dt()?;
+        Ok(format!(
+            "Predictor(variant={:?}, nodes={n}, features={f}, window={t}, dt={}, backend={:?})",
+            self.variant()?,
+            dt.map_or("None".into(), |d| d.to_string()),
+            self.backend()?
+        ))
+    }
+}
+
+/// A [`Reporter`] that calls a Python callable `progress(event, text, position, total)`
+/// with event "begin", "update", "end" or "note". The first exception it raises stops
+/// the calls and is raised when the library call returns.
+struct PyReporter {
+    callback: Option<Py<PyAny>>,
+    error: Option<PyErr>,
+}
+
+impl PyReporter {
+    fn new(callback: Option<Py<PyAny>>) -> PyReporter {
+        PyReporter {
+            callback,
+            error: None,
+        }
+    }
+
+    fn call(&mut self, event: &str, text: &str, position: u64, total: u64) {
+        let (Some(callback), None) = (&self.callback, &self.error) else {
+            return;
+        };
+        let result = Python::attach(|py| {
+            callback
+                .call1(py, (event, text, position, total))
+                .map(|_| ())
+        });
+        if let Err(e) = result {
+            self.error = Some(e);
+        }
+    }
+
+    /// The library call's result, or the callback's first exception.
+    fn finish<T>(self, result: crate::error::Result<T>) -> PyResult<T> {
+        if let Some(e) = self.error {
+            return Err(e);
+        }
+        result.map_err(raise)
+    }
+}
+
+impl Reporter for PyReporter {
+    fn begin(&mut self, what: &str, len: u64) {
+        self.call("begin", what, 0, len);
+    }
+    fn update(&mut self, pos: u64, message: &str) {
+        self.call("update", message, pos, 0);
+    }
+    fn end(&mut self) {
+        self.call("end", "", 0, 0);
+    }
+    fn note(&mut self, line: &str) {
+        self.call("note", line, 0, 0);
+    }
+}
+
+/// Runs a long library call without the GIL, reporting to `progress`.
+fn long_call<T: Send>(
+    py: Python<'_>,
+    progress: Option<Py<PyAny>>,
+    body: impl FnOnce(&mut dyn Reporter) -> crate::error::Result<T> + Send,
+) -> PyResult<T> {
+    py.detach(|| {
+        guarded(|| {
+            let mut reporter = PyReporter::new(progress);
+            let result = body(&mut reporter);
+            reporter.finish(result)
+        })
+    })
+}
+
+fn scoring(hold_out_every: usize, test: Option<PathBuf>) -> Scoring {
+    match test {
+        Some(t) => Scoring::TestFile(t),
+        None => Scoring::HoldOutEvery(hold_out_every),
+    }
+}
+
+/// record_data(out, minutes=2.0, machine_seed=1, progress=None) -> dict
+///
+/// The demo's data on the twin, into the folder `out`: a calibration set of a cold
+/// machine, its EKF calibration, and one training recording of `minutes` per path
+/// (grid, fermat, hilbert). Returns the files: {"recordings": [...], "calibration": ...}.
+#[pyfunction]
+#[pyo3(signature = (out, minutes=2.0, machine_seed=1, progress=None))]
+fn record_data<'py>(
+    py: Python<'py>,
+    out: PathBuf,
+    minutes: f64,
+    machine_seed: u64,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Bound<'py, PyAny>> {
+    if !(minutes.is_finite() && minutes > 0.0) {
+        return Err(raise(format!("minutes must be positive, got {minutes}")));
+    }
+    let sources = long_call(py, progress, |r| {
+        crate::experiment::protocol::record_data(&out, minutes, machine_seed, r)
+    })?;
+    #[derive(Serialize)]
+    struct Files {
+        recordings: Vec<PathBuf>,
+        calibration: PathBuf,
+        calibration_set: PathBuf,
+    }
+    to_python(
+        py,
+        &Files {
+            recordings: sources.recordings,
+            calibration: sources.calibration,
+            calibration_set: out.join("calibration_set.csv"),
+        },
+    )
+}
+
+/// calibrate(measurements, out=None, hold_out_every=5, test=None, recordings=()) -> dict
+///
+/// EKF calibration of the hybrid machine from a measurement set (CSV: q1..q5,
+/// x, y, z, rx, ry, rz). Every `hold_out_every`-th pose is held out and scored (or
+/// every pose is fitted and the poses of the file `test` scored), and each recording's
+/// tracker poses. Writes the calibration file to `out` when given. Returns the
+/// identified parameters, the condition numbers, the EKF stages and the error rows
+/// (position µm, attitude mdeg: mean, sd, max) before and after.
+#[pyfunction]
+#[pyo3(signature = (measurements, out=None, hold_out_every=5, test=None, recordings=Vec::new()))]
+fn calibrate<'py>(
+    py: Python<'py>,
+    measurements: PathBuf,
+    out: Option<PathBuf>,
+    hold_out_every: usize,
+    test: Option<PathBuf>,
+    recordings: Vec<PathBuf>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let scoring = scoring(hold_out_every, test);
+    let done = long_call(py, None, |_| {
+        let geometry = crate::robot::Geometry::default_asset();
+        let done = calibrate_hybrid(geometry, &measurements, &scoring, &recordings)?;
+        if let Some(out) = &out {
+            done.save(out)?;
+        }
+        Ok(done)
+    })?;
+    #[derive(Serialize)]
+    struct Stage {
+        name: &'static str,
+        round: usize,
+        parameters: usize,
+        sweeps: usize,
+        gamma: f64,
+    }
+    #[derive(Serialize)]
+    struct Result {
+        identified: Vec<String>,
+        parameters: usize,
+        fitted: usize,
+        condition: Vec<f64>,
+        stages: Vec<Stage>,
+        errors: Vec<ErrorRow>,
+    }
+    let names = ErrorParams::names();
+    let c = &done.calibration;
+    to_python(
+        py,
+        &Result {
+            identified: c.identified.iter().map(|&k| names[k].clone()).collect(),
+            parameters: names.len(),
+            fitted: done.fitted,
+            condition: c.condition.clone(),
+            stages: c
+                .stages
+                .iter()
+                .map(|s| Stage {
+                    name: s.name,
+                    round: s.round,
+                    parameters: s.parameters,
+                    sweeps: s.sweeps,
+                    gamma: s.gamma,
+                })
+                .collect(),
+            errors: done.rows,
+        },
+    )
+}
+
+/// calibrate_arm(description, poses, out=None, hold_out_every=5, test=None) -> dict
+///
+/// Calibration of a serial arm (docs/arms.md) from its description file and its pose
+/// file (CSV of joint angles and tracker points): registration, the identifiability
+/// table, Levenberg–Marquardt. Writes the calibrated description to `out` when given.
+/// Returns the parameters (start, calibrated, SD, unit), the ones kept nominal and
+/// why, the condition number, and the position error rows (µm) before and after.
+#[pyfunction]
+#[pyo3(signature = (description, poses, out=None, hold_out_every=5, test=None))]
+fn calibrate_arm<'py>(
+    py: Python<'py>,
+    description: PathBuf,
+    poses: PathBuf,
+    out: Option<PathBuf>,
+    hold_out_every: usize,
+    test: Option<PathBuf>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let scoring = scoring(hold_out_every, test);
+    let (arm, done) = long_call(py, None, |_| {
+        let Description::Serial(arm) = Description::load_or_default(Some(&description))? else {
+            return Err(crate::error::Error::Invalid(format!(
+                "{}: not a serial arm's description (kind = \"serial\"); the hybrid \
+                 machine is calibrated with calibrate()",
+                description.display()
+            )));
+        };
+        let done = calibrate_serial(&arm, &poses, &scoring)?;
+        if let Some(out) = &out {
+            done.save(out)?;
+        }
+        Ok((arm, done))
+    })?;
+    #[derive(Serialize)]
+    struct Parameter {
+        name: String,
+        start: f64,
+        calibrated: f64,
+        sd: f64,
+        unit: &'static str,
+    }
+    #[derive(Serialize)]
+    struct Kept {
+        name: String,
+        reason: String,
+    }
+    #[derive(Serialize)]
+    struct Result {
+        parameters: Vec<Parameter>,
+        kept_nominal: Vec<Kept>,
+        condition: f64,
+        iterations: usize,
+        fitted: usize,
+        scored: usize,
+        errors: Vec<ErrorRow>,
+    }
+    let c = &done.calibration;
+    let names = arm.names();
+    let parameters = c
+        .identified
+        .iter()
+        .enumerate()
+        .map(|(k, &i)| {
+            let (unit, f) = if arm.is_length(i) {
+                ("mm", 1.0)
+            } else {
+                ("deg", 180.0 / std::f64::consts::PI)
+            };
+            Parameter {
+                name: names[i].clone(),
+                start: c.registered.values[i] * f,
+                calibrated: c.arm.values[i] * f,
+                sd: c.sd[k] * f,
+                unit,
+            }
+        })
+        .collect();
+    to_python(
+        py,
+        &Result {
+            parameters,
+            kept_nominal: c
+                .kept
+                .iter()
+                .map(|k| Kept {
+                    name: k.name.clone(),
+                    reason: k.reason.clone(),
+                })
+                .collect(),
+            condition: c.condition,
+            iterations: c.iterations,
+            fitted: c.poses,
+            scored: done.scored,
+            errors: done.rows.clone(),
+        },
+    )
+}
+
+/// The files of a run: recordings, calibration, graph and robot description.
+fn sources(
+    recordings: Vec<PathBuf>,
+    calibration: PathBuf,
+    graph: Option<PathBuf>,
+    robot: Option<PathBuf>,
+) -> DataSources {
+    DataSources {
+        recordings,
+        calibration,
+        graph,
+        robot,
+    }
+}
+
+/// Opens the default adapter (`IASTGCN_ADAPTER` picks one by name).
+fn open_gpu() -> crate::error::Result<Gpu> {
+    Gpu::new().map_err(|e| crate::error::Error::from(e).context("opening the adapter"))
+}
+
+/// train(recordings, calibration, out, config=None, variant=None, max_epochs=None,
+///       patience=None, graph=None, robot=None, resume=None, progress=None) -> dict
+///
+/// Trains a model on `recordings` (labels: residuals under `calibration`) with the run
+/// config `config` (TOML; the paper's values without one) and writes its checkpoint to
+/// `out` (plus the training log and resumable state beside it). Returns the best
+/// validation loss, its epoch, the epochs run, why it stopped, the history and the
+/// test-split metrics per recording.
+#[pyfunction(name = "train")]
+#[pyo3(signature = (recordings, calibration, out, config=None, variant=None, max_epochs=None, patience=None, graph=None, robot=None, resume=None, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn train_model<'py>(
+    py: Python<'py>,
+    recordings: Vec<PathBuf>,
+    calibration: PathBuf,
+    out: PathBuf,
+    config: Option<PathBuf>,
+    variant: Option<String>,
+    max_epochs: Option<usize>,
+    patience: Option<usize>,
+    graph: Option<PathBuf>,
+    robot: Option<PathBuf>,
+    resume: Option<PathBuf>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let sources = sources(recordings, calibration, graph, robot);
+    let trained = long_call(py, progress, |r| {
+        let mut config = RunConfig::read(config.as_deref(), variant.as_deref())?;
+        if let Some(n) = max_epochs {
+            config.train.max_epochs = n;
+        }
+        if let Some(n) = patience {
+            config.train.patience = n;
+        }
+        config.validate().map_err(crate::error::Error::Invalid)?;
+        let (graph, data) = build_dataset(&sources, &config, None)?;
+        r.note(data.summary().trim_end());
+        let gpu = open_gpu()?;
+        train::train(&gpu, &data, &graph, &config, &out, resume.as_deref(), r)
+    })?;
+    to_python(py, &trained)
+}
+
+/// refine(recordings, calibration, model, out, config=None, graph=None, robot=None,
+///        progress=None) -> dict
+///
+/// The refinement stages (Algorithm 2) of the checkpoint `model` on `recordings`,
+/// written to `out`. Returns the verdict, the validation loss of the core stage and of
+/// the refined model, whether the core weights were kept, and the test metrics before
+/// and after.
+#[pyfunction(name = "refine")]
+#[pyo3(signature = (recordings, calibration, model, out, config=None, graph=None, robot=None, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn refine_model<'py>(
+    py: Python<'py>,
+    recordings: Vec<PathBuf>,
+    calibration: PathBuf,
+    model: PathBuf,
+    out: PathBuf,
+    config: Option<PathBuf>,
+    graph: Option<PathBuf>,
+    robot: Option<PathBuf>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let sources = sources(recordings, calibration, graph, robot);
+    #[derive(Serialize)]
+    struct Result {
+        verdict: String,
+        core_validation_loss: f64,
+        refined_validation_loss: f64,
+        kept_core: bool,
+        test_before: Vec<train::TestMetrics>,
+        test_after: Vec<train::TestMetrics>,
+    }
+    let result = long_call(py, progress, |r| {
+        let ck = Checkpoint::load(&model)?;
+        let mut config = RunConfig::read(config.as_deref(), None)?;
+        config.model = ck.config.clone();
+        let fixed = train::data_normalization(&ck.normalization).ok_or_else(|| {
+            crate::error::Error::Invalid(format!(
+                "{}: the checkpoint's normalisation is not N×3 features and 6 labels",
+                model.display()
+            ))
+        })?;
+        let (graph, data) = build_dataset(&sources, &config, Some(&fixed))?;
+        let gpu = open_gpu()?;
+        let refined = train::refine(&gpu, &data, &graph, &config, &ck.parameters, r)?;
+        refined.save(&ck, &out)?;
+        Ok(Result {
+            verdict: refined.verdict(),
+            core_validation_loss: refined.core_val,
+            refined_validation_loss: refined.refined_val,
+            kept_core: refined.kept_core,
+            test_before: refined.metrics_before,
+            test_after: refined.metrics_after,
+        })
+    })?;
+    to_python(py, &result)
+}
+
+/// evaluate(models, recordings, calibration, out, config=None, held_out_minutes=None,
+///          held_out_seed=None, graph=None, progress=None) -> dict
+///
+/// Tables III and V for the checkpoints `models`: each on the test split of
+/// `recordings`, and compensating a held-out session of the twin online (runs of
+/// `held_out_minutes`, default 0.5), scored against the hidden truth and the tracker.
+/// Writes the report folder `out` (report.md, CSVs, PNGs). Returns the rows of both
+/// tables, the timings and the report's path.
+#[pyfunction(name = "evaluate")]
+#[pyo3(signature = (models, recordings, calibration, out, config=None, held_out_minutes=None, held_out_seed=None, graph=None, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn evaluate_models<'py>(
+    py: Python<'py>,
+    models: Vec<PathBuf>,
+    recordings: Vec<PathBuf>,
+    calibration: PathBuf,
+    out: PathBuf,
+    config: Option<PathBuf>,
+    held_out_minutes: Option<f64>,
+    held_out_seed: Option<u64>,
+    graph: Option<PathBuf>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let sources = sources(recordings, calibration, graph, None);
+    let mut held = HeldOutConfig::default();
+    if let Some(m) = held_out_minutes {
+        held.minutes = m;
+    }
+    if let Some(s) = held_out_seed {
+        held.seed = s;
+    }
+    #[derive(Serialize)]
+    struct Result {
+        table_iii: Vec<crate::experiment::report::TableIIIRow>,
+        table_v: Vec<crate::experiment::report::TableVRow>,
+        timings: Vec<crate::experiment::report::Timing>,
+        report: PathBuf,
+    }
+    let result = long_call(py, progress, |r| {
+        let config = RunConfig::read(config.as_deref(), None)?;
+        std::fs::create_dir_all(&out).map_err(|e| crate::error::Error::io(&out, e))?;
+        let gpu = Arc::new(open_gpu()?);
+        let report = crate::experiment::demo::evaluation_report(
+            gpu, &models, &sources, &config, &held, &out, r,
+        )?;
+        Ok(Result {
+            table_iii: report.table_iii,
+            table_v: report.table_v,
+            timings: report.timings,
+            report: out.join("report.md"),
+        })
+    })?;
+    to_python(py, &result)
+}
+
+/// The native module; `iastgcn/__init__.py` re-exports it with its docs.
+#[pymodule]
+fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add("Error", m.py().get_type::<Error>())?;
+    m.add_class::<PyPredictor>()?;
+    m.add_function(wrap_pyfunction!(record_data, m)?)?;
+    m.add_function(wrap_pyfunction!(calibrate, m)?)?;
+    m.add_function(wrap_pyfunction!(calibrate_arm, m)?)?;
+    m.add_function(wrap_pyfunction!(train_model, m)?)?;
+    m.add_function(wrap_pyfunction!(refine_model, m)?)?;
+    m.add_function(wrap_pyfunction!(evaluate_models, m)?)?;
+    Ok(())
+}

@@ -1,0 +1,334 @@
+//! The C ABI (src/embed/c_api.rs): the checked-in header is what cbindgen makes of the
+//! source; the C controller example compiles against it, links the library this test
+//! run built, and prints the Rust example's lines bit for bit; and the functions refuse
+//! bad input with a status and a message instead of crashing.
+
+mod common;
+
+use std::ffi::{c_char, CStr, CString};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use iastgcn::embed::c_api::*;
+
+/// What a program linking `libiastgcn.a` adds (rustc's `--print native-static-libs` on
+/// Linux; docs/embedding.md "C").
+const STATIC_LIBS: &str = "-lgcc_s -lutil -lrt -lpthread -lm -ldl -lc";
+
+fn root() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The profile folder this test was built into (`target/debug`): `cargo test` builds
+/// the cdylib into its `deps/` and the examples into its `examples/`.
+fn profile_dir() -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    exe.parent().and_then(Path::parent).unwrap().to_path_buf()
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("iastgcn-c-abi-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// A freshly initialised checkpoint of the demo's shape, with statistics that are not
+/// the identity (so that the standardisation of inputs and outputs is exercised); the
+/// pytest suite makes the same one (python/tests/conftest.py).
+fn checkpoint(dir: &Path) -> PathBuf {
+    let out = dir.join("model.safetensors");
+    let config = root().join("assets/demo.toml");
+    common::cli(&[
+        "init",
+        "--config",
+        config.to_str().unwrap(),
+        "--seed",
+        "5",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let mut ck = iastgcn::model::Checkpoint::load(&out).unwrap();
+    let nz = &mut ck.normalization;
+    for (n, (mean, std)) in nz
+        .feature_mean
+        .iter_mut()
+        .zip(&mut nz.feature_std)
+        .enumerate()
+    {
+        *mean = vec![20.0 + n as f64, 0.001, 0.5];
+        *std = vec![0.3, 0.01, 0.2];
+    }
+    nz.label_mean = vec![5.0, -3.0, 2.0, 1.0, -1.0, 0.5];
+    nz.label_std = vec![30.0, 20.0, 10.0, 5.0, 4.0, 3.0];
+    ck.save(&out).unwrap();
+    out
+}
+
+/// The header cbindgen generates from the source now.
+fn generated_header() -> String {
+    let config = cbindgen::Config::from_file(root().join("cbindgen.toml")).unwrap();
+    let mut bytes = Vec::new();
+    cbindgen::Builder::new()
+        .with_config(config)
+        .with_src(root().join("src/embed/c_api.rs"))
+        .generate()
+        .expect("cbindgen")
+        .write(&mut bytes);
+    String::from_utf8(bytes).unwrap()
+}
+
+#[test]
+fn checked_in_header_is_what_cbindgen_generates() {
+    let path = root().join("include/iastgcn.h");
+    let fresh = generated_header();
+    if std::env::var_os("IASTGCN_WRITE_HEADER").is_some() {
+        std::fs::write(&path, &fresh).unwrap();
+    }
+    let checked_in = std::fs::read_to_string(&path).unwrap_or_default();
+    assert!(
+        checked_in == fresh,
+        "include/iastgcn.h is stale: src/embed/c_api.rs changed; run `make header` and \
+         commit the result"
+    );
+}
+
+#[test]
+fn c_controller_example_prints_the_rust_examples_residuals() {
+    let dir = scratch("example");
+    let model = checkpoint(&dir);
+    // The cdylib built with this test binary (uplifted copies in the profile folder may
+    // be older).
+    let lib_dir = profile_dir().join("deps");
+    let library = lib_dir.join("libiastgcn.so");
+    assert!(
+        library.exists(),
+        "{} is missing: `cargo test` builds the cdylib beside the test binaries",
+        library.display()
+    );
+    let rust_example = profile_dir().join("examples/controller");
+    assert!(
+        rust_example.exists(),
+        "{} is missing: `cargo test` builds the examples (or `cargo build --example controller`)",
+        rust_example.display()
+    );
+    // Linked against the shared library, and against the static one with the system
+    // libraries docs/embedding.md lists.
+    let exe = dir.join("controller");
+    let exe_static = dir.join("controller-static");
+    let cc = std::env::var("CC").unwrap_or_else(|_| "cc".into());
+    let compile = |out: &Path, link: &[String]| {
+        let compiled = Command::new(&cc)
+            .args([
+                "-std=c99",
+                "-Wall",
+                "-Wextra",
+                "-Werror",
+                "-ffp-contract=off",
+                "-I",
+            ])
+            .arg(root().join("include"))
+            .arg(root().join("examples/c/controller.c"))
+            .args(link)
+            .arg("-o")
+            .arg(out)
+            .output()
+            .unwrap_or_else(|e| panic!("running {cc}: {e} (a C compiler is needed here)"));
+        assert!(
+            compiled.status.success(),
+            "compiling examples/c/controller.c with {link:?}:\n{}",
+            String::from_utf8_lossy(&compiled.stderr)
+        );
+    };
+    compile(
+        &exe,
+        &[
+            format!("-L{}", lib_dir.display()),
+            "-liastgcn".into(),
+            format!("-Wl,-rpath,{}", lib_dir.display()),
+            "-lm".into(),
+        ],
+    );
+    let mut static_link = vec![lib_dir.join("libiastgcn.a").display().to_string()];
+    static_link.extend(STATIC_LIBS.split(' ').map(String::from));
+    compile(&exe_static, &static_link);
+    let run = |program: &Path| {
+        // cargo's LD_LIBRARY_PATH would outrank the rpath: the library must be this run's.
+        let o = Command::new(program)
+            .env_remove("LD_LIBRARY_PATH")
+            .arg(&model)
+            .arg("70")
+            .output()
+            .unwrap_or_else(|e| panic!("{}: {e}", program.display()));
+        assert!(
+            o.status.success(),
+            "{} failed:\n{}",
+            program.display(),
+            String::from_utf8_lossy(&o.stderr)
+        );
+        String::from_utf8(o.stdout).unwrap()
+    };
+    let rust = run(&rust_example);
+    let c = run(&exe);
+    // Demo shape: T = 48, so ticks 47..69 predict.
+    assert_eq!(rust.lines().count(), 1 + 23, "{rust}");
+    assert_eq!(c, rust, "the C example's residuals differ from Rust's");
+    assert_eq!(run(&exe_static), rust, "statically linked, they differ");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+fn last_error() -> String {
+    // SAFETY: the library returns a NUL-terminated string valid until the next failure.
+    unsafe { CStr::from_ptr(iastgcn_last_error()) }
+        .to_string_lossy()
+        .into_owned()
+}
+
+fn load(path: &Path, dt: f64) -> (IastgcnStatus, *mut IastgcnPredictor) {
+    let path = CString::new(path.to_str().unwrap()).unwrap();
+    let mut p = std::ptr::null_mut();
+    // SAFETY: a valid string and out pointer.
+    let s = unsafe { iastgcn_predictor_load(path.as_ptr(), dt, IastgcnBackend::Native, &mut p) };
+    (s, p)
+}
+
+#[test]
+fn bad_input_is_refused_with_a_status_and_a_message() {
+    let dir = scratch("errors");
+    // A missing file: an engine error naming it, and no handle.
+    let (s, p) = load(&dir.join("missing.safetensors"), 0.02);
+    assert_eq!(s, IastgcnStatus::Error);
+    assert!(p.is_null());
+    assert!(
+        last_error().contains("missing.safetensors"),
+        "{}",
+        last_error()
+    );
+    // NULL arguments.
+    let mut out = std::ptr::null_mut();
+    // SAFETY: NULL is what is being tested; the out pointer is valid.
+    let s =
+        unsafe { iastgcn_predictor_load(std::ptr::null(), 0.02, IastgcnBackend::Native, &mut out) };
+    assert_eq!(s, IastgcnStatus::InvalidArgument);
+    assert!(last_error().contains("path is NULL"));
+    let model = checkpoint(&dir);
+    let (s, _) = load(&model, -1.0);
+    assert_eq!(s, IastgcnStatus::InvalidArgument);
+    assert!(last_error().contains("dt"), "{}", last_error());
+
+    let (s, p) = load(&model, 0.02);
+    assert_eq!(s, IastgcnStatus::Ok, "{}", last_error());
+    let (mut n, mut f, mut t) = (0usize, 0usize, 0usize);
+    // SAFETY: a live handle and writable outputs.
+    unsafe { iastgcn_predictor_shape(p, &mut n, &mut f, &mut t) };
+    assert_eq!((n, f, t), (14, 3, 48));
+    // SAFETY: a live handle.
+    let name = unsafe { CStr::from_ptr(iastgcn_predictor_node_name(p, 0)) };
+    assert_eq!(name.to_str().unwrap(), "E1");
+    // SAFETY: a live handle; an index out of range is what is tested.
+    assert!(unsafe { iastgcn_predictor_node_name(p, 14) }.is_null());
+    let mut r = [0.0f64; 6];
+    // Nothing pushed yet: not ready, and `r` untouched.
+    // SAFETY: a live handle and 6 doubles.
+    let s = unsafe { iastgcn_predictor_predict_latest(p, r.as_mut_ptr()) };
+    assert_eq!(s, IastgcnStatus::NotReady);
+    // A frame of the wrong length names both lengths.
+    let frame = [1.0f64; 13];
+    // SAFETY: a live handle and 13 doubles.
+    let s = unsafe { iastgcn_predictor_push(p, frame.as_ptr(), frame.len()) };
+    assert_eq!(s, IastgcnStatus::InvalidArgument);
+    assert!(
+        last_error().contains("14") && last_error().contains("13"),
+        "{}",
+        last_error()
+    );
+    // SAFETY: NULL frame is what is tested.
+    let s = unsafe { iastgcn_predictor_push(p, std::ptr::null(), 14) };
+    assert_eq!(s, IastgcnStatus::InvalidArgument);
+    // A window of the wrong length.
+    let window = [0.0f32; 10];
+    // SAFETY: a live handle, 10 floats and 6 doubles.
+    let s = unsafe { iastgcn_predictor_predict(p, window.as_ptr(), 10, r.as_mut_ptr()) };
+    assert_eq!(s, IastgcnStatus::InvalidArgument);
+    assert!(last_error().contains("2016"), "{}", last_error());
+    // A batch whose output is too short.
+    let windows = vec![0.0f32; 2 * 14 * 3 * 48];
+    // SAFETY: a live handle, the floats and 6 doubles (fewer than needed: tested).
+    let s = unsafe {
+        iastgcn_predictor_predict_batch(p, windows.as_ptr(), windows.len(), r.as_mut_ptr(), 6)
+    };
+    assert_eq!(s, IastgcnStatus::InvalidArgument);
+    assert!(last_error().contains("12 doubles"), "{}", last_error());
+    // SAFETY: a live handle, freed once.
+    unsafe { iastgcn_predictor_free(p) };
+
+    // Loaded without dt: features only.
+    let (s, p) = load(&model, 0.0);
+    assert_eq!(s, IastgcnStatus::Ok);
+    let frame = [1.0f64; 14];
+    // SAFETY: a live handle and 14 doubles.
+    let s = unsafe { iastgcn_predictor_push(p, frame.as_ptr(), 14) };
+    assert_eq!(s, IastgcnStatus::InvalidArgument);
+    assert!(
+        last_error().contains("without a control period"),
+        "{}",
+        last_error()
+    );
+    // SAFETY: a live handle, freed once; then NULL, which is ignored.
+    unsafe {
+        iastgcn_predictor_free(p);
+        iastgcn_predictor_free(std::ptr::null_mut());
+    }
+    // SAFETY: NULL handles are refused, not dereferenced.
+    unsafe {
+        assert_eq!(
+            iastgcn_predictor_reset(std::ptr::null_mut()),
+            IastgcnStatus::InvalidArgument
+        );
+        assert_eq!(iastgcn_predictor_is_native(std::ptr::null_mut()), -1);
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Features pushed through the C ABI and whole windows give the Rust predictor's
+/// residuals, and batches agree with single windows.
+#[test]
+fn feature_windows_and_batches_match_the_rust_predictor() {
+    use iastgcn::model::{Checkpoint, Features, Predictor};
+    let dir = scratch("windows");
+    let model = checkpoint(&dir);
+    let ck = Checkpoint::load(&model).unwrap();
+    let mut rust = Predictor::native(&ck).unwrap();
+    let len = rust.window_len();
+    let windows: Vec<f32> = (0..3 * len)
+        .map(|i| ((i * 37) % 101) as f32 / 50.0 - 1.0)
+        .collect();
+    let mut expected = Vec::new();
+    rust.predict_batch(&windows, Features::Raw, &mut expected)
+        .unwrap();
+
+    let (s, p) = load(&model, 0.0);
+    assert_eq!(s, IastgcnStatus::Ok);
+    let mut out = vec![0.0f64; 18];
+    // SAFETY: a live handle, 3 windows and 18 doubles.
+    let s = unsafe {
+        iastgcn_predictor_predict_batch(p, windows.as_ptr(), windows.len(), out.as_mut_ptr(), 18)
+    };
+    assert_eq!(s, IastgcnStatus::Ok, "{}", last_error());
+    let flat: Vec<f64> = expected.iter().flatten().copied().collect();
+    assert_eq!(out, flat);
+    let mut one = [0.0f64; 6];
+    // SAFETY: a live handle, one window and 6 doubles.
+    let s = unsafe { iastgcn_predictor_predict(p, windows[len..].as_ptr(), len, one.as_mut_ptr()) };
+    assert_eq!(s, IastgcnStatus::Ok);
+    assert_eq!(one, expected[1]);
+    // SAFETY: a live handle, freed once.
+    unsafe { iastgcn_predictor_free(p) };
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn version_is_the_crates() {
+    // SAFETY: a static NUL-terminated string.
+    let v = unsafe { CStr::from_ptr(iastgcn_version() as *const c_char) };
+    assert_eq!(v.to_str().unwrap(), env!("CARGO_PKG_VERSION"));
+}
