@@ -599,6 +599,23 @@ fn evaluate_refuses_bad_input_before_training() {
             .collect(),
             vec!["--targets is for a serial arm", "--robot"],
         ),
+        (
+            [
+                "evaluate",
+                "--data",
+                &grid,
+                "--calibration",
+                &cal,
+                "--models",
+                &ck,
+                "--seeds",
+                "1,2",
+            ]
+            .map(|x| x.to_string())
+            .to_vec(),
+            vec!["--seeds is for a serial arm", "--robot"],
+        ),
+        (on_arm(&["--seeds", "1,1"]), vec!["seed 1 is listed twice"]),
     ] {
         let began = std::time::Instant::now();
         let o = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
@@ -795,7 +812,7 @@ fn simulate_and_calibrate_from_the_command_line() {
 #[test]
 fn residual_models_learn_what_calibration_leaves_on_held_out_poses() {
     use iastgcn::data::arm_poses::ArmTargets;
-    use iastgcn::experiment::arm::{arm_run_config, corrected_targets, evaluate_arm};
+    use iastgcn::experiment::arm::{arm_run_config, corrected_targets, evaluate_arm, ArmRow};
     use iastgcn::model::Variant;
     // A twin whose non-geometric error is gear backlash: it depends on the direction
     // each joint came from, which no geometric model can express and the pose history
@@ -830,6 +847,7 @@ fn residual_models_learn_what_calibration_leaves_on_held_out_poses() {
         &[],
         &config,
         &[Variant::Iastgcn, Variant::Erc],
+        &[config.train.seed],
         None,
         &dir,
         &mut iastgcn::progress::Silent,
@@ -856,6 +874,67 @@ fn residual_models_learn_what_calibration_leaves_on_held_out_poses() {
     let mut better = result.clone();
     better.validation_um[2].1 = 0.5 * cal_um.1.min(better.validation_um[1].1);
     assert_eq!(better.recommended().map(|r| r.0.as_str()), Some("erc"));
+    // With several seeds a model is chosen on its mean over seeds, and its seed with the
+    // least validation error gives the weights; the table has one row per model.
+    let mut seeded = result.clone();
+    let relabel = |label: &str, seed: u64| format!("{label}.seed{seed}");
+    let (mut um, mut rows, mut checkpoints) =
+        (vec![seeded.validation_um[0].clone()], vec![], vec![]);
+    for (i, (label, v)) in seeded.validation_um.iter().enumerate().skip(1) {
+        for (seed, scale) in [(1, 1.0), (2, 0.9)] {
+            um.push((relabel(label, seed), v * scale));
+            checkpoints.push((relabel(label, seed), seeded.checkpoints[i - 1].1.clone()));
+        }
+    }
+    for r in &seeded.rows {
+        if ["initial", "calibrated", "training mean"].contains(&r.model.as_str()) {
+            rows.push(r.clone());
+            continue;
+        }
+        for (seed, scale) in [(1, 1.0), (2, 3.0)] {
+            let errors_mm = r.errors_mm.iter().map(|e| e * scale).collect();
+            rows.push(ArmRow {
+                model: relabel(&r.model, seed),
+                errors_mm,
+            });
+        }
+    }
+    (seeded.validation_um, seeded.rows, seeded.checkpoints) = (um, rows, checkpoints);
+    assert_eq!(seeded.seeds(), 2);
+    let by_model = seeded.validation_by_model();
+    assert_eq!(by_model.len(), 2);
+    assert!((by_model[0].1 - 0.95 * result.validation_um[1].1).abs() < 1e-9);
+    if let Some((name, _)) = seeded.recommended() {
+        assert!(name.ends_with(".seed2"), "{name}");
+    }
+    let table = seeded.markdown();
+    assert!(table.contains("± SD over 2 seeds"), "{table}");
+    let iastgcn_row = table
+        .lines()
+        .find(|l| l.starts_with("| iastgcn |"))
+        .unwrap();
+    let single = mean(
+        &result
+            .rows
+            .iter()
+            .find(|r| r.model == "iastgcn")
+            .unwrap()
+            .errors_mm,
+    );
+    // Seeds 1 and 2 leave 1× and 3× the error: mean 2×, sample SD √2×.
+    let expected = format!("{:.1} ± {:.1}", 2e3 * single, 2f64.sqrt() * 1e3 * single);
+    assert!(
+        iastgcn_row.contains(&expected),
+        "{iastgcn_row} vs {expected}"
+    );
+    assert_eq!(
+        seeded
+            .csv()
+            .lines()
+            .filter(|l| l.starts_with("iastgcn,2,"))
+            .count(),
+        1
+    );
     assert!(
         result.test_poses.iter().all(|&(_, p)| p >= 900),
         "{:?}",

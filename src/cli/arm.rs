@@ -197,6 +197,7 @@ pub fn evaluate(
         &tests,
         &config,
         &variants,
+        args.seeds.as_deref().unwrap_or(&[config.train.seed]),
         targets.as_ref(),
         &args.out,
         &mut super::Console::default(),

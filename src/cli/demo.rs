@@ -107,6 +107,11 @@ pub struct EvaluateArgs {
     /// (they serve nothing else: not the calibration, early stopping or model choice).
     #[arg(long, num_args = 1..)]
     pub test: Vec<PathBuf>,
+    /// A serial arm's training seeds, comma-separated: every model is trained with each
+    /// and the table gives mean ± SD over them (default: the config's `[train] seed`
+    /// alone).
+    #[arg(long, value_delimiter = ',')]
+    pub seeds: Option<Vec<u64>>,
     /// The models to train on a serial arm's residuals, comma-separated.
     #[arg(long, default_value_t = iastgcn::experiment::arm::ARM_MODELS.map(iastgcn::model::Variant::name).join(","))]
     pub train_models: String,
@@ -152,6 +157,10 @@ pub fn evaluate(gpu: Gpu, args: &EvaluateArgs) -> anyhow::Result<()> {
     anyhow::ensure!(
         args.targets.is_none(),
         "--targets is for a serial arm's corrected joint targets: give its description in --robot"
+    );
+    anyhow::ensure!(
+        args.seeds.is_none(),
+        "--seeds is for a serial arm's residual models, trained here: give its description in --robot (the hybrid machine's evaluation scores the checkpoints of --models; `demo` and `reproduce` train over seeds)"
     );
     anyhow::ensure!(
         args.test.is_empty(),

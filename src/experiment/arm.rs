@@ -11,6 +11,7 @@ use std::sync::Arc;
 
 use super::evaluate::predict_windows;
 use super::protocol::{fit_model, ModelFiles};
+use super::report::seeds::{split_name, Spread};
 use crate::calibrate::arm::{
     arm_position_errors, calibrate_arm, ArmCalibration, ArmCalibrationConfig,
 };
@@ -87,34 +88,71 @@ impl ArmEvaluation {
     /// beats calibration alone on validation (then none should be used). Chosen on
     /// validation, never on test.
     pub fn recommended(&self) -> Option<&(String, Checkpoint)> {
-        let (calibrated, models) = self.validation_um.split_first()?;
-        let best = models.iter().min_by(|a, b| a.1.total_cmp(&b.1))?;
-        if best.1 >= calibrated.1 {
+        let (calibrated, _) = self.validation_um.split_first()?;
+        let (model, um) = self
+            .validation_by_model()
+            .into_iter()
+            .min_by(|a, b| a.1.total_cmp(&b.1))?;
+        if um >= calibrated.1 {
             return None;
         }
+        // The model's seed with the least error on validation.
+        let best = self.validation_um[1..]
+            .iter()
+            .filter(|(label, _)| split_name(label).0 == model)
+            .min_by(|a, b| a.1.total_cmp(&b.1))?;
         self.checkpoints.iter().find(|(n, _)| *n == best.0)
+    }
+
+    /// Each model's mean position error left on the validation windows (µm), averaged
+    /// over its seeds, in training order.
+    pub fn validation_by_model(&self) -> Vec<(String, f64)> {
+        let mut out: Vec<(String, Vec<f64>)> = Vec::new();
+        for (label, um) in self.validation_um.iter().skip(1) {
+            let model = split_name(label).0;
+            match out.iter_mut().find(|(m, _)| m == model) {
+                Some((_, v)) => v.push(*um),
+                None => out.push((model.to_string(), vec![*um])),
+            }
+        }
+        out.into_iter()
+            .map(|(m, v)| (m, v.iter().sum::<f64>() / v.len() as f64))
+            .collect()
     }
 
     /// The report's sentence on which model to use, and why.
     pub fn recommendation(&self) -> String {
-        let Some((calibrated, models)) = self.validation_um.split_first() else {
+        let Some((calibrated, _)) = self.validation_um.split_first() else {
             return String::new();
         };
-        let each: Vec<String> = models
+        let seeds = self.seeds();
+        let each: Vec<String> = self
+            .validation_by_model()
             .iter()
             .map(|(m, um)| format!("{m} {um:.1}"))
             .collect();
+        let over = if seeds > 1 {
+            format!(" (each model: mean over its {seeds} training seeds)")
+        } else {
+            String::new()
+        };
         let head = format!(
-            "Mean position error left on the validation windows (µm): calibration alone \
-             {:.1}; {}.",
+            "Mean position error left on the validation windows (µm){over}: calibration \
+             alone {:.1}; {}.",
             calibrated.1,
             each.join(", ")
         );
         match self.recommended() {
             Some((name, _)) => format!(
-                "{head} Recommended: **{name}**, the model that leaves the least error on \
+                "{head} Recommended: **{}**, the model that leaves the least error on \
                  validation and less than calibration alone (chosen on validation, not on \
-                 the test poses)."
+                 the test poses){}.",
+                split_name(name).0,
+                if seeds > 1 {
+                    format!("; its weights: `{name}`, its seed with the least error there")
+                } else {
+                    String::new()
+                }
             ),
             None => format!(
                 "{head} Recommended: **no residual model**: none leaves less error on \
@@ -122,6 +160,13 @@ impl ArmEvaluation {
                  (the table still shows every model on the test poses)."
             ),
         }
+    }
+
+    /// Training seeds per learned model (1 when the labels carry none).
+    pub fn seeds(&self) -> usize {
+        let labels = || self.validation_um.iter().skip(1);
+        let models = self.validation_by_model().len().max(1);
+        labels().count().max(1) / models
     }
 
     /// Each row's name, number of test poses and summary in µm.
@@ -132,24 +177,50 @@ impl ArmEvaluation {
         })
     }
 
-    /// The table as Markdown: mean, SD and max position error (µm) on the test poses.
+    /// The table as Markdown: mean, SD and max position error (µm) on the test poses. A
+    /// model trained with several seeds has one row: the mean over seeds of its mean
+    /// error ± their SD, the mean of its SDs over the poses, and the largest error of any
+    /// seed.
     pub fn markdown(&self) -> String {
-        let mut out = String::from("| model | mean µm | SD µm | max µm |\n|---|---|---|---|\n");
-        for (model, _, s) in self.summaries() {
-            out.push_str(&format!(
-                "| {model} | {:.1} | {:.1} | {:.1} |\n",
-                s.mean, s.sd, s.max
-            ));
+        let seeds = self.seeds();
+        let mut out = if seeds > 1 {
+            format!(
+                "| model | mean µm (± SD over {seeds} seeds) | SD µm | max µm |\n|---|---|---|---|\n"
+            )
+        } else {
+            String::from("| model | mean µm | SD µm | max µm |\n|---|---|---|---|\n")
+        };
+        let mut groups: Vec<(&str, Vec<Summary>)> = Vec::new();
+        for (label, _, s) in self.summaries() {
+            let model = split_name(label).0;
+            match groups.iter_mut().find(|(m, _)| *m == model) {
+                Some((_, v)) => v.push(s),
+                None => groups.push((model, vec![s])),
+            }
+        }
+        for (model, runs) in groups {
+            let means = Spread::of(&runs.iter().map(|s| s.mean).collect::<Vec<_>>());
+            let sd = runs.iter().map(|s| s.sd).sum::<f64>() / runs.len() as f64;
+            let max = runs.iter().map(|s| s.max).fold(f64::MIN, f64::max);
+            let cell = if runs.len() > 1 {
+                means.text(1)
+            } else {
+                format!("{:.1}", means.mean)
+            };
+            out.push_str(&format!("| {model} | {cell} | {sd:.1} | {max:.1} |\n"));
         }
         out
     }
 
-    /// The table as CSV (`model,mean_um,sd_um,max_um,poses`).
+    /// The table as CSV (`model,seed,mean_um,sd_um,max_um,poses`), one row per model and
+    /// seed (`seed` empty for the stages without training).
     pub fn csv(&self) -> String {
-        let mut out = String::from("model,mean_um,sd_um,max_um,poses\n");
-        for (model, n, s) in self.summaries() {
+        let mut out = String::from("model,seed,mean_um,sd_um,max_um,poses\n");
+        for (label, n, s) in self.summaries() {
+            let (model, seed) = split_name(label);
+            let seed = seed.map_or(String::new(), |k| k.to_string());
             out.push_str(&format!(
-                "{model},{:.3},{:.3},{:.3},{n}\n",
+                "{model},{seed},{:.3},{:.3},{:.3},{n}\n",
                 s.mean, s.sd, s.max
             ));
         }
@@ -173,7 +244,9 @@ pub fn test_windows(poses: usize, window: &crate::data::WindowConfig) -> usize {
 }
 
 /// Calibrates `nominal` on the training blocks of `files`, trains `variants` on the
-/// calibrated residuals with `config` (checkpoints, logs and plots into `out/models`),
+/// calibrated residuals with `config`, once per training seed of `seeds` (checkpoints,
+/// logs and plots into `out/models`, named `<model>.seed<k>` when there are several
+/// seeds),
 /// and scores the test blocks. With `tests` (separate pose files), `files` are cut into
 /// 80/20 % training and validation blocks only, and every window of the test files is
 /// scored instead: they serve nothing else (not the calibration, its registration, early
@@ -188,11 +261,13 @@ pub fn evaluate_arm(
     tests: &[(String, ArmPoses)],
     config: &RunConfig,
     variants: &[Variant],
+    seeds: &[u64],
     targets: Option<&ArmTargets>,
     out: &Path,
     reporter: &mut dyn Reporter,
 ) -> Result<ArmEvaluation> {
     config.validate().map_err(Error::Invalid)?;
+    super::protocol::check_seeds(seeds)?;
     if targets.is_some() && variants.is_empty() {
         return Err(Error::Invalid(
             "corrected targets need a model: the list of models to train is empty".into(),
@@ -357,26 +432,36 @@ pub fn evaluate_arm(
     let mut validation_um = vec![("calibrated".to_string(), left_on_validation(&|_| [0.0; 6]))];
     let mut checkpoints = Vec::new();
     for &variant in variants {
-        let mut c = config.clone();
-        c.model.variant = variant;
-        c.model.nodes = graph.len();
-        // The offline baselines read the arm's joints (the graph's first nodes).
-        c.model.joint_inputs = nominal.spec.joint.iter().map(|j| j.name.clone()).collect();
-        let name = variant.name();
-        reporter.note(&format!("== {name} on the calibrated residuals"));
-        let files = ModelFiles::named(&model_dir, name, false);
-        let fitted = fit_model(gpu, &data, &graph, &c, name, &files, reporter)?;
-        let predicted = predict_windows(gpu, &fitted.model.checkpoint, scored, &positions)?;
-        rows.push(ArmRow {
-            model: name.to_string(),
-            errors_mm: left(&|k| predicted[k]),
-        });
-        validation.push((name.to_string(), fitted.best_val, fitted.best_epoch));
-        let on_validation = predict_windows(gpu, &fitted.model.checkpoint, &data, &val_positions)?;
-        let um = left_on_validation(&|k| on_validation[k]);
-        validation_um.push((name.to_string(), um));
-        predictions.push((name.to_string(), predicted));
-        checkpoints.push((name.to_string(), fitted.model.checkpoint));
+        for &seed in seeds {
+            let mut c = config.clone();
+            c.model.variant = variant;
+            c.model.nodes = graph.len();
+            c.train.seed = seed;
+            // The offline baselines read the arm's joints (the graph's first nodes).
+            c.model.joint_inputs = nominal.spec.joint.iter().map(|j| j.name.clone()).collect();
+            let name = if seeds.len() > 1 {
+                format!("{}.seed{seed}", variant.name())
+            } else {
+                variant.name().to_string()
+            };
+            reporter.note(&format!(
+                "== {name} on the calibrated residuals (seed {seed})"
+            ));
+            let files = ModelFiles::named(&model_dir, &name, false);
+            let fitted = fit_model(gpu, &data, &graph, &c, &name, &files, reporter)?;
+            let predicted = predict_windows(gpu, &fitted.model.checkpoint, scored, &positions)?;
+            rows.push(ArmRow {
+                model: name.clone(),
+                errors_mm: left(&|k| predicted[k]),
+            });
+            validation.push((name.clone(), fitted.best_val, fitted.best_epoch));
+            let on_validation =
+                predict_windows(gpu, &fitted.model.checkpoint, &data, &val_positions)?;
+            let um = left_on_validation(&|k| on_validation[k]);
+            validation_um.push((name.clone(), um));
+            predictions.push((name.clone(), predicted));
+            checkpoints.push((name, fitted.model.checkpoint));
+        }
     }
     let split_poses = [
         data.splits.train.len(),
