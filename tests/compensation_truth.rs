@@ -90,3 +90,73 @@ fn a_trained_model_beats_calibration_on_the_hidden_truth() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Two models that read different sensors (the paper's 14 nodes, and the same plus the
+/// polishing force F) compensate side by side, each reading its own checkpoint's
+/// channels: each one's row is what it gives alone.
+#[test]
+fn models_with_different_sensor_graphs_each_read_their_own_channels() {
+    let dir = std::env::temp_dir().join(format!("iastgcn-graphs-{}", std::process::id()));
+    let cal = common::calibration(&dir, 101);
+    let cal = cal.to_str().unwrap();
+    let f = |name: &str| dir.join(name).to_str().unwrap().to_string();
+    let root = env!("CARGO_MANIFEST_DIR");
+    let demo = std::fs::read_to_string(format!("{root}/assets/demo.toml")).unwrap();
+    std::fs::write(
+        f("f.toml"),
+        demo.replacen("[model]\n", "[model]\nnodes = 15\n", 1),
+    )
+    .unwrap();
+    let graph = std::fs::read_to_string(format!("{root}/assets/graph.toml"))
+        .unwrap()
+        .replacen("\"phiZ\"]", "\"phiZ\", \"F\"]", 1)
+        .replacen(
+            "edges = [",
+            "edges = [\n  [\"F\", \"phiX\"], [\"F\", \"Q5\"],",
+            1,
+        );
+    std::fs::write(f("graph-f.toml"), graph).unwrap();
+    cli(&[
+        "init",
+        "--config",
+        &format!("{root}/assets/demo.toml"),
+        "--out",
+        &f("paper.safetensors"),
+    ]);
+    cli(&[
+        "init",
+        "--config",
+        &f("f.toml"),
+        "--graph",
+        &f("graph-f.toml"),
+        "--out",
+        &f("force.safetensors"),
+    ]);
+    let run = |models: &[&str]| {
+        let mut args = vec!["compensate", "--calibration", cal, "--trajectory", "grid"];
+        args.extend([
+            "--minutes",
+            "0.2",
+            "--warm-up-minutes",
+            "0",
+            "--seed",
+            "301",
+        ]);
+        for m in models {
+            args.extend(["--model", m]);
+        }
+        cli(&args)
+    };
+    let row = |table: &str, model: &str| -> String {
+        table
+            .lines()
+            .find(|l| l.contains(model) && l.contains("truth"))
+            .unwrap_or_else(|| panic!("no {model} row in\n{table}"))
+            .to_string()
+    };
+    let (paper, force) = (f("paper.safetensors"), f("force.safetensors"));
+    let both = run(&[&paper, &force]);
+    assert_eq!(row(&both, "force"), row(&run(&[&force]), "force"));
+    assert_eq!(row(&both, "paper"), row(&run(&[&paper]), "paper"));
+    std::fs::remove_dir_all(&dir).ok();
+}

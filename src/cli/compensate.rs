@@ -104,11 +104,10 @@ pub fn run(gpu: Gpu, args: &CompensateArgs) -> anyhow::Result<()> {
             Ok((name, ck))
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let graph = checkpoints[0].1.graph.clone();
     let gpu = Arc::new(gpu);
     let mut models = predictors(&gpu, &checkpoints)?;
     // Where each model predicts: the native CPU forward on a CPU adapter, else the adapter.
-    let ran_on: Vec<String> = models.iter().map(|(_, p)| runs_on(&gpu, p)).collect();
+    let ran_on: Vec<String> = models.iter().map(|m| runs_on(&gpu, &m.predictor)).collect();
     let ticks = run.config().steps() * (3 + models.len());
     let mut console = Console::default();
     console.begin(
@@ -121,7 +120,6 @@ pub fn run(gpu: Gpu, args: &CompensateArgs) -> anyhow::Result<()> {
         &machine,
         &nominal,
         &calibrated,
-        &graph,
         window,
         &mut models,
         &run,

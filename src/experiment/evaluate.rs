@@ -97,9 +97,8 @@ pub fn table_v(
     machine: &Machine,
     nominal: &Robot,
     calibrated: &Robot,
-    graph: &Graph,
     window: usize,
-    models: &mut [(String, Predictor)],
+    models: &mut [LoopModel],
     run: &HeldOut,
     settings: Online,
     mut on_tick: impl FnMut(usize),
@@ -145,7 +144,12 @@ pub fn table_v(
         &mut on_tick,
     )?;
     rows.push(row("oracle", "true residual", &oracle));
-    for (model, predictor) in models.iter_mut() {
+    for LoopModel {
+        name: model,
+        predictor,
+        graph,
+    } in models.iter_mut()
+    {
         let r = online::run(
             machine,
             calibrated,
@@ -176,11 +180,28 @@ pub fn table_v(
 pub fn predictors(
     gpu: &Arc<Gpu>,
     models: &[(String, Checkpoint)],
-) -> Result<Vec<(String, Predictor)>, ModelError> {
+) -> Result<Vec<LoopModel>, ModelError> {
     models
         .iter()
-        .map(|(name, ck)| Ok((name.clone(), Predictor::new(gpu.clone(), ck, 1)?)))
+        .map(|(name, ck)| {
+            Ok(LoopModel {
+                name: name.clone(),
+                predictor: Predictor::new(gpu.clone(), ck, 1)?,
+                graph: ck.graph.clone(),
+            })
+        })
         .collect()
+}
+
+/// A model in the control loop: its name, its predictor, and the sensor graph its
+/// checkpoint reads (each model's own: two models may read different sensors).
+pub struct LoopModel {
+    /// The model's name in the tables.
+    pub name: String,
+    /// Its forward pass.
+    pub predictor: Predictor,
+    /// The sensor channels it reads, in its node order.
+    pub graph: Graph,
 }
 
 /// The held-out session of an evaluation (Table V): how long each run is, its seeds,
@@ -313,9 +334,9 @@ fn read_training_log(log: &std::path::Path) -> Option<(f64, String)> {
 /// Table III (each model on the test split of `sources`, windowed as `config` says and
 /// standardised with the model's own statistics) and Table V (every path of one held-out
 /// session in the twin, compensated by each model), with the Hilbert run's error budget,
-/// Fig. 11 traces and Fig. 10 timings, added to `report`. The first model gives the graph
-/// and window of the online runs; Fig. 11 shows the first model named `iastgcn` or
-/// `iastgcn.seed<k>` (or the first).
+/// Fig. 11 traces and Fig. 10 timings, added to `report`. Each model reads the sensors of
+/// its own checkpoint's graph online; the oracle runs at the first model's window; Fig.
+/// 11 shows the first model named `iastgcn` or `iastgcn.seed<k>` (or the first).
 pub fn evaluate(
     gpu: &Arc<Gpu>,
     report: &mut Report,
@@ -470,10 +491,10 @@ pub fn held_out_session(
     let machine = draw_machine(geometry.clone(), machine_seed);
     let nominal = Robot::nominal(geometry.clone());
     let calibrated = Robot::new(geometry, cal.errors);
-    let graph = first.graph.clone();
+    // The oracle stands in for a model of the first one's window.
     let window = first.config.window;
     let mut preds = predictors(gpu, models)?;
-    let ran_on: Vec<String> = preds.iter().map(|(_, p)| runs_on(gpu, p)).collect();
+    let ran_on: Vec<String> = preds.iter().map(|m| runs_on(gpu, &m.predictor)).collect();
     let mut latency = vec![(0.0, 0usize); models.len()];
     let mut session = Session {
         rows: Vec::new(),
@@ -522,7 +543,6 @@ pub fn held_out_session(
             &machine,
             &nominal,
             &calibrated,
-            &graph,
             window,
             &mut preds,
             &run,
