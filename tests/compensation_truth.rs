@@ -158,5 +158,37 @@ fn models_with_different_sensor_graphs_each_read_their_own_channels() {
     let both = run(&[&paper, &force]);
     assert_eq!(row(&both, "force"), row(&run(&[&force]), "force"));
     assert_eq!(row(&both, "paper"), row(&run(&[&paper]), "paper"));
+    // Table III windows the recordings with one graph: a model reading other sensors is
+    // refused by name rather than scored on the wrong channels.
+    let rec = f("grid.csv");
+    cli(&[
+        "simulate",
+        "--trajectory",
+        "grid",
+        "--minutes",
+        "0.5",
+        "--calibration",
+        cal,
+        "--out",
+        &rec,
+    ]);
+    let err = common::cli_fails(&[
+        "evaluate",
+        "--data",
+        &rec,
+        "--calibration",
+        cal,
+        "--models",
+        &paper,
+        &force,
+        "--config",
+        &format!("{root}/assets/demo.toml"),
+        "--out",
+        &f("report"),
+    ]);
+    assert!(
+        err.contains("force: the model reads the sensors") && err.contains("F"),
+        "{err}"
+    );
     std::fs::remove_dir_all(&dir).ok();
 }

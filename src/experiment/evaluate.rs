@@ -351,6 +351,7 @@ pub fn evaluate(
     };
     held.validate()?;
     reporter.note("== Table III: prediction accuracy on the held-out split");
+    let windowed = Graph::load_or_default(sources.graph.as_deref())?;
     let mut rows: Vec<TableIIIRow> = Vec::new();
     for (i, m) in models.iter().enumerate() {
         let mut c = config.clone();
@@ -361,6 +362,16 @@ pub fn evaluate(
                 m.name
             ))
         })?;
+        // The test windows are read with the sources' graph: a model that reads other
+        // sensors would be scored on the wrong channels.
+        if windowed.nodes != m.checkpoint.graph.nodes {
+            return Err(Error::Invalid(format!(
+                "{}: the model reads the sensors [{}], but the recordings are windowed with                  the graph [{}] (--graph); evaluate models with another sensor graph in a                  call of their own with their graph",
+                m.name,
+                m.checkpoint.graph.nodes.join(", "),
+                windowed.nodes.join(", ")
+            )));
+        }
         let (_, data) = build_dataset(sources, &c, Some(&fixed))?;
         let names: Vec<String> = data
             .recordings
