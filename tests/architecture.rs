@@ -80,26 +80,8 @@ const ALLOWED: &[(&str, &[&str])] = &[
             "error",
         ],
     ),
-    (
-        "embed",
-        &[
-            "experiment",
-            "compensate",
-            "twin",
-            "calibrate",
-            "data",
-            "train",
-            "model",
-            "gpu",
-            "graph",
-            "robot",
-            "plot",
-            "progress",
-            "stats",
-            "atomic",
-            "error",
-        ],
-    ),
+    // `embed` may import what `experiment` may, and `experiment` (INHERITS).
+    ("embed", &["experiment"]),
     (
         "error",
         &[
@@ -116,6 +98,10 @@ const ALLOWED: &[(&str, &[&str])] = &[
         ],
     ),
 ];
+
+/// Modules that may import whatever another module may, on top of their own row:
+/// `embed` hands the whole pipeline to other languages.
+const INHERITS: &[(&str, &str)] = &[("embed", "experiment")];
 
 /// The rules docs/architecture.md states as "never", checked on their own so that a
 /// change to the table above cannot quietly drop them.
@@ -259,7 +245,15 @@ fn module_imports() -> BTreeMap<String, BTreeSet<String>> {
 #[test]
 fn every_module_imports_only_what_the_architecture_allows() {
     let modules = module_imports();
-    let allowed: BTreeMap<&str, &[&str]> = ALLOWED.iter().copied().collect();
+    let mut allowed: BTreeMap<&str, Vec<&str>> =
+        ALLOWED.iter().map(|(m, a)| (*m, a.to_vec())).collect();
+    for (heir, from) in INHERITS {
+        let more = allowed[from].clone();
+        allowed
+            .get_mut(heir)
+            .expect("an heir in ALLOWED")
+            .extend(more);
+    }
     let mut wrong = Vec::new();
     for (module, imports) in &modules {
         let Some(ok) = allowed.get(module.as_str()) else {

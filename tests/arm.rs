@@ -555,6 +555,20 @@ fn evaluate_refuses_bad_input_before_training() {
         a.iter().map(|x| x.to_string()).collect::<Vec<_>>()
     };
     let grid = s(&dir.join("grid.csv"));
+    // The hybrid machine's evaluation, with a serial arm's flags.
+    let on_hybrid = |extra: &[&str]| {
+        let mut a = vec![
+            "evaluate",
+            "--data",
+            &grid,
+            "--calibration",
+            &cal,
+            "--models",
+            &ck,
+        ];
+        a.extend(extra);
+        a.iter().map(|x| x.to_string()).collect::<Vec<_>>()
+    };
     // 30 poses leave no test window: refused before the calibration, with the minimum.
     let short = s(&dir.join("short.csv"));
     common::cli(&[
@@ -584,35 +598,11 @@ fn evaluate_refuses_bad_input_before_training() {
             vec!["--calibration does not apply to a serial arm"],
         ),
         (
-            [
-                "evaluate",
-                "--data",
-                &grid,
-                "--calibration",
-                &cal,
-                "--models",
-                &ck,
-            ]
-            .iter()
-            .chain(&["--targets", far.as_str()])
-            .map(|x| x.to_string())
-            .collect(),
+            on_hybrid(&["--targets", &far]),
             vec!["--targets is for a serial arm", "--robot"],
         ),
         (
-            [
-                "evaluate",
-                "--data",
-                &grid,
-                "--calibration",
-                &cal,
-                "--models",
-                &ck,
-                "--seeds",
-                "1,2",
-            ]
-            .map(|x| x.to_string())
-            .to_vec(),
+            on_hybrid(&["--seeds", "1,2"]),
             vec!["--seeds is for a serial arm", "--robot"],
         ),
         (on_arm(&["--seeds", "1,1"]), vec!["seed 1 is listed twice"]),
