@@ -4,7 +4,6 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use anyhow::Context;
 use clap::Args;
 
 use super::Console;
@@ -178,17 +177,12 @@ pub fn print_accumulated(before: &AccumulatedCurve, after: &AccumulatedCurve) {
 pub fn refine(gpu: &Gpu, args: &RefineArgs) -> anyhow::Result<()> {
     super::output_folder_exists("--out", &args.out)?;
     let ck = Checkpoint::load(&args.model)?;
-    let mut config = read_run_config(args.config.as_deref(), None)?;
-    config.model = ck.config.clone();
-    let fixed = train::data_normalization(&ck.normalization)
-        .context("the checkpoint's normalisation is not N×3 features and 6 labels")?;
-    let (graph, data) = build_dataset(&args.data.sources(), &config, Some(&fixed))?;
-    let r = train::refine(
+    let config = read_run_config(args.config.as_deref(), None)?;
+    let r = train::refine_checkpoint(
         gpu,
-        &data,
-        &graph,
+        &args.data.sources(),
         &config,
-        &ck.parameters,
+        &ck,
         &mut Console::default(),
     )?;
     r.save(&ck, &args.out)?;

@@ -22,7 +22,7 @@ pub struct SensorPredictor<P: BorrowMut<Predictor> = Predictor> {
     predictor: P,
     stream: Stream,
     dt: f64,
-    /// The tick's values as [`Stream`] takes them, reused.
+    /// A NaN-coded frame as [`Stream`] takes it, reused.
     values: Vec<Option<f64>>,
     /// The tick's features, f64 then f32, reused.
     features: Vec<f64>,
@@ -71,8 +71,8 @@ impl<P: BorrowMut<Predictor>> SensorPredictor<P> {
     /// so that [`SensorPredictor::predict_latest`] has a window. Allocation-free.
     pub fn push_values(&mut self, values: &[Option<f64>]) -> Result<bool, ModelError> {
         self.check_frame(values.len())?;
-        self.values.copy_from_slice(values);
-        self.push_held()
+        self.stream.push(values, &mut self.features);
+        self.push_features()
     }
 
     /// As [`SensorPredictor::push_values`], with NaN for "no sample this tick" (how C and
@@ -82,7 +82,8 @@ impl<P: BorrowMut<Predictor>> SensorPredictor<P> {
         for (v, &x) in self.values.iter_mut().zip(frame) {
             *v = (!x.is_nan()).then_some(x);
         }
-        self.push_held()
+        self.stream.push(&self.values, &mut self.features);
+        self.push_features()
     }
 
     fn check_frame(&self, len: usize) -> Result<(), ModelError> {
@@ -95,9 +96,8 @@ impl<P: BorrowMut<Predictor>> SensorPredictor<P> {
         )))
     }
 
-    /// Pushes `self.values` through the features into the predictor's ring.
-    fn push_held(&mut self) -> Result<bool, ModelError> {
-        self.stream.push(&self.values, &mut self.features);
+    /// Pushes the tick's features into the predictor's ring.
+    fn push_features(&mut self) -> Result<bool, ModelError> {
         for (o, f) in self.step.iter_mut().zip(&self.features) {
             *o = *f as f32;
         }

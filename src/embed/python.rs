@@ -78,6 +78,8 @@ fn residual_array<'py>(py: Python<'py>, r: &Residual) -> Bound<'py, PyArray1<f64
 #[pyclass(name = "Predictor", module = "iastgcn")]
 struct PyPredictor {
     inner: Mutex<Loaded>,
+    /// (N, F, T), fixed at load.
+    shape: (usize, usize, usize),
     /// Sensor values of the last frame when the input was not a contiguous float64
     /// array, reused.
     frame: Mutex<Vec<f64>>,
@@ -90,13 +92,6 @@ impl PyPredictor {
             .lock()
             .map_err(|_| raise("the predictor was poisoned by an earlier internal error"))?;
         guarded(|| f(&mut loaded))
-    }
-
-    fn shape(&self) -> PyResult<(usize, usize, usize)> {
-        self.with(|l| {
-            let c = l.predictor().config();
-            Ok((c.nodes, c.features, c.window))
-        })
     }
 }
 
@@ -138,10 +133,12 @@ impl PyPredictor {
         let mut loaded =
             py.detach(|| guarded(|| Loaded::load(&checkpoint, dt, native).map_err(raise)))?;
         loaded.predictor().set_threads(threads);
-        let nodes = loaded.nodes().len();
+        let c = loaded.predictor().config();
+        let shape = (c.nodes, c.features, c.window);
         Ok(PyPredictor {
             inner: Mutex::new(loaded),
-            frame: Mutex::new(vec![0.0; nodes]),
+            shape,
+            frame: Mutex::new(vec![0.0; shape.0]),
         })
     }
 
@@ -153,8 +150,8 @@ impl PyPredictor {
 
     /// (N, F, T): nodes, features per node, window length in ticks.
     #[getter]
-    fn window_shape(&self) -> PyResult<(usize, usize, usize)> {
-        self.shape()
+    fn window_shape(&self) -> (usize, usize, usize) {
+        self.shape
     }
 
     /// The model's variant ("iastgcn", "tgcn", …).
@@ -203,7 +200,7 @@ impl PyPredictor {
     /// (float32 or float64; NaN: no new sample this tick, the last one is held).
     /// Returns True once T ticks are in, so that `predict_latest` has a window.
     fn push(&self, frame: PyArrayLike1<'_, f64, AllowTypeChange>) -> PyResult<bool> {
-        let (n, _, _) = self.shape()?;
+        let (n, _, _) = self.shape;
         check_shape("frame", frame.shape(), &[&[n]])?;
         match frame.as_slice() {
             Ok(values) => self.with(|l| l.push(values).map_err(raise)),
@@ -223,7 +220,7 @@ impl PyPredictor {
     /// standardisation, for callers that compute the features themselves. True once
     /// T steps are in.
     fn push_features(&self, step: PyArrayLikeDyn<'_, f32, AllowTypeChange>) -> PyResult<bool> {
-        let (n, f, _) = self.shape()?;
+        let (n, f, _) = self.shape;
         check_shape("step", step.shape(), &[&[n, f], &[n * f]])?;
         let values: Vec<f32>;
         let step = match step.as_slice() {
@@ -254,7 +251,7 @@ impl PyPredictor {
         py: Python<'py>,
         window: PyArrayLikeDyn<'py, f32, AllowTypeChange>,
     ) -> PyResult<Bound<'py, PyArray1<f64>>> {
-        let (n, f, t) = self.shape()?;
+        let (n, f, t) = self.shape;
         check_shape("window", window.shape(), &[&[n, f, t]])?;
         let copied: Vec<f32>;
         let data = match window.as_slice() {
@@ -280,7 +277,7 @@ impl PyPredictor {
         windows: PyArrayLikeDyn<'py, f32, AllowTypeChange>,
         standardised: bool,
     ) -> PyResult<Bound<'py, PyAny>> {
-        let (n, f, t) = self.shape()?;
+        let (n, f, t) = self.shape;
         let shape = windows.shape().to_vec();
         if shape.len() != 4 || shape[1..] != [n, f, t] {
             return Err(raise(format!(
@@ -325,7 +322,7 @@ impl PyPredictor {
     }
 
     fn __repr__(&self) -> PyResult<String> {
-        let (n, f, t) = self.shape()?;
+        let (n, f, t) = self.shape;
         let dt = self.dt()?;
         Ok(format!(
             "Predictor(variant={:?}, nodes={n}, features={f}, window={t}, dt={}, backend={:?})",
@@ -710,17 +707,10 @@ fn refine_model<'py>(
     }
     let result = long_call(py, progress, |r| {
         let ck = Checkpoint::load(&model)?;
-        let mut config = RunConfig::read(config.as_deref(), None)?;
-        config.model = ck.config.clone();
-        let fixed = train::data_normalization(&ck.normalization).ok_or_else(|| {
-            crate::error::Error::Invalid(format!(
-                "{}: the checkpoint's normalisation is not N×3 features and 6 labels",
-                model.display()
-            ))
-        })?;
-        let (graph, data) = build_dataset(&sources, &config, Some(&fixed))?;
+        let config = RunConfig::read(config.as_deref(), None)?;
         let gpu = open_gpu()?;
-        let refined = train::refine(&gpu, &data, &graph, &config, &ck.parameters, r)?;
+        let refined = train::refine_checkpoint(&gpu, &sources, &config, &ck, r)
+            .map_err(|e| e.context(model.display()))?;
         refined.save(&ck, &out)?;
         Ok(Result {
             verdict: refined.verdict(),

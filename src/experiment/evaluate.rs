@@ -356,17 +356,15 @@ pub fn evaluate(
     for (i, m) in models.iter().enumerate() {
         let mut c = config.clone();
         c.model = m.checkpoint.config.clone();
-        let fixed = data_normalization(&m.checkpoint.normalization).ok_or_else(|| {
-            Error::Invalid(format!(
-                "{}: the checkpoint's normalisation is not N×3 features and 6 labels",
-                m.name
-            ))
-        })?;
+        let fixed =
+            data_normalization(&m.checkpoint.normalization).map_err(|e| e.context(&m.name))?;
         // The test windows are read with the sources' graph: a model that reads other
         // sensors would be scored on the wrong channels.
         if windowed.nodes != m.checkpoint.graph.nodes {
             return Err(Error::Invalid(format!(
-                "{}: the model reads the sensors [{}], but the recordings are windowed with                  the graph [{}] (--graph); evaluate models with another sensor graph in a                  call of their own with their graph",
+                "{}: the model reads the sensors [{}], but the recordings are windowed with \
+                 the graph [{}] (--graph); evaluate models with another sensor graph in a \
+                 call of their own with their graph",
                 m.name,
                 m.checkpoint.graph.nodes.join(", "),
                 windowed.nodes.join(", ")

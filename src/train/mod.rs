@@ -24,7 +24,7 @@ pub use metrics::{accumulated_error, Metrics};
 pub use optimizer::{learning_rate, Optimizer};
 pub use pollination::{pollinate, Pollination, Searched};
 pub use predict::{predict_recordings, PredictOptions, RecordingPrediction, Subset};
-pub use refine::{refine, Refined};
+pub use refine::{refine, refine_checkpoint, Refined};
 pub use state::{StateError, TrainState};
 pub use trainer::{
     consecutive_runs, ensembles, EpochRecord, Progress, Snapshot, Stage, TrainError, Trainer,
@@ -72,16 +72,23 @@ pub fn normalization(n: &data::Normalization) -> Normalization {
 }
 
 /// A checkpoint's statistics in the dataset's form (to standardise new recordings the
-/// way the model was trained). `None` when the shapes are not N×3 and 6.
-pub fn data_normalization(n: &Normalization) -> Option<data::Normalization> {
+/// way the model was trained); refused unless the shapes are N×3 and 6.
+pub fn data_normalization(n: &Normalization) -> crate::error::Result<data::Normalization> {
     let rows = |v: &[Vec<f64>]| -> Option<Vec<[f64; data::FEATURES]>> {
         v.iter().map(|r| r.as_slice().try_into().ok()).collect()
     };
-    Some(data::Normalization {
-        feature_mean: rows(&n.feature_mean)?,
-        feature_std: rows(&n.feature_std)?,
-        label_mean: n.label_mean.as_slice().try_into().ok()?,
-        label_std: n.label_std.as_slice().try_into().ok()?,
+    let fixed = || {
+        Some(data::Normalization {
+            feature_mean: rows(&n.feature_mean)?,
+            feature_std: rows(&n.feature_std)?,
+            label_mean: n.label_mean.as_slice().try_into().ok()?,
+            label_std: n.label_std.as_slice().try_into().ok()?,
+        })
+    };
+    fixed().ok_or_else(|| {
+        crate::error::Error::Invalid(
+            "the checkpoint's normalisation is not N×3 features and 6 labels".into(),
+        )
     })
 }
 

@@ -144,6 +144,31 @@ pub fn refine(
     })
 }
 
+/// Refines `checkpoint` on the recordings of `sources` with `config`'s refinement stages
+/// (`config`'s model is replaced by the checkpoint's): the recordings are windowed as
+/// `config` says and standardised with the checkpoint's own statistics, as it was
+/// trained. `iastgcn refine` and the Python `refine` run this.
+pub fn refine_checkpoint(
+    gpu: &Gpu,
+    sources: &crate::data::DataSources,
+    config: &RunConfig,
+    checkpoint: &Checkpoint,
+    reporter: &mut dyn Reporter,
+) -> Result<Refined> {
+    let mut config = config.clone();
+    config.model = checkpoint.config.clone();
+    let fixed = super::data_normalization(&checkpoint.normalization)?;
+    let (graph, data) = super::build_dataset(sources, &config, Some(&fixed))?;
+    refine(
+        gpu,
+        &data,
+        &graph,
+        &config,
+        &checkpoint.parameters,
+        reporter,
+    )
+}
+
 impl Refined {
     /// One line that says whether refinement kept the incoming or the refined weights.
     pub fn verdict(&self) -> String {
