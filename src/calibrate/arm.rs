@@ -1,13 +1,14 @@
-//! Geometric calibration of any serial arm (docs/arms.md "Calibration"): the tracker
-//! registration fitted first in closed form (Kabsch), then an identifiability analysis
-//! that keeps the parameters the poses can tell apart and says why each other one stays
-//! nominal, then Levenberg–Marquardt on the kept ones with the registration estimated
-//! jointly.
+//! Calibration of any serial arm (docs/arms.md "Calibration"): the tracker registration
+//! fitted first in closed form (Kabsch), then an identifiability analysis that keeps the
+//! parameters the poses can tell apart and says why each other one stays nominal, then
+//! Levenberg–Marquardt on the kept ones with the registration estimated jointly. With a
+//! `[gravity]` section the joint compliances are parameters like the geometry's and are
+//! fitted jointly with it (elastostatic calibration, docs/arms.md "Joint compliance").
 
 use nalgebra::{DMatrix, DVector, Matrix3, Point3, Vector3};
 
 use super::identify::identifiable;
-use crate::robot::arm::{Arm, ArmPose, CalibrationRecord};
+use crate::robot::arm::{Arm, ArmPose, CalibrationRecord, JointKind, ParamKind};
 
 /// How the arm calibration scales, selects and stops.
 #[derive(Clone, Debug, PartialEq)]
@@ -16,6 +17,11 @@ pub struct ArmCalibrationConfig {
     pub length_scale_mm: f64,
     /// Scale of an angle parameter, rad (1 mrad moves a point 1 mm at 1 m).
     pub angle_scale_rad: f64,
+    /// Scale of a joint compliance, rad per N·m: a typical joint's (10 µrad/(N·m), a
+    /// stiffness of 10⁵ N·m/rad), so that a joint whose gravity torque is too small to
+    /// show a typical compliance (a wrist near the tool) is reported as having no
+    /// effect instead of being fitted to an implausible value.
+    pub compliance_scale_rad_per_nm: f64,
     /// A parameter is identifiable when its scaled column keeps at least this fraction
     /// of the largest column's norm after removing the already selected ones.
     pub rank_tolerance: f64,
@@ -32,6 +38,7 @@ impl Default for ArmCalibrationConfig {
         ArmCalibrationConfig {
             length_scale_mm: 1.0,
             angle_scale_rad: 1e-3,
+            compliance_scale_rad_per_nm: 1e-5,
             rank_tolerance: 1e-3,
             position_sd_mm: 0.015,
             attitude_sd_rad: 1e-4,
@@ -136,7 +143,7 @@ impl ArmCalibration {
 pub fn arm_position_errors(arm: &Arm, poses: &[ArmPose]) -> Vec<f64> {
     poses
         .iter()
-        .map(|p| (arm.tool_position(&p.joints) - p.position).norm())
+        .map(|p| (arm.measured_position(p) - p.position).norm())
         .collect()
 }
 
@@ -174,7 +181,7 @@ pub fn register(arm: &Arm, poses: &[ArmPose]) -> Arm {
     let at_origin = arm.with_values(local.clone());
     let model: Vec<Point3<f64>> = poses
         .iter()
-        .map(|p| at_origin.tool_position(&p.joints))
+        .map(|p| at_origin.measured_position(p))
         .collect();
     let measured: Vec<Point3<f64>> = poses.iter().map(|p| p.position).collect();
     let n = poses.len().max(1) as f64;
@@ -210,7 +217,7 @@ fn residuals(
     let per = rows_per_pose(poses);
     let mut r = DVector::zeros(per * poses.len());
     for (i, p) in poses.iter().enumerate() {
-        let pose = arm.tool_pose_with(&p.joints, values);
+        let pose = arm.tool_pose_from(&p.joints, &p.approach, values);
         let e = (p.position.coords - pose.translation.vector) / c.position_sd_mm;
         r.fixed_rows_mut::<3>(per * i).copy_from(&e);
         if let Some(q) = p.orientation {
@@ -278,16 +285,18 @@ pub fn calibrate_arm(
         nominal.clone()
     };
     let scale: Vec<f64> = (0..names.len())
-        .map(|i| {
-            if nominal.is_length(i) {
-                c.length_scale_mm
-            } else {
-                c.angle_scale_rad
-            }
+        .map(|i| match nominal.param_kind(i) {
+            ParamKind::Length => c.length_scale_mm,
+            ParamKind::Angle => c.angle_scale_rad,
+            ParamKind::Compliance => c.compliance_scale_rad_per_nm,
         })
         .collect();
+    let rigid_joint = |i: usize| {
+        nominal.param_kind(i) == ParamKind::Compliance
+            && nominal.spec.joint[i - o - 12].kind == JointKind::Prismatic
+    };
     let allowed: Vec<usize> = (0..names.len())
-        .filter(|&i| nominal.may_identify(&names[i]))
+        .filter(|&i| nominal.may_identify(&names[i]) && !rigid_joint(i))
         .collect();
     if allowed.is_empty() {
         return Err(ArmCalibrationError::NothingToIdentify);
@@ -296,7 +305,11 @@ pub fn calibrate_arm(
         .filter(|i| !allowed.contains(i))
         .map(|i| KeptNominal {
             name: names[i].clone(),
-            reason: "not in the description's identify list".into(),
+            reason: if rigid_joint(i) {
+                "a prismatic joint is taken as rigid".into()
+            } else {
+                "not in the description's identify list".into()
+            },
         })
         .collect();
     // Identifiability at the registered nominal.

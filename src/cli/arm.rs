@@ -48,8 +48,9 @@ pub fn simulate(
         .map_err(|e| anyhow::anyhow!("{}: {e}", truth_path(out).display()))?;
     let c = &twin.config;
     let truth_text = format!(
-        "# The hidden truth of the serial twin (machine seed {machine_seed}): its geometry, cold and \
-         unloaded, with the tracker registration as its base. Not for calibration: for checking it.\n\
+        "# The hidden truth of the serial twin (machine seed {machine_seed}): its geometry, cold, with the \
+         tracker registration as its base, its link masses, payload, joint compliances and lost motions. \
+         Not for calibration: for checking it.\n\
          # This machine's non-geometric constants: compliance {:.3e} rad/(N·m), link mass {:.2} kg, \
          payload {:.2} kg, backlash {:.4}, expansion {:.2e} 1/K, warm rise {:.2} K over {:.0} s.\n{truth}",
         c.compliance_rad_per_nm,
@@ -120,11 +121,7 @@ pub fn calibrate(nominal: &Arm, data: &Path, scoring: &Scoring, out: &Path) -> a
         "parameter", "start", "calibrated", "± SD"
     );
     for (k, &i) in cal.identified.iter().enumerate() {
-        let (unit, f) = if nominal.is_length(i) {
-            ("mm", 1.0)
-        } else {
-            ("deg", 180.0 / std::f64::consts::PI)
-        };
+        let (unit, f) = nominal.param_kind(i).display();
         println!(
             "{:<22} {:>14.5} {:>14.5} {:>12.5} {unit}",
             names[i],

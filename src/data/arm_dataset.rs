@@ -32,7 +32,7 @@ pub fn arm_graph(arm: &Arm, channels: &[String]) -> Graph {
 /// The residual (µm, mdeg) of the measured pose `p` against `arm`'s prediction, and
 /// the predicted tool axis.
 pub fn arm_residual(arm: &Arm, p: &ArmPose) -> ([f64; 6], [f64; 3]) {
-    let pose = arm.tool_pose(&p.joints);
+    let pose = arm.measured_pose(p);
     let d = (p.position.coords - pose.translation.vector) * 1e3;
     let r = p.orientation.map_or(nalgebra::Vector3::zeros(), |q| {
         (q * pose.rotation.inverse())

@@ -162,6 +162,7 @@ pub fn parse_export(text: &str, file: &str, columns: &PoseColumns) -> Result<Arm
                 .iter()
                 .map(|&c| value(c))
                 .collect::<Result<_, _>>()?,
+            approach: Vec::new(),
         });
     }
     let imported = ArmPoses {

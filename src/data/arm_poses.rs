@@ -16,7 +16,7 @@ use nalgebra::{Point3, UnitQuaternion};
 
 use super::recording::{file_err, DataError, Table};
 use crate::atomic;
-use crate::robot::arm::ArmPose;
+use crate::robot::arm::{set_approach, ArmPose};
 
 /// A pose file: its extra channels' names and its poses.
 #[derive(Clone, Debug, PartialEq)]
@@ -136,8 +136,10 @@ pub fn parse_arm_poses(text: &str, file: &str, joints: usize) -> Result<ArmPoses
             position: Point3::new(v[p], v[p + 1], v[p + 2]),
             orientation,
             channels: v[next..].to_vec(),
+            approach: Vec::new(),
         });
     }
+    set_approach(&mut poses);
     if poses.is_empty() {
         return Err(file_err(file, "no poses"));
     }

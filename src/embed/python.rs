@@ -576,11 +576,7 @@ fn calibrate_arm<'py>(
         .iter()
         .enumerate()
         .map(|(k, &i)| {
-            let (unit, f) = if arm.is_length(i) {
-                ("mm", 1.0)
-            } else {
-                ("deg", 180.0 / std::f64::consts::PI)
-            };
+            let (unit, f) = arm.param_kind(i).display();
             Parameter {
                 name: names[i].clone(),
                 start: c.registered.values[i] * f,

@@ -519,16 +519,35 @@ pub struct CorrectedTarget {
 /// line.
 fn target_poses(calibrated: &Arm, targets: &ArmTargets) -> Result<Vec<ArmPose>> {
     let mut seed = calibrated.at_shares(|_| 0.5);
-    let mut poses = Vec::with_capacity(targets.targets.len());
+    let mut poses: Vec<ArmPose> = Vec::with_capacity(targets.targets.len());
     for (k, (stamp, point, channels)) in targets.targets.iter().enumerate() {
-        let q = calibrated.inverse_position(point, &seed).map_err(|e| {
+        let unreachable = |e: String| {
             Error::Invalid(format!(
                 "{}: target {} (line {}): {e}",
                 targets.file,
                 k + 1,
                 k + 2
             ))
-        })?;
+        };
+        let mut q = calibrated
+            .inverse_position(point, &seed)
+            .map_err(unreachable)?;
+        // Each joint comes from the previous target's value (the first target's approach
+        // is unknown: the middle of the play); with lost motion, solve again for joints
+        // reached from that side.
+        let approach: Vec<f64> = match poses.last() {
+            Some(before) => q
+                .iter()
+                .zip(&before.joints)
+                .map(|(q, b)| if q == b { 0.0 } else { (q - b).signum() })
+                .collect(),
+            None => vec![0.0; q.len()],
+        };
+        if calibrated.spec.lost_motion {
+            q = calibrated
+                .inverse_position_from(point, &q, &approach)
+                .map_err(unreachable)?;
+        }
         seed.clone_from(&q);
         poses.push(ArmPose {
             stamp: *stamp,
@@ -536,6 +555,7 @@ fn target_poses(calibrated: &Arm, targets: &ArmTargets) -> Result<Vec<ArmPose>> 
             position: *point,
             orientation: None,
             channels: channels.clone(),
+            approach,
         });
     }
     Ok(poses)
@@ -578,7 +598,7 @@ pub fn corrected_targets(
             .ok_or_else(|| Error::Invalid("the predictor's window did not fill".into()))?;
         let shifted = pose.position - Vector3::new(residual[0], residual[1], residual[2]) * 1e-3;
         let corrected = calibrated
-            .inverse_position(&shifted, &pose.joints)
+            .inverse_position_from(&shifted, &pose.joints, &pose.approach)
             .map_err(|e| {
                 Error::Invalid(format!(
                     "{}: target {} (line {}), compensated: {e}",

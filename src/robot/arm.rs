@@ -5,7 +5,13 @@
 //!
 //! Every kinematic parameter has a name (`<joint>.alpha|a|beta|theta|d`,
 //! `base.x|y|z|rx|ry|rz`, `tool.x|y|z|rx|ry|rz`) and a place in [`Arm::values`], the
-//! vector calibration identifies.
+//! vector calibration identifies. A description with a `[gravity]` section adds the
+//! elastostatic model (docs/arms.md "Joint compliance"): link masses, a payload, and one
+//! compliance per joint (`<joint>.compliance`, after the kinematic parameters), so that
+//! each revolute joint turns by its compliance times the gravity torque about its axis.
+//! `lost_motion = true` adds each joint's lost motion (`<joint>.lost_motion`, after the
+//! compliances): a joint stands half of it to the side it last moved toward
+//! (docs/arms.md "Lost motion").
 
 use std::collections::BTreeSet;
 use std::path::Path;
@@ -13,6 +19,8 @@ use std::path::Path;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
+use super::arm_load::check_load;
+pub use super::arm_load::{set_approach, GravitySpec, GRAVITY};
 use super::serial::{mdh_link, mdh_motion};
 use super::RobotError;
 
@@ -22,6 +30,28 @@ pub const JOINT_PARAMS: [&str; 5] = ["alpha", "a", "beta", "theta", "d"];
 pub const FRAME_PARAMS: [&str; 6] = ["x", "y", "z", "rx", "ry", "rz"];
 /// The most joints a description may have.
 pub const MAX_JOINTS: usize = 32;
+
+/// What a parameter of [`Arm::values`] measures.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ParamKind {
+    /// A length, mm.
+    Length,
+    /// An angle, rad.
+    Angle,
+    /// A joint compliance, rad per N·m.
+    Compliance,
+}
+
+impl ParamKind {
+    /// The unit a person reads it in, and the factor from the internal value to it.
+    pub fn display(self) -> (&'static str, f64) {
+        match self {
+            ParamKind::Length => ("mm", 1.0),
+            ParamKind::Angle => ("deg", 180.0 / std::f64::consts::PI),
+            ParamKind::Compliance => ("µrad/(N·m)", 1e6),
+        }
+    }
+}
 
 /// Revolute (the joint value turns θ, degrees in files) or prismatic (it extends d, mm).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -56,6 +86,23 @@ pub struct JointSpec {
     pub min: f64,
     /// Upper limit of the joint value (degrees or mm).
     pub max: f64,
+    /// Mass of the link this joint moves, kg (with `[gravity]`; none when absent).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mass_kg: Option<f64>,
+    /// That link's centre of mass in the joint's frame after its motion (the modified-DH
+    /// frame of this joint), mm; when absent, the middle of the link: half way from this
+    /// joint's axis origin to the next joint's (or to the tool point).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub com_mm: Option<[f64; 3]>,
+    /// Compliance of a revolute joint, µrad per N·m (with `[gravity]`; 0 when absent):
+    /// the joint turns by it times the gravity torque about its axis.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub compliance_urad_per_nm: Option<f64>,
+    /// Lost motion of the joint's drive, in its values' unit (degrees or mm), with
+    /// `lost_motion = true` (0 when absent): the joint stands half of it past the
+    /// commanded value in the direction it last moved.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lost_motion: Option<f64>,
 }
 
 /// A rigid transform as the file writes it: translation (mm), then roll, pitch, yaw
@@ -105,8 +152,15 @@ pub struct ArmSpec {
     /// Tool point (TCP) in the last joint's frame.
     #[serde(default)]
     pub tool: FrameSpec,
+    /// Model each joint's lost motion (backlash): a parameter per joint that depends on
+    /// the direction the joint last moved, taken from the pose file's order.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub lost_motion: bool,
+    /// The elastostatic model's gravity load; absent: a rigid arm.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gravity: Option<GravitySpec>,
     /// Parameters calibration may identify (all when absent); `*` ends a prefix
-    /// (`base.*`, `elbow.*`).
+    /// (`base.*`, `elbow.*`) and starts a suffix (`*.compliance`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub identify: Option<Vec<String>>,
     /// Written by `iastgcn calibrate`.
@@ -141,6 +195,10 @@ pub struct ArmPose {
     pub orientation: Option<UnitQuaternion<f64>>,
     /// Further sensor channels (names in the file's header).
     pub channels: Vec<f64>,
+    /// The direction each joint last moved before this pose (+1, −1; 0 where unknown:
+    /// the file's first pose, a joint that has not moved yet), from the file's order
+    /// ([`set_approach`]).
+    pub approach: Vec<f64>,
 }
 
 fn frame(spec: &FrameSpec) -> [f64; 6] {
@@ -235,6 +293,45 @@ impl Arm {
                     j.min, j.max
                 ));
             }
+            check_load(&at, j, spec.gravity.is_some())?;
+            if let Some(b) = j.lost_motion {
+                if !spec.lost_motion {
+                    return Err(format!(
+                        "{at}.lost_motion: a joint's lost motion needs `lost_motion = true` at the top of the description"
+                    ));
+                }
+                if !b.is_finite() || b.abs() > 1e6 {
+                    return Err(format!(
+                        "{at}.lost_motion = {b}: must be a finite number within ±1e6"
+                    ));
+                }
+            }
+        }
+        if let Some(g) = &spec.gravity {
+            if g.direction.iter().any(|v| !v.is_finite())
+                || Vector3::from(g.direction).norm() < 1e-9
+            {
+                return Err(format!(
+                    "gravity.direction = {:?}: must be a finite, non-zero vector (the base frame's down, [0, 0, -1] for an arm on the floor)",
+                    g.direction
+                ));
+            }
+            if !(0.0..=1e4).contains(&g.payload_kg) {
+                return Err(format!(
+                    "gravity.payload_kg = {}: must be from 0 to 1e4",
+                    g.payload_kg
+                ));
+            }
+            if let Some(k) = g
+                .payload_com_mm
+                .iter()
+                .position(|v| !v.is_finite() || v.abs() > 1e6)
+            {
+                return Err(format!(
+                    "gravity.payload_com_mm[{k}] = {}: must be a finite number within ±1e6",
+                    g.payload_com_mm[k]
+                ));
+            }
         }
         for (name, f) in [("base", &spec.base), ("tool", &spec.tool)] {
             for (field, values) in [("xyz_mm", &f.xyz_mm), ("rpy_deg", &f.rpy_deg)] {
@@ -258,6 +355,22 @@ impl Arm {
         }
         values.extend(frame(&spec.base));
         values.extend(frame(&spec.tool));
+        if spec.gravity.is_some() {
+            values.extend(
+                spec.joint
+                    .iter()
+                    .map(|j| j.compliance_urad_per_nm.unwrap_or(0.0) / 1e6),
+            );
+        }
+        if spec.lost_motion {
+            values.extend(spec.joint.iter().map(|j| {
+                let b = j.lost_motion.unwrap_or(0.0);
+                match j.kind {
+                    JointKind::Revolute => b.to_radians(),
+                    JointKind::Prismatic => b,
+                }
+            }));
+        }
         let arm = Arm { spec, values };
         if let Some(patterns) = &arm.spec.identify {
             let names = arm.names();
@@ -268,7 +381,7 @@ impl Arm {
                 }
                 if !names.iter().any(|n| matches(p, n)) {
                     return Err(format!(
-                        "identify: {p:?} names no parameter (names are <joint>.alpha|a|beta|theta|d, base.x|y|z|rx|ry|rz, tool.x|y|z|rx|ry|rz; a trailing * matches a prefix)"
+                        "identify: {p:?} names no parameter (names are <joint>.alpha|a|beta|theta|d, base.x|y|z|rx|ry|rz, tool.x|y|z|rx|ry|rz, and <joint>.compliance with [gravity]; a * at the end matches a prefix, at the start a suffix)"
                     ));
                 }
             }
@@ -330,6 +443,22 @@ impl Arm {
         for frame in ["base", "tool"] {
             names.extend(FRAME_PARAMS.iter().map(|p| format!("{frame}.{p}")));
         }
+        if self.spec.gravity.is_some() {
+            names.extend(
+                self.spec
+                    .joint
+                    .iter()
+                    .map(|j| format!("{}.compliance", j.name)),
+            );
+        }
+        if self.spec.lost_motion {
+            names.extend(
+                self.spec
+                    .joint
+                    .iter()
+                    .map(|j| format!("{}.lost_motion", j.name)),
+            );
+        }
         names
     }
 
@@ -342,14 +471,34 @@ impl Arm {
             .is_none_or(|ps| ps.iter().any(|p| matches(p, name)))
     }
 
-    /// Whether parameter `index` is a length (mm) rather than an angle (rad).
-    pub fn is_length(&self, index: usize) -> bool {
+    /// What parameter `index` measures.
+    pub fn param_kind(&self, index: usize) -> ParamKind {
         let joints = 5 * self.joints();
-        if index < joints {
-            matches!(index % 5, 1 | 4)
+        let compliances = if self.spec.gravity.is_some() {
+            self.joints()
         } else {
+            0
+        };
+        let length = if index < joints {
+            matches!(index % 5, 1 | 4)
+        } else if index < joints + 12 {
             (index - joints) % 6 < 3
+        } else if index < joints + 12 + compliances {
+            return ParamKind::Compliance;
+        } else {
+            // A lost motion, in its joint's unit.
+            self.spec.joint[index - joints - 12 - compliances].kind == JointKind::Prismatic
+        };
+        if length {
+            ParamKind::Length
+        } else {
+            ParamKind::Angle
         }
+    }
+
+    /// Whether parameter `index` is a length (mm).
+    pub fn is_length(&self, index: usize) -> bool {
+        self.param_kind(index) == ParamKind::Length
     }
 
     /// The same arm with other parameter values.
@@ -379,17 +528,17 @@ impl Arm {
 
     /// [`Arm::tool_pose`] with the parameter vector `values` in place of the arm's own.
     pub fn tool_pose_with(&self, q: &[f64], values: &[f64]) -> Isometry3<f64> {
-        self.walk(q, values, |_| {})
+        self.tool_pose_from(q, &[], values)
     }
 
-    /// The chain from the base to the tool under `values` at joint values `q`, calling
-    /// `at_joint` with each joint's frame before its own motion (its z axis is the
-    /// joint's axis). Returns the tool pose.
-    fn walk(
+    /// The chain from the base to the tool under `values` at joint values `q` (as
+    /// given: no deflection), calling `at_joint` with each joint's frame before its own
+    /// motion (its z axis is the joint's axis) and after it. Returns the tool pose.
+    pub(super) fn walk(
         &self,
         q: &[f64],
         values: &[f64],
-        mut at_joint: impl FnMut(&Isometry3<f64>),
+        mut at_joint: impl FnMut(&Isometry3<f64>, &Isometry3<f64>),
     ) -> Isometry3<f64> {
         let o = 5 * self.joints();
         let mut t = frame_isometry(&values[o..o + 6]);
@@ -401,8 +550,9 @@ impl Arm {
                 JointKind::Prismatic => d += q[i],
             }
             t *= mdh_link(v[0], v[1], v[2]);
-            at_joint(&t);
+            let before = t;
             t *= mdh_motion(theta, d);
+            at_joint(&before, &t);
         }
         t * frame_isometry(&values[o + 6..o + 12])
     }
@@ -410,19 +560,6 @@ impl Arm {
     /// The tool point in the measurement frame at joint values `q`.
     pub fn tool_position(&self, q: &[f64]) -> Point3<f64> {
         Point3::from(self.tool_pose(q).translation.vector)
-    }
-
-    /// The joint frames' origins and z axes in the measurement frame at `q` (for the
-    /// twin's gravity load), and the tool point last.
-    pub fn joint_axes(&self, q: &[f64]) -> (Vec<JointAxis>, Point3<f64>) {
-        let mut axes = Vec::with_capacity(self.joints());
-        let tool = self.walk(q, &self.values, |frame| {
-            axes.push((
-                Point3::from(frame.translation.vector),
-                frame.rotation * Vector3::z(),
-            ));
-        });
-        (axes, Point3::from(tool.translation.vector))
     }
 
     /// Joint values at the share `share(i)` of each joint's range (0: its lower limit,
@@ -445,7 +582,18 @@ impl Arm {
     /// starts again from the middle of the ranges and from 16 fixed spread
     /// configurations, and returns the first solution found.
     pub fn inverse_position(&self, target: &Point3<f64>, seed: &[f64]) -> Result<Vec<f64>, String> {
-        let mut best = match self.descend(target, seed) {
+        self.inverse_position_from(target, seed, &[])
+    }
+
+    /// [`Arm::inverse_position`] for joints that reach their values from `approach`
+    /// (each joint's direction of motion, as in [`Arm::tool_pose_from`]).
+    pub fn inverse_position_from(
+        &self,
+        target: &Point3<f64>,
+        seed: &[f64],
+        approach: &[f64],
+    ) -> Result<Vec<f64>, String> {
+        let mut best = match self.descend(target, seed, approach) {
             Ok(q) => return Ok(q),
             Err(short) => short,
         };
@@ -459,7 +607,7 @@ impl Arm {
                 };
                 0.05 + 0.9 * f
             });
-            match self.descend(target, &start) {
+            match self.descend(target, &start, approach) {
                 Ok(q) => return Ok(q),
                 Err(short) => best = best.min(short),
             }
@@ -471,7 +619,19 @@ impl Arm {
     }
 
     /// Damped least squares from `seed`; the distance left when it stalls.
-    fn descend(&self, target: &Point3<f64>, seed: &[f64]) -> Result<Vec<f64>, f64> {
+    fn descend(
+        &self,
+        target: &Point3<f64>,
+        seed: &[f64],
+        approach: &[f64],
+    ) -> Result<Vec<f64>, f64> {
+        let at = |q: &[f64]| {
+            Point3::from(
+                self.tool_pose_from(q, approach, &self.values)
+                    .translation
+                    .vector,
+            )
+        };
         let n = self.joints();
         let clamp = |q: &mut [f64]| {
             for (v, j) in q.iter_mut().zip(&self.spec.joint) {
@@ -480,7 +640,7 @@ impl Arm {
         };
         let mut q = seed.to_vec();
         clamp(&mut q);
-        let mut error = target - self.tool_position(&q);
+        let mut error = target - at(&q);
         let mut damping = 1e-2;
         for _ in 0..1000 {
             if error.norm() < 1e-3 {
@@ -492,7 +652,7 @@ impl Arm {
                 let (mut plus, mut minus) = (q.clone(), q.clone());
                 plus[i] += h;
                 minus[i] -= h;
-                let d = (self.tool_position(&plus) - self.tool_position(&minus)) / (2.0 * h);
+                let d = (at(&plus) - at(&minus)) / (2.0 * h);
                 jac.set_column(i, &d);
             }
             let jjt = &jac * jac.transpose() + nalgebra::Matrix3::identity() * damping;
@@ -505,7 +665,7 @@ impl Arm {
                 *v += d;
             }
             clamp(&mut trial);
-            let e = target - self.tool_position(&trial);
+            let e = target - at(&trial);
             if e.norm() < error.norm() {
                 (q, error) = (trial, e);
                 damping = (damping * 0.3).max(1e-9);
@@ -536,6 +696,19 @@ impl Arm {
         let o = 5 * self.joints();
         spec.base = frame_spec(&self.values[o..o + 6]);
         spec.tool = frame_spec(&self.values[o + 6..o + 12]);
+        if let Some(c) = self.compliance_index(0) {
+            for (j, c) in spec.joint.iter_mut().zip(&self.values[c..]) {
+                j.compliance_urad_per_nm = Some(c * 1e6);
+            }
+        }
+        if let Some(b) = self.lost_motion_index(0) {
+            for (j, b) in spec.joint.iter_mut().zip(&self.values[b..]) {
+                j.lost_motion = Some(match j.kind {
+                    JointKind::Revolute => b.to_degrees(),
+                    JointKind::Prismatic => *b,
+                });
+            }
+        }
         spec.calibration = calibration;
         spec
     }
@@ -546,10 +719,14 @@ impl Arm {
     }
 }
 
-/// Whether `pattern` (a name, or a prefix ending in `*`) matches the parameter `name`.
+/// Whether `pattern` (a name, a prefix ending in `*` or a suffix starting with `*`)
+/// matches the parameter `name`.
 fn matches(pattern: &str, name: &str) -> bool {
-    match pattern.strip_suffix('*') {
-        Some(prefix) => name.starts_with(prefix),
+    if let Some(prefix) = pattern.strip_suffix('*') {
+        return name.starts_with(prefix);
+    }
+    match pattern.strip_prefix('*') {
+        Some(suffix) => name.ends_with(suffix),
         None => pattern == name,
     }
 }

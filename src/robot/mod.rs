@@ -7,6 +7,7 @@
 //! towards the workpiece.
 
 pub mod arm;
+mod arm_load;
 mod description;
 mod errors;
 mod geometry;

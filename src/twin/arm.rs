@@ -10,10 +10,7 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::noise::gaussian;
-use crate::robot::arm::{Arm, ArmPose, JointKind};
-
-/// Gravity, m/s².
-const GRAVITY: f64 = 9.81;
+use crate::robot::arm::{set_approach, Arm, ArmPose, GravitySpec};
 
 /// The hidden machine's error sources, with defaults typical of a 5–20 kg payload arm.
 #[derive(Clone, Debug, PartialEq)]
@@ -83,7 +80,9 @@ impl Default for ArmTwinConfig {
 /// The hidden machine of a serial arm.
 #[derive(Clone, Debug)]
 pub struct ArmTwin {
-    /// The arm as it really is (geometric errors and the real registration), cold.
+    /// The arm as it really is, cold: geometric errors, the real registration, and its
+    /// elastostatic model (the config's masses, payload and compliance) and every joint's
+    /// lost motion (the config's backlash).
     pub truth: Arm,
     /// Its non-geometric sources.
     pub config: ArmTwinConfig,
@@ -148,10 +147,23 @@ impl ArmTwin {
             r[4].to_radians(),
             r[5].to_radians(),
         ]);
-        ArmTwin {
-            truth: nominal.with_values(values),
-            config,
-        }
+        // The truth's load: the config's link masses at the links' middles, its payload
+        // at the tool point, gravity along the base's −z, one compliance for every
+        // revolute joint (whatever load model the description itself has).
+        let load = GravitySpec {
+            direction: [0.0, 0.0, -1.0],
+            payload_kg: config.payload_kg,
+            payload_com_mm: [0.0; 3],
+        };
+        let truth = nominal.rigid().with_values(values[..joints + 12].to_vec());
+        let truth = truth
+            .with_load(
+                load,
+                &vec![config.link_mass_kg; nominal.joints()],
+                config.compliance_rad_per_nm,
+            )
+            .with_lost_motion(config.backlash);
+        ArmTwin { truth, config }
     }
 
     /// Temperature of the arm above its cold start at time `t`, K.
@@ -174,56 +186,17 @@ impl ArmTwin {
         let mut values = arm.values.clone();
         let joints = 5 * arm.joints();
         for (i, v) in values.iter_mut().enumerate() {
-            if arm.is_length(i) && (i < joints || i >= joints + 6) {
+            // The links and the tool grow; the base registration and a prismatic
+            // joint's lost motion do not.
+            let link = i < joints || (joints + 6..joints + 12).contains(&i);
+            if arm.is_length(i) && link {
                 *v *= grow;
             }
         }
-        let warm = arm.with_values(values);
-        // Backlash, then the deflection of each revolute joint under the gravity load.
-        let mut actual: Vec<f64> = q
-            .iter()
-            .zip(dir)
-            .map(|(q, d)| q + 0.5 * c.backlash * d)
-            .collect();
-        let torques = self.gravity_torques(&warm, &actual);
-        for (i, j) in arm.spec.joint.iter().enumerate() {
-            if j.kind == JointKind::Revolute {
-                actual[i] += (c.compliance_rad_per_nm * torques[i]).to_degrees();
-            }
-        }
-        warm.tool_pose(&actual)
-    }
-
-    /// Gravity torque about each joint axis (N·m; 0 for prismatic joints): link masses
-    /// at the middle of each link, the payload at the tool point, gravity along the
-    /// base's −z.
-    fn gravity_torques(&self, arm: &Arm, q: &[f64]) -> Vec<f64> {
-        let (axes, tool) = arm.joint_axes(q);
-        let g = arm.base().rotation * Vector3::new(0.0, 0.0, -GRAVITY);
-        // Point masses (mm, kg): each link's middle, then the payload.
-        let mut masses: Vec<(Point3<f64>, f64)> = (0..axes.len())
-            .map(|k| {
-                let next = axes.get(k + 1).map_or(tool, |a| a.0);
-                (
-                    nalgebra::center(&axes[k].0, &next),
-                    self.config.link_mass_kg,
-                )
-            })
-            .collect();
-        masses.push((tool, self.config.payload_kg));
-        axes.iter()
-            .enumerate()
-            .map(|(i, (origin, axis))| {
-                if arm.spec.joint[i].kind != JointKind::Revolute {
-                    return 0.0;
-                }
-                // Masses beyond joint i load it (link i's own mass sits beyond its axis).
-                masses[i..]
-                    .iter()
-                    .map(|(p, m)| axis.dot(&((p - origin) * 1e-3).cross(&(g * *m))))
-                    .sum()
-            })
-            .collect()
+        // The warm arm's lost motion puts each joint half its backlash toward the side
+        // it last moved; its elastostatic model then turns each revolute joint by its
+        // compliance times the gravity torque about its axis.
+        arm.tool_pose_from(q, dir, &values)
     }
 
     /// Measures `count` static poses drawn uniformly inside the joint limits (less the
@@ -234,6 +207,7 @@ impl ArmTwin {
         let margin = self.config.limit_margin;
         let mut previous: Vec<f64> = spec.joint.iter().map(|j| j.min).collect();
         let mut dir = vec![1.0; spec.joint.len()];
+        let rigid = self.truth.rigid();
         let (mut poses, mut truth, mut geometric) = (Vec::new(), Vec::new(), Vec::new());
         for n in 0..count {
             let t = n as f64 * self.config.dwell_s;
@@ -260,10 +234,13 @@ impl ArmTwin {
                 position: p + noise,
                 orientation,
                 channels: vec![temp],
+                approach: Vec::new(),
             });
             truth.push(p);
-            geometric.push(self.truth.tool_position(&q));
+            geometric.push(rigid.tool_position(&q));
         }
+        // What the file says of the approach: its order (the first pose's is unknown).
+        set_approach(&mut poses);
         ArmRun {
             poses,
             truth,
