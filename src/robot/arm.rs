@@ -19,8 +19,6 @@ use std::path::Path;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
-use super::arm_load::check_load;
-pub use super::arm_load::{set_approach, GravitySpec, GRAVITY};
 use super::serial::{mdh_link, mdh_motion};
 use super::RobotError;
 
@@ -103,6 +101,27 @@ pub struct JointSpec {
     /// commanded value in the direction it last moved.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lost_motion: Option<f64>,
+}
+
+/// The gravity load of the elastostatic model: its direction in the robot's base frame
+/// and a payload at the tool.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GravitySpec {
+    /// Direction of gravity in the base frame (any length; normalised), `[0, 0, -1]`
+    /// when absent.
+    #[serde(default = "down")]
+    pub direction: [f64; 3],
+    /// Mass at the tool (tool, reflector and holder), kg.
+    #[serde(default)]
+    pub payload_kg: f64,
+    /// Its centre of mass in the tool frame, mm (the tool point when absent).
+    #[serde(default)]
+    pub payload_com_mm: [f64; 3],
+}
+
+fn down() -> [f64; 3] {
+    [0.0, 0.0, -1.0]
 }
 
 /// A rigid transform as the file writes it: translation (mm), then roll, pitch, yaw
@@ -199,6 +218,25 @@ pub struct ArmPose {
     /// the file's first pose, a joint that has not moved yet), from the file's order
     /// ([`set_approach`]).
     pub approach: Vec<f64>,
+}
+
+/// Sets each pose's [`ArmPose::approach`] from the order of `poses` (measurement order):
+/// the sign of each joint's last change before it; 0 until a joint has moved.
+pub fn set_approach(poses: &mut [ArmPose]) {
+    let mut side: Vec<f64> = Vec::new();
+    let mut previous: Option<Vec<f64>> = None;
+    for p in poses.iter_mut() {
+        side.resize(p.joints.len(), 0.0);
+        if let Some(before) = &previous {
+            for ((s, q), b) in side.iter_mut().zip(&p.joints).zip(before) {
+                if q != b {
+                    *s = (q - b).signum();
+                }
+            }
+        }
+        previous = Some(p.joints.clone());
+        p.approach.clone_from(&side);
+    }
 }
 
 fn frame(spec: &FrameSpec) -> [f64; 6] {
@@ -729,4 +767,46 @@ fn matches(pattern: &str, name: &str) -> bool {
         Some(suffix) => name.ends_with(suffix),
         None => pattern == name,
     }
+}
+
+/// Checks a joint's load fields (`at` names the joint): finite, a mass not negative,
+/// and none of them without a `[gravity]` section to use them.
+fn check_load(at: &str, j: &JointSpec, gravity: bool) -> Result<(), String> {
+    let given = [
+        ("mass_kg", j.mass_kg.is_some()),
+        ("com_mm", j.com_mm.is_some()),
+        ("compliance_urad_per_nm", j.compliance_urad_per_nm.is_some()),
+    ];
+    if let (false, Some((field, _))) = (gravity, given.iter().find(|g| g.1)) {
+        return Err(format!(
+            "{at}.{field}: a joint's load fields need a [gravity] section (the elastostatic model; docs/arms.md \"Joint compliance\")"
+        ));
+    }
+    if let Some(m) = j.mass_kg {
+        if !(0.0..=1e4).contains(&m) {
+            return Err(format!("{at}.mass_kg = {m}: must be from 0 to 1e4"));
+        }
+    }
+    if let Some(k) = j
+        .com_mm
+        .and_then(|c| c.iter().position(|v| !v.is_finite() || v.abs() > 1e6))
+    {
+        return Err(format!(
+            "{at}.com_mm[{k}] = {}: must be a finite number within ±1e6",
+            j.com_mm.unwrap_or_default()[k]
+        ));
+    }
+    if let Some(c) = j.compliance_urad_per_nm {
+        if !c.is_finite() || c.abs() > 1e6 {
+            return Err(format!(
+                "{at}.compliance_urad_per_nm = {c}: must be a finite number within ±1e6"
+            ));
+        }
+        if j.kind == JointKind::Prismatic && c != 0.0 {
+            return Err(format!(
+                "{at}.compliance_urad_per_nm = {c}: a prismatic joint is taken as rigid (only revolute joints bend under gravity here)"
+            ));
+        }
+    }
+    Ok(())
 }
