@@ -22,7 +22,7 @@ use crate::error::{Error, Result};
 use crate::gpu::Gpu;
 use crate::model::{Checkpoint, Predictor, Variant};
 use crate::progress::Reporter;
-use crate::robot::arm::{Arm, ArmPose};
+use crate::robot::arm::{next_approach, Arm, ArmPose};
 use crate::stats::Summary;
 use crate::train::fit::window_config;
 use crate::train::RunConfig;
@@ -532,15 +532,11 @@ fn target_poses(calibrated: &Arm, targets: &ArmTargets) -> Result<Vec<ArmPose>> 
         let mut q = calibrated
             .inverse_position(point, &seed)
             .map_err(unreachable)?;
-        // Each joint comes from the previous target's value (the first target's approach
-        // is unknown: the middle of the play); with lost motion, solve again for joints
-        // reached from that side.
-        let approach: Vec<f64> = match poses.last() {
-            Some(before) => q
-                .iter()
-                .zip(&before.joints)
-                .map(|(q, b)| if q == b { 0.0 } else { (q - b).signum() })
-                .collect(),
+        // Each joint comes from the previous target's value, as a pose file's order says
+        // (the first target's approach is unknown: the middle of the play); with lost
+        // motion, solve again for joints reached from that side.
+        let approach = match poses.last() {
+            Some(before) => next_approach(before, &q),
             None => vec![0.0; q.len()],
         };
         if calibrated.spec.lost_motion {

@@ -61,6 +61,25 @@ pub enum JointKind {
     Prismatic,
 }
 
+impl JointKind {
+    /// An amount in the joint values' unit (degrees or mm) in the internal one (rad or
+    /// mm).
+    pub fn internal(self, v: f64) -> f64 {
+        match self {
+            JointKind::Revolute => v.to_radians(),
+            JointKind::Prismatic => v,
+        }
+    }
+
+    /// An internal amount (rad or mm) in the joint values' unit (degrees or mm).
+    pub fn external(self, v: f64) -> f64 {
+        match self {
+            JointKind::Revolute => v.to_degrees(),
+            JointKind::Prismatic => v,
+        }
+    }
+}
+
 /// One joint as the file writes it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -223,20 +242,23 @@ pub struct ArmPose {
 /// Sets each pose's [`ArmPose::approach`] from the order of `poses` (measurement order):
 /// the sign of each joint's last change before it; 0 until a joint has moved.
 pub fn set_approach(poses: &mut [ArmPose]) {
-    let mut side: Vec<f64> = Vec::new();
-    let mut previous: Option<Vec<f64>> = None;
-    for p in poses.iter_mut() {
-        side.resize(p.joints.len(), 0.0);
-        if let Some(before) = &previous {
-            for ((s, q), b) in side.iter_mut().zip(&p.joints).zip(before) {
-                if q != b {
-                    *s = (q - b).signum();
-                }
-            }
-        }
-        previous = Some(p.joints.clone());
-        p.approach.clone_from(&side);
+    for k in 0..poses.len() {
+        let approach = match k.checked_sub(1).map(|b| &poses[b]) {
+            Some(before) => next_approach(before, &poses[k].joints),
+            None => vec![0.0; poses[k].joints.len()],
+        };
+        poses[k].approach = approach;
     }
+}
+
+/// The approach of a pose at joint values `now` reached from the pose `before`: each
+/// joint's sign of change, or `before`'s approach where the joint did not move.
+pub fn next_approach(before: &ArmPose, now: &[f64]) -> Vec<f64> {
+    now.iter()
+        .zip(&before.joints)
+        .zip(before.approach.iter().chain(std::iter::repeat(&0.0)))
+        .map(|((q, b), side)| if q == b { *side } else { (q - b).signum() })
+        .collect()
 }
 
 fn frame(spec: &FrameSpec) -> [f64; 6] {
@@ -401,13 +423,11 @@ impl Arm {
             );
         }
         if spec.lost_motion {
-            values.extend(spec.joint.iter().map(|j| {
-                let b = j.lost_motion.unwrap_or(0.0);
-                match j.kind {
-                    JointKind::Revolute => b.to_radians(),
-                    JointKind::Prismatic => b,
-                }
-            }));
+            values.extend(
+                spec.joint
+                    .iter()
+                    .map(|j| j.kind.internal(j.lost_motion.unwrap_or(0.0))),
+            );
         }
         let arm = Arm { spec, values };
         if let Some(patterns) = &arm.spec.identify {
@@ -512,20 +532,18 @@ impl Arm {
     /// What parameter `index` measures.
     pub fn param_kind(&self, index: usize) -> ParamKind {
         let joints = 5 * self.joints();
-        let compliances = if self.spec.gravity.is_some() {
-            self.joints()
-        } else {
-            0
-        };
         let length = if index < joints {
             matches!(index % 5, 1 | 4)
         } else if index < joints + 12 {
             (index - joints) % 6 < 3
-        } else if index < joints + 12 + compliances {
-            return ParamKind::Compliance;
         } else {
-            // A lost motion, in its joint's unit.
-            self.spec.joint[index - joints - 12 - compliances].kind == JointKind::Prismatic
+            match self.lost_motion_index(0) {
+                // A lost motion, in its joint's unit.
+                Some(first) if index >= first => {
+                    self.spec.joint[index - first].kind == JointKind::Prismatic
+                }
+                _ => return ParamKind::Compliance,
+            }
         };
         if length {
             ParamKind::Length
@@ -560,13 +578,9 @@ impl Arm {
     }
 
     /// The tool pose in the measurement frame at joint values `q` (degrees or mm).
+    /// With lost motion, each joint stands in the middle of its play (no approach).
     pub fn tool_pose(&self, q: &[f64]) -> Isometry3<f64> {
-        self.tool_pose_with(q, &self.values)
-    }
-
-    /// [`Arm::tool_pose`] with the parameter vector `values` in place of the arm's own.
-    pub fn tool_pose_with(&self, q: &[f64], values: &[f64]) -> Isometry3<f64> {
-        self.tool_pose_from(q, &[], values)
+        self.tool_pose_from(q, &[], &self.values)
     }
 
     /// The chain from the base to the tool under `values` at joint values `q` (as
@@ -741,10 +755,7 @@ impl Arm {
         }
         if let Some(b) = self.lost_motion_index(0) {
             for (j, b) in spec.joint.iter_mut().zip(&self.values[b..]) {
-                j.lost_motion = Some(match j.kind {
-                    JointKind::Revolute => b.to_degrees(),
-                    JointKind::Prismatic => *b,
-                });
+                j.lost_motion = Some(j.kind.external(*b));
             }
         }
         spec.calibration = calibration;

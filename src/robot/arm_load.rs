@@ -73,10 +73,7 @@ impl Arm {
         }
         arm.spec.lost_motion = true;
         for j in &arm.spec.joint {
-            arm.values.push(match j.kind {
-                JointKind::Revolute => play.to_radians(),
-                JointKind::Prismatic => play,
-            });
+            arm.values.push(j.kind.internal(play));
         }
         arm
     }
@@ -102,11 +99,9 @@ impl Arm {
         if let Some(first) = self.lost_motion_index(0) {
             let q = actual.to_mut();
             for (i, (v, side)) in q.iter_mut().zip(approach).enumerate() {
-                let half = 0.5 * values[first + i] * side;
-                *v += match self.spec.joint[i].kind {
-                    JointKind::Revolute => half.to_degrees(),
-                    JointKind::Prismatic => half,
-                };
+                *v += self.spec.joint[i]
+                    .kind
+                    .external(0.5 * values[first + i] * side);
             }
         }
         match self.deflected(&actual, values) {
