@@ -25,7 +25,7 @@ pub struct DemoArgs {
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Length of each training recording, minutes.
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = iastgcn::experiment::demo::DEMO_MINUTES)]
     pub minutes: f64,
     /// Training seeds, comma-separated: every model is trained with each, and the tables
     /// report mean ± SD over them with paired comparisons (one seed: a single run).

@@ -22,6 +22,11 @@ use crate::model::Variant;
 use crate::progress::Reporter;
 use crate::train::{build_dataset, RunConfig};
 
+/// Length of each of the demo's training recordings, minutes: the most data with which
+/// three seeds of its eight models fit `make demo`'s 15 minutes on 2 CPU cores
+/// (docs/results.md "Why 4 minutes per path").
+pub const DEMO_MINUTES: f64 = 4.0;
+
 /// What the demo runs.
 #[derive(Clone, Debug)]
 pub struct DemoConfig {
@@ -48,7 +53,7 @@ impl Default for DemoConfig {
         DemoConfig {
             run: RunConfig::demo(),
             run_source: "assets/demo.toml (embedded)".into(),
-            minutes: 2.0,
+            minutes: DEMO_MINUTES,
             held_out: HeldOutConfig::default(),
             seeds: vec![1, 2, 3],
             all_models: false,
