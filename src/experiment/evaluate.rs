@@ -298,8 +298,8 @@ impl NamedModel {
 }
 
 /// The mean `seconds` of the core epochs in a training log (of every epoch when it has
-/// no core stage, as a refined model's log) and where they ran (`trained_on` of the
-/// first such epoch; `unknown` in logs written before that column), if the log exists
+/// no core stage, as a refined model's log) and where they ran (`train::log::trained_on`
+/// of those epochs; `unknown` in logs written before that column), if the log exists
 /// and has epochs.
 fn read_training_log(log: &std::path::Path) -> Option<(f64, String)> {
     let mut reader = csv::Reader::from_path(log).ok()?;
@@ -323,11 +323,10 @@ fn read_training_log(log: &std::path::Path) -> Option<(f64, String)> {
     if values.is_empty() {
         return None;
     }
-    let trained_on = on
-        .and_then(|c| picked.first()?.get(c))
-        .filter(|s| !s.is_empty())
-        .unwrap_or("unknown")
-        .to_string();
+    let trained_on = crate::train::log::trained_on(
+        on.into_iter()
+            .flat_map(|c| picked.iter().filter_map(move |r| r.get(c))),
+    );
     Some((values.iter().sum::<f64>() / values.len() as f64, trained_on))
 }
 

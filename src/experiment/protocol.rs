@@ -285,10 +285,8 @@ pub fn fit_model(
     let verdict = r.verdict();
     reporter.note(&format!("{name}: refinement {verdict}"));
     let refined = r.save(&core, &files.refined)?;
-    let trained_on = trained
-        .history
-        .first()
-        .map_or_else(|| "unknown".into(), |r| r.trained_on.clone());
+    let trained_on =
+        crate::train::log::trained_on(trained.history.iter().map(|r| r.trained_on.as_str()));
     Ok(Fitted {
         model: NamedModel {
             name: name.to_string(),

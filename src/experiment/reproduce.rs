@@ -558,9 +558,9 @@ impl JobRecord {
             best_epoch,
             epochs: history.iter().filter(|r| r.stage == "core").count(),
             epoch_seconds: epoch_seconds(history),
-            trained_on: history
-                .first()
-                .map_or_else(|| "unknown".into(), |r| r.trained_on.clone()),
+            trained_on: crate::train::log::trained_on(
+                history.iter().map(|r| r.trained_on.as_str()),
+            ),
             refinement: String::new(),
             wall_seconds: 0.0,
         }

@@ -426,10 +426,9 @@ fn run_job(
         best_epoch: trained.best_epoch,
         epochs: trained.epochs,
         epoch_seconds: epoch_seconds(&trained.history),
-        trained_on: trained
-            .history
-            .first()
-            .map_or_else(|| "unknown".into(), |r| r.trained_on.clone()),
+        trained_on: crate::train::log::trained_on(
+            trained.history.iter().map(|r| r.trained_on.as_str()),
+        ),
         wall_seconds: 0.0,
         paths,
     })

@@ -6,6 +6,30 @@ use super::trainer::EpochRecord;
 use crate::error::{write_file, Error, Result};
 use crate::plot::{self, Panel, PlotError, Series};
 
+/// Where a history's epochs ran, in order, each device once per run of epochs: `NVIDIA
+/// H200`, or `NVIDIA H200, then native CPU (2 threads)` for a job resumed elsewhere
+/// (`unknown` without epochs or names).
+///
+/// ```
+/// use iastgcn::train::log::trained_on;
+/// let epochs = ["NVIDIA H200", "NVIDIA H200", "native CPU (2 threads)"];
+/// assert_eq!(trained_on(epochs), "NVIDIA H200, then native CPU (2 threads)");
+/// assert_eq!(trained_on(Vec::<&str>::new()), "unknown");
+/// ```
+pub fn trained_on<'a>(epochs: impl IntoIterator<Item = &'a str>) -> String {
+    let mut places: Vec<&str> = Vec::new();
+    for on in epochs.into_iter().filter(|on| !on.is_empty()) {
+        if places.last() != Some(&on) {
+            places.push(on);
+        }
+    }
+    if places.is_empty() {
+        "unknown".into()
+    } else {
+        places.join(", then ")
+    }
+}
+
 /// Writes the epoch history as CSV (atomically).
 pub fn write_csv(path: &Path, history: &[EpochRecord]) -> Result<()> {
     write_file(path, history_csv(history).as_bytes())
