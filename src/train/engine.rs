@@ -50,7 +50,7 @@ pub fn runs_native(backend: &str, gpu: &Gpu, model: &ModelConfig) -> Result<bool
         "device" => Ok(false),
         "native" if covered => Ok(true),
         "native" => Err(TrainError::Data(format!(
-            "train.backend = \"native\": the native CPU path trains iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, the dense baselines, tgcn, eat-gcn and convlstm, not {}",
+            "train.backend = \"native\": the native CPU path trains iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, st-gat, the dense baselines, tgcn, eat-gcn and convlstm, not {}",
             model.variant
         ))),
         other => Err(TrainError::Data(format!(

@@ -62,7 +62,8 @@ impl Work {
             de: z(t * t),
             dlhs: z(t * n),
             drhs: z(n * t),
-            dred: z(wide * big),
+            // Also the graph attention's scratch (graph_attention::GatShape::work_len).
+            dred: z((wide * big).max(n + 2 * c)),
         }
     }
 }
@@ -314,6 +315,18 @@ fn block(
             *g = 0.0;
         }
     }
+    if let (Some(shape), Some(tape)) = (s.gat, bt.gat.as_ref()) {
+        // `st-gat`: the graph attention on the input.
+        let dx = if need_dx {
+            Some(&mut w.dx[..n * ci * t])
+        } else {
+            None
+        };
+        let dq = &mut w.dm[..n * c * t];
+        let work = &mut w.dred[..shape.work_len()];
+        shape.backward(p, basis, x, tape, dz, dq, dx, grads, work);
+        return;
+    }
     // Step 3: Z[i] = ReLU(Wᵀ·M[i]), M = Q·X_t.
     let dm = &mut w.dm[..n * ci * t];
     for i in 0..n {
@@ -382,7 +395,9 @@ fn block(
             n,
         );
     }
-    for (g, b) in grads[s.theta].iter_mut().zip(basis.chunks(n * n)) {
+    // invariant: every block but st-gat's has gwc.theta (slots::Slots::new).
+    let theta = s.theta.expect("a graph convolution has gwc.theta");
+    for (g, b) in grads[theta].iter_mut().zip(basis.chunks(n * n)) {
         *g += dpsi.iter().zip(b).map(|(a, b)| a * b).sum::<f32>();
     }
     if let (Some(ts), Some(ss)) = (s.temporal, s.spatial) {

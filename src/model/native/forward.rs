@@ -49,12 +49,12 @@ enum Body {
 }
 
 impl NativeForward {
-    /// True when this path covers `config`'s variant (the four IASTGCN variants, the
-    /// dense baselines, T-GCN, EAT-GCN and ConvLSTM; not ST-GAT).
+    /// True when this path covers `config`'s variant: every variant since ST-GAT joined
+    /// (the four IASTGCN variants and ST-GAT, the dense baselines, T-GCN, EAT-GCN and
+    /// ConvLSTM); kept so that callers ask rather than assume.
     pub fn supports(config: &ModelConfig) -> bool {
         match config.variant.family() {
-            Family::StBlocks => !config.variant.graph_attention(),
-            Family::Dense | Family::Recurrent | Family::ConvRecurrent => true,
+            Family::StBlocks | Family::Dense | Family::Recurrent | Family::ConvRecurrent => true,
         }
     }
 
@@ -66,7 +66,7 @@ impl NativeForward {
     ) -> Result<NativeForward, ModelError> {
         if !NativeForward::supports(config) {
             return Err(ModelError::Config(format!(
-                "the native CPU forward covers iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, the dense baselines, tgcn, eat-gcn and convlstm, not {}",
+                "the native CPU forward covers iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, st-gat, the dense baselines, tgcn, eat-gcn and convlstm, not {}",
                 config.variant
             )));
         }

@@ -1,4 +1,4 @@
-//! The IASTGCN variants, the dense and recurrent baselines and ConvLSTM on the CPU in f32,
+//! The IASTGCN variants, ST-GAT, the dense and recurrent baselines and ConvLSTM on the CPU in f32,
 //! with no device: the inference forward, one
 //! window at a time (the controller's latency path where the only adapter is a CPU, or
 //! there is none; [`super::Predictor`] picks it on its own, docs/performance.md "The
@@ -15,7 +15,8 @@
 //! Files: `forward.rs` ([`NativeForward`]), `tape.rs` (the training forward of one
 //! window, keeping its intermediates), `backward.rs` (its backward), `step.rs`
 //! ([`NativeTraining`]: a batch over threads, the loss, Adam), `slots.rs` (where each
-//! tensor sits in the parameter list), `dense.rs`, `recurrent.rs` and `conv_lstm.rs` (the
+//! tensor sits in the parameter list), `graph_attention.rs` (ST-GAT's step 3, forward and
+//! backward), `dense.rs`, `recurrent.rs` and `conv_lstm.rs` (the
 //! baselines' forward and backward side by side: the dense layers; T-GCN and EAT-GCN's
 //! time loop; ConvLSTM's). Tested against the WGSL path and the f64
 //! reference in tests/native_forward.rs and tests/native_train.rs.
@@ -24,6 +25,7 @@ mod backward;
 mod conv_lstm;
 mod dense;
 mod forward;
+mod graph_attention;
 mod recurrent;
 mod slots;
 mod step;

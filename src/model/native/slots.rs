@@ -1,6 +1,7 @@
 //! Where each block's tensors sit in the parameter list (`param_specs` order), so that the
 //! training path reads the weights and writes the gradients in place, without copies.
 
+use super::graph_attention::GatShape;
 use crate::model::config::ModelConfig;
 use crate::model::network::ModelError;
 use crate::model::params::ParamSpec;
@@ -11,9 +12,12 @@ pub(super) struct BlockSlots {
     /// spatial one, when the variant attends.
     pub temporal: Option<[usize; 5]>,
     pub spatial: Option<[usize; 5]>,
-    pub theta: usize,
-    /// `gwc.W` `[C_in, C]`.
+    /// `gwc.theta` (`None` in `st-gat`, whose step 3 is [`BlockSlots::gat`]).
+    pub theta: Option<usize>,
+    /// `gwc.W` `[C_in, C]` (`gat.W` in `st-gat`).
     pub w: usize,
+    /// `st-gat`'s graph attention in place of Ψ.
+    pub gat: Option<GatShape>,
     /// `tcn.filter.weight` `[C, C·K]` and its bias.
     pub filter: (usize, usize),
     /// `tcn.gate.weight` and bias (`None` in `iastgcn-t`).
@@ -55,6 +59,7 @@ impl Slots {
                 ])
             };
             let attention = config.variant.attention();
+            let gat = config.variant.graph_attention();
             blocks.push(BlockSlots {
                 temporal: if attention {
                     Some(five(["tat.U1", "tat.U2", "tat.U3", "tat.be", "tat.Ve"])?)
@@ -66,8 +71,22 @@ impl Slots {
                 } else {
                     None
                 },
-                theta: p("gwc.theta")?,
-                w: p("gwc.W")?,
+                theta: if gat { None } else { Some(p("gwc.theta")?) },
+                w: if gat { p("gat.W")? } else { p("gwc.W")? },
+                gat: if gat {
+                    Some(GatShape {
+                        nodes: config.nodes,
+                        c_in: config.block_input(l),
+                        channels: config.channels,
+                        steps: config.window,
+                        heads: config.heads,
+                        w: p("gat.W")?,
+                        a_src: p("gat.a_src")?,
+                        a_dst: p("gat.a_dst")?,
+                    })
+                } else {
+                    None
+                },
                 filter: (p("tcn.filter.weight")?, p("tcn.filter.bias")?),
                 gate: if config.variant.gated() {
                     Some((p("tcn.gate.weight")?, p("tcn.gate.bias")?))

@@ -89,7 +89,7 @@ pub struct NativeTraining {
 
 impl NativeTraining {
     /// True for the variants this path covers (those of [`NativeForward`]: the IASTGCN
-    /// variants, the dense baselines, T-GCN, EAT-GCN and ConvLSTM).
+    /// variants, ST-GAT, the dense baselines, T-GCN, EAT-GCN and ConvLSTM).
     pub fn supports(config: &ModelConfig) -> bool {
         NativeForward::supports(config)
     }
@@ -104,7 +104,7 @@ impl NativeTraining {
     ) -> Result<NativeTraining, ModelError> {
         if !NativeTraining::supports(config) {
             return Err(ModelError::Config(format!(
-                "native CPU training covers iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, the dense baselines, tgcn, eat-gcn and convlstm, not {}",
+                "native CPU training covers iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, st-gat, the dense baselines, tgcn, eat-gcn and convlstm, not {}",
                 config.variant
             )));
         }

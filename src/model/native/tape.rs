@@ -4,6 +4,7 @@
 //! and in the last block steps 4–7 at the last time step only (the one the head reads;
 //! its dropout bits are the ones that step has in the whole tensor).
 
+use super::graph_attention::GatTape;
 use super::slots::{BlockSlots, Slots};
 use rayon::prelude::*;
 
@@ -38,6 +39,8 @@ pub(super) struct BlockTape {
     pub q: Vec<f32>,
     pub m: Vec<f32>,
     pub z: Vec<f32>,
+    /// `st-gat`'s step 3 (its Z is [`BlockTape::z`]; Ψ, Q and M stay unused).
+    pub gat: Option<GatTape>,
     /// Step 4 on the block's output steps (`steps` = T, or 1 in the last block): the
     /// unfolding `[C·K, N·steps]` and `[G_f; G_g]` `[outs, N·steps]`.
     pub col: Vec<f32>,
@@ -79,6 +82,7 @@ impl BlockTape {
             q: z(n * n),
             m: z(n * ci * t),
             z: z(n * c * t),
+            gat: s.gat.map(|g| g.tape()),
             col: z(c * k * n * steps),
             g: z(outs * n * steps),
             act: z(n * c * steps),
@@ -219,41 +223,12 @@ fn block(
             1
         }
     };
-    // Step 3's Ψ = Σ_k θ_k basis_k.
-    bt.psi.fill(0.0);
-    for (theta, b) in p[s.theta].iter().zip(basis.chunks(n * n)) {
-        for (v, b) in bt.psi.iter_mut().zip(b) {
-            *v += theta * b;
-        }
-    }
-    // Steps 1–2.
-    if let (Some(ts), Some(ss)) = (s.temporal, s.spatial) {
-        temporal_attention(n, ci, t, p, ts, x, bt, threads);
-        spatial_attention(n, ci, t, p, ss, bt);
+    if let (Some(shape), Some(tape)) = (s.gat, bt.gat.as_mut()) {
+        // `st-gat`: step 3 is a graph attention on the input, `basis` its edges.
+        shape.forward(p, basis, x, tape, &mut bt.z);
     } else {
-        bt.q.copy_from_slice(&bt.psi);
+        graph_conv(n, ci, t, c, basis, s, p, x, bt, threads, split(c * ci * t));
     }
-    let xt: &[f32] = if s.temporal.is_some() { &bt.xt } else { x };
-    // Step 3: M = Q·X_t, Z[i] = ReLU(Wᵀ·M[i]).
-    gemm(
-        n,
-        n,
-        ci * t,
-        rows(&bt.q, n),
-        rows(xt, ci * t),
-        0.0,
-        &mut bt.m,
-        ci * t,
-    );
-    let w = &p[s.w];
-    let mix = &bt.m;
-    for_each_node(split(c * ci * t), &mut bt.z, c * t, |i, zi| {
-        let mi = &mix[i * ci * t..][..ci * t];
-        gemm(c, ci, t, transposed(w, c), rows(mi, t), 0.0, zi, t);
-        for v in zi.iter_mut() {
-            *v = v.max(0.0);
-        }
-    });
     // Step 4 on the output steps: unfold every node, then G = W·col + bias.
     let (t0, steps) = (bt.t0, bt.steps);
     let wide = n * steps;
@@ -395,6 +370,61 @@ fn block(
             }
         }
     }
+}
+
+/// Steps 1–3 of the IASTGCN variants: Ψ = Σ_k θ_k basis_k, the attentions (when the
+/// variant attends), M = Q·X_t and Z[i] = ReLU(Wᵀ·M[i]); `split` tasks for the per-node
+/// products.
+#[allow(clippy::too_many_arguments)]
+fn graph_conv(
+    n: usize,
+    ci: usize,
+    t: usize,
+    c: usize,
+    basis: &[f32],
+    s: &BlockSlots,
+    p: &[Vec<f32>],
+    x: &[f32],
+    bt: &mut BlockTape,
+    threads: usize,
+    split: usize,
+) {
+    // invariant: every block but st-gat's has gwc.theta (slots::Slots::new).
+    let theta = s.theta.expect("a graph convolution has gwc.theta");
+    bt.psi.fill(0.0);
+    for (theta, b) in p[theta].iter().zip(basis.chunks(n * n)) {
+        for (v, b) in bt.psi.iter_mut().zip(b) {
+            *v += theta * b;
+        }
+    }
+    // Steps 1–2.
+    if let (Some(ts), Some(ss)) = (s.temporal, s.spatial) {
+        temporal_attention(n, ci, t, p, ts, x, bt, threads);
+        spatial_attention(n, ci, t, p, ss, bt);
+    } else {
+        bt.q.copy_from_slice(&bt.psi);
+    }
+    let xt: &[f32] = if s.temporal.is_some() { &bt.xt } else { x };
+    // Step 3: M = Q·X_t, Z[i] = ReLU(Wᵀ·M[i]).
+    gemm(
+        n,
+        n,
+        ci * t,
+        rows(&bt.q, n),
+        rows(xt, ci * t),
+        0.0,
+        &mut bt.m,
+        ci * t,
+    );
+    let w = &p[s.w];
+    let mix = &bt.m;
+    for_each_node(split, &mut bt.z, c * t, |i, zi| {
+        let mi = &mix[i * ci * t..][..ci * t];
+        gemm(c, ci, t, transposed(w, c), rows(mi, t), 0.0, zi, t);
+        for v in zi.iter_mut() {
+            *v = v.max(0.0);
+        }
+    });
 }
 
 /// Step 1 on `x` `[N, C_in, T]`: X_t = X·(E' + I), keeping lhs, rhs, σ and E'.
