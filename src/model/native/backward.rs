@@ -1,7 +1,7 @@
 //! The backward pass of one window from dL/dŷ, reading the [`Tape`] of its training
 //! forward (`tape.rs`) and adding every parameter's gradient into `grads`. Step by step
 //! the reverse of the forward, the same algebra as the f64 reference
-//! (`model::reference`), with every contraction a `matrixmultiply` product.
+//! (`model::reference`), with every contraction a `gemm` product (`super::gemm`).
 
 // The LayerNorm loops index several per-channel tensors by the channel.
 #![allow(clippy::needless_range_loop)]

@@ -8,7 +8,7 @@
 //! Both compute docs/model.md's steps 1–7 and the head in the order of the device
 //! schedule: X_t = X·(E' + I), the spatial attention folded into Q = Ψ·(I + S') and
 //! M = Q·X_t, and in the last block steps 4–7 at the last time step only. Every
-//! contraction is a `matrixmultiply::sgemm` on a strided view of the row-major tensors
+//! contraction is a `gemm::gemm` (the `gemm` crate: AVX-512, AVX2 or scalar kernels chosen at run time, one thread per call) on a strided view of the row-major tensors
 //! (no copies, no transposes); the rest are loops over contiguous rows. Working memory is
 //! allocated when a path is built.
 //!
@@ -74,21 +74,27 @@ fn gemm(m: usize, k: usize, n: usize, a: View, b: View, beta: f32, c: &mut [f32]
     // SAFETY: the asserts above keep every element the product reads or writes inside
     // the three slices; C does not alias A or B (it is borrowed mutably).
     unsafe {
-        matrixmultiply::sgemm(
+        // gemm's convention: C := alpha·C + beta·(A·B), C read only when `read_dst`.
+        gemm::gemm(
             m,
-            k,
             n,
-            1.0,
-            a.data.as_ptr(),
-            a.rs as isize,
-            a.cs as isize,
-            b.data.as_ptr(),
-            b.rs as isize,
-            b.cs as isize,
-            beta,
+            k,
             c.as_mut_ptr(),
-            ldc as isize,
             1,
+            ldc as isize,
+            beta != 0.0,
+            a.data.as_ptr(),
+            a.cs as isize,
+            a.rs as isize,
+            b.data.as_ptr(),
+            b.cs as isize,
+            b.rs as isize,
+            beta,
+            1.0,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
         );
     }
 }

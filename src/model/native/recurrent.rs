@@ -10,7 +10,7 @@
 //! h' = u ⊙ h + (1 − u) ⊙ c
 //! ```
 //!
-//! Every contraction is a `matrixmultiply::sgemm` on row-major slices; S_k = I (T_0 of
+//! Every contraction is a `gemm` product (`super::gemm`) on row-major slices; S_k = I (T_0 of
 //! EAT-GCN's Chebyshev supports) skips its graph mix, as on the device. The models have no
 //! dropout, so training and inference share the forward pass.
 
