@@ -246,29 +246,26 @@ fn model_group(c: &mut Criterion, name: &str, config: &ModelConfig) {
         flops::forward_flops(config, 1),
         || forward(&gpu, &one),
     );
-    if NativeForward::supports(config) {
-        let graph = iastgcn::graph::Graph::default_asset();
-        let len = config.nodes * config.features * config.window;
-        let x = to_f32(&uniform(&mut rng(2), len, -1.0, 1.0));
-        let mut y = vec![0f32; config.outputs];
-        // One thread (the default), then every core (`Predictor::set_threads`).
-        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-        for (label, threads) in [
-            ("native forward B=1", 1),
-            ("native forward B=1 all cores", cores),
-        ] {
-            let mut native =
-                NativeForward::new(config, &graph, &Parameters::init(config, 1)).unwrap();
-            native.set_threads(threads);
-            bench(
-                &mut group,
-                name,
-                label,
-                Some(1),
-                flops::forward_flops(config, 1),
-                || native.forward(&x, &mut y).unwrap(),
-            );
-        }
+    let graph = iastgcn::graph::Graph::default_asset();
+    let len = config.nodes * config.features * config.window;
+    let x = to_f32(&uniform(&mut rng(2), len, -1.0, 1.0));
+    let mut y = vec![0f32; config.outputs];
+    // One thread (the default), then every core (`Predictor::set_threads`).
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    for (label, threads) in [
+        ("native forward B=1", 1),
+        ("native forward B=1 all cores", cores),
+    ] {
+        let mut native = NativeForward::new(config, &graph, &Parameters::init(config, 1)).unwrap();
+        native.set_threads(threads);
+        bench(
+            &mut group,
+            name,
+            label,
+            Some(1),
+            flops::forward_flops(config, 1),
+            || native.forward(&x, &mut y).unwrap(),
+        );
     }
     bench(
         &mut group,
@@ -286,43 +283,40 @@ fn model_group(c: &mut Criterion, name: &str, config: &ModelConfig) {
         flops::training_flops(config, BATCH),
         || training_step(&gpu, &big),
     );
-    if NativeTraining::supports(config) {
-        let graph = iastgcn::graph::Graph::default_asset();
-        let shape = NativeStepShape {
-            batch: BATCH,
-            group: 1,
-            seed: 1,
-            penalty: 1.0,
-            threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
-        };
-        let adam = NativeAdam {
-            beta1: 0.9,
-            beta2: 0.999,
-            eps: 1e-8,
-            weight_decay: 1e-4,
-        };
-        let mut native = NativeTraining::new(config, &graph, shape, adam).unwrap();
-        native
-            .load_parameters(&Parameters::init(config, 1))
-            .unwrap();
-        let len = config.nodes * config.features * config.window;
-        let x = to_f32(&uniform(&mut rng(3), BATCH * len, -1.0, 1.0));
-        let y = to_f32(&uniform(&mut rng(4), BATCH * config.outputs, -1.0, 1.0));
-        let mut step = 0u32;
-        bench(
-            &mut group,
-            name,
-            "native train step B=64",
-            Some(BATCH),
-            flops::training_flops(config, BATCH),
-            // Forward, loss and backward, no update: what the device's step and
-            // PyTorch's (make bench-compare) time.
-            || {
-                native.gradients(&x, &y, step).unwrap();
-                step += 1;
-            },
-        );
-    }
+    let shape = NativeStepShape {
+        batch: BATCH,
+        group: 1,
+        seed: 1,
+        penalty: 1.0,
+        threads: cores,
+    };
+    let adam = NativeAdam {
+        beta1: 0.9,
+        beta2: 0.999,
+        eps: 1e-8,
+        weight_decay: 1e-4,
+    };
+    let mut native = NativeTraining::new(config, &graph, shape, adam).unwrap();
+    native
+        .load_parameters(&Parameters::init(config, 1))
+        .unwrap();
+    let len = config.nodes * config.features * config.window;
+    let x = to_f32(&uniform(&mut rng(3), BATCH * len, -1.0, 1.0));
+    let y = to_f32(&uniform(&mut rng(4), BATCH * config.outputs, -1.0, 1.0));
+    let mut step = 0u32;
+    bench(
+        &mut group,
+        name,
+        "native train step B=64",
+        Some(BATCH),
+        flops::training_flops(config, BATCH),
+        // Forward, loss and backward, no update: what the device's step and
+        // PyTorch's (make bench-compare) time.
+        || {
+            native.gradients(&x, &y, step).unwrap();
+            step += 1;
+        },
+    );
     group.finish();
 }
 

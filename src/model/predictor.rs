@@ -92,7 +92,7 @@ impl Predictor {
         checkpoint: &Checkpoint,
         capacity: usize,
     ) -> Result<Predictor, ModelError> {
-        let backend = if gpu.is_software() && NativeForward::supports(&checkpoint.config) {
+        let backend = if gpu.is_software() {
             Backend::Native
         } else {
             Backend::Device

@@ -42,17 +42,13 @@ pub(super) struct NativeSteps {
     forwards: std::sync::Mutex<Vec<NativeForward>>,
 }
 
-/// True when `[train] backend` (`auto`, `device`, `native`) puts `model` on the CPU here.
-pub fn runs_native(backend: &str, gpu: &Gpu, model: &ModelConfig) -> Result<bool, TrainError> {
-    let covered = NativeTraining::supports(model);
+/// True when `[train] backend` (`auto`, `device`, `native`) puts training on the CPU here
+/// (the native path covers every variant).
+pub fn runs_native(backend: &str, gpu: &Gpu) -> Result<bool, TrainError> {
     match backend {
-        "auto" => Ok(covered && gpu.is_software()),
+        "auto" => Ok(gpu.is_software()),
         "device" => Ok(false),
-        "native" if covered => Ok(true),
-        "native" => Err(TrainError::Data(format!(
-            "train.backend = \"native\": the native CPU path trains iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, st-gat, the dense baselines, tgcn, eat-gcn and convlstm, not {}",
-            model.variant
-        ))),
+        "native" => Ok(true),
         other => Err(TrainError::Data(format!(
             "train.backend = {other:?}: expected \"auto\", \"device\" or \"native\""
         ))),
@@ -74,7 +70,7 @@ impl Engine {
         init: &Parameters,
     ) -> Result<Engine, TrainError> {
         let seed32 = (config.seed as u32) ^ ((config.seed >> 32) as u32);
-        if runs_native(&config.backend, gpu, model)? {
+        if runs_native(&config.backend, gpu)? {
             let shape = NativeStepShape {
                 batch,
                 group,
@@ -268,7 +264,7 @@ impl Engine {
             }
             Engine::Device(d) => d,
         };
-        if gpu.is_software() && NativeForward::supports(model) {
+        if gpu.is_software() {
             let params = d.net.read_parameters(gpu)?;
             let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
             let mut forwards = (0..threads)

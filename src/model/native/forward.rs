@@ -49,27 +49,12 @@ enum Body {
 }
 
 impl NativeForward {
-    /// True when this path covers `config`'s variant: every variant since ST-GAT joined
-    /// (the four IASTGCN variants and ST-GAT, the dense baselines, T-GCN, EAT-GCN and
-    /// ConvLSTM); kept so that callers ask rather than assume.
-    pub fn supports(config: &ModelConfig) -> bool {
-        match config.variant.family() {
-            Family::StBlocks | Family::Dense | Family::Recurrent | Family::ConvRecurrent => true,
-        }
-    }
-
     /// Copies the weights and sizes the working memory; the only allocations.
     pub fn new(
         config: &ModelConfig,
         graph: &Graph,
         params: &Parameters,
     ) -> Result<NativeForward, ModelError> {
-        if !NativeForward::supports(config) {
-            return Err(ModelError::Config(format!(
-                "the native CPU forward covers iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, st-gat, the dense baselines, tgcn, eat-gcn and convlstm, not {}",
-                config.variant
-            )));
-        }
         config.validate().map_err(ModelError::Config)?;
         let specs = param_specs(config);
         let values = values_in_spec_order(&specs, params)?;

@@ -4,7 +4,7 @@
 //! j of LeakyReLU(e_ij), Z_i = ReLU(Σ_j α_ij·q_j) (`ops::graph_attention`'s CPU reference,
 //! in the block's `[N, C, T]` layout).
 
-use super::{gemm, rows, transposed};
+use super::{exp, gemm, rows, transposed};
 use crate::ops::graph_attention::SLOPE;
 
 /// One window's intermediates of the graph attention.
@@ -97,7 +97,7 @@ impl GatShape {
                     let mut sum = 0.0;
                     for j in 0..n {
                         let a = if on(j) {
-                            (leaky(g.e[r + j]) - top).exp()
+                            exp(leaky(g.e[r + j]) - top)
                         } else {
                             0.0
                         };

@@ -60,6 +60,7 @@ impl Slots {
             };
             let attention = config.variant.attention();
             let gat = config.variant.graph_attention();
+            let w = if gat { p("gat.W")? } else { p("gwc.W")? };
             blocks.push(BlockSlots {
                 temporal: if attention {
                     Some(five(["tat.U1", "tat.U2", "tat.U3", "tat.be", "tat.Ve"])?)
@@ -72,7 +73,7 @@ impl Slots {
                     None
                 },
                 theta: if gat { None } else { Some(p("gwc.theta")?) },
-                w: if gat { p("gat.W")? } else { p("gwc.W")? },
+                w,
                 gat: if gat {
                     Some(GatShape {
                         nodes: config.nodes,
@@ -80,7 +81,7 @@ impl Slots {
                         channels: config.channels,
                         steps: config.window,
                         heads: config.heads,
-                        w: p("gat.W")?,
+                        w,
                         a_src: p("gat.a_src")?,
                         a_dst: p("gat.a_dst")?,
                     })

@@ -15,7 +15,6 @@ use crate::graph::Graph;
 use crate::model::config::{Family, ModelConfig};
 use crate::model::network::ModelError;
 use crate::model::params::{graph_basis, param_specs, ParamSpec, Parameters};
-use crate::model::NativeForward;
 use crate::ops::adam::hyper_values;
 use crate::ops::loss::{cpu as loss_cpu, PoseLoss};
 
@@ -88,12 +87,6 @@ pub struct NativeTraining {
 }
 
 impl NativeTraining {
-    /// True for the variants this path covers (those of [`NativeForward`]: the IASTGCN
-    /// variants, ST-GAT, the dense baselines, T-GCN, EAT-GCN and ConvLSTM).
-    pub fn supports(config: &ModelConfig) -> bool {
-        NativeForward::supports(config)
-    }
-
     /// Zero parameters and moments for `config`'s variant at `shape`; load weights with
     /// [`NativeTraining::load_parameters`].
     pub fn new(
@@ -102,12 +95,6 @@ impl NativeTraining {
         shape: NativeStepShape,
         adam: NativeAdam,
     ) -> Result<NativeTraining, ModelError> {
-        if !NativeTraining::supports(config) {
-            return Err(ModelError::Config(format!(
-                "native CPU training covers iastgcn, iastgcn-a, iastgcn-t, iastgcn-s, st-gat, the dense baselines, tgcn, eat-gcn and convlstm, not {}",
-                config.variant
-            )));
-        }
         config.validate().map_err(ModelError::Config)?;
         if shape.batch == 0 || shape.group == 0 || !shape.batch.is_multiple_of(shape.group) {
             return Err(ModelError::Config(format!(
