@@ -7,10 +7,10 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::slots::{BlockSlots, Slots};
-use super::tape::{BlockTape, Masks, Tape};
-use super::{gemm, rows, sigmoid, tanh, transposed, View};
+use super::tape::{BlockTape, Tape};
+use super::{gemm, lanes_dot, lanes_sum, rows, transposed, View};
 use crate::model::config::ModelConfig;
-use crate::ops::dropout::{keep, Dropout};
+use multiversion::multiversion;
 
 /// Working memory of the backward pass, sized for the widest block.
 pub(super) struct Work {
@@ -37,6 +37,10 @@ pub(super) struct Work {
     dlhs: Vec<f32>,
     drhs: Vec<f32>,
     dred: Vec<f32>,
+    /// The LayerNorm backward's per-step channel sums and one row of x̂ `[3, T]`.
+    ln: Vec<f32>,
+    /// Its dγ and dβ at each (channel, step) `[2, C, T]`.
+    ln_params: Vec<f32>,
 }
 
 impl Work {
@@ -64,12 +68,15 @@ impl Work {
             drhs: z(n * t),
             // Also the graph attention's scratch (graph_attention::GatShape::work_len).
             dred: z((wide * big).max(n + 2 * c)),
+            ln: z(3 * t),
+            ln_params: z(2 * c * t),
         }
     }
 }
 
 /// Adds dL/dθ of one window to `grads` (in `param_specs` order) from `dout` = dL/dŷ
-/// `[O]`, the tape of its forward on `x` and the same `masks`.
+/// `[O]` and the tape of its forward on `x` (`dropout`: whether that forward had masks;
+/// the backward reads them from the tape).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn backward(
     cfg: &ModelConfig,
@@ -78,7 +85,7 @@ pub(super) fn backward(
     p: &[Vec<f32>],
     x: &[f32],
     tape: &Tape,
-    masks: Option<Masks>,
+    dropout: bool,
     dout: &[f32],
     grads: &mut [Vec<f32>],
     w: &mut Work,
@@ -111,7 +118,6 @@ pub(super) fn backward(
     );
     for l in (0..slots.blocks.len()).rev() {
         let input = if l == 0 { x } else { &tape.blocks[l - 1].y[..] };
-        let mask = masks.map(|m| (m.block(cfg, l), m.step));
         block(
             cfg,
             basis,
@@ -119,7 +125,7 @@ pub(super) fn backward(
             p,
             input,
             &tape.blocks[l],
-            mask,
+            dropout,
             l > 0,
             grads,
             w,
@@ -130,6 +136,7 @@ pub(super) fn backward(
 
 /// dL/dθ of block `l` from `w.dy` (`[N, C, steps]`); dL/dX into `w.dx` when `need_dx`.
 #[allow(clippy::too_many_arguments)]
+#[multiversion(targets("x86_64+avx512f", "x86_64+avx2+fma"))]
 fn block(
     cfg: &ModelConfig,
     basis: &[f32],
@@ -137,7 +144,7 @@ fn block(
     p: &[Vec<f32>],
     x: &[f32],
     bt: &BlockTape,
-    mask: Option<((Dropout, usize), u32)>,
+    dropout: bool,
     need_dx: bool,
     grads: &mut [Vec<f32>],
     w: &mut Work,
@@ -149,46 +156,70 @@ fn block(
     // Step 7: the dropout mask, then step 6's LayerNorm and the ReLU before it.
     let scale = 1.0 / (1.0 - cfg.dropout as f32);
     let dy = &mut w.dy[..n * c * steps];
-    if let Some(((drop, offset), step)) = &mask {
-        for i in 0..n {
-            for o in 0..c {
-                for tau in 0..steps {
-                    let full = (i * c + o) * t + t0 + tau;
-                    let v = &mut dy[(i * c + o) * steps + tau];
-                    *v = if keep(drop, *step, offset + full) {
-                        *v * scale
-                    } else {
-                        0.0
-                    };
-                }
-            }
+    if dropout {
+        for (v, &k) in dy.iter_mut().zip(&bt.kept) {
+            *v = if k { *v * scale } else { 0.0 };
         }
     }
+    // Per node, row by row over the steps (contiguous, so the loops vectorise): the
+    // channel sums s1 = Σ_o dx̂, s2 = Σ_o dx̂·x̂ at each step, then dA.
     let gamma = &p[s.gamma];
     let da = &mut w.da[..n * c * steps];
     let inv_c = 1.0 / c as f32;
+    let (s1, rest) = w.ln.split_at_mut(steps);
+    let (s2, xhat) = rest.split_at_mut(steps);
+    let xhat = &mut xhat[..steps];
+    // dγ and dβ summed over nodes at each (channel, step), then over the steps.
+    let (dgamma, dbeta) = w.ln_params.split_at_mut(c * steps);
+    let dbeta = &mut dbeta[..c * steps];
+    dgamma[..c * steps].fill(0.0);
+    dbeta.fill(0.0);
     for i in 0..n {
-        for tau in 0..steps {
-            let j = i * steps + tau;
-            let (mean, rstd) = (bt.mean[j], bt.rstd[j]);
-            let (mut s1, mut s2) = (0f32, 0f32);
-            for o in 0..c {
-                let e = (i * c + o) * steps + tau;
-                let xhat = (bt.act[e] - mean) * rstd;
-                let g = dy[e];
-                grads[s.gamma][o] += g * xhat;
-                grads[s.beta][o] += g;
+        let mean = &bt.mean[i * steps..][..steps];
+        let rstd = &bt.rstd[i * steps..][..steps];
+        let rows_of = |o: usize| (i * c + o) * steps..(i * c + o + 1) * steps;
+        s1.fill(0.0);
+        s2.fill(0.0);
+        for o in 0..c {
+            let (act, g) = (&bt.act[rows_of(o)], &dy[rows_of(o)]);
+            normalised(act, mean, rstd, xhat);
+            let dgamma = &mut dgamma[o * steps..][..steps];
+            let dbeta = &mut dbeta[o * steps..][..steps];
+            for (((((a1, a2), &g), &xh), dga), dbe) in s1
+                .iter_mut()
+                .zip(s2.iter_mut())
+                .zip(g)
+                .zip(&*xhat)
+                .zip(dgamma.iter_mut())
+                .zip(dbeta.iter_mut())
+            {
                 let dxhat = g * gamma[o];
-                s1 += dxhat;
-                s2 += dxhat * xhat;
-            }
-            for o in 0..c {
-                let e = (i * c + o) * steps + tau;
-                let xhat = (bt.act[e] - mean) * rstd;
-                let v = rstd * (dy[e] * gamma[o] - s1 * inv_c - xhat * s2 * inv_c);
-                da[e] = if bt.act[e] > 0.0 { v } else { 0.0 };
+                *a1 += dxhat;
+                *a2 += dxhat * xh;
+                *dga += g * xh;
+                *dbe += g;
             }
         }
+        for o in 0..c {
+            let (act, g) = (&bt.act[rows_of(o)], &dy[rows_of(o)]);
+            normalised(act, mean, rstd, xhat);
+            let dst = &mut da[rows_of(o)];
+            for (((((d, &a), &g), &xh), &r), (&a1, &a2)) in dst
+                .iter_mut()
+                .zip(act)
+                .zip(g)
+                .zip(&*xhat)
+                .zip(rstd)
+                .zip(s1.iter().zip(s2.iter()))
+            {
+                let v = r * (g * gamma[o] - a1 * inv_c - xh * a2 * inv_c);
+                *d = if a > 0.0 { v } else { 0.0 };
+            }
+        }
+    }
+    for (o, (dga, dbe)) in dgamma.chunks(steps).zip(dbeta.chunks(steps)).enumerate() {
+        grads[s.gamma][o] += lanes_sum(dga);
+        grads[s.beta][o] += lanes_sum(dbe);
     }
     // Step 5: R = W_r·X + b_r at the output steps (dR = dA).
     let dx = &mut w.dx[..n * ci * t];
@@ -214,7 +245,7 @@ fn block(
             ci,
         );
         for (g, row) in grads[res_b].iter_mut().zip(dai.chunks(steps)) {
-            *g += row.iter().sum::<f32>();
+            *g += lanes_sum(row);
         }
         if need_dx {
             // Rows of this node's dX start `t0` into each row of T.
@@ -247,7 +278,8 @@ fn block(
                 let q = &bt.g[c * wide + at..][..steps];
                 let dq = &mut dg_g[at..][..steps];
                 for ((((df, dq), dh), f), q) in df.iter_mut().zip(dq).zip(dh).zip(f).zip(q) {
-                    let (th, sg) = (tanh(*f), sigmoid(*q));
+                    // The tape holds tanh(G_f) and σ(G_g).
+                    let (th, sg) = (*f, *q);
                     *df = dh * sg * (1.0 - th * th);
                     *dq = dh * th * sg * (1.0 - sg);
                 }
@@ -274,7 +306,7 @@ fn block(
             ck,
         );
         for (g, row) in grads[b].iter_mut().zip(dgh.chunks(wide)) {
-            *g += row.iter().sum::<f32>();
+            *g += lanes_sum(row);
         }
         let beta = if half == 0 { 0.0 } else { 1.0 };
         gemm(
@@ -310,10 +342,9 @@ fn block(
             }
         }
     }
+    // A select, not a conditional store: the loop vectorises.
     for (g, &z) in dz.iter_mut().zip(&bt.z) {
-        if z <= 0.0 {
-            *g = 0.0;
-        }
+        *g = if z > 0.0 { *g } else { 0.0 };
     }
     if let (Some(shape), Some(tape)) = (s.gat, bt.gat.as_ref()) {
         // `st-gat`: the graph attention on the input.
@@ -398,7 +429,7 @@ fn block(
     // invariant: every block but st-gat's has gwc.theta (slots::Slots::new).
     let theta = s.theta.expect("a graph convolution has gwc.theta");
     for (g, b) in grads[theta].iter_mut().zip(basis.chunks(n * n)) {
-        *g += dpsi.iter().zip(b).map(|(a, b)| a * b).sum::<f32>();
+        *g += lanes_dot(dpsi, b);
     }
     if let (Some(ts), Some(ss)) = (s.temporal, s.spatial) {
         spatial_backward(n, ci, t, p, ss, bt, grads, w);
@@ -410,8 +441,17 @@ fn block(
     }
 }
 
+/// x̂ = (a − mean)·rstd along one row of steps.
+#[inline(always)]
+fn normalised(act: &[f32], mean: &[f32], rstd: &[f32], xhat: &mut [f32]) {
+    for (((x, a), m), r) in xhat.iter_mut().zip(act).zip(mean).zip(rstd) {
+        *x = (a - m) * r;
+    }
+}
+
 /// The score gate S = V·σ(P + bias) of both attentions, backward: from dS (`w.dscore`,
 /// `[len, len]`) adds dV and dbias, leaves dP in `w.dsig`.
+#[multiversion(targets("x86_64+avx512f", "x86_64+avx2+fma"))]
 fn score_gate_backward(
     len: usize,
     v: &[f32],
@@ -451,6 +491,7 @@ fn score_gate_backward(
 
 /// Step 2 backward from dS' (`w.dsp`): adds its gradients and dL/dX_t into `w.dxt`.
 #[allow(clippy::too_many_arguments)]
+#[multiversion(targets("x86_64+avx512f", "x86_64+avx2+fma"))]
 fn spatial_backward(
     n: usize,
     ci: usize,
@@ -544,6 +585,7 @@ fn spatial_backward(
 /// Step 1 backward from dX_t (`w.dxt`): adds its gradients, and dL/dX into `w.dx` when
 /// `need_dx`.
 #[allow(clippy::too_many_arguments)]
+#[multiversion(targets("x86_64+avx512f", "x86_64+avx2+fma"))]
 fn temporal_backward(
     n: usize,
     ci: usize,
@@ -570,11 +612,19 @@ fn temporal_backward(
         t,
     );
     // Softmax over each column: dE = E' ⊙ (dE' − Σ_u E'·dE').
+    // Row by row, so that the loops run along contiguous rows (each column's dot still
+    // sums in row order).
     let ds = &mut w.dscore[..t * t];
-    for col in 0..t {
-        let dot: f32 = (0..t).map(|u| bt.e[u * t + col] * de[u * t + col]).sum();
-        for u in 0..t {
-            ds[u * t + col] = bt.e[u * t + col] * (de[u * t + col] - dot);
+    let dot = &mut w.ln[..t];
+    dot.fill(0.0);
+    for (e, d) in bt.e.chunks(t).zip(de.chunks(t)) {
+        for ((s, e), d) in dot.iter_mut().zip(e).zip(d) {
+            *s += e * d;
+        }
+    }
+    for ((out, e), d) in ds.chunks_mut(t).zip(bt.e.chunks(t)).zip(de.chunks(t)) {
+        for (((o, e), d), s) in out.iter_mut().zip(e).zip(d).zip(dot.iter()) {
+            *o = e * (d - s);
         }
     }
     score_gate_backward(t, &p[ve], &bt.t_sig, grads, ve, be, w);

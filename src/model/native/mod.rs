@@ -9,8 +9,12 @@
 //! schedule: X_t = X·(E' + I), the spatial attention folded into Q = Ψ·(I + S') and
 //! M = Q·X_t, and in the last block steps 4–7 at the last time step only. Every
 //! contraction is a `gemm::gemm` (the `gemm` crate: AVX-512, AVX2 or scalar kernels chosen at run time, one thread per call) on a strided view of the row-major tensors
-//! (no copies, no transposes); the rest are loops over contiguous rows. Working memory is
-//! allocated when a path is built.
+//! (no copies, no transposes); the rest are loops over contiguous rows. The functions
+//! holding the IASTGCN blocks' loops (`tape.rs`, `backward.rs`) are compiled for AVX-512
+//! and AVX2/FMA besides baseline x86-64 and chosen at their first call (`multiversion`);
+//! f32 arithmetic is never reassociated or contracted, and the sums that must vectorise
+//! use [`lanes_sum`]'s fixed partial sums, so every width gives the same bits. Working
+//! memory is allocated when a path is built.
 //!
 //! Files: `forward.rs` ([`NativeForward`]), `tape.rs` (the training forward of one
 //! window, keeping its intermediates), `backward.rs` (its backward), `step.rs`
@@ -140,6 +144,40 @@ fn par_gemm(
     });
 }
 
+/// Partial sums of [`lanes_dot`] and [`lanes_sum`].
+const LANES: usize = 16;
+
+/// Σ a[j]·b[j] as 16 interleaved partial sums (element j into sum j mod 16) added in a
+/// fixed order at the end, so that the loop vectorises (a plain `sum()` stays a scalar
+/// chain: f32 addition is not reassociated) and the result is the same at any SIMD width.
+#[inline(always)]
+fn lanes_dot(a: &[f32], b: &[f32]) -> f32 {
+    debug_assert_eq!(a.len(), b.len());
+    let (a_body, a_tail) = a.as_chunks::<LANES>();
+    let (b_body, b_tail) = b.as_chunks::<LANES>();
+    let mut acc = [0f32; LANES];
+    for (x, y) in a_body.iter().zip(b_body) {
+        for j in 0..LANES {
+            acc[j] += x[j] * y[j];
+        }
+    }
+    let tail: f32 = a_tail.iter().zip(b_tail).map(|(x, y)| x * y).sum();
+    acc.iter().sum::<f32>() + tail
+}
+
+/// Σ a[j] in the order of [`lanes_dot`].
+#[inline(always)]
+fn lanes_sum(a: &[f32]) -> f32 {
+    let (body, tail) = a.as_chunks::<LANES>();
+    let mut acc = [0f32; LANES];
+    for x in body {
+        for j in 0..LANES {
+            acc[j] += x[j];
+        }
+    }
+    acc.iter().sum::<f32>() + tail.iter().sum::<f32>()
+}
+
 /// The flat head of the baselines that end in a state vector: ŷ[o] = b[o] + W[o]·h, with
 /// `head` the (W `[O, |h|]`, b) slots in `params`.
 fn flat_head(params: &[Vec<f32>], head: (usize, usize), h: &[f32], out: &mut [f32]) {
@@ -227,6 +265,7 @@ fn tanh(x: f32) -> f32 {
 }
 
 /// Softmax of each contiguous `len`-long row of `x`, in place, max-subtracted.
+#[inline(always)]
 fn softmax_rows(x: &mut [f32], len: usize) {
     for row in x.chunks_mut(len) {
         let max = row.iter().copied().fold(f32::NEG_INFINITY, f32::max);
@@ -243,6 +282,7 @@ fn softmax_rows(x: &mut [f32], len: usize) {
 /// Softmax of each column of the row-major `[rows, cols]` matrix `x`, in place,
 /// max-subtracted: the column's values in row order, as a loop down each column would
 /// take them, but row by row so that the work runs along contiguous rows.
+#[inline(always)]
 fn softmax_columns(x: &mut [f32], cols: usize, max: &mut [f32], sum: &mut [f32]) {
     max.fill(f32::NEG_INFINITY);
     sum.fill(0.0);
@@ -282,6 +322,39 @@ mod tests {
         assert!(exp(-1e4) > 0.0 && exp(-1e4) < 1e-37);
         assert!(exp(1e4).is_finite() && exp(1e4) > 1e38);
         assert!(sigmoid(-1e4) >= 0.0 && sigmoid(1e4) == 1.0 && tanh(-1e4) == -1.0);
+    }
+
+    #[test]
+    fn lane_sums_follow_their_documented_order() {
+        for len in [0, 1, 15, 16, 17, 48, 100] {
+            let a: Vec<f32> = (0..len)
+                .map(|i| ((i * 29 % 13) as f32 - 6.0) * 0.37)
+                .collect();
+            let b: Vec<f32> = (0..len)
+                .map(|i| ((i * 17 % 7) as f32 - 3.0) * 1.3)
+                .collect();
+            // Lane j sums elements j, j + 16, … of the whole chunks in order; the lanes
+            // are added first to last, then the tail in order.
+            let body = len / LANES * LANES;
+            let ordered = |f: &dyn Fn(usize) -> f32| {
+                let mut lanes = [0f32; LANES];
+                for i in 0..body {
+                    lanes[i % LANES] += f(i);
+                }
+                let tail: f32 = (body..len).map(f).sum();
+                lanes.iter().sum::<f32>() + tail
+            };
+            let want_dot = ordered(&|i| a[i] * b[i]);
+            let want_sum = ordered(&|i| a[i]);
+            assert_eq!(
+                lanes_dot(&a, &b).to_bits(),
+                want_dot.to_bits(),
+                "dot, {len}"
+            );
+            assert_eq!(lanes_sum(&a).to_bits(), want_sum.to_bits(), "sum, {len}");
+            let exact: f64 = a.iter().zip(&b).map(|(x, y)| *x as f64 * *y as f64).sum();
+            assert!((lanes_dot(&a, &b) as f64 - exact).abs() < 1e-4, "{len}");
+        }
     }
 
     #[test]

@@ -383,7 +383,7 @@ impl Context<'_> {
                         self.params,
                         x(k),
                         &tapes[k],
-                        Some(masks(k)),
+                        true,
                         dout,
                         &mut w.grads,
                         work,

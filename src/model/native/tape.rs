@@ -14,6 +14,7 @@ use super::{
 };
 use crate::model::config::ModelConfig;
 use crate::ops::dropout::{keep, Dropout};
+use multiversion::multiversion;
 
 /// One block's intermediates for one window. Attention fields are empty in `iastgcn-a`.
 pub(super) struct BlockTape {
@@ -42,13 +43,17 @@ pub(super) struct BlockTape {
     /// `st-gat`'s step 3 (its Z is [`BlockTape::z`]; Ψ, Q and M stay unused).
     pub gat: Option<GatTape>,
     /// Step 4 on the block's output steps (`steps` = T, or 1 in the last block): the
-    /// unfolding `[C·K, N·steps]` and `[G_f; G_g]` `[outs, N·steps]`.
+    /// unfolding `[C·K, N·steps]` and `[G_f; G_g]` `[outs, N·steps]`, the gated
+    /// variants' after their activations: `[tanh(G_f); σ(G_g)]`.
     pub col: Vec<f32>,
     pub g: Vec<f32>,
     /// Step 6: ReLU(H + R) `[N, C, steps]`, and the mean and 1/σ `[N, steps]`.
     pub act: Vec<f32>,
     pub mean: Vec<f32>,
     pub rstd: Vec<f32>,
+    /// Step 7's mask on the output steps `[N, C, steps]` (set by a training forward; the
+    /// backward reads it instead of hashing again).
+    pub kept: Vec<bool>,
     /// The block output after dropout `[N, C, T]` (empty in the last block: the head's
     /// input is [`Tape::h`]).
     pub y: Vec<f32>,
@@ -88,6 +93,7 @@ impl BlockTape {
             act: z(n * c * steps),
             mean: z(n * steps),
             rstd: z(n * steps),
+            kept: vec![false; n * c * steps],
             y: z(if last { 0 } else { n * c * t }),
             t0,
             steps,
@@ -201,6 +207,7 @@ pub(super) fn forward(
 /// One block on `x` `[N, C_in, T]`; the output goes to `bt.y`, or to `h` in the last block.
 /// `threads` > 1 splits the large products and the per-node loops (see [`Tape::threads`]).
 #[allow(clippy::too_many_arguments)]
+#[multiversion(targets("x86_64+avx512f", "x86_64+avx2+fma"))]
 fn block(
     cfg: &ModelConfig,
     basis: &[f32],
@@ -266,8 +273,18 @@ fn block(
             wide,
         );
     }
-    // Steps 5–6 per node: A = ReLU(H + R), then LayerNorm over C at each step.
+    // The gate's activations, once over the whole of G (kept for the backward).
     let gated = s.gate.is_some();
+    if gated {
+        let (f, q) = bt.g.split_at_mut(c * wide);
+        for v in f.iter_mut() {
+            *v = tanh(*v);
+        }
+        for v in q.iter_mut() {
+            *v = sigmoid(*v);
+        }
+    }
+    // Steps 5–6 per node: A = ReLU(H + R), then LayerNorm over C at each step.
     let eps = cfg.eps as f32;
     let (res_w, res_b) = (&p[s.res.0], &p[s.res.1]);
     let g = &bt.g;
@@ -287,7 +304,7 @@ fn block(
             if gated {
                 let q = &g[(c + o) * wide + i * steps..][..steps];
                 for ((v, f), q) in a.iter_mut().zip(f).zip(q) {
-                    *v = (*v + tanh(*f) * sigmoid(*q)).max(0.0);
+                    *v = (*v + f * q).max(0.0);
                 }
             } else {
                 for (v, f) in a.iter_mut().zip(f) {
@@ -360,12 +377,12 @@ fn block(
                 *d = gamma[o] * (a - m) * r + beta[o];
             }
             if let Some(((drop, offset), step)) = &mask {
-                for (tau, d) in dst.iter_mut().enumerate() {
-                    *d = if keep(drop, *step, offset + full + tau) {
-                        *d * scale
-                    } else {
-                        0.0
-                    };
+                let kept = &mut bt.kept[(i * c + o) * steps..][..steps];
+                for (tau, k) in kept.iter_mut().enumerate() {
+                    *k = keep(drop, *step, offset + full + tau);
+                }
+                for (d, &k) in dst.iter_mut().zip(kept.iter()) {
+                    *d = if k { *d * scale } else { 0.0 };
                 }
             }
         }
@@ -376,6 +393,7 @@ fn block(
 /// variant attends), M = Q·X_t and Z[i] = ReLU(Wᵀ·M[i]); `split` tasks for the per-node
 /// products.
 #[allow(clippy::too_many_arguments)]
+#[multiversion(targets("x86_64+avx512f", "x86_64+avx2+fma"))]
 fn graph_conv(
     n: usize,
     ci: usize,
@@ -429,6 +447,7 @@ fn graph_conv(
 
 /// Step 1 on `x` `[N, C_in, T]`: X_t = X·(E' + I), keeping lhs, rhs, σ and E'.
 #[allow(clippy::too_many_arguments)]
+#[multiversion(targets("x86_64+avx512f", "x86_64+avx2+fma"))]
 fn temporal_attention(
     n: usize,
     ci: usize,
@@ -505,6 +524,7 @@ fn temporal_attention(
 }
 
 /// Step 2 on `bt.xt`: S' and Q = Ψ·(I + S').
+#[multiversion(targets("x86_64+avx512f", "x86_64+avx2+fma"))]
 fn spatial_attention(
     n: usize,
     ci: usize,
@@ -561,6 +581,7 @@ fn spatial_attention(
 
 /// `f(i, chunk)` for each node's `size`-long chunk of `data`, in `tasks` rayon tasks of
 /// consecutive nodes when `tasks` > 1.
+#[inline(always)]
 fn for_each_node(
     tasks: usize,
     data: &mut [f32],
