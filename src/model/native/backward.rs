@@ -37,8 +37,9 @@ pub(super) struct Work {
     dlhs: Vec<f32>,
     drhs: Vec<f32>,
     dred: Vec<f32>,
-    /// The LayerNorm backward's per-step channel sums and one row of x̂ `[3, T]`.
+    /// The LayerNorm backward's per-step channel sums `[2, T]` and a node's x̂ `[C, T]`.
     ln: Vec<f32>,
+    xhat: Vec<f32>,
     /// Its dγ and dβ at each (channel, step) `[2, C, T]`.
     ln_params: Vec<f32>,
 }
@@ -68,15 +69,15 @@ impl Work {
             drhs: z(n * t),
             // Also the graph attention's scratch (graph_attention::GatShape::work_len).
             dred: z((wide * big).max(n + 2 * c)),
-            ln: z(3 * t),
+            ln: z(2 * t),
+            xhat: z(c * t),
             ln_params: z(2 * c * t),
         }
     }
 }
 
 /// Adds dL/dθ of one window to `grads` (in `param_specs` order) from `dout` = dL/dŷ
-/// `[O]` and the tape of its forward on `x` (`dropout`: whether that forward had masks;
-/// the backward reads them from the tape).
+/// `[O]` and the tape of its forward on `x` (its dropout masks too, when it drew them).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn backward(
     cfg: &ModelConfig,
@@ -85,7 +86,6 @@ pub(super) fn backward(
     p: &[Vec<f32>],
     x: &[f32],
     tape: &Tape,
-    dropout: bool,
     dout: &[f32],
     grads: &mut [Vec<f32>],
     w: &mut Work,
@@ -125,7 +125,7 @@ pub(super) fn backward(
             p,
             input,
             &tape.blocks[l],
-            dropout,
+            tape.dropped,
             l > 0,
             grads,
             w,
@@ -144,7 +144,7 @@ fn block(
     p: &[Vec<f32>],
     x: &[f32],
     bt: &BlockTape,
-    dropout: bool,
+    dropped: bool,
     need_dx: bool,
     grads: &mut [Vec<f32>],
     w: &mut Work,
@@ -156,7 +156,7 @@ fn block(
     // Step 7: the dropout mask, then step 6's LayerNorm and the ReLU before it.
     let scale = 1.0 / (1.0 - cfg.dropout as f32);
     let dy = &mut w.dy[..n * c * steps];
-    if dropout {
+    if dropped {
         for (v, &k) in dy.iter_mut().zip(&bt.kept) {
             *v = if k { *v * scale } else { 0.0 };
         }
@@ -166,9 +166,10 @@ fn block(
     let gamma = &p[s.gamma];
     let da = &mut w.da[..n * c * steps];
     let inv_c = 1.0 / c as f32;
-    let (s1, rest) = w.ln.split_at_mut(steps);
-    let (s2, xhat) = rest.split_at_mut(steps);
-    let xhat = &mut xhat[..steps];
+    let (s1, s2) = w.ln.split_at_mut(steps);
+    let s2 = &mut s2[..steps];
+    // x̂ of the node's channels `[C, steps]`, from the first pass for the second.
+    let xhat_node = &mut w.xhat[..c * steps];
     // dγ and dβ summed over nodes at each (channel, step), then over the steps.
     let (dgamma, dbeta) = w.ln_params.split_at_mut(c * steps);
     let dbeta = &mut dbeta[..c * steps];
@@ -182,6 +183,7 @@ fn block(
         s2.fill(0.0);
         for o in 0..c {
             let (act, g) = (&bt.act[rows_of(o)], &dy[rows_of(o)]);
+            let xhat = &mut xhat_node[o * steps..][..steps];
             normalised(act, mean, rstd, xhat);
             let dgamma = &mut dgamma[o * steps..][..steps];
             let dbeta = &mut dbeta[o * steps..][..steps];
@@ -202,13 +204,13 @@ fn block(
         }
         for o in 0..c {
             let (act, g) = (&bt.act[rows_of(o)], &dy[rows_of(o)]);
-            normalised(act, mean, rstd, xhat);
+            let xhat = &xhat_node[o * steps..][..steps];
             let dst = &mut da[rows_of(o)];
             for (((((d, &a), &g), &xh), &r), (&a1, &a2)) in dst
                 .iter_mut()
                 .zip(act)
                 .zip(g)
-                .zip(&*xhat)
+                .zip(xhat)
                 .zip(rstd)
                 .zip(s1.iter().zip(s2.iter()))
             {

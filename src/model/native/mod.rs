@@ -8,7 +8,8 @@
 //! Both compute docs/model.md's steps 1–7 and the head in the order of the device
 //! schedule: X_t = X·(E' + I), the spatial attention folded into Q = Ψ·(I + S') and
 //! M = Q·X_t, and in the last block steps 4–7 at the last time step only. Every
-//! contraction is a `gemm::gemm` (the `gemm` crate: AVX-512, AVX2 or scalar kernels chosen at run time, one thread per call) on a strided view of the row-major tensors
+//! contraction is a `gemm::gemm` (the `gemm` crate: AVX-512, AVX2 or scalar kernels
+//! chosen at run time, one thread per call) on a strided view of the row-major tensors
 //! (no copies, no transposes); the rest are loops over contiguous rows. The functions
 //! holding the IASTGCN blocks' loops (`tape.rs`, `backward.rs`) are compiled for AVX-512
 //! and AVX2/FMA besides baseline x86-64 and chosen at their first call (`multiversion`);

@@ -383,7 +383,6 @@ impl Context<'_> {
                         self.params,
                         x(k),
                         &tapes[k],
-                        true,
                         dout,
                         &mut w.grads,
                         work,

@@ -108,6 +108,8 @@ pub(super) struct Tape {
     pub h: Vec<f32>,
     /// ŷ `[O]`.
     pub out: Vec<f32>,
+    /// Whether the last forward drew dropout masks (each block's [`BlockTape::kept`]).
+    pub dropped: bool,
     /// Tasks the large products and the per-node loops of one window are split into, on
     /// rayon's global pool (1: none; the inference forward may set more, see
     /// `NativeForward::set_threads`; training parallelises over windows instead).
@@ -128,6 +130,7 @@ impl Tape {
             h: vec![0f32; cfg.nodes * cfg.channels],
             out: vec![0f32; cfg.outputs],
             threads: 1,
+            dropped: false,
         }
     }
 }
@@ -169,6 +172,7 @@ pub(super) fn forward(
 ) {
     let last = slots.blocks.len() - 1;
     let threads = tape.threads;
+    tape.dropped = masks.is_some();
     for l in 0..slots.blocks.len() {
         let (done, rest) = tape.blocks.split_at_mut(l);
         let input = if l == 0 { x } else { &done[l - 1].y[..] };
