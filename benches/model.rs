@@ -3,7 +3,7 @@
 //! split over every core as `Predictor::set_threads` allows) and B = 64, and one
 //! training step at B = 64 (on the device and, for the IASTGCN variants, on the native
 //! CPU path `model::NativeTraining` with every core), for the paper shape (C 64, T 100, L 5) and a small shape
-//! (C 16, T 48, L 3), then the same three for each baseline (tgcn, eat-gcn, mlp,
+//! (C 16, T 48, L 3), the native training step at the demo's shape (C 16, T 48, L 2), then the same three for each baseline (tgcn, eat-gcn, mlp,
 //! bkls-ann, ann-bfpa, erc) at both windows, against the project's best matmul measured in the
 //! same run.
 //!
@@ -283,6 +283,14 @@ fn model_group(c: &mut Criterion, name: &str, config: &ModelConfig) {
         flops::training_flops(config, BATCH),
         || training_step(&gpu, &big),
     );
+    native_train_step(&mut group, name, config);
+    group.finish();
+}
+
+/// The native training step of `config` at B = 64 on every core, in `group`.
+fn native_train_step(group: &mut BenchmarkGroup<WallTime>, name: &str, config: &ModelConfig) {
+    let graph = iastgcn::graph::Graph::default_asset();
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let shape = NativeStepShape {
         batch: BATCH,
         group: 1,
@@ -305,7 +313,7 @@ fn model_group(c: &mut Criterion, name: &str, config: &ModelConfig) {
     let y = to_f32(&uniform(&mut rng(4), BATCH * config.outputs, -1.0, 1.0));
     let mut step = 0u32;
     bench(
-        &mut group,
+        group,
         name,
         "native train step B=64",
         Some(BATCH),
@@ -317,11 +325,27 @@ fn model_group(c: &mut Criterion, name: &str, config: &ModelConfig) {
             step += 1;
         },
     );
-    group.finish();
 }
 
 fn small_shape(c: &mut Criterion) {
     model_group(c, "small C16 T48 L3", &common::small_config());
+}
+
+/// The demo's network (`assets/demo.toml`: L = 2), its native training step only (the
+/// device's step at this shape is in `cargo bench --bench epoch`).
+fn demo_shape(c: &mut Criterion) {
+    let name = "demo C16 T48 L2";
+    if !selected(name) {
+        return;
+    }
+    let config = ModelConfig {
+        blocks: 2,
+        ..common::small_config()
+    };
+    print_breakdown(name, &config, BATCH);
+    let mut group = new_group(c, name);
+    native_train_step(&mut group, name, &config);
+    group.finish();
 }
 
 fn paper_shape(c: &mut Criterion) {
@@ -478,6 +502,6 @@ criterion_group! {
     name = benches;
     // No plots: the plotters backend panics for want of a font on this machine.
     config = Criterion::default().without_plots();
-    targets = matmul_baseline, memory, small_shape, paper_shape, streaming, baselines, summary
+    targets = matmul_baseline, memory, small_shape, demo_shape, paper_shape, streaming, baselines, summary
 }
 criterion_main!(benches);

@@ -17,14 +17,17 @@ pub(super) struct Work {
     /// dL/d(block output) and dL/d(block input), `[N, C_max, T]`, swapped per block.
     dy: Vec<f32>,
     dx: Vec<f32>,
-    /// dA `[N, C, T]`, dG `[outs, N·T]`, dcol `[C·K, N·T]`, dZ `[N, C, T]`.
+    /// dA `[N, C, T]`, dG `[outs, N·T]`, d[W_f; W_g] `[outs, C·K]`, dcol `[C·K, N·T]`,
+    /// dZ `[N, C, T]`.
     da: Vec<f32>,
     dg: Vec<f32>,
+    dwcat: Vec<f32>,
     dcol: Vec<f32>,
     dz: Vec<f32>,
-    /// dM and dX_t `[N, C_in, T]`.
+    /// dM and dX_t `[N, C_in, T]`, and dX_t in the taps' layout `[N, K, C_in]`.
     dm: Vec<f32>,
     dxt: Vec<f32>,
+    taps: Vec<f32>,
     /// dQ, dΨ, dS', dS, dσ `[N, N]` or `[T, T]`.
     dq: Vec<f32>,
     dpsi: Vec<f32>,
@@ -33,6 +36,10 @@ pub(super) struct Work {
     dsig: Vec<f32>,
     /// dE' `[T, T]`.
     de: Vec<f32>,
+    /// The spatial attention's dv `[T]` and dr `[N, T]` (its v = (I + E')·W1 and
+    /// r[m] = W3ᵀ·X[m], see `tape.rs`).
+    dv: Vec<f32>,
+    dr: Vec<f32>,
     /// Attention lhs/rhs gradients `[T, N]`/`[N, T]`, and `[C_in, T]` or `[N, C_in]`.
     dlhs: Vec<f32>,
     drhs: Vec<f32>,
@@ -55,16 +62,20 @@ impl Work {
             dx: z(n * wide * t),
             da: z(n * c * t),
             dg: z(2 * c * n * t),
+            dwcat: z(2 * c * c * k),
             dcol: z(c * k * n * t),
             dz: z(n * c * t),
             dm: z(n * wide * t),
             dxt: z(n * wide * t),
+            taps: z(n * wide * k),
             dq: z(n * n),
             dpsi: z(n * n),
             dsp: z(n * n),
             dscore: z(big * big),
             dsig: z(big * big),
             de: z(t * t),
+            dv: z(t),
+            dr: z(n * t),
             dlhs: z(t * n),
             drhs: z(n * t),
             // Also the graph attention's scratch (graph_attention::GatShape::work_len).
@@ -229,39 +240,63 @@ fn block(
         dx.fill(0.0);
     }
     let (res_w, res_b) = s.res;
-    for i in 0..n {
-        let dai = &da[i * c * steps..][..c * steps];
+    if steps == 1 {
+        // One step, all nodes at once: dW_r += dAᵀ·X[:, :, t0], dX[:, :, t0] += dA·W_r.
         let xv = View {
-            data: &x[i * ci * t + t0..],
-            rs: 1,
+            data: &x[t0..],
+            rs: ci * t,
             cs: t,
         };
-        gemm(
-            c,
-            steps,
-            ci,
-            rows(dai, steps),
-            xv,
-            1.0,
-            &mut grads[res_w],
-            ci,
-        );
-        for (g, row) in grads[res_b].iter_mut().zip(dai.chunks(steps)) {
-            *g += lanes_sum(row);
+        gemm(c, n, ci, transposed(da, c), xv, 1.0, &mut grads[res_w], ci);
+        for row in da.chunks(c) {
+            for (g, d) in grads[res_b].iter_mut().zip(row) {
+                *g += d;
+            }
         }
         if need_dx {
-            // Rows of this node's dX start `t0` into each row of T.
-            let out = &mut dx[i * ci * t + t0..];
+            let part = &mut w.dred[..n * ci];
+            gemm(n, c, ci, rows(da, c), rows(&p[res_w], ci), 0.0, part, ci);
+            for (i, row) in part.chunks(ci).enumerate() {
+                for (ch, v) in row.iter().enumerate() {
+                    dx[(i * ci + ch) * t + t0] += v;
+                }
+            }
+        }
+    } else {
+        for i in 0..n {
+            let dai = &da[i * c * steps..][..c * steps];
+            let xv = View {
+                data: &x[i * ci * t + t0..],
+                rs: 1,
+                cs: t,
+            };
             gemm(
-                ci,
                 c,
                 steps,
-                transposed(&p[res_w], ci),
+                ci,
                 rows(dai, steps),
+                xv,
                 1.0,
-                out,
-                t,
+                &mut grads[res_w],
+                ci,
             );
+            for (g, row) in grads[res_b].iter_mut().zip(dai.chunks(steps)) {
+                *g += lanes_sum(row);
+            }
+            if need_dx {
+                // Rows of this node's dX start `t0` into each row of T.
+                let out = &mut dx[i * ci * t + t0..];
+                gemm(
+                    ci,
+                    c,
+                    steps,
+                    transposed(&p[res_w], ci),
+                    rows(dai, steps),
+                    1.0,
+                    out,
+                    t,
+                );
+            }
         }
     }
     // Step 4: dG from dH = dA, then the convolution weights and dcol = Wᵀ·dG.
@@ -292,44 +327,59 @@ fn block(
             }
         }
     }
+    // Both halves in one product each ([W_f; W_g] is on the tape): d[W_f; W_g] =
+    // dG·colᵀ, dcol = [W_f; W_g]ᵀ·dG.
     let ck = c * k;
-    let dcol = &mut w.dcol[..ck * wide];
+    let dw = &mut w.dwcat[..outs * ck];
+    gemm(
+        outs,
+        wide,
+        ck,
+        rows(dg, wide),
+        transposed(&bt.col, wide),
+        0.0,
+        dw,
+        ck,
+    );
     let convs = std::iter::once(s.filter).chain(s.gate);
     for (half, (wt, b)) in convs.enumerate() {
+        for (g, d) in grads[wt].iter_mut().zip(&dw[half * c * ck..][..c * ck]) {
+            *g += d;
+        }
         let dgh = &dg[half * c * wide..][..c * wide];
-        gemm(
-            c,
-            wide,
-            ck,
-            rows(dgh, wide),
-            transposed(&bt.col, wide),
-            1.0,
-            &mut grads[wt],
-            ck,
-        );
         for (g, row) in grads[b].iter_mut().zip(dgh.chunks(wide)) {
             *g += lanes_sum(row);
         }
-        let beta = if half == 0 { 0.0 } else { 1.0 };
-        gemm(
-            ck,
-            c,
-            wide,
-            transposed(&p[wt], ck),
-            rows(dgh, wide),
-            beta,
-            dcol,
-            wide,
-        );
     }
-    // The unfolding's adjoint: dZ[i][ch][t0 + τ − d·lag] += dcol[ch·K + lag][i·steps + τ];
-    // then Z's ReLU.
-    let dz = &mut w.dz[..n * c * t];
+    let weights: &[f32] = if gated { &bt.wcat } else { &p[s.filter.0] };
+    let dcol = &mut w.dcol[..ck * wide];
+    gemm(
+        ck,
+        outs,
+        wide,
+        transposed(weights, ck),
+        rows(dg, wide),
+        0.0,
+        dcol,
+        wide,
+    );
+    // The unfolding's adjoint: dZ[i][ch][t0 + τ − d·lag] += dcol[ch·K + lag][i·steps + τ]
+    // (at the taps, Z `[N, taps, C]` holds lag's tap at taps − 1 − lag); then Z's ReLU.
+    let (cols, kept) = (bt.cols, bt.cols.len);
+    let dz = &mut w.dz[..n * c * kept];
     dz.fill(0.0);
     let d = s.dilation;
     for ch in 0..c {
         for lag in 0..k {
             let row = &dcol[(ch * k + lag) * wide..][..wide];
+            if cols.taps {
+                if lag < kept {
+                    for (i, v) in row.iter().enumerate() {
+                        dz[(i * kept + kept - 1 - lag) * c + ch] += v;
+                    }
+                }
+                continue;
+            }
             let shift = d * lag;
             let zeros = shift.saturating_sub(t0).min(steps);
             if zeros == steps {
@@ -360,57 +410,96 @@ fn block(
         shape.backward(p, basis, x, tape, dz, dq, dx, grads, work);
         return;
     }
-    // Step 3: Z[i] = ReLU(Wᵀ·M[i]), M = Q·X_t.
-    let dm = &mut w.dm[..n * ci * t];
-    for i in 0..n {
-        let mi = &bt.m[i * ci * t..][..ci * t];
-        let dzi = &dz[i * c * t..][..c * t];
+    // Step 3: Z[i] = ReLU(Wᵀ·M[i]), M = Q·X_t; at the taps (in their layout) Z = ReLU(M·W):
+    // dW += Mᵀ·dZ, dM = dZ·Wᵀ.
+    let width = ci * kept;
+    let dm = &mut w.dm[..n * width];
+    if cols.taps {
         gemm(
             ci,
-            t,
+            n * kept,
             c,
-            rows(mi, t),
-            transposed(dzi, t),
+            transposed(&bt.m, ci),
+            rows(dz, c),
             1.0,
             &mut grads[s.w],
             c,
         );
         gemm(
-            ci,
+            n * kept,
             c,
-            t,
-            rows(&p[s.w], c),
-            rows(dzi, t),
+            ci,
+            rows(dz, c),
+            transposed(&p[s.w], c),
             0.0,
-            &mut dm[i * ci * t..][..ci * t],
-            t,
+            dm,
+            ci,
         );
+    } else {
+        for i in 0..n {
+            let mi = &bt.m[i * width..][..width];
+            let dzi = &dz[i * c * kept..][..c * kept];
+            gemm(
+                ci,
+                kept,
+                c,
+                rows(mi, kept),
+                transposed(dzi, kept),
+                1.0,
+                &mut grads[s.w],
+                c,
+            );
+            gemm(
+                ci,
+                c,
+                kept,
+                rows(&p[s.w], c),
+                rows(dzi, kept),
+                0.0,
+                &mut dm[i * width..][..width],
+                kept,
+            );
+        }
     }
     let attends = s.temporal.is_some();
-    let xt: &[f32] = if attends { &bt.xt } else { x };
+    let xt: &[f32] = if cols.taps {
+        &bt.xtt
+    } else if attends {
+        &bt.xt
+    } else {
+        x
+    };
     let dq = &mut w.dq;
     gemm(
         n,
-        ci * t,
+        width,
         n,
-        rows(dm, ci * t),
-        transposed(xt, ci * t),
+        rows(dm, width),
+        transposed(xt, width),
         0.0,
         dq,
         n,
     );
-    let dxt = &mut w.dxt[..n * ci * t];
     if attends || need_dx {
+        // dX_t = Qᵀ·dM, at the taps through their layout back to `[N, C_in, taps]`.
+        let dxt = if cols.taps {
+            &mut w.taps[..n * width]
+        } else {
+            &mut w.dxt[..n * width]
+        };
         gemm(
             n,
             n,
-            ci * t,
+            width,
             transposed(&bt.q, n),
-            rows(dm, ci * t),
+            rows(dm, width),
             0.0,
             dxt,
-            ci * t,
+            width,
         );
+        if cols.taps {
+            cols.transpose(n, ci, &w.taps, &mut w.dxt, true);
+        }
     }
     // Q = Ψ·(I + S'): dΨ = dQ·(I + S')ᵀ, dS' = Ψᵀ·dQ (Q = Ψ without attention).
     let dpsi = &mut w.dpsi;
@@ -434,12 +523,10 @@ fn block(
         *g += lanes_dot(dpsi, b);
     }
     if let (Some(ts), Some(ss)) = (s.temporal, s.spatial) {
-        spatial_backward(n, ci, t, p, ss, bt, grads, w);
+        spatial_backward(n, ci, t, p, ss, x, bt, need_dx, grads, w);
         temporal_backward(n, ci, t, p, ts, x, bt, need_dx, grads, w);
     } else if need_dx {
-        for (a, b) in w.dx[..n * ci * t].iter_mut().zip(&w.dxt[..n * ci * t]) {
-            *a += b;
-        }
+        cols.scatter_add(&w.dxt[..n * width], t, &mut w.dx[..n * ci * t]);
     }
 }
 
@@ -491,7 +578,9 @@ fn score_gate_backward(
     }
 }
 
-/// Step 2 backward from dS' (`w.dsp`): adds its gradients and dL/dX_t into `w.dxt`.
+/// Step 2 backward from dS' (`w.dsp`): adds its gradients and writes `w.de`: its part of
+/// dL/dE' and dL/dX (into `w.dx` when `need_dx`) where it read X and E', zero and dL/dX_t
+/// (into `w.dxt`) where it read X_t.
 #[allow(clippy::too_many_arguments)]
 #[multiversion(targets("x86_64+avx512f", "x86_64+avx2+fma"))]
 fn spatial_backward(
@@ -500,7 +589,9 @@ fn spatial_backward(
     t: usize,
     p: &[Vec<f32>],
     ix: [usize; 5],
+    x: &[f32],
     bt: &BlockTape,
+    need_dx: bool,
     grads: &mut [Vec<f32>],
     w: &mut Work,
 ) {
@@ -523,7 +614,7 @@ fn spatial_backward(
     gemm(n, n, t, rows(dp, n), rows(&bt.s_rhs, t), 0.0, dlhs, t);
     let drhs = &mut w.drhs[..n * t];
     gemm(n, n, t, transposed(dp, n), rows(&bt.s_lhs, t), 0.0, drhs, t);
-    // lhs = xw1·W2, xw1 = X_t·W1, rhs[m] = W3ᵀ·X_t[m].
+    // lhs = xw1·W2, xw1 = X·v, rhs = r·(I + E').
     gemm(
         ci,
         n,
@@ -545,47 +636,94 @@ fn spatial_backward(
         dxw1,
         ci,
     );
-    let xt = &bt.xt;
-    let dxt = &mut w.dxt[..n * ci * t];
-    gemm(
-        1,
-        n * ci,
-        t,
-        rows(dxw1, n * ci),
-        rows(xt, t),
-        1.0,
-        &mut grads[w1],
-        t,
-    );
-    gemm(n * ci, 1, t, rows(dxw1, 1), rows(&p[w1], t), 1.0, dxt, t);
+    // The attention read X_t (kept at every step), or X and E' through v and r (see
+    // `tape.rs`); d(what it read) goes to dX_t, for step 1's backward, or to dX.
+    let every = !bt.cols.taps;
+    let (src, w1v): (&[f32], &[f32]) = if every { (&bt.xt, &p[w1]) } else { (x, &bt.sv) };
+    let mut dsrc = if every {
+        Some(&mut w.dxt[..n * ci * t])
+    } else if need_dx {
+        Some(&mut w.dx[..n * ci * t])
+    } else {
+        None
+    };
+    let de = &mut w.de[..t * t];
+    if every {
+        // xw1 = X_t·W1; step 1's backward adds all of dE'.
+        gemm(
+            1,
+            n * ci,
+            t,
+            rows(dxw1, n * ci),
+            rows(src, t),
+            1.0,
+            &mut grads[w1],
+            t,
+        );
+        de.fill(0.0);
+    } else {
+        // xw1 = X·v, v = (I + E')·W1: dv = Xᵀ·dxw1, dW1 += dv + E'ᵀ·dv, dE' = dv·W1ᵀ;
+        // rhs = r·(I + E'): dE' += rᵀ·drhs.
+        let dv = &mut w.dv[..t];
+        gemm(1, n * ci, t, rows(dxw1, n * ci), rows(x, t), 0.0, dv, t);
+        for (g, d) in grads[w1].iter_mut().zip(dv.iter()) {
+            *g += d;
+        }
+        gemm(
+            t,
+            t,
+            1,
+            transposed(&bt.e, t),
+            rows(dv, 1),
+            1.0,
+            &mut grads[w1],
+            1,
+        );
+        gemm(t, 1, t, rows(dv, 1), rows(&p[w1], t), 0.0, de, t);
+        gemm(t, n, t, transposed(&bt.sr, t), rows(drhs, t), 1.0, de, t);
+    }
+    if let Some(d) = dsrc.as_deref_mut() {
+        gemm(n * ci, 1, t, rows(dxw1, 1), rows(w1v, t), 1.0, d, t);
+    }
+    // rhs[m] = W3ᵀ·src[m] (times (I + E') when from X: dr = drhs + drhs·E'ᵀ).
+    let dr: &[f32] = if every {
+        drhs
+    } else {
+        let dr = &mut w.dr[..n * t];
+        dr.copy_from_slice(drhs);
+        gemm(n, t, t, rows(drhs, t), transposed(&bt.e, t), 1.0, dr, t);
+        dr
+    };
     for m in 0..n {
-        let dr = &drhs[m * t..][..t];
-        let xm = &xt[m * ci * t..][..ci * t];
+        let drm = &dr[m * t..][..t];
+        let sm = &src[m * ci * t..][..ci * t];
         gemm(
             1,
             t,
             ci,
-            rows(dr, t),
-            transposed(xm, t),
+            rows(drm, t),
+            transposed(sm, t),
             1.0,
             &mut grads[w3],
             ci,
         );
-        gemm(
-            ci,
-            1,
-            t,
-            rows(&p[w3], 1),
-            rows(dr, t),
-            1.0,
-            &mut dxt[m * ci * t..][..ci * t],
-            t,
-        );
+        if let Some(d) = dsrc.as_deref_mut() {
+            gemm(
+                ci,
+                1,
+                t,
+                rows(&p[w3], 1),
+                rows(drm, t),
+                1.0,
+                &mut d[m * ci * t..][..ci * t],
+                t,
+            );
+        }
     }
 }
 
-/// Step 1 backward from dX_t (`w.dxt`): adds its gradients, and dL/dX into `w.dx` when
-/// `need_dx`.
+/// Step 1 backward from dX_t at the kept steps (`w.dxt`) and the spatial attention's
+/// part of dE' (`w.de`): adds its gradients, and dL/dX into `w.dx` when `need_dx`.
 #[allow(clippy::too_many_arguments)]
 #[multiversion(targets("x86_64+avx512f", "x86_64+avx2+fma"))]
 fn temporal_backward(
@@ -601,18 +739,23 @@ fn temporal_backward(
     w: &mut Work,
 ) {
     let [u1, u2, u3, be, ve] = ix;
-    // X_t = X·(E' + I): dE' = Xᵀ·dX_t (dX gets dX_t + dX_t·E'ᵀ below).
+    // X_t = X[:, cols] + X·E'[:, cols]: dE'[:, cols] += Xᵀ·dX_t (dX gets dX_t + dX_t·
+    // E'[:, cols]ᵀ below).
+    let cols = bt.cols;
+    let width = ci * cols.len;
     let de = &mut w.de[..t * t];
+    let part = &mut w.dscore[..t * cols.len];
     gemm(
         t,
         n * ci,
-        t,
+        cols.len,
         transposed(x, t),
-        rows(&w.dxt[..n * ci * t], t),
+        rows(&w.dxt[..n * width], cols.len),
         0.0,
-        de,
-        t,
+        part,
+        cols.len,
     );
+    cols.scatter_add(part, t, de);
     // Softmax over each column: dE = E' ⊙ (dE' − Σ_u E'·dE').
     // Row by row, so that the loops run along contiguous rows (each column's dot still
     // sums in row order).
@@ -675,12 +818,19 @@ fn temporal_backward(
     if !need_dx {
         return;
     }
-    let dxt = &w.dxt[..n * ci * t];
+    let dxt = &w.dxt[..n * width];
     let dx = &mut w.dx[..n * ci * t];
-    for (a, b) in dx.iter_mut().zip(dxt) {
-        *a += b;
-    }
-    gemm(n * ci, t, t, rows(dxt, t), transposed(&bt.e, t), 1.0, dx, t);
+    cols.scatter_add(dxt, t, dx);
+    gemm(
+        n * ci,
+        cols.len,
+        t,
+        rows(dxt, cols.len),
+        cols.of(&bt.e, t, true),
+        1.0,
+        dx,
+        t,
+    );
     gemm(
         n,
         1,

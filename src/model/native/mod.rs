@@ -7,7 +7,9 @@
 //!
 //! Both compute docs/model.md's steps 1–7 and the head in the order of the device
 //! schedule: X_t = X·(E' + I), the spatial attention folded into Q = Ψ·(I + S') and
-//! M = Q·X_t, and in the last block steps 4–7 at the last time step only. Every
+//! M = Q·X_t, and in the last block steps 4–7 at the last time step only; beyond the
+//! device, the last block's steps 1–3 run only at the K steps its convolution reads
+//! there (`tape.rs` `Cols`). Every
 //! contraction is a `gemm::gemm` (the `gemm` crate: AVX-512, AVX2 or scalar kernels
 //! chosen at run time, one thread per call) on a strided view of the row-major tensors
 //! (no copies, no transposes); the rest are loops over contiguous rows. The functions

@@ -2,7 +2,10 @@
 //! dropout, and the head, keeping on a [`Tape`] everything `backward.rs` reads. The order
 //! is the device's: X_t = X·(E' + I), Q = Ψ·(I + S'), M = Q·X_t, Z = ReLU(Wᵀ·M) per node,
 //! and in the last block steps 4–7 at the last time step only (the one the head reads;
-//! its dropout bits are the ones that step has in the whole tensor).
+//! its dropout bits are the ones that step has in the whole tensor). Beyond the device,
+//! the last block computes X_t, M and Z only at the K steps its convolution reads there
+//! ([`Cols`]), and its spatial attention is taken from X and E' instead of X_t (the same
+//! sums: X_t·W1 = X·((I + E')·W1), W3ᵀ·X_t[m] = (W3ᵀ·X[m])·(I + E')).
 
 use super::graph_attention::GatTape;
 use super::slots::{BlockSlots, Slots};
@@ -16,6 +19,99 @@ use crate::model::config::ModelConfig;
 use crate::ops::dropout::{keep, Dropout};
 use multiversion::multiversion;
 
+/// The time steps a block computes X_t, M and Z at: `len` steps from `first`, `stride`
+/// apart. Every step, except in the last block (steps 4–7 at T − 1 only), whose
+/// convolution reads Z at T − 1 − d·lag for lag < K, d its dilation: those taps only
+/// (`taps`), where M and Z are laid out tap-major, `[N, len, C]`, so that M = Q·X_t and
+/// Z = M·W are one product each for all nodes.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Cols {
+    pub first: usize,
+    pub stride: usize,
+    pub len: usize,
+    pub taps: bool,
+}
+
+impl Cols {
+    fn every(t: usize) -> Cols {
+        Cols {
+            first: 0,
+            stride: 1,
+            len: t,
+            taps: false,
+        }
+    }
+
+    /// The taps at or after step 0 of a kernel of `k` with dilation `d` ending at `t0`.
+    fn taps(t0: usize, d: usize, k: usize) -> Cols {
+        let len = k.min(t0 / d + 1);
+        Cols {
+            first: t0 - d * (len - 1),
+            stride: d,
+            len,
+            taps: true,
+        }
+    }
+
+    /// `[N, C, len]` to the taps' layout `[N, len, C]` (`back`: the other way).
+    pub fn transpose(&self, n: usize, c: usize, src: &[f32], out: &mut [f32], back: bool) {
+        let size = c * self.len;
+        for (s, o) in src[..n * size].chunks(size).zip(out.chunks_mut(size)) {
+            for ch in 0..c {
+                for j in 0..self.len {
+                    let (a, b) = (ch * self.len + j, j * c + ch);
+                    if back {
+                        o[a] = s[b];
+                    } else {
+                        o[b] = s[a];
+                    }
+                }
+            }
+        }
+    }
+
+    /// `out[r][j] = src[r][first + stride·j]` for rows of `t` in `src`, of `len` in `out`.
+    #[inline(always)]
+    fn gather(&self, src: &[f32], t: usize, out: &mut [f32]) {
+        for (o, s) in out.chunks_mut(self.len).zip(src.chunks(t)) {
+            for (j, o) in o.iter_mut().enumerate() {
+                *o = s[self.first + self.stride * j];
+            }
+        }
+    }
+
+    /// `dst[r][first + stride·j] += src[r][j]`, the adjoint of [`Cols::gather`].
+    #[inline(always)]
+    pub fn scatter_add(&self, src: &[f32], t: usize, dst: &mut [f32]) {
+        for (s, d) in src.chunks(self.len).zip(dst.chunks_mut(t)) {
+            if self.stride == 1 {
+                for (d, s) in d[self.first..][..self.len].iter_mut().zip(s) {
+                    *d += s;
+                }
+            } else {
+                for (j, s) in s.iter().enumerate() {
+                    d[self.first + self.stride * j] += s;
+                }
+            }
+        }
+    }
+
+    /// `rows` of E' `[T, T]` at the kept columns, as a `[T, len]` view (`transposed`: as
+    /// `[len, T]`, E'[:, cols]ᵀ).
+    pub fn of<'a>(&self, e: &'a [f32], t: usize, transposed: bool) -> View<'a> {
+        let (rs, cs) = if transposed {
+            (self.stride, t)
+        } else {
+            (t, self.stride)
+        };
+        View {
+            data: &e[self.first..],
+            rs,
+            cs,
+        }
+    }
+}
+
 /// One block's intermediates for one window. Attention fields are empty in `iastgcn-a`.
 pub(super) struct BlockTape {
     /// Step 1: `Σ_n U1[n]·X[n]` `[C_in, T]`, lhs `[T, N]`, rhs `[N, T]`, σ(lhs·rhs + be)
@@ -28,14 +124,24 @@ pub(super) struct BlockTape {
     pub xt: Vec<f32>,
     /// Scratch for E's column softmax: each column's max and sum `[2, T]`.
     pub e_cols: Vec<f32>,
-    /// Step 2: `X_t·W1` `[N, C_in]`, lhs `[N, T]`, rhs `[N, T]`, σ(lhs·rhsᵀ + bs) `[N, N]`,
+    /// The steps X_t (`[N, C_in, cols.len]`; at the taps without attention, X's columns
+    /// there), M and Z are kept at; at the taps, X_t again in their layout
+    /// `[N, cols.len, C_in]`.
+    pub cols: Cols,
+    pub xtt: Vec<f32>,
+    /// Step 2: at the taps (X_t not kept at every step), from X and E' instead, through
+    /// v = (I + E')·W1 `[T]` and r[m] = W3ᵀ·X[m] `[N, T]` (empty otherwise); then
+    /// `X_t·W1` `[N, C_in]`, lhs `[N, T]`, rhs `[N, T]`, σ(lhs·rhsᵀ + bs) `[N, N]`,
     /// S' `[N, N]`.
+    pub sv: Vec<f32>,
+    pub sr: Vec<f32>,
     pub xw1: Vec<f32>,
     pub s_lhs: Vec<f32>,
     pub s_rhs: Vec<f32>,
     pub s_sig: Vec<f32>,
     pub s: Vec<f32>,
-    /// Step 3: Ψ and Q = Ψ·(I + S') `[N, N]`, M = Q·X_t `[N, C_in, T]`, Z `[N, C, T]`.
+    /// Step 3: Ψ and Q = Ψ·(I + S') `[N, N]`, M = Q·X_t `[N, C_in, cols.len]` and Z
+    /// `[N, C, cols.len]` (at the taps `[N, cols.len, C_in]` and `[N, cols.len, C]`).
     pub psi: Vec<f32>,
     pub q: Vec<f32>,
     pub m: Vec<f32>,
@@ -43,8 +149,10 @@ pub(super) struct BlockTape {
     /// `st-gat`'s step 3 (its Z is [`BlockTape::z`]; Ψ, Q and M stay unused).
     pub gat: Option<GatTape>,
     /// Step 4 on the block's output steps (`steps` = T, or 1 in the last block): the
-    /// unfolding `[C·K, N·steps]` and `[G_f; G_g]` `[outs, N·steps]`, the gated
-    /// variants' after their activations: `[tanh(G_f); σ(G_g)]`.
+    /// gated variants' two weights stacked, `[W_f; W_g]` `[2C, C·K]` (one product for
+    /// both), the unfolding `[C·K, N·steps]` and `[G_f; G_g]` `[outs, N·steps]`, the
+    /// gated variants' after their activations: `[tanh(G_f); σ(G_g)]`.
+    pub wcat: Vec<f32>,
     pub col: Vec<f32>,
     pub g: Vec<f32>,
     /// Step 6: ReLU(H + R) `[N, C, steps]`, and the mean and 1/σ `[N, steps]`.
@@ -70,14 +178,32 @@ impl BlockTape {
         let outs = if s.gate.is_some() { 2 * c } else { c };
         let att = |len: usize| vec![0f32; if s.temporal.is_some() { len } else { 0 }];
         let z = |len: usize| vec![0f32; len];
+        // st-gat's graph attention computes Z at every step.
+        let cols = if last && s.gat.is_none() {
+            Cols::taps(t0, s.dilation, k)
+        } else {
+            Cols::every(t)
+        };
+        let kept = cols.len;
+        let xt = if s.temporal.is_some() || cols.taps {
+            n * ci * kept
+        } else {
+            0
+        };
+        // v and r of the spatial attention at the taps.
+        let fewer = |len: usize| vec![0f32; if cols.taps { len } else { 0 }];
         BlockTape {
             xu1: att(ci * t),
             t_lhs: att(t * n),
             t_rhs: att(n * t),
             t_sig: att(t * t),
             e: att(t * t),
-            xt: att(n * ci * t),
+            xt: z(xt),
             e_cols: att(2 * t),
+            cols,
+            xtt: z(if cols.taps { n * ci * kept } else { 0 }),
+            sv: fewer(t),
+            sr: fewer(n * t),
             xw1: att(n * ci),
             s_lhs: att(n * t),
             s_rhs: att(n * t),
@@ -85,9 +211,10 @@ impl BlockTape {
             s: att(n * n),
             psi: z(n * n),
             q: z(n * n),
-            m: z(n * ci * t),
-            z: z(n * c * t),
+            m: z(n * ci * kept),
+            z: z(n * c * kept),
             gat: s.gat.map(|g| g.tape()),
+            wcat: z(if s.gate.is_some() { outs * c * k } else { 0 }),
             col: z(c * k * n * steps),
             g: z(outs * n * steps),
             act: z(n * c * steps),
@@ -244,9 +371,21 @@ fn block(
     let (t0, steps) = (bt.t0, bt.steps);
     let wide = n * steps;
     let d = s.dilation;
+    let kept = bt.cols.len;
     for ch in 0..c {
         for lag in 0..k {
             let row = &mut bt.col[(ch * k + lag) * wide..][..wide];
+            if bt.cols.taps {
+                // One output step; Z `[N, taps, C]` holds lag's tap at kept − 1 − lag.
+                for (i, v) in row.iter_mut().enumerate() {
+                    *v = if lag < kept {
+                        bt.z[(i * kept + kept - 1 - lag) * c + ch]
+                    } else {
+                        0.0
+                    };
+                }
+                continue;
+            }
             let shift = d * lag;
             let zeros = shift.saturating_sub(t0).min(steps);
             for (i, seg) in row.chunks_mut(steps).enumerate() {
@@ -259,24 +398,31 @@ fn block(
         }
     }
     let ck = c * k;
-    let convs = std::iter::once(s.filter).chain(s.gate);
-    for (half, (w, b)) in convs.enumerate() {
-        let g = &mut bt.g[half * c * wide..][..c * wide];
-        for (row, &bias) in g.chunks_mut(wide).zip(&p[b]) {
-            row.fill(bias);
-        }
-        par_gemm(
-            threads,
-            c,
-            ck,
-            wide,
-            rows(&p[w], ck),
-            rows(&bt.col, wide),
-            1.0,
-            g,
-            wide,
-        );
+    let biases = std::iter::once(s.filter.1).chain(s.gate.map(|g| g.1));
+    let bias_rows = biases.flat_map(|b| p[b].iter());
+    for (row, &bias) in bt.g.chunks_mut(wide).zip(bias_rows) {
+        row.fill(bias);
     }
+    let weights: &[f32] = match s.gate {
+        Some((gate, _)) => {
+            let (f, g) = bt.wcat.split_at_mut(c * ck);
+            f.copy_from_slice(&p[s.filter.0]);
+            g.copy_from_slice(&p[gate]);
+            &bt.wcat
+        }
+        None => &p[s.filter.0],
+    };
+    par_gemm(
+        threads,
+        weights.len() / ck,
+        ck,
+        wide,
+        rows(weights, ck),
+        rows(&bt.col, wide),
+        1.0,
+        &mut bt.g,
+        wide,
+    );
     // The gate's activations, once over the whole of G (kept for the backward).
     let gated = s.gate.is_some();
     if gated {
@@ -291,17 +437,32 @@ fn block(
     // Steps 5–6 per node: A = ReLU(H + R), then LayerNorm over C at each step.
     let eps = cfg.eps as f32;
     let (res_w, res_b) = (&p[s.res.0], &p[s.res.1]);
-    let g = &bt.g;
-    let node = |i: usize, a: &mut [f32], mean: &mut [f32], rstd: &mut [f32]| {
-        for (row, &bias) in a.chunks_mut(steps).zip(res_b) {
-            row.fill(bias);
+    let one_step = steps == 1;
+    if one_step {
+        // R = X[:, :, t0]·W_rᵀ + b_r `[N, C]` for all nodes at once.
+        for (a, b) in bt.act.iter_mut().zip(res_b.iter().cycle()) {
+            *a = *b;
         }
         let xv = View {
-            data: &x[i * ci * t + t0..],
-            rs: t,
-            cs: 1,
+            data: &x[t0..],
+            rs: ci * t,
+            cs: t,
         };
-        gemm(c, ci, steps, rows(res_w, ci), xv, 1.0, a, steps);
+        gemm(n, ci, c, xv, transposed(res_w, ci), 1.0, &mut bt.act, c);
+    }
+    let g = &bt.g;
+    let node = |i: usize, a: &mut [f32], mean: &mut [f32], rstd: &mut [f32]| {
+        if !one_step {
+            for (row, &bias) in a.chunks_mut(steps).zip(res_b) {
+                row.fill(bias);
+            }
+            let xv = View {
+                data: &x[i * ci * t + t0..],
+                rs: t,
+                cs: 1,
+            };
+            gemm(c, ci, steps, rows(res_w, ci), xv, 1.0, a, steps);
+        }
         // Contiguous runs of steps, so that the gate's exp and divisions vectorise.
         for (o, a) in a.chunks_mut(steps).enumerate() {
             let f = &g[o * wide + i * steps..][..steps];
@@ -420,36 +581,70 @@ fn graph_conv(
         }
     }
     // Steps 1–2.
+    let kept = bt.cols.len;
     if let (Some(ts), Some(ss)) = (s.temporal, s.spatial) {
         temporal_attention(n, ci, t, p, ts, x, bt, threads);
-        spatial_attention(n, ci, t, p, ss, bt);
+        spatial_attention(n, ci, t, p, ss, x, bt);
     } else {
         bt.q.copy_from_slice(&bt.psi);
+        if bt.cols.taps {
+            bt.cols.gather(x, t, &mut bt.xt);
+        }
+    }
+    let width = ci * kept;
+    let w = &p[s.w];
+    if bt.cols.taps {
+        // Step 3 at the taps, in their layout: M = Q·X_t, Z = ReLU(M·W), `[N·taps, ·]`.
+        bt.cols.transpose(n, ci, &bt.xt, &mut bt.xtt, false);
+        gemm(
+            n,
+            n,
+            width,
+            rows(&bt.q, n),
+            rows(&bt.xtt, width),
+            0.0,
+            &mut bt.m,
+            width,
+        );
+        gemm(
+            n * kept,
+            ci,
+            c,
+            rows(&bt.m, ci),
+            rows(w, c),
+            0.0,
+            &mut bt.z,
+            c,
+        );
+        for v in bt.z.iter_mut() {
+            *v = v.max(0.0);
+        }
+        return;
     }
     let xt: &[f32] = if s.temporal.is_some() { &bt.xt } else { x };
     // Step 3: M = Q·X_t, Z[i] = ReLU(Wᵀ·M[i]).
     gemm(
         n,
         n,
-        ci * t,
+        width,
         rows(&bt.q, n),
-        rows(xt, ci * t),
+        rows(xt, width),
         0.0,
         &mut bt.m,
-        ci * t,
+        width,
     );
-    let w = &p[s.w];
     let mix = &bt.m;
-    for_each_node(split, &mut bt.z, c * t, |i, zi| {
-        let mi = &mix[i * ci * t..][..ci * t];
-        gemm(c, ci, t, transposed(w, c), rows(mi, t), 0.0, zi, t);
+    for_each_node(split, &mut bt.z, c * kept, |i, zi| {
+        let mi = &mix[i * width..][..width];
+        gemm(c, ci, kept, transposed(w, c), rows(mi, kept), 0.0, zi, kept);
         for v in zi.iter_mut() {
             *v = v.max(0.0);
         }
     });
 }
 
-/// Step 1 on `x` `[N, C_in, T]`: X_t = X·(E' + I), keeping lhs, rhs, σ and E'.
+/// Step 1 on `x` `[N, C_in, T]`: E', and X_t = X·(E' + I) at the kept steps, keeping
+/// lhs, rhs, σ and E'.
 #[allow(clippy::too_many_arguments)]
 #[multiversion(targets("x86_64+avx512f", "x86_64+avx2+fma"))]
 fn temporal_attention(
@@ -513,21 +708,23 @@ fn temporal_attention(
     gemm(t, t, t, rows(ve, t), rows(&bt.t_sig, t), 0.0, &mut bt.e, t);
     let (max, sum) = bt.e_cols.split_at_mut(t);
     softmax_columns(&mut bt.e, t, max, sum);
-    bt.xt.copy_from_slice(x);
+    let cols = bt.cols;
+    cols.gather(x, t, &mut bt.xt);
     par_gemm(
         threads,
         n * ci,
         t,
-        t,
+        cols.len,
         rows(x, t),
-        rows(&bt.e, t),
+        cols.of(&bt.e, t, false),
         1.0,
         &mut bt.xt,
-        t,
+        cols.len,
     );
 }
 
-/// Step 2 on `bt.xt`: S' and Q = Ψ·(I + S').
+/// Step 2 on X_t = X·(I + E') (`bt.xt`, or `x` and `bt.e` when X_t is kept at fewer
+/// steps than T): S' and Q = Ψ·(I + S').
 #[multiversion(targets("x86_64+avx512f", "x86_64+avx2+fma"))]
 fn spatial_attention(
     n: usize,
@@ -535,11 +732,30 @@ fn spatial_attention(
     t: usize,
     p: &[Vec<f32>],
     ix: [usize; 5],
+    x: &[f32],
     bt: &mut BlockTape,
 ) {
     let [w1, w2, w3, bs, vs] = ix.map(|i| &p[i][..]);
-    let xt = &bt.xt;
-    gemm(n * ci, t, 1, rows(xt, t), rows(w1, 1), 0.0, &mut bt.xw1, 1);
+    // With X_t at every step, from X_t; else from X and E': X_t·W1 = X·v with
+    // v = (I + E')·W1, and W3ᵀ·X_t[m] = r[m]·(I + E') with r[m] = W3ᵀ·X[m].
+    let every = !bt.cols.taps;
+    let (src, w1v): (&[f32], &[f32]) = if every {
+        (&bt.xt, w1)
+    } else {
+        bt.sv.copy_from_slice(w1);
+        gemm(t, t, 1, rows(&bt.e, t), rows(w1, 1), 1.0, &mut bt.sv, 1);
+        (x, &bt.sv)
+    };
+    gemm(
+        n * ci,
+        t,
+        1,
+        rows(src, t),
+        rows(w1v, 1),
+        0.0,
+        &mut bt.xw1,
+        1,
+    );
     gemm(
         n,
         ci,
@@ -550,16 +766,30 @@ fn spatial_attention(
         &mut bt.s_lhs,
         t,
     );
+    let r = if every { &mut bt.s_rhs } else { &mut bt.sr };
     for m in 0..n {
-        let xm = &xt[m * ci * t..][..ci * t];
+        let sm = &src[m * ci * t..][..ci * t];
         gemm(
             1,
             ci,
             t,
             rows(w3, ci),
-            rows(xm, t),
+            rows(sm, t),
             0.0,
-            &mut bt.s_rhs[m * t..][..t],
+            &mut r[m * t..][..t],
+            t,
+        );
+    }
+    if !every {
+        bt.s_rhs.copy_from_slice(&bt.sr);
+        gemm(
+            n,
+            t,
+            t,
+            rows(&bt.sr, t),
+            rows(&bt.e, t),
+            1.0,
+            &mut bt.s_rhs,
             t,
         );
     }
