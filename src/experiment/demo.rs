@@ -24,8 +24,8 @@ use crate::train::{build_dataset, RunConfig};
 
 /// Length of each of the demo's training recordings, minutes: the most data with which
 /// three seeds of its eight models fit `make demo`'s 15 minutes on 2 CPU cores with a
-/// margin (docs/results.md "Why 5 minutes per path").
-pub const DEMO_MINUTES: f64 = 5.0;
+/// margin (docs/results.md "Why 8 minutes per path").
+pub const DEMO_MINUTES: f64 = 8.0;
 
 /// What the demo runs.
 #[derive(Clone, Debug)]
