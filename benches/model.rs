@@ -1,7 +1,7 @@
-//! Whole-network throughput: inference forward at B = 1 (latency; on the device and, for
-//! the IASTGCN variants, on the native CPU path `model::NativeForward`, on one thread and
+//! Whole-network throughput: inference forward at B = 1 (latency; on the device and on
+//! the native CPU path `model::NativeForward`, on one thread and
 //! split over every core as `Predictor::set_threads` allows) and B = 64, and one
-//! training step at B = 64 (on the device and, for the IASTGCN variants, on the native
+//! training step at B = 64 (on the device and on the native
 //! CPU path `model::NativeTraining` with every core), for the paper shape (C 64, T 100, L 5) and a small shape
 //! (C 16, T 48, L 3), the native training step at the demo's shape (C 16, T 48, L 2), then the same three for each baseline (tgcn, eat-gcn, mlp,
 //! bkls-ann, ann-bfpa, erc) at both windows, against the project's best matmul measured in the

@@ -198,18 +198,23 @@ fn recurrent_baselines_match_the_reference_and_the_device() {
             ..ModelConfig::default()
         };
         let p = parameters(&config, 60 + vi as u64);
-        let (x, y) = batch(&config, b, 160 + vi as u64);
-        let (loss, grads) = native(&config, &p, shape(b, 1, 2), &x, &y);
         let params: Vec<Vec<f64>> = p.values.iter().map(|v| f64s(v)).collect();
         let s = supports(&graph, &config);
-        let tape = reference::recurrent::forward(&config, &s, &p.specs, &params, &f64s(&x), b);
-        let y64 = f64s(&y);
-        let (expected, _) =
-            reference::recurrent::backward(&config, &s, &p.specs, &params, &tape, &y64, b, &LOSS);
-        let expected_loss =
-            reference::loss(&config, &p.specs, &params, &tape.output, &y64, b, &LOSS);
-        let name = variant.to_string();
-        check_step(&name, &p, (loss, &grads), (expected_loss, &expected), 1e-4);
+        // The native step of `b` windows over `threads` against the f64 reference.
+        let against_reference = |name: &str, b: usize, threads: usize, seed: u64| {
+            let (x, y) = batch(&config, b, seed);
+            let (loss, grads) = native(&config, &p, shape(b, 1, threads), &x, &y);
+            let tape = reference::recurrent::forward(&config, &s, &p.specs, &params, &f64s(&x), b);
+            let y64 = f64s(&y);
+            let (expected, _) = reference::recurrent::backward(
+                &config, &s, &p.specs, &params, &tape, &y64, b, &LOSS,
+            );
+            let expected_loss =
+                reference::loss(&config, &p.specs, &params, &tape.output, &y64, b, &LOSS);
+            check_step(name, &p, (loss, &grads), (expected_loss, &expected), 1e-4);
+            (x, y, loss, grads)
+        };
+        let (x, y, loss, grads) = against_reference(&variant.to_string(), b, 2, 160 + vi as u64);
         // And the WGSL step's, plain and over ensembles of 3 (refinement's loss).
         let (dl, dg) = device(&config, &p, b, 1, &x, &y);
         check_step(
@@ -224,6 +229,9 @@ fn recurrent_baselines_match_the_reference_and_the_device() {
         let (dl, dg) = device(&config, &p, 6, 3, &x6, &y6);
         let name = format!("{variant} ensembles vs device");
         check_step(&name, &p, (loss, &grads), (dl, &dg), 2e-4);
+        // More windows than the native step runs together (32): two runs on one thread.
+        let name = format!("{variant} over two runs of windows");
+        against_reference(&name, 35, 1, 180 + vi as u64);
     }
 }
 

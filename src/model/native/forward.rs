@@ -67,7 +67,7 @@ impl NativeForward {
         } else if config.variant.family() == Family::Recurrent {
             let net = RecurrentNet::new(config, graph, &specs)?;
             Body::Recurrent {
-                tape: Box::new(net.tape()),
+                tape: Box::new(net.tape(1)),
                 net,
             }
         } else if config.variant.family() == Family::ConvRecurrent {

@@ -64,13 +64,19 @@ enum Body {
     ConvLstm(ConvLstmNet),
 }
 
-/// A worker's tapes for its body, one per window of an ensemble.
+/// A worker's tapes for its body, one per window of an ensemble; the recurrent
+/// baselines' one tape runs up to [`RECURRENT_WINDOWS`] windows together.
 enum Tapes {
     Blocks { tapes: Vec<Tape>, work: Box<Work> },
     Dense(Vec<DenseTape>),
-    Recurrent(Vec<RecurrentTape>),
+    Recurrent(Box<RecurrentTape>),
     ConvLstm(Vec<ConvLstmTape>),
 }
+
+/// Windows the recurrent baselines run together (rounded to whole ensembles): their
+/// per-step products have N·B rows instead of N, which amortises each call and each
+/// packing of the weights; 32 keeps a worker's tape near 30 MB at T = 48, H = 64.
+const RECURRENT_WINDOWS: usize = 32;
 
 /// Parameters, Adam moments and working memory of one model's training on the CPU.
 pub struct NativeTraining {
@@ -137,7 +143,9 @@ impl NativeTraining {
                         Tapes::Dense((0..shape.group).map(|_| net.tape()).collect())
                     }
                     Body::Recurrent(net) => {
-                        Tapes::Recurrent((0..shape.group).map(|_| net.tape()).collect())
+                        let per_worker = groups.div_ceil(threads) * shape.group;
+                        let chunk = recurrent_chunk(shape.group) * shape.group;
+                        Tapes::Recurrent(Box::new(net.tape(per_worker.min(chunk))))
                     }
                     Body::ConvLstm(net) => {
                         Tapes::ConvLstm((0..shape.group).map(|_| net.tape()).collect())
@@ -312,6 +320,18 @@ struct Context<'a> {
 }
 
 impl Context<'_> {
+    /// Ensemble `g`'s share of the loss for its predictions `pred` `[M, O]`, and its share
+    /// of ∂ℒ/∂ŷ into `dout`: L_g / G and its gradient / G.
+    fn group_loss(&self, one: &PoseLoss, g: usize, pred: &[f64], dout: &mut [f32]) -> f64 {
+        let len = pred.len();
+        let target: Vec<f64> = self.y[g * len..][..len].iter().map(|&v| v as f64).collect();
+        let scale = self.groups as f64;
+        for (d, v) in dout.iter_mut().zip(loss_cpu::backward(one, pred, &target)) {
+            *d = (v / scale) as f32;
+        }
+        loss_cpu::forward(one, pred, &target) / scale
+    }
+
     /// Forward and backward of the ensembles in `range` into the worker's sums. The
     /// loss is the mean over ensembles of each ensemble's own loss (for M = 1 the mean
     /// over windows), so ensemble g adds L_g / G and its gradient / G.
@@ -329,6 +349,22 @@ impl Context<'_> {
             penalty: self.shape.penalty,
             group: m,
         };
+        if let (Body::Recurrent(net), Tapes::Recurrent(tape)) = (self.body, &mut w.tapes) {
+            let chunk = recurrent_chunk(m);
+            for first in range.clone().step_by(chunk) {
+                let groups = first..(first + chunk).min(range.end);
+                let x = &self.x[groups.start * m * per..groups.end * m * per];
+                net.forward(self.params, x, tape);
+                let mut dout = vec![0f32; groups.len() * m * o];
+                for (g, out) in groups.zip(tape.output().chunks_exact(m * o)) {
+                    let pred: Vec<f64> = out.iter().map(|&v| v as f64).collect();
+                    let d = &mut dout[(g - first) * m * o..][..m * o];
+                    w.loss += self.group_loss(&one, g, &pred, d);
+                }
+                net.backward(self.params, tape, &dout, &mut w.grads);
+            }
+            return;
+        }
         let mut pred = vec![0f64; m * o];
         for g in range {
             let masks = |k: usize| Masks {
@@ -349,10 +385,6 @@ impl Context<'_> {
                         net.forward(self.params, x(k), &mut tapes[k]);
                         tapes[k].output()
                     }
-                    (Body::Recurrent(net), Tapes::Recurrent(tapes)) => {
-                        net.forward(self.params, x(k), &mut tapes[k]);
-                        tapes[k].output()
-                    }
                     (Body::ConvLstm(net), Tapes::ConvLstm(tapes)) => {
                         net.forward(self.params, x(k), &mut tapes[k]);
                         tapes[k].output()
@@ -364,15 +396,8 @@ impl Context<'_> {
                     *p = v as f64;
                 }
             }
-            let target: Vec<f64> = self.y[g * m * o..][..m * o]
-                .iter()
-                .map(|&v| v as f64)
-                .collect();
-            w.loss += loss_cpu::forward(&one, &pred, &target) / self.groups as f64;
-            let dout: Vec<f32> = loss_cpu::backward(&one, &pred, &target)
-                .iter()
-                .map(|&d| (d / self.groups as f64) as f32)
-                .collect();
+            let mut dout = vec![0f32; m * o];
+            w.loss += self.group_loss(&one, g, &pred, &mut dout);
             for k in 0..m {
                 let dout = &dout[k * o..][..o];
                 match (self.body, &mut w.tapes) {
@@ -390,9 +415,6 @@ impl Context<'_> {
                     (Body::Dense(net), Tapes::Dense(tapes)) => {
                         net.backward(self.params, &mut tapes[k], dout, &mut w.grads)
                     }
-                    (Body::Recurrent(net), Tapes::Recurrent(tapes)) => {
-                        net.backward(self.params, &mut tapes[k], dout, &mut w.grads)
-                    }
                     (Body::ConvLstm(net), Tapes::ConvLstm(tapes)) => {
                         net.backward(self.params, &mut tapes[k], dout, &mut w.grads)
                     }
@@ -402,6 +424,11 @@ impl Context<'_> {
             }
         }
     }
+}
+
+/// Ensembles of `group` windows the recurrent baselines run together.
+fn recurrent_chunk(group: usize) -> usize {
+    (RECURRENT_WINDOWS / group).max(1)
 }
 
 /// Every tensor of `values` has the size of its spec (and `given` names match `specs`).
