@@ -11,8 +11,8 @@ use common::parameters;
 use iastgcn::graph::Graph;
 use iastgcn::model::reference::{self, DropoutStep, Loss};
 use iastgcn::model::{
-    graph_basis, ModelConfig, NativeAdam, NativeStepShape, NativeTraining, Network, Parameters,
-    Variant,
+    graph_basis, ModelConfig, NativeAdam, NativeForward, NativeStepShape, NativeTraining, Network,
+    Parameters, Variant,
 };
 use iastgcn::ops::adam::{cpu as adam_cpu, hyper_values, Adam};
 use iastgcn::testing::{compare, gpu, rng, to_f32, uniform, Tolerance};
@@ -429,4 +429,43 @@ fn refuses_what_it_cannot_train() {
     wrong.values[3].pop();
     let err = t.load_parameters(&wrong).unwrap_err();
     assert!(err.to_string().contains(&wrong.specs[3].name), "{err}");
+}
+
+/// Subnormal weights are read as zero on x86-64 (the native passes run with DAZ and FTZ:
+/// trained weights drift there, and x86 takes a microcode assist per subnormal
+/// operation): a network whose every weight is subnormal gives the loss, the gradients
+/// and the forward output of the all-zero network, bit for bit, in every family.
+#[cfg(target_arch = "x86_64")]
+#[test]
+fn subnormal_weights_read_as_zero() {
+    let tiny = f32::MIN_POSITIVE / 4.0;
+    assert!(tiny.is_subnormal());
+    for variant in [Variant::Iastgcn, Variant::Tgcn, Variant::Mlp] {
+        let config = ModelConfig {
+            hidden: 6,
+            ..ModelConfig::gradient_check(variant)
+        };
+        let zero = parameters(&config, 1);
+        let zero = Parameters {
+            values: zero.values.iter().map(|v| vec![0.0; v.len()]).collect(),
+            ..zero
+        };
+        let subnormal = Parameters {
+            values: zero.values.iter().map(|v| vec![tiny; v.len()]).collect(),
+            ..zero.clone()
+        };
+        let (x, y) = batch(&config, 2, 190);
+        let (l0, g0) = native(&config, &zero, shape(2, 1, 1), &x, &y);
+        let (l1, g1) = native(&config, &subnormal, shape(2, 1, 1), &x, &y);
+        assert_eq!(l0.to_bits(), l1.to_bits(), "{variant}: loss");
+        assert_eq!(g0, g1, "{variant}: gradients");
+        let graph = Graph::default_asset();
+        let len = config.nodes * config.features * config.window;
+        let (mut o0, mut o1) = (vec![0f32; config.outputs], vec![0f32; config.outputs]);
+        let mut f0 = NativeForward::new(&config, &graph, &zero).unwrap();
+        let mut f1 = NativeForward::new(&config, &graph, &subnormal).unwrap();
+        f0.forward(&x[..len], &mut o0).unwrap();
+        f1.forward(&x[..len], &mut o1).unwrap();
+        assert_eq!(o0, o1, "{variant}: forward");
+    }
 }

@@ -5,6 +5,7 @@
 
 use super::conv_lstm::{ConvLstmNet, ConvLstmTape};
 use super::dense::{DenseNet, DenseTape};
+use super::flushing_subnormals;
 use super::recurrent::{RecurrentNet, RecurrentTape};
 use super::slots::Slots;
 use super::tape::{forward, Tape};
@@ -141,6 +142,13 @@ impl NativeForward {
                 cfg.outputs
             )));
         }
+        flushing_subnormals(|| self.run(x, out));
+        Ok(())
+    }
+
+    /// [`NativeForward::forward`] after its checks.
+    fn run(&mut self, x: &[f32], out: &mut [f32]) {
+        let cfg = &self.config;
         match &mut self.body {
             Body::Blocks { basis, slots, tape } => {
                 forward(cfg, basis, slots, &self.params, x, None, tape);
@@ -159,7 +167,6 @@ impl NativeForward {
                 out.copy_from_slice(tape.output());
             }
         }
-        Ok(())
     }
 }
 

@@ -17,7 +17,10 @@
 //! and AVX2/FMA besides baseline x86-64 and chosen at their first call (`multiversion`);
 //! f32 arithmetic is never reassociated or contracted, and the sums that must vectorise
 //! use [`lanes_sum`]'s fixed partial sums, so every width gives the same bits. Working
-//! memory is allocated when a path is built.
+//! memory is allocated when a path is built. Every pass runs with subnormal f32 values
+//! flushed to zero ([`flushing_subnormals`]): trained weights and attention scores drift
+//! into the subnormal range, where x86 arithmetic takes a microcode assist per operation
+//! (an `iastgcn-t` step at 128 minutes per path ran 2.5–10× slower than at its start).
 //!
 //! Files: `forward.rs` ([`NativeForward`]), `tape.rs` (the training forward of one
 //! window, keeping its intermediates), `backward.rs` (its backward), `step.rs`
@@ -106,6 +109,44 @@ fn gemm(m: usize, k: usize, n: usize, a: View, b: View, beta: f32, c: &mut [f32]
     }
 }
 
+/// Runs `f` with subnormal f32 inputs read as zero and subnormal results flushed to zero
+/// on this thread (x86-64 MXCSR's DAZ and FTZ bits), then restores the thread's mode,
+/// also when `f` panics. Values below 1.2e-38 carry no information at the scale of the
+/// network's activations and gradients, and the device schedule may flush them too; on
+/// other architectures `f` runs unchanged.
+#[inline]
+fn flushing_subnormals<R>(f: impl FnOnce() -> R) -> R {
+    #[cfg(target_arch = "x86_64")]
+    {
+        /// MXCSR's flush-to-zero (bit 15) and denormals-are-zero (bit 6).
+        const FTZ_DAZ: u32 = (1 << 15) | (1 << 6);
+        /// Puts the saved MXCSR back when dropped.
+        struct Restore(u32);
+        impl Drop for Restore {
+            fn drop(&mut self) {
+                // SAFETY: SSE is part of x86-64; this writes back the value read below.
+                #[allow(deprecated)]
+                unsafe {
+                    std::arch::x86_64::_mm_setcsr(self.0)
+                }
+            }
+        }
+        // SAFETY: SSE is part of x86-64; FTZ and DAZ change only how subnormal f32
+        // values are read and written, on this thread, until `Restore` drops.
+        #[allow(deprecated)]
+        let _restore = unsafe {
+            let saved = std::arch::x86_64::_mm_getcsr();
+            std::arch::x86_64::_mm_setcsr(saved | FTZ_DAZ);
+            Restore(saved)
+        };
+        f()
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        f()
+    }
+}
+
 /// Multiply-adds per task below which [`par_gemm`] does not split a product (a rayon task
 /// costs a few microseconds; 2^19 multiply-adds take ~25 µs on one core).
 const PAR_MIN_MACS: usize = 1 << 19;
@@ -142,7 +183,7 @@ fn par_gemm(
                 data: &a.data[r0 * a.rs..],
                 ..a
             };
-            scope.spawn(move |_| gemm(r, k, n, a, b, beta, chunk, ldc));
+            scope.spawn(move |_| flushing_subnormals(|| gemm(r, k, n, a, b, beta, chunk, ldc)));
         }
     });
 }

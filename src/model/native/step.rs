@@ -8,6 +8,7 @@
 use super::backward::{backward, Work};
 use super::conv_lstm::{ConvLstmNet, ConvLstmTape};
 use super::dense::{DenseNet, DenseTape};
+use super::flushing_subnormals;
 use super::recurrent::{RecurrentNet, RecurrentTape};
 use super::slots::Slots;
 use super::tape::{forward, Masks, Tape};
@@ -249,12 +250,12 @@ impl NativeTraining {
         };
         let share = |w: usize| (w * groups / threads)..((w + 1) * groups / threads);
         if threads == 1 {
-            ctx.run(share(0), &mut self.workers[0]);
+            flushing_subnormals(|| ctx.run(share(0), &mut self.workers[0]));
         } else {
             std::thread::scope(|scope| {
                 for (w, worker) in self.workers.iter_mut().enumerate() {
                     let ctx = &ctx;
-                    scope.spawn(move || ctx.run(share(w), worker));
+                    scope.spawn(move || flushing_subnormals(|| ctx.run(share(w), worker)));
                 }
             });
         }
@@ -277,6 +278,11 @@ impl NativeTraining {
     /// Adam update number `t` (1-based) at learning rate `lr` from the last gradients,
     /// the arithmetic of `shaders/adam.wgsl` in f32.
     pub fn update(&mut self, lr: f64, t: u64) {
+        flushing_subnormals(|| self.adam_update(lr, t))
+    }
+
+    /// [`NativeTraining::update`]'s arithmetic.
+    fn adam_update(&mut self, lr: f64, t: u64) {
         let a = self.adam;
         let [lr, bc1, bc2, _] = hyper_values(lr, a.beta1, a.beta2, t);
         let (b1, b2, eps) = (a.beta1 as f32, a.beta2 as f32, a.eps as f32);

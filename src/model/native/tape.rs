@@ -12,8 +12,8 @@ use super::slots::{BlockSlots, Slots};
 use rayon::prelude::*;
 
 use super::{
-    gemm, par_gemm, rows, sigmoid, softmax_columns, softmax_rows, tanh, transposed, View,
-    PAR_MIN_MACS,
+    flushing_subnormals, gemm, par_gemm, rows, sigmoid, softmax_columns, softmax_rows, tanh,
+    transposed, View, PAR_MIN_MACS,
 };
 use crate::model::config::ModelConfig;
 use crate::ops::dropout::{keep, Dropout};
@@ -505,13 +505,15 @@ fn block(
             .zip(bt.rstd.par_chunks_mut(per * steps))
             .enumerate()
             .for_each(|(j, ((a, m), r))| {
-                let nodes = a
-                    .chunks_mut(c * steps)
-                    .zip(m.chunks_mut(steps))
-                    .zip(r.chunks_mut(steps));
-                for (u, ((a, m), r)) in nodes.enumerate() {
-                    node(j * per + u, a, m, r);
-                }
+                flushing_subnormals(|| {
+                    let nodes = a
+                        .chunks_mut(c * steps)
+                        .zip(m.chunks_mut(steps))
+                        .zip(r.chunks_mut(steps));
+                    for (u, ((a, m), r)) in nodes.enumerate() {
+                        node(j * per + u, a, m, r);
+                    }
+                })
             });
     } else {
         let act = bt.act.chunks_mut(c * steps);
@@ -827,9 +829,11 @@ fn for_each_node(
         data.par_chunks_mut(per * size)
             .enumerate()
             .for_each(|(j, group)| {
-                for (u, c) in group.chunks_mut(size).enumerate() {
-                    f(j * per + u, c);
-                }
+                flushing_subnormals(|| {
+                    for (u, c) in group.chunks_mut(size).enumerate() {
+                        f(j * per + u, c);
+                    }
+                })
             });
     } else {
         for (i, c) in data.chunks_mut(size).enumerate() {
