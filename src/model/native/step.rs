@@ -355,23 +355,26 @@ impl Context<'_> {
             penalty: self.shape.penalty,
             group: m,
         };
+        let mut pred = vec![0f64; m * o];
         if let (Body::Recurrent(net), Tapes::Recurrent(tape)) = (self.body, &mut w.tapes) {
             let chunk = recurrent_chunk(m);
+            let mut dout = vec![0f32; chunk.min(range.len()) * m * o];
             for first in range.clone().step_by(chunk) {
                 let groups = first..(first + chunk).min(range.end);
                 let x = &self.x[groups.start * m * per..groups.end * m * per];
                 net.forward(self.params, x, tape);
-                let mut dout = vec![0f32; groups.len() * m * o];
-                for (g, out) in groups.zip(tape.output().chunks_exact(m * o)) {
-                    let pred: Vec<f64> = out.iter().map(|&v| v as f64).collect();
-                    let d = &mut dout[(g - first) * m * o..][..m * o];
+                let dout = &mut dout[..groups.len() * m * o];
+                let outs = tape.output().chunks_exact(m * o);
+                for ((g, out), d) in groups.zip(outs).zip(dout.chunks_exact_mut(m * o)) {
+                    for (p, &v) in pred.iter_mut().zip(out) {
+                        *p = v as f64;
+                    }
                     w.loss += self.group_loss(&one, g, &pred, d);
                 }
-                net.backward(self.params, tape, &dout, &mut w.grads);
+                net.backward(self.params, tape, dout, &mut w.grads);
             }
             return;
         }
-        let mut pred = vec![0f64; m * o];
         for g in range {
             let masks = |k: usize| Masks {
                 seed: self.shape.seed,
