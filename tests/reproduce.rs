@@ -174,7 +174,9 @@ fn reproduce_shards_resumes_and_reports_over_seeds() {
     args.extend(["--machine-seed", "2", "--data-only", "--out", s(&out2)]);
     let text = cli(&args);
     assert!(text.contains("0 of"), "{text}");
-    let data = |o: &Path| iastgcn::experiment::protocol::data_sources(&o.join("data"));
+    let data = |o: &Path| {
+        iastgcn::experiment::protocol::data_sources(&o.join("data"), &iastgcn::twin::Recipe::SINGLE)
+    };
     assert_eq!(data(&out2).machine_seed().unwrap(), 2);
     assert_eq!(data(&out).machine_seed().unwrap(), 1);
     let mut mixed = data(&out);

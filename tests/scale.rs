@@ -34,7 +34,7 @@ fn scale_shards_scores_every_size_alike_and_resumes() {
         let mut args = vec!["scale", "--config", s(&config), "--sizes", "0.25,0.5"];
         args.extend(["--seeds", "1,2", "--models", "tgcn,mlp"]);
         args.extend(["--held-out-minutes", "0.1", "--warm-up-minutes", "0.2"]);
-        args.extend(["--out", s(&out)]);
+        args.extend(["--held-out-sessions", "2", "--out", s(&out)]);
         args.extend(extra);
         cli(&args)
     };
@@ -61,7 +61,17 @@ fn scale_shards_scores_every_size_alike_and_resumes() {
         .collect();
     let first = &records[0];
     for r in &records {
-        assert_eq!(r.paths.len(), 4, "{}", r.name);
+        // Four paths in each of two held-out sessions, the second on another day: its
+        // calibrated error differs on every path.
+        assert_eq!(r.paths.len(), 8, "{}", r.name);
+        for (a, b) in r.paths[..4].iter().zip(&r.paths[4..]) {
+            assert_eq!(
+                (a.path.as_str(), a.session, b.session),
+                (b.path.as_str(), 0, 1)
+            );
+            assert_ne!(a.calibrated, b.calibrated, "{} {}", r.name, a.path);
+            assert_eq!(a.test_mae.map(f64::to_bits), b.test_mae.map(f64::to_bits));
+        }
         // About half the training windows at half the size (a window's length less).
         let full = records[2].train_windows as f64;
         let want = if r.minutes == 0.5 {
@@ -82,6 +92,12 @@ fn scale_shards_scores_every_size_alike_and_resumes() {
             assert_eq!(p.oracle, q.oracle, "{} {}", r.name, p.path);
             assert_eq!(p.initial, q.initial, "{} {}", r.name, p.path);
             assert!(p.compensated.iter().all(|v| v.is_finite()), "{}", r.name);
+            // The open-loop miss along the uncompensated run is measured for every path.
+            assert!(
+                p.open_loop.iter().all(|v| v.is_finite() && *v > 0.0),
+                "{}",
+                r.name
+            );
             assert!(p.calibrated[0] < p.initial[0], "{}", p.path);
             if p.path == "rosette" {
                 assert_eq!(p.test_windows, 0);
@@ -103,9 +119,9 @@ fn scale_shards_scores_every_size_alike_and_resumes() {
         .map(|l| l.split(',').collect())
         .collect();
     assert_eq!(rows.len(), 16, "{summary}");
-    assert!(rows.iter().all(|r| r[3] == "2"), "{summary}");
+    assert!(rows.iter().all(|r| r[3] == "2" && r[4] == "2"), "{summary}");
     assert_eq!(
-        (rows[0][0], rows[0][1], rows[0][4]),
+        (rows[0][0], rows[0][1], rows[0][5]),
         ("tgcn", "0.25", "grid")
     );
     assert_eq!(
@@ -113,12 +129,18 @@ fn scale_shards_scores_every_size_alike_and_resumes() {
             .unwrap()
             .lines()
             .count(),
-        1 + 32
+        1 + 64
     );
     let md = std::fs::read_to_string(out.join("scale.md")).unwrap();
     assert!(md.contains("Jobs finished in this folder: 8 "), "{md}");
     assert!(
         md.contains("## hilbert") && md.contains("| oracle (true residual) |"),
+        "{md}"
+    );
+    assert!(
+        md.contains("  - session 2: cold, ambient")
+            && md.contains("## By held-out session")
+            && md.contains("## Where the error goes"),
         "{md}"
     );
     assert!(out.join("scale.png").exists());
@@ -138,7 +160,7 @@ fn scale_shards_scores_every_size_alike_and_resumes() {
     let mut args = vec!["scale", "--config", s(&config), "--sizes", "0.25,0.5"];
     args.extend(["--seeds", "1,3", "--models", "tgcn,mlp", "--data-only"]);
     args.extend(["--held-out-minutes", "0.1", "--warm-up-minutes", "0.2"]);
-    args.extend(["--out", s(&out)]);
+    args.extend(["--held-out-sessions", "2", "--out", s(&out)]);
     let text = cli(&args);
     assert!(text.contains("4 of 8 jobs done"), "{text}");
     // Another setup in the same folder (here: recordings of another length), and sizes

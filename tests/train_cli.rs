@@ -557,6 +557,11 @@ fn demo_writes_the_report() {
     assert!(!out.join("models/iastgcn-refined.safetensors").exists());
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(report.contains("and every baseline, all at the same budget"));
+    // The model to use, chosen on a validation session of its own (not in Table V).
+    assert!(
+        report.contains("## Recommended model") && report.contains("Recommended: **"),
+        "{report}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -152,6 +152,18 @@ fn longest_retrace(held: &[[f64; 2]], trained: &[[f64; 2]], tol: f64, reach: usi
     longest
 }
 
+/// The longest a held-out path may follow a training path, mm: a window (48 ticks at up
+/// to 26 mm/s, under 25 mm; 20 taken) along its own pattern, three along another (where
+/// a straight pass runs tangent to a curved one).
+fn retrace_limit(trained: PathKind, held: PathKind) -> usize {
+    let window_mm = 20;
+    if trained == held {
+        window_mm
+    } else {
+        3 * window_mm
+    }
+}
+
 #[test]
 fn held_out_paths_never_retrace_a_training_recording() {
     let m = Mirror::default();
@@ -165,8 +177,7 @@ fn held_out_paths_never_retrace_a_training_recording() {
     // 20 mm of a held-out path may follow the training recording of its own pattern
     // within 1 mm. Another pattern can only touch it where a pass runs tangent to a
     // curved one (a straight pass stays within 1 mm of a 245 mm arc for ~44 mm): such
-    // brushes stay under three windows.
-    let window_mm = 20;
+    // brushes stay under three windows (retrace_limit).
     let mut retraced = Vec::new();
     for kind in PathKind::ALL {
         let held = samples(&Path::generate(kind, &m, &PathParams::held_out(kind)), 1.0);
@@ -176,12 +187,7 @@ fn held_out_paths_never_retrace_a_training_recording() {
             .collect();
         println!("{kind:?} along grid, fermat, hilbert: {per:?} mm");
         for (trained_kind, &mm) in PathKind::TRAINING.iter().zip(&per) {
-            let limit = if *trained_kind == kind {
-                window_mm
-            } else {
-                3 * window_mm
-            };
-            if mm >= limit {
+            if mm >= retrace_limit(*trained_kind, kind) {
                 retraced.push(format!(
                     "{kind:?} follows the {trained_kind:?} recording for {mm} mm"
                 ));
@@ -198,6 +204,65 @@ fn held_out_paths_never_retrace_a_training_recording() {
         ..PathParams::default()
     };
     assert!(longest_retrace(&grid(turned)[..200], &trained[0], 1.0, 6) >= 100);
+}
+
+#[test]
+fn no_held_out_session_retraces_any_training_placement() {
+    // Multi-session training sets with varied placements (docs/twin.md "Sessions") put
+    // each pattern at PathParams::training(kind, k); held-out session j puts it at
+    // PathParams::held_out_in(kind, j). No held-out placement of any session may follow a
+    // training placement of its own pattern for 20 mm (1 mm tolerance), nor another
+    // pattern's for three windows: the rule of the test above, over every pair.
+    let m = Mirror::default();
+    let trained: Vec<(PathKind, usize, Vec<[f64; 2]>)> = PathKind::TRAINING
+        .iter()
+        .flat_map(|&kind| (0..PathParams::TRAINING_PLACEMENTS).map(move |k| (kind, k)))
+        .map(|(kind, k)| {
+            let p = PathParams::training(kind, k);
+            (kind, k, samples(&Path::generate(kind, &m, &p), 0.5))
+        })
+        .collect();
+    let mut retraced = Vec::new();
+    for kind in PathKind::ALL {
+        // Sessions 0-3: the placements repeat from session 4 on.
+        for session in 0..4 {
+            let p = PathParams::held_out_in(kind, session);
+            let held = samples(&Path::generate(kind, &m, &p), 1.0);
+            for (trained_kind, k, t) in &trained {
+                let mm = longest_retrace(&held, t, 1.0, 6);
+                if mm >= retrace_limit(*trained_kind, kind) {
+                    retraced.push(format!(
+                        "{kind:?} of held-out session {session} follows {trained_kind:?} at \
+                         training placement {k} for {mm} mm"
+                    ));
+                }
+            }
+        }
+    }
+    assert!(retraced.is_empty(), "{retraced:#?}");
+    // Session 0 is the single-session protocol's placement, and placement 0 the default.
+    for kind in PathKind::ALL {
+        assert_eq!(PathParams::held_out_in(kind, 0), PathParams::held_out(kind));
+    }
+    for kind in PathKind::TRAINING {
+        assert_eq!(PathParams::training(kind, 0), PathParams::default());
+    }
+    // The check has teeth here too: the spiral at the held-out half turn, as a training
+    // placement, retraces the held-out spiral all the way.
+    let half = PathParams {
+        rotation_deg: 180.0,
+        ..PathParams::default()
+    };
+    let spiral = samples(&Path::generate(PathKind::Fermat, &m, &half), 0.5);
+    let held = samples(
+        &Path::generate(
+            PathKind::Fermat,
+            &m,
+            &PathParams::held_out_in(PathKind::Fermat, 1),
+        ),
+        1.0,
+    );
+    assert!(longest_retrace(&held[..200], &spiral, 1.0, 6) >= 199);
 }
 
 #[test]

@@ -49,7 +49,12 @@ class Predictor:
     def reset(self) -> None: ...
 
 def record_data(
-    out: _Path, minutes: float = 2.0, machine_seed: int = 1, progress: _Progress = None
+    out: _Path,
+    minutes: float = 2.0,
+    machine_seed: int = 1,
+    sessions: int = 1,
+    placement: str = "fixed",
+    progress: _Progress = None,
 ) -> dict[str, Any]: ...
 def calibrate(
     measurements: _Path,

@@ -59,6 +59,18 @@ def test_record_data_reports_progress_and_writes_the_files(twin_data: dict):
     assert any("geometric calibration" in n for n in notes)
 
 
+def test_record_data_in_sessions_and_its_refusals(tmp_path: Path):
+    data = iastgcn.record_data(tmp_path / "s", minutes=0.5, sessions=2, placement="varied")
+    assert [Path(r).name for r in data["recordings"]] == [
+        f"{p}.s0{s}.csv" for s in (1, 2) for p in ("grid", "fermat", "hilbert")]
+    assert all(Path(f).exists() for f in data["recordings"])
+    with pytest.raises(iastgcn.Error, match="sessions"):
+        iastgcn.record_data(tmp_path / "x", minutes=0.5, sessions=3)
+    with pytest.raises(iastgcn.Error, match="placement"):
+        iastgcn.record_data(tmp_path / "y", minutes=0.5, sessions=2, placement="diagonal")
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+
+
 def test_hybrid_calibration_matches_the_command(profile_dir: Path, twin_data: dict,
                                                tmp_path: Path):
     measurements = twin_data["calibration_set"]

@@ -36,6 +36,8 @@ pub struct DemoArgs {
     #[arg(long)]
     pub all_models: bool,
     #[command(flatten)]
+    pub recipe: super::RecipeArgs,
+    #[command(flatten)]
     pub held_out: HeldOutArgs,
 }
 
@@ -198,6 +200,7 @@ pub fn demo(gpu: Gpu, args: &DemoArgs) -> anyhow::Result<()> {
         held_out: args.held_out.config(),
         all_models: args.all_models,
         seeds: args.seeds.clone(),
+        recipe: args.recipe.recipe()?,
         ..DemoConfig::default()
     };
     if let Some(p) = &args.config {

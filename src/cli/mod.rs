@@ -87,6 +87,31 @@ fn count(range: impl std::ops::RangeBounds<u64>) -> clap::builder::RangedU64Valu
     clap::builder::RangedU64ValueParser::<usize>::new().range(range)
 }
 
+/// How a training set is recorded (docs/twin.md "Sessions"), for `demo`, `reproduce`,
+/// `scale` and `simulate --trajectory training`.
+#[derive(clap::Args, Clone)]
+pub struct RecipeArgs {
+    /// Split each path's minutes over this many sessions, each a day of its own that
+    /// starts cold (its ambient, feed and force drawn; docs/twin.md "Days"); 1 is a
+    /// single session on the calibration day. Each run lasts at least 1 minute.
+    #[arg(long, default_value_t = 1, value_parser = count(1..=64))]
+    pub sessions: usize,
+    /// Where the sessions' runs lie on the part: `fixed` (the default placement) or
+    /// `varied` (quarter turns and reversals that never retrace a held-out placement).
+    #[arg(long, default_value = "fixed", value_parser = ["fixed", "varied"])]
+    pub placement: String,
+}
+
+impl RecipeArgs {
+    /// The recipe these flags ask for.
+    pub fn recipe(&self) -> anyhow::Result<iastgcn::twin::Recipe> {
+        Ok(iastgcn::twin::Recipe {
+            sessions: self.sessions,
+            placement: self.placement.parse().map_err(anyhow::Error::msg)?,
+        })
+    }
+}
+
 /// Refuses an output file whose folder does not exist, naming the flag, before any long
 /// work (a run that fails only when it writes its result has lost that work).
 fn output_folder_exists(flag: &str, path: &std::path::Path) -> anyhow::Result<()> {

@@ -55,6 +55,8 @@ pub struct ReproduceArgs {
     #[arg(long, num_args = 2.., conflicts_with_all = ["shard", "data_only"])]
     pub merge: Vec<PathBuf>,
     #[command(flatten)]
+    pub recipe: super::RecipeArgs,
+    #[command(flatten)]
     pub held_out: HeldOutArgs,
 }
 
@@ -80,6 +82,7 @@ pub fn run(gpu: Gpu, args: &ReproduceArgs) -> anyhow::Result<()> {
         protocol.run = read_run_config(Some(p), None)?;
     }
     protocol.minutes = args.minutes;
+    protocol.recipe = args.recipe.recipe()?;
     protocol.seeds = args.seeds.clone();
     if !args.models.is_empty() {
         protocol.models = args.models.clone();

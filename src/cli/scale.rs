@@ -51,6 +51,17 @@ pub struct ScaleArgs {
     #[arg(long, default_value_t = iastgcn::experiment::protocol::MACHINE_SEED)]
     pub machine_seed: u64,
     #[command(flatten)]
+    pub recipe: super::RecipeArgs,
+    /// Held-out sessions every job is scored on: the first as --warm-up-minutes and
+    /// --held-out-seed say, the others on days of their own, cold or warmed longer
+    /// (docs/usage.md "scale"). A folder keeps its number.
+    #[arg(long, default_value_t = 3, value_parser = super::count(1..=16))]
+    pub held_out_sessions: usize,
+    /// Refine every job after its core stage (Algorithm 2, as `demo` does) and score the
+    /// weights it keeps. A folder keeps this choice.
+    #[arg(long)]
+    pub refine: bool,
+    #[command(flatten)]
     pub held_out: HeldOutArgs,
 }
 
@@ -66,6 +77,9 @@ pub fn run(gpu: Gpu, args: &ScaleArgs) -> anyhow::Result<()> {
     study.seeds = args.seeds.clone();
     study.models = args.models.clone();
     study.machine_seed = args.machine_seed;
+    study.recipe = args.recipe.recipe()?;
+    study.held_out_sessions = args.held_out_sessions;
+    study.refine = args.refine;
     let held = args.held_out.config_with_minutes(study.held_out_minutes);
     study.held_out_minutes = held.minutes;
     study.held_out_seed = held.seed;

@@ -6,14 +6,16 @@ use std::path::PathBuf;
 use super::Console;
 use iastgcn::data::{record_calibration_set, record_run};
 use iastgcn::robot::{Description, Robot};
-use iastgcn::twin::{draw_machine, PathKind, PathParams, RunInfo};
+use iastgcn::twin::{draw_machine, PathKind, PathParams, Recipe, RunInfo};
 
 #[derive(clap::Args)]
 pub struct SimulateArgs {
-    /// Path to polish (grid, fermat, hilbert, rosette) or `calibration` for static
-    /// measurement poses.
+    /// Path to polish (grid, fermat, hilbert, rosette), `calibration` for static
+    /// measurement poses, or `training` for a whole training set into the folder --out
+    /// (calibration set, its calibration, and --minutes per path of grid, fermat and
+    /// hilbert in --sessions sessions, as `demo` and `reproduce` record it).
     /// Required for the hybrid machine; a serial arm's twin measures static poses.
-    #[arg(long, value_parser = ["grid", "fermat", "hilbert", "rosette", "calibration"])]
+    #[arg(long, value_parser = ["grid", "fermat", "hilbert", "rosette", "calibration", "training"])]
     pub trajectory: Option<String>,
     /// Rotation of the pattern on the part, degrees.
     #[arg(long, default_value_t = 0.0)]
@@ -49,6 +51,8 @@ pub struct SimulateArgs {
     /// PNG of the path and error traces (default: the output path with `.png`).
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    #[command(flatten)]
+    pub recipe: super::RecipeArgs,
 }
 
 pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
@@ -78,6 +82,15 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
         ),
         (Description::Hybrid(geometry), Some(t)) => (geometry, t),
     };
+    let recipe = args.recipe.recipe()?;
+    if trajectory == "training" {
+        return training_set(args, &recipe);
+    }
+    anyhow::ensure!(
+        recipe == Recipe::SINGLE,
+        "--sessions and --placement describe a training set: give --trajectory training, or \
+         leave them out for a single run (--rotation and --reverse place it)"
+    );
     let machine = draw_machine(geometry.clone(), args.machine_seed);
     let (controller, controller_name) = match &args.calibration {
         Some(p) => (
@@ -145,5 +158,43 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
         r.mean_attitude_error_deg * 1e3
     );
     println!("plot {}", r.plot.display());
+    Ok(())
+}
+
+/// `--trajectory training`: the protocol's whole training set into the folder `--out`.
+fn training_set(args: &SimulateArgs, recipe: &Recipe) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        args.robot.is_none() && args.calibration.is_none() && args.plot.is_none(),
+        "--trajectory training records the embedded machine's calibration set, calibrates \
+         it and drives the training runs with that calibration: leave out --robot, \
+         --calibration and --plot (each run writes its PNG beside its CSV)"
+    );
+    anyhow::ensure!(
+        args.rotation == 0.0 && !args.reverse,
+        "--trajectory training places its runs by --placement: leave out --rotation and --reverse"
+    );
+    anyhow::ensure!(
+        args.minutes.is_finite() && args.minutes > 0.0,
+        "--minutes must be positive, got {}",
+        args.minutes
+    );
+    recipe.validate(args.minutes).map_err(anyhow::Error::msg)?;
+    let sources = iastgcn::experiment::protocol::record_data(
+        &args.out,
+        args.minutes,
+        args.machine_seed,
+        recipe,
+        &mut Console::default(),
+    )?;
+    println!(
+        "wrote a training set of {} recordings ({} min per path in {} session(s), placement \
+         {}) and {} into {}",
+        sources.recordings.len(),
+        args.minutes,
+        recipe.sessions,
+        recipe.placement.name(),
+        sources.calibration.display(),
+        args.out.display()
+    );
     Ok(())
 }

@@ -8,7 +8,9 @@ use super::online::{self, Feedback};
 use crate::calibrate::file;
 use crate::error::{ensure, Result};
 use crate::robot::{Geometry, Robot};
-use crate::twin::{draw_machine, Machine, MachineState, PathKind, PathParams, SimConfig};
+use crate::twin::{
+    draw_machine, Conditions, Machine, MachineState, PathKind, PathParams, SimConfig,
+};
 
 /// A held-out polishing run to compensate: its path and placement on the part, length,
 /// seed, and the machine's state when it starts (warm from the session's earlier runs).
@@ -24,6 +26,8 @@ pub struct HeldOut {
     pub seed: u64,
     /// The machine's state at the run's start.
     pub start: MachineState,
+    /// The session's feed and force (its day is in `start`).
+    pub conditions: Conditions,
 }
 
 impl HeldOut {
@@ -31,6 +35,8 @@ impl HeldOut {
     pub fn config(&self) -> SimConfig {
         let mut c = SimConfig::new(self.path, self.seconds, self.seed);
         c.path_params = self.params;
+        c.feed = self.conditions.feed_mm_s;
+        c.force_mean = self.conditions.force_n;
         c
     }
 }
@@ -40,18 +46,32 @@ impl HeldOut {
 pub const IDLE_BETWEEN_RUNS: f64 = 30.0;
 
 /// A cold machine warmed by `seconds` of polishing (0: left cold) under `controller`,
-/// then idle for [`IDLE_BETWEEN_RUNS`]: the start of a held-out session. The warm-up walks
-/// the raster turned a quarter turn, which no scored run retraces.
+/// then idle for [`IDLE_BETWEEN_RUNS`]: the start of a held-out session on the
+/// calibration day at the default feed and force. The warm-up walks the raster turned a
+/// quarter turn, which no scored run retraces.
 pub fn warm_up(
     machine: &Machine,
     controller: &Robot,
     seconds: f64,
     seed: u64,
 ) -> Result<MachineState> {
-    let mut state = machine.cold();
+    warm_up_on(machine, controller, seconds, seed, &Conditions::NOMINAL)
+}
+
+/// [`warm_up`] on the day of `conditions`, at its feed and force.
+pub fn warm_up_on(
+    machine: &Machine,
+    controller: &Robot,
+    seconds: f64,
+    seed: u64,
+    conditions: &Conditions,
+) -> Result<MachineState> {
+    let mut state = machine.cold_on(conditions.day);
     if seconds > 0.0 {
         let mut config = SimConfig::new(PathKind::Grid, seconds, seed);
         config.path_params.rotation_deg = 90.0;
+        config.feed = conditions.feed_mm_s;
+        config.force_mean = conditions.force_n;
         state = online::run(machine, controller, config, state, Feedback::None, |_| {})?.end;
         state.idle(IDLE_BETWEEN_RUNS);
     }
@@ -113,6 +133,7 @@ impl RunSpec {
             seconds: self.minutes * 60.0,
             seed: self.seed,
             start,
+            conditions: Conditions::NOMINAL,
         };
         Ok(Prepared {
             machine,

@@ -43,6 +43,13 @@ pub struct RunResult {
     pub unreachable: usize,
     /// Their mean latency, ms; 0 without a model.
     pub predict_ms: f64,
+    /// With [`Feedback::OpenLoop`]: how far each prediction was from the tick's true
+    /// residual (the oracle's correction), position µm and attitude across the tool axis
+    /// mdeg, over the predicting ticks.
+    pub open_loop: Option<ErrorStats>,
+    /// With [`Feedback::OpenLoop`]: the corrections the model would have set, by tick
+    /// (those within [`MAX_CORRECTION`]), for [`Feedback::Replay`].
+    pub predicted: Vec<(usize, Correction)>,
 }
 
 /// Online compensation settings.
@@ -64,6 +71,14 @@ pub enum Feedback<'p> {
     None,
     /// A trained model, predicting from the sensor window ending at each tick.
     Model(&'p mut Predictor, &'p Graph, Online),
+    /// A trained model predicting as [`Feedback::Model`] does, its predictions scored
+    /// against the true residual and never applied: the run is the uncompensated one
+    /// (the diagnosis of docs/results.md: open-loop prediction error on held-out runs).
+    OpenLoop(&'p mut Predictor, &'p Graph, Online),
+    /// Corrections recorded by an open-loop run ([`RunResult::predicted`]), each set after
+    /// its tick as the model would have set it: the model's predictions fed forward
+    /// without their feedback on its own inputs.
+    Replay(&'p [(usize, Correction)]),
     /// The floor: the true residual of the tick, fed back with a model's latency and rate
     /// (from the first tick a `window`-step model could predict, every `every` ticks,
     /// applied from the next tick on).
@@ -108,8 +123,10 @@ pub fn run(
     mut on_tick: impl FnMut(usize),
 ) -> Result<RunResult> {
     let every = match &feedback {
-        Feedback::Model(_, _, settings) | Feedback::Oracle { settings, .. } => settings.every,
-        Feedback::None => 1,
+        Feedback::Model(_, _, settings)
+        | Feedback::OpenLoop(_, _, settings)
+        | Feedback::Oracle { settings, .. } => settings.every,
+        Feedback::None | Feedback::Replay(_) => 1,
     };
     ensure(every >= 1, || {
         format!("models predict every 1 or more control ticks, got every {every}")
@@ -119,15 +136,21 @@ pub fn run(
     let mut sim = Simulation::resume(machine, controller, Mirror::default(), config, start)?;
     let mut model = None;
     let mut oracle = None;
+    let apply = !matches!(feedback, Feedback::OpenLoop(..));
+    let mut replay: &[(usize, Correction)] = &[];
     match feedback {
         Feedback::None => {}
-        Feedback::Model(predictor, graph, settings) => {
+        Feedback::Replay(corrections) => replay = corrections,
+        Feedback::Model(predictor, graph, settings)
+        | Feedback::OpenLoop(predictor, graph, settings) => {
             predictor.reset();
             let nodes = node_channels(graph)?;
             model = Some((SensorPredictor::new(predictor, dt)?, nodes, settings));
         }
         Feedback::Oracle { window, settings } => oracle = Some((window, settings)),
     }
+    let (mut miss_pos, mut miss_att) = (Vec::new(), Vec::new());
+    let mut predicted = Vec::new();
     let mut values = vec![None; model.as_ref().map_or(0, |o| o.1.len())];
     let (mut pos, mut att, mut trace) = (Vec::new(), Vec::new(), Vec::new());
     let (mut true_pos, mut true_att) = (Vec::new(), Vec::new());
@@ -163,12 +186,27 @@ pub fn run(
                 let dp = nalgebra::Vector3::new(r[0], r[1], r[2]) * 1e-3;
                 let dr = nalgebra::Vector3::new(r[3], r[4], r[5]).map(|v| (v * 1e-3).to_radians());
                 let (mm, deg) = MAX_CORRECTION;
-                if dp.norm() <= mm && dr.norm() <= deg.to_radians() {
+                let within = dp.norm() <= mm && dr.norm() <= deg.to_radians();
+                if !apply {
+                    let (p, a) = prediction_miss(&s, &actual, dp, dr);
+                    miss_pos.push(p);
+                    miss_att.push(a);
+                    if within {
+                        predicted.push((tick, Correction { dp, dr }));
+                    }
+                } else if within {
                     sim.set_correction(Correction { dp, dr });
                 } else {
                     // Also refuses NaN, which fails both comparisons.
                     refused += 1;
                 }
+            }
+        }
+        if let Some(((k, c), rest)) = replay.split_first() {
+            if *k == tick {
+                sim.set_correction(*c);
+                predictions += 1;
+                replay = rest;
             }
         }
         if let Some((window, settings)) = oracle {
@@ -207,7 +245,39 @@ pub fn run(
         } else {
             0.0
         },
+        predicted,
+        open_loop: if apply {
+            None
+        } else {
+            let short = || Error::Invalid("the run was too short for a single prediction".into());
+            Some(ErrorStats {
+                position: Summary::of(&miss_pos).ok_or_else(short)?,
+                attitude: Summary::of(&miss_att).ok_or_else(short)?,
+            })
+        },
     })
+}
+
+/// How far a prediction (dp mm, dr rotation vector rad) is from the true residual of its
+/// tick (the located actual pose against the pose the controller expected, what the
+/// oracle feeds back): position µm, and the attitude difference across the tool axis
+/// mdeg (the roll about the axis is free, as in Table III and V).
+fn prediction_miss(
+    s: &crate::twin::Sample,
+    actual: &nalgebra::Isometry3<f64>,
+    dp: nalgebra::Vector3<f64>,
+    dr: nalgebra::Vector3<f64>,
+) -> (f64, f64) {
+    let commanded = &s.hidden.commanded;
+    let true_dp = actual.translation.vector - commanded.translation.vector;
+    let true_dr = (actual.rotation * commanded.rotation.inverse()).scaled_axis();
+    let axis = s.hidden.target.axis.normalize();
+    let e = dr - true_dr;
+    let across = e - axis * e.dot(&axis);
+    (
+        (dp - true_dp).norm() * 1e3,
+        across.norm().to_degrees() * 1e3,
+    )
 }
 
 /// A trace for the report.

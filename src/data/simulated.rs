@@ -12,7 +12,7 @@ use crate::progress::Reporter;
 use crate::robot::Robot;
 use crate::twin::{
     calibration_configurations, located, measure_calibration, Machine, MachineState, Mirror,
-    PathKind, PathParams, RunInfo, SensorSpecs, SimConfig, Simulation, CHANNELS,
+    PathKind, RunInfo, SensorSpecs, SimConfig, Simulation, CHANNELS,
 };
 
 /// What a recorded run left: the machine's state at its end (to carry the session on),
@@ -81,13 +81,24 @@ pub fn record_run(
             )
         },
     )?;
-    let params = PathParams {
-        rotation_deg: info.rotation_deg,
-        reverse: info.reverse,
-        ..PathParams::default()
-    };
+    for (name, value, range) in [
+        ("feed", info.feed_mm_s, (1.0, 200.0)),
+        ("polishing force", info.force_n, (0.0, 1000.0)),
+    ] {
+        crate::error::ensure(
+            value.is_finite() && value > range.0 && value <= range.1,
+            || {
+                format!(
+                    "the {name} is more than {} and at most {}, got {value}",
+                    range.0, range.1
+                )
+            },
+        )?;
+    }
     let mut config = SimConfig::new(kind, info.seconds, info.seed);
-    config.path_params = params;
+    config.path_params = info.placement();
+    config.feed = info.feed_mm_s;
+    config.force_mean = info.force_n;
     info.start = if start.clock > 0.0 { "warm" } else { "cold" }.into();
     info.session_clock_s = start.clock;
     info.screw_rise_k = start.screw_rise();

@@ -409,25 +409,35 @@ fn scoring(hold_out_every: usize, test: Option<PathBuf>) -> Scoring {
     }
 }
 
-/// record_data(out, minutes=2.0, machine_seed=1, progress=None) -> dict
+/// record_data(out, minutes=2.0, machine_seed=1, sessions=1, placement="fixed", progress=None) -> dict
 ///
 /// The demo's data on the twin, into the folder `out`: a calibration set of a cold
-/// machine, its EKF calibration, and one training recording of `minutes` per path
-/// (grid, fermat, hilbert). Returns the files: {"recordings": [...], "calibration": ...}.
+/// machine, its EKF calibration, and `minutes` of training recordings per path (grid,
+/// fermat, hilbert), in one session or split over `sessions` (each a day of its own
+/// starting cold; `placement` "fixed" or "varied", docs/twin.md "Sessions"). Returns the
+/// files: {"recordings": [...], "calibration": ...}.
 #[pyfunction]
-#[pyo3(signature = (out, minutes=2.0, machine_seed=1, progress=None))]
+#[pyo3(signature = (out, minutes=2.0, machine_seed=1, sessions=1, placement="fixed", progress=None))]
+#[allow(clippy::too_many_arguments)]
 fn record_data<'py>(
     py: Python<'py>,
     out: PathBuf,
     minutes: f64,
     machine_seed: u64,
+    sessions: usize,
+    placement: &str,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Bound<'py, PyAny>> {
     if !(minutes.is_finite() && minutes > 0.0) {
         return Err(raise(format!("minutes must be positive, got {minutes}")));
     }
+    let recipe = crate::twin::Recipe {
+        sessions,
+        placement: placement.parse().map_err(raise)?,
+    };
+    recipe.validate(minutes).map_err(raise)?;
     let sources = long_call(py, progress, |r| {
-        crate::experiment::protocol::record_data(&out, minutes, machine_seed, r)
+        crate::experiment::protocol::record_data(&out, minutes, machine_seed, &recipe, r)
     })?;
     #[derive(Serialize)]
     struct Files {

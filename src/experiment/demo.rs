@@ -21,6 +21,7 @@ use crate::gpu::Gpu;
 use crate::model::Variant;
 use crate::progress::Reporter;
 use crate::train::{build_dataset, RunConfig};
+use crate::twin::Recipe;
 
 /// Length of each of the demo's training recordings, minutes: the most data with which
 /// three seeds of its eight models fit `make demo`'s 15 minutes on 2 CPU cores with a
@@ -44,8 +45,10 @@ pub struct DemoConfig {
     pub seeds: Vec<u64>,
     /// Also train and evaluate the spatio-temporal baselines of Table III (ConvLSTM, T-GCN,
     /// EAT-GCN, ST-GAT) at the same budget; they take longer than the demo's 15 minutes on
-    /// 2 CPU cores (docs/results.md), so they are off by default.
+    /// 2 CPU cores (docs/runs/2026-11-25-baselines.md), so they are off by default.
     pub all_models: bool,
+    /// How the training set is recorded (docs/twin.md "Sessions").
+    pub recipe: Recipe,
 }
 
 impl Default for DemoConfig {
@@ -57,6 +60,7 @@ impl Default for DemoConfig {
             held_out: HeldOutConfig::default(),
             seeds: vec![1, 2, 3],
             all_models: false,
+            recipe: Recipe::SINGLE,
         }
     }
 }
@@ -112,6 +116,7 @@ pub fn demo(
     let config = &demo.run;
     config.validate().map_err(Error::Invalid)?;
     demo.held_out.validate()?;
+    demo.recipe.validate(demo.minutes).map_err(Error::Invalid)?;
     check_seeds(&demo.seeds)?;
     let data_dir = out.join("data");
     let model_dir = out.join("models");
@@ -121,7 +126,13 @@ pub fn demo(
     reporter.note(&format!("demo on {} → {}", gpu.info().name, out.display()));
 
     reporter.note("== 1/6 … 3/6 twin data: calibration set, EKF calibration, training session");
-    let sources = record_data(&data_dir, demo.minutes, MACHINE_SEED, reporter)?;
+    let sources = record_data(
+        &data_dir,
+        demo.minutes,
+        MACHINE_SEED,
+        &demo.recipe,
+        reporter,
+    )?;
 
     reporter.note("== 4/6 dataset");
     let (graph, data) = build_dataset(&sources, config, None)?;
@@ -131,7 +142,7 @@ pub fn demo(
 
     // The spatio-temporal baselines (Variant::SPATIO_TEMPORAL) run only with
     // `all_models`: the demo already takes most of its 15 minutes on 2 cores, and they cost
-    // 2–4 IASTGCN epochs each per epoch (docs/results.md).
+    // 2–4 IASTGCN epochs each per epoch (docs/runs/2026-11-25-baselines.md).
     let spatio_temporal: &[Variant] = if demo.all_models {
         &Variant::SPATIO_TEMPORAL
     } else {
@@ -237,6 +248,17 @@ pub fn demo(
         },
         "every model is refined the same way and keeps its core weights unless refinement lowers its per-window validation loss".into(),
     ];
+    if demo.recipe.sessions > 1 {
+        setup.push(format!(
+            "training sessions: the {} min per path are split over {} sessions, each a day \
+             of its own starting cold (its ambient, feed and force drawn as docs/twin.md \
+             \"Days\" says), placements {}; seeds from {}",
+            demo.minutes,
+            demo.recipe.sessions,
+            demo.recipe.placement.name(),
+            TRAINING_SEED * 100
+        ));
+    }
     setup.extend(refinement);
     let mut sections = vec![("Sensor models".into(), sensor_table())];
     if seeded {

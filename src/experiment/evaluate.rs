@@ -5,13 +5,14 @@
 use std::sync::Arc;
 use std::time::Instant;
 
+use super::recommend::{recommend, VALIDATION_SESSION};
 use super::report::{
     table_iii_lines, table_v_lines, Report, TableIIIRow, TableVRow, Timing, Trace,
 };
 use crate::calibrate::file;
 use crate::compensate::budget::{error_budget, markdown as budget_markdown};
-use crate::compensate::held_out::{warm_up, HeldOut, IDLE_BETWEEN_RUNS};
-use crate::compensate::online::{self, Feedback, Online, RunResult};
+use crate::compensate::held_out::{warm_up_on, HeldOut, IDLE_BETWEEN_RUNS};
+use crate::compensate::online::{self, ErrorStats, Feedback, Online, RunResult};
 use crate::data::{DataSources, Dataset};
 use crate::error::{ensure, Error, Result};
 use crate::gpu::Gpu;
@@ -20,8 +21,8 @@ use crate::model::{Backend, Checkpoint, Features, ModelError, Predictor};
 use crate::progress::Reporter;
 use crate::robot::Robot;
 use crate::train::metrics::per_recording;
-use crate::train::{build_dataset, data_normalization, sibling, RunConfig};
-use crate::twin::{draw_machine, Machine, MachineState, PathKind, PathParams};
+use crate::train::{build_dataset, by_path, data_normalization, sibling, RunConfig, TestMetrics};
+use crate::twin::{draw_machine, Conditions, Machine, MachineState, PathKind, PathParams};
 
 /// Predictions (µm, mdeg) of a checkpoint for the windows at `positions` of a dataset
 /// standardised with the checkpoint's own statistics, through the batched
@@ -53,18 +54,28 @@ pub fn table_iii(
     let [_, _, test] = data.split_ranges();
     let positions: Vec<usize> = test.collect();
     let pred = predict_windows(gpu, ck, data, &positions)?;
+    let per: Vec<TestMetrics> = names
+        .iter()
+        .zip(per_recording(data, &positions, &pred))
+        .map(|(name, (model, training_mean))| TestMetrics {
+            recording: name.clone(),
+            model,
+            training_mean,
+        })
+        .collect();
     let mut rows = Vec::new();
-    for (name, (metrics, mean)) in names.iter().zip(per_recording(data, &positions, &pred)) {
+    // The sessions of one path are one row (docs/twin.md "Sessions").
+    for t in by_path(&per) {
         rows.push(TableIIIRow {
-            trajectory: name.clone(),
+            trajectory: t.recording.clone(),
             model: model.to_string(),
-            metrics,
+            metrics: t.model,
         });
         if baseline {
             rows.push(TableIIIRow {
-                trajectory: name.clone(),
+                trajectory: t.recording,
                 model: "training mean".into(),
-                metrics: mean,
+                metrics: t.training_mean,
             });
         }
     }
@@ -251,6 +262,65 @@ impl HeldOutConfig {
     }
 }
 
+/// One session of a held-out evaluation ([`HeldOutConfig::session`]): how the machine
+/// starts, the first run's seed, and the day's conditions.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HeldOutSession {
+    /// Its index, from 0.
+    pub index: usize,
+    /// Minutes of polishing that warm the machine first (0: cold).
+    pub warm_up_minutes: f64,
+    /// Seed of its first run; the next paths take the following seeds.
+    pub seed: u64,
+    /// Its day, feed and force.
+    pub conditions: Conditions,
+}
+
+impl HeldOutSession {
+    /// `cold` or `warm-up N min`, the day's ambient offset, feed and force, for reports.
+    pub fn describe(&self) -> String {
+        let start = if self.warm_up_minutes > 0.0 {
+            format!("{} min warm-up", self.warm_up_minutes)
+        } else {
+            "cold".to_string()
+        };
+        let c = &self.conditions;
+        format!(
+            "{start}, ambient {:+.2} K, feed {:.1} mm/s, force {:.1} N, seeds from {}",
+            c.day.ambient_offset_k, c.feed_mm_s, c.force_n, self.seed
+        )
+    }
+}
+
+impl HeldOutConfig {
+    /// Held-out session `k` (docs/twin.md "Scoring"). Session 0 is the evaluation's own:
+    /// the calibration day at the default feed and force, `warm_up_minutes` of warm-up,
+    /// seeds from `seed`. Session k ≥ 1 is another day, its conditions drawn as a
+    /// multi-session training set's are ([`Conditions::draw`] from `seed · 1000 + k`),
+    /// seeds from `seed + 10k`; odd sessions start cold, even ones after three times the
+    /// warm-up. Each runs the paths at [`PathParams::held_out_in`] for its index.
+    pub fn session(&self, k: usize) -> HeldOutSession {
+        if k == 0 {
+            return HeldOutSession {
+                index: 0,
+                warm_up_minutes: self.warm_up_minutes,
+                seed: self.seed,
+                conditions: Conditions::NOMINAL,
+            };
+        }
+        HeldOutSession {
+            index: k,
+            warm_up_minutes: if k % 2 == 1 {
+                0.0
+            } else {
+                3.0 * self.warm_up_minutes
+            },
+            seed: self.seed + 10 * k as u64,
+            conditions: Conditions::draw(self.seed * 1000 + k as u64),
+        }
+    }
+}
+
 impl Default for HeldOutConfig {
     /// The demo's session: 0.5 min runs from seed 301 after 2 min of warm-up, a
     /// prediction every 5 ticks.
@@ -398,7 +468,7 @@ pub fn evaluate(
         .iter()
         .map(|m| (m.name.clone(), m.checkpoint.clone()))
         .collect();
-    let session = held_out_session(gpu, &checkpoints, sources, held, true, reporter)?;
+    let session = held_out_session(gpu, &checkpoints, sources, held, 0, true, false, reporter)?;
     if let Some(budget) = session.budget {
         report.sections.push((
             format!("Error budget: {} (held-out run)", PathKind::Hilbert.name()),
@@ -409,6 +479,33 @@ pub fn evaluate(
         ));
     }
     report.table_v.extend(session.rows);
+
+    reporter.note(
+        "== recommended model: every model in the loop on a validation session (not in Table V)",
+    );
+    let validation = held_out_session(
+        gpu,
+        &checkpoints,
+        sources,
+        held,
+        VALIDATION_SESSION,
+        false,
+        false,
+        reporter,
+    )?;
+    let recommendation = recommend(&validation.rows);
+    reporter.note(&recommendation.sentence());
+    report.setup.push(recommendation.sentence());
+    report.sections.push((
+        "Recommended model".into(),
+        recommendation.markdown(
+            (
+                VALIDATION_SESSION + 1,
+                &held.session(VALIDATION_SESSION).describe(),
+            ),
+            held.minutes,
+        ),
+    ));
     report.setup.push(format!(
         "held-out session (Table V): twin machine {}, the machine the recordings were taken \
          on (their `.run.toml` sidecars; machine 1 when none has one)",
@@ -471,21 +568,47 @@ pub struct Session {
     pub calibration_warning: Option<String>,
     /// The Hilbert run's error budget as Markdown, when asked for.
     pub budget: Option<String>,
+    /// When asked for: per path and model, the open-loop diagnosis ([`OpenLoopScore`]).
+    pub open_loop: Vec<OpenLoopScore>,
 }
 
-/// One held-out session on the machine the recordings of `sources` were taken on, under
-/// their calibration: the machine warms up, then every path runs in turn, each stage of
-/// a path (initial, calibrated, oracle, each of `models` in the loop) from the same
-/// state, and the session carries on from the calibrated run's end, so the rows of the
-/// initial, calibrated and oracle stages do not depend on the models. The first model
-/// gives the graph and window of the online runs. With `budget`, the Hilbert run's error
-/// budget by source too.
+/// The open-loop diagnosis of one model on one held-out run (docs/results.md "Where the
+/// error goes").
+#[derive(Clone, Debug)]
+pub struct OpenLoopScore {
+    /// The path.
+    pub path: String,
+    /// The model.
+    pub model: String,
+    /// How far its predictions along the uncompensated run were from the true residual
+    /// (µm, tool-axis mdeg; [`online::Feedback::OpenLoop`]).
+    pub miss: ErrorStats,
+    /// The run's true error with those predictions fed forward as corrections, each
+    /// from the tick the model would have set it, without their feedback on the model's
+    /// inputs ([`online::Feedback::Replay`]).
+    pub replayed: ErrorStats,
+}
+
+/// Held-out session `k` of `held` ([`HeldOutConfig::session`]; the evaluation's own is
+/// 0) on the machine the recordings of `sources` were taken on, under their
+/// calibration: the machine warms up, then every path runs in turn, each stage of a path
+/// (initial, calibrated, oracle, each of `models` in the loop) from the same state, and
+/// the session carries on from the calibrated run's end, so the rows of the initial,
+/// calibrated and oracle stages do not depend on the models. The first model gives the
+/// graph and window of the online runs. With `budget`, the Hilbert run's error budget by
+/// source too. With `open_loop`, each model also predicts along every path's
+/// uncompensated run from the same start, its predictions scored against the true
+/// residual and never applied, then fed forward
+/// ([`Session::open_loop`]).
+#[allow(clippy::too_many_arguments)]
 pub fn held_out_session(
     gpu: &Arc<Gpu>,
     models: &[(String, Checkpoint)],
     sources: &DataSources,
     held: &HeldOutConfig,
+    k: usize,
     budget: bool,
+    open_loop: bool,
     reporter: &mut dyn Reporter,
 ) -> Result<Session> {
     let Some((_, first)) = models.first() else {
@@ -513,6 +636,7 @@ pub fn held_out_session(
         machine_seed,
         calibration_warning: None,
         budget: None,
+        open_loop: Vec::new(),
     };
     if let Some(m) = cal.machine_seed.filter(|&m| m != machine_seed) {
         let warning = format!(
@@ -524,19 +648,22 @@ pub fn held_out_session(
         reporter.note(&warning);
         session.calibration_warning = Some(warning);
     }
-    let mut state = warm_up(
+    let plan = held.session(k);
+    let mut state = warm_up_on(
         &machine,
         &calibrated,
-        held.warm_up_minutes * 60.0,
-        held.seed.wrapping_add(1000),
+        plan.warm_up_minutes * 60.0,
+        plan.seed.wrapping_add(1000),
+        &plan.conditions,
     )?;
     for (i, path) in PathKind::ALL.into_iter().enumerate() {
         let run = HeldOut {
             path,
-            params: PathParams::held_out(path),
+            params: PathParams::held_out_in(path, k),
             seconds: held.minutes * 60.0,
-            seed: held.seed + i as u64,
+            seed: plan.seed + i as u64,
             start: state.clone(),
+            conditions: plan.conditions,
         };
         // One budget (the Hilbert run's) keeps the demo in its time; `iastgcn budget`
         // gives any other.
@@ -544,7 +671,8 @@ pub fn held_out_session(
             let b = error_budget(&machine, &calibrated, &run.config(), &run.start)?;
             session.budget = Some(budget_markdown(&b));
         }
-        let ticks = run.config().steps() * (3 + preds.len());
+        let stages = 3 + preds.len() * if open_loop { 3 } else { 1 };
+        let ticks = run.config().steps() * stages;
         reporter.begin(&format!("compensating {}", path.name()), ticks as u64);
         let mut done = 0u64;
         let result = table_v(
@@ -562,6 +690,41 @@ pub fn held_out_session(
                 }
             },
         )?;
+        if open_loop {
+            for m in preds.iter_mut() {
+                let mut tick = |_| {
+                    done += 1;
+                    if done.is_multiple_of(50) {
+                        reporter.update(done, "");
+                    }
+                };
+                let settings = Online { every: held.every };
+                let open = online::run(
+                    &machine,
+                    &calibrated,
+                    run.config(),
+                    run.start.clone(),
+                    Feedback::OpenLoop(&mut m.predictor, &m.graph, settings),
+                    &mut tick,
+                )?;
+                let replayed = online::run(
+                    &machine,
+                    &calibrated,
+                    run.config(),
+                    run.start.clone(),
+                    Feedback::Replay(&open.predicted),
+                    &mut tick,
+                )?;
+                if let Some(miss) = open.open_loop {
+                    session.open_loop.push(OpenLoopScore {
+                        path: path.name().to_string(),
+                        model: m.name.clone(),
+                        miss,
+                        replayed: replayed.truth,
+                    });
+                }
+            }
+        }
         reporter.end();
         for line in table_v_lines(&result.rows) {
             reporter.note(&line);

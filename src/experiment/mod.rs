@@ -3,7 +3,8 @@
 //! they go into (`evaluate`, `report/`), the demo over training seeds (`demo`), the
 //! protocol over seeds in resumable, shardable jobs (`reproduce`), the merge of reproduce
 //! folders of several twin machines (`machines`), the scaling study of error against
-//! training data (`scale`), and a serial arm's residual models on held-out poses (`arm`).
+//! training data (`scale`), the model recommended on a validation session
+//! (`recommend`), and a serial arm's residual models on held-out poses (`arm`).
 
 pub mod arm;
 pub mod calibration;
@@ -11,6 +12,7 @@ pub mod demo;
 pub mod evaluate;
 pub mod machines;
 pub mod protocol;
+pub mod recommend;
 pub mod report;
 pub mod reproduce;
 pub mod scale;

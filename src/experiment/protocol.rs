@@ -16,7 +16,7 @@ use crate::progress::Reporter;
 use crate::robot::{Geometry, Robot};
 use crate::train::refine::AccumulatedCurve;
 use crate::train::{self, refine, sibling, EpochRecord, RunConfig, TestMetrics, Trained};
-use crate::twin::{draw_machine, PathKind, PathParams, RunInfo};
+use crate::twin::{draw_machine, PathKind, Recipe, RunInfo};
 
 /// Seeds of the protocol's runs: every run has its own (written in its `.run.toml`). This
 /// one is the calibration set's.
@@ -28,13 +28,17 @@ pub const MACHINE_SEED: u64 = 1;
 /// Measurement poses of the calibration set.
 const CALIBRATION_POSES: usize = 80;
 
-/// The files of the protocol's data in the folder `dir`: the calibration set, the
-/// calibration, and the training recordings (grid, fermat, hilbert).
-pub fn data_sources(dir: &Path) -> DataSources {
+/// The files of the protocol's data in the folder `dir` recorded with `recipe`: the
+/// calibration set, the calibration, and the training recordings (grid, fermat, hilbert
+/// of each session in turn).
+pub fn data_sources(dir: &Path, recipe: &Recipe) -> DataSources {
     DataSources {
-        recordings: PathKind::TRAINING
-            .into_iter()
-            .map(|k| dir.join(format!("{}.csv", k.name())))
+        recordings: (1..=recipe.sessions)
+            .flat_map(|s| {
+                PathKind::TRAINING
+                    .into_iter()
+                    .map(move |k| dir.join(recipe.file_name(k, s)))
+            })
             .collect(),
         calibration: dir.join("calibration.toml"),
         graph: None,
@@ -42,12 +46,17 @@ pub fn data_sources(dir: &Path) -> DataSources {
     }
 }
 
-/// The protocol's data of an earlier run in `dir`, when every file is there; an error
-/// when they are there but were recorded with another length than `minutes` or on
-/// another machine than `machine_seed` (the models trained on them would not belong to
-/// this run).
-pub fn existing_data(dir: &Path, minutes: f64, machine_seed: u64) -> Result<Option<DataSources>> {
-    let sources = data_sources(dir);
+/// The protocol's data of an earlier run in `dir`, when every file of `recipe` is there;
+/// an error when they are there but were recorded with another length than `minutes`
+/// per path or on another machine than `machine_seed` (the models trained on them would
+/// not belong to this run).
+pub fn existing_data(
+    dir: &Path,
+    minutes: f64,
+    machine_seed: u64,
+    recipe: &Recipe,
+) -> Result<Option<DataSources>> {
+    let sources = data_sources(dir, recipe);
     let complete = dir.join("calibration_set.csv").exists()
         && sources.calibration.exists()
         && sources
@@ -57,14 +66,17 @@ pub fn existing_data(dir: &Path, minutes: f64, machine_seed: u64) -> Result<Opti
     if !complete {
         return Ok(None);
     }
+    let per_run = minutes / recipe.sessions as f64;
     for r in &sources.recordings {
         let info = RunInfo::read(r).map_err(Error::Invalid)?;
-        if (info.seconds - minutes * 60.0).abs() > 1e-6 {
+        if (info.seconds - per_run * 60.0).abs() > 1e-6 {
             return Err(Error::Invalid(format!(
-                "{}: recorded for {} min, but this run asks for {minutes} min per recording; \
-                 use another output folder or the same --minutes",
+                "{}: recorded for {} min, but this run asks for {per_run} min per recording \
+                 ({minutes} min per path in {} sessions); use another output folder or the \
+                 same --minutes and --sessions",
                 r.display(),
-                info.seconds / 60.0
+                info.seconds / 60.0,
+                recipe.sessions
             )));
         }
         if info.machine_seed != machine_seed {
@@ -80,16 +92,18 @@ pub fn existing_data(dir: &Path, minutes: f64, machine_seed: u64) -> Result<Opti
 }
 
 /// Records the protocol's data into `dir` (created if missing): the calibration set of a
-/// cold machine at rest, the EKF calibration (scored on held-out poses), then one
-/// training session of `minutes` per path under the calibrated controller, starting cold
-/// with the machine left idle between runs, all on twin machine `machine_seed`. Returns
-/// where the files are.
+/// cold machine at rest, the EKF calibration (scored on held-out poses), then the
+/// training sessions of `recipe` with `minutes` per path in all under the calibrated
+/// controller, each starting cold on its day with the machine left idle between runs,
+/// all on twin machine `machine_seed`. Returns where the files are.
 pub fn record_data(
     dir: &Path,
     minutes: f64,
     machine_seed: u64,
+    recipe: &Recipe,
     reporter: &mut dyn Reporter,
 ) -> Result<DataSources> {
+    recipe.validate(minutes).map_err(Error::Invalid)?;
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     reporter.note(&format!(
         "== twin machine {machine_seed}: calibration measurements (a cold machine at rest)"
@@ -108,7 +122,7 @@ pub fn record_data(
     ));
 
     reporter.note("== geometric calibration (EKF)");
-    let sources = data_sources(dir);
+    let sources = data_sources(dir, recipe);
     let calibration = &sources.calibration;
     let (fit, held) = hold_out(&read_measurements(&set)?, 5);
     let cal = calibrate::calibrate(&nominal, &fit, &EkfConfig::default())
@@ -133,32 +147,36 @@ pub fn record_data(
         mean(&after.1)
     ));
 
-    reporter.note("== training session: three recordings under the calibrated controller");
-    let mut state = machine.cold();
-    for (i, (kind, path)) in PathKind::TRAINING
-        .into_iter()
-        .zip(&sources.recordings)
-        .enumerate()
-    {
-        let mut info = RunInfo::polishing(
-            kind,
-            &PathParams::default(),
-            minutes * 60.0,
-            TRAINING_SEED + i as u64,
-        );
-        info.controller = calibration.display().to_string();
-        info.machine_seed = machine_seed;
-        let run = record_run(&machine, &controller, info, state, path, None, reporter)?;
+    let plan = recipe.plan(minutes, TRAINING_SEED, machine_seed);
+    for (s, session) in plan.into_iter().enumerate() {
+        let c = session.conditions;
         reporter.note(&format!(
-            "wrote {} ({} rows, {} tracker samples, seed {}, {} start)",
-            path.display(),
-            run.rows,
-            run.tracker_samples,
-            run.info.seed,
-            run.info.start
+            "== training session {} of {}: three recordings under the calibrated controller, \
+             starting cold (ambient {:+.2} K from the calibration day's, feed {:.1} mm/s, \
+             force {:.1} N)",
+            s + 1,
+            recipe.sessions,
+            c.day.ambient_offset_k,
+            c.feed_mm_s,
+            c.force_n
         ));
-        state = run.end;
-        state.idle(IDLE_BETWEEN_RUNS);
+        let mut state = machine.cold_on(c.day);
+        let kinds = PathKind::TRAINING.into_iter();
+        for (mut info, kind) in session.runs.into_iter().zip(kinds) {
+            let path = &dir.join(recipe.file_name(kind, s + 1));
+            info.controller = calibration.display().to_string();
+            let run = record_run(&machine, &controller, info, state, path, None, reporter)?;
+            reporter.note(&format!(
+                "wrote {} ({} rows, {} tracker samples, seed {}, {} start)",
+                path.display(),
+                run.rows,
+                run.tracker_samples,
+                run.info.seed,
+                run.info.start
+            ));
+            state = run.end;
+            state.idle(IDLE_BETWEEN_RUNS);
+        }
     }
     Ok(sources)
 }

@@ -26,6 +26,7 @@ use crate::graph::Graph;
 use crate::model::{Checkpoint, Variant};
 use crate::progress::Reporter;
 use crate::train::{build_dataset, EpochRecord, RunConfig, TestMetrics};
+use crate::twin::Recipe;
 
 /// What `iastgcn reproduce` runs: the run config of every model, the length of the
 /// training recordings, the training seeds and the models.
@@ -51,6 +52,10 @@ pub struct Protocol {
     /// machines comes from several folders merged (`reproduce --merge`).
     #[serde(default = "default_machine")]
     pub machine_seed: u64,
+    /// How the training set is recorded: the minutes per path in one session, or split
+    /// over several (docs/twin.md "Sessions").
+    #[serde(default)]
+    pub recipe: Recipe,
 }
 
 fn default_machine() -> u64 {
@@ -71,6 +76,7 @@ impl Protocol {
             fractions: vec![0.25, 0.5],
             curve_models: vec!["iastgcn".into(), "tgcn".into()],
             machine_seed: MACHINE_SEED,
+            recipe: Recipe::SINGLE,
         }
     }
 
@@ -118,6 +124,7 @@ impl Protocol {
                 self.minutes
             )));
         }
+        self.recipe.validate(self.minutes).map_err(Error::Invalid)?;
         check_seeds(&self.seeds)?;
         if self.models.is_empty() {
             return Err(Error::Invalid("reproduce needs at least one model".into()));
@@ -387,7 +394,12 @@ pub fn reproduce(
     ));
 
     let data_dir = out.join("data");
-    let sources = match existing_data(&data_dir, protocol.minutes, protocol.machine_seed)? {
+    let sources = match existing_data(
+        &data_dir,
+        protocol.minutes,
+        protocol.machine_seed,
+        &protocol.recipe,
+    )? {
         Some(s) => {
             reporter.note(&format!(
                 "using the data of an earlier run in {}",
@@ -395,7 +407,13 @@ pub fn reproduce(
             ));
             s
         }
-        None => record_data(&data_dir, protocol.minutes, protocol.machine_seed, reporter)?,
+        None => record_data(
+            &data_dir,
+            protocol.minutes,
+            protocol.machine_seed,
+            &protocol.recipe,
+            reporter,
+        )?,
     };
     let done = |jobs: &[Job]| jobs.iter().filter(|j| j.record_path(out).exists()).count();
     if data_only {

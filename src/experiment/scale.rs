@@ -17,7 +17,7 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use super::evaluate::{held_out_session, HeldOutConfig};
+use super::evaluate::{held_out_session, table_iii, HeldOutConfig};
 use super::protocol::{
     check_seeds, epoch_seconds, existing_data, record_data, train_core, ModelFiles, MACHINE_SEED,
 };
@@ -32,8 +32,8 @@ use crate::model::{Checkpoint, Variant};
 use crate::plot::{self, Panel, Series};
 use crate::progress::Reporter;
 use crate::train::log::csv_text;
-use crate::train::{build_dataset, RunConfig, TestMetrics};
-use crate::twin::PathKind;
+use crate::train::{build_dataset, by_path, recording_path, refine, RunConfig, TestMetrics};
+use crate::twin::{PathKind, Recipe};
 
 /// The paper's Table V on its Hilbert run (its only compensated path): the share of the
 /// calibrated error its IASTGCN removed, position and attitude, % (0.1393 → 0.0591 mm,
@@ -67,7 +67,27 @@ pub struct Study {
     pub warm_up_minutes: f64,
     /// Predict every this many control ticks during compensation.
     pub every: usize,
+    /// How the training set is recorded (docs/twin.md "Sessions"); a study's sizes are
+    /// the first m/M of each recording, of every session.
+    #[serde(default)]
+    pub recipe: Recipe,
+    /// Held-out sessions every job is scored on ([`HeldOutConfig::session`]); studies
+    /// pinned before there were several have one.
+    #[serde(default = "one_session")]
+    pub held_out_sessions: usize,
+    /// Refine every job after its core stage (the paper's Algorithm 2, as `demo` does:
+    /// the refined weights are kept only where they lower the per-window validation
+    /// loss) and score the result.
+    #[serde(default)]
+    pub refine: bool,
 }
+
+fn one_session() -> usize {
+    1
+}
+
+/// The most held-out sessions a study scores on.
+pub const MAX_HELD_OUT_SESSIONS: usize = 16;
 
 impl Study {
     /// The study of issue 39 at the demo's model and training settings: 2, 8, 32 and 128
@@ -88,6 +108,9 @@ impl Study {
             held_out_seed: held.seed,
             warm_up_minutes: held.warm_up_minutes,
             every: held.every,
+            recipe: Recipe::SINGLE,
+            held_out_sessions: 3,
+            refine: false,
         }
     }
 
@@ -147,6 +170,13 @@ impl Study {
                 )));
             }
         }
+        self.recipe.validate(max).map_err(Error::Invalid)?;
+        if !(1..=MAX_HELD_OUT_SESSIONS).contains(&self.held_out_sessions) {
+            return Err(Error::Invalid(format!(
+                "--held-out-sessions: 1 to {MAX_HELD_OUT_SESSIONS} held-out sessions, got {}",
+                self.held_out_sessions
+            )));
+        }
         check_seeds(&self.seeds)?;
         if self.models.is_empty() {
             return Err(Error::Invalid("the study needs at least one model".into()));
@@ -194,9 +224,9 @@ impl ScaleJob {
         )
     }
 
-    /// Its files in the one naming scheme (docs/usage.md "Checkpoint names"): a job
-    /// trains the core stage only, so its weights are `<name>.core.safetensors` (state,
-    /// log and loss plot beside); nothing is ever written as the refined model.
+    /// Its files in the one naming scheme (docs/usage.md "Checkpoint names"): the core
+    /// stage's weights are `<name>.core.safetensors` (state, log and loss plot beside);
+    /// only a study that refines writes the refined model, `<name>.safetensors`.
     pub fn files(&self, out: &Path) -> ModelFiles {
         ModelFiles::named(&out.join("models"), &self.name(), true)
     }
@@ -213,6 +243,9 @@ impl ScaleJob {
 pub struct PathScore {
     /// `grid`, `fermat`, `hilbert` or `rosette`.
     pub path: String,
+    /// The held-out session of the run, from 0 ([`HeldOutConfig::session`]).
+    #[serde(default)]
+    pub session: usize,
     /// Test windows of the path's recording (0 for the rosette, never recorded).
     pub test_windows: usize,
     /// The model's test MAE (NaN for the rosette).
@@ -226,6 +259,20 @@ pub struct PathScore {
     pub oracle: [f64; 2],
     /// Compensated by the model.
     pub compensated: [f64; 2],
+    /// The model's open-loop prediction error along the uncompensated run: the mean
+    /// distance of its predictions from the true residual (NaN in records written before
+    /// it was measured).
+    #[serde(default = "unmeasured")]
+    pub open_loop: [f64; 2],
+    /// Mean true error of the held-out run with the open-loop predictions fed forward as
+    /// corrections, without their feedback (NaN in records written before it was
+    /// measured).
+    #[serde(default = "unmeasured")]
+    pub replayed: [f64; 2],
+}
+
+fn unmeasured() -> [f64; 2] {
+    [f64::NAN; 2]
 }
 
 impl PathScore {
@@ -260,6 +307,9 @@ pub struct ScaleRecord {
     pub trained_on: String,
     /// Wall time of the job in the run that finished it, s.
     pub wall_seconds: f64,
+    /// What refinement did, in a study that refines (empty otherwise).
+    #[serde(default)]
+    pub refinement: String,
     /// Scores per path: grid, fermat, hilbert, rosette.
     pub paths: Vec<PathScore>,
 }
@@ -298,8 +348,10 @@ pub fn scale(
         study,
         &out.join("study.toml"),
         |a: &Study, b| a.setup() == b.setup(),
-        "this folder holds another study (the recordings' length, the run config, the \
-         machine or the held-out session differ); use another --out, or the same options",
+        "this folder holds another study (the recordings' length or sessions, the run \
+         config, the machine or the held-out sessions differ); use another --out, or the same \
+         options (a study pinned before there were several held-out sessions has one: \
+         --held-out-sessions 1)",
     )?;
     let minutes = study.recording_minutes;
     reporter.note(&format!(
@@ -314,9 +366,15 @@ pub fn scale(
         study.machine_seed
     ));
     let data_dir = out.join("data");
-    let sources = match existing_data(&data_dir, minutes, study.machine_seed)? {
+    let sources = match existing_data(&data_dir, minutes, study.machine_seed, &study.recipe)? {
         Some(s) => s,
-        None => record_data(&data_dir, minutes, study.machine_seed, reporter)?,
+        None => record_data(
+            &data_dir,
+            minutes,
+            study.machine_seed,
+            &study.recipe,
+            reporter,
+        )?,
     };
     let done = |jobs: &[ScaleJob]| jobs.iter().filter(|j| j.record_path(out).exists()).count();
     if data_only {
@@ -403,19 +461,48 @@ fn run_job(
     let name = job.name();
     let files = job.files(out);
     let trained = train_core(gpu, data, graph, config, &name, &files, reporter)?;
-    let checkpoint = Checkpoint::load(&files.core)?;
-    let session = held_out_session(
-        gpu,
-        &[(name.clone(), checkpoint)],
-        sources,
-        &study.held_out(),
-        false,
-        reporter,
-    )?;
-    let paths = PathKind::ALL
-        .into_iter()
-        .map(|p| path_score(p.name(), &trained.test, &session.rows, &name))
-        .collect::<Result<Vec<_>>>()?;
+    let core = Checkpoint::load(&files.core)?;
+    let (checkpoint, test, refinement) = if study.refine {
+        let r = refine(gpu, data, graph, config, &core.parameters, reporter)?;
+        let verdict = r.verdict();
+        reporter.note(&format!("{name}: refinement {verdict}"));
+        let refined = r.save(&core, &files.refined)?;
+        let names: Vec<String> = data.recordings.iter().map(|r| recording_stem(r)).collect();
+        let test = table_iii(gpu, &name, &refined, data, &names, true)?
+            .chunks(2)
+            .map(|pair| TestMetrics {
+                recording: pair[0].trajectory.clone(),
+                model: pair[0].metrics,
+                training_mean: pair[1].metrics,
+            })
+            .collect();
+        (refined, test, verdict)
+    } else {
+        (core, by_path(&trained.test), String::new())
+    };
+    let models = [(name.clone(), checkpoint)];
+    let mut paths = Vec::new();
+    for k in 0..study.held_out_sessions {
+        let session = held_out_session(
+            gpu,
+            &models,
+            sources,
+            &study.held_out(),
+            k,
+            false,
+            true,
+            reporter,
+        )?;
+        for p in PathKind::ALL {
+            let mut score = path_score(p.name(), &test, &session.rows, &name)?;
+            score.session = k;
+            if let Some(o) = session.open_loop.iter().find(|o| o.path == p.name()) {
+                score.open_loop = [o.miss.position.mean, o.miss.attitude.mean];
+                score.replayed = [o.replayed.position.mean, o.replayed.attitude.mean];
+            }
+            paths.push(score);
+        }
+    }
     Ok(ScaleRecord {
         name: name.clone(),
         model: job.variant.name().into(),
@@ -430,11 +517,19 @@ fn run_job(
             trained.history.iter().map(|r| r.trained_on.as_str()),
         ),
         wall_seconds: 0.0,
+        refinement,
         paths,
     })
 }
 
-/// One path's scores from the test metrics (recordings named after their path) and the
+/// A recording's file stem (`data/grid.s01.csv` → `grid.s01`), as Table III names it.
+fn recording_stem(recording: &str) -> String {
+    Path::new(recording)
+        .file_stem()
+        .map_or(recording.to_string(), |s| s.to_string_lossy().into_owned())
+}
+
+/// One path's scores from the test metrics (pooled per path, [`by_path`]) and the
 /// session's Table V rows.
 fn path_score(
     path: &str,
@@ -448,19 +543,18 @@ fn path_score(
             .map(|r| [r.truth.position.mean, r.truth.attitude.mean])
             .ok_or_else(|| Error::Invalid(format!("no {stage} row for {path} in the session")))
     };
-    let recorded = test.iter().find(|t| {
-        Path::new(&t.recording)
-            .file_stem()
-            .is_some_and(|s| s.to_string_lossy() == path)
-    });
+    let recorded = test.iter().find(|t| recording_path(&t.recording) == path);
     Ok(PathScore {
         path: path.into(),
+        session: 0,
         test_windows: recorded.map_or(0, |t| t.model.count),
         test_mae: recorded.map_or([f64::NAN; 2], |t| [t.model.pos_mae, t.model.att_mae]),
         initial: truth("initial", None)?,
         calibrated: truth("calibrated", None)?,
         oracle: truth("oracle", None)?,
         compensated: truth("compensated", Some(model))?,
+        open_loop: unmeasured(),
+        replayed: unmeasured(),
     })
 }
 
@@ -489,11 +583,22 @@ struct Point {
     minutes: f64,
     path: String,
     train_windows: usize,
+    seeds: usize,
+    sessions: usize,
     pos_removed: Spread,
     att_removed: Spread,
     test_pos: Spread,
     test_att: Spread,
     oracle_removed: [f64; 2],
+    /// Mean true error left by compensation, position µm and attitude mdeg.
+    compensated: [Spread; 2],
+    /// Open-loop prediction error along the uncompensated runs (NaN where unmeasured).
+    open_loop: [Spread; 2],
+    /// Mean true error with the open-loop predictions fed forward (NaN where unmeasured).
+    replayed: [Spread; 2],
+    /// Mean true error under the calibrated controller and the oracle.
+    calibrated: [f64; 2],
+    oracle: [f64; 2],
 }
 
 /// The summary's points, model by model (those of `order` first, in its order), each by
@@ -518,23 +623,41 @@ fn points(records: &[ScaleRecord], order: &[String]) -> Vec<Point> {
             .filter(|r| r.model == model && r.minutes == minutes)
             .collect();
         for path in PathKind::ALL.map(PathKind::name) {
+            // Every held-out session of every seed; the test block once per seed.
             let scores: Vec<&PathScore> = group
+                .iter()
+                .flat_map(|r| r.paths.iter().filter(|p| p.path == path))
+                .collect();
+            let tests: Vec<&PathScore> = group
                 .iter()
                 .filter_map(|r| r.paths.iter().find(|p| p.path == path))
                 .collect();
-            let each = |f: &dyn Fn(&PathScore) -> f64| {
-                Spread::of(&scores.iter().map(|s| f(s)).collect::<Vec<_>>())
+            let each = |of: &[&PathScore], f: &dyn Fn(&PathScore) -> f64| {
+                Spread::of(&of.iter().map(|s| f(s)).collect::<Vec<_>>())
+            };
+            let sessions = {
+                let mut k: Vec<usize> = scores.iter().map(|s| s.session).collect();
+                k.sort_unstable();
+                k.dedup();
+                k.len()
             };
             out.push(Point {
                 model: model.clone(),
                 minutes,
                 path: path.into(),
                 train_windows: group[0].train_windows,
-                pos_removed: each(&|s| s.removed(s.compensated)[0]),
-                att_removed: each(&|s| s.removed(s.compensated)[1]),
-                test_pos: each(&|s| s.test_mae[0]),
-                test_att: each(&|s| s.test_mae[1]),
-                oracle_removed: [0, 1].map(|i| each(&|s| s.removed(s.oracle)[i]).mean),
+                seeds: group.len(),
+                sessions,
+                pos_removed: each(&scores, &|s| s.removed(s.compensated)[0]),
+                att_removed: each(&scores, &|s| s.removed(s.compensated)[1]),
+                test_pos: each(&tests, &|s| s.test_mae[0]),
+                test_att: each(&tests, &|s| s.test_mae[1]),
+                oracle_removed: [0, 1].map(|i| each(&scores, &|s| s.removed(s.oracle)[i]).mean),
+                compensated: [0, 1].map(|i| each(&scores, &|s| s.compensated[i])),
+                open_loop: [0, 1].map(|i| each(&scores, &|s| s.open_loop[i])),
+                replayed: [0, 1].map(|i| each(&scores, &|s| s.replayed[i])),
+                calibrated: [0, 1].map(|i| each(&scores, &|s| s.calibrated[i]).mean),
+                oracle: [0, 1].map(|i| each(&scores, &|s| s.oracle[i]).mean),
             });
         }
     }
@@ -561,6 +684,7 @@ pub fn write_summary(study: &Study, out: &Path, reporter: &mut dyn Reporter) -> 
                     r.train_windows.to_string(),
                     r.epochs.to_string(),
                     p.path.clone(),
+                    p.session.to_string(),
                     p.test_windows.to_string(),
                     f(p.test_mae[0]),
                     f(p.test_mae[1]),
@@ -572,15 +696,20 @@ pub fn write_summary(study: &Study, out: &Path, reporter: &mut dyn Reporter) -> 
                     f(p.compensated[1]),
                     f(pr),
                     f(ar),
+                    f(p.open_loop[0]),
+                    f(p.open_loop[1]),
+                    f(p.replayed[0]),
+                    f(p.replayed[1]),
                 ]
             })
         })
         .collect();
     let jobs_csv = csv_text(
-        "model,minutes,seed,train_windows,epochs,path,test_windows,test_pos_mae_um,\
+        "model,minutes,seed,train_windows,epochs,path,held_out_session,test_windows,test_pos_mae_um,\
          test_att_mae_mdeg,calibrated_pos_um,oracle_pos_um,compensated_pos_um,\
          calibrated_att_mdeg,oracle_att_mdeg,compensated_att_mdeg,pos_removed_pct,\
-         att_removed_pct",
+         att_removed_pct,open_loop_pos_um,open_loop_att_mdeg,replayed_pos_um,\
+         replayed_att_mdeg",
         rows,
     );
     let points = points(&records, &study.models);
@@ -592,21 +721,28 @@ pub fn write_summary(study: &Study, out: &Path, reporter: &mut dyn Reporter) -> 
                 p.model.clone(),
                 p.minutes.to_string(),
                 p.train_windows.to_string(),
-                p.pos_removed.n.to_string(),
+                p.seeds.to_string(),
+                p.sessions.to_string(),
                 p.path.clone(),
             ];
             for s in [&p.pos_removed, &p.att_removed, &p.test_pos, &p.test_att] {
                 row.extend(sd(s));
             }
             row.extend(p.oracle_removed.map(f));
+            for s in p.compensated.iter().chain(&p.open_loop) {
+                row.extend(sd(s));
+            }
             row
         })
         .collect();
     let summary_csv = csv_text(
-        "model,minutes,train_windows,seeds,path,pos_removed_mean_pct,pos_removed_sd_pct,\
+        "model,minutes,train_windows,seeds,held_out_sessions,path,pos_removed_mean_pct,\
+         pos_removed_sd_pct,\
          att_removed_mean_pct,att_removed_sd_pct,test_pos_mae_mean_um,test_pos_mae_sd_um,\
          test_att_mae_mean_mdeg,test_att_mae_sd_mdeg,oracle_pos_removed_pct,\
-         oracle_att_removed_pct",
+         oracle_att_removed_pct,compensated_pos_mean_um,compensated_pos_sd_um,\
+         compensated_att_mean_mdeg,compensated_att_sd_mdeg,open_loop_pos_mean_um,\
+         open_loop_pos_sd_um,open_loop_att_mean_mdeg,open_loop_att_sd_mdeg",
         summary_rows,
     );
     let mut batch = crate::atomic::Batch::new();
@@ -720,24 +856,49 @@ fn panels(points: &[Point]) -> Vec<Panel> {
 }
 
 /// `scale.md`: what ran, then per path a table of error removed and test MAE per model
-/// and size.
+/// and size, and the held-out sessions one by one.
 fn markdown(study: &Study, records: &[ScaleRecord], points: &[Point]) -> String {
     let minutes = study.recording_minutes;
+    let recipe = &study.recipe;
+    let recorded = if recipe.sessions == 1 {
+        format!("Recordings of {minutes} min per path in one session")
+    } else {
+        format!(
+            "Recordings of {minutes} min per path in {} sessions of {} min (each a day of its \
+             own starting cold, placements {}; docs/twin.md \"Sessions\")",
+            recipe.sessions,
+            minutes / recipe.sessions as f64,
+            recipe.placement.name()
+        )
+    };
+    let held = study.held_out();
+    let stage = if study.refine {
+        "Core stage to early stopping, then refinement (Algorithm 2; the refined weights \
+         kept where they lower the per-window validation loss); scored with the weights kept"
+    } else {
+        "Core stage to early stopping (no refinement)"
+    };
+    let sessions: Vec<String> = (0..study.held_out_sessions)
+        .map(|k| format!("  - session {}: {}", k + 1, held.session(k).describe()))
+        .collect();
     let mut s = format!(
-        "# Scaling study\n\n- Recordings of {minutes} min per path; a size of m minutes \
+        "# Scaling study\n\n- {recorded}; a size of m minutes \
          trains on the first m/{minutes} of each recording's training block and stops early \
          on the first m/{minutes} of its validation block; every size is scored on the same \
-         test blocks, those of the {minutes}-minute recordings\n- Core stage to early stopping (no refinement)\n- Held-out session: {} \
-         min runs from seed {} after {} min of warm-up, a prediction every {} ticks, scored \
-         against hidden truth\n- Jobs finished in this folder: {} (the last call's study: \
-         sizes {:?}, seeds {:?}, models {})\n\nMean ± SD over seeds. Removed: share of the \
-         calibrated controller's mean true error removed by compensation. Test MAE: the \
-         model's on the path's test block (µm / mdeg). The paper's Table V (Hilbert): {} % / \
+         test blocks, those of the {minutes}-minute recordings\n- {stage}\n- Held-out sessions: {}, \
+         {} min runs each, a prediction every {} ticks, scored against hidden truth:\n{}\n- Jobs \
+         finished in this folder: {} (the last call's study: sizes {:?}, seeds {:?}, models \
+         {})\n\nMean ± SD over seeds and held-out sessions. Removed: share of the calibrated \
+         controller's mean true error removed by compensation; Left: the mean true error it \
+         leaves. Open-loop: the mean distance of the model's predictions from the true \
+         residual along the same held-out runs played uncompensated (the oracle's \
+         correction; docs/results.md \"Where the error goes\"). Test MAE: the model's on \
+         the path's test block (µm / mdeg), over seeds. The paper's Table V (Hilbert): {} % / \
          {} %.\n",
+        study.held_out_sessions,
         study.held_out_minutes,
-        study.held_out_seed,
-        study.warm_up_minutes,
         study.every,
+        sessions.join("\n"),
         records.len(),
         study.sizes,
         study.seeds,
@@ -747,28 +908,157 @@ fn markdown(study: &Study, records: &[ScaleRecord], points: &[Point]) -> String 
     );
     for path in PathKind::ALL.map(PathKind::name) {
         s.push_str(&format!(
-            "\n## {path}\n\n| Model | Min/path | Train windows | Seeds | Pos. removed (%) | \
-             Att. removed (%) | Test MAE pos (µm) | Test MAE att (mdeg) |\n\
-             |---|---:|---:|---:|---:|---:|---:|---:|\n"
+            "\n## {path}\n\n| Model | Min/path | Train windows | Seeds × sessions | Pos. removed (%) | \
+             Att. removed (%) | Test MAE pos (µm) | Test MAE att (mdeg) | Left pos (µm) | \
+             Left att (mdeg) | Open-loop pos (µm) | Open-loop att (mdeg) |\n\
+             |---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n"
         ));
         let mut oracle = None;
         for p in points.iter().filter(|p| p.path == path) {
             s.push_str(&format!(
-                "| {} | {} | {} | {} | {} | {} | {} | {} |\n",
+                "| {} | {} | {} | {} × {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
                 p.model,
                 p.minutes,
                 p.train_windows,
-                p.pos_removed.n,
+                p.seeds,
+                p.sessions,
                 p.pos_removed.text(1),
                 p.att_removed.text(1),
                 p.test_pos.text(2),
-                p.test_att.text(2)
+                p.test_att.text(2),
+                p.compensated[0].text(1),
+                p.compensated[1].text(1),
+                p.open_loop[0].text(1),
+                p.open_loop[1].text(1)
             ));
             oracle = Some(p.oracle_removed);
         }
         if let Some([pos, att]) = oracle {
             s.push_str(&format!(
-                "| oracle (true residual) | | | | {pos:.1} | {att:.1} | | |\n"
+                "| oracle (true residual) | | | | {pos:.1} | {att:.1} | | | | | | |\n"
+            ));
+        }
+    }
+    s.push_str(&where_it_goes(points));
+    s.push_str(&by_session(records));
+    s
+}
+
+/// `scale.md`'s diagnosis: what compensation leaves on each held-out path, split into
+/// the loop's own floor (the oracle's residual: the true residual fed back at a model's
+/// rate and latency), the model's part (its open-loop predictions fed forward, less the
+/// floor) and the feedback (the closed loop less the fed-forward run: the model's
+/// corrections acting on its own inputs), mean over seeds and held-out sessions.
+fn where_it_goes(points: &[Point]) -> String {
+    let measured: Vec<&Point> = points
+        .iter()
+        .filter(|p| p.replayed[0].mean.is_finite())
+        .collect();
+    if measured.is_empty() {
+        return String::new();
+    }
+    let mut s = String::from(
+        "\n## Where the error goes\n\nMean true error (position µm / attitude mdeg) of the \
+         held-out runs: calibrated; compensated in closed loop (what is left); and that left \
+         error split into the loop's floor (the oracle's), the model's part (its open-loop \
+         predictions fed forward as corrections, less the floor) and the feedback (closed \
+         loop less fed forward). Open-loop miss: the mean distance of the predictions from \
+         the true residual along the uncompensated run. Mean over seeds and held-out \
+         sessions.\n\n| Path | Model | Min/path | Calibrated | Left (closed loop) | Floor \
+         (oracle) | Model part | Feedback part | Open-loop miss | Left / miss |\n\
+         |---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    let pair = |v: [f64; 2]| format!("{:.1} / {:.1}", v[0], v[1]);
+    for p in measured {
+        let left = [p.compensated[0].mean, p.compensated[1].mean];
+        let replayed = [p.replayed[0].mean, p.replayed[1].mean];
+        let miss = [p.open_loop[0].mean, p.open_loop[1].mean];
+        s.push_str(&format!(
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.2} / {:.2} |\n",
+            p.path,
+            p.model,
+            p.minutes,
+            pair(p.calibrated),
+            pair(left),
+            pair(p.oracle),
+            pair([0, 1].map(|i| replayed[i] - p.oracle[i])),
+            pair([0, 1].map(|i| left[i] - replayed[i])),
+            pair(miss),
+            left[0] / miss[0],
+            left[1] / miss[1],
+        ));
+    }
+    s
+}
+
+/// `scale.md`'s last section: per path and held-out session, the calibrated error, what
+/// the oracle removes, and each model and size's share removed (mean over seeds).
+fn by_session(records: &[ScaleRecord]) -> String {
+    let sessions = records
+        .iter()
+        .flat_map(|r| r.paths.iter().map(|p| p.session))
+        .max()
+        .map_or(0, |k| k + 1);
+    if sessions < 2 {
+        return String::new();
+    }
+    let mut groups: Vec<(String, f64)> = Vec::new();
+    for r in records {
+        if !groups.iter().any(|g| g.0 == r.model && g.1 == r.minutes) {
+            groups.push((r.model.clone(), r.minutes));
+        }
+    }
+    let mut s = String::from(
+        "\n## By held-out session\n\nPosition / attitude: the calibrated controller's mean \
+         true error (µm / mdeg), then the share removed (%), mean over seeds.\n",
+    );
+    for path in PathKind::ALL.map(PathKind::name) {
+        s.push_str(&format!("\n### {path}\n\n| | "));
+        s.push_str(
+            &(1..=sessions)
+                .map(|k| format!("session {k}"))
+                .collect::<Vec<_>>()
+                .join(" | "),
+        );
+        s.push_str(" |\n|---|");
+        s.push_str(&"---:|".repeat(sessions));
+        s.push('\n');
+        let scores = |model: Option<&(String, f64)>, k: usize| -> Vec<&PathScore> {
+            records
+                .iter()
+                .filter(|r| model.is_none_or(|g| r.model == g.0 && r.minutes == g.1))
+                .flat_map(|r| r.paths.iter())
+                .filter(|p| p.path == path && p.session == k)
+                .collect()
+        };
+        let mean = |v: &[&PathScore], f: &dyn Fn(&PathScore) -> [f64; 2]| -> [f64; 2] {
+            let n = v.len().max(1) as f64;
+            [0, 1].map(|i| v.iter().map(|p| f(p)[i]).sum::<f64>() / n)
+        };
+        let cells = |f: &dyn Fn(&[&PathScore]) -> String, model: Option<&(String, f64)>| {
+            (0..sessions)
+                .map(|k| f(&scores(model, k)))
+                .collect::<Vec<_>>()
+                .join(" | ")
+        };
+        let pair = |v: [f64; 2], digits: usize| format!("{:.digits$} / {:.digits$}", v[0], v[1]);
+        s.push_str(&format!(
+            "| calibrated (µm / mdeg) | {} |\n",
+            cells(&|v| pair(mean(v, &|p| p.calibrated), 1), None)
+        ));
+        s.push_str(&format!(
+            "| oracle removed (%) | {} |\n",
+            cells(&|v| pair(mean(v, &|p| p.removed(p.oracle)), 1), None)
+        ));
+        for g in &groups {
+            s.push_str(&format!(
+                "| {} at {} min (%) | {} |\n",
+                g.0,
+                g.1,
+                cells(
+                    &|v| pair(mean(v, &|p| p.removed(p.compensated)), 1),
+                    Some(g)
+                )
             ));
         }
     }

@@ -69,6 +69,46 @@ pub struct TestMetrics {
     pub training_mean: Metrics,
 }
 
+/// The path a recording belongs to: its file name up to the first dot (`grid.csv` and
+/// `data/grid.s03.csv` are both `grid`).
+pub fn recording_path(recording: &str) -> String {
+    let name = Path::new(recording)
+        .file_name()
+        .map_or(recording.to_string(), |s| s.to_string_lossy().into_owned());
+    name.split('.').next().unwrap_or(&name).to_string()
+}
+
+/// Metrics per path: the recordings of one path (the sessions of a multi-session
+/// training set, docs/twin.md "Sessions") pooled with [`Metrics::pooled`], named by the
+/// path, in the order each path first appears. A path with one recording keeps it as it
+/// is, name included.
+pub fn by_path(metrics: &[TestMetrics]) -> Vec<TestMetrics> {
+    let mut paths: Vec<String> = Vec::new();
+    for m in metrics {
+        let p = recording_path(&m.recording);
+        if !paths.contains(&p) {
+            paths.push(p);
+        }
+    }
+    paths
+        .into_iter()
+        .map(|p| {
+            let group: Vec<&TestMetrics> = metrics
+                .iter()
+                .filter(|m| recording_path(&m.recording) == p)
+                .collect();
+            if let [one] = group[..] {
+                return one.clone();
+            }
+            TestMetrics {
+                recording: p,
+                model: Metrics::pooled(group.iter().map(|m| &m.model)),
+                training_mean: Metrics::pooled(group.iter().map(|m| &m.training_mean)),
+            }
+        })
+        .collect()
+}
+
 /// Test-split metrics per recording of the trainer's current weights.
 pub fn test_metrics(trainer: &Trainer, data: &Dataset) -> Result<Vec<TestMetrics>, TrainError> {
     let [_, _, test] = data.split_ranges();

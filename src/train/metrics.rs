@@ -56,6 +56,30 @@ fn tilt(v: &[f64; 6], axis: &[f64; 3]) -> f64 {
 }
 
 impl Metrics {
+    /// The metrics of several sets of windows scored together: MAE and MAPE the
+    /// count-weighted means, RMSE the root of the count-weighted mean square (exact for
+    /// MAE and RMSE; each set keeps its own MAPE guard). Sets without windows drop out.
+    pub fn pooled<'a>(parts: impl IntoIterator<Item = &'a Metrics>) -> Metrics {
+        let parts: Vec<&Metrics> = parts.into_iter().filter(|m| m.count > 0).collect();
+        let count: usize = parts.iter().map(|m| m.count).sum();
+        if count == 0 {
+            return Metrics::default();
+        }
+        let n = count as f64;
+        let mean = |f: &dyn Fn(&Metrics) -> f64| {
+            parts.iter().map(|m| m.count as f64 * f(m)).sum::<f64>() / n
+        };
+        Metrics {
+            count,
+            pos_mae: mean(&|m| m.pos_mae),
+            pos_rmse: mean(&|m| m.pos_rmse * m.pos_rmse).sqrt(),
+            pos_mape: mean(&|m| m.pos_mape),
+            att_mae: mean(&|m| m.att_mae),
+            att_rmse: mean(&|m| m.att_rmse * m.att_rmse).sqrt(),
+            att_mape: mean(&|m| m.att_mape),
+        }
+    }
+
     /// Scores predictions against labels (both in µm / mdeg), each window's attitude
     /// across its tool axis `axes[i]` (unit, base frame).
     ///

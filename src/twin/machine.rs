@@ -6,7 +6,7 @@ use nalgebra::{Isometry3, Point3, Translation3, Vector3};
 
 use super::sensors::Installation;
 use super::sources::{
-    compliance, Backlash, LimbGive, LostMotion, NonGeometric, Thermal, ThermalGrowth, ToolLoad,
+    compliance, Backlash, Day, LimbGive, LostMotion, NonGeometric, Thermal, ThermalGrowth, ToolLoad,
 };
 use crate::robot::{Joints, PlatformPose, Robot, RobotError};
 
@@ -118,13 +118,18 @@ pub struct Actual {
 }
 
 impl Machine {
-    /// The machine switched on cold at the start of a session.
+    /// The machine switched on cold at the start of a session on the calibration day.
     pub fn cold(&self) -> MachineState {
+        self.cold_on(Day::CALIBRATION)
+    }
+
+    /// The machine switched on cold at the start of a session on `day` (its ambient).
+    pub fn cold_on(&self, day: Day) -> MachineState {
         let ng = &self.nongeometric;
         MachineState {
             lost_motion: ng.lost_motion.map(LostMotion::new),
             backlash: ng.backlash.map(Backlash::new),
-            thermal: ng.thermal.map(Thermal::new),
+            thermal: ng.thermal.map(|p| Thermal::on(p, day)),
             clock: 0.0,
         }
     }

@@ -20,10 +20,11 @@ pub use noise::gaussian;
 pub use sensors::{
     Installation, Instruments, Scene, SensorRates, SensorSpecs, CHANNELS, CHANNEL_UNITS,
 };
-pub use session::RunInfo;
+pub use session::{Conditions, Placement, PlannedSession, Recipe, RunInfo};
 pub use simulate::{
     measure_calibration, pose_error, CalibrationMeasurement, Correction, Hidden, Sample, SimConfig,
     Simulation,
 };
+pub use sources::Day;
 pub use trajectory::{calibration_configurations, Path, PathKind, PathParams};
 pub use truth::{draw_errors, draw_machine, draw_nongeometric, ErrorScales};

@@ -4,8 +4,12 @@
 
 use std::path::{Path, PathBuf};
 
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use super::noise::gaussian;
+use super::sources::Day;
 use super::trajectory::{PathKind, PathParams};
 
 /// The provenance of one simulated run.
@@ -31,7 +35,38 @@ pub struct RunInfo {
     pub session_clock_s: f64,
     /// Temperature rise of each screw above ambient at the run's start, K.
     pub screw_rise_k: [f64; 3],
+    /// The session the run belongs to, from 1 (recordings of one session: 1).
+    #[serde(default = "one")]
+    pub session: usize,
+    /// Mean feed along the path, mm/s (the twin's default 20).
+    #[serde(default = "default_feed")]
+    pub feed_mm_s: f64,
+    /// Mean polishing force, N (the twin's default 100).
+    #[serde(default = "default_force")]
+    pub force_n: f64,
+    /// The session's day: mean ambient minus the calibration day's, K.
+    #[serde(default)]
+    pub ambient_offset_k: f64,
+    /// The session's day: phase of the ambient cycle added to the machine's, rad.
+    #[serde(default)]
+    pub ambient_phase_shift: f64,
 }
+
+fn one() -> usize {
+    1
+}
+
+fn default_feed() -> f64 {
+    DEFAULT_FEED
+}
+
+fn default_force() -> f64 {
+    DEFAULT_FORCE
+}
+
+/// The twin's mean feed, mm/s, and polishing force, N ([`super::SimConfig::new`]).
+const DEFAULT_FEED: f64 = 20.0;
+const DEFAULT_FORCE: f64 = 100.0;
 
 impl RunInfo {
     /// A polishing run's info (`start` and the temperatures filled in by the caller).
@@ -47,6 +82,28 @@ impl RunInfo {
             start: "cold".into(),
             session_clock_s: 0.0,
             screw_rise_k: [0.0; 3],
+            session: 1,
+            feed_mm_s: DEFAULT_FEED,
+            force_n: DEFAULT_FORCE,
+            ambient_offset_k: 0.0,
+            ambient_phase_shift: 0.0,
+        }
+    }
+
+    /// The day the run's session was on.
+    pub fn day(&self) -> Day {
+        Day {
+            ambient_offset_k: self.ambient_offset_k,
+            ambient_phase_shift: self.ambient_phase_shift,
+        }
+    }
+
+    /// The run's placement on the part (default spacing and margin).
+    pub fn placement(&self) -> PathParams {
+        PathParams {
+            rotation_deg: self.rotation_deg,
+            reverse: self.reverse,
+            ..PathParams::default()
         }
     }
 
@@ -64,6 +121,11 @@ impl RunInfo {
             start: "cold".into(),
             session_clock_s: 0.0,
             screw_rise_k: [0.0; 3],
+            session: 1,
+            feed_mm_s: DEFAULT_FEED,
+            force_n: DEFAULT_FORCE,
+            ambient_offset_k: 0.0,
+            ambient_phase_shift: 0.0,
         }
     }
 
@@ -88,5 +150,217 @@ impl RunInfo {
         let text =
             std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
         toml::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))
+    }
+}
+
+/// Conditions of one session that differ from day to day in a shop (docs/twin.md
+/// "Days"): the ambient (its mean against the calibration day's and where in its slow
+/// cycle the session starts), the program's mean feed, and the polishing force the
+/// pneumatic supply is set to.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Conditions {
+    /// The ambient of the day.
+    pub day: Day,
+    /// Mean feed along the path, mm/s.
+    pub feed_mm_s: f64,
+    /// Mean polishing force, N.
+    pub force_n: f64,
+}
+
+impl Conditions {
+    /// The calibration day at the twin's default feed and force: every single-session
+    /// recording and the first held-out session run under these.
+    pub const NOMINAL: Conditions = Conditions {
+        day: Day::CALIBRATION,
+        feed_mm_s: DEFAULT_FEED,
+        force_n: DEFAULT_FORCE,
+    };
+
+    /// Standard deviation of a day's mean ambient about the calibration day's, K, and its
+    /// clamp: a temperature-controlled optics shop held to about ±1 K.
+    pub const AMBIENT_SD_K: f64 = 0.5;
+    /// The clamp of a day's ambient offset, K.
+    pub const AMBIENT_LIMIT_K: f64 = 1.5;
+    /// The range of a program's mean feed, mm/s (the default 20 ± 20 %).
+    pub const FEED_RANGE: (f64, f64) = (16.0, 24.0);
+    /// Relative standard deviation of the supply's force setting, and its clamp.
+    pub const FORCE_SD: f64 = 0.03;
+    /// The clamp of the force setting's relative deviation.
+    pub const FORCE_LIMIT: f64 = 0.1;
+
+    /// A day's conditions drawn from `seed`: ambient offset normal (SD
+    /// [`Conditions::AMBIENT_SD_K`], clamped), the cycle's phase uniform, the feed uniform
+    /// in [`Conditions::FEED_RANGE`], the force 100 N times a normal factor (SD 3 %,
+    /// clamped at 10 %). Training and held-out sessions draw from this one distribution.
+    pub fn draw(seed: u64) -> Conditions {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x4441_5953);
+        let offset = gaussian(&mut rng, Self::AMBIENT_SD_K)
+            .clamp(-Self::AMBIENT_LIMIT_K, Self::AMBIENT_LIMIT_K);
+        let phase = rng.random_range(0.0..std::f64::consts::TAU);
+        let feed = rng.random_range(Self::FEED_RANGE.0..Self::FEED_RANGE.1);
+        let force =
+            1.0 + gaussian(&mut rng, Self::FORCE_SD).clamp(-Self::FORCE_LIMIT, Self::FORCE_LIMIT);
+        Conditions {
+            day: Day {
+                ambient_offset_k: offset,
+                ambient_phase_shift: phase,
+            },
+            feed_mm_s: feed,
+            force_n: DEFAULT_FORCE * force,
+        }
+    }
+
+    /// Writes these conditions into a run's info.
+    pub fn stamp(&self, info: &mut RunInfo) {
+        info.feed_mm_s = self.feed_mm_s;
+        info.force_n = self.force_n;
+        info.ambient_offset_k = self.day.ambient_offset_k;
+        info.ambient_phase_shift = self.day.ambient_phase_shift;
+    }
+}
+
+/// Where the training recordings of a multi-session recipe lie on the part.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Placement {
+    /// Every session at the default placement.
+    Fixed,
+    /// Session s at [`PathParams::training`]`(kind, s − 1)`.
+    Varied,
+}
+
+impl Placement {
+    /// `fixed` or `varied`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Placement::Fixed => "fixed",
+            Placement::Varied => "varied",
+        }
+    }
+}
+
+impl std::str::FromStr for Placement {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Placement, String> {
+        match s {
+            "fixed" => Ok(Placement::Fixed),
+            "varied" => Ok(Placement::Varied),
+            _ => Err(format!("unknown placement {s:?}: expected fixed or varied")),
+        }
+    }
+}
+
+/// How a training set is recorded (docs/twin.md "Sessions"): the minutes per path split
+/// over `sessions` sessions. One session is the protocol's single session: cold on the
+/// calibration day, grid, fermat and hilbert in turn at the default placement, 30 s idle
+/// between runs. With several, each session is a day of its own: it starts cold under
+/// conditions drawn from [`Conditions::draw`], runs the three paths for minutes/sessions
+/// each at its placement, with its own seeds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Recipe {
+    /// Sessions per training set (1: the single session).
+    pub sessions: usize,
+    /// Where each session's runs lie on the part.
+    pub placement: Placement,
+}
+
+impl Default for Recipe {
+    fn default() -> Recipe {
+        Recipe::SINGLE
+    }
+}
+
+/// One session of a [`Recipe`]: its conditions and its runs' infos (path, placement,
+/// length, seed, conditions; the start and temperatures are filled in when recorded).
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlannedSession {
+    /// The session's conditions.
+    pub conditions: Conditions,
+    /// Its runs in order: grid, fermat, hilbert.
+    pub runs: Vec<RunInfo>,
+}
+
+impl Recipe {
+    /// The protocol's single session at the default placement.
+    pub const SINGLE: Recipe = Recipe {
+        sessions: 1,
+        placement: Placement::Fixed,
+    };
+    /// The most sessions a recipe may have.
+    pub const MAX_SESSIONS: usize = 64;
+    /// The shortest run a session may have, minutes: 750 control ticks, whose 10 % test
+    /// block still holds a 48-tick window (the demo's).
+    pub const MIN_RUN_MINUTES: f64 = 0.25;
+
+    /// Refuses what cannot be recorded at `minutes` per path, naming the flag.
+    pub fn validate(&self, minutes: f64) -> Result<(), String> {
+        if self.sessions == 0 || self.sessions > Self::MAX_SESSIONS {
+            return Err(format!(
+                "--sessions: 1 to {} sessions per training set, got {}",
+                Self::MAX_SESSIONS,
+                self.sessions
+            ));
+        }
+        if self.sessions > 1 && minutes / (self.sessions as f64) < Self::MIN_RUN_MINUTES {
+            return Err(format!(
+                "--sessions: {} sessions of {minutes} min per path leave {:.3} min per run; \
+                 each run needs at least {} min, so at most {} sessions",
+                self.sessions,
+                minutes / self.sessions as f64,
+                Self::MIN_RUN_MINUTES,
+                (minutes / Self::MIN_RUN_MINUTES).floor()
+            ));
+        }
+        Ok(())
+    }
+
+    /// The recording file name of `kind` in session `session` (from 1): `grid.csv` for a
+    /// single session, `grid.s03.csv` otherwise.
+    pub fn file_name(&self, kind: PathKind, session: usize) -> String {
+        if self.sessions == 1 {
+            format!("{}.csv", kind.name())
+        } else {
+            format!("{}.s{session:02}.csv", kind.name())
+        }
+    }
+
+    /// The sessions to record with `minutes` per path in all, from `first_seed` on the
+    /// machine `machine_seed` (in every run's info). A single session's runs take seeds
+    /// `first_seed`, +1, +2 and run under [`Conditions::NOMINAL`]; with several, the runs
+    /// take `first_seed · 100` onwards, counting up run by run through the sessions (apart
+    /// from the held-out sessions' seeds), and session s draws its conditions from
+    /// `first_seed · 1000 + s`.
+    pub fn plan(&self, minutes: f64, first_seed: u64, machine_seed: u64) -> Vec<PlannedSession> {
+        let seconds = minutes * 60.0 / self.sessions as f64;
+        (1..=self.sessions)
+            .map(|s| {
+                let conditions = if self.sessions == 1 {
+                    Conditions::NOMINAL
+                } else {
+                    Conditions::draw(first_seed * 1000 + s as u64)
+                };
+                let runs = PathKind::TRAINING
+                    .into_iter()
+                    .enumerate()
+                    .map(|(i, kind)| {
+                        let params = match self.placement {
+                            Placement::Fixed => PathParams::default(),
+                            Placement::Varied => PathParams::training(kind, s - 1),
+                        };
+                        let seed = if self.sessions == 1 {
+                            first_seed + i as u64
+                        } else {
+                            first_seed * 100 + (3 * (s - 1) + i) as u64
+                        };
+                        let mut info = RunInfo::polishing(kind, &params, seconds, seed);
+                        info.machine_seed = machine_seed;
+                        info.session = s;
+                        conditions.stamp(&mut info);
+                        info
+                    })
+                    .collect();
+                PlannedSession { conditions, runs }
+            })
+            .collect()
     }
 }

@@ -113,6 +113,49 @@ impl PathParams {
             ..d
         }
     }
+
+    /// The held-out placement of `kind` in held-out session `session` (0 is
+    /// [`PathParams::held_out`]): the raster and the Hilbert curve turn a further quarter
+    /// turn per session (still off the training lattice, which is symmetric under quarter
+    /// turns), the spiral stays half a turn off the training arms and changes direction,
+    /// the rosette turns 30° per session. `tests/twin_honest.rs` checks that none retraces
+    /// any training placement ([`PathParams::training`]).
+    pub fn held_out_in(kind: PathKind, session: usize) -> PathParams {
+        let mut p = PathParams::held_out(kind);
+        let k = session % 4;
+        match kind {
+            PathKind::Grid | PathKind::Hilbert => p.rotation_deg += 90.0 * k as f64,
+            PathKind::Fermat => p.reverse ^= k % 2 == 1,
+            PathKind::Rosette => p.rotation_deg += 20.0 * k as f64,
+        }
+        if p.rotation_deg >= 360.0 {
+            p.rotation_deg -= 360.0;
+        }
+        p
+    }
+
+    /// The training placement `k` (of [`PathParams::TRAINING_PLACEMENTS`], taken modulo)
+    /// of a multi-session recording with varied placements (docs/twin.md "Sessions"):
+    /// the Hilbert curve in quarter turns, on its own lattice, walked either way; the
+    /// raster at 0°, 90° and 180° (at 270° its passes brush the held-out rosette for
+    /// three windows), either way; the spiral at 0°, 90° and 270° (never at the held-out
+    /// half turn), either way. Placement 0 is the default one.
+    pub fn training(kind: PathKind, k: usize) -> PathParams {
+        let k = k % PathParams::TRAINING_PLACEMENTS;
+        let rotation_deg = match kind {
+            PathKind::Grid => [0.0, 90.0, 180.0, 0.0][k],
+            PathKind::Fermat => [0.0, 90.0, 270.0, 0.0][k],
+            _ => 90.0 * k as f64,
+        };
+        PathParams {
+            rotation_deg,
+            reverse: k % 2 == 1,
+            ..PathParams::default()
+        }
+    }
+
+    /// How many distinct training placements [`PathParams::training`] has per path.
+    pub const TRAINING_PLACEMENTS: usize = 4;
 }
 
 /// A planar polyline `(x, y)` with its cumulative arc length.

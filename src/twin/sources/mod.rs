@@ -11,7 +11,7 @@ pub use backlash::{Backlash, BacklashParams};
 pub use compliance::{ComplianceParams, LimbGive, ToolLoad};
 pub use lost_motion::{LostMotion, LostMotionParams};
 pub use play::Play;
-pub use thermal::{Thermal, ThermalGrowth, ThermalParams};
+pub use thermal::{Day, Thermal, ThermalGrowth, ThermalParams};
 
 /// The default machine's [`NonGeometric::screw_origin`], mm: 150 mm of screw below the
 /// shortest stroke of assets/robot.toml (520 mm).

@@ -50,21 +50,47 @@ impl ThermalGrowth {
     }
 }
 
+/// The shop's ambient on the day of a session (docs/twin.md "Days"): how far its mean
+/// temperature sits from the calibration day's, and where in its slow cycle the session
+/// starts. [`Day::CALIBRATION`] (both zero) is the day the machine was calibrated on.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Day {
+    /// Mean ambient temperature of the day minus the calibration day's, K.
+    pub ambient_offset_k: f64,
+    /// Phase of the ambient cycle at the session's start, added to the machine's, rad.
+    pub ambient_phase_shift: f64,
+}
+
+impl Day {
+    /// The calibration day: no offset, the machine's own phase.
+    pub const CALIBRATION: Day = Day {
+        ambient_offset_k: 0.0,
+        ambient_phase_shift: 0.0,
+    };
+}
+
 /// The temperatures of the three limbs: they carry over from one run to the next of a
 /// session (a warm machine), see [`crate::twin::MachineState`].
 #[derive(Clone, Debug)]
 pub struct Thermal {
     params: ThermalParams,
+    day: Day,
     rise: [f64; 3],
     tube_rise: [f64; 3],
     last: Option<[f64; 3]>,
 }
 
 impl Thermal {
-    /// Cold limbs: no rise above ambient, no last reading.
+    /// Cold limbs on the calibration day: no rise above ambient, no last reading.
     pub fn new(params: ThermalParams) -> Thermal {
+        Thermal::on(params, Day::CALIBRATION)
+    }
+
+    /// Cold limbs on `day`: the whole machine sits at that day's ambient.
+    pub fn on(params: ThermalParams, day: Day) -> Thermal {
         Thermal {
             params,
+            day,
             rise: [0.0; 3],
             tube_rise: [0.0; 3],
             last: None,
@@ -81,10 +107,14 @@ impl Thermal {
         self.tube_rise
     }
 
-    /// Ambient temperature offset at time `t`, K.
+    /// Ambient temperature offset from the calibration day's mean at session time `t`, K:
+    /// the day's offset plus the slow cycle.
     pub fn ambient(&self, t: f64) -> f64 {
         let p = &self.params;
-        p.ambient_amplitude * (std::f64::consts::TAU * t / p.ambient_period + p.ambient_phase).sin()
+        let d = &self.day;
+        let phase = p.ambient_phase + d.ambient_phase_shift;
+        d.ambient_offset_k
+            + p.ambient_amplitude * (std::f64::consts::TAU * t / p.ambient_period + phase).sin()
     }
 
     /// Forgets the last encoder reading (the machine was moved while nobody watched, e.g.

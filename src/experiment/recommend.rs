@@ -1,0 +1,173 @@
+//! Which model to use, chosen the way it will be used: every model compensates a
+//! validation session of held-out runs in the twin (a session of its own, never scored
+//! in Table V), and the model that removes the most of the calibrated error there, over
+//! its training seeds, is recommended (docs/usage.md "evaluate", "Recommended model").
+//! The tables stay complete; this only names one model and says why.
+
+use super::report::seeds::split_name;
+use super::report::TableVRow;
+
+/// The held-out session index the recommendation is chosen on
+/// (`evaluate::HeldOutConfig::session`): after the three test sessions of a study, on a
+/// day of its own, with its own seeds and placements.
+pub const VALIDATION_SESSION: usize = 3;
+
+/// One model's score on the validation session: the share of the calibrated controller's
+/// mean true error its compensation removed, position and attitude, %, each the mean
+/// over the session's paths; averaged over its training seeds.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ValidationScore {
+    /// The model (its seeds grouped: `iastgcn` for `iastgcn.seed1` …).
+    pub model: String,
+    /// Training seeds averaged.
+    pub seeds: usize,
+    /// Position error removed, %, mean over paths and seeds.
+    pub position: f64,
+    /// Attitude error removed, %, mean over paths and seeds.
+    pub attitude: f64,
+    /// Its seed with the highest score (its full name), for the weights to deploy.
+    pub best_seed: String,
+}
+
+impl ValidationScore {
+    /// The criterion: the mean of the position and attitude shares removed.
+    pub fn score(&self) -> f64 {
+        0.5 * (self.position + self.attitude)
+    }
+}
+
+/// The recommendation from a validation session's Table V rows.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Recommendation {
+    /// Every model's score, in the order the rows name them.
+    pub scores: Vec<ValidationScore>,
+    /// The index into `scores` of the model to use; `None` when no model removes any
+    /// error on validation (then none should be used).
+    pub best: Option<usize>,
+}
+
+/// Share of the calibrated error `by` removes, position and attitude, %.
+fn removed(calibrated: &TableVRow, by: &TableVRow) -> [f64; 2] {
+    let (c, b) = (&calibrated.truth, &by.truth);
+    [
+        100.0 * (c.position.mean - b.position.mean) / c.position.mean,
+        100.0 * (c.attitude.mean - b.attitude.mean) / c.attitude.mean,
+    ]
+}
+
+/// Scores every compensating model of `rows` (one validation session's Table V rows)
+/// and picks the one with the highest mean share removed, over its seeds.
+pub fn recommend(rows: &[TableVRow]) -> Recommendation {
+    // Per run name: the mean over paths of its share removed.
+    let mut runs: Vec<(String, Vec<[f64; 2]>)> = Vec::new();
+    for r in rows.iter().filter(|r| r.stage == "compensated") {
+        let Some(cal) = rows
+            .iter()
+            .find(|c| c.trajectory == r.trajectory && c.stage == "calibrated")
+        else {
+            continue;
+        };
+        let share = removed(cal, r);
+        match runs.iter_mut().find(|(m, _)| *m == r.model) {
+            Some((_, v)) => v.push(share),
+            None => runs.push((r.model.clone(), vec![share])),
+        }
+    }
+    let mean = |v: &[[f64; 2]], i: usize| v.iter().map(|s| s[i]).sum::<f64>() / v.len() as f64;
+    let per_run: Vec<(String, [f64; 2])> = runs
+        .iter()
+        .map(|(m, v)| (m.clone(), [mean(v, 0), mean(v, 1)]))
+        .collect();
+    let mut scores: Vec<ValidationScore> = Vec::new();
+    for (name, _) in &per_run {
+        let group = split_name(name).0;
+        let of: Vec<&(String, [f64; 2])> = per_run
+            .iter()
+            .filter(|(n, _)| split_name(n).0 == group)
+            .collect();
+        if scores.iter().any(|v| v.model == group) {
+            continue;
+        }
+        let n = of.len() as f64;
+        let best = of
+            .iter()
+            .max_by(|a, b| (a.1[0] + a.1[1]).total_cmp(&(b.1[0] + b.1[1])))
+            .map_or(name.clone(), |b| b.0.clone());
+        scores.push(ValidationScore {
+            model: group.to_string(),
+            seeds: of.len(),
+            position: of.iter().map(|r| r.1[0]).sum::<f64>() / n,
+            attitude: of.iter().map(|r| r.1[1]).sum::<f64>() / n,
+            best_seed: best,
+        });
+    }
+    let best = scores
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| s.score() > 0.0)
+        .max_by(|a, b| a.1.score().total_cmp(&b.1.score()))
+        .map(|(i, _)| i);
+    Recommendation { scores, best }
+}
+
+impl Recommendation {
+    /// The model to use, if any.
+    pub fn model(&self) -> Option<&ValidationScore> {
+        self.best.map(|i| &self.scores[i])
+    }
+
+    /// The report's section: the validation session (`session`: its number from 1 and
+    /// how it ran, `HeldOutSession::describe`), each model's score, the choice and why.
+    pub fn markdown(&self, session: (usize, &str), minutes: f64) -> String {
+        let mut s = format!(
+            "Every model compensated a **validation session** of its own, not scored in \
+             Table V: {minutes} min runs of the four paths, {}, each path placed where no \
+             training or test run lies (`PathParams::held_out_in`, session {}). Score: the \
+             share of the calibrated controller's mean true error removed, position and \
+             attitude, each the mean over the four paths and over the model's training \
+             seeds; the recommended model has the highest mean of the two.\n\n\
+             | Model | Seeds | Position removed (%) | Attitude removed (%) | Score |\n\
+             |---|---:|---:|---:|---:|\n",
+            session.1, session.0
+        );
+        for (i, v) in self.scores.iter().enumerate() {
+            let mark = if Some(i) == self.best { "**" } else { "" };
+            s.push_str(&format!(
+                "| {mark}{}{mark} | {} | {:.1} | {:.1} | {:.1} |\n",
+                v.model,
+                v.seeds,
+                v.position,
+                v.attitude,
+                v.score()
+            ));
+        }
+        s.push('\n');
+        s.push_str(&self.sentence());
+        s.push('\n');
+        s
+    }
+
+    /// One sentence: which model, and why (or why none).
+    pub fn sentence(&self) -> String {
+        match self.model() {
+            Some(v) => format!(
+                "Recommended: **{}**, which removes the most of the calibrated error on the \
+                 validation session ({:.1} % of the position and {:.1} % of the attitude \
+                 error, mean over its {} seed(s); chosen there, not on the test runs){}.",
+                v.model,
+                v.position,
+                v.attitude,
+                v.seeds,
+                if v.seeds > 1 {
+                    format!("; its weights: `{}`, its best seed there", v.best_seed)
+                } else {
+                    String::new()
+                }
+            ),
+            None => "Recommended: **no residual model**: none removes any of the calibrated \
+                     error on the validation session, so use the calibration alone (the \
+                     tables still show every model)."
+                .to_string(),
+        }
+    }
+}

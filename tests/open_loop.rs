@@ -1,0 +1,117 @@
+//! The open-loop diagnosis (docs/results.md "Where the error goes"): a model predicting
+//! along a held-out run without its corrections being applied leaves the run exactly the
+//! uncompensated one, and its miss is measured against the true residual the oracle
+//! feeds back.
+
+use iastgcn::compensate::held_out::warm_up;
+use iastgcn::compensate::online::{self, Feedback, Online};
+use iastgcn::graph::Graph;
+use iastgcn::model::{Checkpoint, ModelConfig, Normalization, Parameters, Predictor, Variant};
+use iastgcn::robot::Geometry;
+use iastgcn::twin::{draw_machine, PathKind, PathParams, SimConfig};
+
+/// A small IASTGCN whose outputs are `label` (µm, mdeg) whatever it reads: its label
+/// scale is zero, so the network's own output does not count.
+fn constant(label: [f64; 6]) -> Checkpoint {
+    let config = ModelConfig::gradient_check(Variant::Iastgcn);
+    let mut normalization = Normalization::identity(&config);
+    normalization.label_mean = label.to_vec();
+    normalization.label_std = vec![0.0; 6];
+    Checkpoint {
+        parameters: Parameters::init(&config, 3),
+        graph: Graph::default_asset(),
+        normalization,
+        config,
+    }
+}
+
+#[test]
+fn open_loop_predictions_are_scored_and_never_applied() {
+    let g = Geometry::default_asset();
+    let machine = draw_machine(g, 1);
+    // A controller that knows the geometry: what is left is the non-geometric residual.
+    let controller = machine.robot.clone();
+    let start = warm_up(&machine, &controller, 30.0, 5).unwrap();
+    let mut config = SimConfig::new(PathKind::Hilbert, 12.0, 9);
+    config.path_params = PathParams::held_out(PathKind::Hilbert);
+    let settings = Online { every: 5 };
+    let plain = online::run(
+        &machine,
+        &controller,
+        config.clone(),
+        start.clone(),
+        Feedback::None,
+        |_| {},
+    )
+    .unwrap();
+    assert!(plain.open_loop.is_none());
+    let graph = Graph::default_asset();
+    let score = |label: [f64; 6]| {
+        let ck = constant(label);
+        let mut predictor = Predictor::native(&ck).unwrap();
+        online::run(
+            &machine,
+            &controller,
+            config.clone(),
+            start.clone(),
+            Feedback::OpenLoop(&mut predictor, &graph, settings),
+            |_| {},
+        )
+        .unwrap()
+    };
+    let zero = score([0.0; 6]);
+    // Not applied: the run is the uncompensated one, bit for bit.
+    assert_eq!(zero.truth, plain.truth);
+    assert_eq!(zero.tracker, plain.tracker);
+    // Predictions every 5 ticks once the 16-tick window is full: 600 ticks → 117.
+    assert_eq!(zero.predictions, (15..600).step_by(5).count());
+    // A zero prediction misses by the whole true residual: about the run's true error
+    // (the uncorrected controller expects the target itself), over the predicting ticks.
+    let miss = zero.open_loop.unwrap();
+    let ratio = miss.position.mean / plain.truth.position.mean;
+    assert!(
+        (0.9..1.1).contains(&ratio),
+        "{ratio}: {miss:?} against {:?}",
+        plain.truth
+    );
+    let ratio = miss.attitude.mean / plain.truth.attitude.mean;
+    assert!((0.9..1.1).contains(&ratio), "{ratio}");
+    // A prediction 1 mm off along x misses by about 1 mm whatever the residual; a roll
+    // about the tool axis is free and not scored.
+    let far = score([1000.0, 0.0, 0.0, 0.0, 0.0, 0.0]).open_loop.unwrap();
+    assert!(
+        (far.position.mean - 1000.0).abs() < 1.05 * plain.truth.position.max,
+        "{far:?}"
+    );
+    assert_eq!(far.attitude, miss.attitude);
+
+    // Fed forward, the open-loop corrections of a model that ignores its inputs are the
+    // closed loop itself: the replay sets each at the tick the model would have, so the
+    // runs agree bit for bit; a model that reads its inputs would differ by its feedback.
+    let label = [40.0, -25.0, 10.0, 8.0, -6.0, 0.0];
+    let open = score(label);
+    assert_eq!(open.predicted.len(), open.predictions);
+    let ck = constant(label);
+    let mut predictor = Predictor::native(&ck).unwrap();
+    let closed = online::run(
+        &machine,
+        &controller,
+        config.clone(),
+        start.clone(),
+        Feedback::Model(&mut predictor, &graph, settings),
+        |_| {},
+    )
+    .unwrap();
+    let replayed = online::run(
+        &machine,
+        &controller,
+        config.clone(),
+        start.clone(),
+        Feedback::Replay(&open.predicted),
+        |_| {},
+    )
+    .unwrap();
+    assert_eq!(replayed.truth, closed.truth);
+    assert_eq!(replayed.predictions, closed.predictions);
+    assert_ne!(replayed.truth, plain.truth);
+}
