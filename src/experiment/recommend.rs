@@ -121,8 +121,9 @@ impl Recommendation {
     pub fn markdown(&self, session: (usize, &str), minutes: f64) -> String {
         let mut s = format!(
             "Every model compensated a **validation session** of its own, not scored in \
-             Table V: {minutes} min runs of the four paths, {}, each path placed where no \
-             training or test run lies (`PathParams::held_out_in`, session {}). Score: the \
+             Table V: {minutes} min runs of the four paths, {}, the raster, the Hilbert curve \
+             and the rosette placed where no training or test run lies, the spiral at its \
+             one held-out placement (`PathParams::held_out_in`, session {}). Score: the \
              share of the calibrated controller's mean true error removed, position and \
              attitude, each the mean over the four paths and over the model's training \
              seeds; the recommended model has the highest mean of the two.\n\n\
