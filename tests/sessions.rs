@@ -256,5 +256,14 @@ fn simulate_records_a_training_set_in_sessions_deterministically() {
         s(&dir.join("d")),
     ]);
     assert!(err.contains("--sessions"), "{err}");
+    // A graph that does not match the run config's nodes is refused before any work.
+    let graph = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/graph-force.toml");
+    let out = dir.join("f");
+    let err = cli_fails(&["scale", "--graph", graph, "--sizes", "8", "--out", s(&out)]);
+    assert!(
+        err.contains("--graph") && err.contains("nodes = 15"),
+        "{err}"
+    );
+    assert!(!out.exists());
     let _ = std::fs::remove_dir_all(&dir);
 }

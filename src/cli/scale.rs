@@ -57,6 +57,11 @@ pub struct ScaleArgs {
     /// (docs/usage.md "scale"). A folder keeps its number.
     #[arg(long, default_value_t = 3, value_parser = super::count(1..=16))]
     pub held_out_sessions: usize,
+    /// Sensor graph of every model (default: the embedded assets/graph.toml); the run
+    /// config's `[model] nodes` must match it (assets/graph-force.toml: 15). A folder
+    /// keeps it.
+    #[arg(long)]
+    pub graph: Option<PathBuf>,
     /// Refine every job after its core stage (Algorithm 2, as `demo` does) and score the
     /// weights it keeps. A folder keeps this choice.
     #[arg(long)]
@@ -80,6 +85,7 @@ pub fn run(gpu: Gpu, args: &ScaleArgs) -> anyhow::Result<()> {
     study.recipe = args.recipe.recipe()?;
     study.held_out_sessions = args.held_out_sessions;
     study.refine = args.refine;
+    study.graph = args.graph.clone();
     let held = args.held_out.config_with_minutes(study.held_out_minutes);
     study.held_out_minutes = held.minutes;
     study.held_out_seed = held.seed;

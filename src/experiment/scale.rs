@@ -80,6 +80,10 @@ pub struct Study {
     /// loss) and score the result.
     #[serde(default)]
     pub refine: bool,
+    /// The sensor graph every model reads (the embedded assets/graph.toml when absent;
+    /// `[model] nodes` of the run config must match it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub graph: Option<PathBuf>,
 }
 
 fn one_session() -> usize {
@@ -111,6 +115,7 @@ impl Study {
             recipe: Recipe::SINGLE,
             held_out_sessions: 3,
             refine: false,
+            graph: None,
         }
     }
 
@@ -176,6 +181,19 @@ impl Study {
                 "--held-out-sessions: 1 to {MAX_HELD_OUT_SESSIONS} held-out sessions, got {}",
                 self.held_out_sessions
             )));
+        }
+        if let Some(path) = &self.graph {
+            let graph = Graph::load(path)?;
+            if graph.nodes.len() != self.run.model.nodes {
+                return Err(Error::Invalid(format!(
+                    "--graph {}: the graph has {} nodes, but the run config's [model] nodes \
+                     is {}; give a --config with nodes = {}",
+                    path.display(),
+                    graph.nodes.len(),
+                    self.run.model.nodes,
+                    graph.nodes.len()
+                )));
+            }
         }
         check_seeds(&self.seeds)?;
         if self.models.is_empty() {
@@ -366,7 +384,7 @@ pub fn scale(
         study.machine_seed
     ));
     let data_dir = out.join("data");
-    let sources = match existing_data(&data_dir, minutes, study.machine_seed, &study.recipe)? {
+    let mut sources = match existing_data(&data_dir, minutes, study.machine_seed, &study.recipe)? {
         Some(s) => s,
         None => record_data(
             &data_dir,
@@ -376,6 +394,7 @@ pub fn scale(
             reporter,
         )?,
     };
+    sources.graph = study.graph.clone();
     let done = |jobs: &[ScaleJob]| jobs.iter().filter(|j| j.record_path(out).exists()).count();
     if data_only {
         return Ok(Progress {
