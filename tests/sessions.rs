@@ -203,67 +203,43 @@ fn simulate_records_a_training_set_in_sessions_deterministically() {
             "{name}"
         );
     }
-    // Refused before any work, the flag named.
-    let err = cli_fails(&[
-        "simulate",
-        "--trajectory",
-        "training",
-        "--minutes",
-        "0.5",
-        "--sessions",
-        "3",
-        "--out",
-        s(&dir.join("c")),
-    ]);
-    assert!(
-        err.contains("--sessions") && err.contains("at most 2 sessions"),
-        "{err}"
-    );
-    assert!(!dir.join("c").exists());
-    for (flag, value) in [
-        ("--sessions", "0"),
-        ("--sessions", "65"),
-        ("--placement", "diagonal"),
-    ] {
-        let err = cli_fails(&[
-            "simulate",
-            "--trajectory",
-            "training",
-            flag,
-            value,
-            "--out",
-            s(&dir.join("c")),
-        ]);
-        assert!(err.contains(flag), "{flag} {value}: {err}");
-    }
-    let err = cli_fails(&[
-        "simulate",
-        "--trajectory",
-        "grid",
-        "--sessions",
-        "2",
-        "--out",
-        s(&dir.join("g.csv")),
-    ]);
-    assert!(err.contains("--trajectory training"), "{err}");
-    let err = cli_fails(&[
-        "scale",
-        "--sessions",
-        "40",
-        "--sizes",
-        "8",
-        "--out",
-        s(&dir.join("d")),
-    ]);
-    assert!(err.contains("--sessions"), "{err}");
-    // A graph that does not match the run config's nodes is refused before any work.
+    // Refused before any work, the flag named (and every needle in the message), with
+    // nothing written where the output would have gone.
     let graph = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/graph-force.toml");
-    let out = dir.join("f");
-    let err = cli_fails(&["scale", "--graph", graph, "--sizes", "8", "--out", s(&out)]);
-    assert!(
-        err.contains("--graph") && err.contains("nodes = 15"),
-        "{err}"
-    );
-    assert!(!out.exists());
+    let training = ["simulate", "--trajectory", "training"];
+    let cases: [(&[&str], &[&str]); 7] = [
+        (
+            &["--minutes", "0.5", "--sessions", "3"],
+            &["--sessions", "at most 2 sessions"],
+        ),
+        (&["--sessions", "0"], &["--sessions"]),
+        (&["--sessions", "65"], &["--sessions"]),
+        (&["--placement", "diagonal"], &["--placement"]),
+        (
+            &["simulate", "--trajectory", "grid", "--sessions", "2"],
+            &["--trajectory training"],
+        ),
+        (
+            &["scale", "--sessions", "40", "--sizes", "8"],
+            &["--sessions"],
+        ),
+        (
+            &["scale", "--graph", graph, "--sizes", "8"],
+            &["--graph", "nodes = 15"],
+        ),
+    ];
+    for (i, (flags, needles)) in cases.into_iter().enumerate() {
+        let out = dir.join(format!("refused{i}"));
+        let mut args: Vec<&str> = if matches!(flags[0], "simulate" | "scale") {
+            Vec::new()
+        } else {
+            training.to_vec()
+        };
+        args.extend(flags);
+        args.extend(["--out", s(&out)]);
+        let err = cli_fails(&args);
+        assert!(needles.iter().all(|n| err.contains(n)), "{args:?}: {err}");
+        assert!(!out.exists(), "{args:?}");
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -35,8 +35,7 @@ impl HeldOut {
     pub fn config(&self) -> SimConfig {
         let mut c = SimConfig::new(self.path, self.seconds, self.seed);
         c.path_params = self.params;
-        c.feed = self.conditions.feed_mm_s;
-        c.force_mean = self.conditions.force_n;
+        self.conditions.apply(&mut c);
         c
     }
 }
@@ -70,8 +69,7 @@ pub fn warm_up_on(
     if seconds > 0.0 {
         let mut config = SimConfig::new(PathKind::Grid, seconds, seed);
         config.path_params.rotation_deg = 90.0;
-        config.feed = conditions.feed_mm_s;
-        config.force_mean = conditions.force_n;
+        conditions.apply(&mut config);
         state = online::run(machine, controller, config, state, Feedback::None, |_| {})?.end;
         state.idle(IDLE_BETWEEN_RUNS);
     }

@@ -21,7 +21,9 @@ use crate::model::{Backend, Checkpoint, Features, ModelError, Predictor};
 use crate::progress::Reporter;
 use crate::robot::Robot;
 use crate::train::metrics::per_recording;
-use crate::train::{build_dataset, by_path, data_normalization, sibling, RunConfig, TestMetrics};
+use crate::train::{
+    build_dataset, by_path, data_normalization, recording_stem, sibling, RunConfig, TestMetrics,
+};
 use crate::twin::{draw_machine, Conditions, Machine, MachineState, PathKind, PathParams};
 
 /// Predictions (µm, mdeg) of a checkpoint for the windows at `positions` of a dataset
@@ -40,25 +42,25 @@ pub fn predict_windows(
     Ok(out)
 }
 
-/// Table III rows of one model: test-split metrics per recording (`names[r]` labels
-/// recording r), plus the training-mean baseline as the model `training mean` when
-/// `baseline` is set.
+/// Table III rows of one model: test-split metrics per path (a recording's rows named
+/// by its file stem; the sessions of one path pooled), plus the training-mean baseline
+/// as the model `training mean` when `baseline` is set.
 pub fn table_iii(
     gpu: &Arc<Gpu>,
     model: &str,
     ck: &Checkpoint,
     data: &Dataset,
-    names: &[String],
     baseline: bool,
 ) -> Result<Vec<TableIIIRow>, ModelError> {
     let [_, _, test] = data.split_ranges();
     let positions: Vec<usize> = test.collect();
     let pred = predict_windows(gpu, ck, data, &positions)?;
-    let per: Vec<TestMetrics> = names
+    let per: Vec<TestMetrics> = data
+        .recordings
         .iter()
         .zip(per_recording(data, &positions, &pred))
         .map(|(name, (model, training_mean))| TestMetrics {
-            recording: name.clone(),
+            recording: recording_stem(name),
             model,
             training_mean,
         })
@@ -440,23 +442,7 @@ pub fn evaluate(
             )));
         }
         let (_, data) = build_dataset(sources, &c, Some(&fixed))?;
-        let names: Vec<String> = data
-            .recordings
-            .iter()
-            .map(|r| {
-                std::path::Path::new(r)
-                    .file_stem()
-                    .map_or(r.clone(), |s| s.to_string_lossy().into_owned())
-            })
-            .collect();
-        rows.extend(table_iii(
-            gpu,
-            &m.name,
-            &m.checkpoint,
-            &data,
-            &names,
-            i == 0,
-        )?);
+        rows.extend(table_iii(gpu, &m.name, &m.checkpoint, &data, i == 0)?);
     }
     for line in table_iii_lines(&rows) {
         reporter.note(&line);
@@ -468,7 +454,11 @@ pub fn evaluate(
         .iter()
         .map(|m| (m.name.clone(), m.checkpoint.clone()))
         .collect();
-    let session = held_out_session(gpu, &checkpoints, sources, held, 0, true, false, reporter)?;
+    let table_v_session = SessionOptions {
+        budget: true,
+        ..SessionOptions::rows(0)
+    };
+    let session = held_out_session(gpu, &checkpoints, sources, held, table_v_session, reporter)?;
     if let Some(budget) = session.budget {
         report.sections.push((
             format!("Error budget: {} (held-out run)", PathKind::Hilbert.name()),
@@ -488,9 +478,7 @@ pub fn evaluate(
         &checkpoints,
         sources,
         held,
-        VALIDATION_SESSION,
-        false,
-        false,
+        SessionOptions::rows(VALIDATION_SESSION),
         reporter,
     )?;
     let recommendation = recommend(&validation.rows);
@@ -589,28 +577,46 @@ pub struct OpenLoopScore {
     pub replayed: ErrorStats,
 }
 
-/// Held-out session `k` of `held` ([`HeldOutConfig::session`]; the evaluation's own is
-/// 0) on the machine the recordings of `sources` were taken on, under their
+/// Which held-out session [`held_out_session`] runs and what it measures beyond Table V.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SessionOptions {
+    /// The session's index ([`HeldOutConfig::session`]; the evaluation's own is 0).
+    pub index: usize,
+    /// The Hilbert run's error budget by source.
+    pub budget: bool,
+    /// Each model's open-loop diagnosis ([`OpenLoopScore`]).
+    pub open_loop: bool,
+}
+
+impl SessionOptions {
+    /// Session `index`, Table V's rows only.
+    pub fn rows(index: usize) -> SessionOptions {
+        SessionOptions {
+            index,
+            budget: false,
+            open_loop: false,
+        }
+    }
+}
+
+/// Held-out session `options.index` of `held` ([`HeldOutConfig::session`]) on the machine the recordings of `sources` were taken on, under their
 /// calibration: the machine warms up, then every path runs in turn, each stage of a path
 /// (initial, calibrated, oracle, each of `models` in the loop) from the same state, and
 /// the session carries on from the calibrated run's end, so the rows of the initial,
 /// calibrated and oracle stages do not depend on the models. The first model gives the
-/// graph and window of the online runs. With `budget`, the Hilbert run's error budget by
-/// source too. With `open_loop`, each model also predicts along every path's
-/// uncompensated run from the same start, its predictions scored against the true
-/// residual and never applied, then fed forward
-/// ([`Session::open_loop`]).
-#[allow(clippy::too_many_arguments)]
+/// graph and window of the online runs. With `options.budget`, the Hilbert run's error
+/// budget by source too. With `options.open_loop`, each model also predicts along every
+/// path's uncompensated run from the same start, its predictions scored against the true
+/// residual and never applied, then fed forward ([`Session::open_loop`]).
 pub fn held_out_session(
     gpu: &Arc<Gpu>,
     models: &[(String, Checkpoint)],
     sources: &DataSources,
     held: &HeldOutConfig,
-    k: usize,
-    budget: bool,
-    open_loop: bool,
+    options: SessionOptions,
     reporter: &mut dyn Reporter,
 ) -> Result<Session> {
+    let k = options.index;
     let Some((_, first)) = models.first() else {
         return Err(Error::Invalid("no model to compensate with".into()));
     };
@@ -667,14 +673,21 @@ pub fn held_out_session(
         };
         // One budget (the Hilbert run's) keeps the demo in its time; `iastgcn budget`
         // gives any other.
-        if budget && path == PathKind::Hilbert {
+        if options.budget && path == PathKind::Hilbert {
             let b = error_budget(&machine, &calibrated, &run.config(), &run.start)?;
             session.budget = Some(budget_markdown(&b));
         }
-        let stages = 3 + preds.len() * if open_loop { 3 } else { 1 };
+        let stages = 3 + preds.len() * if options.open_loop { 3 } else { 1 };
         let ticks = run.config().steps() * stages;
         reporter.begin(&format!("compensating {}", path.name()), ticks as u64);
         let mut done = 0u64;
+        let mut tick = |_| {
+            done += 1;
+            if done.is_multiple_of(50) {
+                reporter.update(done, "");
+            }
+        };
+        let settings = Online { every: held.every };
         let result = table_v(
             &machine,
             &nominal,
@@ -682,47 +695,13 @@ pub fn held_out_session(
             window,
             &mut preds,
             &run,
-            Online { every: held.every },
-            |_| {
-                done += 1;
-                if done.is_multiple_of(50) {
-                    reporter.update(done, "");
-                }
-            },
+            settings,
+            &mut tick,
         )?;
-        if open_loop {
+        if options.open_loop {
             for m in preds.iter_mut() {
-                let mut tick = |_| {
-                    done += 1;
-                    if done.is_multiple_of(50) {
-                        reporter.update(done, "");
-                    }
-                };
-                let settings = Online { every: held.every };
-                let open = online::run(
-                    &machine,
-                    &calibrated,
-                    run.config(),
-                    run.start.clone(),
-                    Feedback::OpenLoop(&mut m.predictor, &m.graph, settings),
-                    &mut tick,
-                )?;
-                let replayed = online::run(
-                    &machine,
-                    &calibrated,
-                    run.config(),
-                    run.start.clone(),
-                    Feedback::Replay(&open.predicted),
-                    &mut tick,
-                )?;
-                if let Some(miss) = open.open_loop {
-                    session.open_loop.push(OpenLoopScore {
-                        path: path.name().to_string(),
-                        model: m.name.clone(),
-                        miss,
-                        replayed: replayed.truth,
-                    });
-                }
+                let score = open_loop_score(&machine, &calibrated, &run, m, settings, &mut tick)?;
+                session.open_loop.extend(score);
             }
         }
         reporter.end();
@@ -752,6 +731,40 @@ pub fn held_out_session(
         .map(|(ms, n)| ms / (*n).max(1) as f64)
         .collect();
     Ok(session)
+}
+
+/// The open-loop diagnosis of `model` on `run` (from its start, under `calibrated`): its
+/// predictions along the uncompensated run against the true residual, then fed forward.
+fn open_loop_score(
+    machine: &Machine,
+    calibrated: &Robot,
+    run: &HeldOut,
+    model: &mut LoopModel,
+    settings: Online,
+    mut on_tick: impl FnMut(usize),
+) -> Result<Option<OpenLoopScore>> {
+    let open = online::run(
+        machine,
+        calibrated,
+        run.config(),
+        run.start.clone(),
+        Feedback::OpenLoop(&mut model.predictor, &model.graph, settings),
+        &mut on_tick,
+    )?;
+    let replayed = online::run(
+        machine,
+        calibrated,
+        run.config(),
+        run.start.clone(),
+        Feedback::Replay(&open.predicted),
+        &mut on_tick,
+    )?;
+    Ok(open.open_loop.map(|miss| OpenLoopScore {
+        path: run.path.name().to_string(),
+        model: model.name.clone(),
+        miss,
+        replayed: replayed.truth,
+    }))
 }
 
 /// Tables III and V into `report`, its wall time since `began`, and the report folder

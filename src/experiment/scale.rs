@@ -17,7 +17,7 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use super::evaluate::{held_out_session, table_iii, HeldOutConfig};
+use super::evaluate::{held_out_session, table_iii, HeldOutConfig, SessionOptions};
 use super::protocol::{
     check_seeds, epoch_seconds, existing_data, record_data, train_core, ModelFiles, MACHINE_SEED,
 };
@@ -486,8 +486,7 @@ fn run_job(
         let verdict = r.verdict();
         reporter.note(&format!("{name}: refinement {verdict}"));
         let refined = r.save(&core, &files.refined)?;
-        let names: Vec<String> = data.recordings.iter().map(|r| recording_stem(r)).collect();
-        let test = table_iii(gpu, &name, &refined, data, &names, true)?
+        let test = table_iii(gpu, &name, &refined, data, true)?
             .chunks(2)
             .map(|pair| TestMetrics {
                 recording: pair[0].trajectory.clone(),
@@ -502,16 +501,12 @@ fn run_job(
     let models = [(name.clone(), checkpoint)];
     let mut paths = Vec::new();
     for k in 0..study.held_out_sessions {
-        let session = held_out_session(
-            gpu,
-            &models,
-            sources,
-            &study.held_out(),
-            k,
-            false,
-            true,
-            reporter,
-        )?;
+        let options = SessionOptions {
+            open_loop: true,
+            ..SessionOptions::rows(k)
+        };
+        let session =
+            held_out_session(gpu, &models, sources, &study.held_out(), options, reporter)?;
         for p in PathKind::ALL {
             let mut score = path_score(p.name(), &test, &session.rows, &name)?;
             score.session = k;
@@ -539,13 +534,6 @@ fn run_job(
         refinement,
         paths,
     })
-}
-
-/// A recording's file stem (`data/grid.s01.csv` → `grid.s01`), as Table III names it.
-fn recording_stem(recording: &str) -> String {
-    Path::new(recording)
-        .file_stem()
-        .map_or(recording.to_string(), |s| s.to_string_lossy().into_owned())
 }
 
 /// One path's scores from the test metrics (pooled per path, [`by_path`]) and the

@@ -69,6 +69,13 @@ pub struct TestMetrics {
     pub training_mean: Metrics,
 }
 
+/// A recording's file stem (`data/grid.s01.csv` is `grid.s01`), as Table III names it.
+pub fn recording_stem(recording: &str) -> String {
+    Path::new(recording)
+        .file_stem()
+        .map_or(recording.to_string(), |s| s.to_string_lossy().into_owned())
+}
+
 /// The path a recording belongs to: its file name up to the first dot (`grid.csv` and
 /// `data/grid.s03.csv` are both `grid`).
 pub fn recording_path(recording: &str) -> String {

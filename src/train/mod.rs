@@ -17,8 +17,8 @@ pub mod trainer;
 
 pub use config::{ConfigError, DataConfig, RefineConfig, RunConfig, TrainConfig};
 pub use fit::{
-    build_dataset, by_path, initial_parameters, recording_path, run_stage, sibling, test_metrics,
-    train, TestMetrics, Trained,
+    build_dataset, by_path, initial_parameters, recording_path, recording_stem, run_stage, sibling,
+    test_metrics, train, TestMetrics, Trained,
 };
 pub use metrics::{accumulated_error, Metrics};
 pub use optimizer::{learning_rate, Optimizer};

@@ -9,6 +9,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use super::noise::gaussian;
+use super::simulate::{SimConfig, DEFAULT_FEED, DEFAULT_FORCE};
 use super::sources::Day;
 use super::trajectory::{PathKind, PathParams};
 
@@ -63,10 +64,6 @@ fn default_feed() -> f64 {
 fn default_force() -> f64 {
     DEFAULT_FORCE
 }
-
-/// The twin's mean feed, mm/s, and polishing force, N ([`super::SimConfig::new`]).
-const DEFAULT_FEED: f64 = 20.0;
-const DEFAULT_FORCE: f64 = 100.0;
 
 impl RunInfo {
     /// A polishing run's info (`start` and the temperatures filled in by the caller).
@@ -208,6 +205,12 @@ impl Conditions {
             feed_mm_s: feed,
             force_n: DEFAULT_FORCE * force,
         }
+    }
+
+    /// Sets a run's mean feed and force to these (its day is in the machine's state).
+    pub fn apply(&self, config: &mut SimConfig) {
+        config.feed = self.feed_mm_s;
+        config.force_mean = self.force_n;
     }
 
     /// Writes these conditions into a run's info.

@@ -13,6 +13,11 @@ use super::sensors::{tracker_noise, Instruments, Scene, SensorRates, SensorSpecs
 use super::trajectory::{Path, PathKind, PathParams};
 use crate::robot::{Configuration, Joints, PlatformPose, Robot, RobotError, ToolTarget};
 
+/// The twin's default mean feed along a path, mm/s.
+pub const DEFAULT_FEED: f64 = 20.0;
+/// The twin's default mean polishing force, N.
+pub const DEFAULT_FORCE: f64 = 100.0;
+
 /// Settings of one polishing run.
 #[derive(Clone, Debug)]
 pub struct SimConfig {
@@ -59,9 +64,9 @@ impl SimConfig {
             duration,
             path,
             path_params: PathParams::default(),
-            feed: 20.0,
+            feed: DEFAULT_FEED,
             feed_variation: 0.3,
-            force_mean: 100.0,
+            force_mean: DEFAULT_FORCE,
             force_sd: 15.0,
             force_time_constant: 20.0,
             sensors: SensorSpecs::default(),
