@@ -149,7 +149,7 @@ pub fn calibrate(nominal: &Arm, data: &Path, scoring: &Scoring, out: &Path) -> a
 pub fn evaluate(
     gpu: std::sync::Arc<iastgcn::gpu::Gpu>,
     nominal: &Arm,
-    args: &super::demo::EvaluateArgs,
+    args: &super::evaluate_args::EvaluateArgs,
 ) -> anyhow::Result<()> {
     let read = |paths: &[std::path::PathBuf]| {
         paths

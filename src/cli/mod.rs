@@ -7,6 +7,7 @@ mod calibrate;
 mod compensate;
 mod dataset;
 mod demo;
+mod evaluate_args;
 mod import;
 mod info;
 mod model;
@@ -67,7 +68,7 @@ enum Command {
     /// The error budget of a run in the twin: the hidden tool-pose error split by source.
     Budget(budget::BudgetArgs),
     /// Tables III and V and the report folder for trained models.
-    Evaluate(demo::EvaluateArgs),
+    Evaluate(evaluate_args::EvaluateArgs),
     /// The main job end to end on the embedded twin: simulate, calibrate, train IASTGCN,
     /// its three ablations and the four dense baselines (--all-models: every baseline) for
     /// each training seed, refine, compensate, report.

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use clap::Args;
 
-use super::demo::HeldOutArgs;
+use super::evaluate_args::HeldOutArgs;
 use super::train::read_run_config;
 use super::Console;
 use iastgcn::experiment::reproduce::{self, Outcome, Protocol, Shard};

@@ -45,7 +45,7 @@ pub struct DemoConfig {
     pub seeds: Vec<u64>,
     /// Also train and evaluate the spatio-temporal baselines of Table III (ConvLSTM, T-GCN,
     /// EAT-GCN, ST-GAT) at the same budget; they take longer than the demo's 15 minutes on
-    /// 2 CPU cores (docs/runs/2026-11-25-baselines.md), so they are off by default.
+    /// 2 CPU cores (docs/usage.md "demo", `--all-models`), so they are off by default.
     pub all_models: bool,
     /// How the training set is recorded (docs/twin.md "Sessions").
     pub recipe: Recipe,
@@ -142,7 +142,8 @@ pub fn demo(
 
     // The spatio-temporal baselines (Variant::SPATIO_TEMPORAL) run only with
     // `all_models`: the demo already takes most of its 15 minutes on 2 cores, and they cost
-    // 2–4 IASTGCN epochs each per epoch (docs/runs/2026-11-25-baselines.md).
+    // 2–4 IASTGCN epochs each per epoch (the baselines run of 2026-11-25, indexed in
+    // docs/runs/README.md).
     let spatio_temporal: &[Variant] = if demo.all_models {
         &Variant::SPATIO_TEMPORAL
     } else {
