@@ -1,7 +1,7 @@
 //! The open-loop diagnosis (docs/results.md "Where the error goes"): a model predicting
 //! along a held-out run without its corrections being applied leaves the run exactly the
 //! uncompensated one, and its miss is measured against the true residual the oracle
-//! feeds back.
+//! feeds back. An ensemble in the loop feeds back its members' mean.
 
 use iastgcn::compensate::held_out::warm_up;
 use iastgcn::compensate::online::{self, Feedback, Online};
@@ -54,7 +54,7 @@ fn open_loop_predictions_are_scored_and_never_applied() {
             &controller,
             config.clone(),
             start.clone(),
-            Feedback::OpenLoop(&mut predictor, &graph, settings),
+            Feedback::OpenLoop(std::slice::from_mut(&mut predictor), &graph, settings),
             |_| {},
         )
         .unwrap()
@@ -98,7 +98,7 @@ fn open_loop_predictions_are_scored_and_never_applied() {
         &controller,
         config.clone(),
         start.clone(),
-        Feedback::Model(&mut predictor, &graph, settings),
+        Feedback::Model(std::slice::from_mut(&mut predictor), &graph, settings),
         |_| {},
     )
     .unwrap();
@@ -114,4 +114,47 @@ fn open_loop_predictions_are_scored_and_never_applied() {
     assert_eq!(replayed.truth, closed.truth);
     assert_eq!(replayed.predictions, closed.predictions);
     assert_ne!(replayed.truth, plain.truth);
+}
+
+#[test]
+fn an_ensemble_feeds_back_the_mean_of_its_members() {
+    let machine = draw_machine(Geometry::default_asset(), 1);
+    let controller = machine.robot.clone();
+    let start = warm_up(&machine, &controller, 10.0, 5).unwrap();
+    let mut config = SimConfig::new(PathKind::Grid, 6.0, 9);
+    config.path_params = PathParams::held_out(PathKind::Grid);
+    let graph = Graph::default_asset();
+    let settings = Online { every: 5 };
+    let closed = |members: &mut [Predictor]| {
+        online::run(
+            &machine,
+            &controller,
+            config.clone(),
+            start.clone(),
+            Feedback::Model(members, &graph, settings),
+            |_| {},
+        )
+        .unwrap()
+    };
+    let native = |label: [f64; 6]| Predictor::native(&constant(label)).unwrap();
+    let a = [40.0, -20.0, 10.0, 8.0, -6.0, 0.0];
+    let b = [20.0, -10.0, 30.0, 4.0, -2.0, 0.0];
+    let mean = [30.0, -15.0, 20.0, 6.0, -4.0, 0.0];
+    let pair = closed(&mut [native(a), native(b)]);
+    let one = closed(&mut [native(mean)]);
+    // The same corrections at the same ticks: the same run, bit for bit.
+    assert_eq!(pair.truth, one.truth);
+    assert_eq!(pair.predictions, one.predictions);
+    assert_ne!(pair.truth, closed(&mut [native(a)]).truth);
+    // An ensemble of none is refused, not run uncompensated.
+    let err = online::run(
+        &machine,
+        &controller,
+        config.clone(),
+        start.clone(),
+        Feedback::Model(&mut [], &graph, settings),
+        |_| {},
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("at least one predictor"), "{err}");
 }

@@ -156,6 +156,30 @@ fn scale_shards_scores_every_size_alike_and_resumes() {
     assert_eq!(format!("{:?}", after.paths), format!("{:?}", before.paths));
     assert_eq!(after.best_val, before.best_val);
 
+    // Seed ensembles: each model and size whose seeds have finished, scored on the same
+    // held-out sessions with the seeds' mean prediction in the loop, once.
+    let text = run(&["--ensemble"]);
+    assert!(text.contains("8 of 8 jobs done"), "{text}");
+    for m in ["tgcn", "mlp"] {
+        for min in ["0.25", "0.5"] {
+            let r = record(&models.join(format!("{m}.min{min}.ensemble.job.toml")));
+            assert_eq!((r.model.as_str(), r.seed), (&*format!("{m}-ensemble"), 0));
+            assert_eq!(r.trained_on, "the mean of seeds 1, 2");
+            assert_eq!(r.paths.len(), 8);
+            for (p, q) in r.paths.iter().zip(&first.paths) {
+                assert_eq!((p.calibrated, p.oracle), (q.calibrated, q.oracle));
+                assert!(p.compensated.iter().all(|v| v.is_finite()), "{}", r.name);
+                assert!(p.open_loop.iter().all(|v| v.is_finite()), "{}", r.name);
+                assert!(p.test_mae[0].is_nan() && p.test_windows == 0);
+            }
+        }
+    }
+    let summary = std::fs::read_to_string(out.join("scale_summary.csv")).unwrap();
+    assert!(
+        summary.lines().any(|l| l.starts_with("tgcn-ensemble,0.5,")),
+        "{summary}"
+    );
+
     // The study may grow by seeds (or sizes, models): seed 1's jobs are done already.
     let mut args = vec!["scale", "--config", s(&config), "--sizes", "0.25,0.5"];
     args.extend(["--seeds", "1,3", "--models", "tgcn,mlp", "--data-only"]);

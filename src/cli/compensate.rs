@@ -10,7 +10,7 @@ use anyhow::Context;
 use super::Console;
 use iastgcn::compensate::held_out::{Prepared, RunSpec};
 use iastgcn::compensate::online::Online;
-use iastgcn::experiment::evaluate::{predictors, runs_on, table_v, HeldOutResult};
+use iastgcn::experiment::evaluate::{predictors, table_v, HeldOutResult};
 use iastgcn::experiment::report::table_v_lines;
 use iastgcn::gpu::Gpu;
 use iastgcn::model::Checkpoint;
@@ -107,7 +107,7 @@ pub fn run(gpu: Gpu, args: &CompensateArgs) -> anyhow::Result<()> {
     let gpu = Arc::new(gpu);
     let mut models = predictors(&gpu, &checkpoints)?;
     // Where each model predicts: the native CPU forward on a CPU adapter, else the adapter.
-    let ran_on: Vec<String> = models.iter().map(|m| runs_on(&gpu, &m.predictor)).collect();
+    let ran_on: Vec<String> = models.iter().map(|m| m.runs_on(&gpu)).collect();
     let ticks = run.config().steps() * (3 + models.len());
     let mut console = Console::default();
     console.begin(

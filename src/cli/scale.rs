@@ -66,6 +66,11 @@ pub struct ScaleArgs {
     /// weights it keeps. A folder keeps this choice.
     #[arg(long)]
     pub refine: bool,
+    /// Also score each model and size whose seeds have all finished as a seed ensemble:
+    /// the controller averages the seeds' predictions (`<model>-ensemble` in the summary;
+    /// not in a --shard call).
+    #[arg(long)]
+    pub ensemble: bool,
     #[command(flatten)]
     pub held_out: HeldOutArgs,
 }
@@ -85,6 +90,7 @@ pub fn run(gpu: Gpu, args: &ScaleArgs) -> anyhow::Result<()> {
     study.recipe = args.recipe.recipe()?;
     study.held_out_sessions = args.held_out_sessions;
     study.refine = args.refine;
+    study.ensemble = args.ensemble;
     study.graph = args.graph.clone();
     let held = args.held_out.config_with_minutes(study.held_out_minutes);
     study.held_out_minutes = held.minutes;

@@ -69,12 +69,14 @@ impl Default for Online {
 pub enum Feedback<'p> {
     /// No compensation: the controller's model alone.
     None,
-    /// A trained model, predicting from the sensor window ending at each tick.
-    Model(&'p mut Predictor, &'p Graph, Online),
+    /// A trained model, predicting from the sensor window ending at each tick: one
+    /// predictor, or the members of an ensemble (the seeds of one model, reading the same
+    /// graph), whose predictions the controller averages.
+    Model(&'p mut [Predictor], &'p Graph, Online),
     /// A trained model predicting as [`Feedback::Model`] does, its predictions scored
     /// against the true residual and never applied: the run is the uncompensated one
     /// (the diagnosis of docs/results.md: open-loop prediction error on held-out runs).
-    OpenLoop(&'p mut Predictor, &'p Graph, Online),
+    OpenLoop(&'p mut [Predictor], &'p Graph, Online),
     /// Corrections recorded by an open-loop run ([`RunResult::predicted`]), each set after
     /// its tick as the model would have set it: the model's predictions fed forward
     /// without their feedback on its own inputs.
@@ -141,11 +143,18 @@ pub fn run(
     match feedback {
         Feedback::None => {}
         Feedback::Replay(corrections) => replay = corrections,
-        Feedback::Model(predictor, graph, settings)
-        | Feedback::OpenLoop(predictor, graph, settings) => {
-            predictor.reset();
+        Feedback::Model(members, graph, settings)
+        | Feedback::OpenLoop(members, graph, settings) => {
+            ensure(!members.is_empty(), || {
+                "a model in the loop needs at least one predictor".to_string()
+            })?;
             let nodes = node_channels(graph)?;
-            model = Some((SensorPredictor::new(predictor, dt)?, nodes, settings));
+            let mut sensors = Vec::with_capacity(members.len());
+            for member in members.iter_mut() {
+                member.reset();
+                sensors.push(SensorPredictor::new(member, dt)?);
+            }
+            model = Some((sensors, nodes, settings));
         }
         Feedback::Oracle { window, settings } => oracle = Some((window, settings)),
     }
@@ -172,15 +181,26 @@ pub fn run(
             att.push(a);
             trace.push((s.t, e.x, e.y, e.z));
         }
-        if let Some((predictor, nodes, settings)) = model.as_mut() {
+        if let Some((members, nodes, settings)) = model.as_mut() {
             for (v, &c) in values.iter_mut().zip(nodes.iter()) {
                 *v = s.channels[c];
             }
-            let full = predictor.push_values(&values)?;
+            let mut full = true;
+            for member in members.iter_mut() {
+                full &= member.push_values(&values)?;
+            }
             if full && tick.is_multiple_of(settings.every) {
                 let began = Instant::now();
-                // `push_step` said the ring is full, so there is a window to predict.
-                let r = predictor.predict_latest()?.unwrap_or_default();
+                // Every ring is full, so there is a window to predict; an ensemble's
+                // prediction is its members' mean.
+                let mut r = [0.0; 6];
+                let share = 1.0 / members.len() as f64;
+                for member in members.iter_mut() {
+                    let one = member.predict_latest()?.unwrap_or_default();
+                    for (sum, v) in r.iter_mut().zip(one) {
+                        *sum += share * v;
+                    }
+                }
                 predict_time += began.elapsed().as_secs_f64();
                 predictions += 1;
                 let dp = nalgebra::Vector3::new(r[0], r[1], r[2]) * 1e-3;

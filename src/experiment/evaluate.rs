@@ -159,7 +159,7 @@ pub fn table_v(
     rows.push(row("oracle", "true residual", &oracle));
     for LoopModel {
         name: model,
-        predictor,
+        members,
         graph,
     } in models.iter_mut()
     {
@@ -168,7 +168,7 @@ pub fn table_v(
             calibrated,
             run.config(),
             start(),
-            Feedback::Model(predictor, graph, settings),
+            Feedback::Model(members, graph, settings),
             &mut on_tick,
         )?;
         rows.push(row("compensated", model, &r));
@@ -199,22 +199,63 @@ pub fn predictors(
         .map(|(name, ck)| {
             Ok(LoopModel {
                 name: name.clone(),
-                predictor: Predictor::new(gpu.clone(), ck, 1)?,
+                members: vec![Predictor::new(gpu.clone(), ck, 1)?],
                 graph: ck.graph.clone(),
             })
         })
         .collect()
 }
 
-/// A model in the control loop: its name, its predictor, and the sensor graph its
-/// checkpoint reads (each model's own: two models may read different sensors).
+/// An ensemble in the control loop, named `name`: the mean of the predictions of
+/// `checkpoints` (the seeds of one model), which must read the same sensor graph.
+pub fn ensemble(gpu: &Arc<Gpu>, name: &str, checkpoints: &[Checkpoint]) -> Result<LoopModel> {
+    let Some(first) = checkpoints.first() else {
+        return Err(Error::Invalid(format!("ensemble {name}: no member")));
+    };
+    if let Some(other) = checkpoints
+        .iter()
+        .find(|c| c.graph.nodes != first.graph.nodes)
+    {
+        return Err(Error::Invalid(format!(
+            "ensemble {name}: its members read different sensor graphs ([{}] and [{}])",
+            first.graph.nodes.join(", "),
+            other.graph.nodes.join(", ")
+        )));
+    }
+    Ok(LoopModel {
+        name: name.into(),
+        members: checkpoints
+            .iter()
+            .map(|ck| Predictor::new(gpu.clone(), ck, 1))
+            .collect::<Result<_, ModelError>>()?,
+        graph: first.graph.clone(),
+    })
+}
+
+/// A model in the control loop: its name, its forward pass (one predictor, or an
+/// ensemble's members, whose predictions the controller averages), and the sensor graph
+/// its checkpoints read (each model's own: two models may read different sensors).
 pub struct LoopModel {
     /// The model's name in the tables.
     pub name: String,
-    /// Its forward pass.
-    pub predictor: Predictor,
+    /// Its forward pass: one predictor, or an ensemble's members.
+    pub members: Vec<Predictor>,
     /// The sensor channels it reads, in its node order.
     pub graph: Graph,
+}
+
+impl LoopModel {
+    /// Where it predicts: the native CPU forward on a CPU adapter, else the adapter.
+    pub fn runs_on(&self, gpu: &Gpu) -> String {
+        self.members
+            .first()
+            .map_or_else(|| "nowhere".into(), |p| runs_on(gpu, p))
+    }
+
+    /// The window length, ticks, of its first member (the oracle stands in for it).
+    pub fn window(&self) -> usize {
+        self.members.first().map_or(0, |p| p.config().window)
+    }
 }
 
 /// The held-out session of an evaluation (Table V): how long each run is, its seeds,
@@ -454,11 +495,12 @@ pub fn evaluate(
         .iter()
         .map(|m| (m.name.clone(), m.checkpoint.clone()))
         .collect();
+    let mut in_loop = predictors(gpu, &checkpoints)?;
     let table_v_session = SessionOptions {
         budget: true,
         ..SessionOptions::rows(0)
     };
-    let session = held_out_session(gpu, &checkpoints, sources, held, table_v_session, reporter)?;
+    let session = held_out_session(gpu, &mut in_loop, sources, held, table_v_session, reporter)?;
     if let Some(budget) = session.budget {
         report.sections.push((
             format!("Error budget: {} (held-out run)", PathKind::Hilbert.name()),
@@ -475,7 +517,7 @@ pub fn evaluate(
     );
     let validation = held_out_session(
         gpu,
-        &checkpoints,
+        &mut in_loop,
         sources,
         held,
         SessionOptions::rows(VALIDATION_SESSION),
@@ -599,25 +641,26 @@ impl SessionOptions {
     }
 }
 
-/// Held-out session `options.index` of `held` ([`HeldOutConfig::session`]) on the machine the recordings of `sources` were taken on, under their
-/// calibration: the machine warms up, then every path runs in turn, each stage of a path
-/// (initial, calibrated, oracle, each of `models` in the loop) from the same state, and
-/// the session carries on from the calibrated run's end, so the rows of the initial,
-/// calibrated and oracle stages do not depend on the models. The first model gives the
-/// graph and window of the online runs. With `options.budget`, the Hilbert run's error
+/// Held-out session `options.index` of `held` ([`HeldOutConfig::session`]) on the
+/// machine the recordings of `sources` were taken on, under their calibration: the
+/// machine warms up, then every path runs in turn, each stage of a path (initial,
+/// calibrated, oracle, each of `models` in the loop: predictors or ensembles,
+/// [`predictors`], [`ensemble`]) from the same state, and the session carries on from the
+/// calibrated run's end, so the rows of the initial, calibrated and oracle stages do not
+/// depend on the models. The first model gives the window of the oracle. With `options.budget`, the Hilbert run's error
 /// budget by source too. With `options.open_loop`, each model also predicts along every
 /// path's uncompensated run from the same start, its predictions scored against the true
 /// residual and never applied, then fed forward ([`Session::open_loop`]).
 pub fn held_out_session(
     gpu: &Arc<Gpu>,
-    models: &[(String, Checkpoint)],
+    models: &mut [LoopModel],
     sources: &DataSources,
     held: &HeldOutConfig,
     options: SessionOptions,
     reporter: &mut dyn Reporter,
 ) -> Result<Session> {
     let k = options.index;
-    let Some((_, first)) = models.first() else {
+    let Some(first) = models.first() else {
         return Err(Error::Invalid("no model to compensate with".into()));
     };
     held.validate()?;
@@ -629,9 +672,8 @@ pub fn held_out_session(
     let nominal = Robot::nominal(geometry.clone());
     let calibrated = Robot::new(geometry, cal.errors);
     // The oracle stands in for a model of the first one's window.
-    let window = first.config.window;
-    let mut preds = predictors(gpu, models)?;
-    let ran_on: Vec<String> = preds.iter().map(|m| runs_on(gpu, &m.predictor)).collect();
+    let window = first.window();
+    let ran_on: Vec<String> = models.iter().map(|m| m.runs_on(gpu)).collect();
     let mut latency = vec![(0.0, 0usize); models.len()];
     let mut session = Session {
         rows: Vec::new(),
@@ -677,7 +719,7 @@ pub fn held_out_session(
             let b = error_budget(&machine, &calibrated, &run.config(), &run.start)?;
             session.budget = Some(budget_markdown(&b));
         }
-        let stages = 3 + preds.len() * if options.open_loop { 3 } else { 1 };
+        let stages = 3 + models.len() * if options.open_loop { 3 } else { 1 };
         let ticks = run.config().steps() * stages;
         reporter.begin(&format!("compensating {}", path.name()), ticks as u64);
         let mut done = 0u64;
@@ -693,13 +735,13 @@ pub fn held_out_session(
             &nominal,
             &calibrated,
             window,
-            &mut preds,
+            models,
             &run,
             settings,
             &mut tick,
         )?;
         if options.open_loop {
-            for m in preds.iter_mut() {
+            for m in models.iter_mut() {
                 let score = open_loop_score(&machine, &calibrated, &run, m, settings, &mut tick)?;
                 session.open_loop.extend(score);
             }
@@ -748,7 +790,7 @@ fn open_loop_score(
         calibrated,
         run.config(),
         run.start.clone(),
-        Feedback::OpenLoop(&mut model.predictor, &model.graph, settings),
+        Feedback::OpenLoop(&mut model.members, &model.graph, settings),
         &mut on_tick,
     )?;
     let replayed = online::run(

@@ -17,7 +17,9 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use super::evaluate::{held_out_session, table_iii, HeldOutConfig, SessionOptions};
+use super::evaluate::{
+    ensemble, held_out_session, predictors, table_iii, HeldOutConfig, LoopModel, SessionOptions,
+};
 use super::protocol::{
     check_seeds, epoch_seconds, existing_data, record_data, train_core, ModelFiles, MACHINE_SEED,
 };
@@ -84,6 +86,11 @@ pub struct Study {
     /// `[model] nodes` of the run config must match it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub graph: Option<PathBuf>,
+    /// Also score each model and size whose seeds have all finished as an ensemble: the
+    /// controller averages the seeds' predictions (record `<model>.min<m>.ensemble`,
+    /// model `<model>-ensemble`). May change between calls of one folder.
+    #[serde(default)]
+    pub ensemble: bool,
 }
 
 fn one_session() -> usize {
@@ -116,6 +123,7 @@ impl Study {
             held_out_sessions: 3,
             refine: false,
             graph: None,
+            ensemble: false,
         }
     }
 
@@ -218,6 +226,7 @@ impl Study {
         s.models.clear();
         s.run.train.backend.clear();
         s.run.train.threads = 0;
+        s.ensemble = false;
         s
     }
 }
@@ -458,6 +467,10 @@ pub fn scale(
         spent.push(record.wall_seconds);
         write_summary(study, out, reporter)?;
     }
+    // A shard scores no ensemble: its seeds may be another shard's, still training.
+    if study.ensemble && shard.is_none() {
+        score_ensembles(&gpu, study, &sources, out, reporter)?;
+    }
     Ok(Progress {
         done: done(&jobs),
         total: jobs.len(),
@@ -498,25 +511,8 @@ fn run_job(
     } else {
         (core, by_path(&trained.test), String::new())
     };
-    let models = [(name.clone(), checkpoint)];
-    let mut paths = Vec::new();
-    for k in 0..study.held_out_sessions {
-        let options = SessionOptions {
-            open_loop: true,
-            ..SessionOptions::rows(k)
-        };
-        let session =
-            held_out_session(gpu, &models, sources, &study.held_out(), options, reporter)?;
-        for p in PathKind::ALL {
-            let mut score = path_score(p.name(), &test, &session.rows, &name)?;
-            score.session = k;
-            if let Some(o) = session.open_loop.iter().find(|o| o.path == p.name()) {
-                score.open_loop = [o.miss.position.mean, o.miss.attitude.mean];
-                score.replayed = [o.replayed.position.mean, o.replayed.attitude.mean];
-            }
-            paths.push(score);
-        }
-    }
+    let mut in_loop = predictors(gpu, &[(name.clone(), checkpoint)])?;
+    let paths = held_out_scores(gpu, study, &mut in_loop[0], &test, sources, reporter)?;
     Ok(ScaleRecord {
         name: name.clone(),
         model: job.variant.name().into(),
@@ -534,6 +530,124 @@ fn run_job(
         refinement,
         paths,
     })
+}
+
+/// Every held-out session of the study with `model` in the loop: each path's scores
+/// (`test`: the model's test metrics, pooled per path; empty where not measured), with
+/// the open-loop diagnosis.
+fn held_out_scores(
+    gpu: &Arc<Gpu>,
+    study: &Study,
+    model: &mut LoopModel,
+    test: &[TestMetrics],
+    sources: &DataSources,
+    reporter: &mut dyn Reporter,
+) -> Result<Vec<PathScore>> {
+    let name = model.name.clone();
+    let mut paths = Vec::new();
+    for k in 0..study.held_out_sessions {
+        let options = SessionOptions {
+            open_loop: true,
+            ..SessionOptions::rows(k)
+        };
+        let session = held_out_session(
+            gpu,
+            std::slice::from_mut(model),
+            sources,
+            &study.held_out(),
+            options,
+            reporter,
+        )?;
+        for p in PathKind::ALL {
+            let mut score = path_score(p.name(), test, &session.rows, &name)?;
+            score.session = k;
+            if let Some(o) = session.open_loop.iter().find(|o| o.path == p.name()) {
+                score.open_loop = [o.miss.position.mean, o.miss.attitude.mean];
+                score.replayed = [o.replayed.position.mean, o.replayed.attitude.mean];
+            }
+            paths.push(score);
+        }
+    }
+    Ok(paths)
+}
+
+/// The record of `model`'s seed ensemble at `minutes` per path.
+fn ensemble_record_path(out: &Path, model: Variant, minutes: f64) -> PathBuf {
+    out.join("models")
+        .join(format!("{}.min{minutes}.ensemble.job.toml", model.name()))
+}
+
+/// Scores the seed ensemble of every model and size whose seeds (two or more) have all
+/// finished and that has no ensemble record yet: the controller averages the seeds' predictions (the
+/// refined weights in a study that refines). Its test block is not scored (NaN).
+fn score_ensembles(
+    gpu: &Arc<Gpu>,
+    study: &Study,
+    sources: &DataSources,
+    out: &Path,
+    reporter: &mut dyn Reporter,
+) -> Result<()> {
+    let jobs = study.jobs()?;
+    for (variant, minutes) in study
+        .models
+        .iter()
+        .filter_map(|m| Variant::parse(m))
+        .flat_map(|v| study.sizes.iter().map(move |&m| (v, m)))
+    {
+        let record = ensemble_record_path(out, variant, minutes);
+        let members: Vec<&ScaleJob> = jobs
+            .iter()
+            .filter(|j| j.variant == variant && j.minutes == minutes)
+            .collect();
+        // One seed is no ensemble; a call with fewer seeds than the folder will have
+        // leaves it to the call with all of them.
+        if members.len() < 2
+            || record.exists()
+            || members.iter().any(|j| !j.record_path(out).exists())
+        {
+            continue;
+        }
+        let started = Instant::now();
+        let model = format!("{}-ensemble", variant.name());
+        let seeds: Vec<String> = members.iter().map(|j| j.seed.to_string()).collect();
+        reporter.note(&format!(
+            "== {model} on {minutes} min per path: the mean of seeds {}",
+            seeds.join(", ")
+        ));
+        let checkpoints = members
+            .iter()
+            .map(|j| {
+                let files = j.files(out);
+                Checkpoint::load(if study.refine {
+                    &files.refined
+                } else {
+                    &files.core
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let first = ScaleRecord::load(&members[0].record_path(out))?;
+        let mut in_loop = ensemble(gpu, &model, &checkpoints)?;
+        let paths = held_out_scores(gpu, study, &mut in_loop, &[], sources, reporter)?;
+        let name = format!("{}.min{minutes}.ensemble", variant.name());
+        let done = ScaleRecord {
+            name,
+            model,
+            seed: 0,
+            minutes,
+            train_windows: first.train_windows,
+            best_val: f64::NAN,
+            best_epoch: 0,
+            epochs: 0,
+            epoch_seconds: f64::NAN,
+            trained_on: format!("the mean of seeds {}", seeds.join(", ")),
+            wall_seconds: started.elapsed().as_secs_f64(),
+            refinement: String::new(),
+            paths,
+        };
+        write_toml(&done, &record)?;
+        write_summary(study, out, reporter)?;
+    }
+    Ok(())
 }
 
 /// One path's scores from the test metrics (pooled per path, [`by_path`]) and the
@@ -866,6 +980,10 @@ fn panels(points: &[Point]) -> Vec<Panel> {
 /// and size, and the held-out sessions one by one.
 fn markdown(study: &Study, records: &[ScaleRecord], points: &[Point]) -> String {
     let minutes = study.recording_minutes;
+    let ensembles = records
+        .iter()
+        .filter(|r| r.name.ends_with(".ensemble"))
+        .count();
     let recipe = &study.recipe;
     let recorded = if recipe.sessions == 1 {
         format!("Recordings of {minutes} min per path in one session")
@@ -895,7 +1013,7 @@ fn markdown(study: &Study, records: &[ScaleRecord], points: &[Point]) -> String 
          test blocks, those of the {minutes}-minute recordings\n- {stage}\n- Held-out sessions: {}, \
          {} min runs each, a prediction every {} ticks, scored against hidden truth:\n{}\n- Jobs \
          finished in this folder: {} (the last call's study: sizes {:?}, seeds {:?}, models \
-         {})\n\nMean ± SD over seeds and held-out sessions. Removed: share of the calibrated \
+         {}){}\n\nMean ± SD over seeds and held-out sessions. Removed: share of the calibrated \
          controller's mean true error removed by compensation; Left: the mean true error it \
          leaves. Open-loop: the mean distance of the model's predictions from the true \
          residual along the same held-out runs played uncompensated (the oracle's \
@@ -906,10 +1024,19 @@ fn markdown(study: &Study, records: &[ScaleRecord], points: &[Point]) -> String 
         study.held_out_minutes,
         study.every,
         sessions.join("\n"),
-        records.len(),
+        records.len() - ensembles,
         study.sizes,
         study.seeds,
         study.models.join(", "),
+        if ensembles > 0 {
+            format!(
+                "\n- Seed ensembles scored: {ensembles} (`<model>-ensemble`: the controller \
+                 averages the predictions of the model's seeds; mean ± SD over held-out \
+                 sessions; its test block is not scored)"
+            )
+        } else {
+            String::new()
+        },
         PAPER_HILBERT_REMOVED[0],
         PAPER_HILBERT_REMOVED[1],
     );
