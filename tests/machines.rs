@@ -30,7 +30,7 @@ fn folder(
     )
     .unwrap();
     let v_row = |stage: &str, model: &str, p: f64, a: f64| {
-        format!("hilbert,{stage},{model},{p},1,2,{a},1,2,{p},1,2,{a},1,2\n")
+        format!("hilbert,0,{stage},{model},{p},1,2,{a},1,2,{p},1,2,{a},1,2\n")
     };
     let mut v = format!("{TABLE_V_HEADER}\n");
     v.push_str(&v_row("initial", "-", 900.0, 400.0));

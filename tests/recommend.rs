@@ -3,7 +3,7 @@
 //! attitude over the paths and the model's seeds; none when no model removes any.
 
 use iastgcn::experiment::evaluate::HeldOutConfig;
-use iastgcn::experiment::recommend::{recommend, VALIDATION_SESSION};
+use iastgcn::experiment::recommend::{recommend, validation_session};
 use iastgcn::experiment::report::{ErrorStats, TableVRow};
 use iastgcn::stats::Summary;
 use iastgcn::twin::PathKind;
@@ -21,6 +21,7 @@ fn row(path: &str, stage: &str, model: &str, pos: f64, att: f64) -> TableVRow {
     };
     TableVRow {
         trajectory: path.into(),
+        session: 0,
         stage: stage.into(),
         model: model.into(),
         truth: stats,
@@ -71,9 +72,9 @@ fn the_model_removing_most_over_paths_and_seeds_is_recommended() {
         "{text}"
     );
     let session = HeldOutConfig::default()
-        .session(VALIDATION_SESSION)
+        .session(validation_session(3))
         .describe();
-    let md = r.markdown((VALIDATION_SESSION + 1, &session), 0.5);
+    let md = r.markdown((validation_session(3) + 1, &session), 0.5);
     assert!(md.contains("| **a** | 2 | 65.0 | 65.0 | 65.0 |"), "{md}");
     assert!(md.contains("| b | 2 | 50.0 | 50.0 | 50.0 |"), "{md}");
 }
@@ -94,8 +95,8 @@ fn no_model_is_recommended_when_none_beats_calibration() {
 #[test]
 fn the_validation_session_is_none_of_the_test_sessions() {
     let held = HeldOutConfig::default();
-    let v = held.session(VALIDATION_SESSION);
-    for k in 0..VALIDATION_SESSION {
+    let v = held.session(validation_session(3));
+    for k in 0..validation_session(3) {
         let t = held.session(k);
         assert_ne!(v.seed, t.seed);
         assert_ne!(v.conditions, t.conditions);
@@ -104,8 +105,8 @@ fn the_validation_session_is_none_of_the_test_sessions() {
     // training placement is the half turn, which every held-out session walks (one way
     // or the other); the validation session shares it with test session 2.
     for kind in [PathKind::Grid, PathKind::Hilbert, PathKind::Rosette] {
-        let p = iastgcn::twin::PathParams::held_out_in(kind, VALIDATION_SESSION);
-        for k in 0..VALIDATION_SESSION {
+        let p = iastgcn::twin::PathParams::held_out_in(kind, validation_session(3));
+        for k in 0..validation_session(3) {
             assert_ne!(
                 p,
                 iastgcn::twin::PathParams::held_out_in(kind, k),
@@ -113,4 +114,34 @@ fn the_validation_session_is_none_of_the_test_sessions() {
             );
         }
     }
+}
+
+#[test]
+fn the_headline_is_the_recommended_model_on_the_test_sessions_hilbert_runs() {
+    let validation = session(&[("a.seed1", 30.0, 50.0), ("b.seed1", 60.0, 60.0)]);
+    let r = recommend(&validation);
+    assert_eq!(r.model().unwrap().model, "a");
+    // Table V: two test sessions; a leaves 40 and 60 µm of session 0's 100 µm (60 and
+    // 40 % removed) and 100 µm of session 1's 200 µm (50 %); b's rows do not count.
+    let mut table_v = session(&[("a.seed1", 0.0, 40.0), ("b.seed1", 0.0, 10.0)]);
+    let mut second = session(&[("a.seed1", 0.0, 100.0), ("b.seed1", 0.0, 10.0)]);
+    for row in second.iter_mut() {
+        row.session = 1;
+        if row.stage == "calibrated" {
+            row.truth.position.mean = 200.0;
+            row.truth.attitude.mean = 100.0;
+        }
+    }
+    table_v.append(&mut second);
+    let text = r.headline(&table_v).unwrap();
+    // Position: 60 % and 50 % → 55.0 ± 7.1; attitude likewise (left half of position).
+    assert!(
+        text.starts_with("a, the recommended model, removes 55.0 ± 7.1 % of the position")
+            && text.contains("and 55.0 ± 7.1 % of the attitude")
+            && text.contains("1 seed(s) × 2 held-out session(s)"),
+        "{text}"
+    );
+    // No recommended model, no headline.
+    let none = recommend(&session(&[("mlp", 120.0, 100.0)]));
+    assert!(none.headline(&table_v).is_none());
 }

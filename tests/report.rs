@@ -11,7 +11,7 @@ use iastgcn::experiment::report::{
 use iastgcn::stats::Summary;
 use iastgcn::train::{EpochRecord, Metrics};
 
-const TABLE_V_HEADER: &str = "trajectory,stage,model,\
+const TABLE_V_HEADER: &str = "trajectory,held_out_session,stage,model,\
 true_pos_mean_um,true_pos_sd_um,true_pos_max_um,true_att_mean_mdeg,true_att_sd_mdeg,true_att_max_mdeg,\
 trk_pos_mean_um,trk_pos_sd_um,trk_pos_max_um,trk_att_mean_mdeg,trk_att_sd_mdeg,trk_att_max_mdeg";
 const TABLE_III_HEADER: &str =
@@ -62,6 +62,7 @@ fn v_row(trajectory: &str, stage: &str, model: &str, truth: ErrorStats) -> Table
     let scale = |s: &Summary| summary(1.25 * s.mean, 1.25 * s.sd, 1.25 * s.max);
     TableVRow {
         trajectory: trajectory.into(),
+        session: 0,
         stage: stage.into(),
         model: model.into(),
         truth,
@@ -224,6 +225,7 @@ fn synthetic() -> Report {
         .collect();
     Report {
         title: "Synthetic evaluation".into(),
+        headline: Some("a, the recommended model, removes 50.0 ± 1.0 % of it".into()),
         adapter: "Test GPU (Vulkan)".into(),
         setup: vec![
             "config: runs/test.toml".into(),
@@ -335,18 +337,26 @@ fn writes_every_file_of_the_report_folder() {
     assert_eq!(v.len(), 1 + r.table_v.len());
     for (line, row) in v[1..].iter().zip(&r.table_v) {
         let cells: Vec<&str> = line.split(',').collect();
-        assert_eq!(cells.len(), 15, "{line}");
-        assert_eq!(cells[..3], [&row.trajectory, &row.stage, &row.model]);
+        assert_eq!(cells.len(), 16, "{line}");
+        let session = row.session.to_string();
+        assert_eq!(
+            cells[..4],
+            [&row.trajectory, &session, &row.stage, &row.model]
+        );
         let values = [&row.truth, &row.tracker].into_iter().flat_map(|e| {
             let (p, a) = (&e.position, &e.attitude);
             [p.mean, p.sd, p.max, a.mean, a.sd, a.max]
         });
-        for (cell, value) in cells[3..].iter().zip(values) {
+        for (cell, value) in cells[4..].iter().zip(values) {
             close(cell, value, 4);
             assert_eq!(cell.split('.').nth(1).map(str::len), Some(4), "{cell}");
         }
     }
-    assert!(v[2].starts_with("hilbert,initial,-,812.3457,"), "{}", v[2]);
+    assert!(
+        v[2].starts_with("hilbert,0,initial,-,812.3457,"),
+        "{}",
+        v[2]
+    );
 
     // table_iii.csv: 4 decimals for µm/mdeg, 3 for percentages.
     let iii = lines(&dir.join("table_iii.csv"));
@@ -382,7 +392,9 @@ fn writes_every_file_of_the_report_folder() {
     // The Markdown report.
     let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
     assert_eq!(md, report::markdown(&r));
-    assert!(md.starts_with("# Synthetic evaluation\n"));
+    assert!(md.starts_with(
+        "# Synthetic evaluation\n\n**a, the recommended model, removes 50.0 ± 1.0 % of it**\n"
+    ));
     assert!(md.contains("- config: runs/test.toml"));
     assert!(md.contains("Adapter: Test GPU (Vulkan)"));
     assert!(md.contains("1 h 02 min 05 s"), "wall time");

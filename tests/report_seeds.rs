@@ -23,6 +23,7 @@ fn v_row(trajectory: &str, stage: &str, model: &str, pos: f64, att: f64) -> Tabl
     };
     TableVRow {
         trajectory: trajectory.into(),
+        session: 0,
         stage: stage.into(),
         model: model.into(),
         truth: stats(1.0),
@@ -262,4 +263,56 @@ fn the_report_shows_the_spread_and_bolds_only_beyond_it() {
     assert_eq!(iii.lines().next().unwrap(), seeds::TABLE_III_SEEDS_HEADER);
     assert_eq!(iii.lines().count(), 1 + 2);
     let _ = std::fs::remove_dir_all(&tmp);
+}
+
+#[test]
+fn several_held_out_sessions_pool_against_their_own_calibrated_runs() {
+    // Two seeds of two models on two held-out sessions; session 1 (index 1) is another
+    // day, its calibrated error twice session 0's.
+    let at = |session: usize, row: TableVRow| TableVRow { session, ..row };
+    let mut table_v = Vec::new();
+    for (session, k) in [(0, 1.0), (1, 2.0)] {
+        table_v.push(at(
+            session,
+            v_row("hilbert", "calibrated", "-", 100.0 * k, 50.0 * k),
+        ));
+        for seed in [1, 2] {
+            let (m, o) = (format!("iastgcn.seed{seed}"), format!("tgcn.seed{seed}"));
+            table_v.push(at(
+                session,
+                v_row("hilbert", "compensated", &m, 40.0 * k, 20.0 * k),
+            ));
+            table_v.push(at(
+                session,
+                v_row("hilbert", "compensated", &o, 50.0 * k, 20.0 * k),
+            ));
+        }
+    }
+    let r = Report {
+        table_v,
+        ..Report::default()
+    };
+    let s = seeds::summarize(&r).unwrap();
+    let main = s.table_v.iter().find(|r| r.model == "iastgcn").unwrap();
+    // 60 % removed in every session against its own calibrated run: no spread; against
+    // session 0's calibrated run, session 1 would have removed 20 %.
+    assert_eq!(main.pos_removed.n, 4);
+    close(main.pos_removed.mean, 60.0);
+    close(main.pos_removed.sd, 0.0);
+    close(main.truth_pos.mean, 60.0);
+    // Paired seed by seed and session by session: 4 pairs, IASTGCN better in each.
+    let p = s
+        .paired
+        .iter()
+        .find(|p| p.measure == "V true pos" && p.model == "tgcn")
+        .unwrap();
+    assert_eq!((p.difference.n, p.wins), (4, 4));
+    close(p.difference.mean, 15.0);
+    // The per-run tables name each session.
+    let md = report::markdown(&r);
+    assert!(
+        md.contains("| hilbert, session 1 | calibrated |")
+            && md.contains("| hilbert, session 2 | calibrated |"),
+        "{md}"
+    );
 }

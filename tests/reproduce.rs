@@ -101,13 +101,13 @@ fn reproduce_shards_resumes_and_reports_over_seeds() {
                 .lines()
                 .filter(|l| l.contains(&format!(",compensated,{model},")))
                 .count(),
-            4,
-            "{model}: one row per held-out path"
+            12,
+            "{model}: one row per held-out path in each of 3 held-out sessions"
         );
     }
     let seeds = std::fs::read_to_string(out.join("table_v_seeds.csv")).unwrap();
     assert_eq!(
-        seeds.lines().filter(|l| l.contains(",iastgcn,2,")).count(),
+        seeds.lines().filter(|l| l.contains(",iastgcn,6,")).count(),
         4
     );
     let paired = std::fs::read_to_string(out.join("paired.csv")).unwrap();

@@ -3,6 +3,8 @@
 //! windows and the same held-out session (the calibrated and oracle rows do not depend
 //! on the model); a job whose record is lost is redone from its state to the same scores;
 //! a study grows by seeds; another setup in the same folder and bad sizes are refused.
+//! A closed-loop study records its second half of sessions again with a round-0 model
+//! compensating, on the same days, placements and seeds.
 
 mod common;
 
@@ -198,5 +200,93 @@ fn scale_shards_scores_every_size_alike_and_resumes() {
     );
     let err = cli_fails(&["scale", "--sizes", "8,2", "--out", s(&dir.join("x"))]);
     assert!(err.contains("ascending"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn closed_loop_data_are_recorded_with_a_round_zero_model_compensating() {
+    let dir: PathBuf =
+        std::env::temp_dir().join(format!("iastgcn-closed-loop-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("tiny.toml");
+    std::fs::write(&config, TINY).unwrap();
+    let out = dir.join("out");
+    let mut args = vec![
+        "scale",
+        "--config",
+        s(&config),
+        "--sizes",
+        "0.5",
+        "--seeds",
+        "1",
+    ];
+    args.extend(["--models", "mlp", "--held-out-minutes", "0.1"]);
+    args.extend(["--warm-up-minutes", "0.2", "--held-out-sessions", "1"]);
+    args.extend(["--sessions", "2", "--placement", "varied", "--out", s(&out)]);
+    // One session has no second half to record closed loop.
+    let mut one = args.clone();
+    let n = one.len();
+    one[n - 5] = "1";
+    one.push("--closed-loop");
+    let err = cli_fails(&one);
+    assert!(
+        err.contains("--closed-loop") && err.contains("--sessions 2"),
+        "{err}"
+    );
+    args.push("--closed-loop");
+    let text = cli(&args);
+    assert!(text.contains("1 of 1 jobs done"), "{text}");
+    let models = out.join("models");
+    assert!(models
+        .join("mlp.min0.5.seed1.round0.core.safetensors")
+        .exists());
+    let r = record(&models.join("mlp.min0.5.seed1.job.toml"));
+    assert!(
+        r.closed_loop.contains("trained on sessions 1-1")
+            && r.closed_loop.contains("compensated sessions 2-2"),
+        "{}",
+        r.closed_loop
+    );
+    assert!(r.paths.iter().all(|p| p.compensated[0].is_finite()));
+    for path in ["grid", "fermat", "hilbert"] {
+        let open = out.join("data").join(format!("{path}.s02.csv"));
+        let closed = models
+            .join("mlp.min0.5.seed1.closed")
+            .join(format!("{path}.s02.csv"));
+        let sidecar = |p: &Path| iastgcn::twin::RunInfo::read(p).unwrap();
+        let (a, b) = (sidecar(&open), sidecar(&closed));
+        // The same session: day, placement, seed, feed and force; another controller.
+        assert_eq!(
+            (
+                a.session,
+                a.seed,
+                a.rotation_deg,
+                a.reverse,
+                a.feed_mm_s,
+                a.force_n
+            ),
+            (
+                b.session,
+                b.seed,
+                b.rotation_deg,
+                b.reverse,
+                b.feed_mm_s,
+                b.force_n
+            )
+        );
+        assert_eq!(a.ambient_offset_k, b.ambient_offset_k);
+        assert!(
+            b.controller
+                .contains("mlp.min0.5.seed1.round0 compensating"),
+            "{}",
+            b.controller
+        );
+        // The corrections moved the joints: the recordings differ.
+        assert_ne!(
+            std::fs::read(&open).unwrap(),
+            std::fs::read(&closed).unwrap()
+        );
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -429,12 +429,18 @@ fn tiny_demo_config(prefix: &str) -> (PathBuf, PathBuf) {
 fn demo_writes_the_report() {
     let (dir, config) = tiny_demo_config("iastgcn-demo");
     let out = dir.join("report");
+    // One training session, as the paper records it (the demo's default recipe is
+    // `demo_over_seeds_reports_the_spread`'s).
     let text = cli(&[
         "demo",
         "--config",
         s(&config),
         "--minutes",
         "0.5",
+        "--sessions",
+        "1",
+        "--placement",
+        "fixed",
         "--held-out-minutes",
         "0.1",
         "--all-models",
@@ -448,22 +454,26 @@ fn demo_writes_the_report() {
     let mut lines = table_v.lines();
     assert_eq!(
         lines.next().unwrap(),
-        "trajectory,stage,model,\
+        "trajectory,held_out_session,stage,model,\
          true_pos_mean_um,true_pos_sd_um,true_pos_max_um,true_att_mean_mdeg,true_att_sd_mdeg,true_att_max_mdeg,\
          trk_pos_mean_um,trk_pos_sd_um,trk_pos_max_um,trk_att_mean_mdeg,trk_att_sd_mdeg,trk_att_max_mdeg"
     );
     let rows: Vec<Vec<String>> = lines
         .map(|l| l.split(',').map(str::to_string).collect())
         .collect();
-    // Per path (the three trained ones placed anew, and the rosette): initial,
-    // calibrated, the oracle, and the 12 models (each refined or kept): IASTGCN, its three
-    // ablations, the four dense baselines and the four spatio-temporal ones.
-    assert_eq!(rows.len(), 4 * 15);
+    // Per held-out session (3) and path (the three trained ones placed anew, and the
+    // rosette): initial, calibrated, the oracle, and the 12 models (each refined or kept):
+    // IASTGCN, its three ablations, the four dense baselines and the four spatio-temporal
+    // ones.
+    assert_eq!(rows.len(), 3 * 4 * 15);
     let value = |r: &Vec<String>, i: usize| r[i].parse::<f64>().unwrap();
-    for path in ["grid", "fermat", "hilbert", "rosette"] {
+    for (session, path) in ["0", "1", "2"]
+        .into_iter()
+        .flat_map(|k| ["grid", "fermat", "hilbert", "rosette"].map(|p| (k, p)))
+    {
         let of = |stage: &str| {
             rows.iter()
-                .filter(|r| r[0] == path && r[1] == stage)
+                .filter(|r| r[0] == path && r[1] == session && r[2] == stage)
                 .collect::<Vec<_>>()
         };
         assert_eq!(
@@ -480,17 +490,17 @@ fn demo_writes_the_report() {
         // beats calibration alone in position and attitude.
         let (cal, oracle) = (of("calibrated")[0], of("oracle")[0]);
         assert!(
-            value(oracle, 3) < value(cal, 3),
+            value(oracle, 4) < value(cal, 4),
             "{path}: {oracle:?} vs {cal:?}"
         );
         assert!(
-            value(oracle, 6) < value(cal, 6),
+            value(oracle, 7) < value(cal, 7),
             "{path}: {oracle:?} vs {cal:?}"
         );
     }
     assert!(rows
         .iter()
-        .all(|r| r[3..].iter().all(|v| v.parse::<f64>().unwrap().is_finite())));
+        .all(|r| r[4..].iter().all(|v| v.parse::<f64>().unwrap().is_finite())));
     // Refinement never raises a model's per-window validation loss.
     let refined: Vec<(f64, f64)> = text
         .lines()
@@ -578,8 +588,9 @@ fn demo_over_seeds_reports_the_spread() {
             "demo".to_string(),
             "--config".into(),
             s(&config).into(),
+            // The default recipe: 4 sessions of 0.25 min per path.
             "--minutes".into(),
-            "0.5".into(),
+            "1".into(),
             "--held-out-minutes".into(),
             "0.1".into(),
             "--warm-up-minutes".into(),
@@ -615,10 +626,12 @@ fn demo_over_seeds_reports_the_spread() {
             ] {
                 assert!(out.join("models").join(&f).exists(), "{f}");
             }
-            assert!(
-                table_v.contains(&format!("hilbert,compensated,{name},")),
-                "{name}"
-            );
+            for session in 0..3 {
+                assert!(
+                    table_v.contains(&format!("hilbert,{session},compensated,{name},")),
+                    "{name}"
+                );
+            }
         }
     }
     let weights = |seed: u64| {
@@ -647,6 +660,13 @@ fn demo_over_seeds_reports_the_spread() {
         );
     }
     assert!(report.contains("training seeds 1, 2"));
+    // The default recipe and the three held-out sessions of Table V, named in the setup.
+    assert!(
+        report.contains("1 min per path in 4 session(s)")
+            && report.contains("3 held-out session(s) (1: cold, ambient +0.00 K")
+            && report.contains("| hilbert, session 3 | calibrated |"),
+        "{report}"
+    );
     let mixing = report
         .split("## Graph convolution after training")
         .nth(1)
@@ -684,14 +704,18 @@ fn demo_over_seeds_reports_the_spread() {
                 "0.1",
                 "--warm-up-minutes",
                 "0",
+                "--held-out-sessions",
+                "1",
                 "--out",
             ]
             .map(String::from),
         );
         a.push(s(&evaluated).into());
         a.push("--data".into());
-        for p in ["grid", "fermat", "hilbert"] {
-            a.push(s(&data.join(format!("{p}.csv"))).into());
+        for k in 1..=4 {
+            for p in ["grid", "fermat", "hilbert"] {
+                a.push(s(&data.join(format!("{p}.s0{k}.csv"))).into());
+            }
         }
         a.push("--models".into());
         a.extend(models.iter().cloned());
@@ -721,8 +745,9 @@ fn demo_over_seeds_reports_the_spread() {
     let o = evaluate(&refined);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let table_v = std::fs::read_to_string(evaluated.join("table_v.csv")).unwrap();
+    // One held-out session asked for: session 0's rows only.
     assert!(
-        table_v.contains("hilbert,compensated,mlp.seed2,"),
+        table_v.contains("hilbert,0,compensated,mlp.seed2,") && !table_v.contains("hilbert,1,"),
         "{table_v}"
     );
     for f in ["table_v_seeds.csv", "table_iii_seeds.csv", "paired.csv"] {

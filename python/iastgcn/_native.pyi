@@ -103,4 +103,5 @@ def evaluate(
     held_out_seed: Optional[int] = None,
     graph: Optional[_Path] = None,
     progress: _Progress = None,
+    held_out_sessions: Optional[int] = None,
 ) -> dict[str, Any]: ...

@@ -116,6 +116,10 @@ def test_training_refinement_and_evaluation_from_python(twin_data: dict, tmp_pat
         ("oracle", "true residual")}
     paths = {r["trajectory"] for r in tables["table_v"]}
     assert len(paths) == 4, paths
+    # Three held-out sessions by default, each with its own calibrated run of each path.
+    assert {r["session"] for r in tables["table_v"]} == {0, 1, 2}
+    assert sum(r["stage"] == "calibrated" for r in tables["table_v"]) == 12
+    assert tables["headline"] is None or "Hilbert" in tables["headline"]
     assert all(r["truth"]["position"]["mean"] > 0 for r in tables["table_v"])
 
 

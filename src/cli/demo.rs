@@ -95,7 +95,7 @@ pub fn evaluate(gpu: Gpu, args: &EvaluateArgs) -> anyhow::Result<()> {
         graph: args.graph.clone(),
         robot: args.robot.clone(),
     };
-    demo::evaluation_report(
+    let report = demo::evaluation_report(
         Arc::new(gpu),
         &args.models,
         &sources,
@@ -104,6 +104,9 @@ pub fn evaluate(gpu: Gpu, args: &EvaluateArgs) -> anyhow::Result<()> {
         &args.out,
         &mut Console::default(),
     )?;
+    if let Some(headline) = &report.headline {
+        println!("{headline}");
+    }
     Ok(())
 }
 
@@ -113,7 +116,7 @@ pub fn demo(gpu: Gpu, args: &DemoArgs) -> anyhow::Result<()> {
         held_out: args.held_out.config(),
         all_models: args.all_models,
         seeds: args.seeds.clone(),
-        recipe: args.recipe.recipe()?,
+        recipe: args.recipe.recipe_or(demo::DEMO_RECIPE)?,
         ..DemoConfig::default()
     };
     if let Some(p) = &args.config {
@@ -121,6 +124,9 @@ pub fn demo(gpu: Gpu, args: &DemoArgs) -> anyhow::Result<()> {
         config.run_source = p.display().to_string();
     }
     let report = demo::demo(Arc::new(gpu), &config, &args.out, &mut Console::default())?;
+    if let Some(headline) = &report.headline {
+        println!("{headline}");
+    }
     println!("demo finished in {:.0} s", report.wall_seconds);
     Ok(())
 }

@@ -25,6 +25,12 @@ pub struct HeldOutArgs {
     /// Predict every this many control ticks during compensation.
     #[arg(long, default_value_t = 5, value_parser = super::count(1..=10_000))]
     pub every: usize,
+    /// Held-out sessions scored (Table V; in `scale` every job): the first as
+    /// --warm-up-minutes and --held-out-seed say, the others on days of their own, cold
+    /// or warmed longer (docs/usage.md "Held-out sessions"). The recommended model is
+    /// chosen on the session after them. A `scale` folder keeps its number.
+    #[arg(long, default_value_t = 3, value_parser = super::count(1..=16))]
+    pub held_out_sessions: usize,
 }
 
 impl HeldOutArgs {
@@ -40,6 +46,7 @@ impl HeldOutArgs {
             seed: self.held_out_seed,
             warm_up_minutes: self.warm_up_minutes,
             every: self.every,
+            sessions: self.held_out_sessions,
         }
     }
 }

@@ -89,27 +89,43 @@ fn count(range: impl std::ops::RangeBounds<u64>) -> clap::builder::RangedU64Valu
 }
 
 /// How a training set is recorded (docs/twin.md "Sessions"), for `demo`, `reproduce`,
-/// `scale` and `simulate --trajectory training`.
+/// `scale` and `simulate --trajectory training`. Each command has its own default
+/// ([`RecipeArgs::recipe_or`]): the demo's is the recipe the evidence chose (docs/results.md
+/// "Training on what use looks like"), the others' the paper's single session.
 #[derive(clap::Args, Clone)]
 pub struct RecipeArgs {
     /// Split each path's minutes over this many sessions, each a day of its own that
     /// starts cold (its ambient, feed and force drawn; docs/twin.md "Days"); 1 is a
-    /// single session on the calibration day. Each run lasts at least 1 minute.
-    #[arg(long, default_value_t = 1, value_parser = count(1..=64))]
-    pub sessions: usize,
+    /// single session on the calibration day. Each run lasts at least 0.25 minutes.
+    /// Default: 4 for `demo`, 1 elsewhere.
+    #[arg(long, value_parser = count(1..=64))]
+    pub sessions: Option<usize>,
     /// Where the sessions' runs lie on the part: `fixed` (the default placement) or
     /// `varied` (quarter turns and reversals that never retrace a held-out placement).
-    #[arg(long, default_value = "fixed", value_parser = ["fixed", "varied"])]
-    pub placement: String,
+    /// Default: `varied` for `demo`, `fixed` elsewhere.
+    #[arg(long, value_parser = ["fixed", "varied"])]
+    pub placement: Option<String>,
 }
 
 impl RecipeArgs {
-    /// The recipe these flags ask for.
-    pub fn recipe(&self) -> anyhow::Result<iastgcn::twin::Recipe> {
+    /// The recipe these flags ask for, `default`'s sessions and placement where a flag is
+    /// absent.
+    pub fn recipe_or(
+        &self,
+        default: iastgcn::twin::Recipe,
+    ) -> anyhow::Result<iastgcn::twin::Recipe> {
         Ok(iastgcn::twin::Recipe {
-            sessions: self.sessions,
-            placement: self.placement.parse().map_err(anyhow::Error::msg)?,
+            sessions: self.sessions.unwrap_or(default.sessions),
+            placement: match &self.placement {
+                Some(p) => p.parse().map_err(anyhow::Error::msg)?,
+                None => default.placement,
+            },
         })
+    }
+
+    /// Whether either flag was given.
+    pub fn given(&self) -> bool {
+        self.sessions.is_some() || self.placement.is_some()
     }
 }
 

@@ -82,7 +82,7 @@ pub fn run(gpu: Gpu, args: &ReproduceArgs) -> anyhow::Result<()> {
         protocol.run = read_run_config(Some(p), None)?;
     }
     protocol.minutes = args.minutes;
-    protocol.recipe = args.recipe.recipe()?;
+    protocol.recipe = args.recipe.recipe_or(iastgcn::twin::Recipe::SINGLE)?;
     protocol.seeds = args.seeds.clone();
     if !args.models.is_empty() {
         protocol.models = args.models.clone();

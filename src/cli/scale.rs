@@ -52,11 +52,6 @@ pub struct ScaleArgs {
     pub machine_seed: u64,
     #[command(flatten)]
     pub recipe: super::RecipeArgs,
-    /// Held-out sessions every job is scored on: the first as --warm-up-minutes and
-    /// --held-out-seed say, the others on days of their own, cold or warmed longer
-    /// (docs/usage.md "scale"). A folder keeps its number.
-    #[arg(long, default_value_t = 3, value_parser = super::count(1..=16))]
-    pub held_out_sessions: usize,
     /// Sensor graph of every model (default: the embedded assets/graph.toml); the run
     /// config's `[model] nodes` must match it (assets/graph-force.toml: 15). A folder
     /// keeps it.
@@ -71,6 +66,11 @@ pub struct ScaleArgs {
     /// not in a --shard call).
     #[arg(long)]
     pub ensemble: bool,
+    /// Closed-loop data: each job trains a round-0 model on the first half of the
+    /// sessions, records the others again with it compensating, and trains on both
+    /// (the same minutes; needs --sessions 2 or more). A folder keeps this choice.
+    #[arg(long)]
+    pub closed_loop: bool,
     #[command(flatten)]
     pub held_out: HeldOutArgs,
 }
@@ -87,10 +87,11 @@ pub fn run(gpu: Gpu, args: &ScaleArgs) -> anyhow::Result<()> {
     study.seeds = args.seeds.clone();
     study.models = args.models.clone();
     study.machine_seed = args.machine_seed;
-    study.recipe = args.recipe.recipe()?;
-    study.held_out_sessions = args.held_out_sessions;
+    study.recipe = args.recipe.recipe_or(iastgcn::twin::Recipe::SINGLE)?;
+    study.held_out_sessions = args.held_out.held_out_sessions;
     study.refine = args.refine;
     study.ensemble = args.ensemble;
+    study.closed_loop = args.closed_loop;
     study.graph = args.graph.clone();
     let held = args.held_out.config_with_minutes(study.held_out_minutes);
     study.held_out_minutes = held.minutes;

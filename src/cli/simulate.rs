@@ -82,12 +82,12 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
         ),
         (Description::Hybrid(geometry), Some(t)) => (geometry, t),
     };
-    let recipe = args.recipe.recipe()?;
+    let recipe = args.recipe.recipe_or(Recipe::SINGLE)?;
     if trajectory == "training" {
         return training_set(args, &recipe);
     }
     anyhow::ensure!(
-        recipe == Recipe::SINGLE,
+        !args.recipe.given(),
         "--sessions and --placement describe a training set: give --trajectory training, or \
          leave them out for a single run (--rotation and --reverse place it)"
     );

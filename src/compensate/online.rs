@@ -100,6 +100,12 @@ pub enum Feedback<'p> {
 /// cannot reach. It is the same for every model.
 pub const MAX_CORRECTION: (f64, f64) = (1.0, 1.0);
 
+/// Whether the controller accepts correction `c` ([`MAX_CORRECTION`]; false for NaN).
+pub fn within_limit(c: &Correction) -> bool {
+    let (mm, deg) = MAX_CORRECTION;
+    c.dp.norm() <= mm && c.dr.norm() <= deg.to_radians()
+}
+
 /// Indices into the twin's [`CHANNELS`] of the graph's nodes.
 fn node_channels(graph: &Graph) -> Result<Vec<usize>> {
     graph
@@ -111,6 +117,88 @@ fn node_channels(graph: &Graph) -> Result<Vec<usize>> {
             })
         })
         .collect()
+}
+
+/// A trained model (one predictor, or an ensemble's members) in a control loop: it
+/// reads its graph's channels every tick and predicts every `settings.every` ticks once
+/// its window is full. [`run`] scores it; the recorder of closed-loop training data
+/// (`experiment::scale`, docs/results.md "Closed-loop data") records with it.
+pub struct ModelInLoop<'p> {
+    members: Vec<SensorPredictor<&'p mut Predictor>>,
+    nodes: Vec<usize>,
+    values: Vec<Option<f64>>,
+    settings: Online,
+}
+
+impl<'p> ModelInLoop<'p> {
+    /// The model `members` (predictions averaged), reading `graph`'s channels, at the
+    /// control period `dt`, s; its members start a new run.
+    pub fn new(
+        members: &'p mut [Predictor],
+        graph: &Graph,
+        settings: Online,
+        dt: f64,
+    ) -> Result<ModelInLoop<'p>> {
+        ensure(!members.is_empty(), || {
+            "a model in the loop needs at least one predictor".to_string()
+        })?;
+        ensure(settings.every >= 1, || {
+            format!(
+                "models predict every 1 or more control ticks, got every {}",
+                settings.every
+            )
+        })?;
+        let nodes = node_channels(graph)?;
+        let mut sensors = Vec::with_capacity(members.len());
+        for member in members.iter_mut() {
+            member.reset();
+            sensors.push(SensorPredictor::new(member, dt)?);
+        }
+        Ok(ModelInLoop {
+            members: sensors,
+            values: vec![None; nodes.len()],
+            nodes,
+            settings,
+        })
+    }
+
+    /// Forgets the run so far (a new run starts).
+    pub fn reset(&mut self) {
+        for m in self.members.iter_mut() {
+            m.reset();
+        }
+    }
+
+    /// Control tick `tick` of the run with the twin's `channels`: the members' mean
+    /// prediction as a correction (position mm, rotation vector rad, base frame) on a
+    /// predicting tick, `None` otherwise. The caller applies it or not
+    /// ([`within_limit`]).
+    pub fn tick(&mut self, tick: usize, channels: &[Option<f64>]) -> Result<Option<Correction>> {
+        for (v, &c) in self.values.iter_mut().zip(self.nodes.iter()) {
+            *v = channels[c];
+        }
+        let mut full = true;
+        for member in self.members.iter_mut() {
+            full &= member.push_values(&self.values)?;
+        }
+        if !(full && tick.is_multiple_of(self.settings.every)) {
+            return Ok(None);
+        }
+        // Every ring is full, so there is a window to predict; an ensemble's prediction
+        // is its members' mean.
+        let mut r = [0.0; 6];
+        let share = 1.0 / self.members.len() as f64;
+        for member in self.members.iter_mut() {
+            let one = member.predict_latest()?.unwrap_or_default();
+            for (sum, v) in r.iter_mut().zip(one) {
+                *sum += share * v;
+            }
+        }
+        Ok(Some(Correction {
+            dp: nalgebra::Vector3::new(r[0], r[1], r[2]) * 1e-3,
+            dr: nalgebra::Vector3::new(r[3], r[4], r[5]).map(|v| (v * 1e-3).to_radians()),
+        }))
+    }
 }
 
 /// Runs one polishing path on `machine` from `start` (its state from earlier runs of the
@@ -145,22 +233,12 @@ pub fn run(
         Feedback::Replay(corrections) => replay = corrections,
         Feedback::Model(members, graph, settings)
         | Feedback::OpenLoop(members, graph, settings) => {
-            ensure(!members.is_empty(), || {
-                "a model in the loop needs at least one predictor".to_string()
-            })?;
-            let nodes = node_channels(graph)?;
-            let mut sensors = Vec::with_capacity(members.len());
-            for member in members.iter_mut() {
-                member.reset();
-                sensors.push(SensorPredictor::new(member, dt)?);
-            }
-            model = Some((sensors, nodes, settings));
+            model = Some(ModelInLoop::new(members, graph, settings, dt)?);
         }
         Feedback::Oracle { window, settings } => oracle = Some((window, settings)),
     }
     let (mut miss_pos, mut miss_att) = (Vec::new(), Vec::new());
     let mut predicted = Vec::new();
-    let mut values = vec![None; model.as_ref().map_or(0, |o| o.1.len())];
     let (mut pos, mut att, mut trace) = (Vec::new(), Vec::new(), Vec::new());
     let (mut true_pos, mut true_att) = (Vec::new(), Vec::new());
     let (mut predictions, mut predict_time, mut refused) = (0usize, 0f64, 0usize);
@@ -181,41 +259,21 @@ pub fn run(
             att.push(a);
             trace.push((s.t, e.x, e.y, e.z));
         }
-        if let Some((members, nodes, settings)) = model.as_mut() {
-            for (v, &c) in values.iter_mut().zip(nodes.iter()) {
-                *v = s.channels[c];
-            }
-            let mut full = true;
-            for member in members.iter_mut() {
-                full &= member.push_values(&values)?;
-            }
-            if full && tick.is_multiple_of(settings.every) {
-                let began = Instant::now();
-                // Every ring is full, so there is a window to predict; an ensemble's
-                // prediction is its members' mean.
-                let mut r = [0.0; 6];
-                let share = 1.0 / members.len() as f64;
-                for member in members.iter_mut() {
-                    let one = member.predict_latest()?.unwrap_or_default();
-                    for (sum, v) in r.iter_mut().zip(one) {
-                        *sum += share * v;
-                    }
-                }
+        if let Some(model) = model.as_mut() {
+            let began = Instant::now();
+            if let Some(c) = model.tick(tick, &s.channels)? {
                 predict_time += began.elapsed().as_secs_f64();
                 predictions += 1;
-                let dp = nalgebra::Vector3::new(r[0], r[1], r[2]) * 1e-3;
-                let dr = nalgebra::Vector3::new(r[3], r[4], r[5]).map(|v| (v * 1e-3).to_radians());
-                let (mm, deg) = MAX_CORRECTION;
-                let within = dp.norm() <= mm && dr.norm() <= deg.to_radians();
+                let within = within_limit(&c);
                 if !apply {
-                    let (p, a) = prediction_miss(&s, &actual, dp, dr);
+                    let (p, a) = prediction_miss(&s, &actual, c.dp, c.dr);
                     miss_pos.push(p);
                     miss_att.push(a);
                     if within {
-                        predicted.push((tick, Correction { dp, dr }));
+                        predicted.push((tick, c));
                     }
                 } else if within {
-                    sim.set_correction(Correction { dp, dr });
+                    sim.set_correction(c);
                 } else {
                     // Also refuses NaN, which fails both comparisons.
                     refused += 1;

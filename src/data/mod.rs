@@ -21,7 +21,8 @@ pub use recording::{
     TRACKER_COLUMNS,
 };
 pub use simulated::{
-    record_calibration_set, record_run, RecordedRun, MAX_CALIBRATION_POSES, MAX_RUN_SECONDS,
+    record_calibration_set, record_corrected_run, record_run, Corrector, RecordedRun,
+    MAX_CALIBRATION_POSES, MAX_RUN_SECONDS,
 };
 pub use sources::{DataSources, Inputs};
 pub use windows::{split, window_ends, SplitMode, Splits, Window, WindowConfig};

@@ -11,8 +11,8 @@ use crate::plot::{self, Panel, Series};
 use crate::progress::Reporter;
 use crate::robot::Robot;
 use crate::twin::{
-    calibration_configurations, located, measure_calibration, Machine, MachineState, Mirror,
-    PathKind, RunInfo, SensorSpecs, SimConfig, Simulation, CHANNELS,
+    calibration_configurations, located, measure_calibration, Correction, Machine, MachineState,
+    Mirror, PathKind, RunInfo, SensorSpecs, SimConfig, Simulation, CHANNELS,
 };
 
 /// What a recorded run left: the machine's state at its end (to carry the session on),
@@ -50,10 +50,32 @@ pub const MAX_CALIBRATION_POSES: usize = 100_000;
 pub fn record_run(
     machine: &Machine,
     controller: &Robot,
+    info: RunInfo,
+    start: MachineState,
+    out: &Path,
+    plot: Option<PathBuf>,
+    reporter: &mut dyn Reporter,
+) -> Result<RecordedRun> {
+    record_corrected_run(machine, controller, info, start, out, plot, None, reporter)
+}
+
+/// What corrects a recorded run's commands: called every control tick with the tick's
+/// index and the twin's channels, it returns a correction to apply from the next tick
+/// (docs/results.md "Closed-loop data": a model compensating while the data are taken).
+pub type Corrector<'a> = &'a mut dyn FnMut(usize, &[Option<f64>]) -> Result<Option<Correction>>;
+
+/// [`record_run`] with the controller's commands corrected by `correct` as the run goes
+/// (the file, the labels and the sidecar as for any run: the labels are the tracker's
+/// pose against the pose the corrected joint commands give).
+#[allow(clippy::too_many_arguments)]
+pub fn record_corrected_run(
+    machine: &Machine,
+    controller: &Robot,
     mut info: RunInfo,
     start: MachineState,
     out: &Path,
     plot: Option<PathBuf>,
+    mut correct: Option<Corrector<'_>>,
     reporter: &mut dyn Reporter,
 ) -> Result<RecordedRun> {
     let kind: PathKind = info.path.parse().map_err(Error::Invalid)?;
@@ -124,6 +146,11 @@ pub fn record_run(
                 .to_degrees(),
             [h.target.position.x, h.target.position.y],
         ));
+        if let Some(correct) = correct.as_mut() {
+            if let Some(c) = correct(rows.len(), &s.channels)? {
+                sim.set_correction(c);
+            }
+        }
         rows.push(Row {
             t: s.t,
             values: s.channels.to_vec(),

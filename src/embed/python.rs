@@ -731,15 +731,17 @@ fn refine_model<'py>(
 }
 
 /// evaluate(models, recordings, calibration, out, config=None, held_out_minutes=None,
-///          held_out_seed=None, graph=None, progress=None) -> dict
+///          held_out_seed=None, graph=None, progress=None, held_out_sessions=None) -> dict
 ///
 /// Tables III and V for the checkpoints `models`: each on the test split of
-/// `recordings`, and compensating a held-out session of the twin online (runs of
-/// `held_out_minutes`, default 0.5), scored against the hidden truth and the tracker.
-/// Writes the report folder `out` (report.md, CSVs, PNGs). Returns the rows of both
-/// tables, the timings and the report's path.
+/// `recordings`, and compensating `held_out_sessions` (default 3) held-out sessions of
+/// the twin online (runs of `held_out_minutes`, default 0.5), scored against the hidden
+/// truth and the tracker; each Table V row names its `session` (from 0). Writes the
+/// report folder `out` (report.md, CSVs, PNGs). Returns the rows of both tables, the
+/// timings, the report's headline (the recommended model on the held-out Hilbert runs,
+/// or None) and the report's path.
 #[pyfunction(name = "evaluate")]
-#[pyo3(signature = (models, recordings, calibration, out, config=None, held_out_minutes=None, held_out_seed=None, graph=None, progress=None))]
+#[pyo3(signature = (models, recordings, calibration, out, config=None, held_out_minutes=None, held_out_seed=None, graph=None, progress=None, held_out_sessions=None))]
 #[allow(clippy::too_many_arguments)]
 fn evaluate_models<'py>(
     py: Python<'py>,
@@ -752,9 +754,13 @@ fn evaluate_models<'py>(
     held_out_seed: Option<u64>,
     graph: Option<PathBuf>,
     progress: Option<Py<PyAny>>,
+    held_out_sessions: Option<usize>,
 ) -> PyResult<Bound<'py, PyAny>> {
     let sources = sources(recordings, calibration, graph, None);
     let mut held = HeldOutConfig::default();
+    if let Some(k) = held_out_sessions {
+        held.sessions = k;
+    }
     if let Some(m) = held_out_minutes {
         held.minutes = m;
     }
@@ -766,6 +772,7 @@ fn evaluate_models<'py>(
         table_iii: Vec<crate::experiment::report::TableIIIRow>,
         table_v: Vec<crate::experiment::report::TableVRow>,
         timings: Vec<crate::experiment::report::Timing>,
+        headline: Option<String>,
         report: PathBuf,
     }
     let result = long_call(py, progress, |r| {
@@ -779,6 +786,7 @@ fn evaluate_models<'py>(
             table_iii: report.table_iii,
             table_v: report.table_v,
             timings: report.timings,
+            headline: report.headline,
             report: out.join("report.md"),
         })
     })?;

@@ -5,7 +5,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use super::recommend::{recommend, VALIDATION_SESSION};
+use super::recommend::{recommend, validation_session};
 use super::report::{
     table_iii_lines, table_v_lines, Report, TableIIIRow, TableVRow, Timing, Trace,
 };
@@ -117,8 +117,10 @@ pub fn table_v(
     mut on_tick: impl FnMut(usize),
 ) -> Result<HeldOutResult> {
     let name = run.path.name().to_string();
+    // Session 0; `held_out_session` numbers the rows of the others.
     let row = |stage: &str, model: &str, r: &RunResult| TableVRow {
         trajectory: name.clone(),
+        session: 0,
         stage: stage.into(),
         model: model.into(),
         truth: r.truth,
@@ -270,13 +272,26 @@ pub struct HeldOutConfig {
     pub warm_up_minutes: f64,
     /// Predict every this many control ticks.
     pub every: usize,
+    /// Held-out sessions Table V scores (1 to [`MAX_HELD_OUT_SESSIONS`]), sessions 0 to
+    /// `sessions − 1` of [`HeldOutConfig::session`]; the validation session that chooses
+    /// the recommended model is the next one.
+    pub sessions: usize,
 }
+
+/// The most held-out sessions an evaluation or a study scores on.
+pub const MAX_HELD_OUT_SESSIONS: usize = 16;
 
 impl HeldOutConfig {
     /// Refuses what the held-out session cannot run, naming the setting and its range:
     /// runs of (0, 1440] minutes, a warm-up of [0, 1440] minutes, a prediction every
-    /// 1 to 10 000 ticks.
+    /// 1 to 10 000 ticks, 1 to 16 sessions.
     pub fn validate(&self) -> Result<()> {
+        ensure((1..=MAX_HELD_OUT_SESSIONS).contains(&self.sessions), || {
+            format!(
+                "--held-out-sessions: 1 to {MAX_HELD_OUT_SESSIONS} held-out sessions, got {}",
+                self.sessions
+            )
+        })?;
         let day = 1440.0;
         ensure(
             self.minutes.is_finite() && self.minutes > 0.0 && self.minutes <= day,
@@ -336,6 +351,19 @@ impl HeldOutSession {
 }
 
 impl HeldOutConfig {
+    /// Table V's held-out sessions in words: `3 held-out sessions (1: 2 min warm-up,
+    /// ambient …; 2: cold, …; 3: …)`.
+    pub fn describe_sessions(&self) -> String {
+        let each: Vec<String> = (0..self.sessions)
+            .map(|k| format!("{}: {}", k + 1, self.session(k).describe()))
+            .collect();
+        format!(
+            "{} held-out session(s) ({})",
+            self.sessions,
+            each.join("; ")
+        )
+    }
+
     /// Held-out session `k` (docs/twin.md "Scoring"). Session 0 is the evaluation's own:
     /// the calibration day at the default feed and force, `warm_up_minutes` of warm-up,
     /// seeds from `seed`. Session k ≥ 1 is another day, its conditions drawn as a
@@ -365,14 +393,15 @@ impl HeldOutConfig {
 }
 
 impl Default for HeldOutConfig {
-    /// The demo's session: 0.5 min runs from seed 301 after 2 min of warm-up, a
-    /// prediction every 5 ticks.
+    /// The demo's sessions: three, of 0.5 min runs from seed 301, the first after 2 min
+    /// of warm-up, a prediction every 5 ticks.
     fn default() -> HeldOutConfig {
         HeldOutConfig {
             minutes: 0.5,
             seed: 301,
             warm_up_minutes: 2.0,
             every: 5,
+            sessions: 3,
         }
     }
 }
@@ -511,6 +540,26 @@ pub fn evaluate(
         ));
     }
     report.table_v.extend(session.rows);
+    // The other held-out sessions: Table V's rows only (its traces, budget and timings
+    // are the first session's).
+    for k in 1..held.sessions {
+        reporter.note(&format!(
+            "== Table V, held-out session {} of {}: {}",
+            k + 1,
+            held.sessions,
+            held.session(k).describe()
+        ));
+        let other = held_out_session(
+            gpu,
+            &mut in_loop,
+            sources,
+            held,
+            SessionOptions::rows(k),
+            reporter,
+        )?;
+        report.table_v.extend(other.rows);
+        report.setup.extend(other.refusals);
+    }
 
     reporter.note(
         "== recommended model: every model in the loop on a validation session (not in Table V)",
@@ -520,18 +569,19 @@ pub fn evaluate(
         &mut in_loop,
         sources,
         held,
-        SessionOptions::rows(VALIDATION_SESSION),
+        SessionOptions::rows(validation_session(held.sessions)),
         reporter,
     )?;
     let recommendation = recommend(&validation.rows);
     reporter.note(&recommendation.sentence());
+    report.headline = recommendation.headline(&report.table_v);
     report.setup.push(recommendation.sentence());
     report.sections.push((
         "Recommended model".into(),
         recommendation.markdown(
             (
-                VALIDATION_SESSION + 1,
-                &held.session(VALIDATION_SESSION).describe(),
+                validation_session(held.sessions) + 1,
+                &held.session(validation_session(held.sessions)).describe(),
             ),
             held.minutes,
         ),
@@ -730,7 +780,7 @@ pub fn held_out_session(
             }
         };
         let settings = Online { every: held.every };
-        let result = table_v(
+        let mut result = table_v(
             &machine,
             &nominal,
             &calibrated,
@@ -747,6 +797,9 @@ pub fn held_out_session(
             }
         }
         reporter.end();
+        for row in result.rows.iter_mut() {
+            row.session = k;
+        }
         for line in table_v_lines(&result.rows) {
             reporter.note(&line);
         }

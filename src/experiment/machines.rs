@@ -21,6 +21,9 @@ use crate::train::log::{csv_text, distinct, read_rows};
 #[derive(Deserialize)]
 struct VLine {
     trajectory: String,
+    /// Absent in folders written before there were several held-out sessions: 0.
+    #[serde(default)]
+    held_out_session: usize,
     stage: String,
     model: String,
     true_pos_mean_um: f64,
@@ -36,8 +39,8 @@ struct IIILine {
     att_mae_mdeg: f64,
 }
 
-/// A value of one model on one path, keyed by (machine, seed).
-type BySample = Vec<((u64, u64), f64)>;
+/// A value of one model on one path, keyed by (machine, seed, held-out session; Table III: session 0).
+type BySample = Vec<((u64, u64, usize), f64)>;
 
 /// Table V of one model on one held-out path over every (machine, seed) pair.
 #[derive(Clone, Debug, PartialEq)]
@@ -139,9 +142,9 @@ pub fn summarize_machines(folders: &[PathBuf]) -> Result<MachineSummary> {
         v_lines.push(read_csv::<VLine>(&folder.join("table_v.csv"))?);
         iii_lines.push(read_csv::<IIILine>(&folder.join("table_iii.csv"))?);
     }
-    let sample = |m: u64, model: &str| {
+    let sample = |m: u64, model: &str, session: usize| {
         let (group, seed) = split_name(model);
-        (group.to_string(), (m, seed.unwrap_or(0)))
+        (group.to_string(), (m, seed.unwrap_or(0), session))
     };
     // Every value keyed by (path, group), then (machine, seed).
     let mut calibrated = Vec::new();
@@ -150,16 +153,16 @@ pub fn summarize_machines(folders: &[PathBuf]) -> Result<MachineSummary> {
         for c in lines.iter().filter(|l| l.stage == "calibrated") {
             calibrated.push((
                 c.trajectory.clone(),
-                *m,
+                (*m, c.held_out_session),
                 c.true_pos_mean_um,
                 c.true_att_mean_mdeg,
             ));
         }
         for l in lines.iter().filter(|l| l.stage == "compensated") {
-            let (group, key) = sample(*m, &l.model);
+            let (group, key) = sample(*m, &l.model, l.held_out_session);
             let before = calibrated
                 .iter()
-                .find(|c| c.0 == l.trajectory && c.1 == *m)
+                .find(|c| c.0 == l.trajectory && c.1 == (*m, l.held_out_session))
                 .ok_or_else(|| {
                     Error::Invalid(format!(
                         "machine {m}: table_v.csv has no calibrated row for {}",
@@ -191,7 +194,7 @@ pub fn summarize_machines(folders: &[PathBuf]) -> Result<MachineSummary> {
     let mut iii: Vec<(String, String, BySample, BySample)> = Vec::new();
     for ((_, m), lines) in machines.iter().zip(&iii_lines) {
         for l in lines.iter().filter(|l| split_name(&l.model).1.is_some()) {
-            let (group, key) = sample(*m, &l.model);
+            let (group, key) = sample(*m, &l.model, 0);
             let at = match iii.iter().position(|r| r.0 == l.trajectory && r.1 == group) {
                 Some(i) => i,
                 None => {
@@ -258,7 +261,12 @@ pub fn summarize_machines(folders: &[PathBuf]) -> Result<MachineSummary> {
     Ok(MachineSummary {
         folders: machines,
         main,
-        calibrated,
+        // The first held-out session's calibrated runs.
+        calibrated: calibrated
+            .into_iter()
+            .filter(|c| c.1 .1 == 0)
+            .map(|(t, (m, _), p, a)| (t, m, p, a))
+            .collect(),
         table_v,
         table_iii: iii
             .iter()

@@ -8,7 +8,10 @@ use std::path::{Path, PathBuf};
 use super::evaluate::NamedModel;
 use crate::calibrate::{self, file, hold_out, pose_errors, EkfConfig};
 use crate::compensate::held_out::IDLE_BETWEEN_RUNS;
-use crate::data::{read_measurements, record_calibration_set, record_run, DataSources, Dataset};
+use crate::data::{
+    read_measurements, record_calibration_set, record_corrected_run, Corrector, DataSources,
+    Dataset, RecordedRun,
+};
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
 use crate::graph::Graph;
@@ -16,7 +19,7 @@ use crate::progress::Reporter;
 use crate::robot::{Geometry, Robot};
 use crate::train::refine::AccumulatedCurve;
 use crate::train::{self, refine, sibling, EpochRecord, RunConfig, TestMetrics, Trained};
-use crate::twin::{draw_machine, PathKind, Recipe, RunInfo};
+use crate::twin::{draw_machine, Machine, PathKind, PlannedSession, Recipe, RunInfo};
 
 /// Seeds of the protocol's runs: every run has its own (written in its `.run.toml`). This
 /// one is the calibration set's.
@@ -160,25 +163,48 @@ pub fn record_data(
             c.feed_mm_s,
             c.force_n
         ));
-        let mut state = machine.cold_on(c.day);
-        let kinds = PathKind::TRAINING.into_iter();
-        for (mut info, kind) in session.runs.into_iter().zip(kinds) {
-            let path = &dir.join(recipe.file_name(kind, s + 1));
-            info.controller = calibration.display().to_string();
-            let run = record_run(&machine, &controller, info, state, path, None, reporter)?;
-            reporter.note(&format!(
-                "wrote {} ({} rows, {} tracker samples, seed {}, {} start)",
-                path.display(),
-                run.rows,
-                run.tracker_samples,
-                run.info.seed,
-                run.info.start
-            ));
-            state = run.end;
-            state.idle(IDLE_BETWEEN_RUNS);
-        }
+        let to = |kind| dir.join(recipe.file_name(kind, s + 1));
+        let controller_name = calibration.display().to_string();
+        let target = (&controller, controller_name.as_str());
+        record_session(&machine, target, session, &to, None, reporter)?;
     }
     Ok(sources)
+}
+
+/// Records one training session (`session`, from [`Recipe::plan`]) on `machine` under
+/// `controller` (the model and its name for the sidecars), cold on its day with the
+/// machine idle between runs, each run into `to(path)`; with `correct`, a model corrects
+/// the commands as the runs go ([`record_corrected_run`]). Returns the runs.
+pub fn record_session(
+    machine: &Machine,
+    (controller, name): (&Robot, &str),
+    session: PlannedSession,
+    to: &dyn Fn(PathKind) -> PathBuf,
+    mut correct: Option<Corrector<'_>>,
+    reporter: &mut dyn Reporter,
+) -> Result<Vec<RecordedRun>> {
+    let mut state = machine.cold_on(session.conditions.day);
+    let mut runs = Vec::new();
+    for (mut info, kind) in session.runs.into_iter().zip(PathKind::TRAINING) {
+        let path = &to(kind);
+        info.controller = name.to_string();
+        let correct = correct.as_mut().map(|c| &mut **c as Corrector<'_>);
+        let run = record_corrected_run(
+            machine, controller, info, state, path, None, correct, reporter,
+        )?;
+        reporter.note(&format!(
+            "wrote {} ({} rows, {} tracker samples, seed {}, {} start)",
+            path.display(),
+            run.rows,
+            run.tracker_samples,
+            run.info.seed,
+            run.info.start
+        ));
+        state = run.end.clone();
+        state.idle(IDLE_BETWEEN_RUNS);
+        runs.push(run);
+    }
+    Ok(runs)
 }
 
 /// The mean core-stage epoch time of a history (NaN without core epochs).

@@ -4,13 +4,16 @@
 //! its training seeds, is recommended (docs/usage.md "evaluate", "Recommended model").
 //! The tables stay complete; this only names one model and says why.
 
-use super::report::seeds::split_name;
+use super::report::seeds::{split_name, Spread};
 use super::report::TableVRow;
 
 /// The held-out session index the recommendation is chosen on
-/// (`evaluate::HeldOutConfig::session`): after the three test sessions of a study, on a
-/// day of its own, with its own seeds and placements.
-pub const VALIDATION_SESSION: usize = 3;
+/// (`evaluate::HeldOutConfig::session`) when Table V scores sessions 0 to
+/// `test_sessions − 1`: the next one, on a day of its own, with its own seeds and
+/// placements, never scored in Table V.
+pub fn validation_session(test_sessions: usize) -> usize {
+    test_sessions
+}
 
 /// One model's score on the validation session: the share of the calibrated controller's
 /// mean true error its compensation removed, position and attitude, %, each the mean
@@ -114,6 +117,48 @@ impl Recommendation {
     /// The model to use, if any.
     pub fn model(&self) -> Option<&ValidationScore> {
         self.best.map(|i| &self.scores[i])
+    }
+
+    /// The headline of a report: what the recommended model does on the held-out Hilbert
+    /// runs of `table_v` (Table V, every test session): the share of each session's
+    /// calibrated mean true error its compensation removed, position and attitude, mean
+    /// ± SD over its seeds and the sessions. `None` without a recommended model or its
+    /// Hilbert rows.
+    pub fn headline(&self, table_v: &[TableVRow]) -> Option<String> {
+        let model = self.model()?;
+        let shares: Vec<[f64; 2]> = table_v
+            .iter()
+            .filter(|r| {
+                r.trajectory == "hilbert"
+                    && r.stage == "compensated"
+                    && split_name(&r.model).0 == model.model
+            })
+            .filter_map(|r| {
+                let cal = table_v.iter().find(|c| {
+                    c.trajectory == r.trajectory
+                        && c.session == r.session
+                        && c.stage == "calibrated"
+                })?;
+                Some(removed(cal, r))
+            })
+            .collect();
+        if shares.is_empty() {
+            return None;
+        }
+        let mut sessions: Vec<usize> = table_v.iter().map(|r| r.session).collect();
+        sessions.sort_unstable();
+        sessions.dedup();
+        let spread = |i: usize| Spread::of(&shares.iter().map(|s| s[i]).collect::<Vec<_>>());
+        Some(format!(
+            "{}, the recommended model, removes {} % of the position and {} % of the \
+             attitude error left by calibration on the held-out Hilbert runs (Table V, \
+             against hidden truth; mean ± SD over {} seed(s) × {} held-out session(s)).",
+            model.model,
+            spread(0).text(1),
+            spread(1).text(1),
+            model.seeds,
+            sessions.len()
+        ))
     }
 
     /// The report's section: the validation session (`session`: its number from 1 and

@@ -662,16 +662,13 @@ fn report(
         ),
         format!(
             "data: twin machine {}; calibration set at rest on a cold machine (seed \
-             {CALIBRATION_SEED}); one training session under the calibrated controller: grid, \
-             fermat, hilbert, {} min each, seeds {TRAINING_SEED}–{}; a separate held-out session: \
-             {} min of warm-up, then every path turned or reversed on the part, plus the \
-             rosette, {} min each, seeds from {}; prediction every {} ticks",
+             {CALIBRATION_SEED}); training recordings under the calibrated controller: {}; \
+             held-out runs: every path turned or reversed on the part, plus the rosette, {} \
+             min each, in {}; prediction every {} ticks",
             protocol.machine_seed,
-            protocol.minutes,
-            TRAINING_SEED + 2,
-            held_out.warm_up_minutes,
+            protocol.recipe.describe(protocol.minutes, TRAINING_SEED),
             held_out.minutes,
-            held_out.seed,
+            held_out.describe_sessions(),
             held_out.every
         ),
         "split: contiguous 70/20/10 blocks per recording (leakage-free); every seed sees the same split".into(),
@@ -682,6 +679,7 @@ fn report(
     ];
     let report = Report {
         title: "IASTGCN on the digital twin — reproduction of the paper's protocol".into(),
+        headline: None,
         adapter: gpu.info().name.clone(),
         setup,
         histories,

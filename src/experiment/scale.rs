@@ -19,23 +19,29 @@ use serde::{Deserialize, Serialize};
 
 use super::evaluate::{
     ensemble, held_out_session, predictors, table_iii, HeldOutConfig, LoopModel, SessionOptions,
+    MAX_HELD_OUT_SESSIONS,
 };
 use super::protocol::{
-    check_seeds, epoch_seconds, existing_data, record_data, train_core, ModelFiles, MACHINE_SEED,
+    check_seeds, epoch_seconds, existing_data, record_data, record_session, train_core, ModelFiles,
+    MACHINE_SEED, TRAINING_SEED,
 };
 use super::report::seeds::{seeded_name, Spread};
 use super::report::TableVRow;
 use super::reproduce::{clock, pin_toml, read_toml, write_toml, Shard};
+use crate::calibrate::file;
+use crate::compensate::online::{within_limit, ModelInLoop, Online};
 use crate::data::{DataSources, Dataset};
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
 use crate::graph::Graph;
+use crate::model::Predictor;
 use crate::model::{Checkpoint, Variant};
 use crate::plot::{self, Panel, Series};
 use crate::progress::Reporter;
+use crate::robot::Robot;
 use crate::train::log::csv_text;
 use crate::train::{build_dataset, by_path, recording_path, refine, RunConfig, TestMetrics};
-use crate::twin::{PathKind, Recipe};
+use crate::twin::{draw_machine, Correction, PathKind, Recipe, RunInfo, SimConfig};
 
 /// The paper's Table V on its Hilbert run (its only compensated path): the share of the
 /// calibrated error its IASTGCN removed, position and attitude, % (0.1393 → 0.0591 mm,
@@ -91,14 +97,18 @@ pub struct Study {
     /// model `<model>-ensemble`). May change between calls of one folder.
     #[serde(default)]
     pub ensemble: bool,
+    /// Closed-loop data (docs/results.md "Closed-loop data"): each job first trains a
+    /// round-0 model on the first half of the recipe's sessions, records the other
+    /// sessions again (the same days, placements and seeds) with it compensating, and
+    /// trains on the first half plus those: the same minutes as the open-loop recipe.
+    /// Needs 2 or more sessions; a folder keeps this choice.
+    #[serde(default)]
+    pub closed_loop: bool,
 }
 
 fn one_session() -> usize {
     1
 }
-
-/// The most held-out sessions a study scores on.
-pub const MAX_HELD_OUT_SESSIONS: usize = 16;
 
 impl Study {
     /// The study of issue 39 at the demo's model and training settings: 2, 8, 32 and 128
@@ -124,6 +134,7 @@ impl Study {
             refine: false,
             graph: None,
             ensemble: false,
+            closed_loop: false,
         }
     }
 
@@ -134,6 +145,7 @@ impl Study {
             seed: self.held_out_seed,
             warm_up_minutes: self.warm_up_minutes,
             every: self.every,
+            sessions: self.held_out_sessions,
         }
     }
 
@@ -184,6 +196,13 @@ impl Study {
             }
         }
         self.recipe.validate(max).map_err(Error::Invalid)?;
+        if self.closed_loop && self.recipe.sessions < 2 {
+            return Err(Error::Invalid(format!(
+                "--closed-loop records the second half of the sessions with a model trained \
+                 on the first: give --sessions 2 or more, got {}",
+                self.recipe.sessions
+            )));
+        }
         if !(1..=MAX_HELD_OUT_SESSIONS).contains(&self.held_out_sessions) {
             return Err(Error::Invalid(format!(
                 "--held-out-sessions: 1 to {MAX_HELD_OUT_SESSIONS} held-out sessions, got {}",
@@ -337,6 +356,9 @@ pub struct ScaleRecord {
     /// What refinement did, in a study that refines (empty otherwise).
     #[serde(default)]
     pub refinement: String,
+    /// How its closed-loop data were made, in a closed-loop study (empty otherwise).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub closed_loop: String,
     /// Scores per path: grid, fermat, hilbert, rosette.
     pub paths: Vec<PathScore>,
 }
@@ -440,11 +462,18 @@ pub fn scale(
         config.train.seed = job.seed;
         config.data.train_fraction = job.minutes / minutes;
         config.data.validation_fraction = job.minutes / minutes;
+        // A closed-loop job trains on data of its own.
+        let (job_sources, closed_loop) = if study.closed_loop {
+            current = None;
+            closed_loop_sources(&gpu, study, &config, job, &sources, out, reporter)?
+        } else {
+            (sources.clone(), String::new())
+        };
         let size = match current.take() {
             Some(c) if c.0 == job.minutes => c,
             old => {
                 drop(old); // free the previous size's dataset first
-                let (graph, data) = build_dataset(&sources, &config, None)?;
+                let (graph, data) = build_dataset(&job_sources, &config, None)?;
                 for line in data.summary().lines() {
                     reporter.note(line);
                 }
@@ -463,6 +492,10 @@ pub fn scale(
             reporter,
         )?;
         record.wall_seconds = started.elapsed().as_secs_f64();
+        record.closed_loop = closed_loop;
+        if study.closed_loop {
+            current = None;
+        }
         write_toml(&record, &job.record_path(out))?;
         spent.push(record.wall_seconds);
         write_summary(study, out, reporter)?;
@@ -528,8 +561,115 @@ fn run_job(
         ),
         wall_seconds: 0.0,
         refinement,
+        closed_loop: String::new(),
         paths,
     })
+}
+
+/// Closed-loop data for `job` (docs/results.md "Closed-loop data"): a round-0 model
+/// (`<name>.round0`, the job's config) trained on the first half of the recipe's
+/// sessions, then the other sessions recorded again with it compensating under the
+/// calibrated controller (the same days, placements and seeds as their open-loop
+/// recordings; into `models/<name>.closed/`, kept when complete). Returns the first
+/// half's recordings with the closed-loop ones, and what happened in words.
+fn closed_loop_sources(
+    gpu: &Arc<Gpu>,
+    study: &Study,
+    config: &RunConfig,
+    job: &ScaleJob,
+    sources: &DataSources,
+    out: &Path,
+    reporter: &mut dyn Reporter,
+) -> Result<(DataSources, String)> {
+    let recipe = &study.recipe;
+    let half = recipe.sessions / 2;
+    let mut union = sources.clone();
+    union.recordings.truncate(half * PathKind::TRAINING.len());
+    let name = format!("{}.round0", job.name());
+    let files = ModelFiles::named(&out.join("models"), &name, true);
+    let trained = {
+        let (graph, data) = build_dataset(&union, config, None)?;
+        train_core(gpu, &data, &graph, config, &name, &files, reporter)?
+    };
+    let round0 = Checkpoint::load(&files.core)?;
+    let dir = out.join("models").join(format!("{}.closed", job.name()));
+    let to = |kind: PathKind, s: usize| dir.join(recipe.file_name(kind, s));
+    let recorded: Vec<PathBuf> = (half + 1..=recipe.sessions)
+        .flat_map(|s| PathKind::TRAINING.map(|k| to(k, s)))
+        .collect();
+    let complete = recorded
+        .iter()
+        .all(|r| r.exists() && RunInfo::sidecar(r).exists());
+    let mut error = (f64::NAN, f64::NAN);
+    if !complete {
+        std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+        let geometry = sources.geometry()?;
+        let machine = draw_machine(geometry.clone(), study.machine_seed);
+        let controller = Robot::new(geometry, file::load(&sources.calibration)?.errors);
+        let controller_name = format!(
+            "{} with {name} compensating (every {} ticks)",
+            sources.calibration.display(),
+            study.every
+        );
+        let mut members = vec![Predictor::new(gpu.clone(), &round0, 1)?];
+        let dt = SimConfig::new(PathKind::Grid, 1.0, 0).dt;
+        let settings = Online { every: study.every };
+        let mut model = ModelInLoop::new(&mut members, &round0.graph, settings, dt)?;
+        let mut correct = |tick: usize, channels: &[Option<f64>]| -> Result<Option<Correction>> {
+            if tick == 0 {
+                model.reset();
+            }
+            Ok(model.tick(tick, channels)?.filter(within_limit))
+        };
+        let plan = recipe.plan(study.recording_minutes, TRAINING_SEED, study.machine_seed);
+        let mut runs = Vec::new();
+        for (s, session) in plan.into_iter().enumerate().skip(half) {
+            reporter.note(&format!(
+                "== {name}: training session {} of {} recorded with it compensating",
+                s + 1,
+                recipe.sessions
+            ));
+            let to = |kind: PathKind| to(kind, s + 1);
+            let target = (&controller, controller_name.as_str());
+            runs.extend(record_session(
+                &machine,
+                target,
+                session,
+                &to,
+                Some(&mut correct),
+                reporter,
+            )?);
+        }
+        let n = runs.len().max(1) as f64;
+        error = (
+            1e3 * runs.iter().map(|r| r.mean_position_error_mm).sum::<f64>() / n,
+            1e3 * runs.iter().map(|r| r.mean_attitude_error_deg).sum::<f64>() / n,
+        );
+    }
+    union.recordings.extend(recorded);
+    let measured = if error.0.is_finite() {
+        format!(
+            "; its corrections left a mean true error of {:.1} µm / {:.1} mdeg in those runs",
+            error.0, error.1
+        )
+    } else {
+        String::new()
+    };
+    Ok((
+        union,
+        format!(
+            "round 0 ({name}) trained on sessions 1-{half} (best validation loss {:.4} at \
+             epoch {} of {}) compensated sessions {}-{} as they were recorded again{measured}; \
+             the job trained on sessions 1-{half} open loop and {}-{} closed loop",
+            trained.best_val,
+            trained.best_epoch,
+            trained.epochs,
+            half + 1,
+            recipe.sessions,
+            half + 1,
+            recipe.sessions
+        ),
+    ))
 }
 
 /// Every held-out session of the study with `model` in the loop: each path's scores
@@ -642,6 +782,7 @@ fn score_ensembles(
             trained_on: format!("the mean of seeds {}", seeds.join(", ")),
             wall_seconds: started.elapsed().as_secs_f64(),
             refinement: String::new(),
+            closed_loop: String::new(),
             paths,
         };
         write_toml(&done, &record)?;

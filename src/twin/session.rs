@@ -295,6 +295,26 @@ impl Recipe {
     /// block still holds a 48-tick window (the demo's).
     pub const MIN_RUN_MINUTES: f64 = 0.25;
 
+    /// The training data in words, for reports: `minutes` per path recorded with this
+    /// recipe, seeds from `first_seed` (a multi-session recipe's from 100 × `first_seed`).
+    pub fn describe(&self, minutes: f64, first_seed: u64) -> String {
+        if self.sessions == 1 && self.placement == Placement::Fixed {
+            return format!(
+                "one session starting cold, grid, fermat and hilbert at their training \
+                 placement, {minutes} min each, seeds {first_seed}–{}",
+                first_seed + 2
+            );
+        }
+        format!(
+            "{minutes} min per path in {} session(s), each a day of its own starting cold \
+             (its ambient, feed and force drawn as docs/twin.md \"Days\" says), placements {}, \
+             seeds from {}",
+            self.sessions,
+            self.placement.name(),
+            first_seed * 100
+        )
+    }
+
     /// Refuses what cannot be recorded at `minutes` per path, naming the flag.
     pub fn validate(&self, minutes: f64) -> Result<(), String> {
         if self.sessions == 0 || self.sessions > Self::MAX_SESSIONS {

@@ -42,10 +42,15 @@ fn reduction(before: f64, after: f64) -> Option<f64> {
 
 const STAGE_ORDER: [&str; 4] = ["initial", "calibrated", "oracle", "compensated"];
 
-/// Table V rows of one trajectory: initial, calibrated, oracle, compensated (input order), then
-/// any other stage.
-fn table_v_group<'a>(rows: &'a [TableVRow], trajectory: &str) -> Vec<&'a TableVRow> {
-    let of = rows.iter().filter(|r| r.trajectory == trajectory);
+/// Table V rows of one trajectory in one held-out session: initial, calibrated, oracle,
+/// compensated (input order), then any other stage.
+fn table_v_group<'a>(
+    rows: &'a [TableVRow],
+    (session, trajectory): (usize, &str),
+) -> Vec<&'a TableVRow> {
+    let of = rows
+        .iter()
+        .filter(|r| r.trajectory == trajectory && r.session == session);
     let mut out: Vec<&TableVRow> = Vec::new();
     for stage in STAGE_ORDER {
         out.extend(of.clone().filter(|r| r.stage == stage));
@@ -69,16 +74,30 @@ fn markdown_table_v(out: &mut String, rows: &[TableVRow]) {
          | Att. mean (mdeg) | Att. SD (mdeg) | Att. max (mdeg) |\n\
          |---|---|---|---:|---:|---:|---:|---:|---:|\n",
     );
-    let trajectories = distinct(rows.iter().map(|r| r.trajectory.as_str()));
+    // The runs, held-out session by session; a report of several names the session.
+    let mut runs: Vec<(usize, &str)> = Vec::new();
+    for r in rows {
+        if !runs.contains(&(r.session, r.trajectory.as_str())) {
+            runs.push((r.session, r.trajectory.as_str()));
+        }
+    }
+    let several = runs.iter().any(|r| r.0 > 0);
+    let name = |(session, t): (usize, &str)| {
+        if several {
+            format!("{t}, session {}", session + 1)
+        } else {
+            t.to_string()
+        }
+    };
     let pair = |t: f64, m: f64| format!("{} / {}", num(t, 1), num(m, 1));
-    for &t in &trajectories {
-        for r in table_v_group(rows, t) {
+    for &run in &runs {
+        for r in table_v_group(rows, run) {
             let (tp, ta) = (&r.truth.position, &r.truth.attitude);
             let (mp, ma) = (&r.tracker.position, &r.tracker.attitude);
             let _ = writeln!(
                 out,
                 "| {} | {} | {} | {} | {} | {} | {} | {} | {} |",
-                md(&r.trajectory),
+                md(&name(run)),
                 md(&r.stage),
                 md(&r.model),
                 pair(tp.mean, mp.mean),
@@ -93,16 +112,14 @@ fn markdown_table_v(out: &mut String, rows: &[TableVRow]) {
     out.push('\n');
     // Reduction of the mean error by each compensating model against calibration alone.
     let mut lines = String::new();
-    for &t in &trajectories {
-        let Some(cal) = rows
-            .iter()
-            .find(|r| r.trajectory == t && r.stage == "calibrated")
-        else {
+    for &run in &runs {
+        let group = table_v_group(rows, run);
+        let Some(cal) = group.iter().find(|r| r.stage == "calibrated") else {
             continue;
         };
-        for c in rows
+        for c in group
             .iter()
-            .filter(|r| r.trajectory == t && (r.stage == "compensated" || r.stage == "oracle"))
+            .filter(|r| r.stage == "compensated" || r.stage == "oracle")
         {
             let pct = |before: f64, after: f64| {
                 reduction(before, after).map_or("n/a".into(), |x| format!("{x:.1} %"))
@@ -111,7 +128,7 @@ fn markdown_table_v(out: &mut String, rows: &[TableVRow]) {
             let _ = writeln!(
                 lines,
                 "| {} | {} | {} | {} | {} | {} | {} | {} |",
-                md(t),
+                md(&name(run)),
                 md(&c.model),
                 num(cp.position.mean, 3),
                 num(ca.position.mean, 3),
@@ -243,6 +260,9 @@ pub fn markdown(r: &Report) -> String {
         r.title.trim()
     };
     let _ = writeln!(out, "# {title}\n");
+    if let Some(headline) = &r.headline {
+        let _ = writeln!(out, "**{headline}**\n");
+    }
     for line in &r.setup {
         let _ = writeln!(out, "- {line}");
     }

@@ -22,6 +22,9 @@ pub use crate::compensate::online::{ErrorStats, Trace};
 pub struct TableVRow {
     /// The held-out path (`grid`, `fermat`, `hilbert`, `rosette`).
     pub trajectory: String,
+    /// The held-out session of the run, from 0 (`evaluate::HeldOutConfig::session`;
+    /// reports name it from 1).
+    pub session: usize,
     /// `initial`, `calibrated` or `compensated`.
     pub stage: String,
     /// The compensating model (`-` for the initial and calibrated stages).
@@ -67,6 +70,9 @@ pub use crate::train::refine::AccumulatedCurve;
 pub struct Report {
     /// The Markdown heading.
     pub title: String,
+    /// One sentence under it: the result a reader came for (the recommended model on the
+    /// held-out Hilbert runs), when there is one.
+    pub headline: Option<String>,
     /// The GPU adapter the models ran on.
     pub adapter: String,
     /// What produced it (config file, recordings, split mode).
@@ -95,7 +101,7 @@ pub struct Report {
 
 /// Header of `table_v.csv`: every statistic against the hidden truth (`true_`) and as
 /// the tracker measured it (`trk_`).
-pub const TABLE_V_HEADER: &str = "trajectory,stage,model,\
+pub const TABLE_V_HEADER: &str = "trajectory,held_out_session,stage,model,\
 true_pos_mean_um,true_pos_sd_um,true_pos_max_um,true_att_mean_mdeg,true_att_sd_mdeg,true_att_max_mdeg,\
 trk_pos_mean_um,trk_pos_sd_um,trk_pos_max_um,trk_att_mean_mdeg,trk_att_sd_mdeg,trk_att_max_mdeg";
 /// Header of `table_iii.csv`.
@@ -163,9 +169,9 @@ fn plan(r: &Report) -> Vec<Entry> {
         out.push(entry(
             "compensated.png",
             "The result at a glance: mean position (µm) and attitude (mdeg) error against the \
-             hidden truth on each held-out path, after calibration alone, with each model's \
-             compensation, and with the oracle (the uncompensated initial error is left out: \
-             it would dwarf the rest)."
+             hidden truth on each held-out path of the first held-out session, after \
+             calibration alone, with each model's compensation, and with the oracle (the \
+             uncompensated initial error is left out: it would dwarf the rest)."
                 .into(),
             Kind::Compensated,
         ));
@@ -301,7 +307,12 @@ pub fn table_v_csv(rows: &[TableVRow]) -> String {
         TABLE_V_HEADER,
         rows.iter()
             .map(|r| {
-                let mut v = vec![r.trajectory.clone(), r.stage.clone(), r.model.clone()];
+                let mut v = vec![
+                    r.trajectory.clone(),
+                    r.session.to_string(),
+                    r.stage.clone(),
+                    r.model.clone(),
+                ];
                 for e in [&r.truth, &r.tracker] {
                     let (p, a) = (&e.position, &e.attitude);
                     v.extend([p.mean, p.sd, p.max, a.mean, a.sd, a.max].map(|x| format!("{x:.4}")));
@@ -415,6 +426,9 @@ fn plot_fig11(path: &Path, trajectory: &str, traces: &[&Trace]) -> Result<(), pl
 /// Two panels per trajectory (position, attitude): one bar per Table V row but the
 /// initial one, against the hidden truth.
 fn plot_compensated(path: &Path, rows: &[TableVRow]) -> Result<(), plot::PlotError> {
+    // The first held-out session's runs (its traces are Fig. 11's).
+    let first: Vec<TableVRow> = rows.iter().filter(|r| r.session == 0).cloned().collect();
+    let rows = &first[..];
     let trajectories = distinct(rows.iter().map(|r| r.trajectory.as_str()));
     let mut panels = Vec::new();
     for trajectory in &trajectories {
