@@ -8,7 +8,9 @@ differences (the demo's rule), else "within". Also the diagnosis columns per fol
     python3 docs/shift/paired.py docs/shift/s1 docs/shift/s4 [model [model_b]]
 
 With a second model, the first folder's `model` is compared with the second folder's
-`model_b` (the same folder twice compares two models on the same data).
+`model_b` (the same folder twice compares two models on the same data). A seed ensemble
+(`<model>-ensemble`, `scale --ensemble`, recorded as seed 0) is paired with each seed of
+the other side on the same held-out session.
 """
 import statistics
 import sys
@@ -20,7 +22,7 @@ PATHS = ["grid", "fermat", "hilbert", "rosette"]
 
 def records(folder, model):
     out = {}
-    for f in sorted(Path(folder, "models").glob(f"{model}.*.job.toml")):
+    for f in sorted(Path(folder, "models").glob("*.job.toml")):
         r = tomllib.loads(f.read_text())
         if r["model"] != model:
             continue
@@ -41,6 +43,14 @@ def main():
     model = sys.argv[3] if len(sys.argv) > 3 else "iastgcn"
     model_b = sys.argv[4] if len(sys.argv) > 4 else model
     ra, rb = records(a, model), records(b, model_b)
+    # An ensemble (seed 0) stands beside every seed of the other side, session by session.
+    for one, other in ((ra, rb), (rb, ra)):
+        if one and all(k[0] == 0 for k in one) and not all(k[0] == 0 for k in other):
+            spread_over = {k[0] for k in other}
+            for k in list(one):
+                for seed in spread_over:
+                    one[(seed, k[1], k[2])] = one[k]
+                del one[k]
     keys = sorted(set(ra) & set(rb))
     seeds = sorted({k[0] for k in keys})
     sessions = sorted({k[1] for k in keys})
