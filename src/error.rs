@@ -1,71 +1,32 @@
-//! The library's error: every module's typed error in one enum, so that a pipeline call
-//! (train, refine, evaluate, the demo) returns one type that still says which stage,
-//! file or tensor failed. The binary turns it into a message; nothing here panics on
-//! input.
+//! The library's error, at the bottom of the module graph: it names no module. Each stage
+//! owns its typed error (`GpuError`, `DataError`, `CheckpointError`, …) and marks it a
+//! [`StageError`]; `?` wraps it whole into [`Error::Stage`], so that a pipeline call
+//! (train, refine, evaluate, the demo) returns one type that still says which stage, file
+//! or tensor failed, and [`Error::find`] gets the typed error back. Errors flow one way:
+//! every module may import this one, this one imports none of them (docs/architecture.md
+//! "Errors"). The binary turns it into a message; nothing here panics on input.
 
 use std::fmt::Display;
 use std::path::{Path, PathBuf};
 
-use crate::calibrate::arm::ArmCalibrationError;
-use crate::calibrate::file::CalibrationFileError;
-use crate::calibrate::CalibrationError;
-use crate::data::{DataError, DatasetError};
-use crate::gpu::GpuError;
-use crate::graph::GraphError;
-use crate::interop::TensorFileError;
-use crate::model::{CheckpointError, ModelError};
-use crate::plot::PlotError;
-use crate::robot::RobotError;
-use crate::train::{ConfigError, StateError, TrainError};
+/// A stage's own error type, carried whole by [`Error::Stage`]. Each module implements it
+/// for its error types next to their definitions.
+pub trait StageError: std::error::Error + Send + Sync + 'static {}
+
+impl<E: StageError> From<E> for Error {
+    fn from(error: E) -> Error {
+        Error::Stage(Box::new(error))
+    }
+}
 
 /// What stops a library call.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    /// The GPU: no adapter, a device or shader failure, a buffer too large.
+    /// A stage's typed error (the GPU, the robot model, a calibration, a recording or a
+    /// dataset, a graph, a model or checkpoint, a run config or training state, training,
+    /// a plot, a tensor file), kept whole: [`Error::find`] returns it by type.
     #[error(transparent)]
-    Gpu(#[from] GpuError),
-    /// The robot model: a bad geometry asset, a pose outside the workspace, kinematics that fail.
-    #[error(transparent)]
-    Robot(#[from] RobotError),
-    /// The identification of the geometric errors.
-    #[error(transparent)]
-    Calibration(#[from] CalibrationError),
-    /// A serial arm's calibration could not run.
-    #[error(transparent)]
-    ArmCalibration(#[from] ArmCalibrationError),
-    /// A calibration file that cannot be written or read.
-    #[error(transparent)]
-    CalibrationFile(#[from] CalibrationFileError),
-    /// A recording or calibration set that cannot be written or read.
-    #[error(transparent)]
-    Data(#[from] DataError),
-    /// Recordings that cannot be turned into a dataset.
-    #[error(transparent)]
-    Dataset(#[from] DatasetError),
-    /// A sensor graph asset that cannot be read or is invalid.
-    #[error(transparent)]
-    Graph(#[from] GraphError),
-    /// A model config or network that cannot be built or run.
-    #[error(transparent)]
-    Model(#[from] ModelError),
-    /// A checkpoint that cannot be written, read or trusted.
-    #[error(transparent)]
-    Checkpoint(#[from] CheckpointError),
-    /// A run config that cannot be read or is invalid.
-    #[error(transparent)]
-    Config(#[from] ConfigError),
-    /// A training state that cannot be written, read or resumed.
-    #[error(transparent)]
-    State(#[from] StateError),
-    /// Training, refinement or prediction that cannot go on.
-    #[error(transparent)]
-    Train(#[from] TrainError),
-    /// A plot that cannot be drawn or written.
-    #[error(transparent)]
-    Plot(#[from] PlotError),
-    /// A tensor file (`iastgcn forward`'s input or output) that cannot be read or written.
-    #[error(transparent)]
-    TensorFile(#[from] TensorFileError),
+    Stage(Box<dyn std::error::Error + Send + Sync + 'static>),
     /// A file that could not be written or read.
     // The I/O error is part of the message, not a source: a chain printer (the CLI's
     // `{:#}`) would print it twice.
@@ -124,21 +85,24 @@ impl Error {
             e => e,
         }
     }
-}
 
-/// `error` from building work of `batch` windows, with the fix where the batch is too
-/// large for the adapter: "`--batch 4096`: tensor x needs 9.1 GiB; this adapter allows
-/// 2.0 GiB per buffer (…); try --batch 512".
-pub fn batch_error(error: impl Into<Error>, batch: usize) -> Error {
-    let error = error.into();
-    let gpu = match &error {
-        Error::Gpu(e) => Some(e),
-        Error::Model(ModelError::Gpu(e)) => Some(e),
-        _ => None,
-    };
-    match gpu.and_then(|e| e.fitting_count(batch).map(|n| (e, n))) {
-        Some((e, n)) => Error::Invalid(format!("--batch {batch}: {e}; try --batch {n}")),
-        None => error,
+    /// The stage's typed error of type `E` under every [`Error::Context`], if that is
+    /// what failed.
+    ///
+    /// ```
+    /// use iastgcn::error::Error;
+    /// use iastgcn::gpu::GpuError;
+    ///
+    /// let e = Error::from(GpuError::NoAdapter { hint: "install a driver".into() })
+    ///     .context("opening the adapter");
+    /// assert!(e.find::<GpuError>().is_some());
+    /// assert!(Error::Invalid("x".into()).find::<GpuError>().is_none());
+    /// ```
+    pub fn find<E: StageError>(&self) -> Option<&E> {
+        match self.root() {
+            Error::Stage(e) => e.downcast_ref::<E>(),
+            _ => None,
+        }
     }
 }
 

@@ -30,6 +30,8 @@ pub struct TensorFileError {
     pub message: String,
 }
 
+impl crate::error::StageError for TensorFileError {}
+
 impl TensorFileError {
     fn new(path: &Path, tensor: Option<&str>, message: impl Into<String>) -> TensorFileError {
         TensorFileError {
@@ -175,7 +177,7 @@ pub fn forward_windows(
     let windows = x.len() / len;
     let capacity = windows.clamp(1, batch);
     let net = Network::for_inference(gpu, config, &checkpoint.graph, capacity)
-        .map_err(|e| crate::error::batch_error(e, capacity))?;
+        .map_err(|e| crate::train::batch_error(e, capacity))?;
     net.load_parameters(gpu, &checkpoint.parameters)?;
     let mut y = Vec::with_capacity(windows * config.outputs);
     let mut staging = vec![0.0f32; capacity * len];

@@ -28,6 +28,8 @@ pub struct PlotError {
     pub message: String,
 }
 
+impl crate::error::StageError for PlotError {}
+
 /// How a series is drawn.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Style {

@@ -453,9 +453,9 @@ fn interop_init_and_forward_from_the_library() {
     assert_eq!(y, want);
 
     // Errors are typed and name the file and the tensor.
-    let tensor_error = |e: Error| match e {
-        Error::TensorFile(e) => (e.path, e.tensor, e.message),
-        e => panic!("not a tensor file error: {e}"),
+    let tensor_error = |e: Error| match e.find::<interop::TensorFileError>() {
+        Some(e) => (e.path.clone(), e.tensor.clone(), e.message.clone()),
+        None => panic!("not a tensor file error: {e}"),
     };
     let (path, tensor, message) = tensor_error(interop::read_tensor(&out, "x").unwrap_err());
     assert_eq!((path, tensor.as_deref()), (out.clone(), Some("x")));

@@ -87,6 +87,8 @@ pub enum ArmCalibrationError {
     NothingToIdentify,
 }
 
+impl crate::error::StageError for ArmCalibrationError {}
+
 /// A parameter left at its nominal (or registered) value, and why.
 #[derive(Clone, Debug, PartialEq)]
 pub struct KeptNominal {

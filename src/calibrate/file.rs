@@ -20,6 +20,8 @@ pub struct CalibrationFileError {
     pub message: String,
 }
 
+impl crate::error::StageError for CalibrationFileError {}
+
 #[derive(Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct StageFile {

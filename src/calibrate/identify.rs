@@ -156,6 +156,8 @@ pub enum CalibrationError {
     },
 }
 
+impl crate::error::StageError for CalibrationError {}
+
 /// Predicted measurement and platform pose for each measurement under `robot`.
 fn predict(
     robot: &Robot,

@@ -24,6 +24,8 @@ pub struct DatasetError {
     pub message: String,
 }
 
+impl crate::error::StageError for DatasetError {}
+
 /// Mean and standard deviation per (node, feature) and per label component.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Normalization {

@@ -54,6 +54,8 @@ pub enum DataError {
     },
 }
 
+impl crate::error::StageError for DataError {}
+
 pub(super) fn file_err(file: &str, message: impl Into<String>) -> DataError {
     DataError::File {
         file: file.to_string(),

@@ -122,6 +122,8 @@ pub enum GpuError {
     Device(String),
 }
 
+impl crate::error::StageError for GpuError {}
+
 impl Gpu {
     /// Binds `tensors` to `kernel`'s storage slots (in [`Kernel::bindings`] order), with
     /// `params` as the uniform block at slot 0, ready to record.

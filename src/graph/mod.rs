@@ -24,6 +24,8 @@ pub struct GraphError {
     pub message: String,
 }
 
+impl crate::error::StageError for GraphError {}
+
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct Asset {

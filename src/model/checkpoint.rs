@@ -87,6 +87,8 @@ pub struct CheckpointError {
     pub message: String,
 }
 
+impl crate::error::StageError for CheckpointError {}
+
 /// Everything needed to run a trained network.
 ///
 /// ```

@@ -39,6 +39,8 @@ pub enum ModelError {
     },
 }
 
+impl crate::error::StageError for ModelError {}
+
 /// A network (IASTGCN, an ablation or a dense baseline) on one device for a fixed batch
 /// size.
 pub struct Network {

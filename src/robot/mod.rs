@@ -90,6 +90,8 @@ pub enum RobotError {
     },
 }
 
+impl crate::error::StageError for RobotError {}
+
 /// Joint inputs of the whole robot: the three UPS actuator lengths (mm, nodes Q1–Q3) and
 /// the two serial joint angles (rad, Q4–Q5).
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -151,6 +151,8 @@ pub struct ConfigError {
     pub message: String,
 }
 
+impl crate::error::StageError for ConfigError {}
+
 fn check(ok: bool, field: &str, value: impl std::fmt::Display, rule: &str) -> Result<(), String> {
     if ok {
         Ok(())

@@ -35,3 +35,5 @@ pub enum TrainError {
         last_good: Box<Parameters>,
     },
 }
+
+impl crate::error::StageError for TrainError {}

@@ -490,7 +490,7 @@ fn diverged(
     data: &Dataset,
     out: &Path,
 ) -> Error {
-    let Error::Train(TrainError::Diverged { last_good, .. }) = &e else {
+    let Some(TrainError::Diverged { last_good, .. }) = e.find::<TrainError>() else {
         return e;
     };
     // The best weights so far (the epoch files may not have been written since they

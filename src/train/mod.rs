@@ -23,7 +23,7 @@ pub use fit::{
 pub use metrics::{accumulated_error, Metrics};
 pub use optimizer::{learning_rate, Optimizer};
 pub use pollination::{pollinate, Pollination, Searched};
-pub use predict::{predict_recordings, PredictOptions, RecordingPrediction, Subset};
+pub use predict::{batch_error, predict_recordings, PredictOptions, RecordingPrediction, Subset};
 pub use refine::{refine, refine_checkpoint, Refined};
 pub use state::{StateError, TrainState};
 pub use trainer::{

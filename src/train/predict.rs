@@ -10,8 +10,8 @@ use super::metrics::Metrics;
 use crate::data::{prepare, split, window_ends, DataSources, FeatureConfig, SplitMode};
 use crate::data::{Window, WindowConfig};
 use crate::error::{Error, Result};
-use crate::gpu::Gpu;
-use crate::model::{Checkpoint, Features, Predictor, Residual};
+use crate::gpu::{Gpu, GpuError};
+use crate::model::{Checkpoint, Features, ModelError, Predictor, Residual};
 use crate::plot::{self, Panel, Series};
 
 /// Which windows of each recording to predict: all, or one split's (contiguous 70/20/10
@@ -111,8 +111,8 @@ pub fn predict_recordings(
             ck.graph.nodes, inputs.graph.nodes
         )));
     }
-    let mut predictor = Predictor::new(gpu, ck, options.batch)
-        .map_err(|e| crate::error::batch_error(e, options.batch))?;
+    let mut predictor =
+        Predictor::new(gpu, ck, options.batch).map_err(|e| batch_error(e, options.batch))?;
     let window = WindowConfig {
         length: t_len,
         stride: options.stride,
@@ -268,4 +268,21 @@ pub fn write_predictions(
         .map_err(|e| Error::io(out, e))?;
     batch.commit().map_err(|e| Error::io(out, e))?;
     Ok(png)
+}
+
+/// `error` from building work of `batch` windows (`--batch` of `predict` and `forward`),
+/// with the fix where the batch is too large for the adapter: "`--batch 4096`: tensor x
+/// needs 9.1 GiB; this adapter allows 2.0 GiB per buffer (…); try --batch 512".
+pub fn batch_error(error: impl Into<Error>, batch: usize) -> Error {
+    let error = error.into();
+    let gpu = error
+        .find::<GpuError>()
+        .or(match error.find::<ModelError>() {
+            Some(ModelError::Gpu(e)) => Some(e),
+            _ => None,
+        });
+    match gpu.and_then(|e| e.fitting_count(batch).map(|n| (e, n))) {
+        Some((e, n)) => Error::Invalid(format!("--batch {batch}: {e}; try --batch {n}")),
+        None => error,
+    }
 }

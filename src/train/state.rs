@@ -26,6 +26,8 @@ pub struct StateError {
     pub message: String,
 }
 
+impl crate::error::StageError for StateError {}
+
 /// A snapshot with the run it belongs to.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TrainState {
