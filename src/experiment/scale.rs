@@ -642,14 +642,15 @@ fn closed_loop_sources(
         }
         let n = runs.len().max(1) as f64;
         error = (
-            1e3 * runs.iter().map(|r| r.mean_position_error_mm).sum::<f64>() / n,
-            1e3 * runs.iter().map(|r| r.mean_attitude_error_deg).sum::<f64>() / n,
+            runs.iter().map(|r| r.mean_target_error[0]).sum::<f64>() / n,
+            runs.iter().map(|r| r.mean_target_error[1]).sum::<f64>() / n,
         );
     }
     union.recordings.extend(recorded);
     let measured = if error.0.is_finite() {
         format!(
-            "; its corrections left a mean true error of {:.1} µm / {:.1} mdeg in those runs",
+            "; its corrections left a mean true error against the path target of {:.1} µm / \
+             {:.1} mdeg (tool axis) in those runs",
             error.0, error.1
         )
     } else {
