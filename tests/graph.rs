@@ -110,6 +110,62 @@ fn wavelet_basis_and_its_inverse_multiply_to_identity() {
     assert!((&t[2] - (lt * lt * 2.0 - nalgebra::DMatrix::identity(14, 14))).amax() < 1e-12);
 }
 
+/// ψ_s and the scaled Laplacian pinned by hand on the triangle K3, whose normalised
+/// Laplacian L = I − A/2 = (3/2)(I − J/3) (J all ones) has eigenvalues 0, 3/2, 3/2: so
+/// ψ_s = e^(−sL) = J/3 + e^(−3s/2)(I − J/3), and with λ_max = 3/2 the scaled Laplacian
+/// L̃ = 2L/λ_max − I has 1/3 on the diagonal and −2/3 off it (T₂ = 2L̃² − I). A sign
+/// flip in the exponent, or scaling by 2 instead of λ_max, gives other numbers.
+#[test]
+fn wavelet_and_chebyshev_bases_match_hand_computed_values() {
+    let k3 = Graph {
+        nodes: vec!["a".into(), "b".into(), "c".into()],
+        edges: vec![(0, 1), (1, 2), (0, 2)],
+    };
+    let s = k3.spectral();
+    for scale in [0.3, 1.0, 2.5] {
+        let e = (-1.5_f64 * scale).exp();
+        let (diag, off) = (1.0 / 3.0 + 2.0 / 3.0 * e, 1.0 / 3.0 - e / 3.0);
+        let w = s.wavelet(scale);
+        let inv = s.wavelet_inverse(scale);
+        let (diag_inv, off_inv) = (1.0 / 3.0 + 2.0 / 3.0 / e, 1.0 / 3.0 - 1.0 / e / 3.0);
+        for i in 0..3 {
+            for j in 0..3 {
+                let (want, want_inv) = if i == j {
+                    (diag, diag_inv)
+                } else {
+                    (off, off_inv)
+                };
+                assert!(
+                    (w[(i, j)] - want).abs() < 1e-12,
+                    "ψ_{scale}[{i},{j}] = {}",
+                    w[(i, j)]
+                );
+                assert!((inv[(i, j)] - want_inv).abs() < 1e-12, "ψ⁻¹[{i},{j}]");
+            }
+        }
+    }
+    let t = s.chebyshev(3);
+    let t2_diag = 2.0 * (1.0 / 9.0 + 2.0 * 4.0 / 9.0) - 1.0; // row · column of L̃, minus 1
+    let t2_off = 2.0 * (2.0 * (1.0 / 3.0) * (-2.0 / 3.0) + 4.0 / 9.0);
+    for i in 0..3 {
+        for j in 0..3 {
+            let same = i == j;
+            let want = [
+                if same { 1.0 } else { 0.0 },
+                if same { 1.0 / 3.0 } else { -2.0 / 3.0 },
+                if same { t2_diag } else { t2_off },
+            ];
+            for (k, w) in want.iter().enumerate() {
+                assert!(
+                    (t[k][(i, j)] - w).abs() < 1e-12,
+                    "T_{k}[{i},{j}] = {}",
+                    t[k][(i, j)]
+                );
+            }
+        }
+    }
+}
+
 /// `model::graph_mixing`: the wavelet convolution at θ = 1 (or any equal θ) is a multiple
 /// of the identity and mixes nothing; θ apart mix; the Chebyshev convolution at θ = 1 is
 /// T₀ + T₁ + T₂ of the scaled Laplacian, summed here independently; baselines have none.

@@ -245,7 +245,8 @@ fn closed_loop_data_are_recorded_with_a_round_zero_model_compensating() {
     assert!(
         r.closed_loop.contains("trained on sessions 1-1")
             && r.closed_loop.contains("compensated sessions 2-2")
-            && r.closed_loop.contains("mean true error against the path target of"),
+            && r.closed_loop
+                .contains("mean true error against the path target of"),
         "{}",
         r.closed_loop
     );

@@ -113,7 +113,8 @@ impl std::fmt::Display for Worst {
 }
 
 /// Compares element by element; `Err` names `what` and shows the worst element (a
-/// non-finite `actual` or a length mismatch always fails).
+/// non-finite `actual` or `expected`, or a length mismatch, always fails: a NaN in a
+/// reference is a broken reference, not a pass).
 pub fn compare(
     what: &str,
     actual: &[f64],
@@ -132,8 +133,8 @@ pub fn compare(
 }
 
 /// The element that came closest to (or went furthest past) its tolerance, whether or
-/// not it passes (a non-finite `actual` has ratio ∞); `Err` names `what` only when the
-/// lengths differ or there is nothing to compare.
+/// not it passes (a non-finite `actual` or `expected` has ratio ∞); `Err` names `what`
+/// only when the lengths differ or there is nothing to compare.
 pub fn worst(
     what: &str,
     actual: &[f64],
@@ -153,7 +154,7 @@ pub fn worst(
     let mut worst: Option<Worst> = None;
     for (i, (&a, &e)) in actual.iter().zip(expected).enumerate() {
         let abs_err = (a - e).abs();
-        let ratio = if !a.is_finite() {
+        let ratio = if !(a.is_finite() && e.is_finite()) {
             f64::INFINITY
         } else if abs_err == 0.0 {
             // Exact checks use a zero tolerance.
@@ -206,4 +207,35 @@ pub fn check_gradient(
 pub fn gpu() -> Gpu {
     // invariant: test support: a test without a device fails with the reason.
     Gpu::new().unwrap_or_else(|e| panic!("{e}"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{compare, Tolerance};
+
+    const TOL: Tolerance = Tolerance {
+        abs: 1e-6,
+        rel: 1e-6,
+    };
+
+    #[test]
+    fn a_nan_or_infinity_anywhere_fails_the_comparison() {
+        let good = [1.0, 2.0, 3.0];
+        assert!(compare("ok", &good, &good, TOL).is_ok());
+        for bad in [f64::NAN, f64::INFINITY] {
+            for i in 0..3 {
+                let mut v = good;
+                v[i] = bad;
+                assert!(compare("expected", &good, &v, TOL).is_err(), "{bad} at {i}");
+                assert!(compare("actual", &v, &good, TOL).is_err(), "{bad} at {i}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_worst_element_past_its_tolerance_is_named() {
+        let err = compare("x", &[1.0, 2.1, 3.0], &[1.0, 2.0, 3.0], TOL).unwrap_err();
+        assert!(err.starts_with("x: worst element 1:"), "{err}");
+        assert!(compare("x", &[1.0, 2.0 + 1e-7], &[1.0, 2.0], TOL).is_ok());
+    }
 }
