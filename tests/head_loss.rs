@@ -6,7 +6,7 @@ use iastgcn::gpu::{DType, Gpu};
 use iastgcn::graph::Graph;
 use iastgcn::model::{ModelConfig, Network, Parameters, Variant};
 use iastgcn::ops::head::{cpu as head_cpu, LastStep};
-use iastgcn::ops::loss::{cpu as loss_cpu, PoseLoss};
+use iastgcn::ops::loss::PoseLoss;
 use iastgcn::testing::{
     check_gradient, compare, compare_tensor, gpu, rng, round_f32, to_f32, uniform, Tolerance,
 };
@@ -59,21 +59,14 @@ fn pose_loss_matches_reference_and_finite_differences() {
         ])
         .unwrap();
         let tol = Tolerance::new(1e-6, 1e-5);
-        compare_tensor(
-            &g,
-            "loss",
-            &loss,
-            &[loss_cpu::forward(&l, &pred, &truth)],
-            tol,
-        )
-        .unwrap();
-        let grad = loss_cpu::backward(&l, &pred, &truth);
+        compare_tensor(&g, "loss", &loss, &[l.value(&pred, &truth)], tol).unwrap();
+        let grad = l.gradient(&pred, &truth);
         compare_tensor(&g, "dpred", &dpred, &grad, tol).unwrap();
         if batch < 100 {
             check_gradient(
                 "pose loss",
                 &grad,
-                |p| loss_cpu::forward(&l, p, &truth),
+                |p| l.value(p, &truth),
                 &pred,
                 1e-5,
                 Tolerance::new(1e-9, 1e-7),
@@ -158,7 +151,7 @@ fn ensemble_loss_matches_reference_definition_and_finite_differences() {
         }
         let pred = round_f32(&pred);
         let truth = round_f32(&uniform(&mut r, batch * 6, -1.0, 1.0));
-        let expected = loss_cpu::forward(&l, &pred, &truth);
+        let expected = l.value(&pred, &truth);
         let by_definition = ensemble_loss_by_definition(&l, &pred, &truth);
         compare(
             &format!("B {batch} M {group}: reference vs definition"),
@@ -168,7 +161,7 @@ fn ensemble_loss_matches_reference_definition_and_finite_differences() {
         )
         .unwrap();
         // The ensemble term matters: the plain loss of the same batch is clearly smaller.
-        let plain = loss_cpu::forward(&PoseLoss { group: 1, ..l }, &pred, &truth);
+        let plain = PoseLoss { group: 1, ..l }.value(&pred, &truth);
         assert!(
             expected > 1.1 * plain,
             "B {batch} M {group}: ensemble loss {expected} vs plain {plain}"
@@ -178,13 +171,13 @@ fn ensemble_loss_matches_reference_definition_and_finite_differences() {
         let tol = Tolerance::new(1e-6, 1e-5);
         let w = compare_tensor(&g, "ensemble loss", &loss, &[expected], tol).unwrap();
         worst[0] = worst[0].max(w.rel_err);
-        let grad = loss_cpu::backward(&l, &pred, &truth);
+        let grad = l.gradient(&pred, &truth);
         let w = compare_tensor(&g, "ensemble dpred", &dpred, &grad, tol).unwrap();
         worst[1] = worst[1].max(w.abs_err);
         let w = check_gradient(
             &format!("B {batch} M {group}: ensemble loss"),
             &grad,
-            |p| loss_cpu::forward(&l, p, &truth),
+            |p| l.value(p, &truth),
             &pred,
             1e-5,
             Tolerance::new(1e-9, 1e-7),
@@ -221,14 +214,14 @@ fn group_one_is_the_plain_loss() {
     let exact = Tolerance::new(0.0, 1e-14);
     compare(
         "group 1 reference loss",
-        &[loss_cpu::forward(&l, &pred, &truth)],
+        &[l.value(&pred, &truth)],
         &[plain],
         exact,
     )
     .unwrap();
     compare(
         "group 1 reference gradient",
-        &loss_cpu::backward(&l, &pred, &truth),
+        &l.gradient(&pred, &truth),
         &plain_grad,
         exact,
     )
@@ -300,8 +293,8 @@ fn network_for_ensembles_uses_the_ensemble_loss() {
         penalty,
         group,
     };
-    let expected = loss_cpu::forward(&l, &y_hat, &y);
-    let plain = loss_cpu::forward(&PoseLoss { group: 1, ..l }, &y_hat, &y);
+    let expected = l.value(&y_hat, &y);
+    let plain = PoseLoss { group: 1, ..l }.value(&y_hat, &y);
     let got = g.read_f32(&net.loss).unwrap()[0] as f64;
     let w = compare(
         "network ensemble loss",

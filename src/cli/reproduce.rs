@@ -8,7 +8,8 @@ use clap::Args;
 use super::evaluate_args::HeldOutArgs;
 use super::train::read_run_config;
 use super::Console;
-use iastgcn::experiment::reproduce::{self, Outcome, Protocol, Shard};
+use iastgcn::experiment::jobs::Shard;
+use iastgcn::experiment::reproduce::{self, Outcome, Protocol};
 use iastgcn::gpu::Gpu;
 
 #[derive(Args)]

@@ -8,7 +8,7 @@ use clap::Args;
 use super::evaluate_args::HeldOutArgs;
 use super::train::read_run_config;
 use super::Console;
-use iastgcn::experiment::reproduce::Shard;
+use iastgcn::experiment::jobs::Shard;
 use iastgcn::experiment::scale::{self, Study};
 use iastgcn::gpu::Gpu;
 

@@ -9,11 +9,11 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use super::evaluate::{finish, HeldOutConfig, NamedModel};
+use super::jobs::{training_table, JobRecord};
 use super::protocol::{check_seeds, fit_model, record_data, ModelFiles, MACHINE_SEED};
 pub use super::protocol::{CALIBRATION_SEED, TRAINING_SEED};
 use super::report::seeds::seeded_name;
 use super::report::Report;
-use super::reproduce::{training_table, JobRecord};
 use crate::compensate::held_out::IDLE_BETWEEN_RUNS;
 use crate::data::DataSources;
 use crate::error::{Error, Result};

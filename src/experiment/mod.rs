@@ -2,7 +2,8 @@
 //! data and the fitting of one model (`protocol`), Tables III and V and the report folder
 //! they go into (`evaluate`, `report/`), the demo over training seeds (`demo`), the
 //! protocol over seeds in resumable, shardable jobs (`reproduce`), the merge of reproduce
-//! folders of several twin machines (`machines`), the scaling study of error against
+//! folders of several twin machines (`machines`), what their jobs share (shards, pinned
+//! setups, job records, TOML files: `jobs`), the scaling study of error against
 //! training data (`scale`), the model recommended on a validation session
 //! (`recommend`), and a serial arm's residual models on held-out poses (`arm`).
 
@@ -10,6 +11,7 @@ pub mod arm;
 pub mod calibration;
 pub mod demo;
 pub mod evaluate;
+pub mod jobs;
 pub mod machines;
 pub mod protocol;
 pub mod recommend;

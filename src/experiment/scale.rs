@@ -21,13 +21,13 @@ use super::evaluate::{
     ensemble, held_out_session, predictors, table_iii, HeldOutConfig, LoopModel, SessionOptions,
     MAX_HELD_OUT_SESSIONS,
 };
+use super::jobs::{clock, pin_toml, read_toml, write_toml, Shard};
 use super::protocol::{
     check_seeds, epoch_seconds, existing_data, record_data, record_session, train_core, ModelFiles,
     MACHINE_SEED, TRAINING_SEED,
 };
 use super::report::seeds::{seeded_name, Spread};
 use super::report::TableVRow;
-use super::reproduce::{clock, pin_toml, read_toml, write_toml, Shard};
 use crate::calibrate::file;
 use crate::compensate::online::{within_limit, ModelInLoop, Online};
 use crate::data::{DataSources, Dataset};

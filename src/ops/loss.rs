@@ -122,31 +122,31 @@ impl PoseLoss {
     }
 }
 
-/// f64 reference, for tests.
-pub mod cpu {
-    use super::PoseLoss;
-
-    fn weight(l: &PoseLoss, m: usize) -> f64 {
+/// The loss on the host in f64: what the native CPU training path trains with
+/// (`model::native::step`), and the reference the WGSL kernels above are tested against
+/// (`tests/head_loss.rs`). One implementation of the maths, not a test-only copy.
+impl PoseLoss {
+    fn weight(&self, m: usize) -> f64 {
         if m < 3 {
             1.0
         } else {
-            l.penalty
+            self.penalty
         }
     }
 
     /// `mean_k (ŷ_gk − y_gk)` per ensemble g, `[G, outputs]` (empty for group 1).
-    fn group_mean_errors(l: &PoseLoss, pred: &[f64], target: &[f64]) -> Vec<f64> {
+    fn group_mean_errors(&self, pred: &[f64], target: &[f64]) -> Vec<f64> {
         assert!(
-            l.group > 0 && l.batch.is_multiple_of(l.group),
-            "pose loss reference: batch {} is not a multiple of group {}",
-            l.batch,
-            l.group
+            self.group > 0 && self.batch.is_multiple_of(self.group),
+            "pose loss: batch {} is not a multiple of group {}",
+            self.batch,
+            self.group
         );
-        if l.group == 1 {
+        if self.group == 1 {
             return Vec::new();
         }
-        let (m, o) = (l.group, l.outputs);
-        let mut mean = vec![0.0; l.batch / m * o];
+        let (m, o) = (self.group, self.outputs);
+        let mut mean = vec![0.0; self.batch / m * o];
         for (i, (p, t)) in pred.iter().zip(target).enumerate() {
             mean[i / o / m * o + i % o] += (p - t) / m as f64;
         }
@@ -155,37 +155,38 @@ pub mod cpu {
 
     /// ℒ for `pred` and `target` `[batch, outputs]`, as [`PoseLoss`] defines it; panics if
     /// `group` does not divide `batch`.
-    pub fn forward(l: &PoseLoss, pred: &[f64], target: &[f64]) -> f64 {
+    pub fn value(&self, pred: &[f64], target: &[f64]) -> f64 {
         let windows: f64 = pred
             .iter()
             .zip(target)
             .enumerate()
-            .map(|(i, (p, t))| weight(l, i % l.outputs) * (p - t) * (p - t))
+            .map(|(i, (p, t))| self.weight(i % self.outputs) * (p - t) * (p - t))
             .sum();
-        let ensembles: f64 = group_mean_errors(l, pred, target)
+        let ensembles: f64 = self
+            .group_mean_errors(pred, target)
             .iter()
             .enumerate()
-            .map(|(i, e)| weight(l, i % l.outputs) * e * e)
+            .map(|(i, e)| self.weight(i % self.outputs) * e * e)
             .sum();
         // (1/G)(1/M) = 1/B for the per-window terms.
-        windows / l.batch as f64 + ensembles / (l.batch / l.group) as f64
+        windows / self.batch as f64 + ensembles / (self.batch / self.group) as f64
     }
 
     /// `∂ℒ/∂ŷ`, `[batch, outputs]`: `(2/B)·w_m·(ŷ − y)`, plus `(2/B)·w_m·mean_k(ŷ_gk − y_gk)`
     /// of the window's ensemble when `group` > 1.
-    pub fn backward(l: &PoseLoss, pred: &[f64], target: &[f64]) -> Vec<f64> {
-        let mean = group_mean_errors(l, pred, target);
-        let o = l.outputs;
+    pub fn gradient(&self, pred: &[f64], target: &[f64]) -> Vec<f64> {
+        let mean = self.group_mean_errors(pred, target);
+        let o = self.outputs;
         pred.iter()
             .zip(target)
             .enumerate()
             .map(|(i, (p, t))| {
-                let ensemble = if l.group > 1 {
-                    mean[i / o / l.group * o + i % o]
+                let ensemble = if self.group > 1 {
+                    mean[i / o / self.group * o + i % o]
                 } else {
                     0.0
                 };
-                2.0 / l.batch as f64 * weight(l, i % o) * (p - t + ensemble)
+                2.0 / self.batch as f64 * self.weight(i % o) * (p - t + ensemble)
             })
             .collect()
     }

@@ -17,7 +17,7 @@ use crate::model::config::{Family, ModelConfig};
 use crate::model::network::ModelError;
 use crate::model::params::{graph_basis, param_specs, ParamSpec, Parameters};
 use crate::ops::adam::hyper_values;
-use crate::ops::loss::{cpu as loss_cpu, PoseLoss};
+use crate::ops::loss::PoseLoss;
 
 /// Adam's constants (docs/model.md "Optimiser and schedule"); λ acts on the tensors
 /// whose spec has `decay`.
@@ -332,10 +332,10 @@ impl Context<'_> {
         let len = pred.len();
         let target: Vec<f64> = self.y[g * len..][..len].iter().map(|&v| v as f64).collect();
         let scale = self.groups as f64;
-        for (d, v) in dout.iter_mut().zip(loss_cpu::backward(one, pred, &target)) {
+        for (d, v) in dout.iter_mut().zip(one.gradient(pred, &target)) {
             *d = (v / scale) as f32;
         }
-        loss_cpu::forward(one, pred, &target) / scale
+        one.value(pred, &target) / scale
     }
 
     /// Forward and backward of the ensembles in `range` into the worker's sums. The
