@@ -1,19 +1,23 @@
 //! End to end at a small size, scored against the twin's hidden truth: a model trained on
 //! one session of recordings (made under the calibrated controller) compensates a
-//! held-out run of a path it never saw, on a warm machine, better than calibration alone.
+//! held-out run of a path it never saw, on a warm machine, better than calibration alone
+//! by the margin measured (2026-11-27: 40 % of the position and 17 % of the attitude error
+//! removed after one minute of data per path; the test asks 30 % and 8 %).
 
 mod common;
 
 use common::cli;
 
-/// The `truth` position mean (µm) of a stage of `iastgcn compensate`'s table.
-fn truth_position(table: &str, stage: &str) -> f64 {
+/// The `truth` position (µm) and attitude (mdeg) means of a stage of `iastgcn
+/// compensate`'s table.
+fn truth_means(table: &str, stage: &str) -> (f64, f64) {
     table
         .lines()
         .find_map(|l| {
             let w: Vec<&str> = l.split_whitespace().collect();
             let at = w.iter().position(|x| *x == "truth")?;
-            (w.get(1) == Some(&stage)).then(|| w.get(at + 1)?.parse().ok())?
+            let value = |k: usize| w.get(at + k)?.parse::<f64>().ok();
+            (w.get(1) == Some(&stage)).then(|| Some((value(1)?, value(4)?)))?
         })
         .unwrap_or_else(|| panic!("no {stage} truth row in\n{table}"))
 }
@@ -78,15 +82,24 @@ fn a_trained_model_beats_calibration_on_the_hidden_truth() {
         "301",
     ]);
     let (calibrated, compensated, oracle) = (
-        truth_position(&table, "calibrated"),
-        truth_position(&table, "compensated"),
-        truth_position(&table, "oracle"),
+        truth_means(&table, "calibrated"),
+        truth_means(&table, "compensated"),
+        truth_means(&table, "oracle"),
     );
     println!("{table}");
-    assert!(oracle < compensated, "{table}");
     assert!(
-        compensated < 0.95 * calibrated,
-        "compensation {compensated} µm vs calibration alone {calibrated} µm:\n{table}"
+        oracle.0 < compensated.0 && oracle.1 < compensated.1,
+        "{table}"
+    );
+    let removed = |of: f64, by: f64| 100.0 * (of - by) / of;
+    let (pos, att) = (
+        removed(calibrated.0, compensated.0),
+        removed(calibrated.1, compensated.1),
+    );
+    assert!(
+        pos >= 30.0 && att >= 8.0,
+        "compensation removed {pos:.1} % / {att:.1} % of calibration's error (measured: 40 % / \
+         17 %; asked: 30 % / 8 %):\n{table}"
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
