@@ -75,7 +75,8 @@ pub enum Feedback<'p> {
     Model(&'p mut [Predictor], &'p Graph, Online),
     /// A trained model predicting as [`Feedback::Model`] does, its predictions scored
     /// against the true residual and never applied: the run is the uncompensated one
-    /// (the diagnosis of docs/results.md: open-loop prediction error on held-out runs).
+    /// (the open-loop prediction error on held-out runs of docs/shift/README.md "Where the
+    /// error goes").
     OpenLoop(&'p mut [Predictor], &'p Graph, Online),
     /// Corrections recorded by an open-loop run ([`RunResult::predicted`]), each set after
     /// its tick as the model would have set it: the model's predictions fed forward
@@ -122,7 +123,7 @@ fn node_channels(graph: &Graph) -> Result<Vec<usize>> {
 /// A trained model (one predictor, or an ensemble's members) in a control loop: it
 /// reads its graph's channels every tick and predicts every `settings.every` ticks once
 /// its window is full. [`run`] scores it; the recorder of closed-loop training data
-/// (`experiment::scale`, docs/results.md "Closed-loop data") records with it.
+/// (`experiment::scale`, docs/usage.md "scale", `--closed-loop`) records with it.
 pub struct ModelInLoop<'p> {
     members: Vec<SensorPredictor<&'p mut Predictor>>,
     nodes: Vec<usize>,

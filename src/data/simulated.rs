@@ -65,7 +65,7 @@ pub fn record_run(
 
 /// What corrects a recorded run's commands: called every control tick with the tick's
 /// index and the twin's channels, it returns a correction to apply from the next tick
-/// (docs/results.md "Closed-loop data": a model compensating while the data are taken).
+/// (docs/usage.md "scale", `--closed-loop`: a model compensating while the data are taken).
 pub type Corrector<'a> = &'a mut dyn FnMut(usize, &[Option<f64>]) -> Result<Option<Correction>>;
 
 /// [`record_run`] with the controller's commands corrected by `correct` as the run goes

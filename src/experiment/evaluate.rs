@@ -652,7 +652,7 @@ pub struct Session {
     pub open_loop: Vec<OpenLoopScore>,
 }
 
-/// The open-loop diagnosis of one model on one held-out run (docs/results.md "Where the
+/// The open-loop diagnosis of one model on one held-out run (docs/shift/README.md "Where the
 /// error goes").
 #[derive(Clone, Debug)]
 pub struct OpenLoopScore {

@@ -97,7 +97,7 @@ pub struct Study {
     /// model `<model>-ensemble`). May change between calls of one folder.
     #[serde(default)]
     pub ensemble: bool,
-    /// Closed-loop data (docs/results.md "Closed-loop data"): each job first trains a
+    /// Closed-loop data (docs/usage.md "scale", `--closed-loop`): each job first trains a
     /// round-0 model on the first half of the recipe's sessions, records the other
     /// sessions again (the same days, placements and seeds) with it compensating, and
     /// trains on the first half plus those: the same minutes as the open-loop recipe.
@@ -566,7 +566,7 @@ fn run_job(
     })
 }
 
-/// Closed-loop data for `job` (docs/results.md "Closed-loop data"): a round-0 model
+/// Closed-loop data for `job` (docs/usage.md "scale", `--closed-loop`): a round-0 model
 /// (`<name>.round0`, the job's config) trained on the first half of the recipe's
 /// sessions, then the other sessions recorded again with it compensating under the
 /// calibrated controller (the same days, placements and seeds as their open-loop
@@ -1159,7 +1159,7 @@ fn markdown(study: &Study, records: &[ScaleRecord], points: &[Point]) -> String 
          controller's mean true error removed by compensation; Left: the mean true error it \
          leaves. Open-loop: the mean distance of the model's predictions from the true \
          residual along the same held-out runs played uncompensated (the oracle's \
-         correction; docs/results.md \"Where the error goes\"). Test MAE: the model's on \
+         correction; docs/shift/README.md \"Where the error goes\"). Test MAE: the model's on \
          the path's test block (µm / mdeg), over seeds. The paper's Table V (Hilbert): {} % / \
          {} %.\n",
         study.held_out_sessions,
