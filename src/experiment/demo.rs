@@ -54,7 +54,7 @@ pub struct DemoConfig {
 /// How the demo records its training set: each path's minutes in 4 sessions on days of
 /// their own, at varied placements. Chosen on the evidence of docs/results.md "Training
 /// on what use looks like": at the demo's 8 minutes, 4 sessions beat 1 in 4 of 8
-/// closed-loop cells and lost none; at 32 minutes in 6 of 8, and 16 sessions gained
+/// closed-loop cells and lost none; at 32 minutes in 5 of 8, and 16 sessions gained
 /// nothing over 4.
 pub const DEMO_RECIPE: Recipe = Recipe {
     sessions: 4,
