@@ -564,12 +564,13 @@ pub fn evaluate(
     reporter.note(
         "== recommended model: every model in the loop on a validation session (not in Table V)",
     );
+    let validation_index = validation_session(held.sessions);
     let validation = held_out_session(
         gpu,
         &mut in_loop,
         sources,
         held,
-        SessionOptions::rows(validation_session(held.sessions)),
+        SessionOptions::rows(validation_index),
         reporter,
     )?;
     let recommendation = recommend(&validation.rows);
@@ -580,8 +581,8 @@ pub fn evaluate(
         "Recommended model".into(),
         recommendation.markdown(
             (
-                validation_session(held.sessions) + 1,
-                &held.session(validation_session(held.sessions)).describe(),
+                validation_index + 1,
+                &held.session(validation_index).describe(),
             ),
             held.minutes,
         ),
@@ -652,8 +653,8 @@ pub struct Session {
     pub open_loop: Vec<OpenLoopScore>,
 }
 
-/// The open-loop diagnosis of one model on one held-out run (docs/shift/README.md "Where the
-/// error goes").
+/// The open-loop diagnosis of one model on one held-out run (docs/shift/README.md
+/// "Where the error goes").
 #[derive(Clone, Debug)]
 pub struct OpenLoopScore {
     /// The path.
@@ -697,10 +698,11 @@ impl SessionOptions {
 /// calibrated, oracle, each of `models` in the loop: predictors or ensembles,
 /// [`predictors`], [`ensemble`]) from the same state, and the session carries on from the
 /// calibrated run's end, so the rows of the initial, calibrated and oracle stages do not
-/// depend on the models. The first model gives the window of the oracle. With `options.budget`, the Hilbert run's error
-/// budget by source too. With `options.open_loop`, each model also predicts along every
-/// path's uncompensated run from the same start, its predictions scored against the true
-/// residual and never applied, then fed forward ([`Session::open_loop`]).
+/// depend on the models. The first model gives the window of the oracle. With
+/// `options.budget`, the Hilbert run's error budget by source too. With
+/// `options.open_loop`, each model also predicts along every path's uncompensated run
+/// from the same start, its predictions scored against the true residual and never
+/// applied, then fed forward ([`Session::open_loop`]).
 pub fn held_out_session(
     gpu: &Arc<Gpu>,
     models: &mut [LoopModel],

@@ -64,10 +64,9 @@ pub fn recommend(rows: &[TableVRow]) -> Recommendation {
     // Per run name: the mean over paths of its share removed.
     let mut runs: Vec<(String, Vec<[f64; 2]>)> = Vec::new();
     for r in rows.iter().filter(|r| r.stage == "compensated") {
-        let Some(cal) = rows
-            .iter()
-            .find(|c| c.trajectory == r.trajectory && c.stage == "calibrated")
-        else {
+        let Some(cal) = rows.iter().find(|c| {
+            c.trajectory == r.trajectory && c.session == r.session && c.stage == "calibrated"
+        }) else {
             continue;
         };
         let share = removed(cal, r);

@@ -462,18 +462,20 @@ pub fn scale(
         config.train.seed = job.seed;
         config.data.train_fraction = job.minutes / minutes;
         config.data.validation_fraction = job.minutes / minutes;
-        // A closed-loop job trains on data of its own.
-        let (job_sources, closed_loop) = if study.closed_loop {
-            current = None;
-            closed_loop_sources(&gpu, study, &config, job, &sources, out, reporter)?
+        // A closed-loop job trains on data of its own (and leaves no dataset cached).
+        let closed = if study.closed_loop {
+            Some(closed_loop_sources(
+                &gpu, study, &config, job, &sources, out, reporter,
+            )?)
         } else {
-            (sources.clone(), String::new())
+            None
         };
+        let job_sources = closed.as_ref().map_or(&sources, |c| &c.0);
         let size = match current.take() {
             Some(c) if c.0 == job.minutes => c,
             old => {
                 drop(old); // free the previous size's dataset first
-                let (graph, data) = build_dataset(&job_sources, &config, None)?;
+                let (graph, data) = build_dataset(job_sources, &config, None)?;
                 for line in data.summary().lines() {
                     reporter.note(line);
                 }
@@ -492,8 +494,8 @@ pub fn scale(
             reporter,
         )?;
         record.wall_seconds = started.elapsed().as_secs_f64();
-        record.closed_loop = closed_loop;
-        if study.closed_loop {
+        if let Some((_, how)) = closed {
+            record.closed_loop = how;
             current = None;
         }
         write_toml(&record, &job.record_path(out))?;
