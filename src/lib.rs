@@ -14,8 +14,9 @@
 //!   checkpoints and the embeddable [`model::Predictor`];
 //! - [`train`]: training, refinement and prediction on recordings;
 //! - [`compensate`]: online compensation in the twin (held-out runs, the error budget);
-//! - [`experiment`]: the protocol's experiments: Tables III and V, the demo, `reproduce`,
-//!   twin machines, serial arms;
+//! - [`polish`]: the mirror: dwell time, removal at the pad's true pose, interferometer;
+//! - [`experiment`]: the protocol's experiments: Tables III, V and VI, the demo,
+//!   `reproduce`, twin machines, serial arms;
 //! - [`embed`]: the C ABI and the Python module over the same calls.
 //!
 //! Long calls report through a [`progress::Reporter`] and return [`error::Result`].
@@ -45,6 +46,7 @@ pub mod interop;
 pub mod model;
 pub mod ops;
 pub mod plot;
+pub mod polish;
 pub mod progress;
 pub mod robot;
 pub mod stats;

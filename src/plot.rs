@@ -299,3 +299,101 @@ pub fn draw(
     }
     drawn
 }
+
+/// One square map for [`heat_maps`]: a title and `n × n` values, row-major, row 0 at the
+/// bottom; `NaN` pixels (off the part) are left white.
+#[derive(Clone, Debug)]
+pub struct HeatMap {
+    /// The panel's title.
+    pub title: String,
+    /// Pixels per side.
+    pub n: usize,
+    /// The values, row-major.
+    pub values: Vec<f64>,
+}
+
+/// Blue (low) through white to red (high), for `t` in [0, 1].
+fn diverging(t: f64) -> RGBColor {
+    let t = t.clamp(0.0, 1.0);
+    let (lo, mid, hi) = (
+        (49.0, 54.0, 149.0),
+        (247.0, 247.0, 247.0),
+        (165.0, 0.0, 38.0),
+    );
+    let (a, b, f) = if t < 0.5 {
+        (lo, mid, 2.0 * t)
+    } else {
+        (mid, hi, 2.0 * t - 1.0)
+    };
+    let mix = |x: f64, y: f64| (x + f * (y - x)).round() as u8;
+    RGBColor(mix(a.0, b.0), mix(a.1, b.1), mix(a.2, b.2))
+}
+
+/// Draws `maps` on a grid of `cols` columns into a PNG, every panel on the one colour
+/// scale `range` (`unit` names it in the caption), written atomically.
+pub fn heat_maps(
+    path: &Path,
+    maps: &[HeatMap],
+    cols: usize,
+    range: (f64, f64),
+    unit: &str,
+) -> Result<(), PlotError> {
+    register_font();
+    let file = path.display().to_string();
+    let err = |e: &dyn std::fmt::Display| PlotError {
+        file: file.clone(),
+        message: e.to_string(),
+    };
+    let cols = cols.max(1);
+    let rows = maps.len().div_ceil(cols).max(1);
+    let cell = 320u32;
+    let size = (cols as u32 * cell, rows as u32 * (cell + 30) + 40);
+    let dir = path
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let tmp = dir.join(format!(".heat.tmp{}.png", std::process::id()));
+    let drawn = (|| {
+        let root = BitMapBackend::new(&tmp, size).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| err(&e))?;
+        let (legend, body) = root.split_vertically(40);
+        legend
+            .draw(&Text::new(
+                format!(
+                    "colour scale {:.1} (blue) to {:.1} (red) {unit}, shared by every panel",
+                    range.0, range.1
+                ),
+                (10, 12),
+                ("sans-serif", 16),
+            ))
+            .map_err(|e| err(&e))?;
+        let span = (range.1 - range.0).max(1e-12);
+        for (map, area) in maps.iter().zip(body.split_evenly((rows, cols)).iter()) {
+            let (title, plot) = area.split_vertically(30);
+            title
+                .draw(&Text::new(map.title.clone(), (8, 8), ("sans-serif", 14)))
+                .map_err(|e| err(&e))?;
+            let (w, h) = plot.dim_in_pixel();
+            let side = w.min(h) as usize;
+            let n = map.n.max(1);
+            for py in 0..side {
+                for px in 0..side {
+                    let c = px * n / side;
+                    let r = n - 1 - py * n / side;
+                    let v = map.values[r * n + c];
+                    if v.is_finite() {
+                        plot.draw_pixel((px as i32, py as i32), &diverging((v - range.0) / span))
+                            .map_err(|e| err(&e))?;
+                    }
+                }
+            }
+        }
+        root.present().map_err(|e| err(&e))?;
+        drop(root);
+        std::fs::rename(&tmp, path).map_err(|e| err(&e))
+    })();
+    if drawn.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    drawn
+}

@@ -61,9 +61,11 @@ const ALLOWED: &[(&str, &[&str])] = &[
             "error",
         ],
     ),
+    ("polish", &["compensate", "twin", "robot", "error"]),
     (
         "experiment",
         &[
+            "polish",
             "compensate",
             "twin",
             "calibrate",
@@ -155,7 +157,11 @@ const NEVER: &[(&str, &[&str])] = &[
             "experiment",
         ],
     ),
-    ("compensate", &["experiment"]),
+    ("compensate", &["experiment", "polish"]),
+    (
+        "polish",
+        &["experiment", "gpu", "ops", "model", "train", "data"],
+    ),
 ];
 
 fn src() -> PathBuf {

@@ -11,6 +11,7 @@ mod evaluate_args;
 mod import;
 mod info;
 mod model;
+mod polish;
 mod reproduce;
 mod scale;
 mod simulate;
@@ -80,6 +81,10 @@ enum Command {
     /// The scaling study: error removed and test MAE against training data (sizes × models
     /// × seeds in resumable, shardable jobs), with a summary after every job.
     Scale(scale::ScaleArgs),
+    /// The mirror (Table VI, Figs. 13–14): the same surfaces polished under the nominal and
+    /// calibrated controllers, each model compensating online, the oracle and a perfect
+    /// machine.
+    Polish(polish::PolishArgs),
 }
 
 /// A count in `range` (e.g. `1..`); clap names the argument and the range when the
@@ -206,6 +211,7 @@ pub fn main() -> ExitCode {
         Command::Reproduce(args) => {
             open_gpu(cli.adapter.as_deref()).and_then(|gpu| reproduce::run(gpu, &args))
         }
+        Command::Polish(args) => polish::run(cli.adapter.as_deref(), &args),
         Command::Scale(args) => {
             open_gpu(cli.adapter.as_deref()).and_then(|gpu| scale::run(gpu, &args))
         }

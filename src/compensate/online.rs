@@ -19,9 +19,10 @@ use crate::model::Predictor;
 use crate::robot::Robot;
 use crate::stats::Summary;
 use crate::twin::{
-    located, pose_error, Correction, Machine, MachineState, Mirror, PathKind, SimConfig,
+    located, pose_error, Correction, Machine, MachineState, Mirror, PathKind, Sample, SimConfig,
     Simulation, CHANNELS,
 };
+use nalgebra::Isometry3;
 
 /// What a compensated (or plain) run measured.
 #[derive(Clone, Debug)]
@@ -213,6 +214,24 @@ pub fn run(
     feedback: Feedback<'_>,
     mut on_tick: impl FnMut(usize),
 ) -> Result<RunResult> {
+    let mut ticks = 0;
+    run_observed(machine, controller, config, start, feedback, |_, _| {
+        ticks += 1;
+        on_tick(ticks)
+    })
+}
+
+/// [`run`], with `on_sample` shown every tick's sample and the true pad pose in the frame
+/// the part was located in ([`located`]): what the polishing stage removes glass with
+/// (docs/polishing.md).
+pub fn run_observed(
+    machine: &Machine,
+    controller: &Robot,
+    config: SimConfig,
+    start: MachineState,
+    feedback: Feedback<'_>,
+    mut on_sample: impl FnMut(&Sample, &Isometry3<f64>),
+) -> Result<RunResult> {
     let every = match &feedback {
         Feedback::Model(_, _, settings)
         | Feedback::OpenLoop(_, _, settings)
@@ -299,7 +318,7 @@ pub fn run(
             }
         }
         tick += 1;
-        on_tick(tick);
+        on_sample(&s, &actual);
     }
     let summary = |v: &[f64]| {
         Summary::of(v)

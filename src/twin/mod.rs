@@ -23,8 +23,8 @@ pub use sensors::{
 pub use session::{Conditions, Placement, PlannedSession, Recipe, RunInfo};
 pub use simulate::{
     measure_calibration, pose_error, CalibrationMeasurement, Correction, Hidden, Sample, SimConfig,
-    Simulation,
+    Simulation, DEFAULT_FEED, DEFAULT_FORCE,
 };
 pub use sources::Day;
-pub use trajectory::{calibration_configurations, Path, PathKind, PathParams};
+pub use trajectory::{calibration_configurations, FeedPlan, Path, PathKind, PathParams};
 pub use truth::{draw_errors, draw_machine, draw_nongeometric, ErrorScales};

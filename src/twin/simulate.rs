@@ -2,6 +2,8 @@
 //! model of the robot; the hidden-truth machine moves with its geometric errors and its
 //! non-geometric sources; the sensors and the laser tracker report what they see.
 
+use std::sync::Arc;
+
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -10,7 +12,7 @@ use super::machine::{Actual, Machine, MachineState};
 use super::mirror::Mirror;
 use super::noise::gaussian;
 use super::sensors::{tracker_noise, Instruments, Scene, SensorRates, SensorSpecs, CHANNELS};
-use super::trajectory::{Path, PathKind, PathParams};
+use super::trajectory::{FeedPlan, Path, PathKind, PathParams};
 use crate::robot::{Configuration, Joints, PlatformPose, Robot, RobotError, ToolTarget};
 
 /// The twin's default mean feed along a path, mm/s.
@@ -33,6 +35,9 @@ pub struct SimConfig {
     pub feed: f64,
     /// Relative amplitude of the dwell-time modulation of the feed.
     pub feed_variation: f64,
+    /// A feed planned along the path (a dwell-time map turned into feed, the polishing
+    /// stage's, docs/polishing.md): when set it replaces `feed` and `feed_variation`.
+    pub feed_plan: Option<Arc<FeedPlan>>,
     /// Mean of the pneumatic polishing force, N.
     pub force_mean: f64,
     /// Standard deviation of the force (Ornstein–Uhlenbeck), N.
@@ -66,6 +71,7 @@ impl SimConfig {
             path_params: PathParams::default(),
             feed: DEFAULT_FEED,
             feed_variation: 0.3,
+            feed_plan: None,
             force_mean: DEFAULT_FORCE,
             force_sd: 15.0,
             force_time_constant: 20.0,
@@ -91,6 +97,9 @@ pub struct Hidden {
     pub commanded: Isometry3<f64>,
     /// Where the machine really was.
     pub actual: Actual,
+    /// The contact force pressing the pad on the glass, N (what the force channel F reads
+    /// through seal friction and valve lag).
+    pub force: f64,
 }
 
 /// One control tick as the sensors saw it.
@@ -169,6 +178,8 @@ pub struct Simulation<'a> {
     correction: Correction,
     /// Ticks whose corrected target the controller could not reach.
     unreachable: usize,
+    /// The force channel's latest reading, N.
+    force_reading: Option<f64>,
 }
 
 impl<'a> Simulation<'a> {
@@ -221,6 +232,7 @@ impl<'a> Simulation<'a> {
             last_target: None,
             correction: Correction::default(),
             unreachable: 0,
+            force_reading: None,
             config,
         })
     }
@@ -268,6 +280,11 @@ impl<'a> Simulation<'a> {
         if self.k >= self.config.steps() {
             return None;
         }
+        if let Some(plan) = &self.config.feed_plan {
+            if plan.walk_once && self.arc >= self.path.length() {
+                return None;
+            }
+        }
         Some(self.tick())
     }
 
@@ -275,12 +292,24 @@ impl<'a> Simulation<'a> {
         let c = &self.config;
         let (dt, k) = (c.dt, self.k);
         let t = k as f64 * dt;
-        // Dwell-time polishing: the feed breathes around its mean.
-        let feed = c.feed
-            * (1.0
-                + c.feed_variation
-                    * (t / 7.0 + self.phases[0]).sin()
-                    * (t / 23.0 + self.phases[1]).cos());
+        // Dwell-time polishing: the feed follows a plan, or breathes around its mean.
+        let feed = match &c.feed_plan {
+            // Force-compensated dwell: the latest force reading (the F channel), within
+            // a factor of two of the reference.
+            Some(plan) => match (plan.force_reference, self.force_reading) {
+                (Some(f0), Some(f)) if f0 > 0.0 => {
+                    plan.feed_at(self.arc) * (f / f0).clamp(0.5, 2.0)
+                }
+                _ => plan.feed_at(self.arc),
+            },
+            None => {
+                c.feed
+                    * (1.0
+                        + c.feed_variation
+                            * (t / 7.0 + self.phases[0]).sin()
+                            * (t / 23.0 + self.phases[1]).cos())
+            }
+        };
         if k > 0 {
             self.arc += feed * dt;
         }
@@ -349,6 +378,10 @@ impl<'a> Simulation<'a> {
                 channels[i] = Some(v);
             }
         }
+        debug_assert_eq!(CHANNELS[CHANNELS.len() - 1], "F");
+        if let Some(f) = channels[CHANNELS.len() - 1] {
+            self.force_reading = Some(f);
+        }
         let in_tracker = self.machine.robot.tracker_from_base() * actual.pose;
         let specs = c.sensors;
         let measured = tracker_noise(
@@ -370,6 +403,7 @@ impl<'a> Simulation<'a> {
                 target,
                 commanded,
                 actual,
+                force: self.force,
             },
         })
     }

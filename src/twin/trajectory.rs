@@ -198,6 +198,11 @@ impl Path {
         &self.points
     }
 
+    /// The cumulative arc length at each vertex, mm (0 first).
+    pub fn arc(&self) -> &[f64] {
+        &self.arc
+    }
+
     /// The point at arc length `s`; past the end the tool walks the path back
     /// (and forth again), as a polishing machine repeats its passes.
     pub fn at(&self, s: f64) -> [f64; 2] {
@@ -302,6 +307,82 @@ impl Path {
             }
         }
         Path::new(points)
+    }
+}
+
+/// A feed planned along a path: `feed[i]` mm/s over arc lengths `[arc[i], arc[i + 1])`
+/// (the last holds to the end and beyond). The polishing stage turns a dwell-time map into
+/// one (docs/polishing.md "Dwell time").
+#[derive(Clone, Debug, PartialEq)]
+pub struct FeedPlan {
+    arc: Vec<f64>,
+    feed: Vec<f64>,
+    /// With `Some(f0)`, the controller scales the planned feed by its latest force reading
+    /// over `f0` (N), so that force × dwell, the removal, stays as planned.
+    pub force_reference: Option<f64>,
+    /// The run ends where the path does (its duration only bounds it): a feed scaled by
+    /// the force walks the path in its own time.
+    pub walk_once: bool,
+}
+
+impl FeedPlan {
+    /// The feed `feed[i]` from arc length `arc[i]` on; `arc` starts at 0 and rises, every
+    /// feed is positive and finite.
+    ///
+    /// ```
+    /// use iastgcn::twin::FeedPlan;
+    ///
+    /// let plan = FeedPlan::new(vec![0.0, 10.0], vec![5.0, 20.0]).unwrap();
+    /// assert_eq!(plan.feed_at(3.0), 5.0);
+    /// assert_eq!(plan.feed_at(10.0), 20.0);
+    /// assert_eq!(plan.duration(30.0), 2.0 + 1.0);
+    /// assert!(FeedPlan::new(vec![0.0], vec![0.0]).is_err());
+    /// ```
+    pub fn new(arc: Vec<f64>, feed: Vec<f64>) -> Result<FeedPlan, String> {
+        if arc.is_empty() || arc.len() != feed.len() || arc[0] != 0.0 {
+            return Err(format!(
+                "a feed plan needs one feed per breakpoint from arc length 0, got {} breakpoints and {} feeds",
+                arc.len(),
+                feed.len()
+            ));
+        }
+        if arc.windows(2).any(|w| w[1] <= w[0] || !w[1].is_finite()) {
+            return Err("a feed plan's arc lengths must rise".into());
+        }
+        if let Some(f) = feed.iter().find(|f| !(f.is_finite() && **f > 0.0)) {
+            return Err(format!(
+                "a feed plan's feeds must be positive, got {f} mm/s"
+            ));
+        }
+        Ok(FeedPlan {
+            arc,
+            feed,
+            force_reference: None,
+            walk_once: false,
+        })
+    }
+
+    /// The feed at arc length `s`, mm/s.
+    pub fn feed_at(&self, s: f64) -> f64 {
+        let i = self.arc.partition_point(|&a| a <= s).max(1) - 1;
+        self.feed[i]
+    }
+
+    /// Seconds to walk the first `length` mm at the plan's feed.
+    pub fn duration(&self, length: f64) -> f64 {
+        let mut t = 0.0;
+        for (i, (&a, &f)) in self.arc.iter().zip(&self.feed).enumerate() {
+            let end = self
+                .arc
+                .get(i + 1)
+                .copied()
+                .unwrap_or(f64::INFINITY)
+                .min(length);
+            if end > a {
+                t += (end - a) / f;
+            }
+        }
+        t
     }
 }
 

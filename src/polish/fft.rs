@@ -1,0 +1,187 @@
+//! Two-dimensional FFTs (rows then columns, rustfft) and the linear convolution of a
+//! map with a small kernel through them: the dwell-time solver's heavy part.
+
+use std::sync::Arc;
+
+use rustfft::num_complex::Complex64;
+use rustfft::{Fft, FftPlanner};
+
+/// Forward and inverse 2-D transforms of a `size × size` complex array, row-major.
+pub struct Fft2 {
+    size: usize,
+    forward: Arc<dyn Fft<f64>>,
+    inverse: Arc<dyn Fft<f64>>,
+    column: Vec<Complex64>,
+}
+
+impl Fft2 {
+    /// Plans the transforms for `size × size` arrays.
+    pub fn new(size: usize) -> Fft2 {
+        let mut planner = FftPlanner::new();
+        Fft2 {
+            size,
+            forward: planner.plan_fft_forward(size),
+            inverse: planner.plan_fft_inverse(size),
+            column: vec![Complex64::default(); size],
+        }
+    }
+
+    /// The side of the arrays it transforms.
+    pub fn size(&self) -> usize {
+        self.size
+    }
+
+    fn both_passes(&mut self, data: &mut [Complex64], inverse: bool) {
+        let n = self.size;
+        let fft = if inverse {
+            &self.inverse
+        } else {
+            &self.forward
+        };
+        // Every row in one call (rustfft transforms consecutive chunks).
+        fft.process(data);
+        for c in 0..n {
+            for (r, v) in self.column.iter_mut().enumerate() {
+                *v = data[r * n + c];
+            }
+            fft.process(&mut self.column);
+            for (r, v) in self.column.iter().enumerate() {
+                data[r * n + c] = *v;
+            }
+        }
+    }
+
+    /// In place, unnormalised.
+    pub fn forward(&mut self, data: &mut [Complex64]) {
+        self.both_passes(data, false);
+    }
+
+    /// In place, divided by `size²`: `inverse(forward(x)) = x`.
+    pub fn inverse(&mut self, data: &mut [Complex64]) {
+        self.both_passes(data, true);
+        let scale = 1.0 / (self.size * self.size) as f64;
+        for v in data.iter_mut() {
+            *v *= scale;
+        }
+    }
+}
+
+/// Linear convolution of `n × n` maps with one kernel of half-width `reach` pixels
+/// (`(2·reach + 1)²` values, centred), as products of spectra on a zero-padded square
+/// large enough that nothing wraps around.
+pub struct Convolver {
+    n: usize,
+    fft: Fft2,
+    spectrum: Vec<Complex64>,
+    work: Vec<Complex64>,
+}
+
+impl Convolver {
+    /// For maps `n` pixels a side and the kernel `kernel` (side `2·reach + 1`, row-major,
+    /// its centre the zero offset).
+    pub fn new(n: usize, kernel: &[f64], reach: usize) -> Convolver {
+        let side = 2 * reach + 1;
+        assert_eq!(kernel.len(), side * side, "kernel of side {side}");
+        let size = n + 2 * reach;
+        let mut fft = Fft2::new(size);
+        let mut spectrum = vec![Complex64::default(); size * size];
+        // The kernel's centre at (0, 0), negative offsets wrapped to the far end.
+        for kr in 0..side {
+            for kc in 0..side {
+                let r = (kr + size - reach) % size;
+                let c = (kc + size - reach) % size;
+                spectrum[r * size + c] = Complex64::new(kernel[kr * side + kc], 0.0);
+            }
+        }
+        fft.forward(&mut spectrum);
+        Convolver {
+            n,
+            fft,
+            work: vec![Complex64::default(); size * size],
+            spectrum,
+        }
+    }
+
+    /// The kernel's spectrum on the padded square (for inverse filters).
+    pub fn spectrum(&self) -> &[Complex64] {
+        &self.spectrum
+    }
+
+    /// The side of the padded square.
+    pub fn size(&self) -> usize {
+        self.fft.size()
+    }
+
+    /// `out = map ∗ kernel`, both `n × n`; `out` may not alias `map`.
+    pub fn convolve(&mut self, map: &[f64], out: &mut [f64]) {
+        self.filter(map, out, |s, _| s);
+    }
+
+    /// `out = F⁻¹[F(map) · f(kernel spectrum, index)]` on the padded square, cropped
+    /// back to `n × n`: [`Convolver::convolve`] with `f` the identity, an inverse filter
+    /// otherwise.
+    pub fn filter(
+        &mut self,
+        map: &[f64],
+        out: &mut [f64],
+        f: impl Fn(Complex64, usize) -> Complex64,
+    ) {
+        let (n, size) = (self.n, self.fft.size());
+        self.work.fill(Complex64::default());
+        for r in 0..n {
+            for c in 0..n {
+                self.work[r * size + c] = Complex64::new(map[r * n + c], 0.0);
+            }
+        }
+        self.fft.forward(&mut self.work);
+        for (i, (w, s)) in self.work.iter_mut().zip(&self.spectrum).enumerate() {
+            *w *= f(*s, i);
+        }
+        self.fft.inverse(&mut self.work);
+        for r in 0..n {
+            for c in 0..n {
+                out[r * n + c] = self.work[r * size + c].re;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn convolution_matches_the_direct_sum() {
+        let (n, reach) = (7, 2);
+        let side = 2 * reach + 1;
+        let map: Vec<f64> = (0..n * n).map(|i| ((i * 37) % 11) as f64 - 5.0).collect();
+        let kernel: Vec<f64> = (0..side * side)
+            .map(|i| ((i * 13) % 7) as f64 * 0.1)
+            .collect();
+        let mut conv = Convolver::new(n, &kernel, reach);
+        let mut out = vec![0.0; n * n];
+        conv.convolve(&map, &mut out);
+        for r in 0..n as isize {
+            for c in 0..n as isize {
+                let mut want = 0.0;
+                for dr in -(reach as isize)..=reach as isize {
+                    for dc in -(reach as isize)..=reach as isize {
+                        let (sr, sc) = (r - dr, c - dc);
+                        if (0..n as isize).contains(&sr) && (0..n as isize).contains(&sc) {
+                            let k = kernel[((dr + reach as isize) * side as isize
+                                + dc
+                                + reach as isize)
+                                as usize];
+                            want += k * map[(sr * n as isize + sc) as usize];
+                        }
+                    }
+                }
+                let got = out[(r * n as isize + c) as usize];
+                assert!(
+                    (got - want).abs() < 1e-9,
+                    "({r}, {c}): {got} against {want}"
+                );
+            }
+        }
+    }
+}

@@ -1,0 +1,390 @@
+//! One polishing iteration on the twin: the interferometer measures the surface, the
+//! dwell solver plans, the plan becomes the feed along the path, and the twin's
+//! controller walks it while the pad removes glass at its pose every control tick
+//! (docs/polishing.md "Polishing").
+
+use std::sync::Arc;
+
+use nalgebra::{Isometry3, Vector3};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use super::dwell::{gaussian_average, Dwell, DwellSolver, PathRaster};
+use super::map::{Grid, HeightMap};
+use super::tif::Pad;
+use crate::compensate::online::{self, Feedback, RunResult};
+use crate::error::{ensure, Error, Result};
+use crate::robot::Robot;
+use crate::twin::{
+    gaussian, FeedPlan, Machine, MachineState, Mirror, Path, PathKind, PathParams, Sample,
+    SimConfig, DEFAULT_FORCE,
+};
+
+/// The polishing set-up: pad, map, path, machine limits and interferometer.
+#[derive(Clone, Debug)]
+pub struct Setup {
+    /// The pad and its removal constants.
+    pub pad: Pad,
+    /// Map pixel side, mm.
+    pub pitch: f64,
+    /// The path the pad walks, and its placement on the part.
+    pub path: PathKind,
+    /// The placement.
+    pub params: PathParams,
+    /// The machine's feed limits, mm/s.
+    pub feed_limits: [f64; 2],
+    /// Diameter over which PV and RMS are judged, mm (within the glass).
+    pub clear_aperture: f64,
+    /// The interferometer's noise per pixel, nm RMS.
+    pub interferometer_noise: f64,
+}
+
+impl Setup {
+    /// The defaults of docs/polishing.md on `path` at its held-out placement (off every
+    /// training lattice): a 2 mm map, feeds 5–40 mm/s, a 500 mm clear aperture (5 mm
+    /// edge exclusion), 0.5 nm interferometer noise.
+    pub fn new(path: PathKind) -> Setup {
+        Setup {
+            pad: Pad::default(),
+            pitch: 2.0,
+            path,
+            params: PathParams {
+                margin: 5.0,
+                ..PathParams::held_out(path)
+            },
+            feed_limits: [5.0, 80.0],
+            clear_aperture: 500.0,
+            interferometer_noise: 0.5,
+        }
+    }
+}
+
+/// How the pad's pose is taken during a run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PoseSource {
+    /// The machine's true pose: what the glass sees.
+    True,
+    /// The path's target pose: a perfect machine (the solver's and the force's floor).
+    Target,
+    /// The true position with the target's attitude: what the position error alone
+    /// (across and along the path, so the feed's error too) does to the glass.
+    PositionOnly,
+    /// The target position with the true attitude: what the tilt alone does.
+    AttitudeOnly,
+}
+
+/// The grid, masks, path and solver of one set-up on the twin's mirror.
+pub struct Polisher {
+    /// The set-up.
+    pub setup: Setup,
+    /// The mirror.
+    pub mirror: Mirror,
+    /// The map's grid.
+    pub grid: Grid,
+    /// Pixels of glass.
+    pub glass: Vec<bool>,
+    /// Pixels of the clear aperture.
+    pub clear: Vec<bool>,
+    path: Path,
+    /// Arc length at the start of each segment of the path, mm.
+    arc: Vec<f64>,
+    /// The segments on the map.
+    raster: PathRaster,
+    /// Per segment: the least and most seconds on it (its length over the fastest and
+    /// the slowest feed).
+    bounds: Vec<[f64; 2]>,
+    /// Per segment: the area it stands for, mm² (its length over the path's local length
+    /// per unit area).
+    area: Vec<f64>,
+    solver: DwellSolver,
+}
+
+impl Polisher {
+    /// Prepares `setup` on the twin's mirror.
+    pub fn new(setup: Setup) -> Result<Polisher> {
+        let mirror = Mirror::default();
+        let [lo, hi] = setup.feed_limits;
+        ensure(lo > 0.0 && hi > lo && hi.is_finite(), || {
+            format!("feed limits must satisfy 0 < least < most, got {lo}–{hi} mm/s")
+        })?;
+        ensure(
+            setup.clear_aperture > 0.0 && setup.clear_aperture <= mirror.diameter,
+            || {
+                format!(
+                    "the clear aperture must be within the mirror's {} mm, got {} mm",
+                    mirror.diameter, setup.clear_aperture
+                )
+            },
+        )?;
+        ensure(setup.interferometer_noise >= 0.0, || {
+            format!(
+                "interferometer noise must be ≥ 0 nm, got {}",
+                setup.interferometer_noise
+            )
+        })?;
+        let pad = setup.pad;
+        let grid = Grid::covering(mirror.radius() + pad.reach(), setup.pitch)?;
+        let glass = grid.disc(mirror.radius());
+        let clear = grid.disc(0.5 * setup.clear_aperture);
+        let path = Path::generate(setup.path, &mirror, &setup.params);
+        let usable = mirror.radius() - setup.params.margin;
+        let (covered, region) = match setup.path {
+            // The Hilbert curve fills the square inscribed in the usable disc.
+            PathKind::Hilbert => {
+                let half = usable * std::f64::consts::FRAC_1_SQRT_2;
+                let mut region = Vec::with_capacity(grid.len());
+                let (s, c) = setup.params.rotation_deg.to_radians().sin_cos();
+                for r in 0..grid.n {
+                    for col in 0..grid.n {
+                        let [x, y] = grid.centre(r, col);
+                        let (u, v) = (c * x + s * y, -s * x + c * y);
+                        region.push(u.abs() <= half && v.abs() <= half);
+                    }
+                }
+                (4.0 * half * half, region)
+            }
+            _ => (
+                std::f64::consts::PI * usable * usable,
+                grid.disc(usable + 0.5 * grid.pitch),
+            ),
+        };
+        let spacing = covered / path.length();
+        // The path's vertices, repeats dropped.
+        let (mut arc, mut points) = (Vec::new(), Vec::new());
+        for (p, &s) in path.points().iter().zip(path.arc()) {
+            if arc.last().is_none_or(|&last| s > last) {
+                arc.push(s);
+                points.push(*p);
+            }
+        }
+        ensure(points.len() >= 2, || {
+            format!(
+                "the {} path has no length on this mirror",
+                setup.path.name()
+            )
+        })?;
+        let raster = PathRaster::new(grid, &points);
+        arc.pop();
+        // The path's length per unit area around each pixel: a Gaussian average over
+        // 0.75 of the spacing, wide enough that the passes leave no ripple in it.
+        let laid = raster.dwell_map(&raster.lengths);
+        let rho = gaussian_average(grid.n, &laid, &region, 0.75 * spacing / grid.pitch);
+        let rho_along = raster.sample(&rho);
+        let area = raster
+            .lengths
+            .iter()
+            .zip(&rho_along)
+            .map(|(l, r)| if *r > 0.0 { l / r } else { l * spacing })
+            .collect();
+        let bounds = raster.lengths.iter().map(|l| [l / hi, l / lo]).collect();
+        let (kernel, reach) = pad.kernel(grid, DEFAULT_FORCE);
+        let gain = (0..grid.len())
+            .map(|i| {
+                let [x, y] = grid.centre(i / grid.n, i % grid.n);
+                pad.contact([x, y], [0.0, 0.0], 1.0, mirror.radius()).mean * pad.area()
+            })
+            .collect();
+        let solver = DwellSolver::new(
+            grid.n,
+            &kernel,
+            reach,
+            glass.clone(),
+            clear.clone(),
+            gain,
+            spacing / grid.pitch,
+        )?;
+        Ok(Polisher {
+            setup,
+            mirror,
+            grid,
+            glass,
+            clear,
+            path,
+            arc,
+            raster,
+            bounds,
+            area,
+            solver,
+        })
+    }
+
+    /// What the interferometer reports of `surface`: the heights plus its noise (seeded
+    /// by `seed`), piston and tilt removed over the clear aperture, zero off the glass.
+    pub fn measure(&self, surface: &HeightMap, seed: u64) -> HeightMap {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5a59_474f);
+        let mut out = surface.clone();
+        for (v, &g) in out.values.iter_mut().zip(&self.glass) {
+            *v = if g {
+                *v + gaussian(&mut rng, self.setup.interferometer_noise)
+            } else {
+                0.0
+            };
+        }
+        out.remove_plane(&self.clear);
+        for (v, &g) in out.values.iter_mut().zip(&self.glass) {
+            if !g {
+                *v = 0.0;
+            }
+        }
+        out
+    }
+
+    /// The dwell along the path for a measured surface.
+    pub fn plan(&mut self, measured: &HeightMap) -> Dwell {
+        self.solver
+            .solve(measured, &self.raster, &self.bounds, &self.area)
+    }
+
+    /// The feed that realises `dwell`: each segment's length over its seconds, scaled
+    /// during the run by the force reading over the nominal force (force × dwell is the
+    /// removal).
+    pub fn feed(&self, dwell: &Dwell) -> Result<FeedPlan> {
+        let feed = self
+            .raster
+            .lengths
+            .iter()
+            .zip(&dwell.seconds)
+            .map(|(l, t)| l / t)
+            .collect();
+        let mut plan = FeedPlan::new(self.arc.clone(), feed).map_err(Error::Invalid)?;
+        plan.force_reference = Some(DEFAULT_FORCE);
+        plan.walk_once = true;
+        Ok(plan)
+    }
+
+    /// The length of the path, mm.
+    pub fn path_length(&self) -> f64 {
+        self.path.length()
+    }
+
+    /// Walks the path once along `plan` on `machine` from `start`, driven by `controller`
+    /// corrected by `feedback`, with the run's seed `seed`; removes glass from `surface`
+    /// at every tick at the pad's pose (`pose`) with the tick's contact force. `on_tick`
+    /// sees the progress.
+    #[allow(clippy::too_many_arguments)]
+    pub fn polish(
+        &self,
+        machine: &Machine,
+        controller: &Robot,
+        start: MachineState,
+        feedback: Feedback<'_>,
+        plan: FeedPlan,
+        seed: u64,
+        pose: PoseSource,
+        surface: &mut HeightMap,
+        mut on_tick: impl FnMut(usize),
+    ) -> Result<RunResult> {
+        // The feed follows the force within a factor of two: the walk ends with the path,
+        // within twice its planned time.
+        let seconds = 2.0 * plan.duration(self.path.length());
+        let mut config = SimConfig::new(self.setup.path, seconds, seed);
+        config.path_params = self.setup.params;
+        config.feed_plan = Some(Arc::new(plan));
+        let dt = config.dt;
+        let mut ticks = 0;
+        online::run_observed(
+            machine,
+            controller,
+            config,
+            start,
+            feedback,
+            |s: &Sample, actual: &Isometry3<f64>| {
+                self.remove(s, actual, pose, dt, surface);
+                ticks += 1;
+                on_tick(ticks);
+            },
+        )
+    }
+
+    /// One tick's removal.
+    fn remove(
+        &self,
+        s: &Sample,
+        actual: &Isometry3<f64>,
+        pose: PoseSource,
+        dt: f64,
+        surface: &mut HeightMap,
+    ) {
+        let target = &s.hidden.target;
+        let (true_centre, true_axis) = (actual.translation.vector, actual.rotation * Vector3::z());
+        let (centre, axis) = match pose {
+            PoseSource::True => (true_centre, true_axis),
+            PoseSource::Target => (target.position, target.axis.normalize()),
+            PoseSource::PositionOnly => (true_centre, target.axis.normalize()),
+            PoseSource::AttitudeOnly => (target.position, true_axis),
+        };
+        // The glass's normal where the pad really is; the face's tilt against it.
+        let normal = self.mirror.target(centre.x, centre.y).axis;
+        let across = axis - normal * axis.dot(&normal);
+        let contact = self.setup.pad.contact(
+            [centre.x, centre.y],
+            [across.x, across.y],
+            s.hidden.force,
+            self.mirror.radius(),
+        );
+        self.setup
+            .pad
+            .remove(surface, &self.glass, [centre.x, centre.y], &contact, dt);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::polish::surface::{draw, StartingPoint};
+
+    /// Walking the planned feed along each path with the pad square to the glass at the
+    /// nominal force removes what the plan said (the feed realises the dwell); on the
+    /// raster the plan removes most of the error.
+    #[test]
+    fn the_feed_realises_the_plan() {
+        for kind in PathKind::ALL {
+            let mut setup = Setup::new(kind);
+            setup.pitch = 4.0;
+            let mut polisher = Polisher::new(setup).unwrap();
+            let surface = draw(
+                polisher.grid,
+                polisher.mirror.radius(),
+                &polisher.clear,
+                &StartingPoint::default(),
+                1,
+            );
+            let dwell = polisher.plan(&surface);
+            let plan = polisher.feed(&dwell).unwrap();
+            let total = plan.duration(polisher.path_length());
+            let (dt, pad) = (0.02, polisher.setup.pad);
+            let mut walked = HeightMap::zeros(polisher.grid);
+            let (mut arc, mut t) = (0.0, 0.0);
+            while t < total {
+                let [x, y] = polisher.path.at(arc);
+                let contact =
+                    pad.contact([x, y], [0.0, 0.0], DEFAULT_FORCE, polisher.mirror.radius());
+                pad.remove(&mut walked, &polisher.glass, [x, y], &contact, dt);
+                arc += plan.feed_at(arc) * dt;
+                t += dt;
+            }
+            let miss = HeightMap {
+                grid: polisher.grid,
+                values: walked
+                    .values
+                    .iter()
+                    .zip(&dwell.removal.values)
+                    .map(|(w, p)| -w - p)
+                    .collect(),
+            }
+            .figure(&polisher.clear);
+            assert!(
+                miss.rms < 2.5,
+                "{kind:?}: walked less planned removal {miss:?}"
+            );
+            if kind == PathKind::Grid {
+                let start = surface.figure(&polisher.clear);
+                assert!(
+                    dwell.planned.rms < 0.5 * start.rms,
+                    "{start:?} → {:?}",
+                    dwell.planned
+                );
+            }
+        }
+    }
+}

@@ -1,0 +1,325 @@
+//! The tool influence function: Preston's law (removal rate = K · pressure · relative
+//! speed) for the twin's orbital pad, the pressure under the pad taken from its true pose
+//! (docs/polishing.md "Tool influence function").
+//!
+//! The pad (radius `R`) is driven on an orbit of radius `e` without turning, so every
+//! point of it slides at the same speed `V = 2π·e·n`. A point of the glass at offset `d`
+//! from the orbit's centre is under the pad for the part `β/π` of an orbit, with
+//! `cos β = (|d|² + e² − R²) / (2·|d|·e)` (β = π within `R − e`, 0 beyond `R + e`). The
+//! pressure is linear over the pad, `p(u) = p₀ − g·u` at offset `u` from the pad's centre
+//! (a compliant backing of stiffness `k` under a face tilted against the glass: `g = k·a_t`,
+//! `a_t` the tool axis's component across the surface normal). Averaged over the orbit
+//! the integral of `u` over the arc in contact is closed-form, so the removal rate is
+//!
+//! ```text
+//! rate(d) = K·V·[ p₀·β/π − (g·d)·(β − e·sin β / |d|)/π ]
+//! ```
+//!
+//! `p₀` balances the contact force over the part of the pad on the glass (the pad's
+//! centre's overhang at the rim, in the manner of Kim & Burge's edge model without its
+//! moment balance: the head holds the tool's attitude, so the moment goes into the head).
+
+use super::map::{Grid, HeightMap};
+
+/// The polishing pad and its removal constants.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Pad {
+    /// Pad radius, mm.
+    pub radius: f64,
+    /// Orbit radius, mm.
+    pub orbit_radius: f64,
+    /// Orbit speed, revolutions per minute.
+    pub orbit_rpm: f64,
+    /// Stiffness of the compliant backing, N/mm³ (pressure per mm of compression).
+    pub stiffness: f64,
+    /// Preston's coefficient K, mm²/N (removal depth per unit pressure and sliding
+    /// distance).
+    pub preston: f64,
+}
+
+impl Default for Pad {
+    /// A 30 mm polyurethane pad on a 2 MPa, 10 mm backing, orbiting 6 mm at 300 rpm,
+    /// with K set so that one pass at the twin's mean feed (20 mm/s) over its 15 mm
+    /// spacing removes about 150 nm, the size of the figure error it is to correct
+    /// (docs/polishing.md).
+    fn default() -> Pad {
+        Pad {
+            radius: 15.0,
+            orbit_radius: 6.0,
+            orbit_rpm: 300.0,
+            stiffness: 0.2,
+            preston: 2.4e-6,
+        }
+    }
+}
+
+/// The pressure under the pad at one instant: `p(u) = mean − gradient·u`, N/mm².
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Contact {
+    /// Pressure at the pad's centre, N/mm².
+    pub mean: f64,
+    /// Its gradient across the pad in the map's xy plane, N/mm³.
+    pub gradient: [f64; 2],
+}
+
+/// Area of the part of a disc of radius `a` centred `d` from the centre of a disc of
+/// radius `big` that lies inside it.
+pub fn overlap_area(a: f64, d: f64, big: f64) -> f64 {
+    use std::f64::consts::PI;
+    if d >= a + big {
+        0.0
+    } else if d + a <= big {
+        PI * a * a
+    } else if d + big <= a {
+        PI * big * big
+    } else {
+        let alpha = ((d * d + a * a - big * big) / (2.0 * d * a)).clamp(-1.0, 1.0);
+        let gamma = ((d * d + big * big - a * a) / (2.0 * d * big)).clamp(-1.0, 1.0);
+        let k = ((-d + a + big) * (d + a - big) * (d - a + big) * (d + a + big)).max(0.0);
+        a * a * alpha.acos() + big * big * gamma.acos() - 0.5 * k.sqrt()
+    }
+}
+
+impl Pad {
+    /// How far from the orbit's centre the pad reaches, mm.
+    pub fn reach(&self) -> f64 {
+        self.radius + self.orbit_radius
+    }
+
+    /// The sliding speed of every point of the pad, mm/s.
+    pub fn speed(&self) -> f64 {
+        std::f64::consts::TAU * self.orbit_radius * self.orbit_rpm / 60.0
+    }
+
+    /// The pad's area, mm².
+    pub fn area(&self) -> f64 {
+        std::f64::consts::PI * self.radius * self.radius
+    }
+
+    /// The contact of the pad centred at `centre` (mm, the map's plane) on glass of
+    /// radius `glass` mm, pressed with `force` N, its face tilted by `tilt` (the tool
+    /// axis's component across the surface normal, rad, in the map's plane). The
+    /// pressure balances the force over the part of the pad on the glass (never less
+    /// than a quarter of the pad: the paths keep a margin); the tilt's gradient is
+    /// limited so that the pad's rim never lifts off (pressure ≥ 0 everywhere).
+    pub fn contact(&self, centre: [f64; 2], tilt: [f64; 2], force: f64, glass: f64) -> Contact {
+        let on_glass =
+            overlap_area(self.radius, centre[0].hypot(centre[1]), glass).max(0.25 * self.area());
+        let mean = force.max(0.0) / on_glass;
+        let mut gradient = [self.stiffness * tilt[0], self.stiffness * tilt[1]];
+        let size = gradient[0].hypot(gradient[1]) * self.radius;
+        if size > mean {
+            let s = mean / size;
+            gradient = [gradient[0] * s, gradient[1] * s];
+        }
+        Contact { mean, gradient }
+    }
+
+    /// The removal rate, nm/s, at offset `(dx, dy)` mm from the orbit's centre.
+    #[inline]
+    pub fn rate(&self, contact: &Contact, dx: f64, dy: f64) -> f64 {
+        use std::f64::consts::PI;
+        let (big, e) = (self.radius, self.orbit_radius);
+        let r = dx.hypot(dy);
+        let beta = if r <= big - e {
+            PI
+        } else if r >= big + e {
+            return 0.0;
+        } else {
+            ((r * r + e * e - big * big) / (2.0 * r * e))
+                .clamp(-1.0, 1.0)
+                .acos()
+        };
+        // ∫ u dφ over the arc in contact is 2·d·(β − e·sin β / |d|); at |d| = 0 the arc
+        // is the whole orbit and the integral vanishes.
+        let lever = if r > 0.0 {
+            beta - e * beta.sin() / r
+        } else {
+            0.0
+        };
+        let g_dot_d = contact.gradient[0] * dx + contact.gradient[1] * dy;
+        let pressure = (contact.mean * beta - g_dot_d * lever) / PI;
+        // mm/s → nm/s.
+        self.preston * self.speed() * pressure.max(0.0) * 1e6
+    }
+
+    /// Removes `seconds` of the pad's removal at orbit centre `centre` (mm) from `map`,
+    /// on the pixels `on_glass` marks.
+    pub fn remove(
+        &self,
+        map: &mut HeightMap,
+        on_glass: &[bool],
+        centre: [f64; 2],
+        contact: &Contact,
+        seconds: f64,
+    ) {
+        let g = map.grid;
+        let reach = self.reach();
+        let [fc, fr] = g.locate(centre[0], centre[1]);
+        let span = reach / g.pitch;
+        let lo = |f: f64| ((f - span).floor().max(0.0)) as usize;
+        let hi = |f: f64| (((f + span).ceil()).max(-1.0) as isize).min(g.n as isize - 1);
+        let (r1, c1) = (hi(fr), hi(fc));
+        if r1 < 0 || c1 < 0 {
+            return;
+        }
+        for r in lo(fr)..=r1 as usize {
+            for c in lo(fc)..=c1 as usize {
+                let i = r * g.n + c;
+                if !on_glass[i] {
+                    continue;
+                }
+                let [x, y] = g.centre(r, c);
+                map.values[i] -= seconds * self.rate(contact, x - centre[0], y - centre[1]);
+            }
+        }
+    }
+
+    /// The nominal influence function on `grid`'s pixels (square, side `2·reach + 1`,
+    /// centred) for a pad pressed with `force` N square to the glass, as depth removed
+    /// (nm) per unit dwell density (s/mm²): the rate times the pixel's area. Returns the
+    /// kernel and its half-width `reach` in pixels.
+    pub fn kernel(&self, grid: Grid, force: f64) -> (Vec<f64>, usize) {
+        let reach = (self.reach() / grid.pitch).ceil() as usize;
+        let side = 2 * reach + 1;
+        let contact = Contact {
+            mean: force / self.area(),
+            gradient: [0.0, 0.0],
+        };
+        let area = grid.pitch * grid.pitch;
+        let mut k = Vec::with_capacity(side * side);
+        for r in 0..side {
+            for c in 0..side {
+                let dx = (c as f64 - reach as f64) * grid.pitch;
+                let dy = (r as f64 - reach as f64) * grid.pitch;
+                k.push(self.rate(&contact, dx, dy) * area);
+            }
+        }
+        (k, reach)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The closed form against the orbit averaged by brute force: the pad's pressure
+    /// integrated over many orbit positions.
+    #[test]
+    fn rate_matches_the_orbit_average() {
+        let pad = Pad::default();
+        let contact = Contact {
+            mean: 0.08,
+            gradient: [3e-4, -2e-4],
+        };
+        let steps = 200_000;
+        for &(dx, dy) in &[
+            (0.0, 0.0),
+            (5.0, 3.0),
+            (-11.0, 4.0),
+            (16.0, -10.0),
+            (0.0, 26.5),
+        ] {
+            let mut sum = 0.0;
+            for k in 0..steps {
+                let phi = std::f64::consts::TAU * (k as f64 + 0.5) / steps as f64;
+                let (ux, uy) = (
+                    dx - pad.orbit_radius * phi.cos(),
+                    dy - pad.orbit_radius * phi.sin(),
+                );
+                if ux.hypot(uy) < pad.radius {
+                    sum += contact.mean - contact.gradient[0] * ux - contact.gradient[1] * uy;
+                }
+            }
+            let want = pad.preston * pad.speed() * sum / steps as f64 * 1e6;
+            let got = pad.rate(&contact, dx, dy);
+            assert!(
+                (got - want).abs() <= 1e-3 * want.abs().max(1e-3),
+                "({dx}, {dy}): {got} against {want}"
+            );
+        }
+    }
+
+    /// The removal volume is Preston's K·V·F whatever the tilt (the gradient's moment
+    /// integrates to zero), and the tilt moves the footprint's centroid against it.
+    #[test]
+    fn volume_is_kvf_and_tilt_moves_the_centroid() {
+        let pad = Pad::default();
+        let grid = Grid { n: 200, pitch: 0.5 };
+        let on_glass = vec![true; grid.len()];
+        for tilt in [[0.0, 0.0], [2e-3, 0.0]] {
+            let contact = pad.contact([0.0, 0.0], tilt, 100.0, 1e9);
+            let mut map = HeightMap::zeros(grid);
+            pad.remove(&mut map, &on_glass, [0.0, 0.0], &contact, 1.0);
+            let (mut vol, mut mx) = (0.0, 0.0);
+            for r in 0..grid.n {
+                for c in 0..grid.n {
+                    let d = -map.values[r * grid.n + c] * 1e-6 * grid.pitch * grid.pitch;
+                    vol += d;
+                    mx += d * grid.centre(r, c)[0];
+                }
+            }
+            let kvf = pad.preston * pad.speed() * 100.0;
+            assert!((vol - kvf).abs() < 2e-3 * kvf, "volume {vol} against {kvf}");
+            let centroid = mx / vol;
+            if tilt[0] == 0.0 {
+                assert!(centroid.abs() < 1e-6, "square pad centroid {centroid}");
+            } else {
+                // Linear pressure over a disc moves the centroid by −g·R²/(4·p₀) for a
+                // still pad; the orbit spreads it further out, at the same shift.
+                let want = -contact.gradient[0] * pad.radius.powi(2) / (4.0 * contact.mean);
+                assert!(
+                    (centroid - want).abs() < 0.02 * want.abs(),
+                    "tilted centroid {centroid} against {want}"
+                );
+            }
+        }
+    }
+
+    /// The removal moves with the pad: dwell points moved by a pixel give the map moved
+    /// by a pixel (so a pose offset `d` changes the glass by `R(x − d) − R(x) ≈ −d·∇R`,
+    /// the rule docs/polishing.md builds on), and a tilt changes no volume.
+    #[test]
+    fn removal_moves_with_the_pad() {
+        let pad = Pad::default();
+        let grid = Grid { n: 160, pitch: 0.5 };
+        let on_glass = vec![true; grid.len()];
+        let contact = pad.contact([0.0, 0.0], [1e-3, -2e-3], 100.0, 1e9);
+        let walk = |d: f64| {
+            let mut map = HeightMap::zeros(grid);
+            for i in -4..=4 {
+                for j in -4..=4 {
+                    let (x, y) = (3.0 * i as f64 + 0.2, 3.0 * j as f64 - 0.1);
+                    let seconds = 1.0 + 0.04 * x + 0.01 * y;
+                    pad.remove(&mut map, &on_glass, [x + d, y], &contact, seconds);
+                }
+            }
+            map
+        };
+        let (base, moved) = (walk(0.0), walk(grid.pitch));
+        for r in 0..grid.n {
+            for c in 1..grid.n {
+                let (a, b) = (
+                    moved.values[r * grid.n + c],
+                    base.values[r * grid.n + c - 1],
+                );
+                assert!(
+                    (a - b).abs() < 1e-9 * a.abs().max(1.0),
+                    "({r}, {c}): {a} against {b}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn overlap_area_limits() {
+        use std::f64::consts::PI;
+        assert_eq!(overlap_area(1.0, 0.0, 10.0), PI);
+        assert_eq!(overlap_area(1.0, 12.0, 10.0), 0.0);
+        // Half the pad over a straight edge, nearly, for a huge disc.
+        let half = overlap_area(1.0, 1000.0, 1000.0);
+        assert!((half - 0.5 * PI).abs() < 1e-3, "{half}");
+        let rim = Pad::default().contact([250.0, 0.0], [0.0, 0.0], 100.0, 255.0);
+        assert!(rim.mean > 100.0 / Pad::default().area());
+    }
+}
