@@ -446,10 +446,16 @@ fn demo_writes_the_report() {
         "--all-models",
         "--seeds",
         "1",
+        "--mirror-iterations",
+        "0",
         "--out",
         s(&out),
     ]);
     assert!(text.contains("demo finished"), "{text}");
+    assert!(
+        !out.join("polish").exists(),
+        "the mirror was asked to stay out"
+    );
     let table_v = std::fs::read_to_string(out.join("table_v.csv")).unwrap();
     let mut lines = table_v.lines();
     assert_eq!(
@@ -614,6 +620,8 @@ fn demo_over_seeds_reports_the_spread() {
             "0".into(),
             "--seeds".into(),
             seeds.into(),
+            "--mirror-iterations".into(),
+            "1".into(),
             "--out".into(),
             s(&out).into(),
         ]
@@ -677,6 +685,23 @@ fn demo_over_seeds_reports_the_spread() {
         );
     }
     assert!(report.contains("training seeds 1, 2"));
+    // The mirror: one surface polished under each controller (the tiny models remove no
+    // error on validation, so none is recommended and none compensates).
+    assert!(
+        report.contains("## The mirror (Table VI)") && report.contains("No model was recommended"),
+        "{report}"
+    );
+    let polish = std::fs::read_to_string(out.join("polish/polish.csv")).unwrap();
+    assert!(!polish.contains(",compensated ("), "{polish}");
+    for controller in ["nominal", "calibrated", "oracle", "perfect machine"] {
+        assert!(
+            polish.contains(&format!(",{controller}")),
+            "{controller}: {polish}"
+        );
+    }
+    for f in ["polish/convergence.png", "polish/maps.png"] {
+        assert!(out.join(f).exists(), "{f}");
+    }
     // The default recipe and the three held-out sessions of Table V, named in the setup.
     assert!(
         report.contains("1 min per path in 4 session(s)")

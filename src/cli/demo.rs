@@ -39,6 +39,10 @@ pub struct DemoArgs {
     pub recipe: super::RecipeArgs,
     #[command(flatten)]
     pub held_out: HeldOutArgs,
+    /// Polishing iterations of the mirror section (the recommended model polishing one
+    /// surface against the other controllers, docs/polishing.md); 0 leaves it out.
+    #[arg(long, default_value_t = 2, value_parser = super::count(0..=20))]
+    pub mirror_iterations: usize,
 }
 
 pub fn evaluate(gpu: Gpu, args: &EvaluateArgs) -> anyhow::Result<()> {
@@ -117,6 +121,10 @@ pub fn demo(gpu: Gpu, args: &DemoArgs) -> anyhow::Result<()> {
         all_models: args.all_models,
         seeds: args.seeds.clone(),
         recipe: args.recipe.recipe_or(demo::DEMO_RECIPE)?,
+        mirror: (args.mirror_iterations > 0).then(|| demo::PolishSpec {
+            iterations: args.mirror_iterations,
+            ..demo::demo_mirror()
+        }),
         ..DemoConfig::default()
     };
     if let Some(p) = &args.config {

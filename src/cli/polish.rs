@@ -114,6 +114,7 @@ pub fn run(adapter: Option<&str>, args: &PolishArgs) -> anyhow::Result<()> {
         warm_up_minutes: args.warm_up_minutes,
         every: args.every,
         start: StartingPoint::default(),
+        split_nominal: true,
     };
     let mut console = Console::default();
     let result = polish::run(

@@ -1,27 +1,32 @@
 //! The demo protocol end to end on the embedded twin: the calibration set on a cold
 //! machine, the EKF calibration, one training session of three recordings under the
 //! calibrated controller, the dataset, IASTGCN and its three ablations trained and
-//! refined the same way, then Tables III and V on a separate held-out session and the
-//! report folder.
+//! refined the same way, then Tables III and V on a separate held-out session, the
+//! mirror polished with the recommended model (docs/polishing.md) and the report folder.
 
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
 
-use super::evaluate::{finish, HeldOutConfig, NamedModel};
+use super::evaluate::{finish, predictors, HeldOutConfig, NamedModel};
 use super::jobs::{training_table, JobRecord};
+use super::polish;
+pub use super::polish::PolishSpec;
 use super::protocol::{check_seeds, fit_model, record_data, ModelFiles, MACHINE_SEED};
 pub use super::protocol::{CALIBRATION_SEED, TRAINING_SEED};
 use super::report::seeds::seeded_name;
 use super::report::Report;
+use crate::calibrate::file;
 use crate::compensate::held_out::IDLE_BETWEEN_RUNS;
 use crate::data::DataSources;
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
 use crate::model::Variant;
+use crate::polish::{Polisher, Setup, StartingPoint};
 use crate::progress::Reporter;
+use crate::robot::{Geometry, Robot};
 use crate::train::{build_dataset, RunConfig};
-use crate::twin::{Placement, Recipe};
+use crate::twin::{draw_machine, PathKind, Placement, Recipe};
 
 /// Length of each of the demo's training recordings, minutes: the most data with which
 /// three seeds of its eight models fit `make demo`'s 15 minutes on 2 CPU cores with a
@@ -49,6 +54,23 @@ pub struct DemoConfig {
     pub all_models: bool,
     /// How the training set is recorded (docs/twin.md "Sessions").
     pub recipe: Recipe,
+    /// The mirror (docs/polishing.md): the recommended model polishing a surface against
+    /// the other controllers, into `polish/` and a report section; `None` leaves it out.
+    pub mirror: Option<PolishSpec>,
+}
+
+/// The demo's mirror: one surface, two iterations on the raster (about a minute and a
+/// half on 2 cores; `iastgcn polish` runs more).
+pub fn demo_mirror() -> PolishSpec {
+    PolishSpec {
+        iterations: 2,
+        surface_seeds: vec![1],
+        seed: 501,
+        warm_up_minutes: 2.0,
+        every: 5,
+        start: StartingPoint::default(),
+        split_nominal: false,
+    }
 }
 
 /// How the demo records its training set: each path's minutes in 4 sessions on days of
@@ -71,6 +93,7 @@ impl Default for DemoConfig {
             seeds: vec![1, 2, 3],
             all_models: false,
             recipe: DEMO_RECIPE,
+            mirror: Some(demo_mirror()),
         }
     }
 }
@@ -274,9 +297,98 @@ pub fn demo(
         sections,
         ..Report::default()
     };
+    let mut mirror = |report: &mut Report, reporter: &mut dyn Reporter| -> Result<()> {
+        let Some(spec) = &demo.mirror else {
+            return Ok(());
+        };
+        let name = report.recommended.clone();
+        reporter.note(&match &name {
+            Some(name) => format!(
+                "== the mirror: {name} polishing against the other controllers (docs/polishing.md)"
+            ),
+            None => "== the mirror: no model was recommended, so none compensates; the other controllers polish (docs/polishing.md)".into(),
+        });
+        let section = mirror_section(
+            &gpu,
+            &models,
+            name.as_deref(),
+            &sources,
+            spec,
+            out,
+            reporter,
+        )?;
+        report
+            .sections
+            .push(("The mirror (Table VI)".into(), section));
+        Ok(())
+    };
     finish(
-        &gpu, report, &models, &sources, config, held_out, began, out, reporter,
+        &gpu,
+        report,
+        &models,
+        &sources,
+        config,
+        held_out,
+        began,
+        out,
+        reporter,
+        &mut mirror,
     )
+}
+
+/// The mirror with the model `name` of `models` compensating (none: only the other
+/// controllers; docs/polishing.md), into `out/polish/`; returns the report's section.
+fn mirror_section(
+    gpu: &Arc<Gpu>,
+    models: &[NamedModel],
+    name: Option<&str>,
+    sources: &DataSources,
+    spec: &PolishSpec,
+    out: &std::path::Path,
+    reporter: &mut dyn Reporter,
+) -> Result<String> {
+    let model = match name {
+        Some(name) => Some(models.iter().find(|m| m.name == name).ok_or_else(|| {
+            Error::Invalid(format!(
+                "the recommended model {name} is not among the demo's"
+            ))
+        })?),
+        None => None,
+    };
+    let checkpoints: Vec<(String, _)> = model
+        .iter()
+        .map(|m| (m.name.clone(), m.checkpoint.clone()))
+        .collect();
+    let mut loop_models = predictors(gpu, &checkpoints)?;
+    // The oracle stands in for a model of the demo's window.
+    let window = models.first().map_or(48, |m| m.checkpoint.config.window);
+    let geometry = Geometry::load_or_default(None)?;
+    let machine = draw_machine(geometry.clone(), MACHINE_SEED);
+    let nominal = Robot::nominal(geometry.clone());
+    let calibrated = Robot::new(geometry, file::load(&sources.calibration)?.errors);
+    let mut polisher = Polisher::new(Setup::new(PathKind::Grid))?;
+    let result = polish::run(
+        &mut polisher,
+        spec,
+        &machine,
+        &nominal,
+        &calibrated,
+        &mut loop_models,
+        window,
+        reporter,
+    )?;
+    let dir = out.join("polish");
+    polish::write(&dir, spec, &polisher, &result)?;
+    let table = polish::report(spec, &polisher, &result);
+    // The study's own heading goes; the rest is the section.
+    let body: String = table.lines().skip(2).collect::<Vec<_>>().join("\n");
+    let who = match name {
+        Some(name) => format!("The recommended model ({name}) in the loop"),
+        None => "No model was recommended (none removed error on the validation session), so none is in the loop: the other controllers".into(),
+    };
+    Ok(format!(
+        "{who} while the twin polishes a mirror, against the other controllers, from the same starting surface with the same seeds (docs/polishing.md; `iastgcn polish` runs more surfaces and iterations). Files: `polish/polish.md`, `polish/polish.csv`, `polish/convergence.png` (Fig. 13), `polish/maps.png` (Fig. 14).\n\n{body}\n"
+    ))
 }
 
 /// The report of `iastgcn evaluate`: Tables III and V for `models` on `sources`, written
@@ -338,6 +450,15 @@ pub fn evaluation_report(
         ..Report::default()
     };
     finish(
-        &gpu, report, &named, sources, config, held_out, began, out, reporter,
+        &gpu,
+        report,
+        &named,
+        sources,
+        config,
+        held_out,
+        began,
+        out,
+        reporter,
+        &mut |_, _| Ok(()),
     )
 }

@@ -576,6 +576,9 @@ pub fn evaluate(
     let recommendation = recommend(&validation.rows);
     reporter.note(&recommendation.sentence());
     report.headline = recommendation.headline(&report.table_v);
+    report.recommended = recommendation
+        .best
+        .map(|i| recommendation.scores[i].best_seed.clone());
     report.setup.push(recommendation.sentence());
     report.sections.push((
         "Recommended model".into(),
@@ -864,8 +867,12 @@ fn open_loop_score(
     }))
 }
 
-/// Tables III and V into `report`, its wall time since `began`, and the report folder
-/// `out` written; returns the report.
+/// What a caller adds to the report once Tables III and V are in it, before it is
+/// written (the demo's mirror section).
+pub(super) type BeforeWriting<'a> = &'a mut dyn FnMut(&mut Report, &mut dyn Reporter) -> Result<()>;
+
+/// Tables III and V into `report`, then `before_writing`, its wall time since `began`,
+/// and the report folder `out` written; returns the report.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn finish(
     gpu: &Arc<Gpu>,
@@ -877,6 +884,7 @@ pub(super) fn finish(
     began: Instant,
     out: &std::path::Path,
     reporter: &mut dyn Reporter,
+    before_writing: BeforeWriting<'_>,
 ) -> Result<Report> {
     evaluate(
         gpu,
@@ -892,6 +900,7 @@ pub(super) fn finish(
             .sections
             .push(("Graph convolution after training".into(), table));
     }
+    before_writing(&mut report, reporter)?;
     report.wall_seconds = began.elapsed().as_secs_f64();
     let files = super::report::write(out, &report)?;
     reporter.note(&format!(

@@ -34,6 +34,8 @@ pub struct PolishSpec {
     pub every: usize,
     /// What the surfaces are scaled to.
     pub start: StartingPoint,
+    /// Also run the nominal controller's position and attitude errors each alone.
+    pub split_nominal: bool,
 }
 
 /// One controller's surface at one iteration.
@@ -88,8 +90,9 @@ fn judged(polisher: &Polisher, surface: &HeightMap) -> (HeightMap, Figure) {
     (m, f)
 }
 
-/// Runs the study: every surface seed under `nominal` (and its position and attitude
-/// errors each alone: the other taken from the path's target), `calibrated`, each of
+/// Runs the study: every surface seed under `nominal` (with `spec.split_nominal`, also
+/// its position and attitude errors each alone, the other taken from the path's
+/// target), `calibrated`, each of
 /// `models` (compensating from the calibrated controller), the oracle (a `window`-tick
 /// model's latency) and a perfect machine (the pad at the path's target pose).
 #[allow(clippy::too_many_arguments)]
@@ -122,20 +125,25 @@ pub fn run(
         if k == 0 {
             maps.push(("start".to_string(), judged(polisher, &initial).0));
         }
-        let mut controllers: Vec<Controller> = vec![
-            Controller::Plain("nominal", nominal, PoseSource::True),
-            Controller::Plain(
+        let mut controllers: Vec<Controller> =
+            vec![Controller::Plain("nominal", nominal, PoseSource::True)];
+        if spec.split_nominal {
+            controllers.push(Controller::Plain(
                 "nominal, position error only",
                 nominal,
                 PoseSource::PositionOnly,
-            ),
-            Controller::Plain(
+            ));
+            controllers.push(Controller::Plain(
                 "nominal, attitude error only",
                 nominal,
                 PoseSource::AttitudeOnly,
-            ),
-            Controller::Plain("calibrated", calibrated, PoseSource::True),
-        ];
+            ));
+        }
+        controllers.push(Controller::Plain(
+            "calibrated",
+            calibrated,
+            PoseSource::True,
+        ));
         controllers.extend(models.iter_mut().map(Controller::Model));
         controllers.push(Controller::Oracle(window));
         controllers.push(Controller::Plain(

@@ -511,7 +511,16 @@ fn report(
         ..Report::default()
     };
     finish(
-        &gpu, report, &models, sources, run, held_out, began, out, reporter,
+        &gpu,
+        report,
+        &models,
+        sources,
+        run,
+        held_out,
+        began,
+        out,
+        reporter,
+        &mut |_, _| Ok(()),
     )
 }
 

@@ -97,6 +97,8 @@ pub struct Report {
     pub sections: Vec<(String, String)>,
     /// The learning curve (error against training-set size), when measured.
     pub curve: Vec<curve::CurvePoint>,
+    /// The recommended model's best seed (its full name), when one was chosen.
+    pub recommended: Option<String>,
 }
 
 /// Header of `table_v.csv`: every statistic against the hidden truth (`true_`) and as
