@@ -226,6 +226,7 @@ fn synthetic() -> Report {
     Report {
         title: "Synthetic evaluation".into(),
         headline: Some("a, the recommended model, removes 50.0 ± 1.0 % of it".into()),
+        recommended: Some("a".into()),
         adapter: "Test GPU (Vulkan)".into(),
         setup: vec![
             "config: runs/test.toml".into(),
