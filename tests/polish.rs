@@ -89,6 +89,7 @@ fn row(seed: u64, controller: &str, iteration: usize, pv: f64, rms: f64) -> Poli
         measured_rms_nm: rms,
         planned_rms_nm: f64::NAN,
         minutes: if iteration < 2 { 10.0 } else { f64::NAN },
+        force_n: 100.0,
         position_um: 100.0,
         attitude_mdeg: 50.0,
     }

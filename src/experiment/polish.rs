@@ -58,6 +58,9 @@ pub struct PolishRow {
     pub planned_rms_nm: f64,
     /// Minutes the iteration that follows this state polished (NaN at the last state).
     pub minutes: f64,
+    /// The pneumatic force that iteration was planned and run at, N (NaN at the last
+    /// state).
+    pub force_n: f64,
     /// Mean true pad position error of that iteration's run, µm (NaN at the last state).
     pub position_um: f64,
     /// Mean true tool-axis error of that run, mdeg (NaN at the last state).
@@ -175,6 +178,7 @@ pub fn run(
                     measured_rms_nm: measured.figure(&polisher.clear).rms,
                     planned_rms_nm: f64::NAN,
                     minutes: f64::NAN,
+                    force_n: f64::NAN,
                     position_um: f64::NAN,
                     attitude_mdeg: f64::NAN,
                 };
@@ -229,6 +233,7 @@ pub fn run(
                 )?;
                 progress.end();
                 row.planned_rms_nm = dwell.planned.rms;
+                row.force_n = dwell.force;
                 // The walk's own time: the feed follows the force.
                 row.minutes = r.truth.position.count as f64 * 0.02 / 60.0;
                 row.position_um = r.truth.position.mean;

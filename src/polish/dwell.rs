@@ -131,6 +131,8 @@ pub struct DwellSolver {
     cutoff: f64,
     /// Iterations per threshold.
     iterations: usize,
+    /// The force the kernel was made at, N.
+    force: f64,
 }
 
 /// A solved dwell along a path.
@@ -144,6 +146,9 @@ pub struct Dwell {
     pub planned: Figure,
     /// The threshold chosen, as a share of the largest |B̂|.
     pub gamma: f64,
+    /// The pneumatic force it was planned at, N (the solver's kernel's force when the
+    /// solver alone made it).
+    pub force: f64,
 }
 
 /// The Gaussian-weighted mean (SD `sigma` pixels) of `values` around each pixel that
@@ -210,7 +215,9 @@ impl DwellSolver {
     /// nm per s/mm²); `glass` and `clear` mark pixels as above; `gain` is each pixel's
     /// removal gain as a dwell point (1 inside, more where the pad overhangs the rim);
     /// `spacing` the path's pitch in pixels: dwell corrections stay below its Nyquist
-    /// frequency, since the path realises them only along its passes.
+    /// frequency, since the path realises them only along its passes; `force` the force
+    /// the kernel was made at, N.
+    #[allow(clippy::too_many_arguments)]
     pub fn new(
         n: usize,
         kernel: &[f64],
@@ -219,6 +226,7 @@ impl DwellSolver {
         clear: Vec<bool>,
         gain: Vec<f64>,
         spacing: f64,
+        force: f64,
     ) -> Result<DwellSolver> {
         ensure(spacing.is_finite() && spacing >= 1.0, || {
             format!("the path's passes must lie at least a pixel apart, got {spacing} pixels")
@@ -234,6 +242,7 @@ impl DwellSolver {
             gain,
             cutoff: 0.5 / spacing,
             iterations: 8,
+            force,
         })
     }
 
@@ -311,6 +320,7 @@ impl DwellSolver {
                 values: floor,
             },
             gamma: f64::NAN,
+            force: self.force,
         };
         let (mut residual, mut step) = (vec![0.0; n], vec![0.0; n]);
         for &gamma in &GAMMAS {
@@ -336,6 +346,7 @@ impl DwellSolver {
                             values: removal.clone(),
                         },
                         gamma,
+                        force: self.force,
                     };
                 }
                 for i in 0..n {
@@ -400,6 +411,7 @@ mod tests {
             clear.clone(),
             vec![1.0; grid.len()],
             spacing / grid.pitch,
+            100.0,
         )
         .unwrap();
         let mut measured = HeightMap::zeros(grid);

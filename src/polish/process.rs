@@ -17,7 +17,7 @@ use crate::error::{ensure, Error, Result};
 use crate::robot::Robot;
 use crate::twin::{
     gaussian, FeedPlan, Machine, MachineState, Mirror, Path, PathKind, PathParams, Sample,
-    SimConfig, DEFAULT_FORCE,
+    SimConfig, DEFAULT_FEED, DEFAULT_FORCE,
 };
 
 /// The polishing set-up: pad, map, path, machine limits and interferometer.
@@ -58,6 +58,9 @@ impl Setup {
         }
     }
 }
+
+/// The pneumatic forces a plan may choose, N.
+pub const FORCE_RANGE: [f64; 2] = [30.0, 150.0];
 
 /// How the pad's pose is taken during a run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -192,6 +195,7 @@ impl Polisher {
             clear.clone(),
             gain,
             spacing / grid.pitch,
+            DEFAULT_FORCE,
         )?;
         Ok(Polisher {
             setup,
@@ -230,13 +234,51 @@ impl Polisher {
     }
 
     /// The dwell along the path for a measured surface.
+    ///
+    /// The pneumatic force is chosen with it, as an optician lightens the pressure for
+    /// fine iterations: planned at the nominal 100 N first, then at the force that puts
+    /// the median feed at the twin's mean feed (20 mm/s), within 30–150 N. The removal
+    /// per pass then shrinks with the error, and with it the least layer the fastest feed
+    /// still removes, whose own unevenness (the passes' ripple, the force's error) would
+    /// otherwise stop the convergence; and the machine runs at the feeds it was trained
+    /// at.
     pub fn plan(&mut self, measured: &HeightMap) -> Dwell {
-        self.solver
-            .solve(measured, &self.raster, &self.bounds, &self.area)
+        let first = self.plan_at(measured, DEFAULT_FORCE);
+        let mut feeds: Vec<f64> = self
+            .raster
+            .lengths
+            .iter()
+            .zip(&first.seconds)
+            .map(|(l, t)| l / t)
+            .collect();
+        feeds.sort_by(f64::total_cmp);
+        let median = feeds.get(feeds.len() / 2).copied().unwrap_or(DEFAULT_FEED);
+        let force = (DEFAULT_FORCE * DEFAULT_FEED / median).clamp(FORCE_RANGE[0], FORCE_RANGE[1]);
+        self.plan_at(measured, force)
+    }
+
+    /// The dwell for `measured` with the pad pressed by `force` N: the removal scales
+    /// with the force, so the solver's seconds at the nominal force are `force / 100 N`
+    /// times the seconds at `force`, within bounds scaled alike.
+    pub fn plan_at(&mut self, measured: &HeightMap, force: f64) -> Dwell {
+        let scale = force / DEFAULT_FORCE;
+        let bounds: Vec<[f64; 2]> = self
+            .bounds
+            .iter()
+            .map(|b| [b[0] * scale, b[1] * scale])
+            .collect();
+        let mut dwell = self
+            .solver
+            .solve(measured, &self.raster, &bounds, &self.area);
+        for t in dwell.seconds.iter_mut() {
+            *t /= scale;
+        }
+        dwell.force = force;
+        dwell
     }
 
     /// The feed that realises `dwell`: each segment's length over its seconds, scaled
-    /// during the run by the force reading over the nominal force (force × dwell is the
+    /// during the run by the force reading over the planned force (force × dwell is the
     /// removal).
     pub fn feed(&self, dwell: &Dwell) -> Result<FeedPlan> {
         let feed = self
@@ -247,7 +289,7 @@ impl Polisher {
             .map(|(l, t)| l / t)
             .collect();
         let mut plan = FeedPlan::new(self.arc.clone(), feed).map_err(Error::Invalid)?;
-        plan.force_reference = Some(DEFAULT_FORCE);
+        plan.force_reference = Some(dwell.force);
         plan.walk_once = true;
         Ok(plan)
     }
@@ -279,6 +321,12 @@ impl Polisher {
         let seconds = 2.0 * plan.duration(self.path.length());
         let mut config = SimConfig::new(self.setup.path, seconds, seed);
         config.path_params = self.setup.params;
+        // The pneumatic set-point of the plan; its wander scales with it (a regulator's
+        // error is a share of its pressure).
+        if let Some(force) = plan.force_reference {
+            config.force_sd *= force / config.force_mean;
+            config.force_mean = force;
+        }
         config.feed_plan = Some(Arc::new(plan));
         let dt = config.dt;
         let mut ticks = 0;
@@ -358,7 +406,7 @@ mod tests {
             while t < total {
                 let [x, y] = polisher.path.at(arc);
                 let contact =
-                    pad.contact([x, y], [0.0, 0.0], DEFAULT_FORCE, polisher.mirror.radius());
+                    pad.contact([x, y], [0.0, 0.0], dwell.force, polisher.mirror.radius());
                 pad.remove(&mut walked, &polisher.glass, [x, y], &contact, dt);
                 arc += plan.feed_at(arc) * dt;
                 t += dt;
