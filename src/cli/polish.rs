@@ -44,7 +44,7 @@ pub struct PolishArgs {
     #[arg(long, default_value_t = 2.0)]
     pub pixel_mm: f64,
     /// Diameter over which PV and RMS are judged, mm (the mirror is 510 mm).
-    #[arg(long, default_value_t = 480.0)]
+    #[arg(long, default_value_t = iastgcn::polish::CLEAR_APERTURE)]
     pub clear_aperture_mm: f64,
     /// Predict every this many control ticks (the correction is held in between).
     #[arg(long, default_value_t = 5, value_parser = super::count(1..=10_000))]

@@ -15,6 +15,6 @@ mod tif;
 pub use dwell::{gaussian_average, Dwell, DwellSolver, PathRaster, GAMMAS};
 pub use fft::{Convolver, Fft2};
 pub use map::{Figure, Grid, HeightMap};
-pub use process::{Polisher, PoseSource, Setup, FORCE_RANGE};
+pub use process::{Polisher, PoseSource, Setup, CLEAR_APERTURE, FORCE_RANGE};
 pub use surface::{draw as draw_surface, StartingPoint};
 pub use tif::{overlap_area, Contact, Pad};

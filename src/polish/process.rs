@@ -41,8 +41,8 @@ pub struct Setup {
 
 impl Setup {
     /// The defaults of docs/polishing.md on `path` at its held-out placement (off every
-    /// training lattice): a 2 mm map, feeds 5–40 mm/s, a 500 mm clear aperture (5 mm
-    /// edge exclusion), 0.5 nm interferometer noise.
+    /// training lattice) but 5 mm from the rim: a 2 mm map, feeds 5–80 mm/s, a 480 mm
+    /// clear aperture (the outer 15 mm left out), 0.5 nm interferometer noise.
     pub fn new(path: PathKind) -> Setup {
         Setup {
             pad: Pad::default(),
@@ -53,11 +53,15 @@ impl Setup {
                 ..PathParams::held_out(path)
             },
             feed_limits: [5.0, 80.0],
-            clear_aperture: 500.0,
+            clear_aperture: CLEAR_APERTURE,
             interferometer_noise: 0.5,
         }
     }
 }
+
+/// The default clear aperture's diameter, mm: the mirror's 510 less its outer 15 mm,
+/// where the raster turns and the pad overhangs the rim (docs/polishing.md "The surface").
+pub const CLEAR_APERTURE: f64 = 480.0;
 
 /// The pneumatic forces a plan may choose, N.
 pub const FORCE_RANGE: [f64; 2] = [30.0, 150.0];
