@@ -311,6 +311,64 @@ mod tests {
         }
     }
 
+    /// The other rule docs/polishing.md uses: a fast random position error of SD σ on
+    /// every dwell point scales a removal pattern of spatial frequency f by
+    /// exp(−2π²σ²f²) (the removal is convolved with the jitter's Gaussian).
+    #[test]
+    fn jitter_scales_each_frequency_by_its_gaussian() {
+        use rand::SeedableRng;
+        let pad = Pad::default();
+        let grid = Grid { n: 128, pitch: 1.0 };
+        let on_glass = vec![true; grid.len()];
+        let contact = pad.contact([0.0, 0.0], [0.0, 0.0], 100.0, 1e9);
+        let period = 20.0;
+        let k = std::f64::consts::TAU / period;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        // Dwell points every mm over the map, their seconds a sinusoid along x, each
+        // visited 12 times with its own jitter (an average over visits, so that the
+        // sampling noise of the pad's sharp rim stays below the effect).
+        let visits = 12;
+        let walk = |sigma: f64, rng: &mut rand_chacha::ChaCha8Rng| {
+            let mut map = HeightMap::zeros(grid);
+            for i in -64..64 {
+                for j in -64..64 {
+                    let (x, y) = (i as f64 + 0.5, j as f64 + 0.5);
+                    let seconds = 0.02 * (1.0 + 0.5 * (k * x).sin()) / visits as f64;
+                    for _ in 0..visits {
+                        let (dx, dy) = (
+                            crate::twin::gaussian(rng, sigma),
+                            crate::twin::gaussian(rng, sigma),
+                        );
+                        pad.remove(&mut map, &on_glass, [x + dx, y + dy], &contact, seconds);
+                    }
+                }
+            }
+            map
+        };
+        // The pattern's amplitude at frequency 1/period over three periods at the centre.
+        let amplitude = |m: &HeightMap| {
+            let (mut s, mut c, mut n) = (0.0, 0.0, 0.0);
+            for r in 34..94 {
+                for col in 34..94 {
+                    let [x, _] = grid.centre(r, col);
+                    let v = m.values[r * grid.n + col];
+                    s += v * (k * x).sin();
+                    c += v * (k * x).cos();
+                    n += 1.0;
+                }
+            }
+            2.0 * (s * s + c * c).sqrt() / n
+        };
+        let sigma = 2.0;
+        let (still, jittered) = (walk(0.0, &mut rng), walk(sigma, &mut rng));
+        let ratio = amplitude(&jittered) / amplitude(&still);
+        let want = (-2.0 * std::f64::consts::PI.powi(2) * sigma * sigma / (period * period)).exp();
+        assert!(
+            (ratio - want).abs() < 0.03,
+            "jitter σ = {sigma} mm at a {period} mm period: ratio {ratio}, the rule says {want}"
+        );
+    }
+
     #[test]
     fn overlap_area_limits() {
         use std::f64::consts::PI;
