@@ -171,26 +171,7 @@ pub fn draw(
     cols: usize,
     size: (u32, u32),
 ) -> Result<(), PlotError> {
-    register_font();
-    let file = path.display().to_string();
-    let err = |e: &dyn std::fmt::Display| PlotError {
-        file: file.clone(),
-        message: e.to_string(),
-    };
-    let dir = path
-        .parent()
-        .filter(|d| !d.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let tmp = dir.join(format!(
-        ".{}.tmp{}.png",
-        path.file_name()
-            .map_or("plot".into(), |n| n.to_string_lossy()),
-        std::process::id()
-    ));
-    // The temporary file goes on every error (a full disk fails inside the encoder).
-    let drawn = (|| {
-        let root = BitMapBackend::new(&tmp, size).into_drawing_area();
-        root.fill(&WHITE).map_err(|e| err(&e))?;
+    render(path, size, |root, err| {
         let areas = root.split_evenly((rows, cols));
         for (panel, area) in panels.iter().zip(areas.iter()) {
             let logged;
@@ -290,6 +271,42 @@ pub fn draw(
                     .map_err(|e| err(&e))?;
             }
         }
+        Ok(())
+    })
+}
+
+/// Draws into a white PNG of `size` pixels at `path`, written atomically: `body` draws
+/// on the root area (its errors made with `err`), then the image goes to a temporary
+/// file beside `path` and is renamed over it; the temporary file goes on every error (a
+/// full disk fails inside the encoder).
+fn render(
+    path: &Path,
+    size: (u32, u32),
+    body: impl FnOnce(
+        &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
+        &dyn Fn(&dyn std::fmt::Display) -> PlotError,
+    ) -> Result<(), PlotError>,
+) -> Result<(), PlotError> {
+    register_font();
+    let file = path.display().to_string();
+    let err = |e: &dyn std::fmt::Display| PlotError {
+        file: file.clone(),
+        message: e.to_string(),
+    };
+    let dir = path
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let tmp = dir.join(format!(
+        ".{}.tmp{}.png",
+        path.file_name()
+            .map_or("plot".into(), |n| n.to_string_lossy()),
+        std::process::id()
+    ));
+    let drawn = (|| {
+        let root = BitMapBackend::new(&tmp, size).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| err(&e))?;
+        body(&root, &err)?;
         root.present().map_err(|e| err(&e))?;
         drop(root);
         std::fs::rename(&tmp, path).map_err(|e| err(&e))
@@ -338,24 +355,11 @@ pub fn heat_maps(
     range: (f64, f64),
     unit: &str,
 ) -> Result<(), PlotError> {
-    register_font();
-    let file = path.display().to_string();
-    let err = |e: &dyn std::fmt::Display| PlotError {
-        file: file.clone(),
-        message: e.to_string(),
-    };
     let cols = cols.max(1);
     let rows = maps.len().div_ceil(cols).max(1);
     let cell = 320u32;
     let size = (cols as u32 * cell, rows as u32 * (cell + 30) + 40);
-    let dir = path
-        .parent()
-        .filter(|d| !d.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let tmp = dir.join(format!(".heat.tmp{}.png", std::process::id()));
-    let drawn = (|| {
-        let root = BitMapBackend::new(&tmp, size).into_drawing_area();
-        root.fill(&WHITE).map_err(|e| err(&e))?;
+    render(path, size, |root, err| {
         let (legend, body) = root.split_vertically(40);
         legend
             .draw(&Text::new(
@@ -388,12 +392,6 @@ pub fn heat_maps(
                 }
             }
         }
-        root.present().map_err(|e| err(&e))?;
-        drop(root);
-        std::fs::rename(&tmp, path).map_err(|e| err(&e))
-    })();
-    if drawn.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    drawn
+        Ok(())
+    })
 }
