@@ -85,16 +85,9 @@ impl RunArgs {
     }
 }
 
-pub fn run(gpu: Gpu, args: &CompensateArgs) -> anyhow::Result<()> {
-    args.run.warn_other_machine()?;
-    let Prepared {
-        machine,
-        nominal,
-        calibrated,
-        run,
-    } = args.run.spec()?.prepare()?;
-    let checkpoints = args
-        .model
+/// The checkpoints at `paths`, each named by its file stem (the tables' model names).
+pub fn named_checkpoints(paths: &[PathBuf]) -> anyhow::Result<Vec<(String, Checkpoint)>> {
+    paths
         .iter()
         .map(|p| {
             let ck = Checkpoint::load(p)?;
@@ -103,7 +96,18 @@ pub fn run(gpu: Gpu, args: &CompensateArgs) -> anyhow::Result<()> {
                 .map_or("model".into(), |s| s.to_string_lossy().into_owned());
             Ok((name, ck))
         })
-        .collect::<anyhow::Result<Vec<_>>>()?;
+        .collect()
+}
+
+pub fn run(gpu: Gpu, args: &CompensateArgs) -> anyhow::Result<()> {
+    args.run.warn_other_machine()?;
+    let Prepared {
+        machine,
+        nominal,
+        calibrated,
+        run,
+    } = args.run.spec()?.prepare()?;
+    let checkpoints = named_checkpoints(&args.model)?;
     let gpu = Arc::new(gpu);
     let mut models = predictors(&gpu, &checkpoints)?;
     // Where each model predicts: the native CPU forward on a CPU adapter, else the adapter.

@@ -7,12 +7,11 @@ use std::sync::Arc;
 
 use anyhow::Context;
 
-use super::compensate::RunArgs;
+use super::compensate::{named_checkpoints, RunArgs};
 use super::Console;
 use iastgcn::compensate::held_out::Prepared;
 use iastgcn::experiment::evaluate::predictors;
 use iastgcn::experiment::polish::{self, PolishSpec};
-use iastgcn::model::Checkpoint;
 use iastgcn::polish::{Polisher, Setup, StartingPoint};
 use iastgcn::progress::Reporter;
 
@@ -88,17 +87,7 @@ pub fn run(adapter: Option<&str>, args: &PolishArgs) -> anyhow::Result<()> {
     setup.pitch = args.pixel_mm;
     setup.clear_aperture = args.clear_aperture_mm;
     let mut polisher = Polisher::new(setup).context("--pixel-mm")?;
-    let checkpoints = args
-        .model
-        .iter()
-        .map(|p| {
-            let ck = Checkpoint::load(p)?;
-            let name = p
-                .file_stem()
-                .map_or("model".into(), |s| s.to_string_lossy().into_owned());
-            Ok((name, ck))
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
+    let checkpoints = named_checkpoints(&args.model)?;
     // A GPU handle only when a model predicts (on a CPU adapter it runs the native path).
     let (mut models, window) = match checkpoints.first() {
         Some((_, first)) => {
