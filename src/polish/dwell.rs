@@ -159,29 +159,18 @@ pub fn gaussian_average(n: usize, values: &[f64], region: &[bool], sigma: f64) -
     let weights: Vec<f64> = (-reach..=reach)
         .map(|d| (-0.5 * (d as f64 / sigma).powi(2)).exp())
         .collect();
-    let blur = |v: &[f64]| {
-        let mut rows = vec![0.0; n * n];
-        let ni = n as isize;
-        for r in 0..ni {
-            for c in 0..ni {
-                let mut sum = 0.0;
-                for (k, w) in weights.iter().enumerate() {
-                    let cc = c + k as isize - reach;
-                    if (0..ni).contains(&cc) {
-                        sum += w * v[(r * ni + cc) as usize];
-                    }
-                }
-                rows[(r * ni + c) as usize] = sum;
-            }
-        }
+    let ni = n as isize;
+    // One 1-D pass along (dr, dc): along the rows, then along the columns.
+    let pass = |v: &[f64], (dr, dc): (isize, isize)| {
         let mut out = vec![0.0; n * n];
         for r in 0..ni {
             for c in 0..ni {
                 let mut sum = 0.0;
                 for (k, w) in weights.iter().enumerate() {
-                    let rr = r + k as isize - reach;
-                    if (0..ni).contains(&rr) {
-                        sum += w * rows[(rr * ni + c) as usize];
+                    let d = k as isize - reach;
+                    let (rr, cc) = (r + d * dr, c + d * dc);
+                    if (0..ni).contains(&rr) && (0..ni).contains(&cc) {
+                        sum += w * v[(rr * ni + cc) as usize];
                     }
                 }
                 out[(r * ni + c) as usize] = sum;
@@ -189,6 +178,7 @@ pub fn gaussian_average(n: usize, values: &[f64], region: &[bool], sigma: f64) -
         }
         out
     };
+    let blur = |v: &[f64]| pass(&pass(v, (0, 1)), (1, 0));
     let masked: Vec<f64> = values
         .iter()
         .zip(region)
