@@ -93,6 +93,28 @@ fn judged(polisher: &Polisher, surface: &HeightMap) -> (HeightMap, Figure) {
     (m, f)
 }
 
+/// The map as Fig. 14 shows it: [`judged`], NaN off the glass.
+fn shown(polisher: &Polisher, surface: &HeightMap) -> HeightMap {
+    let (mut m, _) = judged(polisher, surface);
+    for (v, &g) in m.values.iter_mut().zip(&polisher.glass) {
+        if !g {
+            *v = f64::NAN;
+        }
+    }
+    m
+}
+
+/// The controllers of `rows`, in the order first seen.
+fn controllers(rows: &[PolishRow]) -> Vec<&str> {
+    let mut names: Vec<&str> = Vec::new();
+    for r in rows {
+        if !names.contains(&r.controller.as_str()) {
+            names.push(&r.controller);
+        }
+    }
+    names
+}
+
 /// Runs the study: every surface seed under `nominal` (with `spec.split_nominal`, also
 /// its position and attitude errors each alone, the other taken from the path's
 /// target), `calibrated`, each of
@@ -125,8 +147,9 @@ pub fn run(
             &spec.start,
             surface_seed,
         );
+        let start_rms = judged(polisher, &initial).1.rms;
         if k == 0 {
-            maps.push(("start".to_string(), judged(polisher, &initial).0));
+            maps.push(("start".to_string(), shown(polisher, &initial)));
         }
         let mut controllers: Vec<Controller> =
             vec![Controller::Plain("nominal", nominal, PoseSource::True)];
@@ -242,29 +265,10 @@ pub fn run(
             }
             let last = rows.last().map_or(f64::NAN, |r| r.rms_nm);
             progress.note(&format!(
-                "surface {surface_seed}, {name}: RMS {:.2} → {last:.2} nm",
-                rows.iter()
-                    .rev()
-                    .find(|r| r.controller == name
-                        && r.iteration == 0
-                        && r.surface_seed == surface_seed)
-                    .map_or(f64::NAN, |r| r.rms_nm)
+                "surface {surface_seed}, {name}: RMS {start_rms:.2} → {last:.2} nm"
             ));
             if k == 0 {
-                let (mut m, _) = judged(polisher, &surface);
-                for (v, &g) in m.values.iter_mut().zip(&polisher.glass) {
-                    if !g {
-                        *v = f64::NAN;
-                    }
-                }
-                maps.push((name, m));
-            }
-        }
-    }
-    if let Some((_, m)) = maps.first_mut() {
-        for (v, &g) in m.values.iter_mut().zip(&polisher.glass) {
-            if !g {
-                *v = f64::NAN;
+                maps.push((name, shown(polisher, &surface)));
             }
         }
     }
@@ -292,12 +296,7 @@ pub struct TableViRow {
 
 /// Table VI over the rows: per controller, in the order first seen.
 pub fn table_vi(rows: &[PolishRow]) -> Vec<TableViRow> {
-    let mut names: Vec<&str> = Vec::new();
-    for r in rows {
-        if !names.contains(&r.controller.as_str()) {
-            names.push(&r.controller);
-        }
-    }
+    let names = controllers(rows);
     let last = rows.iter().map(|r| r.iteration).max().unwrap_or(0);
     let summary = |v: &[f64]| {
         Summary::of(v).unwrap_or(Summary {
@@ -444,14 +443,9 @@ pub fn report(spec: &PolishSpec, polisher: &Polisher, result: &PolishResult) -> 
 pub fn paired_against(rows: &[PolishRow], base: &str) -> Vec<(String, Summary, Summary)> {
     let last = rows.iter().map(|r| r.iteration).max().unwrap_or(0);
     let finals: Vec<&PolishRow> = rows.iter().filter(|r| r.iteration == last).collect();
-    let mut names: Vec<&str> = Vec::new();
-    for r in &finals {
-        if r.controller != base && !names.contains(&r.controller.as_str()) {
-            names.push(&r.controller);
-        }
-    }
-    names
+    controllers(rows)
         .into_iter()
+        .filter(|&name| name != base)
         .filter_map(|name| {
             let (mut rms, mut pv) = (Vec::new(), Vec::new());
             for r in finals.iter().filter(|r| r.controller == name) {
@@ -498,12 +492,7 @@ pub fn write(
     )?;
     batch.commit().map_err(|e| Error::io(dir, e))?;
     // Fig. 13: mean over surface seeds per iteration.
-    let mut names: Vec<&str> = Vec::new();
-    for r in &result.rows {
-        if !names.contains(&r.controller.as_str()) {
-            names.push(&r.controller);
-        }
-    }
+    let names = controllers(&result.rows);
     let curve = |name: &str, f: &dyn Fn(&PolishRow) -> f64| {
         let mut pts = Vec::new();
         for it in 0..=spec.iterations {
