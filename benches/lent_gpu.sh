@@ -1,0 +1,51 @@
+#!/usr/bin/env bash
+# One call on a lent NVIDIA GPU machine that has no cargo (docs/performance.md "On an
+# NVIDIA GPU"): the engine's GPU measurements and PyTorch CUDA's in the same call, so
+# that their ratio holds although every call may land on another machine.
+#
+# Here, once: the Vulkan loader and glvnd's libraries as Debian packages (the machine's
+# image has the NVIDIA driver but not these), in a folder git ignores:
+#   echo /.gl/ >> .git/info/exclude; mkdir -p .gl /tmp/amd64/partial
+#   o='-oAPT::Architecture=amd64 -oAPT::Architectures=amd64 -oDir::State::Lists=/tmp/amd64'
+#   apt-get $o update; (cd .gl && apt-get $o download libvulkan1 libegl1 libglvnd0 libopengl0 libgl1 libglx0 libgles2)
+# Then build and collect the binaries (also ignored), and carry both folders:
+#   cargo build --release --bin iastgcn
+#   cargo bench --no-run --bench model --bench kernels
+#   echo /.devbin/ >> .git/info/exclude; mkdir -p .devbin && cp target/release/iastgcn .devbin/ &&
+#     for b in model kernels; do cp "$(ls -t target/release/deps/$b-* | grep -v '\.d$' | head -1)" .devbin/$b; done
+#   (there) benches/lent_gpu.sh .devbin "$OUT"
+#
+# In order: the adapter (`iastgcn info`), `iastgcn smoke` (every kernel against its CPU
+# reference on the GPU), the model bench's device rows (the baseline product, forward at
+# B = 1 and 64, the training step at B = 64, both shapes; IASTGCN_BENCH_CSV), the kernels
+# bench of both shapes' training step (each launch timed alone), and compare.py: the
+# interop check and PyTorch on the same GPU through CUDA against those rows. Everything
+# lands in OUTDIR (log.txt holds all of it); about 2 minutes on an H200.
+set -u
+BIN=${1:?usage: lent_gpu.sh BINDIR OUTDIR}
+OUTDIR=${2:?usage: lent_gpu.sh BINDIR OUTDIR}
+mkdir -p "$OUTDIR"
+exec > >(tee "$OUTDIR/log.txt") 2>&1
+if [ -d .gl ]; then
+    for f in .gl/*.deb; do dpkg -x "$f" /; done
+    ldconfig
+fi
+# The driver's Vulkan ICD file is outside the loader's search path there.
+icd=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+if [ -z "${VK_DRIVER_FILES:-}" ] && [ -f "$icd" ]; then
+    export VK_DRIVER_FILES=$icd
+fi
+nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv
+"$BIN/iastgcn" info || exit 1
+"$BIN/iastgcn" smoke || exit 1
+echo "== model bench, device rows"
+IASTGCN_BENCH_CSV="$OUTDIR/model.csv" IASTGCN_BENCH_GROUPS='baseline,small C16,paper C64' \
+    "$BIN/model" --bench '/(matmul|forward B=1$|forward B=64|train step)' 2>&1 |
+    grep -E '^(baseline|small|paper).*mean'
+for shape in paper small; do
+    echo "== kernels bench, $shape training step"
+    "$BIN/kernels" "$shape" train
+done
+echo "== against PyTorch (CUDA)"
+PYTHONUNBUFFERED=1 python3 benches/pytorch/compare.py --binary "$BIN/iastgcn" \
+    --engine-csv "$OUTDIR/model.csv" --torch-device cuda --out "$OUTDIR"
