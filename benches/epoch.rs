@@ -31,7 +31,7 @@
 use std::time::Instant;
 
 use iastgcn::data::{DataSources, Dataset, Prepared};
-use iastgcn::gpu::{Gpu, Recorder};
+use iastgcn::gpu::{Device, Gpu, Recorder};
 use iastgcn::model::{NativeAdam, NativeStepShape, NativeTraining, Variant};
 use iastgcn::progress::Silent;
 use iastgcn::testing::{rng, uniform};
@@ -76,10 +76,12 @@ fn main() {
         let sources = DataSources::new(recordings, cal);
         fit::build_dataset(&sources, &config, None).unwrap()
     };
-    let gpu = Gpu::new().expect("a GPU adapter (make bench installs lavapipe)");
+    let gpu =
+        std::sync::Arc::new(Gpu::new().expect("a GPU adapter (make bench installs lavapipe)"));
+    let device = Device::from(gpu.clone());
     let init = iastgcn::model::Parameters::init(&config.model, config.train.seed);
     let mut trainer = Trainer::new(
-        &gpu,
+        &device,
         &data,
         &graph,
         &config.model,

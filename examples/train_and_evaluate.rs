@@ -2,12 +2,10 @@
 //! twin records a calibration set and three polishing runs, the EKF calibrates, a small
 //! IASTGCN trains on the residuals, and its test MAE is printed beside the training mean.
 
-use std::sync::Arc;
-
 use iastgcn::calibrate::{calibrate, file, EkfConfig};
 use iastgcn::data::{read_measurements, record_calibration_set, record_run, DataSources};
 use iastgcn::error::{Error, Result};
-use iastgcn::gpu::Gpu;
+use iastgcn::gpu::Device;
 use iastgcn::progress::Silent;
 use iastgcn::robot::{Geometry, Robot};
 use iastgcn::train::{build_dataset, train, RunConfig};
@@ -16,7 +14,8 @@ use iastgcn::twin::{draw_machine, PathKind, PathParams, RunInfo};
 fn main() -> Result<()> {
     let dir = std::env::temp_dir().join("iastgcn-example");
     std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
-    let gpu = Arc::new(Gpu::new()?);
+    // The default adapter, or the native CPU on a machine without a GPU driver.
+    let device = Device::open(None)?;
     let machine = draw_machine(Geometry::default_asset(), 1); // the hidden truth
     let nominal = Robot::nominal(Geometry::default_asset());
 
@@ -45,7 +44,7 @@ fn main() -> Result<()> {
     let sources = DataSources::new(recordings, calibration);
     let (graph, data) = build_dataset(&sources, &config, None)?;
     let out = dir.join("model.safetensors");
-    let trained = train(&gpu, &data, &graph, &config, &out, None, &mut Silent)?;
+    let trained = train(&device, &data, &graph, &config, &out, None, &mut Silent)?;
     println!("best validation loss {:.4}", trained.best_val);
     for t in &trained.test {
         let (m, b) = (&t.model, &t.training_mean);

@@ -22,13 +22,15 @@
 //! Long calls report through a [`progress::Reporter`] and return [`error::Result`].
 //!
 //! ```no_run
-//! use iastgcn::{data::DataSources, gpu::Gpu, progress::Silent, train};
+//! use iastgcn::{data::DataSources, gpu::Device, progress::Silent, train};
 //!
 //! let sources = DataSources::new(vec!["grid.csv".into()], "calibration.toml".into());
 //! let config = train::RunConfig::demo();
 //! let (graph, data) = train::build_dataset(&sources, &config, None)?;
 //! let out = std::path::Path::new("model.safetensors");
-//! let trained = train::train(&Gpu::new()?, &data, &graph, &config, out, None, &mut Silent)?;
+//! // The default adapter, or the native CPU path where there is none.
+//! let device = Device::open(None)?;
+//! let trained = train::train(&device, &data, &graph, &config, out, None, &mut Silent)?;
 //! println!("best validation loss {}", trained.best_val);
 //! # Ok::<(), iastgcn::error::Error>(())
 //! ```

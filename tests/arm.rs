@@ -870,9 +870,9 @@ fn residual_models_learn_what_calibration_leaves_on_held_out_poses() {
     };
     let config = arm_run_config();
     let dir = std::env::temp_dir().join(format!("iastgcn-arm-eval-{}", std::process::id()));
-    let gpu = std::sync::Arc::new(iastgcn::testing::gpu());
+    let device = iastgcn::gpu::Device::from(iastgcn::testing::gpu());
     let result = evaluate_arm(
-        &gpu,
+        &device,
         &arm,
         &[("backlash".into(), file)],
         &[],
@@ -1052,7 +1052,7 @@ fn residual_models_learn_what_calibration_leaves_on_held_out_poses() {
         .iter()
         .find(|(name, _)| name == "iastgcn")
         .unwrap();
-    let corrected = corrected_targets(&gpu, ck, &result.calibration.arm, &targets).unwrap();
+    let corrected = corrected_targets(&device, ck, &result.calibration.arm, &targets).unwrap();
     let drive = |commands: Vec<&Vec<f64>>| -> f64 {
         let mut previous: Vec<f64> = arm.spec.joint.iter().map(|j| j.min).collect();
         let mut side = vec![1.0; arm.joints()];

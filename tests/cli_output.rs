@@ -98,3 +98,27 @@ fn plot_is_refused_where_nothing_is_plotted() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// On a machine without any GPU driver: `info` says there is no adapter and what runs
+/// anyway, and the WGSL-only commands fail saying that they need an adapter.
+#[test]
+fn without_a_gpu_driver_info_says_so_and_wgsl_commands_refuse() {
+    let (text, _) = common::cli_without_gpu(&["info"]);
+    assert!(
+        text.contains("adapter      none: native CPU (no GPU adapter)")
+            && text.contains("train, refine, predict, evaluate"),
+        "{text}"
+    );
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
+        .arg("smoke")
+        .envs(common::NO_DRIVER)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success()
+            && err.contains("`iastgcn smoke` (the WGSL kernels) needs a GPU adapter")
+            && err.contains("lavapipe"),
+        "{err}"
+    );
+}

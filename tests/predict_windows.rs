@@ -4,8 +4,6 @@
 
 mod common;
 
-use std::sync::Arc;
-
 use iastgcn::data::DataSources;
 use iastgcn::model::{Checkpoint, Features, Parameters, Predictor};
 use iastgcn::train::{
@@ -35,13 +33,13 @@ fn predict_recordings_sees_the_datasets_test_windows() {
         normalization: normalization(&data.normalization),
         config: config.model.clone(),
     };
-    let gpu = Arc::new(iastgcn::testing::gpu());
+    let device = iastgcn::gpu::Device::from(iastgcn::testing::gpu());
     let options = PredictOptions {
         stride: config.data.stride,
         subset: Subset::Test,
         batch: 8,
     };
-    let predicted = predict_recordings(gpu, &ck, &sources, &options).unwrap();
+    let predicted = predict_recordings(&device, &ck, &sources, &options).unwrap();
     let mut native = Predictor::native(&ck).unwrap();
     let len = data.window_len();
     for (r, rec) in predicted.iter().enumerate() {

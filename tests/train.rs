@@ -9,6 +9,7 @@ mod common;
 use std::sync::OnceLock;
 
 use iastgcn::data::{Dataset, FeatureConfig, Recording, SplitMode, WindowConfig};
+use iastgcn::gpu::Device;
 use iastgcn::graph::Graph;
 use iastgcn::model::{ModelConfig, Parameters, Variant};
 use iastgcn::robot::{Geometry, Robot};
@@ -83,7 +84,7 @@ fn stage(config: &TrainConfig) -> Stage {
     }
 }
 
-fn trainer<'a>(g: &'a iastgcn::gpu::Gpu, config: &TrainConfig) -> Trainer<'a> {
+fn trainer<'a>(g: &Device, config: &TrainConfig) -> Trainer<'a> {
     let m = model();
     Trainer::new(
         g,
@@ -99,7 +100,7 @@ fn trainer<'a>(g: &'a iastgcn::gpu::Gpu, config: &TrainConfig) -> Trainer<'a> {
 
 #[test]
 fn losses_fall_beat_the_mean_and_repeat_bit_for_bit() {
-    let g = gpu();
+    let g = Device::from(gpu());
     let config = TrainConfig {
         max_epochs: 6,
         ..train_config()
@@ -188,7 +189,7 @@ fn device_and_native_paths_train_alike() {
     // learning rate or update shows there at once; the later steps are printed. The
     // validation loss is then compared on the same weights.
     const COMPARED: usize = 8;
-    let g = gpu();
+    let g = Device::from(gpu());
     let config = |backend: &str| TrainConfig {
         backend: backend.into(),
         max_epochs: 2,
@@ -258,7 +259,7 @@ fn resume_reproduces_the_uninterrupted_next_epoch() {
 }
 
 fn resume_on(backend: &str) {
-    let g = gpu();
+    let g = Device::from(gpu());
     let config = TrainConfig {
         backend: backend.into(),
         ..train_config()
@@ -316,7 +317,7 @@ fn divergence_stops_at_the_bad_step_and_keeps_finite_weights() {
 }
 
 fn diverge_on(backend: &str) {
-    let g = gpu();
+    let g = Device::from(gpu());
     let config = TrainConfig {
         lr: 1e30,
         backend: backend.into(),
@@ -349,7 +350,7 @@ fn diverge_on(backend: &str) {
 fn an_exploding_but_finite_loss_stops_as_diverged() {
     // A learning rate of 1e6 made the loss reach 1e28 without ever being NaN; the run
     // "succeeded". The explosion guard stops it in the first epoch.
-    let g = gpu();
+    let g = Device::from(gpu());
     let config = TrainConfig {
         lr: 1e6,
         ..train_config()
@@ -420,7 +421,7 @@ fn ensembles_are_consecutive_windows_of_one_recording() {
 
 #[test]
 fn refinement_stage_trains_on_ensembles_and_lowers_its_loss() {
-    let g = gpu();
+    let g = Device::from(gpu());
     let config = train_config();
     let mut core = trainer(&g, &config);
     core.run_epoch().unwrap();
@@ -468,7 +469,7 @@ fn refinement_stage_trains_on_ensembles_and_lowers_its_loss() {
 /// epoch's (their validation loss is the best one).
 #[test]
 fn schedule_and_early_stopping_follow_the_spec() {
-    let g = gpu();
+    let g = Device::from(gpu());
     let config = TrainConfig {
         backend: "native".into(),
         lr: 2e-2,

@@ -44,10 +44,16 @@ fn train_resume_predict_refine() {
         cli(&args)
     };
 
-    // Uninterrupted: two epochs.
+    // Uninterrupted: two epochs, on a machine without any GPU driver (the native path,
+    // said once); the runs below on the adapter (lavapipe: the native path as well) must
+    // repeat its losses and its checkpoint bit for bit.
     let straight = f("straight.safetensors");
-    let text = train(&straight, &[]);
+    let mut args = vec!["train", "--config", s(&config), "--calibration", s(&cal)];
+    args.extend(["--out", s(&straight), "--data"]);
+    args.extend(&data);
+    let (text, stderr) = common::cli_without_gpu(&args);
     assert!(text.contains("test split"), "{text}");
+    assert_eq!(stderr.matches(common::NATIVE_NOTE).count(), 1, "{stderr}");
     for suffix in [
         ".safetensors",
         ".state.safetensors",
@@ -162,7 +168,7 @@ fn train_resume_predict_refine() {
     ];
     args.extend(["--split", "test", "--stride", "7", "--data"]);
     args.extend(&data);
-    let text = cli(&args);
+    let (text, _) = common::cli_without_gpu(&args);
     assert!(text.contains("all") && text.contains('%'), "{text}");
     let csv = std::fs::read_to_string(&res).unwrap();
     let mut lines = csv.lines();
@@ -430,8 +436,9 @@ fn demo_writes_the_report() {
     let (dir, config) = tiny_demo_config("iastgcn-demo");
     let out = dir.join("report");
     // One training session, as the paper records it (the demo's default recipe is
-    // `demo_over_seeds_reports_the_spread`'s).
-    let text = cli(&[
+    // `demo_over_seeds_reports_the_spread`'s), on a machine without any GPU driver: every
+    // model trains and predicts on the native path.
+    let (text, stderr) = common::cli_without_gpu(&[
         "demo",
         "--config",
         s(&config),
@@ -452,6 +459,7 @@ fn demo_writes_the_report() {
         s(&out),
     ]);
     assert!(text.contains("demo finished"), "{text}");
+    assert_eq!(stderr.matches(common::NATIVE_NOTE).count(), 1, "{stderr}");
     assert!(
         !out.join("polish").exists(),
         "the mirror was asked to stay out"
@@ -761,8 +769,10 @@ fn demo_over_seeds_reports_the_spread() {
         }
         a.push("--models".into());
         a.extend(models.iter().cloned());
+        // With no GPU driver: evaluation runs on the native path.
         std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
             .args(&a)
+            .envs(common::NO_DRIVER)
             .output()
             .unwrap()
     };
@@ -785,7 +795,9 @@ fn demo_over_seeds_reports_the_spread() {
         began.elapsed()
     );
     let o = evaluate(&refined);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    assert_eq!(stderr.matches(common::NATIVE_NOTE).count(), 1, "{stderr}");
     let table_v = std::fs::read_to_string(evaluated.join("table_v.csv")).unwrap();
     // One held-out session asked for: session 0's rows only.
     assert!(

@@ -1,7 +1,10 @@
 """The demo's steps from Python: the twin's data, the calibrations, training with a
 progress callback, refinement and evaluation; each against the command's own output."""
 
+import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -121,6 +124,35 @@ def test_training_refinement_and_evaluation_from_python(twin_data: dict, tmp_pat
     assert sum(r["stage"] == "calibrated" for r in tables["table_v"]) == 12
     assert tables["headline"] is None or "Hilbert" in tables["headline"]
     assert all(r["truth"]["position"]["mean"] > 0 for r in tables["table_v"])
+
+
+# Hides every Vulkan driver from the loader, as on a machine with no GPU driver at all
+# (tests/common/mod.rs `NO_DRIVER` does the same for the command).
+NO_DRIVER = {"VK_DRIVER_FILES": "/nonexistent/no-driver.json",
+             "VK_ICD_FILENAMES": "/nonexistent/no-driver.json"}
+
+
+def test_training_and_prediction_without_a_gpu_driver(twin_data: dict, tmp_path: Path):
+    """In a fresh interpreter that sees no Vulkan driver: `iastgcn.train` trains on the
+    native CPU path and the Predictor loads and predicts on it."""
+    model = tmp_path / "native.safetensors"
+    script = f"""
+import numpy as np
+import iastgcn
+trained = iastgcn.train({[str(r) for r in twin_data["recordings"]]!r},
+                        {str(twin_data["calibration"])!r}, {str(model)!r},
+                        config={str(ROOT / "assets/demo.toml")!r}, max_epochs=1)
+assert trained["epochs"] == 1 and np.isfinite(trained["best_val"]), trained
+p = iastgcn.Predictor({str(model)!r})
+y = p.predict(np.zeros(p.window_shape, dtype=np.float32))
+assert y.shape == (6,) and np.all(np.isfinite(y)), y
+print(p.backend)
+"""
+    run = subprocess.run([sys.executable, "-c", script], env={**os.environ, **NO_DRIVER},
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip() == "native"
+    assert model.exists()
 
 
 def test_a_failing_progress_callback_is_raised_after_the_call(twin_data: dict,

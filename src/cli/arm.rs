@@ -147,7 +147,7 @@ pub fn calibrate(nominal: &Arm, data: &Path, scoring: &Scoring, out: &Path) -> a
 /// `evaluate --robot ARM.toml --data POSES.csv…`: calibration on the training blocks,
 /// the residual models, and the table on the test blocks; report files into `--out`.
 pub fn evaluate(
-    gpu: std::sync::Arc<iastgcn::gpu::Gpu>,
+    device: iastgcn::gpu::Device,
     nominal: &Arm,
     args: &super::evaluate_args::EvaluateArgs,
 ) -> anyhow::Result<()> {
@@ -188,7 +188,7 @@ pub fn evaluate(
     };
     std::fs::create_dir_all(&args.out).with_context(|| args.out.display().to_string())?;
     let result = evaluate_arm(
-        &gpu,
+        &device,
         nominal,
         &files,
         &tests,
@@ -203,7 +203,7 @@ pub fn evaluate(
     // where no model beats it there.
     let targets = match (&targets, result.recommended()) {
         (Some(list), Some((name, ck))) => {
-            let corrected = corrected_targets(&gpu, ck, &result.calibration.arm, list)?;
+            let corrected = corrected_targets(&device, ck, &result.calibration.arm, list)?;
             Some((
                 format!("{name} (recommended on validation)"),
                 targets_csv(&list.stamp, &corrected),

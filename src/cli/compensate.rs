@@ -3,7 +3,6 @@
 //! model) and print the Table V rows.
 
 use std::path::PathBuf;
-use std::sync::Arc;
 
 use anyhow::Context;
 
@@ -12,7 +11,7 @@ use iastgcn::compensate::held_out::{Prepared, RunSpec};
 use iastgcn::compensate::online::Online;
 use iastgcn::experiment::evaluate::{predictors, table_v, HeldOutResult};
 use iastgcn::experiment::report::table_v_lines;
-use iastgcn::gpu::Gpu;
+use iastgcn::gpu::Device;
 use iastgcn::model::Checkpoint;
 use iastgcn::progress::Reporter;
 
@@ -99,7 +98,7 @@ pub fn named_checkpoints(paths: &[PathBuf]) -> anyhow::Result<Vec<(String, Check
         .collect()
 }
 
-pub fn run(gpu: Gpu, args: &CompensateArgs) -> anyhow::Result<()> {
+pub fn run(device: Device, args: &CompensateArgs) -> anyhow::Result<()> {
     args.run.warn_other_machine()?;
     let Prepared {
         machine,
@@ -108,10 +107,9 @@ pub fn run(gpu: Gpu, args: &CompensateArgs) -> anyhow::Result<()> {
         run,
     } = args.run.spec()?.prepare()?;
     let checkpoints = named_checkpoints(&args.model)?;
-    let gpu = Arc::new(gpu);
-    let mut models = predictors(&gpu, &checkpoints)?;
+    let mut models = predictors(&device, &checkpoints)?;
     // Where each model predicts: the native CPU forward on a CPU adapter, else the adapter.
-    let ran_on: Vec<String> = models.iter().map(|m| m.runs_on(&gpu)).collect();
+    let ran_on: Vec<String> = models.iter().map(|m| m.runs_on(&device)).collect();
     let ticks = run.config().steps() * (3 + models.len());
     let mut console = Console::default();
     console.begin(

@@ -3,7 +3,6 @@
 //! `evaluate_args`): arguments, then the library's `experiment::demo`.
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use clap::Args;
 
@@ -12,7 +11,7 @@ use super::train::read_run_config;
 use super::Console;
 use iastgcn::data::DataSources;
 use iastgcn::experiment::demo::{self, DemoConfig};
-use iastgcn::gpu::Gpu;
+use iastgcn::gpu::Device;
 use iastgcn::robot::Description;
 
 #[derive(Args)]
@@ -45,7 +44,7 @@ pub struct DemoArgs {
     pub mirror_iterations: usize,
 }
 
-pub fn evaluate(gpu: Gpu, args: &EvaluateArgs) -> anyhow::Result<()> {
+pub fn evaluate(device: Device, args: &EvaluateArgs) -> anyhow::Result<()> {
     super::make_output_folder("--out", &args.out)?;
     if let Description::Serial(arm) = Description::load_or_default(args.robot.as_deref())? {
         // The arm's models are trained here and its calibration fitted here: flags of
@@ -71,7 +70,7 @@ pub fn evaluate(gpu: Gpu, args: &EvaluateArgs) -> anyhow::Result<()> {
         if let Some((_, flag, why)) = unused.iter().find(|u| u.0) {
             anyhow::bail!("{flag} does not apply to a serial arm (--robot {robot}): {why}");
         }
-        return super::arm::evaluate(Arc::new(gpu), &arm, args);
+        return super::arm::evaluate(device, &arm, args);
     }
     anyhow::ensure!(
         args.targets.is_none(),
@@ -100,7 +99,7 @@ pub fn evaluate(gpu: Gpu, args: &EvaluateArgs) -> anyhow::Result<()> {
         robot: args.robot.clone(),
     };
     let report = demo::evaluation_report(
-        Arc::new(gpu),
+        device,
         &args.models,
         &sources,
         &config,
@@ -114,7 +113,7 @@ pub fn evaluate(gpu: Gpu, args: &EvaluateArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-pub fn demo(gpu: Gpu, args: &DemoArgs) -> anyhow::Result<()> {
+pub fn demo(device: Device, args: &DemoArgs) -> anyhow::Result<()> {
     let mut config = DemoConfig {
         minutes: args.minutes,
         held_out: args.held_out.config(),
@@ -131,7 +130,7 @@ pub fn demo(gpu: Gpu, args: &DemoArgs) -> anyhow::Result<()> {
         config.run = read_run_config(Some(p), None)?;
         config.run_source = p.display().to_string();
     }
-    let report = demo::demo(Arc::new(gpu), &config, &args.out, &mut Console::default())?;
+    let report = demo::demo(device, &config, &args.out, &mut Console::default())?;
     if let Some(headline) = &report.headline {
         println!("{headline}");
     }

@@ -1,11 +1,23 @@
 //! `iastgcn info`: what the engine will run on.
 
-use iastgcn::gpu::{describe, Gpu};
+use iastgcn::gpu::{describe, Device, Gpu, INSTALL_HINT, NATIVE_NAME};
 use iastgcn::ops::matmul;
 
 pub fn run(adapter: Option<&str>) -> anyhow::Result<()> {
     let all = Gpu::list_adapters();
-    let gpu = super::open_gpu(adapter)?;
+    let gpu = match Device::open(adapter)? {
+        Device::Adapter(gpu) => gpu,
+        Device::Native => {
+            println!("adapter      none: {NATIVE_NAME}");
+            println!(
+                "runs         train, refine, predict, evaluate, compensate, polish, demo, \
+                 reproduce and scale on the native CPU path; smoke and forward (WGSL only) \
+                 need an adapter"
+            );
+            println!("to get one   {INSTALL_HINT}");
+            return Ok(());
+        }
+    };
     let i = gpu.info();
     println!("adapter      {}", i.name);
     println!("backend      {:?}", i.backend);

@@ -23,7 +23,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use iastgcn::gpu::Gpu;
+use iastgcn::gpu::{Device, Gpu, GpuError};
 use iastgcn::progress::Reporter;
 
 #[derive(Parser)]
@@ -158,11 +158,33 @@ fn make_output_folder(flag: &str, dir: &std::path::Path) -> anyhow::Result<()> {
     })
 }
 
-fn open_gpu(adapter: Option<&str>) -> anyhow::Result<Gpu> {
-    Ok(match adapter {
-        Some(name) => Gpu::with_adapter(Some(name))?,
-        None => Gpu::new()?,
-    })
+/// The adapter, for the commands that exist only as WGSL (`smoke`, `forward`; `what`
+/// names the command); without one they fail and say so.
+fn open_gpu(adapter: Option<&str>, what: &str) -> anyhow::Result<Gpu> {
+    let opened = match adapter {
+        Some(name) => Gpu::with_adapter(Some(name)),
+        None => Gpu::new(),
+    };
+    Ok(opened.map_err(|e| match e {
+        GpuError::NoAdapter { hint } => GpuError::NeedsAdapter {
+            what: what.to_string(),
+            hint,
+        },
+        other => other,
+    })?)
+}
+
+/// The device of a command with a native path: the adapter, or with none at all the
+/// native CPU, said once on stderr.
+fn open_device(adapter: Option<&str>) -> anyhow::Result<Device> {
+    let device = Device::open(adapter)?;
+    if let Device::Native = device {
+        eprintln!(
+            "no GPU adapter found (Vulkan, Metal or DX12): running on the native CPU path \
+             (`iastgcn info` says more)"
+        );
+    }
+    Ok(device)
 }
 
 /// Entry point of the `iastgcn` binary.
@@ -177,45 +199,48 @@ pub fn main() -> ExitCode {
         std::env::set_var("NODEVICE_SELECT", "1");
     }
     let cli = Cli::parse();
-    let result = match cli.command {
-        Command::Info => info::run(cli.adapter.as_deref()),
-        Command::Smoke(args) => {
-            open_gpu(cli.adapter.as_deref()).and_then(|gpu| smoke::run(&gpu, &args))
-        }
-        Command::Simulate(args) => simulate::run(&args),
-        Command::Calibrate(args) => calibrate::run(&args),
-        Command::Import(args) => import::run(&args),
-        Command::Dataset(args) => dataset::run(&args),
-        Command::Init(args) => model::init(&args),
-        Command::Forward(args) => {
-            open_gpu(cli.adapter.as_deref()).and_then(|gpu| model::forward(&gpu, &args))
-        }
-        Command::Train(args) => {
-            open_gpu(cli.adapter.as_deref()).and_then(|gpu| train::train(&gpu, &args))
-        }
-        Command::Refine(args) => {
-            open_gpu(cli.adapter.as_deref()).and_then(|gpu| train::refine(&gpu, &args))
-        }
-        Command::Predict(args) => open_gpu(cli.adapter.as_deref())
-            .and_then(|gpu| train::predict(std::sync::Arc::new(gpu), &args)),
-        Command::Compensate(args) => {
-            open_gpu(cli.adapter.as_deref()).and_then(|gpu| compensate::run(gpu, &args))
-        }
-        Command::Budget(args) => budget::run(&args),
-        Command::Evaluate(args) => {
-            open_gpu(cli.adapter.as_deref()).and_then(|gpu| demo::evaluate(gpu, &args))
-        }
-        Command::Demo(args) => {
-            open_gpu(cli.adapter.as_deref()).and_then(|gpu| demo::demo(gpu, &args))
-        }
-        Command::Reproduce(args) => {
-            open_gpu(cli.adapter.as_deref()).and_then(|gpu| reproduce::run(gpu, &args))
-        }
-        Command::Polish(args) => polish::run(cli.adapter.as_deref(), &args),
-        Command::Scale(args) => {
-            open_gpu(cli.adapter.as_deref()).and_then(|gpu| scale::run(gpu, &args))
-        }
-    };
+    let result =
+        match cli.command {
+            Command::Info => info::run(cli.adapter.as_deref()),
+            Command::Smoke(args) => {
+                open_gpu(cli.adapter.as_deref(), "`iastgcn smoke` (the WGSL kernels)")
+                    .and_then(|gpu| smoke::run(&gpu, &args))
+            }
+            Command::Simulate(args) => simulate::run(&args),
+            Command::Calibrate(args) => calibrate::run(&args),
+            Command::Import(args) => import::run(&args),
+            Command::Dataset(args) => dataset::run(&args),
+            Command::Init(args) => model::init(&args),
+            Command::Forward(args) => open_gpu(
+                cli.adapter.as_deref(),
+                "`iastgcn forward` (the WGSL forward)",
+            )
+            .and_then(|gpu| model::forward(&gpu, &args)),
+            Command::Train(args) => {
+                open_device(cli.adapter.as_deref()).and_then(|device| train::train(&device, &args))
+            }
+            Command::Refine(args) => {
+                open_device(cli.adapter.as_deref()).and_then(|device| train::refine(&device, &args))
+            }
+            Command::Predict(args) => open_device(cli.adapter.as_deref())
+                .and_then(|device| train::predict(&device, &args)),
+            Command::Compensate(args) => open_device(cli.adapter.as_deref())
+                .and_then(|device| compensate::run(device, &args)),
+            Command::Budget(args) => budget::run(&args),
+            Command::Evaluate(args) => {
+                open_device(cli.adapter.as_deref()).and_then(|device| demo::evaluate(device, &args))
+            }
+            Command::Demo(args) => {
+                open_device(cli.adapter.as_deref()).and_then(|device| demo::demo(device, &args))
+            }
+            Command::Reproduce(args) => {
+                open_device(cli.adapter.as_deref()).and_then(|device| reproduce::run(device, &args))
+            }
+            Command::Polish(args) => polish::run(cli.adapter.as_deref(), &args),
+            Command::Scale(args) => {
+                open_device(cli.adapter.as_deref()).and_then(|device| scale::run(device, &args))
+            }
+        };
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

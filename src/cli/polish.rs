@@ -3,7 +3,6 @@
 //! online, the oracle and a perfect machine; Table VI, Fig. 13 and Fig. 14.
 
 use std::path::PathBuf;
-use std::sync::Arc;
 
 use anyhow::Context;
 
@@ -91,8 +90,8 @@ pub fn run(adapter: Option<&str>, args: &PolishArgs) -> anyhow::Result<()> {
     // A GPU handle only when a model predicts (on a CPU adapter it runs the native path).
     let (mut models, window) = match checkpoints.first() {
         Some((_, first)) => {
-            let gpu = Arc::new(super::open_gpu(adapter)?);
-            (predictors(&gpu, &checkpoints)?, first.config.window)
+            let device = super::open_device(adapter)?;
+            (predictors(&device, &checkpoints)?, first.config.window)
         }
         None => (Vec::new(), 48),
     };

@@ -1,7 +1,6 @@
 //! `iastgcn reproduce`: arguments, then the library's `experiment::reproduce`.
 
 use std::path::PathBuf;
-use std::sync::Arc;
 
 use clap::Args;
 
@@ -10,7 +9,7 @@ use super::train::read_run_config;
 use super::Console;
 use iastgcn::experiment::jobs::Shard;
 use iastgcn::experiment::reproduce::{self, Outcome, Protocol};
-use iastgcn::gpu::Gpu;
+use iastgcn::gpu::Device;
 
 #[derive(Args)]
 pub struct ReproduceArgs {
@@ -61,7 +60,7 @@ pub struct ReproduceArgs {
     pub held_out: HeldOutArgs,
 }
 
-pub fn run(gpu: Gpu, args: &ReproduceArgs) -> anyhow::Result<()> {
+pub fn run(device: Device, args: &ReproduceArgs) -> anyhow::Result<()> {
     if !args.merge.is_empty() {
         let summary = iastgcn::experiment::machines::merge_machines(&args.merge, &args.out)?;
         println!(
@@ -99,7 +98,7 @@ pub fn run(gpu: Gpu, args: &ReproduceArgs) -> anyhow::Result<()> {
         protocol.curve_models.clear();
     }
     let outcome = reproduce::reproduce(
-        Arc::new(gpu),
+        device,
         &protocol,
         &args.held_out.config(),
         args.shard,

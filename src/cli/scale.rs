@@ -1,7 +1,6 @@
 //! `iastgcn scale`: arguments, then the library's `experiment::scale`.
 
 use std::path::PathBuf;
-use std::sync::Arc;
 
 use clap::Args;
 
@@ -10,7 +9,7 @@ use super::train::read_run_config;
 use super::Console;
 use iastgcn::experiment::jobs::Shard;
 use iastgcn::experiment::scale::{self, Study};
-use iastgcn::gpu::Gpu;
+use iastgcn::gpu::Device;
 
 #[derive(Args)]
 pub struct ScaleArgs {
@@ -75,7 +74,7 @@ pub struct ScaleArgs {
     pub held_out: HeldOutArgs,
 }
 
-pub fn run(gpu: Gpu, args: &ScaleArgs) -> anyhow::Result<()> {
+pub fn run(device: Device, args: &ScaleArgs) -> anyhow::Result<()> {
     let mut study = Study::demo_shape();
     if let Some(p) = &args.config {
         study.run = read_run_config(Some(p), None)?;
@@ -99,7 +98,7 @@ pub fn run(gpu: Gpu, args: &ScaleArgs) -> anyhow::Result<()> {
     study.warm_up_minutes = held.warm_up_minutes;
     study.every = held.every;
     let progress = scale::scale(
-        Arc::new(gpu),
+        device,
         &study,
         args.shard,
         args.data_only,

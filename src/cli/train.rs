@@ -2,13 +2,12 @@
 //! `train::train`, `train::refine` and `train::predict_recordings`, and their printout.
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use clap::Args;
 
 use super::Console;
 use iastgcn::data::DataSources;
-use iastgcn::gpu::Gpu;
+use iastgcn::gpu::Device;
 use iastgcn::model::Checkpoint;
 use iastgcn::train::predict::{overall_metrics, write_predictions};
 use iastgcn::train::refine::AccumulatedCurve;
@@ -132,7 +131,7 @@ pub fn print_metrics(rows: &[TestMetrics]) {
     }
 }
 
-pub fn train(gpu: &Gpu, args: &TrainArgs) -> anyhow::Result<()> {
+pub fn train(device: &Device, args: &TrainArgs) -> anyhow::Result<()> {
     super::output_folder_exists("--out", &args.out)?;
     let mut config = read_run_config(args.config.as_deref(), args.variant.as_deref())?;
     if let Some(n) = args.max_epochs {
@@ -145,7 +144,7 @@ pub fn train(gpu: &Gpu, args: &TrainArgs) -> anyhow::Result<()> {
     let (graph, data) = build_dataset(&args.data.sources(), &config, None)?;
     print!("{}", data.summary());
     let t = train::train(
-        gpu,
+        device,
         &data,
         &graph,
         &config,
@@ -174,12 +173,12 @@ pub fn print_accumulated(before: &AccumulatedCurve, after: &AccumulatedCurve) {
     }
 }
 
-pub fn refine(gpu: &Gpu, args: &RefineArgs) -> anyhow::Result<()> {
+pub fn refine(device: &Device, args: &RefineArgs) -> anyhow::Result<()> {
     super::output_folder_exists("--out", &args.out)?;
     let ck = Checkpoint::load(&args.model)?;
     let config = read_run_config(args.config.as_deref(), None)?;
     let r = train::refine_checkpoint(
-        gpu,
+        device,
         &args.data.sources(),
         &config,
         &ck,
@@ -196,7 +195,7 @@ pub fn refine(gpu: &Gpu, args: &RefineArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-pub fn predict(gpu: Arc<Gpu>, args: &PredictArgs) -> anyhow::Result<()> {
+pub fn predict(device: &Device, args: &PredictArgs) -> anyhow::Result<()> {
     super::output_folder_exists("--out", &args.out)?;
     let ck = Checkpoint::load(&args.model)?;
     let subset: Subset = args.split.parse().map_err(anyhow::Error::msg)?;
@@ -205,7 +204,7 @@ pub fn predict(gpu: Arc<Gpu>, args: &PredictArgs) -> anyhow::Result<()> {
         subset,
         batch: args.batch,
     };
-    let results = predict_recordings(gpu, &ck, &args.data.sources(), &options)?;
+    let results = predict_recordings(device, &ck, &args.data.sources(), &options)?;
     println!("recording                           windows  labelled  pos MAE/RMSE/MAPE           att MAE/RMSE/MAPE");
     let line = |name: &str, windows: String, m: &train::Metrics| {
         println!(

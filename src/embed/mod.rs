@@ -9,11 +9,10 @@ pub mod c_api;
 pub mod python;
 
 use std::path::Path;
-use std::sync::Arc;
 
 use crate::compensate::SensorPredictor;
 use crate::error::{Error, Result};
-use crate::gpu::Gpu;
+use crate::gpu::Device;
 use crate::model::{Checkpoint, ModelError, Predictor, Residual};
 
 /// A checkpoint loaded for another language: with a control period it takes raw sensor
@@ -31,15 +30,16 @@ enum Inner {
 
 impl Loaded {
     /// Loads the checkpoint at `path` on the native CPU forward (`native`), or on the
-    /// default adapter (native on a CPU adapter). `dt`: the control period, s, or `None`
-    /// for features only.
+    /// default adapter (native on a CPU adapter, and on a machine with no adapter at
+    /// all). `dt`: the control period, s, or `None` for features only.
     pub fn load(path: &Path, dt: Option<f64>, native: bool) -> Result<Loaded> {
         let checkpoint = Checkpoint::load(path)?;
         let predictor = if native {
             Predictor::native(&checkpoint)?
         } else {
-            let gpu = Gpu::new().map_err(|e| Error::from(e).context("opening the adapter"))?;
-            Predictor::new(Arc::new(gpu), &checkpoint, 8)?
+            let device =
+                Device::open(None).map_err(|e| Error::from(e).context("opening the adapter"))?;
+            Predictor::on(&device, &checkpoint, 8)?
         };
         let inner = match dt {
             Some(dt) => Inner::Sensors(SensorPredictor::new(predictor, dt)?),

@@ -7,7 +7,7 @@
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::PathBuf;
-use std::sync::{Arc, Mutex};
+use std::sync::Mutex;
 
 use numpy::{
     AllowTypeChange, PyArray1, PyArrayLike1, PyArrayLikeDyn, PyArrayMethods, PyUntypedArrayMethods,
@@ -20,7 +20,7 @@ use super::{panic_message, Loaded};
 use crate::data::DataSources;
 use crate::experiment::calibration::{calibrate_hybrid, calibrate_serial, ErrorRow, Scoring};
 use crate::experiment::evaluate::HeldOutConfig;
-use crate::gpu::Gpu;
+use crate::gpu::Device;
 use crate::model::{Backend, Checkpoint, Features, Residual};
 use crate::progress::Reporter;
 use crate::robot::{Description, ErrorParams};
@@ -632,9 +632,10 @@ fn sources(
     }
 }
 
-/// Opens the default adapter (`IASTGCN_ADAPTER` picks one by name).
-fn open_gpu() -> crate::error::Result<Gpu> {
-    Gpu::new().map_err(|e| crate::error::Error::from(e).context("opening the adapter"))
+/// Opens the default adapter (`IASTGCN_ADAPTER` picks one by name), or the native CPU
+/// where there is none.
+fn open_device() -> crate::error::Result<Device> {
+    Device::open(None).map_err(|e| crate::error::Error::from(e).context("opening the adapter"))
 }
 
 /// train(recordings, calibration, out, config=None, variant=None, max_epochs=None,
@@ -674,8 +675,8 @@ fn train_model<'py>(
         config.validate().map_err(crate::error::Error::Invalid)?;
         let (graph, data) = build_dataset(&sources, &config, None)?;
         r.note(data.summary().trim_end());
-        let gpu = open_gpu()?;
-        train::train(&gpu, &data, &graph, &config, &out, resume.as_deref(), r)
+        let device = open_device()?;
+        train::train(&device, &data, &graph, &config, &out, resume.as_deref(), r)
     })?;
     to_python(py, &trained)
 }
@@ -714,8 +715,8 @@ fn refine_model<'py>(
     let result = long_call(py, progress, |r| {
         let ck = Checkpoint::load(&model)?;
         let config = RunConfig::read(config.as_deref(), None)?;
-        let gpu = open_gpu()?;
-        let refined = train::refine_checkpoint(&gpu, &sources, &config, &ck, r)
+        let device = open_device()?;
+        let refined = train::refine_checkpoint(&device, &sources, &config, &ck, r)
             .map_err(|e| e.context(model.display()))?;
         refined.save(&ck, &out)?;
         Ok(Result {
@@ -778,9 +779,9 @@ fn evaluate_models<'py>(
     let result = long_call(py, progress, |r| {
         let config = RunConfig::read(config.as_deref(), None)?;
         std::fs::create_dir_all(&out).map_err(|e| crate::error::Error::io(&out, e))?;
-        let gpu = Arc::new(open_gpu()?);
+        let device = open_device()?;
         let report = crate::experiment::demo::evaluation_report(
-            gpu, &models, &sources, &config, &held, &out, r,
+            device, &models, &sources, &config, &held, &out, r,
         )?;
         Ok(Result {
             table_iii: report.table_iii,

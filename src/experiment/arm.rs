@@ -7,7 +7,6 @@
 //! predicted residual.
 
 use std::path::Path;
-use std::sync::Arc;
 
 use super::evaluate::predict_windows;
 use super::protocol::{fit_model, ModelFiles};
@@ -19,7 +18,7 @@ use crate::data::arm_dataset::{arm_dataset, prepare_arm};
 use crate::data::arm_poses::{ArmPoses, ArmTargets};
 use crate::data::{Dataset, SplitMode, WindowConfig};
 use crate::error::{Error, Result};
-use crate::gpu::Gpu;
+use crate::gpu::Device;
 use crate::model::{Checkpoint, Predictor, Variant};
 use crate::progress::Reporter;
 use crate::robot::arm::{next_approach, Arm, ArmPose};
@@ -255,7 +254,7 @@ pub fn test_windows(poses: usize, window: &crate::data::WindowConfig) -> usize {
 /// reachable by the calibrated arm before any training.
 #[allow(clippy::too_many_arguments)]
 pub fn evaluate_arm(
-    gpu: &Arc<Gpu>,
+    device: &Device,
     nominal: &Arm,
     files: &[(String, ArmPoses)],
     tests: &[(String, ArmPoses)],
@@ -448,15 +447,15 @@ pub fn evaluate_arm(
                 "== {name} on the calibrated residuals (seed {seed})"
             ));
             let files = ModelFiles::named(&model_dir, &name, false);
-            let fitted = fit_model(gpu, &data, &graph, &c, &name, &files, reporter)?;
-            let predicted = predict_windows(gpu, &fitted.model.checkpoint, scored, &positions)?;
+            let fitted = fit_model(device, &data, &graph, &c, &name, &files, reporter)?;
+            let predicted = predict_windows(device, &fitted.model.checkpoint, scored, &positions)?;
             rows.push(ArmRow {
                 model: name.clone(),
                 errors_mm: left(&|k| predicted[k]),
             });
             validation.push((name.clone(), fitted.best_val, fitted.best_epoch));
             let on_validation =
-                predict_windows(gpu, &fitted.model.checkpoint, &data, &val_positions)?;
+                predict_windows(device, &fitted.model.checkpoint, &data, &val_positions)?;
             let um = left_on_validation(&|k| on_validation[k]);
             validation_um.push((name.clone(), um));
             predictions.push((name.clone(), predicted));
@@ -563,7 +562,7 @@ fn target_poses(calibrated: &Arm, targets: &ArmTargets) -> Result<Vec<ArmPose>> 
 /// targets so far (the first target's features stand in for the poses before it), and
 /// inverse kinematics of the point minus that residual.
 pub fn corrected_targets(
-    gpu: &Arc<Gpu>,
+    device: &Device,
     checkpoint: &Checkpoint,
     calibrated: &Arm,
     targets: &ArmTargets,
@@ -577,7 +576,7 @@ pub fn corrected_targets(
         poses,
     };
     let features = prepare_arm(calibrated, &file).features;
-    let mut predictor = Predictor::new(gpu.clone(), checkpoint, 1)?;
+    let mut predictor = Predictor::on(device, checkpoint, 1)?;
     let step = |k: usize| -> Vec<f32> {
         features
             .iter()

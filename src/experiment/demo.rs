@@ -5,7 +5,6 @@
 //! mirror polished with the recommended model (docs/polishing.md) and the report folder.
 
 use std::path::PathBuf;
-use std::sync::Arc;
 use std::time::Instant;
 
 use super::evaluate::{finish, predictors, HeldOutConfig, NamedModel};
@@ -20,7 +19,7 @@ use crate::calibrate::file;
 use crate::compensate::held_out::IDLE_BETWEEN_RUNS;
 use crate::data::DataSources;
 use crate::error::{Error, Result};
-use crate::gpu::Gpu;
+use crate::gpu::Device;
 use crate::model::Variant;
 use crate::polish::{Polisher, Setup, StartingPoint};
 use crate::progress::Reporter;
@@ -140,7 +139,7 @@ fn sensor_table() -> String {
 /// Runs the demo into the folder `out` (`data/`, `models/` and the report files; the
 /// report's entry point is `report.md`). Returns the report as written.
 pub fn demo(
-    gpu: Arc<Gpu>,
+    device: Device,
     demo: &DemoConfig,
     out: &std::path::Path,
     reporter: &mut dyn Reporter,
@@ -156,7 +155,7 @@ pub fn demo(
     for dir in [&data_dir, &model_dir] {
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     }
-    reporter.note(&format!("demo on {} → {}", gpu.info().name, out.display()));
+    reporter.note(&format!("demo on {} → {}", device.name(), out.display()));
 
     reporter.note("== 1/6 … 3/6 twin data: calibration set, EKF calibration, training session");
     let sources = record_data(
@@ -216,7 +215,7 @@ pub fn demo(
                 variant.name().to_string()
             };
             let files = ModelFiles::named(&model_dir, &name, false);
-            let fitted = fit_model(&gpu, &data, &graph, &c, &name, &files, reporter)?;
+            let fitted = fit_model(&device, &data, &graph, &c, &name, &files, reporter)?;
             refinement.push(format!("{name}: {}", fitted.verdict));
             records.push(JobRecord::of_fitted(
                 &name,
@@ -290,7 +289,7 @@ pub fn demo(
     let report = Report {
         title: "IASTGCN on the digital twin — demo report".into(),
         headline: None,
-        adapter: gpu.info().name.clone(),
+        adapter: device.name(),
         setup,
         histories,
         accumulated,
@@ -309,7 +308,7 @@ pub fn demo(
             None => "== the mirror: no model was recommended, so none compensates; the other controllers polish (docs/polishing.md)".into(),
         });
         let section = mirror_section(
-            &gpu,
+            &device,
             &models,
             name.as_deref(),
             &sources,
@@ -323,7 +322,7 @@ pub fn demo(
         Ok(())
     };
     finish(
-        &gpu,
+        &device,
         report,
         &models,
         &sources,
@@ -339,7 +338,7 @@ pub fn demo(
 /// The mirror with the model `name` of `models` compensating (none: only the other
 /// controllers; docs/polishing.md), into `out/polish/`; returns the report's section.
 fn mirror_section(
-    gpu: &Arc<Gpu>,
+    device: &Device,
     models: &[NamedModel],
     name: Option<&str>,
     sources: &DataSources,
@@ -359,7 +358,7 @@ fn mirror_section(
         .iter()
         .map(|m| (m.name.clone(), m.checkpoint.clone()))
         .collect();
-    let mut loop_models = predictors(gpu, &checkpoints)?;
+    let mut loop_models = predictors(device, &checkpoints)?;
     // The oracle stands in for a model of the demo's window.
     let window = models.first().map_or(48, |m| m.checkpoint.config.window);
     let geometry = Geometry::load_or_default(None)?;
@@ -394,7 +393,7 @@ fn mirror_section(
 /// The report of `iastgcn evaluate`: Tables III and V for `models` on `sources`, written
 /// into the folder `out`.
 pub fn evaluation_report(
-    gpu: Arc<Gpu>,
+    device: Device,
     models: &[PathBuf],
     sources: &DataSources,
     config: &RunConfig,
@@ -430,7 +429,7 @@ pub fn evaluation_report(
     let report = Report {
         title: "IASTGCN evaluation".into(),
         headline: None,
-        adapter: gpu.info().name.clone(),
+        adapter: device.name(),
         setup: vec![
             format!("models: {}", list(models)),
             format!("recordings: {}", list(&sources.recordings)),
@@ -450,7 +449,7 @@ pub fn evaluation_report(
         ..Report::default()
     };
     finish(
-        &gpu,
+        &device,
         report,
         &named,
         sources,

@@ -2,7 +2,6 @@
 //! per trajectory and model) and Table V (pose error of held-out polishing runs: initial,
 //! calibrated, compensated per model).
 
-use std::sync::Arc;
 use std::time::Instant;
 
 use super::recommend::{recommend, validation_session};
@@ -15,7 +14,7 @@ use crate::compensate::held_out::{warm_up_on, HeldOut, IDLE_BETWEEN_RUNS};
 use crate::compensate::online::{self, ErrorStats, Feedback, Online, RunResult};
 use crate::data::{DataSources, Dataset};
 use crate::error::{ensure, Error, Result};
-use crate::gpu::Gpu;
+use crate::gpu::Device;
 use crate::graph::Graph;
 use crate::model::{Backend, Checkpoint, Features, ModelError, Predictor};
 use crate::progress::Reporter;
@@ -30,12 +29,12 @@ use crate::twin::{draw_machine, Conditions, Machine, MachineState, PathKind, Pat
 /// standardised with the checkpoint's own statistics, through the batched
 /// [`Predictor`] path.
 pub fn predict_windows(
-    gpu: &Arc<Gpu>,
+    device: &Device,
     ck: &Checkpoint,
     data: &Dataset,
     positions: &[usize],
 ) -> Result<Vec<[f64; 6]>, ModelError> {
-    let mut predictor = Predictor::new(gpu.clone(), ck, 64.min(positions.len().max(1)))?;
+    let mut predictor = Predictor::on(device, ck, 64.min(positions.len().max(1)))?;
     let (x, _) = data.gather(positions);
     let mut out = Vec::with_capacity(positions.len());
     predictor.predict_batch(&x, Features::Standardised, &mut out)?;
@@ -46,7 +45,7 @@ pub fn predict_windows(
 /// by its file stem; the sessions of one path pooled), plus the training-mean baseline
 /// as the model `training mean` when `baseline` is set.
 pub fn table_iii(
-    gpu: &Arc<Gpu>,
+    device: &Device,
     model: &str,
     ck: &Checkpoint,
     data: &Dataset,
@@ -54,7 +53,7 @@ pub fn table_iii(
 ) -> Result<Vec<TableIIIRow>, ModelError> {
     let [_, _, test] = data.split_ranges();
     let positions: Vec<usize> = test.collect();
-    let pred = predict_windows(gpu, ck, data, &positions)?;
+    let pred = predict_windows(device, ck, data, &positions)?;
     let per: Vec<TestMetrics> = data
         .recordings
         .iter()
@@ -193,7 +192,7 @@ pub fn table_v(
 
 /// Predictors for checkpoints on one device (B = 1, the online path).
 pub fn predictors(
-    gpu: &Arc<Gpu>,
+    device: &Device,
     models: &[(String, Checkpoint)],
 ) -> Result<Vec<LoopModel>, ModelError> {
     models
@@ -201,7 +200,7 @@ pub fn predictors(
         .map(|(name, ck)| {
             Ok(LoopModel {
                 name: name.clone(),
-                members: vec![Predictor::new(gpu.clone(), ck, 1)?],
+                members: vec![Predictor::on(device, ck, 1)?],
                 graph: ck.graph.clone(),
             })
         })
@@ -210,7 +209,7 @@ pub fn predictors(
 
 /// An ensemble in the control loop, named `name`: the mean of the predictions of
 /// `checkpoints` (the seeds of one model), which must read the same sensor graph.
-pub fn ensemble(gpu: &Arc<Gpu>, name: &str, checkpoints: &[Checkpoint]) -> Result<LoopModel> {
+pub fn ensemble(device: &Device, name: &str, checkpoints: &[Checkpoint]) -> Result<LoopModel> {
     let Some(first) = checkpoints.first() else {
         return Err(Error::Invalid(format!("ensemble {name}: no member")));
     };
@@ -228,7 +227,7 @@ pub fn ensemble(gpu: &Arc<Gpu>, name: &str, checkpoints: &[Checkpoint]) -> Resul
         name: name.into(),
         members: checkpoints
             .iter()
-            .map(|ck| Predictor::new(gpu.clone(), ck, 1))
+            .map(|ck| Predictor::on(device, ck, 1))
             .collect::<Result<_, ModelError>>()?,
         graph: first.graph.clone(),
     })
@@ -248,10 +247,10 @@ pub struct LoopModel {
 
 impl LoopModel {
     /// Where it predicts: the native CPU forward on a CPU adapter, else the adapter.
-    pub fn runs_on(&self, gpu: &Gpu) -> String {
+    pub fn runs_on(&self, device: &Device) -> String {
         self.members
             .first()
-            .map_or_else(|| "nowhere".into(), |p| runs_on(gpu, p))
+            .map_or_else(|| "nowhere".into(), |p| runs_on(device, p))
     }
 
     /// The window length, ticks, of its first member (the oracle stands in for it).
@@ -479,7 +478,7 @@ fn read_training_log(log: &std::path::Path) -> Option<(f64, String)> {
 /// its own checkpoint's graph online; the oracle runs at the first model's window; Fig.
 /// 11 shows the first model named `iastgcn` or `iastgcn.seed<k>` (or the first).
 pub fn evaluate(
-    gpu: &Arc<Gpu>,
+    device: &Device,
     report: &mut Report,
     models: &[NamedModel],
     sources: &DataSources,
@@ -512,7 +511,7 @@ pub fn evaluate(
             )));
         }
         let (_, data) = build_dataset(sources, &c, Some(&fixed))?;
-        rows.extend(table_iii(gpu, &m.name, &m.checkpoint, &data, i == 0)?);
+        rows.extend(table_iii(device, &m.name, &m.checkpoint, &data, i == 0)?);
     }
     for line in table_iii_lines(&rows) {
         reporter.note(&line);
@@ -524,12 +523,19 @@ pub fn evaluate(
         .iter()
         .map(|m| (m.name.clone(), m.checkpoint.clone()))
         .collect();
-    let mut in_loop = predictors(gpu, &checkpoints)?;
+    let mut in_loop = predictors(device, &checkpoints)?;
     let table_v_session = SessionOptions {
         budget: true,
         ..SessionOptions::rows(0)
     };
-    let session = held_out_session(gpu, &mut in_loop, sources, held, table_v_session, reporter)?;
+    let session = held_out_session(
+        device,
+        &mut in_loop,
+        sources,
+        held,
+        table_v_session,
+        reporter,
+    )?;
     if let Some(budget) = session.budget {
         report.sections.push((
             format!("Error budget: {} (held-out run)", PathKind::Hilbert.name()),
@@ -550,7 +556,7 @@ pub fn evaluate(
             held.session(k).describe()
         ));
         let other = held_out_session(
-            gpu,
+            device,
             &mut in_loop,
             sources,
             held,
@@ -566,7 +572,7 @@ pub fn evaluate(
     );
     let validation_index = validation_session(held.sessions);
     let validation = held_out_session(
-        gpu,
+        device,
         &mut in_loop,
         sources,
         held,
@@ -627,10 +633,10 @@ pub fn evaluate(
 }
 
 /// Where `predictor`'s predictions run: "native CPU forward", or the adapter's name.
-pub fn runs_on(gpu: &Gpu, predictor: &Predictor) -> String {
+pub fn runs_on(device: &Device, predictor: &Predictor) -> String {
     match predictor.backend() {
         Backend::Native => "native CPU forward".to_string(),
-        Backend::Device => gpu.info().name.clone(),
+        Backend::Device => device.name(),
     }
 }
 
@@ -707,7 +713,7 @@ impl SessionOptions {
 /// from the same start, its predictions scored against the true residual and never
 /// applied, then fed forward ([`Session::open_loop`]).
 pub fn held_out_session(
-    gpu: &Arc<Gpu>,
+    device: &Device,
     models: &mut [LoopModel],
     sources: &DataSources,
     held: &HeldOutConfig,
@@ -728,7 +734,7 @@ pub fn held_out_session(
     let calibrated = Robot::new(geometry, cal.errors);
     // The oracle stands in for a model of the first one's window.
     let window = first.window();
-    let ran_on: Vec<String> = models.iter().map(|m| m.runs_on(gpu)).collect();
+    let ran_on: Vec<String> = models.iter().map(|m| m.runs_on(device)).collect();
     let mut latency = vec![(0.0, 0usize); models.len()];
     let mut session = Session {
         rows: Vec::new(),
@@ -875,7 +881,7 @@ pub(super) type BeforeWriting<'a> = &'a mut dyn FnMut(&mut Report, &mut dyn Repo
 /// and the report folder `out` written; returns the report.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn finish(
-    gpu: &Arc<Gpu>,
+    device: &Device,
     mut report: Report,
     models: &[NamedModel],
     sources: &DataSources,
@@ -887,7 +893,7 @@ pub(super) fn finish(
     before_writing: BeforeWriting<'_>,
 ) -> Result<Report> {
     evaluate(
-        gpu,
+        device,
         &mut report,
         models,
         sources,

@@ -13,7 +13,7 @@ use crate::data::{
     Dataset, RecordedRun,
 };
 use crate::error::{Error, Result};
-use crate::gpu::Gpu;
+use crate::gpu::Device;
 use crate::graph::Graph;
 use crate::progress::Reporter;
 use crate::robot::{Geometry, Robot};
@@ -293,7 +293,7 @@ pub const CORE_SUFFIX: &str = ".core";
 /// The core stage of `config`'s variant on `data` into `files.core`, resuming from its
 /// state file when `files.resume` and one exists; the model is named `name` in the notes.
 pub fn train_core(
-    gpu: &Gpu,
+    device: &Device,
     data: &Dataset,
     graph: &Graph,
     config: &RunConfig,
@@ -303,7 +303,7 @@ pub fn train_core(
 ) -> Result<Trained> {
     let state = sibling(&files.core, ".state.safetensors");
     let from = (files.resume && state.exists()).then_some(state.as_path());
-    let trained = train::train(gpu, data, graph, config, &files.core, from, reporter)?;
+    let trained = train::train(device, data, graph, config, &files.core, from, reporter)?;
     reporter.note(&format!(
         "{name}: best validation loss {:.4} at epoch {} of {}",
         trained.best_val, trained.best_epoch, trained.epochs
@@ -315,7 +315,7 @@ pub fn train_core(
 /// core checkpoint's state file when `files.resume` and one exists), then refines it the
 /// same way for every model; the evaluated model is named `name`.
 pub fn fit_model(
-    gpu: &Gpu,
+    device: &Device,
     data: &Dataset,
     graph: &Graph,
     config: &RunConfig,
@@ -323,9 +323,9 @@ pub fn fit_model(
     files: &ModelFiles,
     reporter: &mut dyn Reporter,
 ) -> Result<Fitted> {
-    let trained = train_core(gpu, data, graph, config, name, files, reporter)?;
+    let trained = train_core(device, data, graph, config, name, files, reporter)?;
     let core = crate::model::Checkpoint::load(&files.core)?;
-    let r = refine(gpu, data, graph, config, &core.parameters, reporter)?;
+    let r = refine(device, data, graph, config, &core.parameters, reporter)?;
     let verdict = r.verdict();
     reporter.note(&format!("{name}: refinement {verdict}"));
     let refined = r.save(&core, &files.refined)?;

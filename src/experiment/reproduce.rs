@@ -6,7 +6,6 @@
 //! report (Tables III and V per seed, and over seeds with the paired comparisons).
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
@@ -22,7 +21,7 @@ use super::report::seeds::{seeded_name, Spread};
 use super::report::Report;
 use crate::data::Dataset;
 use crate::error::{Error, Result};
-use crate::gpu::Gpu;
+use crate::gpu::Device;
 use crate::graph::Graph;
 use crate::model::{Checkpoint, Variant};
 use crate::progress::Reporter;
@@ -256,7 +255,7 @@ fn pin_protocol(protocol: &Protocol, out: &Path) -> Result<()> {
 /// stops; with `data_only`, stops once the data exist. Jobs with a record are skipped,
 /// an interrupted job resumes from its state file.
 pub fn reproduce(
-    gpu: Arc<Gpu>,
+    device: Device,
     protocol: &Protocol,
     held_out: &HeldOutConfig,
     shard: Option<Shard>,
@@ -272,7 +271,7 @@ pub fn reproduce(
     pin_protocol(protocol, out)?;
     reporter.note(&format!(
         "reproduce on {} → {}: twin machine {}, {} models × {} seeds = {} jobs{}",
-        gpu.info().name,
+        device.name(),
         out.display(),
         protocol.machine_seed,
         protocol.models.len(),
@@ -371,7 +370,7 @@ pub fn reproduce(
             }
         };
         let (_, graph, data) = current.insert(share);
-        let mut record = run_job(&gpu, &config, job, graph, data, out, reporter)?;
+        let mut record = run_job(&device, &config, job, graph, data, out, reporter)?;
         record.wall_seconds = started.elapsed().as_secs_f64();
         write_toml(&record, &job.record_path(out))?;
         spent.push(record.wall_seconds);
@@ -389,7 +388,7 @@ pub fn reproduce(
         });
     }
     report(
-        gpu, protocol, &jobs, held_out, &sources, began, out, reporter,
+        device, protocol, &jobs, held_out, &sources, began, out, reporter,
     )
     .map(|r| Outcome::Report(Box::new(r)))
 }
@@ -397,7 +396,7 @@ pub fn reproduce(
 /// Trains one job (a table model: core stage and refinement; a learning-curve model: the
 /// core stage only) and returns its record (wall time left for the caller).
 fn run_job(
-    gpu: &Gpu,
+    device: &Device,
     config: &RunConfig,
     job: &Job,
     graph: &Graph,
@@ -412,7 +411,7 @@ fn run_job(
     let model = job.variant.name();
     let windows = data.splits.train.len();
     if job.is_curve() {
-        let t = train_core(gpu, data, graph, config, &name, &files, reporter)?;
+        let t = train_core(device, data, graph, config, &name, &files, reporter)?;
         return Ok(JobRecord::new(
             &name,
             model,
@@ -424,14 +423,14 @@ fn run_job(
             (&t.validation, &t.test),
         ));
     }
-    let f = fit_model(gpu, data, graph, config, &name, &files, reporter)?;
+    let f = fit_model(device, data, graph, config, &name, &files, reporter)?;
     Ok(JobRecord::of_fitted(&name, model, job.seed, windows, &f))
 }
 
 /// The report of a protocol whose jobs are all done.
 #[allow(clippy::too_many_arguments)]
 fn report(
-    gpu: Arc<Gpu>,
+    device: Device,
     protocol: &Protocol,
     jobs: &[Job],
     held_out: &HeldOutConfig,
@@ -500,7 +499,7 @@ fn report(
     let report = Report {
         title: "IASTGCN on the digital twin — reproduction of the paper's protocol".into(),
         headline: None,
-        adapter: gpu.info().name.clone(),
+        adapter: device.name(),
         setup,
         histories,
         sections: vec![(
@@ -511,7 +510,7 @@ fn report(
         ..Report::default()
     };
     finish(
-        &gpu,
+        &device,
         report,
         &models,
         sources,

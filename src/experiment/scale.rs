@@ -12,7 +12,6 @@
 //! early still reports what it has.
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
@@ -32,7 +31,7 @@ use crate::calibrate::file;
 use crate::compensate::online::{within_limit, ModelInLoop, Online};
 use crate::data::{DataSources, Dataset};
 use crate::error::{Error, Result};
-use crate::gpu::Gpu;
+use crate::gpu::Device;
 use crate::graph::Graph;
 use crate::model::Predictor;
 use crate::model::{Checkpoint, Variant};
@@ -382,7 +381,7 @@ pub struct Progress {
 /// With `shard`, only that shard's jobs; with `data_only`, stops once the data exist.
 /// Jobs with a record are skipped; an interrupted job resumes from its state file.
 pub fn scale(
-    gpu: Arc<Gpu>,
+    device: Device,
     study: &Study,
     shard: Option<Shard>,
     data_only: bool,
@@ -406,7 +405,7 @@ pub fn scale(
     reporter.note(&format!(
         "scaling study on {} → {}: {} sizes × {} seeds × {} models = {} jobs; recordings of \
          {minutes} min per path, twin machine {}",
-        gpu.info().name,
+        device.name(),
         out.display(),
         study.sizes.len(),
         study.seeds.len(),
@@ -465,7 +464,7 @@ pub fn scale(
         // A closed-loop job trains on data of its own (and leaves no dataset cached).
         let closed = if study.closed_loop {
             Some(closed_loop_sources(
-                &gpu, study, &config, job, &sources, out, reporter,
+                &device, study, &config, job, &sources, out, reporter,
             )?)
         } else {
             None
@@ -484,7 +483,7 @@ pub fn scale(
         };
         let (_, graph, data) = current.insert(size);
         let mut record = run_job(
-            &gpu,
+            &device,
             study,
             &config,
             job,
@@ -504,7 +503,7 @@ pub fn scale(
     }
     // A shard scores no ensemble: its seeds may be another shard's, still training.
     if study.ensemble && shard.is_none() {
-        score_ensembles(&gpu, study, &sources, out, reporter)?;
+        score_ensembles(&device, study, &sources, out, reporter)?;
     }
     Ok(Progress {
         done: done(&jobs),
@@ -516,7 +515,7 @@ pub fn scale(
 /// weights, and the held-out session with the model in the loop.
 #[allow(clippy::too_many_arguments)]
 fn run_job(
-    gpu: &Arc<Gpu>,
+    device: &Device,
     study: &Study,
     config: &RunConfig,
     job: &ScaleJob,
@@ -527,14 +526,14 @@ fn run_job(
 ) -> Result<ScaleRecord> {
     let name = job.name();
     let files = job.files(out);
-    let trained = train_core(gpu, data, graph, config, &name, &files, reporter)?;
+    let trained = train_core(device, data, graph, config, &name, &files, reporter)?;
     let core = Checkpoint::load(&files.core)?;
     let (checkpoint, test, refinement) = if study.refine {
-        let r = refine(gpu, data, graph, config, &core.parameters, reporter)?;
+        let r = refine(device, data, graph, config, &core.parameters, reporter)?;
         let verdict = r.verdict();
         reporter.note(&format!("{name}: refinement {verdict}"));
         let refined = r.save(&core, &files.refined)?;
-        let test = table_iii(gpu, &name, &refined, data, true)?
+        let test = table_iii(device, &name, &refined, data, true)?
             .chunks(2)
             .map(|pair| TestMetrics {
                 recording: pair[0].trajectory.clone(),
@@ -546,8 +545,8 @@ fn run_job(
     } else {
         (core, by_path(&trained.test), String::new())
     };
-    let mut in_loop = predictors(gpu, &[(name.clone(), checkpoint)])?;
-    let paths = held_out_scores(gpu, study, &mut in_loop[0], &test, sources, reporter)?;
+    let mut in_loop = predictors(device, &[(name.clone(), checkpoint)])?;
+    let paths = held_out_scores(device, study, &mut in_loop[0], &test, sources, reporter)?;
     Ok(ScaleRecord {
         name: name.clone(),
         model: job.variant.name().into(),
@@ -575,7 +574,7 @@ fn run_job(
 /// recordings; into `models/<name>.closed/`, kept when complete). Returns the first
 /// half's recordings with the closed-loop ones, and what happened in words.
 fn closed_loop_sources(
-    gpu: &Arc<Gpu>,
+    device: &Device,
     study: &Study,
     config: &RunConfig,
     job: &ScaleJob,
@@ -591,7 +590,7 @@ fn closed_loop_sources(
     let files = ModelFiles::named(&out.join("models"), &name, true);
     let trained = {
         let (graph, data) = build_dataset(&union, config, None)?;
-        train_core(gpu, &data, &graph, config, &name, &files, reporter)?
+        train_core(device, &data, &graph, config, &name, &files, reporter)?
     };
     let round0 = Checkpoint::load(&files.core)?;
     let dir = out.join("models").join(format!("{}.closed", job.name()));
@@ -613,7 +612,7 @@ fn closed_loop_sources(
             sources.calibration.display(),
             study.every
         );
-        let mut members = vec![Predictor::new(gpu.clone(), &round0, 1)?];
+        let mut members = vec![Predictor::on(device, &round0, 1)?];
         let dt = SimConfig::new(PathKind::Grid, 1.0, 0).dt;
         let settings = Online { every: study.every };
         let mut model = ModelInLoop::new(&mut members, &round0.graph, settings, dt)?;
@@ -679,7 +678,7 @@ fn closed_loop_sources(
 /// (`test`: the model's test metrics, pooled per path; empty where not measured), with
 /// the open-loop diagnosis.
 fn held_out_scores(
-    gpu: &Arc<Gpu>,
+    device: &Device,
     study: &Study,
     model: &mut LoopModel,
     test: &[TestMetrics],
@@ -694,7 +693,7 @@ fn held_out_scores(
             ..SessionOptions::rows(k)
         };
         let session = held_out_session(
-            gpu,
+            device,
             std::slice::from_mut(model),
             sources,
             &study.held_out(),
@@ -724,7 +723,7 @@ fn ensemble_record_path(out: &Path, model: Variant, minutes: f64) -> PathBuf {
 /// finished and that has no ensemble record yet: the controller averages the seeds' predictions (the
 /// refined weights in a study that refines). Its test block is not scored (NaN).
 fn score_ensembles(
-    gpu: &Arc<Gpu>,
+    device: &Device,
     study: &Study,
     sources: &DataSources,
     out: &Path,
@@ -769,8 +768,8 @@ fn score_ensembles(
             })
             .collect::<Result<Vec<_>, _>>()?;
         let first = ScaleRecord::load(&members[0].record_path(out))?;
-        let mut in_loop = ensemble(gpu, &model, &checkpoints)?;
-        let paths = held_out_scores(gpu, study, &mut in_loop, &[], sources, reporter)?;
+        let mut in_loop = ensemble(device, &model, &checkpoints)?;
+        let paths = held_out_scores(device, study, &mut in_loop, &[], sources, reporter)?;
         let name = format!("{}.min{minutes}.ensemble", variant.name());
         let done = ScaleRecord {
             name,

@@ -128,6 +128,87 @@ fn instance() -> wgpu::Instance {
     wgpu::Instance::new(desc.with_env())
 }
 
+/// Where the engine's work runs: a wgpu adapter (a GPU, or a CPU adapter such as
+/// lavapipe), or the native CPU path alone on a machine with no GPU driver at all.
+///
+/// Training, refinement, prediction, evaluation and the experiments take a `Device`:
+/// on [`Device::Native`] every step that has a native path takes it, and a step that
+/// exists only as WGSL fails with [`GpuError::NeedsAdapter`]. Cheap to clone.
+#[derive(Clone)]
+pub enum Device {
+    /// An opened adapter.
+    Adapter(Arc<Gpu>),
+    /// No adapter: the native CPU path.
+    Native,
+}
+
+impl Device {
+    /// Opens the adapter whose name contains `wanted`, else the one `IASTGCN_ADAPTER`
+    /// names, else the best there is; with no adapter at all and none asked for by name,
+    /// the native CPU ([`Device::Native`]). An adapter asked for by name that is not
+    /// there stays an error.
+    pub fn open(wanted: Option<&str>) -> Result<Device, GpuError> {
+        let from_env = std::env::var(ADAPTER_ENV).ok().filter(|s| !s.is_empty());
+        let wanted = wanted.or(from_env.as_deref());
+        match Gpu::with_adapter(wanted) {
+            Ok(gpu) => Ok(Device::Adapter(Arc::new(gpu))),
+            Err(GpuError::NoAdapter { .. }) if wanted.is_none() => Ok(Device::Native),
+            Err(e) => Err(e),
+        }
+    }
+
+    /// The adapter, or [`GpuError::NeedsAdapter`] naming `what` on the native device.
+    pub fn gpu(&self, what: &str) -> Result<&Arc<Gpu>, GpuError> {
+        match self {
+            Device::Adapter(gpu) => Ok(gpu),
+            Device::Native => Err(GpuError::NeedsAdapter {
+                what: what.to_string(),
+                hint: INSTALL_HINT.to_string(),
+            }),
+        }
+    }
+
+    /// The adapter, if there is one.
+    pub fn adapter(&self) -> Option<&Arc<Gpu>> {
+        match self {
+            Device::Adapter(gpu) => Some(gpu),
+            Device::Native => None,
+        }
+    }
+
+    /// True where the native CPU path is the faster (or the only) one: no adapter, or a
+    /// CPU adapter (lavapipe, WARP).
+    pub fn prefers_native(&self) -> bool {
+        match self {
+            Device::Adapter(gpu) => gpu.is_software(),
+            Device::Native => true,
+        }
+    }
+
+    /// The adapter's name, or `native CPU (no GPU adapter)`.
+    pub fn name(&self) -> String {
+        match self {
+            Device::Adapter(gpu) => gpu.info().name.clone(),
+            Device::Native => NATIVE_NAME.to_string(),
+        }
+    }
+}
+
+/// What [`Device::name`] says of the native device.
+pub const NATIVE_NAME: &str = "native CPU (no GPU adapter)";
+
+impl From<Gpu> for Device {
+    fn from(gpu: Gpu) -> Device {
+        Device::Adapter(Arc::new(gpu))
+    }
+}
+
+impl From<Arc<Gpu>> for Device {
+    fn from(gpu: Arc<Gpu>) -> Device {
+        Device::Adapter(gpu)
+    }
+}
+
 impl Gpu {
     /// Opens the adapter named by `IASTGCN_ADAPTER` if set, else the best one available.
     pub fn new() -> Result<Gpu, GpuError> {

@@ -8,7 +8,8 @@ mod recorder;
 mod tensor;
 
 pub use device::{
-    choose_adapter, describe, Allocation, Gpu, ADAPTER_ENV, BACKENDS, INSTALL_HINT, SUBGROUPS_ENV,
+    choose_adapter, describe, Allocation, Device, Gpu, ADAPTER_ENV, BACKENDS, INSTALL_HINT,
+    NATIVE_NAME, SUBGROUPS_ENV,
 };
 pub use pipeline::{validate_wgsl, Access, Binding, Kernel, PipelineCache, Shader, COMMON_WGSL};
 pub use recorder::{Dispatch, Recorder};
@@ -120,6 +121,17 @@ pub enum GpuError {
     /// Any other failure of the device, or a call it cannot serve; the text says which.
     #[error("device error: {0}")]
     Device(String),
+    /// Something that runs only as WGSL was asked of the native CPU device (a machine
+    /// without a GPU driver).
+    #[error(
+        "{what} needs a GPU adapter (Vulkan, Metal or DX12), and this machine has none: {hint}"
+    )]
+    NeedsAdapter {
+        /// What was asked.
+        what: String,
+        /// What to try (drivers, a software adapter).
+        hint: String,
+    },
 }
 
 impl crate::error::StageError for GpuError {}

@@ -20,7 +20,7 @@ use super::checkpoint::{Checkpoint, Normalization};
 use super::config::ModelConfig;
 use super::native::NativeForward;
 use super::network::{ModelError, Network};
-use crate::gpu::{Gpu, Readback, Recorder};
+use crate::gpu::{Device, Gpu, Readback, Recorder};
 
 /// A residual prediction: dx, dy, dz in µm, rx, ry, rz in mdeg (base frame).
 pub type Residual = [f64; 6];
@@ -98,6 +98,19 @@ impl Predictor {
             Backend::Device
         };
         Predictor::with_backend(gpu, checkpoint, capacity, backend)
+    }
+
+    /// [`Predictor::new`] on an adapter, [`Predictor::native`] on the native device (a
+    /// machine without a GPU driver).
+    pub fn on(
+        device: &Device,
+        checkpoint: &Checkpoint,
+        capacity: usize,
+    ) -> Result<Predictor, ModelError> {
+        match device {
+            Device::Adapter(gpu) => Predictor::new(gpu.clone(), checkpoint, capacity),
+            Device::Native => Predictor::native(checkpoint),
+        }
     }
 
     /// As [`Predictor::new`], with the path chosen by the caller ([`Backend::Native`]

@@ -9,11 +9,12 @@ use super::config::TrainConfig;
 use super::error::TrainError;
 use super::optimizer::{Moments, Optimizer};
 use crate::data::Dataset;
-use crate::gpu::{DType, Gpu, Readback, Recorder, Tensor};
+use crate::gpu::{DType, Device, Gpu, Readback, Recorder, Tensor};
 use crate::graph::Graph;
 use crate::model::{
     ModelConfig, NativeAdam, NativeForward, NativeStepShape, NativeTraining, Network, Parameters,
 };
+use std::sync::Arc;
 
 /// The steps of one stage, on the device or on the CPU.
 pub(super) enum Engine {
@@ -22,6 +23,7 @@ pub(super) enum Engine {
 }
 
 pub(super) struct DeviceSteps {
+    gpu: Arc<Gpu>,
     net: Network,
     opt: Optimizer,
     /// One loss per step of the epoch, read once at its end.
@@ -43,11 +45,15 @@ pub(super) struct NativeSteps {
 }
 
 /// True when `[train] backend` (`auto`, `device`, `native`) puts training on the CPU here
-/// (the native path covers every variant).
-pub fn runs_native(backend: &str, gpu: &Gpu) -> Result<bool, TrainError> {
+/// (the native path covers every variant): `auto` does on a CPU adapter and without one;
+/// `device` without an adapter is an error.
+pub fn runs_native(backend: &str, device: &Device) -> Result<bool, TrainError> {
     match backend {
-        "auto" => Ok(gpu.is_software()),
-        "device" => Ok(false),
+        "auto" => Ok(device.prefers_native()),
+        "device" => device
+            .gpu("train.backend = \"device\"")
+            .map(|_| false)
+            .map_err(TrainError::from),
         "native" => Ok(true),
         other => Err(TrainError::Data(format!(
             "train.backend = {other:?}: expected \"auto\", \"device\" or \"native\""
@@ -60,7 +66,7 @@ impl Engine {
     /// ensembles of `group`, `steps` steps per epoch.
     #[allow(clippy::too_many_arguments)]
     pub fn new(
-        gpu: &Gpu,
+        device: &Device,
         model: &ModelConfig,
         graph: &Graph,
         config: &TrainConfig,
@@ -70,7 +76,7 @@ impl Engine {
         init: &Parameters,
     ) -> Result<Engine, TrainError> {
         let seed32 = (config.seed as u32) ^ ((config.seed >> 32) as u32);
-        if runs_native(&config.backend, gpu)? {
+        if runs_native(&config.backend, device)? {
             let shape = NativeStepShape {
                 batch,
                 group,
@@ -95,6 +101,8 @@ impl Engine {
                 forwards: Default::default(),
             })));
         }
+        let gpu = device.gpu("training on the device")?.clone();
+        let gpu = &gpu;
         let net = if group == 1 {
             Network::new(gpu, model, graph, batch, seed32)?
         } else {
@@ -109,6 +117,7 @@ impl Engine {
         let table = gpu.zeros("predictions", &[table_rows, model.outputs], DType::F32)?;
         let table_rb = Readback::new(gpu, "predictions", table.byte_len())?;
         Ok(Engine::Device(Box::new(DeviceSteps {
+            gpu: gpu.clone(),
             net,
             opt,
             loss_log,
@@ -120,9 +129,9 @@ impl Engine {
     }
 
     /// Where the steps run: the adapter's name, or `native CPU (n threads)`.
-    pub fn label(&self, gpu: &Gpu) -> String {
+    pub fn label(&self) -> String {
         match self {
-            Engine::Device(_) => gpu.info().name.clone(),
+            Engine::Device(d) => d.gpu.info().name.clone(),
             Engine::Native(n) => match n.train.shape().threads {
                 1 => "native CPU (1 thread)".into(),
                 t => format!("native CPU ({t} threads)"),
@@ -139,48 +148,43 @@ impl Engine {
     }
 
     /// Replaces the weights.
-    pub fn load(&mut self, gpu: &Gpu, p: &Parameters) -> Result<(), TrainError> {
+    pub fn load(&mut self, p: &Parameters) -> Result<(), TrainError> {
         match self {
-            Engine::Device(d) => d.net.load_parameters(gpu, p)?,
+            Engine::Device(d) => d.net.load_parameters(&d.gpu, p)?,
             Engine::Native(n) => n.train.load_parameters(p)?,
         }
         Ok(())
     }
 
     /// Replaces Adam's moments.
-    pub fn load_moments(
-        &mut self,
-        gpu: &Gpu,
-        m: &[Vec<f32>],
-        v: &[Vec<f32>],
-    ) -> Result<(), TrainError> {
+    pub fn load_moments(&mut self, m: &[Vec<f32>], v: &[Vec<f32>]) -> Result<(), TrainError> {
         match self {
-            Engine::Device(d) => d.opt.load_state(gpu, m, v)?,
+            Engine::Device(d) => d.opt.load_state(&d.gpu, m, v)?,
             Engine::Native(n) => n.train.load_moments(m, v)?,
         }
         Ok(())
     }
 
     /// The current weights (read back from the device).
-    pub fn parameters(&self, gpu: &Gpu) -> Result<Parameters, TrainError> {
+    pub fn parameters(&self) -> Result<Parameters, TrainError> {
         Ok(match self {
-            Engine::Device(d) => d.net.read_parameters(gpu)?,
+            Engine::Device(d) => d.net.read_parameters(&d.gpu)?,
             Engine::Native(n) => n.train.parameters(),
         })
     }
 
     /// Adam's moments.
-    pub fn moments(&self, gpu: &Gpu) -> Result<Moments, TrainError> {
+    pub fn moments(&self) -> Result<Moments, TrainError> {
         Ok(match self {
-            Engine::Device(d) => d.opt.read_state(gpu)?,
+            Engine::Device(d) => d.opt.read_state(&d.gpu)?,
             Engine::Native(n) => n.train.moments(),
         })
     }
 
     /// The last step's gradients (for the divergence report).
-    pub fn gradients(&self, gpu: &Gpu) -> Result<Vec<Vec<f32>>, TrainError> {
+    pub fn gradients(&self) -> Result<Vec<Vec<f32>>, TrainError> {
         Ok(match self {
-            Engine::Device(d) => d.net.read_gradients(gpu)?,
+            Engine::Device(d) => d.net.read_gradients(&d.gpu)?,
             Engine::Native(n) => n.train.last_gradients().to_vec(),
         })
     }
@@ -191,7 +195,6 @@ impl Engine {
     #[allow(clippy::too_many_arguments)]
     pub fn step(
         &mut self,
-        gpu: &Gpu,
         x: &[f32],
         y: &[f32],
         step: u64,
@@ -200,6 +203,7 @@ impl Engine {
     ) -> Result<(), TrainError> {
         match self {
             Engine::Device(d) => {
+                let gpu = &*d.gpu;
                 gpu.write(&d.net.input, x)?;
                 gpu.write(&d.net.target, y)?;
                 d.net.set_step(gpu, step as u32)?;
@@ -219,9 +223,10 @@ impl Engine {
     }
 
     /// The epoch's step losses so far (waits for the device).
-    pub fn losses(&self, gpu: &Gpu, out: &mut [f32]) -> Result<(), TrainError> {
+    pub fn losses(&self, out: &mut [f32]) -> Result<(), TrainError> {
         match self {
             Engine::Device(d) => {
+                let gpu = &*d.gpu;
                 let mut rec = Recorder::new(gpu);
                 rec.read_into(&d.loss_log, &d.loss_rb)?;
                 rec.submit()?;
@@ -239,7 +244,6 @@ impl Engine {
     /// on [`NativeForward`]; the rest on the device in batches.
     pub fn predict(
         &self,
-        gpu: &Gpu,
         model: &ModelConfig,
         graph: &Graph,
         data: &Dataset,
@@ -264,6 +268,7 @@ impl Engine {
             }
             Engine::Device(d) => d,
         };
+        let gpu = &*d.gpu;
         if gpu.is_software() {
             let params = d.net.read_parameters(gpu)?;
             let threads = std::thread::available_parallelism().map_or(1, |n| n.get());

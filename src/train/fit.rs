@@ -11,7 +11,7 @@ use super::{
 };
 use crate::data::{self, DataSources, Dataset, SplitMode, WindowConfig};
 use crate::error::{Error, Result};
-use crate::gpu::Gpu;
+use crate::gpu::Device;
 use crate::graph::Graph;
 use crate::model::{Parameters, Variant};
 use crate::progress::Reporter;
@@ -350,7 +350,7 @@ pub struct Trained {
 /// `<stem>.log.csv` and `<stem>.loss.png`. When training diverges, `out` keeps the best
 /// weights, or the last good ones when no epoch finished, and the error says which.
 pub fn train(
-    gpu: &Gpu,
+    device: &Device,
     data: &Dataset,
     graph: &Graph,
     config: &RunConfig,
@@ -362,10 +362,10 @@ pub fn train(
     let init = match resume {
         // The state's weights replace the start.
         Some(_) => Parameters::init(&config.model, config.train.seed),
-        None => initial_parameters(gpu, data, graph, config, reporter)?,
+        None => initial_parameters(device, data, graph, config, reporter)?,
     };
     let mut trainer = Trainer::new(
-        gpu,
+        device,
         data,
         graph,
         &config.model,
@@ -449,7 +449,7 @@ pub fn train(
 /// The starting weights of a core stage: the He initialisation of `[train] seed`, or for
 /// `ann-bfpa` the pick of its flower-pollination search (docs/model.md "Baselines").
 pub fn initial_parameters(
-    gpu: &Gpu,
+    device: &Device,
     data: &Dataset,
     graph: &Graph,
     config: &RunConfig,
@@ -460,7 +460,7 @@ pub fn initial_parameters(
     }
     let search = Pollination::default();
     let s = pollinate(
-        gpu,
+        device,
         data,
         graph,
         &config.model,

@@ -20,9 +20,9 @@ use super::config::TrainConfig;
 use super::metrics::window_loss;
 use super::trainer::TrainError;
 use crate::data::{Dataset, OUTPUTS};
-use crate::gpu::Gpu;
+use crate::gpu::{Device, Gpu};
 use crate::graph::Graph;
-use crate::model::{ModelConfig, Network, Parameters};
+use crate::model::{ModelConfig, NativeForward, Network, Parameters};
 use crate::progress::Reporter;
 
 /// The search's settings (docs/model.md "Baselines" gives the defaults).
@@ -90,10 +90,17 @@ fn unflatten(template: &Parameters, flat: &[f32]) -> Parameters {
     p
 }
 
+/// Where the candidates' forward passes run.
+enum ScoreNet<'a> {
+    /// The inference schedule for the whole sample on the adapter.
+    Device { gpu: &'a Gpu, net: Box<Network> },
+    /// The native CPU forward, one window at a time (no adapter).
+    Native(Box<NativeForward>),
+}
+
 /// Scores candidates: the mean per-window loss on a fixed sample of training windows.
 struct Scorer<'a> {
-    gpu: &'a Gpu,
-    net: Network,
+    net: ScoreNet<'a>,
     template: Parameters,
     x: Vec<f32>,
     y: Vec<f32>,
@@ -101,10 +108,23 @@ struct Scorer<'a> {
 }
 
 impl Scorer<'_> {
-    fn loss(&self, flat: &[f32]) -> Result<f64, TrainError> {
-        self.net
-            .load_parameters(self.gpu, &unflatten(&self.template, flat))?;
-        let out = self.net.predict(self.gpu, &self.x)?;
+    fn loss(&mut self, flat: &[f32]) -> Result<f64, TrainError> {
+        let params = unflatten(&self.template, flat);
+        let out = match &mut self.net {
+            ScoreNet::Device { gpu, net } => {
+                net.load_parameters(gpu, &params)?;
+                net.predict(gpu, &self.x)?
+            }
+            ScoreNet::Native(native) => {
+                native.set_parameters(&params)?;
+                let len = self.x.len() / (self.y.len() / OUTPUTS).max(1);
+                let mut out = vec![0f32; self.y.len()];
+                for (x, row) in self.x.chunks(len).zip(out.chunks_mut(OUTPUTS)) {
+                    native.forward(x, row)?;
+                }
+                out
+            }
+        };
         let n = self.y.len() / OUTPUTS;
         let total: f64 = out
             .chunks(OUTPUTS)
@@ -123,7 +143,7 @@ impl Scorer<'_> {
 /// Runs the search for `model` on `data`'s training split, seeded by `train.seed`, the loss
 /// weighted by `train.attitude_penalty`.
 pub fn pollinate(
-    gpu: &Gpu,
+    device: &Device,
     data: &Dataset,
     graph: &Graph,
     model: &ModelConfig,
@@ -144,10 +164,17 @@ pub fn pollinate(
         .collect();
     let (mut x, mut y) = (Vec::new(), Vec::new());
     data.gather_into(&positions, &mut x, &mut y);
-    let scorer = Scorer {
-        gpu,
-        net: Network::for_inference(gpu, model, graph, count)?,
-        template: Parameters::init(model, seed),
+    let template = Parameters::init(model, seed);
+    let net = match device {
+        Device::Adapter(gpu) => ScoreNet::Device {
+            gpu,
+            net: Box::new(Network::for_inference(gpu, model, graph, count)?),
+        },
+        Device::Native => ScoreNet::Native(Box::new(NativeForward::new(model, graph, &template)?)),
+    };
+    let mut scorer = Scorer {
+        net,
+        template,
         x,
         y,
         penalty,

@@ -4,13 +4,12 @@
 //! prediction and a PNG of the position residual traces.
 
 use std::path::Path;
-use std::sync::Arc;
 
 use super::metrics::Metrics;
 use crate::data::{prepare, split, window_ends, DataSources, FeatureConfig, SplitMode};
 use crate::data::{Window, WindowConfig};
 use crate::error::{Error, Result};
-use crate::gpu::{Gpu, GpuError};
+use crate::gpu::{Device, GpuError};
 use crate::model::{Checkpoint, Features, ModelError, Predictor, Residual};
 use crate::plot::{self, Panel, Series};
 
@@ -92,7 +91,7 @@ pub struct RecordingPrediction {
 
 /// Predictions of checkpoint `ck` on the recordings of `sources`.
 pub fn predict_recordings(
-    gpu: Arc<Gpu>,
+    device: &Device,
     ck: &Checkpoint,
     sources: &DataSources,
     options: &PredictOptions,
@@ -112,7 +111,7 @@ pub fn predict_recordings(
         )));
     }
     let mut predictor =
-        Predictor::new(gpu, ck, options.batch).map_err(|e| batch_error(e, options.batch))?;
+        Predictor::on(device, ck, options.batch).map_err(|e| batch_error(e, options.batch))?;
     let window = WindowConfig {
         length: t_len,
         stride: options.stride,

@@ -12,7 +12,7 @@ use super::{
 };
 use crate::data::Dataset;
 use crate::error::{Error, Result};
-use crate::gpu::Gpu;
+use crate::gpu::Device;
 use crate::graph::Graph;
 use crate::model::{Checkpoint, Parameters};
 use crate::progress::Reporter;
@@ -64,7 +64,7 @@ pub struct Refined {
 
 /// Runs the refinement stages of `config` from `init`.
 pub fn refine(
-    gpu: &Gpu,
+    device: &Device,
     data: &Dataset,
     graph: &Graph,
     config: &RunConfig,
@@ -78,7 +78,7 @@ pub fn refine(
     let mut last: Option<Trainer> = None;
     for stage in refine_stages(config) {
         let mut trainer = Trainer::new(
-            gpu,
+            device,
             data,
             graph,
             &config.model,
@@ -115,7 +115,7 @@ pub fn refine(
     // The stages score ensembles; the model is used window by window, so it is kept only
     // if the per-window validation loss improves too.
     let mut judge = Trainer::new(
-        gpu,
+        device,
         data,
         graph,
         &config.model,
@@ -149,7 +149,7 @@ pub fn refine(
 /// `config` says and standardised with the checkpoint's own statistics, as it was
 /// trained. `iastgcn refine` and the Python `refine` run this.
 pub fn refine_checkpoint(
-    gpu: &Gpu,
+    device: &Device,
     sources: &crate::data::DataSources,
     config: &RunConfig,
     checkpoint: &Checkpoint,
@@ -160,7 +160,7 @@ pub fn refine_checkpoint(
     let fixed = super::data_normalization(&checkpoint.normalization)?;
     let (graph, data) = super::build_dataset(sources, &config, Some(&fixed))?;
     refine(
-        gpu,
+        device,
         &data,
         &graph,
         &config,

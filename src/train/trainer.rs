@@ -17,7 +17,7 @@ pub use super::error::TrainError;
 use super::metrics::ensemble_loss;
 use super::optimizer::learning_rate;
 use crate::data::{Dataset, OUTPUTS};
-use crate::gpu::Gpu;
+use crate::gpu::Device;
 use crate::graph::Graph;
 use crate::model::{ModelConfig, Network, Parameters};
 
@@ -183,7 +183,6 @@ fn epoch_seed(seed: u64, stage: &str, epoch: usize) -> u64 {
 
 /// A training stage bound to one network on one device.
 pub struct Trainer<'a> {
-    gpu: &'a Gpu,
     data: &'a Dataset,
     config: TrainConfig,
     /// The stage's schedule.
@@ -214,7 +213,7 @@ pub struct Trainer<'a> {
 impl<'a> Trainer<'a> {
     /// A fresh stage starting from `init` with zero Adam moments.
     pub fn new(
-        gpu: &'a Gpu,
+        device: &Device,
         data: &'a Dataset,
         graph: &Graph,
         model: &ModelConfig,
@@ -254,8 +253,17 @@ impl<'a> Trainer<'a> {
         let groups_per_batch = (config.batch / m).max(1).min(train_groups.len());
         let steps_per_epoch = train_groups.len().div_ceil(groups_per_batch);
         let batch = groups_per_batch * m;
-        let engine = Engine::new(gpu, model, graph, config, batch, m, steps_per_epoch, init)?;
-        let (adam_m, adam_v) = engine.moments(gpu)?;
+        let engine = Engine::new(
+            device,
+            model,
+            graph,
+            config,
+            batch,
+            m,
+            steps_per_epoch,
+            init,
+        )?;
+        let (adam_m, adam_v) = engine.moments()?;
         let start = Snapshot {
             stage: stage.clone(),
             progress: Progress::new(),
@@ -265,7 +273,6 @@ impl<'a> Trainer<'a> {
             adam_v,
         };
         Ok(Trainer {
-            gpu,
             data,
             config: config.clone(),
             stage,
@@ -296,8 +303,8 @@ impl<'a> Trainer<'a> {
                 s.stage.name, s.stage.group, s.stage.lr0, self.stage.name, self.stage.group, self.stage.lr0
             )));
         }
-        self.engine.load(self.gpu, &s.params)?;
-        self.engine.load_moments(self.gpu, &s.adam_m, &s.adam_v)?;
+        self.engine.load(&s.params)?;
+        self.engine.load_moments(&s.adam_m, &s.adam_v)?;
         self.progress = s.progress.clone();
         self.best = s.best.clone();
         self.start = s.clone();
@@ -323,7 +330,7 @@ impl<'a> Trainer<'a> {
     /// Where the steps run, for logs and reports: the adapter's name, or
     /// `native CPU (n threads)`.
     pub fn trained_on(&self) -> String {
-        self.engine.label(self.gpu)
+        self.engine.label()
     }
 
     /// The device network being trained; `None` when the steps run on the native CPU
@@ -419,8 +426,7 @@ impl<'a> Trainer<'a> {
         data.gather_into(&self.positions, &mut self.batch_x, &mut self.batch_y);
         let step = self.progress.step;
         let lr = self.lr(step);
-        self.engine
-            .step(self.gpu, &self.batch_x, &self.batch_y, step, lr, s)
+        self.engine.step(&self.batch_x, &self.batch_y, step, lr, s)
     }
 
     /// Trains one epoch, validates, and updates the early-stopping state; true when the
@@ -460,13 +466,13 @@ impl<'a> Trainer<'a> {
         let val_loss = self.validation_loss()?;
         let validation_seconds = validation_began.elapsed().as_secs_f64();
         let readback_began = Instant::now();
-        let params = self.engine.parameters(self.gpu)?;
+        let params = self.engine.parameters()?;
         if first_non_finite(&params.specs, &params.values).is_some() {
             // The replay names the step and the tensor.
             let last = self.steps_per_epoch - 1;
             return Err(self.diagnose(epoch, &order, last, first_step));
         }
-        let (adam_m, adam_v) = self.engine.moments(self.gpu)?;
+        let (adam_m, adam_v) = self.engine.moments()?;
         let record = EpochRecord {
             stage: self.stage.name.clone(),
             epoch,
@@ -505,7 +511,7 @@ impl<'a> Trainer<'a> {
     /// The loss of each step of the last epoch, in order (standardised label space).
     pub fn step_losses(&self) -> Result<Vec<f32>, TrainError> {
         let mut losses = vec![0f32; self.steps_per_epoch];
-        self.engine.losses(self.gpu, &mut losses)?;
+        self.engine.losses(&mut losses)?;
         Ok(losses)
     }
 
@@ -527,9 +533,8 @@ impl<'a> Trainer<'a> {
         };
         let start = self.start.clone();
         let replay = (|| -> Result<TrainError, TrainError> {
-            self.engine.load(self.gpu, &start.params)?;
-            self.engine
-                .load_moments(self.gpu, &start.adam_m, &start.adam_v)?;
+            self.engine.load(&start.params)?;
+            self.engine.load_moments(&start.adam_m, &start.adam_v)?;
             self.progress.step = first_step;
             let mut before = start.params.clone();
             for s in 0..=bad {
@@ -546,7 +551,7 @@ impl<'a> Trainer<'a> {
                     last_good: Box::new(last_good),
                 };
                 if !loss[0].is_finite() {
-                    let grads = self.engine.gradients(self.gpu)?;
+                    let grads = self.engine.gradients()?;
                     let what = match first_non_finite(&start.params.specs, &grads) {
                         Some((name, i)) => format!(
                             "the loss is {}; first non-finite gradient: {name} (element {i})",
@@ -556,7 +561,7 @@ impl<'a> Trainer<'a> {
                     };
                     return Ok(fail(what, before));
                 }
-                let after = self.engine.parameters(self.gpu)?;
+                let after = self.engine.parameters()?;
                 if let Some((name, i)) = first_non_finite(&after.specs, &after.values) {
                     let what = format!(
                         "the Adam update made parameter {name} (element {i}) non-finite (loss {})",
@@ -585,7 +590,7 @@ impl<'a> Trainer<'a> {
     /// forward there); elsewhere on the device in batches.
     pub fn predict(&self, positions: &[usize]) -> Result<Vec<f32>, TrainError> {
         self.engine
-            .predict(self.gpu, &self.model, &self.graph, self.data, positions)
+            .predict(&self.model, &self.graph, self.data, positions)
     }
 
     /// The stage's loss on the validation split (ensemble loss when refining).
@@ -636,13 +641,13 @@ impl<'a> Trainer<'a> {
 
     /// Loads `params` into the network (what [`Trainer::predict`] then uses).
     pub fn load_parameters(&mut self, params: &Parameters) -> Result<(), TrainError> {
-        self.engine.load(self.gpu, params)
+        self.engine.load(params)
     }
 
     /// Loads the best weights into the network (at the end of a stage).
     pub fn restore_best(&mut self) -> Result<(), TrainError> {
         let best = self.best.clone();
-        self.engine.load(self.gpu, &best)
+        self.engine.load(&best)
     }
 }
 

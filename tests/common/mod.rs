@@ -20,6 +20,34 @@ pub fn cli(args: &[&str]) -> String {
     String::from_utf8_lossy(&o.stdout).into_owned()
 }
 
+/// Environment that hides every Vulkan driver from the loader (a machine with no GPU
+/// driver: no adapter at all, not even lavapipe): the loader reads its drivers from these
+/// files only, and they do not exist.
+pub const NO_DRIVER: [(&str, &str); 2] = [
+    ("VK_DRIVER_FILES", "/nonexistent/no-driver.json"),
+    ("VK_ICD_FILENAMES", "/nonexistent/no-driver.json"),
+];
+
+/// Runs the binary with no GPU driver ([`NO_DRIVER`]), expecting success; returns stdout
+/// and stderr.
+pub fn cli_without_gpu(args: &[&str]) -> (String, String) {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
+        .args(args)
+        .envs(NO_DRIVER)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(
+        o.status.success(),
+        "iastgcn {args:?} without a GPU driver failed:\n{stderr}"
+    );
+    (String::from_utf8_lossy(&o.stdout).into_owned(), stderr)
+}
+
+/// The line a command with a native path prints once when there is no adapter.
+pub const NATIVE_NOTE: &str =
+    "no GPU adapter found (Vulkan, Metal or DX12): running on the native CPU path";
+
 /// Runs the binary expecting failure; returns stderr.
 pub fn cli_fails(args: &[&str]) -> String {
     let o = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
