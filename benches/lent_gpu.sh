@@ -14,6 +14,9 @@
 #   echo /.devbin/ >> .git/info/exclude; mkdir -p .devbin && cp target/release/iastgcn .devbin/ &&
 #     for b in model kernels; do cp "$(ls -t target/release/deps/$b-* | grep -v '\.d$' | head -1)" .devbin/$b; done
 #   (there) benches/lent_gpu.sh .devbin "$OUT"
+# Test binaries built here (`cargo test --no-run`, then target/debug/deps/NAME-*,
+# stripped) and copied into the folder as NAME.test run first, on the GPU: e.g. the
+# matmul tests, whose planner splits reductions differently on a GPU than on lavapipe.
 #
 # In order: the adapter (`iastgcn info`), `iastgcn smoke` (every kernel against its CPU
 # reference on the GPU), the model bench's device rows (the baseline product, forward at
@@ -37,11 +40,26 @@ if [ -z "${VK_DRIVER_FILES:-}" ] && [ -f "$icd" ]; then
 fi
 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv
 "$BIN/iastgcn" info || exit 1
+for t in "$BIN"/*.test; do
+    [ -e "$t" ] || continue
+    echo "== tests on the GPU: $(basename "$t")"
+    "$t" --test-threads 4 2>&1 | grep -E '^test |test result|panicked' || exit 1
+done
 "$BIN/iastgcn" smoke || exit 1
-echo "== model bench, device rows"
-IASTGCN_BENCH_CSV="$OUTDIR/model.csv" IASTGCN_BENCH_GROUPS='baseline,small C16,paper C64' \
-    "$BIN/model" --bench '/(matmul|forward B=1$|forward B=64|train step)' 2>&1 |
-    grep -E '^(baseline|small|paper).*mean'
+# Another build's model bench copied in as model-NAME (the code before a change) is run
+# after this build's, and again before it, so that the two are compared within the call.
+bench_model() {
+    local name
+    name=$(basename "$1")
+    echo "== model bench, device rows: $name"
+    IASTGCN_BENCH_CSV="$OUTDIR/$name.csv" IASTGCN_BENCH_GROUPS='baseline,small C16,paper C64' \
+        "$1" --bench '/(matmul|forward B=1$|forward B=64|train step)' 2>&1 |
+        grep -E '^(baseline|small|paper).*mean'
+}
+others=$(ls "$BIN"/model-* 2>/dev/null)
+for m in $others; do bench_model "$m"; done
+bench_model "$BIN/model"
+for m in $others; do bench_model "$m"; done
 for shape in paper small; do
     echo "== kernels bench, $shape training step"
     "$BIN/kernels" "$shape" train

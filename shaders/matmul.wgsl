@@ -6,7 +6,8 @@
 //
 // Operands are strided views, so one kernel covers every transpose: element (i, kk) of
 // op(A) is a[z*a_batch + r*a_reduce + i*a_row + kk*a_col], element (kk, j) of op(B) is
-// b[z*b_batch + r*b_reduce + kk*b_row + j*b_col]; C is contiguous [M, N] per batch.
+// b[z*b_batch + r*b_reduce + kk*b_row + j*b_col] (with slices, r's item and slice
+// offsets instead of r*a_reduce: `reduce_offsets`); C is contiguous [M, N] per batch.
 // The backward pass is this kernel again on transposed views (see ops/matmul/), and
 // `reduce` sums over a batch axis when a shared operand's gradient is wanted.
 //
@@ -41,6 +42,13 @@ struct MatmulParams {
     // Split reduction: when nonzero, item z of C is the partial sum over reduction items
     // z*chunk .. (z+1)*chunk (see `sum_partials`).
     chunk: u32,
+    // A reduction over batch items each cut into `slices` slices of k (a weight gradient
+    // with a long k per item): reduction item r is slice r % slices of item r / slices,
+    // the items a_reduce (b_reduce) apart and the slices a_slice (b_slice). 1 and 0
+    // otherwise.
+    slices: u32,
+    a_slice: u32,
+    b_slice: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: MatmulParams;
@@ -244,6 +252,13 @@ fn reduce_range(z: u32) -> vec2<u32> {
     return vec2<u32>(0u, p.reduce);
 }
 
+// Where reduction item `r` starts in op(A) and op(B) (from their batch item's start).
+fn reduce_offsets(r: u32) -> vec2<u32> {
+    let item = r / p.slices;
+    let slice = r - item * p.slices;
+    return vec2<u32>(item * p.a_reduce + slice * p.a_slice, item * p.b_reduce + slice * p.b_slice);
+}
+
 // The batch item of the operands that batch item `z` of C reads.
 fn operand_item(z: u32) -> u32 {
     if REDUCE && p.chunk != 0u {
@@ -315,8 +330,9 @@ fn matmul(@builtin(global_invocation_id) gid: vec3<u32>) {
     let rr = reduce_range(z);
     let item = operand_item(z);
     for (var r = rr.x; r < rr.y; r++) {
-        let abase = item * p.a_batch + r * p.a_reduce;
-        let bbase = item * p.b_batch + r * p.b_reduce;
+        let off = reduce_offsets(r);
+        let abase = item * p.a_batch + off.x;
+        let bbase = item * p.b_batch + off.y;
         var kk = 0u;
         for (; kk < k4; kk += 4u) {
             let xl = a_rows(abase, kk, r0, rows_lo);
@@ -398,8 +414,9 @@ fn matmul_row(@builtin(global_invocation_id) gid: vec3<u32>) {
     let rr = reduce_range(z);
     let item = operand_item(z);
     for (var r = rr.x; r < rr.y; r++) {
-        let abase = item * p.a_batch + r * p.a_reduce;
-        let bbase = item * p.b_batch + r * p.b_reduce;
+        let off = reduce_offsets(r);
+        let abase = item * p.a_batch + off.x;
+        let bbase = item * p.b_batch + off.y;
         var kk = 0u;
         for (; kk < k4; kk += 4u) {
             // One row: A is only ever read as vectors along k here.

@@ -57,8 +57,9 @@ fn matmul_subgroup(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup_id) 
     let rr = reduce_range(z);
     let item = operand_item(z);
     for (var r = rr.x; r < rr.y; r++) {
-        let abase = item * p.a_batch + r * p.a_reduce;
-        let bbase = item * p.b_batch + r * p.b_reduce;
+        let off = reduce_offsets(r);
+        let abase = item * p.a_batch + off.x;
+        let bbase = item * p.b_batch + off.y;
         var kk = 0u;
         for (; kk < k4; kk += 4u) {
             let x = a_rows(abase, kk, r0, rows);
@@ -152,8 +153,9 @@ fn matmul_subgroup_cols(@builtin(workgroup_id) wid: vec3<u32>, @builtin(subgroup
     let rr = reduce_range(z);
     let item = operand_item(z);
     for (var r = rr.x; r < rr.y; r++) {
-        let abase = item * p.a_batch + r * p.a_reduce;
-        let bbase = item * p.b_batch + r * p.b_reduce;
+        let off = reduce_offsets(r);
+        let abase = item * p.a_batch + off.x;
+        let bbase = item * p.b_batch + off.y;
         var kk = 0u;
         for (; kk < k4; kk += 4u) {
             let y = b_cols(bbase, kk, c0, cols);

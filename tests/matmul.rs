@@ -491,9 +491,9 @@ fn split_weight_gradients_match_reference() {
 #[test]
 fn single_row_gradients_are_split_into_chunks() {
     // One row of C reduced over many items or a long k (the attentions' rank-1 weights:
-    // U1, U3, W3 summed over the batch; W1 over B·N·C_in rows of one product): the row
-    // kernel sums chunks of ~4096 multiply-adds into partial rows, and a second launch
-    // adds them. Ragged chunk counts, both layouts of each operand, with and without
+    // U1, U3, W3 summed over the batch, each item's long k in slices; W1 over B·N·C_in
+    // rows of one product): the row kernel sums chunks of ~4096 multiply-adds (512 on a
+    // GPU) into partial rows, and a second launch adds them. Ragged chunk counts, both layouts of each operand, with and without
     // accumulation; a k with no divisor to split at stays one launch.
     let g = gpu();
     let mut shapes = Vec::new();
@@ -506,8 +506,16 @@ fn single_row_gradients_are_split_into_chunks() {
             .transpose_b(tb);
         // dB: op(B) is [20, 1], its gradient one row of k = 12 288 = 24 chunks of 512.
         let by_k = Matmul::new(12288, 1, 20).transpose_a(ta).transpose_b(tb);
+        // dA: m = 1, n = 14, a long k = 6 400 per item over 3 items (U1's gradient): each
+        // item's k cut into 16 slices of 400, the 48 slices summed in chunks.
+        let long_items = Matmul::new(1, 6400, 14)
+            .batched(3)
+            .share_a(true)
+            .transpose_a(ta)
+            .transpose_b(tb);
         shapes.push((by_items, true, 2));
         shapes.push((by_k, false, 2));
+        shapes.push((long_items, true, 2));
     }
     // 12 289 is prime: no chunk length divides it.
     shapes.push((Matmul::new(12289, 1, 20), false, 1));

@@ -1,7 +1,7 @@
 //! Recording a planned product: the kernel and its grid for the device, the override
 //! constants, the uniform parameters, and the two launches of a split reduction.
 
-use super::plan::{Gemm, Matmul, Plus, Tiling};
+use super::plan::{Gemm, Matmul, Plus, Tiling, GPU_ROW_CHUNK_MACS, ROW_CHUNK_MACS};
 use super::{
     subgroup_kernel_available, Epilogue, BLOCK, COLS_MAX_M, COLS_MIN_N, COLS_PER_GROUP, COLS_TILE,
     KERNEL, KERNEL_ROW, KERNEL_SUBGROUP, KERNEL_SUBGROUP_COLS, KERNEL_SUM, MAX_GROUP_Y, MAX_TILES,
@@ -30,6 +30,9 @@ struct Params {
     alpha: f32,
     batches: u32,
     chunk: u32,
+    slices: u32,
+    a_slice: u32,
+    b_slice: u32,
 }
 
 impl Matmul {
@@ -353,16 +356,25 @@ impl Gemm {
         let flops = 2.0 * (self.batch * self.m * self.n * self.k) as f64;
         let (gemm, swapped) = self.canonical();
         let (lhs, rhs) = if swapped { (rhs, lhs) } else { (lhs, rhs) };
-        let split = gemm.k_split().or_else(|| gemm.item_k_split());
+        let split = gemm
+            .k_split()
+            .or_else(|| gemm.item_k_split())
+            .or_else(|| gemm.shared_k_split());
         if let Some(split) = split.filter(|_| epilogue.is_plain()) {
             return split.dispatch_with(gpu, lhs, rhs, out, accumulate, epilogue);
         }
-        // The reduction: over batch items into one C, or over the slices of k of each
-        // item (a single slice unless split); the slices of an item lie k apart.
+        // The reduction: over batch items into one C (each item's slices of k in turn
+        // when its k is split), or over the slices of k of each item (a single slice
+        // unless split); the slices of an item lie k apart.
         let (out_batches, reduce) = if gemm.out_shared {
-            (1, gemm.batch)
+            (1, gemm.batch * gemm.parts)
         } else {
             (gemm.batch, gemm.parts)
+        };
+        let (slices, a_slice, b_slice) = if gemm.out_shared {
+            (gemm.parts, gemm.k * gemm.lhs.col, gemm.k * gemm.rhs.row)
+        } else {
+            (1, 0, 0)
         };
         let (lb, lr) = if gemm.out_shared {
             (0, gemm.lhs.batch)
@@ -392,9 +404,17 @@ impl Gemm {
             alpha: 1.0,
             batches: out_batches as u32,
             chunk: 0,
+            slices: slices as u32,
+            a_slice: a_slice as u32,
+            b_slice: b_slice as u32,
         };
         let plain = epilogue.is_plain() && gemm.plus == Plus::None;
-        if let Some(chunk) = gemm.split_chunk(reduce).filter(|_| plain) {
+        let macs = if gpu.is_software() {
+            ROW_CHUNK_MACS
+        } else {
+            GPU_ROW_CHUNK_MACS
+        };
+        if let Some(chunk) = gemm.split_chunk(reduce, macs).filter(|_| plain) {
             return gemm.dispatch_split(gpu, [lhs, rhs, out], params, chunk, flops);
         }
         let mut constants = gemm.constants(&epilogue, swapped);

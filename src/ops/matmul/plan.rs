@@ -24,8 +24,11 @@ pub enum Tiling {
 const SPLIT_CHUNK_BYTES: usize = 1 << 20;
 const SPLIT_PARTIALS_BYTES: usize = 32 << 20;
 /// Multiply-adds along the reduction (items × k) that one invocation of the row kernel
-/// sums in a split product (see [`Gemm::split_chunk`] and [`Gemm::k_split`]).
-const ROW_CHUNK_MACS: usize = 4096;
+/// sums in a split product on a CPU adapter (see [`Gemm::split_chunk`] and
+/// [`Gemm::k_split`]), and on a GPU, whose thousands of lanes want many more, shorter
+/// invocations.
+pub(super) const ROW_CHUNK_MACS: usize = 4096;
+pub(super) const GPU_ROW_CHUNK_MACS: usize = 512;
 /// Steps along the reduction (items × k) that one invocation of a tiled kernel sums in a
 /// split product, at most (see [`Gemm::split_chunk`]).
 const TILED_CHUNK_STEPS: usize = 1024;
@@ -309,8 +312,9 @@ pub(super) struct Gemm {
     /// An operand added to the product in the epilogue (never with `out_shared`).
     pub(super) plus: Plus,
     pub(super) tiling: Tiling,
-    /// Slices of length `k` that each batch item's reduction is cut into, summed into the
-    /// same item of C (1: none; see [`Gemm::item_k_split`]). Never with `out_shared`.
+    /// Slices of length `k` that each batch item's reduction is cut into (1: none),
+    /// summed into the same item of C ([`Gemm::item_k_split`]), or with `out_shared` into
+    /// the one C with every item's ([`Gemm::shared_k_split`]).
     pub(super) parts: usize,
 }
 
@@ -393,18 +397,21 @@ impl Gemm {
     /// 1.8× on that product (7.7 → 14–15.7 GFLOP/s, best with ~1 MiB chunks).
     ///
     /// A single row of C (the gradient of a rank-1 weight such as the attentions' U1, U3
-    /// and W3) is split into chunks of about [`ROW_CHUNK_MACS`] multiply-adds per
-    /// invocation: the row kernel covers 256 columns per workgroup, so unsplit such a
-    /// gradient ran as one workgroup sweeping every item, a few invocations busy (on an
-    /// NVIDIA H200 these products took 70 % of the paper shape's training step).
+    /// and W3) is split into chunks of about `row_macs` multiply-adds per invocation
+    /// ([`ROW_CHUNK_MACS`] on a CPU adapter, [`GPU_ROW_CHUNK_MACS`] on a GPU): the row
+    /// kernel covers 256 columns per workgroup, so unsplit such a gradient ran as one
+    /// workgroup sweeping every item, a few invocations busy (on an NVIDIA H200 these
+    /// products took 70 % of the paper shape's training step). Items with a long k are
+    /// first cut into slices ([`Gemm::shared_k_split`]), which are then the reduction
+    /// items chunked here.
     ///
     /// A chunk of the tiled kernels also sums at most [`TILED_CHUNK_STEPS`] steps of k per
     /// invocation: a gradient with a small C and a short k per item (the graph
     /// convolution's W and the residual weight, [C_in, C] over B·N items of T steps) fits
     /// a core's L2 in few chunks, which left a GPU a few dozen invocations each summing
     /// thousands of items. The extra partial sums cost lavapipe nothing measurable.
-    pub(super) fn split_chunk(&self, reduce: usize) -> Option<usize> {
-        if self.parts > 1 {
+    pub(super) fn split_chunk(&self, reduce: usize, row_macs: usize) -> Option<usize> {
+        if self.parts > 1 && !self.out_shared {
             // One slice of k per invocation, unless the partial sums would outgrow the
             // scratch limit (then the unsplit launch sums every slice in each invocation).
             let partial_bytes = 4 * self.batch * self.m * self.n;
@@ -419,7 +426,7 @@ impl Gemm {
         let partial_bytes = 4 * self.m * self.n;
         let k = self.k.max(1);
         let chunk = if self.m == 1 {
-            ROW_CHUNK_MACS / k
+            row_macs / k
         } else {
             (SPLIT_CHUNK_BYTES / (4 * k * (self.m + self.n))).min(TILED_CHUNK_STEPS / k)
         };
@@ -436,19 +443,10 @@ impl Gemm {
     /// operands start k' further along, so [`Gemm::split_chunk`] then spreads the chunks
     /// over workgroups. `None` where k has no divisor in [k'/4, k'] or is short already.
     pub(super) fn k_split(&self) -> Option<Gemm> {
-        let target = ROW_CHUNK_MACS / 8;
         if self.m != 1 || self.batch != 1 || self.out_shared || self.plus != Plus::None {
             return None;
         }
-        if self.k < 4 * target {
-            return None;
-        }
-        let divides = |d: &usize| self.k.is_multiple_of(*d);
-        let range = || (target / 4..=target).rev();
-        let kc = range()
-            .filter(|d| d % 4 == 0)
-            .find(divides)
-            .or_else(|| range().find(divides))?;
+        let kc = self.row_slice()?;
         Some(Gemm {
             k: kc,
             lhs: View {
@@ -495,6 +493,40 @@ impl Gemm {
             parts: self.k / kc,
             ..*self
         })
+    }
+
+    /// A single row of C summed over batch items whose k is long (the temporal
+    /// attention's U1 and U3 and the spatial attention's W3: a row of N or C_in values
+    /// summed over B items of C·T steps) with each item's k cut into slices of k' (as
+    /// [`Gemm::k_split`] chooses it), so that [`Gemm::split_chunk`] can spread a long
+    /// item over several invocations: without it each invocation swept at least one
+    /// whole item, and a GPU ran the gradient on a few hundred lanes.
+    pub(super) fn shared_k_split(&self) -> Option<Gemm> {
+        if self.m != 1 || !self.out_shared || self.parts != 1 || self.plus != Plus::None {
+            return None;
+        }
+        let kc = self.row_slice()?;
+        Some(Gemm {
+            k: kc,
+            parts: self.k / kc,
+            ..*self
+        })
+    }
+
+    /// The slice length k' of a single row's long k: a divisor of k of at most
+    /// [`ROW_CHUNK_MACS`] / 8, a multiple of 4 where one exists (for vector loads); `None`
+    /// where k is short already or has no divisor in [k'/4, k'].
+    fn row_slice(&self) -> Option<usize> {
+        let target = ROW_CHUNK_MACS / 8;
+        if self.k < 4 * target {
+            return None;
+        }
+        let divides = |d: &usize| self.k.is_multiple_of(*d);
+        let range = || (target / 4..=target).rev();
+        range()
+            .filter(|d| d % 4 == 0)
+            .find(divides)
+            .or_else(|| range().find(divides))
     }
 }
 
