@@ -1,7 +1,7 @@
 //! Recording a planned product: the kernel and its grid for the device, the override
 //! constants, the uniform parameters, and the two launches of a split reduction.
 
-use super::plan::{Gemm, Matmul, Plus, Tiling, GPU_ROW_CHUNK_MACS, ROW_CHUNK_MACS};
+use super::plan::{Gemm, Matmul, Plus, SplitLimits, Tiling};
 use super::{
     subgroup_kernel_available, Epilogue, BLOCK, COLS_MAX_M, COLS_MIN_N, COLS_PER_GROUP, COLS_TILE,
     KERNEL, KERNEL_ROW, KERNEL_SUBGROUP, KERNEL_SUBGROUP_COLS, KERNEL_SUM, MAX_GROUP_Y, MAX_TILES,
@@ -409,12 +409,12 @@ impl Gemm {
             b_slice: b_slice as u32,
         };
         let plain = epilogue.is_plain() && gemm.plus == Plus::None;
-        let macs = if gpu.is_software() {
-            ROW_CHUNK_MACS
+        let limits = if gpu.is_software() {
+            SplitLimits::CPU
         } else {
-            GPU_ROW_CHUNK_MACS
+            SplitLimits::GPU
         };
-        if let Some(chunk) = gemm.split_chunk(reduce, macs).filter(|_| plain) {
+        if let Some(chunk) = gemm.split_chunk(reduce, limits).filter(|_| plain) {
             return gemm.dispatch_split(gpu, [lhs, rhs, out], params, chunk, flops);
         }
         let mut constants = gemm.constants(&epilogue, swapped);

@@ -24,11 +24,29 @@ pub enum Tiling {
 const SPLIT_CHUNK_BYTES: usize = 1 << 20;
 const SPLIT_PARTIALS_BYTES: usize = 32 << 20;
 /// Multiply-adds along the reduction (items × k) that one invocation of the row kernel
-/// sums in a split product on a CPU adapter (see [`Gemm::split_chunk`] and
-/// [`Gemm::k_split`]), and on a GPU, whose thousands of lanes want many more, shorter
-/// invocations.
-pub(super) const ROW_CHUNK_MACS: usize = 4096;
-pub(super) const GPU_ROW_CHUNK_MACS: usize = 512;
+/// sums in a split product (see [`Gemm::split_chunk`] and [`Gemm::k_split`]).
+const ROW_CHUNK_MACS: usize = 4096;
+
+/// How long the invocations of a split reduction are ([`Gemm::split_chunk`]): on a CPU
+/// adapter, or on a GPU, whose thousands of lanes want many more, shorter invocations.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct SplitLimits {
+    /// Multiply-adds along the reduction per invocation of the row kernel.
+    pub(super) row_macs: usize,
+    /// Steps along the reduction (items × k) per invocation of a tiled kernel, at most.
+    pub(super) tiled_steps: usize,
+}
+
+impl SplitLimits {
+    pub(super) const CPU: SplitLimits = SplitLimits {
+        row_macs: ROW_CHUNK_MACS,
+        tiled_steps: TILED_CHUNK_STEPS,
+    };
+    pub(super) const GPU: SplitLimits = SplitLimits {
+        row_macs: 512,
+        tiled_steps: 256,
+    };
+}
 /// Steps along the reduction (items × k) that one invocation of a tiled kernel sums in a
 /// split product, at most (see [`Gemm::split_chunk`]).
 const TILED_CHUNK_STEPS: usize = 1024;
@@ -397,20 +415,20 @@ impl Gemm {
     /// 1.8× on that product (7.7 → 14–15.7 GFLOP/s, best with ~1 MiB chunks).
     ///
     /// A single row of C (the gradient of a rank-1 weight such as the attentions' U1, U3
-    /// and W3) is split into chunks of about `row_macs` multiply-adds per invocation
-    /// ([`ROW_CHUNK_MACS`] on a CPU adapter, [`GPU_ROW_CHUNK_MACS`] on a GPU): the row
+    /// and W3) is split into chunks of about `limits.row_macs` multiply-adds per
+    /// invocation ([`SplitLimits`]: 4 096 on a CPU adapter, 512 on a GPU): the row
     /// kernel covers 256 columns per workgroup, so unsplit such a gradient ran as one
     /// workgroup sweeping every item, a few invocations busy (on an NVIDIA H200 these
     /// products took 70 % of the paper shape's training step). Items with a long k are
     /// first cut into slices ([`Gemm::shared_k_split`]), which are then the reduction
     /// items chunked here.
     ///
-    /// A chunk of the tiled kernels also sums at most [`TILED_CHUNK_STEPS`] steps of k per
-    /// invocation: a gradient with a small C and a short k per item (the graph
+    /// A chunk of the tiled kernels also sums at most `limits.tiled_steps` steps of k per
+    /// invocation (1 024 on a CPU adapter, 256 on a GPU): a gradient with a small C and a short k per item (the graph
     /// convolution's W and the residual weight, [C_in, C] over B·N items of T steps) fits
     /// a core's L2 in few chunks, which left a GPU a few dozen invocations each summing
     /// thousands of items. The extra partial sums cost lavapipe nothing measurable.
-    pub(super) fn split_chunk(&self, reduce: usize, row_macs: usize) -> Option<usize> {
+    pub(super) fn split_chunk(&self, reduce: usize, limits: SplitLimits) -> Option<usize> {
         if self.parts > 1 && !self.out_shared {
             // One slice of k per invocation, unless the partial sums would outgrow the
             // scratch limit (then the unsplit launch sums every slice in each invocation).
@@ -426,9 +444,9 @@ impl Gemm {
         let partial_bytes = 4 * self.m * self.n;
         let k = self.k.max(1);
         let chunk = if self.m == 1 {
-            row_macs / k
+            limits.row_macs / k
         } else {
-            (SPLIT_CHUNK_BYTES / (4 * k * (self.m + self.n))).min(TILED_CHUNK_STEPS / k)
+            (SPLIT_CHUNK_BYTES / (4 * k * (self.m + self.n))).min(limits.tiled_steps / k)
         };
         let chunk = chunk
             .max(1)
