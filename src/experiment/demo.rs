@@ -29,7 +29,7 @@ use crate::twin::{draw_machine, PathKind, Placement, Recipe};
 
 /// Length of each of the demo's training recordings, minutes: the most data with which
 /// three seeds of its eight models fit `make demo`'s 15 minutes on 2 CPU cores with a
-/// margin (docs/results.md "Why 8 minutes per path").
+/// margin (docs/results.md "Why 8 minutes per path and L = 2").
 pub const DEMO_MINUTES: f64 = 8.0;
 
 /// What the demo runs.
