@@ -4,7 +4,7 @@
 CARGO ?= cargo
 export NODEVICE_SELECT ?= 1
 
-.PHONY: vulkan test demo paper bench bench-compare bench-embed lint python header
+.PHONY: vulkan test demo paper bench bench-compare bench-embed lint python header fuzz
 
 vulkan:
 	@.ci/ensure-vulkan
@@ -30,6 +30,29 @@ python:
 	rm -f target/wheels/iastgcn-*.whl
 	$(PYTHON_VENV)/bin/maturin build --profile $(PYTHON_PROFILE) --target-dir target/python --out target/wheels
 	$(PYTHON_VENV)/bin/pip install -q --force-reinstall --no-deps target/wheels/iastgcn-*.whl
+
+## Coverage-guided fuzzing of every reader and the C ABI (docs/robustness.md "Fuzzing"):
+## cargo-afl (from crates.io when missing; it builds AFL++ for this rustc) instruments the
+## targets of tests/fuzz/targets.rs on stable Rust, they write their seeds, and afl-fuzz
+## runs each for FUZZ_SECONDS. Crashes land in $(FUZZ_DIR)/out/<target>/default/crashes;
+## the command fails when there is any. Not part of `make test`.
+FUZZ_SECONDS ?= 60
+FUZZ_DIR ?= target/fuzz
+FUZZ_BIN = target/afl/release/fuzz-targets
+fuzz:
+	@command -v cargo-afl >/dev/null || $(CARGO) install cargo-afl
+	CARGO_TARGET_DIR=target/afl $(CARGO) afl build --release --features fuzz --bin fuzz-targets
+	$(FUZZ_BIN) seeds $(FUZZ_DIR)/seeds
+	mkdir -p $(FUZZ_DIR)/out
+	@for t in $$($(FUZZ_BIN) list); do \
+	  echo "== $$t: $(FUZZ_SECONDS) s"; \
+	  AFL_NO_UI=1 AFL_SKIP_CPUFREQ=1 AFL_I_DONT_CARE_ABOUT_MISSING_CRASHES=1 \
+	    $(CARGO) afl fuzz -V $(FUZZ_SECONDS) -i $(FUZZ_DIR)/seeds/$$t -o $(FUZZ_DIR)/out/$$t \
+	    $(FUZZ_BIN) $$t > $(FUZZ_DIR)/$$t.log 2>&1 || { tail -n 20 $(FUZZ_DIR)/$$t.log; exit 1; }; \
+	  grep -E "execs_done|corpus_count|saved_crashes|saved_hangs" $(FUZZ_DIR)/out/$$t/default/fuzzer_stats | tr -s ' ' | paste -sd' '; \
+	done
+	@crashes=$$(ls $(FUZZ_DIR)/out/*/default/crashes 2>/dev/null | grep -c '^id:'); \
+	  echo "crashes found: $$crashes"; test "$$crashes" -eq 0
 
 ## Regenerates the C header include/iastgcn.h from src/embed/c_api.rs (cbindgen).
 header:
