@@ -110,3 +110,4 @@ lint:
 	$(CARGO) fmt --check
 	$(CARGO) clippy --all-targets -- -D warnings
 	$(CARGO) clippy --lib --features python -- -D warnings
+	$(CARGO) clippy --features fuzz --bin fuzz-targets -- -D warnings
