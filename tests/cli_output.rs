@@ -109,11 +109,7 @@ fn without_a_gpu_driver_info_says_so_and_wgsl_commands_refuse() {
             && text.contains("train, refine, predict, evaluate"),
         "{text}"
     );
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
-        .arg("smoke")
-        .envs(common::NO_DRIVER)
-        .output()
-        .unwrap();
+    let o = common::run(&["smoke"], &common::NO_DRIVER);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
         !o.status.success()

@@ -770,11 +770,10 @@ fn demo_over_seeds_reports_the_spread() {
         a.push("--models".into());
         a.extend(models.iter().cloned());
         // With no GPU driver: evaluation runs on the native path.
-        std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
-            .args(&a)
-            .envs(common::NO_DRIVER)
-            .output()
-            .unwrap()
+        common::run(
+            &a.iter().map(String::as_str).collect::<Vec<_>>(),
+            &common::NO_DRIVER,
+        )
     };
     // The old core file beside its refined one is the same model twice: refused at once.
     let core = old.join("iastgcn.seed1.safetensors");

@@ -148,7 +148,7 @@ impl Device {
     /// the native CPU ([`Device::Native`]). An adapter asked for by name that is not
     /// there stays an error.
     pub fn open(wanted: Option<&str>) -> Result<Device, GpuError> {
-        let from_env = std::env::var(ADAPTER_ENV).ok().filter(|s| !s.is_empty());
+        let from_env = adapter_from_env();
         let wanted = wanted.or(from_env.as_deref());
         match Gpu::with_adapter(wanted) {
             Ok(gpu) => Ok(Device::Adapter(Arc::new(gpu))),
@@ -165,14 +165,6 @@ impl Device {
                 what: what.to_string(),
                 hint: INSTALL_HINT.to_string(),
             }),
-        }
-    }
-
-    /// The adapter, if there is one.
-    pub fn adapter(&self) -> Option<&Arc<Gpu>> {
-        match self {
-            Device::Adapter(gpu) => Some(gpu),
-            Device::Native => None,
         }
     }
 
@@ -194,6 +186,11 @@ impl Device {
     }
 }
 
+/// The adapter name `IASTGCN_ADAPTER` asks for, if set and not empty.
+fn adapter_from_env() -> Option<String> {
+    std::env::var(ADAPTER_ENV).ok().filter(|s| !s.is_empty())
+}
+
 /// What [`Device::name`] says of the native device.
 pub const NATIVE_NAME: &str = "native CPU (no GPU adapter)";
 
@@ -212,8 +209,7 @@ impl From<Arc<Gpu>> for Device {
 impl Gpu {
     /// Opens the adapter named by `IASTGCN_ADAPTER` if set, else the best one available.
     pub fn new() -> Result<Gpu, GpuError> {
-        let wanted = std::env::var(ADAPTER_ENV).ok().filter(|s| !s.is_empty());
-        Gpu::with_adapter(wanted.as_deref())
+        Gpu::with_adapter(adapter_from_env().as_deref())
     }
 
     /// Opens the first adapter whose name contains `wanted`, or the best one when `None`.

@@ -248,13 +248,7 @@ impl Polisher {
     /// at.
     pub fn plan(&mut self, measured: &HeightMap) -> Dwell {
         let first = self.plan_at(measured, DEFAULT_FORCE);
-        let mut feeds: Vec<f64> = self
-            .raster
-            .lengths
-            .iter()
-            .zip(&first.seconds)
-            .map(|(l, t)| l / t)
-            .collect();
+        let mut feeds = self.segment_feeds(&first.seconds);
         feeds.sort_by(f64::total_cmp);
         let median = feeds.get(feeds.len() / 2).copied().unwrap_or(DEFAULT_FEED);
         let force = (DEFAULT_FORCE * DEFAULT_FEED / median).clamp(FORCE_RANGE[0], FORCE_RANGE[1]);
@@ -281,17 +275,21 @@ impl Polisher {
         dwell
     }
 
+    /// Each raster segment's feed, mm/s: its length over its `seconds`.
+    fn segment_feeds(&self, seconds: &[f64]) -> Vec<f64> {
+        self.raster
+            .lengths
+            .iter()
+            .zip(seconds)
+            .map(|(l, t)| l / t)
+            .collect()
+    }
+
     /// The feed that realises `dwell`: each segment's length over its seconds, scaled
     /// during the run by the force reading over the planned force (force × dwell is the
     /// removal).
     pub fn feed(&self, dwell: &Dwell) -> Result<FeedPlan> {
-        let feed = self
-            .raster
-            .lengths
-            .iter()
-            .zip(&dwell.seconds)
-            .map(|(l, t)| l / t)
-            .collect();
+        let feed = self.segment_feeds(&dwell.seconds);
         let mut plan = FeedPlan::new(self.arc.clone(), feed).map_err(Error::Invalid)?;
         plan.force_reference = Some(dwell.force);
         plan.walk_once = true;

@@ -94,8 +94,11 @@ fn unflatten(template: &Parameters, flat: &[f32]) -> Parameters {
 enum ScoreNet<'a> {
     /// The inference schedule for the whole sample on the adapter.
     Device { gpu: &'a Gpu, net: Box<Network> },
-    /// The native CPU forward, one window at a time (no adapter).
-    Native(Box<NativeForward>),
+    /// The native CPU forward, one window of `window` values at a time (no adapter).
+    Native {
+        forward: Box<NativeForward>,
+        window: usize,
+    },
 }
 
 /// Scores candidates: the mean per-window loss on a fixed sample of training windows.
@@ -115,12 +118,11 @@ impl Scorer<'_> {
                 net.load_parameters(gpu, &params)?;
                 net.predict(gpu, &self.x)?
             }
-            ScoreNet::Native(native) => {
-                native.set_parameters(&params)?;
-                let len = self.x.len() / (self.y.len() / OUTPUTS).max(1);
+            ScoreNet::Native { forward, window } => {
+                forward.set_parameters(&params)?;
                 let mut out = vec![0f32; self.y.len()];
-                for (x, row) in self.x.chunks(len).zip(out.chunks_mut(OUTPUTS)) {
-                    native.forward(x, row)?;
+                for (x, row) in self.x.chunks(*window).zip(out.chunks_mut(OUTPUTS)) {
+                    forward.forward(x, row)?;
                 }
                 out
             }
@@ -170,7 +172,10 @@ pub fn pollinate(
             gpu,
             net: Box::new(Network::for_inference(gpu, model, graph, count)?),
         },
-        Device::Native => ScoreNet::Native(Box::new(NativeForward::new(model, graph, &template)?)),
+        Device::Native => ScoreNet::Native {
+            forward: Box::new(NativeForward::new(model, graph, &template)?),
+            window: data.window_len(),
+        },
     };
     let mut scorer = Scorer {
         net,

@@ -6,12 +6,18 @@
 
 use std::path::{Path, PathBuf};
 
+/// Runs the `iastgcn` binary with `args` and the environment variables `env` added.
+pub fn run(args: &[&str], env: &[(&str, &str)]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
+        .args(args)
+        .envs(env.iter().copied())
+        .output()
+        .unwrap()
+}
+
 /// Runs the `iastgcn` binary with `args`; panics with its stderr on failure; returns stdout.
 pub fn cli(args: &[&str]) -> String {
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
-        .args(args)
-        .output()
-        .unwrap();
+    let o = run(args, &[]);
     assert!(
         o.status.success(),
         "iastgcn {args:?} failed:\n{}",
@@ -31,11 +37,7 @@ pub const NO_DRIVER: [(&str, &str); 2] = [
 /// Runs the binary with no GPU driver ([`NO_DRIVER`]), expecting success; returns stdout
 /// and stderr.
 pub fn cli_without_gpu(args: &[&str]) -> (String, String) {
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
-        .args(args)
-        .envs(NO_DRIVER)
-        .output()
-        .unwrap();
+    let o = run(args, &NO_DRIVER);
     let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
     assert!(
         o.status.success(),
@@ -50,10 +52,7 @@ pub const NATIVE_NOTE: &str =
 
 /// Runs the binary expecting failure; returns stderr.
 pub fn cli_fails(args: &[&str]) -> String {
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
-        .args(args)
-        .output()
-        .unwrap();
+    let o = run(args, &[]);
     assert!(!o.status.success(), "iastgcn {args:?} succeeded");
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
