@@ -23,7 +23,7 @@ mod block;
 pub mod network;
 pub mod schedule;
 
-pub use native::{NativeAdam, NativeForward, NativeStepShape, NativeTraining};
+pub use native::{product_for_bench, NativeAdam, NativeForward, NativeStepShape, NativeTraining};
 pub use network::{ModelError, Network, Pass};
 pub use predictor::{Backend, Features, Predictor, Residual};
 pub use schedule::StepTime;

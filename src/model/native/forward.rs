@@ -6,6 +6,7 @@
 use super::conv_lstm::{ConvLstmNet, ConvLstmTape};
 use super::dense::{DenseNet, DenseTape};
 use super::flushing_subnormals;
+use super::product::{with_products, Products};
 use super::recurrent::{RecurrentNet, RecurrentTape};
 use super::slots::Slots;
 use super::tape::{forward, Tape};
@@ -142,7 +143,7 @@ impl NativeForward {
                 cfg.outputs
             )));
         }
-        flushing_subnormals(|| self.run(x, out));
+        flushing_subnormals(|| with_products(Products::InPlace, || self.run(x, out)));
         Ok(())
     }
 

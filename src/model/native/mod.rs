@@ -10,9 +10,10 @@
 //! M = Q·X_t, and in the last block steps 4–7 at the last time step only; beyond the
 //! device, the last block's steps 1–3 run only at the K steps its convolution reads
 //! there (`tape.rs` `Cols`). Every
-//! contraction is a `gemm::gemm` (the `gemm` crate: AVX-512, AVX2 or scalar kernels
-//! chosen at run time, one thread per call) on a strided view of the row-major tensors
-//! (no copies, no transposes); the rest are loops over contiguous rows. The functions
+//! contraction is a [`product::gemm`] on a strided view of the row-major tensors (no
+//! copies, no transposes): in training the `gemm` crate's, in the predictor's forward an
+//! in-place kernel that allocates nothing (`product.rs`); the rest are loops over
+//! contiguous rows. The functions
 //! holding the IASTGCN blocks' loops (`tape.rs`, `backward.rs`) are compiled for AVX-512
 //! and AVX2/FMA besides baseline x86-64 and chosen at their first call (`multiversion`);
 //! f32 arithmetic is never reassociated or contracted, and the sums that must vectorise
@@ -22,7 +23,7 @@
 //! into the subnormal range, where x86 arithmetic takes a microcode assist per operation
 //! (an `iastgcn-t` step at 128 minutes per path ran 2.5–10× slower than at its start).
 //!
-//! Files: `forward.rs` ([`NativeForward`]), `tape.rs` (the training forward of one
+//! Files: `product.rs` (the matrix products), `forward.rs` ([`NativeForward`]), `tape.rs` (the training forward of one
 //! window, keeping its intermediates), `backward.rs` (its backward), `step.rs`
 //! ([`NativeTraining`]: a batch over threads, the loss, Adam), `slots.rs` (where each
 //! tensor sits in the parameter list), `graph_attention.rs` (ST-GAT's step 3, forward and
@@ -36,78 +37,16 @@ mod conv_lstm;
 mod dense;
 mod forward;
 mod graph_attention;
+mod product;
 mod recurrent;
 mod slots;
 mod step;
 mod tape;
 
 pub use forward::NativeForward;
+pub use product::product_for_bench;
+use product::{gemm, par_gemm, rows, transposed, View, PAR_MIN_MACS};
 pub use step::{NativeAdam, NativeStepShape, NativeTraining};
-
-/// A strided read-only matrix view: element (i, j) at `data[i·rs + j·cs]`.
-#[derive(Clone, Copy)]
-struct View<'a> {
-    data: &'a [f32],
-    rs: usize,
-    cs: usize,
-}
-
-/// Row-major `[rows, cols]` (row stride `cols`).
-fn rows(data: &[f32], cols: usize) -> View<'_> {
-    View {
-        data,
-        rs: cols,
-        cs: 1,
-    }
-}
-
-/// The transpose of a row-major `[rows, cols]` matrix, seen as `[cols, rows]`.
-fn transposed(data: &[f32], cols: usize) -> View<'_> {
-    View {
-        data,
-        rs: 1,
-        cs: cols,
-    }
-}
-
-/// `C[m×n] = A[m×k]·B[k×n] + beta·C`, C row-major with row stride `ldc`.
-///
-/// Panics when a view does not cover its extent: the shapes are the network's own, so
-/// that would be a bug here, never bad input. (The BLAS argument list, hence the allow.)
-#[allow(clippy::too_many_arguments)]
-fn gemm(m: usize, k: usize, n: usize, a: View, b: View, beta: f32, c: &mut [f32], ldc: usize) {
-    let last = |v: &View, r: usize, s: usize| (r - 1) * v.rs + (s - 1) * v.cs;
-    assert!(m > 0 && k > 0 && n > 0, "empty product");
-    assert!(last(&a, m, k) < a.data.len(), "A does not cover [{m}, {k}]");
-    assert!(last(&b, k, n) < b.data.len(), "B does not cover [{k}, {n}]");
-    assert!((m - 1) * ldc + n <= c.len(), "C does not cover [{m}, {n}]");
-    // SAFETY: the asserts above keep every element the product reads or writes inside
-    // the three slices; C does not alias A or B (it is borrowed mutably).
-    unsafe {
-        // gemm's convention: C := alpha·C + beta·(A·B), C read only when `read_dst`.
-        gemm::gemm(
-            m,
-            n,
-            k,
-            c.as_mut_ptr(),
-            1,
-            ldc as isize,
-            beta != 0.0,
-            a.data.as_ptr(),
-            a.cs as isize,
-            a.rs as isize,
-            b.data.as_ptr(),
-            b.cs as isize,
-            b.rs as isize,
-            beta,
-            1.0,
-            false,
-            false,
-            false,
-            gemm::Parallelism::None,
-        );
-    }
-}
 
 /// Runs `f` with subnormal f32 inputs read as zero and subnormal results flushed to zero
 /// on this thread (x86-64 MXCSR's DAZ and FTZ bits), then restores the thread's mode,
@@ -145,47 +84,6 @@ fn flushing_subnormals<R>(f: impl FnOnce() -> R) -> R {
     {
         f()
     }
-}
-
-/// Multiply-adds per task below which [`par_gemm`] does not split a product (a rayon task
-/// costs a few microseconds; 2^19 multiply-adds take ~25 µs on one core).
-const PAR_MIN_MACS: usize = 1 << 19;
-
-/// [`gemm`] with C's rows split into up to `threads` tasks on the current rayon pool, each
-/// of at least [`PAR_MIN_MACS`] multiply-adds; one call when `threads` is 1 or the product
-/// is small. Every element of C is the same sum in the same order either way (the split
-/// only chooses which rows each call computes), so the result does not depend on it.
-#[allow(clippy::too_many_arguments)]
-fn par_gemm(
-    threads: usize,
-    m: usize,
-    k: usize,
-    n: usize,
-    a: View,
-    b: View,
-    beta: f32,
-    c: &mut [f32],
-    ldc: usize,
-) {
-    let tasks = threads.min(m).min(m * k * n / PAR_MIN_MACS);
-    if tasks < 2 {
-        return gemm(m, k, n, a, b, beta, c, ldc);
-    }
-    let rows = m.div_ceil(tasks);
-    rayon::scope(|scope| {
-        let mut rest = c;
-        for r0 in (0..m).step_by(rows) {
-            let r = rows.min(m - r0);
-            let take = if r0 + r < m { r * ldc } else { rest.len() };
-            let (chunk, tail) = std::mem::take(&mut rest).split_at_mut(take);
-            rest = tail;
-            let a = View {
-                data: &a.data[r0 * a.rs..],
-                ..a
-            };
-            scope.spawn(move |_| flushing_subnormals(|| gemm(r, k, n, a, b, beta, chunk, ldc)));
-        }
-    });
 }
 
 /// Partial sums of [`lanes_dot`] and [`lanes_sum`].
