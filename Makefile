@@ -102,7 +102,9 @@ bench-compare: vulkan
 	$(BENCH_VENV)/bin/python benches/pytorch/compare.py
 
 ## Per-tick latency of the predictor from Rust, C and Python in one run (benches/embed.rs,
-## docs/embedding.md "Latency"); table in target/bench-embed/latency.md.
+## docs/embedding.md "Latency"): the mean tick per language, then 10^6 ticks per language
+## each timed alone (p50, p99, p99.9, max, resident memory, page faults); tables in
+## target/bench-embed/latency.md.
 bench-embed: python
 	$(CARGO) bench --bench embed
 

@@ -12,8 +12,16 @@
 //! frames are made before the timing in every language. The table gives the median
 //! per-tick time over the rounds, the spread (min–max), and each binding's overhead
 //! against Rust in the same round, as a ratio and in µs, with the goal: within 5 % +
-//! 10 µs of Rust. `IASTGCN_BENCH_ROUNDS` sets the rounds (default 7). The table is
-//! printed and written to target/bench-embed/latency.md.
+//! 10 µs of Rust. `IASTGCN_BENCH_ROUNDS` sets the rounds (default 7).
+//!
+//! Then the worst ticks, what a control loop is judged by: one long run per language
+//! (`IASTGCN_BENCH_TAIL_TICKS`, default 10⁶ at the demo shape, a hundredth of it at the
+//! paper's) with every tick timed on its own (a monotonic clock read before and after
+//! it), frames cycled from 1 200 made beforehand; p50, p99, p99.9, the maximum and the
+//! mean per tick, the ticks over twice the median, the process's resident memory (VmRSS) after the
+//! warm-up and after the run, and its minor page faults during the run. Each program writes its tick times (u64 ns, native byte order) to a file and
+//! the percentiles are computed here, one way for all three. Both tables are printed and
+//! written to target/bench-embed/latency.md.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -56,6 +64,125 @@ fn time_rust(checkpoint: &Checkpoint, ticks: usize) -> f64 {
     let seconds = began.elapsed().as_secs_f64();
     std::hint::black_box(sum);
     seconds
+}
+
+/// Frames made before a long run and cycled through it (a multiple of the sensors'
+/// sampling periods and of `sensor`'s 200-tick phase).
+const CYCLE: usize = 1200;
+
+/// The resident memory of this process, KiB (VmRSS of /proc/self/status; 0 where there
+/// is none).
+fn rss_kib() -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmRSS:"))
+                .and_then(|l| l.split_whitespace().nth(1)?.parse().ok())
+        })
+        .unwrap_or(0)
+}
+
+/// Minor page faults of this process so far (field 10 of /proc/self/stat; 0 where there
+/// is none).
+fn minor_faults() -> u64 {
+    std::fs::read_to_string("/proc/self/stat")
+        .ok()
+        .and_then(|s| {
+            // After the command's name, in parentheses: state, ppid, pgrp, session,
+            // tty_nr, tpgid, flags, minflt.
+            let rest = &s[s.rfind(')')? + 1..];
+            rest.split_whitespace().nth(7)?.parse().ok()
+        })
+        .unwrap_or(0)
+}
+
+/// One long run's tick times, ns, the resident memory (KiB) after the warm-up and after
+/// the run, and the minor page faults during the run.
+struct Tail {
+    ns: Vec<u64>,
+    rss: (u64, u64),
+    faults: u64,
+}
+
+/// `ticks` ticks in Rust, each timed on its own.
+fn tail_rust(checkpoint: &Checkpoint, ticks: usize) -> Tail {
+    let mut p = SensorPredictor::native(checkpoint, DT).unwrap();
+    let (n, t) = (checkpoint.config.nodes, checkpoint.config.window);
+    let frames: Vec<Vec<f64>> = (0..CYCLE)
+        .map(|tick| (0..n).map(|node| sensor(node, tick)).collect())
+        .collect();
+    // Written before the run, so that the run touches no new page of it.
+    let mut ns = vec![1u64; ticks];
+    for f in frames.iter().cycle().take(t + 10) {
+        p.push(f).unwrap();
+        p.predict_latest().unwrap();
+    }
+    let before = rss_kib();
+    let faults = minor_faults();
+    let mut sum = 0.0;
+    for (tick, slot) in ns.iter_mut().enumerate() {
+        let began = Instant::now();
+        p.push(&frames[(t + 10 + tick) % CYCLE]).unwrap();
+        sum += p.predict_latest().unwrap().unwrap()[0];
+        *slot = began.elapsed().as_nanos() as u64;
+    }
+    let faults = minor_faults() - faults;
+    std::hint::black_box(sum);
+    Tail {
+        ns,
+        rss: (before, rss_kib()),
+        faults,
+    }
+}
+
+/// Runs a long-run program that writes its tick times to `file` and prints
+/// `tail RSS_BEFORE RSS_AFTER FAULTS`.
+fn tail_program(command: &mut Command, file: &Path) -> Result<Tail, String> {
+    let out = command.output().map_err(|e| e.to_string())?;
+    if !out.status.success() {
+        return Err(String::from_utf8_lossy(&out.stderr).into_owned());
+    }
+    let text = String::from_utf8_lossy(&out.stdout);
+    let words: Vec<&str> = text.split_whitespace().collect();
+    let number = |w: &str| -> Result<u64, String> {
+        w.parse().map_err(|_| format!("unexpected output {text:?}"))
+    };
+    let (rss, faults) = match words.as_slice() {
+        ["tail", before, after, faults, ..] => ((number(before)?, number(after)?), number(faults)?),
+        _ => return Err(format!("unexpected output {text:?}")),
+    };
+    let bytes = std::fs::read(file).map_err(|e| format!("{}: {e}", file.display()))?;
+    let ns = bytes
+        .chunks_exact(8)
+        .map(|b| u64::from_ne_bytes(b.try_into().unwrap()))
+        .collect();
+    std::fs::remove_file(file).map_err(|e| e.to_string())?;
+    Ok(Tail { ns, rss, faults })
+}
+
+/// The table row of one long run: p50, p99, p99.9, max and mean in µs (nearest-rank
+/// percentiles), the resident memory before and after in MiB, the minor page faults, and
+/// the ticks over twice the median.
+fn tail_row(label: &str, language: &str, tail: &Tail) -> String {
+    let mut ns = tail.ns.clone();
+    ns.sort_unstable();
+    let at = |p: f64| ns[((p * ns.len() as f64).ceil() as usize).clamp(1, ns.len()) - 1] as f64;
+    let mean = ns.iter().map(|&v| v as f64).sum::<f64>() / ns.len() as f64;
+    let mib = |kib: u64| kib as f64 / 1024.0;
+    format!(
+        "| {label} | {language} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} → {:.1} | {} | {} |",
+        ns.len(),
+        at(0.5) / 1e3,
+        at(0.99) / 1e3,
+        at(0.999) / 1e3,
+        *ns.last().unwrap() as f64 / 1e3,
+        mean / 1e3,
+        mib(tail.rss.0),
+        mib(tail.rss.1),
+        tail.faults,
+        ns.iter().filter(|&&v| v > 2 * ns[(ns.len() - 1) / 2]).count()
+    )
 }
 
 /// Runs a timing program; its first output word is the seconds.
@@ -147,12 +274,27 @@ fn main() {
     if let Err(e) = &py {
         notes.push(format!("Python skipped: {e}"));
     }
+    let tail_ticks: usize = std::env::var("IASTGCN_BENCH_TAIL_TICKS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(1_000_000);
     let shapes = [
-        ("demo (C 16, T 48, L 2)", RunConfig::demo().model, 2000),
-        ("paper (C 64, T 100, L 5)", ModelConfig::default(), 200),
+        (
+            "demo (C 16, T 48, L 2)",
+            RunConfig::demo().model,
+            2000,
+            tail_ticks,
+        ),
+        (
+            "paper (C 64, T 100, L 5)",
+            ModelConfig::default(),
+            200,
+            (tail_ticks / 100).max(1),
+        ),
     ];
     let mut rows = Vec::new();
-    for (label, config, ticks) in shapes {
+    let mut tail_rows = Vec::new();
+    for (label, config, ticks, long) in shapes {
         let checkpoint = Checkpoint {
             parameters: Parameters::init(&config, 1),
             normalization: Normalization::identity(&config),
@@ -196,6 +338,27 @@ fn main() {
                 }
             }
         }
+        eprintln!("{label}: {long} ticks timed one by one, in Rust, C and Python");
+        tail_rows.push(tail_row(label, "Rust", &tail_rust(&checkpoint, long)));
+        let file = out.join("ticks.bin");
+        let long_arg = long.to_string();
+        let mut c_cmd = Command::new(&c);
+        c_cmd
+            .env_remove("LD_LIBRARY_PATH")
+            .arg(&path)
+            .arg(&long_arg)
+            .arg(&file);
+        let c_tail = tail_program(&mut c_cmd, &file).unwrap_or_else(|e| panic!("{label}: {e}"));
+        tail_rows.push(tail_row(label, "C", &c_tail));
+        if let Ok(python) = &py {
+            let mut cmd = Command::new(python);
+            cmd.arg(root().join("benches/embed/latency.py"))
+                .arg(&path)
+                .arg(&long_arg)
+                .arg(&file);
+            let tail = tail_program(&mut cmd, &file).unwrap_or_else(|e| panic!("{label}: {e}"));
+            tail_rows.push(tail_row(label, "Python", &tail));
+        }
         let rust = median(&mut times[0].clone());
         for (k, language) in ["Rust", "C", "Python"].iter().enumerate() {
             if times[k].is_empty() {
@@ -232,6 +395,18 @@ fn main() {
          |---|---|---|---|---|---|\n"
     );
     for r in &rows {
+        md.push_str(r);
+        md.push('\n');
+    }
+    md.push_str(&format!(
+        "\nEvery tick of one long run per language timed on its own ({tail_ticks} ticks at \
+         the demo shape, {} at the paper's), µs per tick; resident memory after the \
+         warm-up → after the run; minor page faults during the run; ticks over twice the median.\n\n\
+         | shape | language | ticks | p50 | p99 | p99.9 | max | mean | RSS MiB | faults | > 2 × p50 |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|\n",
+        (tail_ticks / 100).max(1)
+    ));
+    for r in &tail_rows {
         md.push_str(r);
         md.push('\n');
     }
