@@ -671,6 +671,9 @@ fn forward_follows_model_md_literally() {
             }
             close(what("ReLU(H + R)"), &bt.act, &a);
             let mask = ds.block(cfg, nb, l);
+            // ε as the engine holds it: an f32 (the device's, the native path's and the
+            // LayerNorm op's reference's).
+            let eps = cfg.eps as f32 as f64;
             let mut out = vec![0.0; z.len()];
             for b in 0..nb {
                 for n in 0..nn {
@@ -682,7 +685,7 @@ fn forward_follows_model_md_literally() {
                             / nc as f64;
                         for o in 0..nc {
                             let i = hi(b, n, o, t);
-                            let y = gamma[o] * (a[i] - mu) / (var + cfg.eps).sqrt() + beta[o];
+                            let y = gamma[o] * (a[i] - mu) / (var + eps).sqrt() + beta[o];
                             out[i] = if keep(&mask, ds.step, i) {
                                 y / (1.0 - cfg.dropout)
                             } else {

@@ -275,7 +275,9 @@ pub fn gate_backward_stacked(
     )
 }
 
-/// f64 reference, for tests.
+/// The f64 reference of step 4, forward and backward side by side: what the WGSL kernels
+/// and the native path are tested against, and what the network reference
+/// (`model::reference`) composes.
 pub mod cpu {
     use super::Unfold;
 
@@ -337,6 +339,38 @@ pub mod cpu {
             }
         }
         out
+    }
+
+    /// The backward of [`conv`] from `dg` `[rows, out_channels, u.outputs]`: `(dx, dweight,
+    /// dbias)`, dx `[rows, channels, steps]` through the unfolding's adjoint.
+    pub fn conv_backward(
+        u: &Unfold,
+        out_channels: usize,
+        weight: &[f64],
+        x: &[f64],
+        dg: &[f64],
+    ) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+        let col = unfold(u, x);
+        let (ck, steps) = (u.channels * u.kernel, u.outputs);
+        let mut dw = vec![0.0; out_channels * ck];
+        let mut db = vec![0.0; out_channels];
+        let mut dcol = vec![0.0; col.len()];
+        for r in 0..u.rows {
+            for o in 0..out_channels {
+                let g = &dg[(r * out_channels + o) * steps..][..steps];
+                db[o] += g.iter().sum::<f64>();
+                for j in 0..ck {
+                    let at = (r * ck + j) * steps;
+                    let w = weight[o * ck + j];
+                    let (c, d) = (&col[at..at + steps], &mut dcol[at..at + steps]);
+                    dw[o * ck + j] += g.iter().zip(c).map(|(g, c)| g * c).sum::<f64>();
+                    for (d, g) in d.iter_mut().zip(g) {
+                        *d += w * g;
+                    }
+                }
+            }
+        }
+        (unfold_backward(u, &dcol), dw, db)
     }
 
     /// `H = tanh(f) ⊙ σ(g)` element by element (docs/model.md step 4).

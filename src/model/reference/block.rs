@@ -50,7 +50,7 @@ pub(super) fn block_forward(
         *a = (*a + h).max(0.0);
     }
     // Step 6.
-    let (mut output, mean, rstd) = layer_norm(d, &act, p.gamma, p.beta, config.eps);
+    let mut output = layer_norm(d, &act, p.gamma, p.beta, config.eps);
     // Step 7.
     let mask = dropout.map(|ds| {
         let m = ds.block(config, d.b, l);
@@ -70,8 +70,6 @@ pub(super) fn block_forward(
         filter,
         gate,
         act,
-        mean,
-        rstd,
         mask,
         output,
     }
@@ -101,8 +99,7 @@ pub(super) fn block_backward(
         None => dout.to_vec(),
     };
     // Step 6.
-    let (mut dpre, dgamma, dbeta) =
-        layer_norm_backward(d, &tape.act, &tape.mean, &tape.rstd, p.gamma, &dy);
+    let (mut dpre, dgamma, dbeta) = layer_norm_backward(d, &tape.act, p.gamma, config.eps, &dy);
     grads.add(&p.name("ln.gamma"), &dgamma);
     grads.add(&p.name("ln.beta"), &dbeta);
     for (g, &a) in dpre.iter_mut().zip(&tape.act) {

@@ -1,7 +1,27 @@
 //! Step 4: the gated dilated causal convolution (eq. 30–31), also the plain one of
-//! `iastgcn-t`.
+//! `iastgcn-t`, on the whole window: the op's f64 reference (`ops::gated_dcc::cpu`) on
+//! the block's `[B, N, C, T]` tensors.
 
-use super::{axpy, dot, row, row_mut, sigmoid, BlockParams, Dims, Grads};
+use super::{BlockParams, Dims, Grads};
+use crate::ops::gated_dcc::{cpu, Unfold};
+
+/// The unfolding of a block's `[B, N, C, T]` input with dilation `dil` and `kernel` taps,
+/// every step kept.
+fn unfolding(d: &Dims, dil: usize, kernel: usize) -> Unfold {
+    Unfold {
+        rows: d.b * d.n,
+        channels: d.c,
+        kernel,
+        steps: d.t,
+        dilation: dil,
+        outputs: d.t,
+    }
+}
+
+/// Taps of a `[C, C, K]` weight.
+fn taps(d: &Dims, weight: &[f64]) -> usize {
+    weight.len() / (d.c * d.c)
+}
 
 /// G[b,n,o,t] = bias[o] + Σ_c Σ_k weight[o,c,k]·Z[b,n,c,t − dil·k] (zero before t = 0).
 pub(super) fn causal_conv(
@@ -11,84 +31,13 @@ pub(super) fn causal_conv(
     bias: &[f64],
     z: &[f64],
 ) -> Vec<f64> {
-    let Dims {
-        b: nb,
-        n: nn,
-        c: nc,
-        t: nt,
-        ..
-    } = *d;
-    let nk = weight.len() / (nc * nc);
-    let mut g = vec![0.0; z.len()];
-    for b in 0..nb {
-        for n in 0..nn {
-            for o in 0..nc {
-                let gr = row_mut(&mut g, d.r(nc, b, n, o), nt);
-                gr.fill(bias[o]);
-                for c in 0..nc {
-                    let zr = row(z, d.r(nc, b, n, c), nt);
-                    for k in 0..nk {
-                        let s = dil * k;
-                        if s < nt {
-                            axpy(&mut gr[s..], weight[(o * nc + c) * nk + k], &zr[..nt - s]);
-                        }
-                    }
-                }
-            }
-        }
-    }
-    g
-}
-
-/// Backward of [`causal_conv`]: adds dL/dZ to `dz`, returns (dweight, dbias).
-fn causal_conv_backward(
-    d: &Dims,
-    dil: usize,
-    weight: &[f64],
-    z: &[f64],
-    dg: &[f64],
-    dz: &mut [f64],
-) -> (Vec<f64>, Vec<f64>) {
-    let Dims {
-        b: nb,
-        n: nn,
-        c: nc,
-        t: nt,
-        ..
-    } = *d;
-    let nk = weight.len() / (nc * nc);
-    let mut dw = vec![0.0; weight.len()];
-    let mut db = vec![0.0; nc];
-    for b in 0..nb {
-        for n in 0..nn {
-            for o in 0..nc {
-                let gr = row(dg, d.r(nc, b, n, o), nt);
-                db[o] += gr.iter().sum::<f64>();
-                for c in 0..nc {
-                    let r = d.r(nc, b, n, c);
-                    for k in 0..nk {
-                        let s = dil * k;
-                        if s < nt {
-                            let i = (o * nc + c) * nk + k;
-                            dw[i] += dot(&gr[s..], &row(z, r, nt)[..nt - s]);
-                            axpy(&mut row_mut(dz, r, nt)[..nt - s], weight[i], &gr[s..]);
-                        }
-                    }
-                }
-            }
-        }
-    }
-    (dw, db)
+    cpu::conv(&unfolding(d, dil, taps(d, weight)), d.c, weight, bias, z)
 }
 
 /// H = tanh(G_f) ⊙ σ(G_g) (gated, eq. 31) or ReLU(G_f) (`iastgcn-t`).
 pub(super) fn temporal_output(filter: &[f64], gate: Option<&[f64]>) -> Vec<f64> {
     match gate {
-        Some(gate) => filter
-            .iter()
-            .zip(gate)
-            .map(|(&f, &g)| f.tanh() * sigmoid(g))
-            .collect(),
+        Some(gate) => cpu::gate(filter, gate),
         None => filter.iter().map(|&f| f.max(0.0)).collect(),
     }
 }
@@ -105,22 +54,21 @@ pub(super) fn temporal_conv_backward(
     dh: &[f64],
     grads: &mut Grads,
 ) -> Vec<f64> {
+    let u = unfolding(d, dil, taps(d, p.filter_weight));
     let mut dz = vec![0.0; z.len()];
+    let mut conv = |name: &str, weight: &[f64], dg: &[f64], grads: &mut Grads| {
+        let (dx, dw, db) = cpu::conv_backward(&u, d.c, weight, z, dg);
+        for (a, b) in dz.iter_mut().zip(&dx) {
+            *a += b;
+        }
+        grads.add(&p.name(&format!("tcn.{name}.weight")), &dw);
+        grads.add(&p.name(&format!("tcn.{name}.bias")), &db);
+    };
     match (gate, p.gate) {
         (Some(gate), Some((gate_weight, _))) => {
-            let mut df = vec![0.0; dh.len()];
-            let mut dgate = vec![0.0; dh.len()];
-            for i in 0..dh.len() {
-                let (th, sg) = (filter[i].tanh(), sigmoid(gate[i]));
-                df[i] = dh[i] * sg * (1.0 - th * th);
-                dgate[i] = dh[i] * th * sg * (1.0 - sg);
-            }
-            let (dw, db) = causal_conv_backward(d, dil, p.filter_weight, z, &df, &mut dz);
-            grads.add(&p.name("tcn.filter.weight"), &dw);
-            grads.add(&p.name("tcn.filter.bias"), &db);
-            let (dw, db) = causal_conv_backward(d, dil, gate_weight, z, &dgate, &mut dz);
-            grads.add(&p.name("tcn.gate.weight"), &dw);
-            grads.add(&p.name("tcn.gate.bias"), &db);
+            let (df, dgate) = cpu::gate_backward(filter, gate, dh);
+            conv("filter", p.filter_weight, &df, grads);
+            conv("gate", gate_weight, &dgate, grads);
         }
         (None, None) => {
             let df: Vec<f64> = dh
@@ -128,9 +76,7 @@ pub(super) fn temporal_conv_backward(
                 .zip(filter)
                 .map(|(&g, &f)| if f > 0.0 { g } else { 0.0 })
                 .collect();
-            let (dw, db) = causal_conv_backward(d, dil, p.filter_weight, z, &df, &mut dz);
-            grads.add(&p.name("tcn.filter.weight"), &dw);
-            grads.add(&p.name("tcn.filter.bias"), &db);
+            conv("filter", p.filter_weight, &df, grads);
         }
         // invariant: the forward pass fills the tape for exactly the parameters it has.
         _ => unreachable!("gate tape and gate parameters come together"),

@@ -11,6 +11,10 @@
 //! whole network; one file per op family holds the steps: `attention.rs` (steps 1–2),
 //! `graph_conv.rs` (step 3), `causal_conv.rs` (step 4), `norm.rs` (steps 5–6),
 //! `block.rs` (one ST block, steps 1–7) and `head.rs` (the head and the loss weights).
+//! Where an op has its own f64 reference next to its kernels (`ops::gated_dcc::cpu` for
+//! step 4, `ops::layer_norm::cpu` for step 6), the step here composes that one instead of
+//! computing the same maths a second time, so the WGSL tests and the network reference
+//! check against one implementation.
 //! The dense baselines have their own forward and backward in `dense.rs`, the recurrent
 //! ones in `recurrent.rs` and `conv_lstm.rs`; [`loss`] serves
 //! every model.
@@ -111,10 +115,6 @@ pub struct BlockTape {
     pub gate: Option<Vec<f64>>,
     /// Step 6: ReLU(H + R) `[B,N,C,T]`, the LayerNorm input.
     pub act: Vec<f64>,
-    /// Step 6: LayerNorm mean μ per (b,n,t), `[B,N,T]`.
-    pub mean: Vec<f64>,
-    /// Step 6: LayerNorm 1/√(v + ε) per (b,n,t), `[B,N,T]`.
-    pub rstd: Vec<f64>,
     /// Step 7: the dropout mask (`None` without dropout).
     pub mask: Option<Vec<bool>>,
     /// The block output Y after dropout `[B,N,C,T]`.
