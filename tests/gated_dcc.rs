@@ -1,6 +1,7 @@
 //! Gated dilated causal convolution: the causal unfolding and the gate vs the f64
 //! reference (forward and backward), the unfolding+GEMM path vs the direct convolution
-//! of docs/model.md step 4, and the reference gradients vs central differences.
+//! of docs/model.md step 4, and the reference gradients (the unfolding, the gate and the
+//! convolution) vs central differences.
 
 use iastgcn::gpu::DType;
 use iastgcn::ops::gated_dcc::{cpu, gate_backward_stacked, gate_forward, ReluOutput, Unfold};
@@ -258,4 +259,30 @@ fn reference_gradients_match_finite_differences() {
         Tolerance::new(0.0, 0.0),
     )
     .unwrap();
+}
+
+/// The convolution's backward (`cpu::conv_backward`, which the network reference's
+/// step 4 composes) against central differences of Σ dg ⊙ conv, for the whole window
+/// and for its last steps only (dilation 2, two output channels, a bias).
+#[test]
+fn conv_backward_matches_finite_differences() {
+    let mut r = rng(12);
+    for outputs in [7, 3] {
+        let u = Unfold {
+            outputs,
+            ..unfold(&(3, 4, 3, 7, 2))
+        };
+        let out_channels = 2;
+        let x = uniform(&mut r, u.input_len(), -1.0, 1.0);
+        let w = uniform(&mut r, out_channels * u.channels * u.kernel, -1.0, 1.0);
+        let b = uniform(&mut r, out_channels, -1.0, 1.0);
+        let dg = uniform(&mut r, u.rows * out_channels * outputs, -1.0, 1.0);
+        let (dx, dw, db) = cpu::conv_backward(&u, out_channels, &w, &x, &dg);
+        let tol = Tolerance::new(1e-9, 1e-7);
+        let conv =
+            |x: &[f64], w: &[f64], b: &[f64]| dot(&dg, &cpu::conv(&u, out_channels, w, b, x));
+        check_gradient("conv dx", &dx, |x| conv(x, &w, &b), &x, 1e-5, tol).unwrap();
+        check_gradient("conv dw", &dw, |w| conv(&x, w, &b), &w, 1e-5, tol).unwrap();
+        check_gradient("conv db", &db, |b| conv(&x, &w, b), &b, 1e-5, tol).unwrap();
+    }
 }
