@@ -100,23 +100,14 @@ pub(super) fn gemm(
     c: &mut [f32],
     ldc: usize,
 ) {
-    let last = |v: &View, r: usize, s: usize| (r - 1) * v.rs + (s - 1) * v.cs;
-    assert!(m > 0 && k > 0 && n > 0, "empty product");
-    assert!(last(&a, m, k) < a.data.len(), "A does not cover [{m}, {k}]");
-    assert!(last(&b, k, n) < b.data.len(), "B does not cover [{k}, {n}]");
-    assert!((m - 1) * ldc + n <= c.len(), "C does not cover [{m}, {n}]");
+    check_extents((m, k, n), &a, &b, c.len(), ldc);
     if PRODUCTS.with(|p| p.get()) == Products::InPlace {
-        let out = Out {
-            ptr: c.as_mut_ptr(),
-            rs: ldc,
-            cs: 1,
-        };
-        // SAFETY: the asserts above keep every element read inside `a` and `b` and every
+        // SAFETY: the checks above keep every element read inside `a` and `b` and every
         // element written inside `c`, which aliases neither (borrowed mutably).
-        unsafe { in_place(Isa::detected(), m, k, n, a, b, beta, out) };
+        unsafe { in_place(Isa::detected(), m, k, n, a, b, beta, Out::rows(c, ldc)) };
         return;
     }
-    // SAFETY: the asserts above keep every element the product reads or writes inside
+    // SAFETY: the checks above keep every element the product reads or writes inside
     // the three slices; C does not alias A or B (it is borrowed mutably).
     unsafe {
         // gemm's convention: C := alpha·C + beta·(A·B), C read only when `read_dst`.
@@ -174,6 +165,16 @@ pub fn product_for_bench(
         cs: b.2,
     };
     with_products(engine, || gemm(m, k, n, a, b, 0.0, c, ldc));
+}
+
+/// Panics unless the product is non-empty and `a`, `b` and a C of `c_len` floats with row
+/// stride `ldc` cover their extents: what makes [`gemm`]'s unchecked reads and writes safe.
+fn check_extents((m, k, n): (usize, usize, usize), a: &View, b: &View, c_len: usize, ldc: usize) {
+    let last = |v: &View, r: usize, s: usize| (r - 1) * v.rs + (s - 1) * v.cs;
+    assert!(m > 0 && k > 0 && n > 0, "empty product");
+    assert!(last(a, m, k) < a.data.len(), "A does not cover [{m}, {k}]");
+    assert!(last(b, k, n) < b.data.len(), "B does not cover [{k}, {n}]");
+    assert!((m - 1) * ldc + n <= c_len, "C does not cover [{m}, {n}]");
 }
 
 /// Multiply-adds per task below which [`par_gemm`] does not split a product (a rayon task
@@ -239,6 +240,15 @@ struct Out {
 }
 
 impl Out {
+    /// Row-major C with row stride `ldc`.
+    fn rows(c: &mut [f32], ldc: usize) -> Out {
+        Out {
+            ptr: c.as_mut_ptr(),
+            rs: ldc,
+            cs: 1,
+        }
+    }
+
     fn t(self) -> Self {
         Out {
             rs: self.cs,
@@ -783,15 +793,9 @@ mod tests {
         match isa {
             None => gemm(m, k, n, a, b, beta, c, ldc),
             Some(isa) => {
-                // gemm's own checks, then the kernels on `isa`.
-                gemm(m, k, n, a, b, beta, &mut c.to_vec(), ldc);
-                let out = Out {
-                    ptr: c.as_mut_ptr(),
-                    rs: ldc,
-                    cs: 1,
-                };
+                check_extents((m, k, n), &a, &b, c.len(), ldc);
                 // SAFETY: the checks above passed; `isa` is one this CPU runs.
-                unsafe { in_place(isa, m, k, n, a, b, beta, out) }
+                unsafe { in_place(isa, m, k, n, a, b, beta, Out::rows(c, ldc)) }
             }
         }
     }
