@@ -18,9 +18,10 @@
 //! (`IASTGCN_BENCH_TAIL_TICKS`, default 10⁶ at the demo shape, a hundredth of it at the
 //! paper's) with every tick timed on its own (a monotonic clock read before and after
 //! it), frames cycled from 1 200 made beforehand; p50, p99, p99.9, the maximum and the
-//! mean per tick, the ticks over twice the median, the process's resident memory (VmRSS) after the
-//! warm-up and after the run, and its minor page faults during the run. Each program writes its tick times (u64 ns, native byte order) to a file and
-//! the percentiles are computed here, one way for all three. Both tables are printed and
+//! mean per tick, the ticks over twice the median, the process's resident memory (VmRSS)
+//! after the warm-up and after the run, and its minor page faults during the run. Each
+//! program writes its tick times (u64 ns, native byte order) to a file and the
+//! percentiles are computed here, one way for all three. Both tables are printed and
 //! written to target/bench-embed/latency.md.
 
 use std::path::{Path, PathBuf};
