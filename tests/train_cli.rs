@@ -435,29 +435,50 @@ fn tiny_demo_config(prefix: &str) -> (PathBuf, PathBuf) {
 fn demo_writes_the_report() {
     let (dir, config) = tiny_demo_config("iastgcn-demo");
     let out = dir.join("report");
-    // One training session, as the paper records it (the demo's default recipe is
-    // `demo_over_seeds_reports_the_spread`'s), on a machine without any GPU driver: every
-    // model trains and predicts on the native path.
-    let (text, stderr) = common::cli_without_gpu(&[
-        "demo",
-        "--config",
-        s(&config),
-        "--minutes",
-        "0.5",
-        "--sessions",
-        "1",
-        "--placement",
-        "fixed",
-        "--held-out-minutes",
-        "0.1",
-        "--all-models",
-        "--seeds",
-        "1",
-        "--mirror-iterations",
-        "0",
-        "--out",
-        s(&out),
-    ]);
+    // One training session, as the paper records it, open loop (the demo's default recipe
+    // is `demo_over_seeds_reports_the_spread`'s), on a machine without any GPU driver:
+    // every model trains and predicts on the native path.
+    let args = |open_loop: bool| {
+        let mut a = vec![
+            "demo",
+            "--config",
+            s(&config),
+            "--minutes",
+            "0.5",
+            "--sessions",
+            "1",
+            "--placement",
+            "fixed",
+            "--held-out-minutes",
+            "0.1",
+            "--all-models",
+            "--seeds",
+            "1",
+            "--mirror-iterations",
+            "0",
+            "--out",
+            s(&out),
+        ];
+        if open_loop {
+            a.push("--open-loop");
+        }
+        a
+    };
+    // Closed-loop data (the default) need a second half of the sessions to record again:
+    // refused before any work, the flags named.
+    let refused = std::process::Command::new(env!("CARGO_BIN_EXE_iastgcn"))
+        .args(args(false))
+        .output()
+        .unwrap();
+    let why = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        !refused.status.success()
+            && why.contains("--sessions 1")
+            && why.contains("--open-loop")
+            && !out.exists(),
+        "{why}"
+    );
+    let (text, stderr) = common::cli_without_gpu(&args(true));
     assert!(text.contains("demo finished"), "{text}");
     assert_eq!(stderr.matches(common::NATIVE_NOTE).count(), 1, "{stderr}");
     assert!(
@@ -598,6 +619,12 @@ fn demo_writes_the_report() {
     assert!(!out.join("models/iastgcn-refined.safetensors").exists());
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(report.contains("and every baseline, all at the same budget"));
+    assert!(
+        report.contains(
+            "open-loop data: every training session recorded under the calibrated controller alone"
+        ) && !out.join("data/closed-loop").exists(),
+        "{report}"
+    );
     // The model to use, chosen on a validation session of its own (not in Table V).
     assert!(
         report.contains("## Recommended model") && report.contains("Recommended: **"),
@@ -709,6 +736,30 @@ fn demo_over_seeds_reports_the_spread() {
     }
     for f in ["polish/convergence.png", "polish/maps.png"] {
         assert!(out.join(f).exists(), "{f}");
+    }
+    // Closed-loop data (the default): a round-0 IASTGCN trained on sessions 1-2 recorded
+    // sessions 3-4 again at every tick, and those recordings, not the open-loop ones of
+    // the same sessions, trained every model.
+    assert!(
+        report.contains("closed-loop data: round 0 (iastgcn.seed1.round0) trained on sessions 1-2")
+            && report.contains("prediction every 1 ticks"),
+        "{report}"
+    );
+    assert!(out
+        .join("models/iastgcn.seed1.round0.core.safetensors")
+        .exists());
+    for session in [3, 4] {
+        let recorded = out.join(format!("data/closed-loop/hilbert.s0{session}.csv"));
+        let info = iastgcn::twin::RunInfo::read(&recorded).unwrap();
+        assert!(
+            info.controller
+                .ends_with("with iastgcn.seed1.round0 compensating (every 1 ticks)"),
+            "{}",
+            info.controller
+        );
+        let open = iastgcn::twin::RunInfo::read(&out.join(format!("data/hilbert.s0{session}.csv")))
+            .unwrap();
+        assert_eq!(info.seed, open.seed, "the same run recorded again");
     }
     // The default recipe and the three held-out sessions of Table V, named in the setup.
     assert!(

@@ -22,9 +22,10 @@ pub struct HeldOutArgs {
     /// scored run (0: it starts cold).
     #[arg(long, default_value_t = 2.0)]
     pub warm_up_minutes: f64,
-    /// Predict every this many control ticks during compensation.
-    #[arg(long, default_value_t = 5, value_parser = super::count(1..=10_000))]
-    pub every: usize,
+    /// Predict every this many control ticks during compensation (default 5; 1 for
+    /// `demo`, whose models train on closed-loop data recorded at that rate).
+    #[arg(long, value_parser = super::count(1..=10_000))]
+    pub every: Option<usize>,
     /// Held-out sessions scored (Table V; in `scale` every job): the first as
     /// --warm-up-minutes and --held-out-seed say, the others on days of their own, cold
     /// or warmed longer (docs/usage.md "Held-out sessions"). The recommended model is
@@ -34,18 +35,20 @@ pub struct HeldOutArgs {
 }
 
 impl HeldOutArgs {
-    /// The session, with the demo's 0.5-minute runs unless `--held-out-minutes` is given.
+    /// The session, with 0.5-minute runs and a prediction every 5 ticks unless
+    /// `--held-out-minutes` or `--every` is given.
     pub fn config(&self) -> HeldOutConfig {
-        self.config_with_minutes(HeldOutConfig::default().minutes)
+        self.config_or(HeldOutConfig::default())
     }
 
-    /// The session, with runs of `minutes` unless `--held-out-minutes` is given.
-    pub fn config_with_minutes(&self, minutes: f64) -> HeldOutConfig {
+    /// The session, with `default`'s run length and prediction rate where
+    /// `--held-out-minutes` or `--every` is absent.
+    pub fn config_or(&self, default: HeldOutConfig) -> HeldOutConfig {
         HeldOutConfig {
-            minutes: self.held_out_minutes.unwrap_or(minutes),
+            minutes: self.held_out_minutes.unwrap_or(default.minutes),
             seed: self.held_out_seed,
             warm_up_minutes: self.warm_up_minutes,
-            every: self.every,
+            every: self.every.unwrap_or(default.every),
             sessions: self.held_out_sessions,
         }
     }

@@ -7,6 +7,7 @@ use clap::Args;
 use super::evaluate_args::HeldOutArgs;
 use super::train::read_run_config;
 use super::Console;
+use iastgcn::experiment::evaluate::HeldOutConfig;
 use iastgcn::experiment::jobs::Shard;
 use iastgcn::experiment::scale::{self, Study};
 use iastgcn::gpu::Device;
@@ -92,7 +93,10 @@ pub fn run(device: Device, args: &ScaleArgs) -> anyhow::Result<()> {
     study.ensemble = args.ensemble;
     study.closed_loop = args.closed_loop;
     study.graph = args.graph.clone();
-    let held = args.held_out.config_with_minutes(study.held_out_minutes);
+    let held = args.held_out.config_or(HeldOutConfig {
+        minutes: study.held_out_minutes,
+        ..HeldOutConfig::default()
+    });
     study.held_out_minutes = held.minutes;
     study.held_out_seed = held.seed;
     study.warm_up_minutes = held.warm_up_minutes;

@@ -1,8 +1,10 @@
 //! The demo protocol end to end on the embedded twin: the calibration set on a cold
-//! machine, the EKF calibration, one training session of three recordings under the
-//! calibrated controller, the dataset, IASTGCN and its three ablations trained and
-//! refined the same way, then Tables III and V on a separate held-out session, the
-//! mirror polished with the recommended model (docs/polishing.md) and the report folder.
+//! machine, the EKF calibration, the training sessions under the calibrated controller
+//! (cold-start days at varied placements, the second half recorded again with a round-0
+//! IASTGCN compensating), the dataset, IASTGCN, its three ablations and the dense
+//! baselines trained and refined the same way, then Tables III and V on held-out
+//! sessions, the mirror polished with the recommended model (docs/polishing.md) and the
+//! report folder.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -11,7 +13,10 @@ use super::evaluate::{finish, predictors, HeldOutConfig, NamedModel};
 use super::jobs::{training_table, JobRecord};
 use super::polish;
 pub use super::polish::PolishSpec;
-use super::protocol::{check_seeds, fit_model, record_data, ModelFiles, MACHINE_SEED};
+use super::protocol::{
+    check_seeds, fit_model, record_closed_loop, record_data, ClosedLoopRound, ModelFiles,
+    MACHINE_SEED,
+};
 pub use super::protocol::{CALIBRATION_SEED, TRAINING_SEED};
 use super::report::seeds::seeded_name;
 use super::report::Report;
@@ -56,6 +61,12 @@ pub struct DemoConfig {
     /// The mirror (docs/polishing.md): the recommended model polishing a surface against
     /// the other controllers, into `polish/` and a report section; `None` leaves it out.
     pub mirror: Option<PolishSpec>,
+    /// Closed-loop training data ([`ClosedLoopRound`]): a round-0 IASTGCN (the first
+    /// seed, core stage) trained on the first half of the recipe's sessions compensates
+    /// the other half, at the held-out session's prediction rate, as they are recorded
+    /// again; every model trains on the first half open loop and the rest closed loop.
+    /// Needs 2 sessions or more.
+    pub closed_loop: bool,
 }
 
 /// The demo's mirror: one surface, two iterations on the raster (about a minute and a
@@ -66,7 +77,7 @@ pub fn demo_mirror() -> PolishSpec {
         surface_seeds: vec![1],
         seed: 501,
         warm_up_minutes: 2.0,
-        every: 5,
+        every: DEMO_HELD_OUT.every,
         start: StartingPoint::default(),
         split_nominal: false,
     }
@@ -82,17 +93,31 @@ pub const DEMO_RECIPE: Recipe = Recipe {
     placement: Placement::Varied,
 };
 
+/// The demo's held-out sessions: three, of 0.5 min runs from seed 301, the first after
+/// 2 min of warm-up, and **a prediction every tick**: with closed-loop training data
+/// recorded at that rate the models use the faster loop (docs/results.md "Training on
+/// what use looks like": +4.5 points on Hilbert at 32 minutes per path against every 5
+/// ticks, which open-loop-trained models do not gain).
+pub const DEMO_HELD_OUT: HeldOutConfig = HeldOutConfig {
+    minutes: 0.5,
+    seed: 301,
+    warm_up_minutes: 2.0,
+    every: 1,
+    sessions: 3,
+};
+
 impl Default for DemoConfig {
     fn default() -> DemoConfig {
         DemoConfig {
             run: RunConfig::demo(),
             run_source: "assets/demo.toml (embedded)".into(),
             minutes: DEMO_MINUTES,
-            held_out: HeldOutConfig::default(),
+            held_out: DEMO_HELD_OUT,
             seeds: vec![1, 2, 3],
             all_models: false,
             recipe: DEMO_RECIPE,
             mirror: Some(demo_mirror()),
+            closed_loop: true,
         }
     }
 }
@@ -150,6 +175,13 @@ pub fn demo(
     demo.held_out.validate()?;
     demo.recipe.validate(demo.minutes).map_err(Error::Invalid)?;
     check_seeds(&demo.seeds)?;
+    if demo.closed_loop && demo.recipe.sessions < 2 {
+        return Err(Error::Invalid(format!(
+            "--sessions {}: closed-loop data record the second half of the sessions with a \
+             model trained on the first, so they need 2 sessions or more (or --open-loop)",
+            demo.recipe.sessions
+        )));
+    }
     let data_dir = out.join("data");
     let model_dir = out.join("models");
     for dir in [&data_dir, &model_dir] {
@@ -157,14 +189,51 @@ pub fn demo(
     }
     reporter.note(&format!("demo on {} → {}", device.name(), out.display()));
 
-    reporter.note("== 1/6 … 3/6 twin data: calibration set, EKF calibration, training session");
-    let sources = record_data(
+    reporter.note("== 1/6 … 3/6 twin data: calibration set, EKF calibration, training sessions");
+    let mut sources = record_data(
         &data_dir,
         demo.minutes,
         MACHINE_SEED,
         &demo.recipe,
         reporter,
     )?;
+    let seeded = demo.seeds.len() > 1;
+    let closed_loop = if demo.closed_loop {
+        reporter.note(
+            "== 3/6 closed-loop data: a round-0 IASTGCN compensating the second half of the sessions as they are recorded again",
+        );
+        let mut c = config.clone();
+        c.model.variant = Variant::Iastgcn;
+        c.train.seed = demo.seeds[0];
+        let name = if seeded {
+            format!(
+                "{}.round0",
+                seeded_name(Variant::Iastgcn.name(), c.train.seed)
+            )
+        } else {
+            format!("{}.round0", Variant::Iastgcn.name())
+        };
+        let round = ClosedLoopRound {
+            recipe: &demo.recipe,
+            minutes: demo.minutes,
+            machine_seed: MACHINE_SEED,
+            every: demo.held_out.every,
+            files: ModelFiles::named(&model_dir, &name, false),
+            name,
+            dir: data_dir.join("closed-loop"),
+        };
+        let (union, how) = record_closed_loop(&device, &round, &c, &sources, reporter)?;
+        sources = union;
+        let (half, n) = (demo.recipe.sessions / 2, demo.recipe.sessions);
+        Some(format!(
+            "closed-loop data: {how}; every model trained on sessions 1-{half} open loop and \
+             {}-{n} closed loop (one round-0 model for all, so that every model trains and is \
+             tested on the same data)",
+            half + 1
+        ))
+    } else {
+        None
+    };
 
     reporter.note("== 4/6 dataset");
     let (graph, data) = build_dataset(&sources, config, None)?;
@@ -196,7 +265,6 @@ pub fn demo(
         .chain(Variant::DENSE)
         .chain(spatio_temporal.iter().copied())
         .collect();
-    let seeded = demo.seeds.len() > 1;
     for (s, &seed) in demo.seeds.iter().enumerate() {
         if seeded {
             reporter.note(&format!(
@@ -269,6 +337,10 @@ pub fn demo(
             held_out.describe_sessions(),
             held_out.every
         ),
+        closed_loop.unwrap_or_else(|| {
+            "open-loop data: every training session recorded under the calibrated controller alone"
+                .into()
+        }),
         "split: contiguous 70/20/10 blocks per recording (leakage-free)".into(),
         if demo.all_models {
             "models: IASTGCN, its ablations and every baseline, all at the same budget".into()

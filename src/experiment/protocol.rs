@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use super::evaluate::NamedModel;
 use crate::calibrate::{self, file, hold_out, pose_errors, EkfConfig};
 use crate::compensate::held_out::IDLE_BETWEEN_RUNS;
+use crate::compensate::online::{within_limit, ModelInLoop, Online};
 use crate::data::{
     read_measurements, record_calibration_set, record_corrected_run, Corrector, DataSources,
     Dataset, RecordedRun,
@@ -15,11 +16,14 @@ use crate::data::{
 use crate::error::{Error, Result};
 use crate::gpu::Device;
 use crate::graph::Graph;
+use crate::model::{Checkpoint, Predictor};
 use crate::progress::Reporter;
 use crate::robot::{Geometry, Robot};
 use crate::train::refine::AccumulatedCurve;
 use crate::train::{self, refine, sibling, EpochRecord, RunConfig, TestMetrics, Trained};
-use crate::twin::{draw_machine, Machine, PathKind, PlannedSession, Recipe, RunInfo};
+use crate::twin::{
+    draw_machine, Correction, Machine, PathKind, PlannedSession, Recipe, RunInfo, SimConfig,
+};
 
 /// Seeds of the protocol's runs: every run has its own (written in its `.run.toml`). This
 /// one is the calibration set's.
@@ -207,6 +211,133 @@ pub fn record_session(
     Ok(runs)
 }
 
+/// One round of closed-loop training data (docs/twin.md "Sessions"): a round-0 model
+/// trained on the first half of a recipe's sessions compensates the other sessions as
+/// they are recorded again, on the same days, placements and seeds as their open-loop
+/// recordings, under the calibrated controller.
+pub struct ClosedLoopRound<'a> {
+    /// The recipe of the open-loop recordings.
+    pub recipe: &'a Recipe,
+    /// Their minutes per path.
+    pub minutes: f64,
+    /// The twin machine they were recorded on.
+    pub machine_seed: u64,
+    /// The round-0 model predicts every this many control ticks.
+    pub every: usize,
+    /// The round-0 model's name in the notes.
+    pub name: String,
+    /// Where the round-0 model is written (its core stage only).
+    pub files: ModelFiles,
+    /// Where the closed-loop recordings go (kept, and not recorded again, when complete).
+    pub dir: PathBuf,
+}
+
+/// Runs `round`: trains the round-0 model (`config`) on the first half of `sources`'
+/// sessions, then records the others again with it compensating. Returns the first
+/// half's recordings with the closed-loop ones (the same minutes as `sources`), and
+/// what happened in words.
+pub fn record_closed_loop(
+    device: &Device,
+    round: &ClosedLoopRound<'_>,
+    config: &RunConfig,
+    sources: &DataSources,
+    reporter: &mut dyn Reporter,
+) -> Result<(DataSources, String)> {
+    let recipe = round.recipe;
+    let name = &round.name;
+    let half = recipe.sessions / 2;
+    if half == 0 {
+        return Err(Error::Invalid(format!(
+            "closed-loop data record the second half of the sessions with a model trained \
+             on the first: give 2 sessions or more, got {}",
+            recipe.sessions
+        )));
+    }
+    let mut union = sources.clone();
+    union.recordings.truncate(half * PathKind::TRAINING.len());
+    let trained = {
+        let (graph, data) = train::build_dataset(&union, config, None)?;
+        train_core(device, &data, &graph, config, name, &round.files, reporter)?
+    };
+    let round0 = Checkpoint::load(&round.files.core)?;
+    let dir = &round.dir;
+    let to = |kind: PathKind, s: usize| dir.join(recipe.file_name(kind, s));
+    let recorded: Vec<PathBuf> = (half + 1..=recipe.sessions)
+        .flat_map(|s| PathKind::TRAINING.map(|k| to(k, s)))
+        .collect();
+    let complete = recorded
+        .iter()
+        .all(|r| r.exists() && RunInfo::sidecar(r).exists());
+    let mut error = (f64::NAN, f64::NAN);
+    if !complete {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+        let geometry = sources.geometry()?;
+        let machine = draw_machine(geometry.clone(), round.machine_seed);
+        let controller = Robot::new(geometry, file::load(&sources.calibration)?.errors);
+        let controller_name = format!(
+            "{} with {name} compensating (every {} ticks)",
+            sources.calibration.display(),
+            round.every
+        );
+        let mut members = vec![Predictor::on(device, &round0, 1)?];
+        let dt = SimConfig::new(PathKind::Grid, 1.0, 0).dt;
+        let settings = Online { every: round.every };
+        let mut model = ModelInLoop::new(&mut members, &round0.graph, settings, dt)?;
+        let mut correct = |tick: usize, channels: &[Option<f64>]| -> Result<Option<Correction>> {
+            if tick == 0 {
+                model.reset();
+            }
+            Ok(model.tick(tick, channels)?.filter(within_limit))
+        };
+        let plan = recipe.plan(round.minutes, TRAINING_SEED, round.machine_seed);
+        let mut runs = Vec::new();
+        for (s, session) in plan.into_iter().enumerate().skip(half) {
+            reporter.note(&format!(
+                "== {name}: training session {} of {} recorded with it compensating",
+                s + 1,
+                recipe.sessions
+            ));
+            let to = |kind: PathKind| to(kind, s + 1);
+            let target = (&controller, controller_name.as_str());
+            runs.extend(record_session(
+                &machine,
+                target,
+                session,
+                &to,
+                Some(&mut correct),
+                reporter,
+            )?);
+        }
+        let n = runs.len().max(1) as f64;
+        error = (
+            runs.iter().map(|r| r.mean_target_error[0]).sum::<f64>() / n,
+            runs.iter().map(|r| r.mean_target_error[1]).sum::<f64>() / n,
+        );
+    }
+    union.recordings.extend(recorded);
+    let measured = if error.0.is_finite() {
+        format!(
+            "; its corrections left a mean true error against the path target of {:.1} µm / \
+             {:.1} mdeg (tool axis) in those runs",
+            error.0, error.1
+        )
+    } else {
+        String::new()
+    };
+    Ok((
+        union,
+        format!(
+            "round 0 ({name}) trained on sessions 1-{half} (best validation loss {:.4} at \
+             epoch {} of {}) compensated sessions {}-{} as they were recorded again{measured}",
+            trained.best_val,
+            trained.best_epoch,
+            trained.epochs,
+            half + 1,
+            recipe.sessions,
+        ),
+    ))
+}
+
 /// The mean core-stage epoch time of a history (NaN without core epochs).
 pub fn epoch_seconds(history: &[EpochRecord]) -> f64 {
     let core: Vec<f64> = history
@@ -324,7 +455,7 @@ pub fn fit_model(
     reporter: &mut dyn Reporter,
 ) -> Result<Fitted> {
     let trained = train_core(device, data, graph, config, name, files, reporter)?;
-    let core = crate::model::Checkpoint::load(&files.core)?;
+    let core = Checkpoint::load(&files.core)?;
     let r = refine(device, data, graph, config, &core.parameters, reporter)?;
     let verdict = r.verdict();
     reporter.note(&format!("{name}: refinement {verdict}"));

@@ -22,25 +22,21 @@ use super::evaluate::{
 };
 use super::jobs::{clock, pin_toml, read_toml, write_toml, Shard};
 use super::protocol::{
-    check_seeds, epoch_seconds, existing_data, record_data, record_session, train_core, ModelFiles,
-    MACHINE_SEED, TRAINING_SEED,
+    check_seeds, epoch_seconds, existing_data, record_closed_loop, record_data, train_core,
+    ClosedLoopRound, ModelFiles, MACHINE_SEED,
 };
 use super::report::seeds::{seeded_name, Spread};
 use super::report::TableVRow;
-use crate::calibrate::file;
-use crate::compensate::online::{within_limit, ModelInLoop, Online};
 use crate::data::{DataSources, Dataset};
 use crate::error::{Error, Result};
 use crate::gpu::Device;
 use crate::graph::Graph;
-use crate::model::Predictor;
 use crate::model::{Checkpoint, Variant};
 use crate::plot::{self, Panel, Series};
 use crate::progress::Reporter;
-use crate::robot::Robot;
 use crate::train::log::csv_text;
 use crate::train::{build_dataset, by_path, recording_path, refine, RunConfig, TestMetrics};
-use crate::twin::{draw_machine, Correction, PathKind, Recipe, RunInfo, SimConfig};
+use crate::twin::{PathKind, Recipe};
 
 /// The paper's Table V on its Hilbert run (its only compensated path): the share of the
 /// calibrated error its IASTGCN removed, position and attitude, % (0.1393 → 0.0591 mm,
@@ -567,12 +563,11 @@ fn run_job(
     })
 }
 
-/// Closed-loop data for `job` (docs/usage.md "scale", `--closed-loop`): a round-0 model
-/// (`<name>.round0`, the job's config) trained on the first half of the recipe's
-/// sessions, then the other sessions recorded again with it compensating under the
-/// calibrated controller (the same days, placements and seeds as their open-loop
-/// recordings; into `models/<name>.closed/`, kept when complete). Returns the first
-/// half's recordings with the closed-loop ones, and what happened in words.
+/// Closed-loop data for `job` (docs/usage.md "scale", `--closed-loop`): the job's own
+/// round-0 model (`<name>.round0`, the job's config) compensates the second half of the
+/// recipe's sessions as they are recorded again (into `models/<name>.closed/`, kept when
+/// complete; [`record_closed_loop`]). Returns the training set and what happened in
+/// words.
 fn closed_loop_sources(
     device: &Device,
     study: &Study,
@@ -582,94 +577,23 @@ fn closed_loop_sources(
     out: &Path,
     reporter: &mut dyn Reporter,
 ) -> Result<(DataSources, String)> {
-    let recipe = &study.recipe;
-    let half = recipe.sessions / 2;
-    let mut union = sources.clone();
-    union.recordings.truncate(half * PathKind::TRAINING.len());
     let name = format!("{}.round0", job.name());
-    let files = ModelFiles::named(&out.join("models"), &name, true);
-    let trained = {
-        let (graph, data) = build_dataset(&union, config, None)?;
-        train_core(device, &data, &graph, config, &name, &files, reporter)?
+    let round = ClosedLoopRound {
+        recipe: &study.recipe,
+        minutes: study.recording_minutes,
+        machine_seed: study.machine_seed,
+        every: study.every,
+        files: ModelFiles::named(&out.join("models"), &name, true),
+        name,
+        dir: out.join("models").join(format!("{}.closed", job.name())),
     };
-    let round0 = Checkpoint::load(&files.core)?;
-    let dir = out.join("models").join(format!("{}.closed", job.name()));
-    let to = |kind: PathKind, s: usize| dir.join(recipe.file_name(kind, s));
-    let recorded: Vec<PathBuf> = (half + 1..=recipe.sessions)
-        .flat_map(|s| PathKind::TRAINING.map(|k| to(k, s)))
-        .collect();
-    let complete = recorded
-        .iter()
-        .all(|r| r.exists() && RunInfo::sidecar(r).exists());
-    let mut error = (f64::NAN, f64::NAN);
-    if !complete {
-        std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
-        let geometry = sources.geometry()?;
-        let machine = draw_machine(geometry.clone(), study.machine_seed);
-        let controller = Robot::new(geometry, file::load(&sources.calibration)?.errors);
-        let controller_name = format!(
-            "{} with {name} compensating (every {} ticks)",
-            sources.calibration.display(),
-            study.every
-        );
-        let mut members = vec![Predictor::on(device, &round0, 1)?];
-        let dt = SimConfig::new(PathKind::Grid, 1.0, 0).dt;
-        let settings = Online { every: study.every };
-        let mut model = ModelInLoop::new(&mut members, &round0.graph, settings, dt)?;
-        let mut correct = |tick: usize, channels: &[Option<f64>]| -> Result<Option<Correction>> {
-            if tick == 0 {
-                model.reset();
-            }
-            Ok(model.tick(tick, channels)?.filter(within_limit))
-        };
-        let plan = recipe.plan(study.recording_minutes, TRAINING_SEED, study.machine_seed);
-        let mut runs = Vec::new();
-        for (s, session) in plan.into_iter().enumerate().skip(half) {
-            reporter.note(&format!(
-                "== {name}: training session {} of {} recorded with it compensating",
-                s + 1,
-                recipe.sessions
-            ));
-            let to = |kind: PathKind| to(kind, s + 1);
-            let target = (&controller, controller_name.as_str());
-            runs.extend(record_session(
-                &machine,
-                target,
-                session,
-                &to,
-                Some(&mut correct),
-                reporter,
-            )?);
-        }
-        let n = runs.len().max(1) as f64;
-        error = (
-            runs.iter().map(|r| r.mean_target_error[0]).sum::<f64>() / n,
-            runs.iter().map(|r| r.mean_target_error[1]).sum::<f64>() / n,
-        );
-    }
-    union.recordings.extend(recorded);
-    let measured = if error.0.is_finite() {
-        format!(
-            "; its corrections left a mean true error against the path target of {:.1} µm / \
-             {:.1} mdeg (tool axis) in those runs",
-            error.0, error.1
-        )
-    } else {
-        String::new()
-    };
+    let (union, how) = record_closed_loop(device, &round, config, sources, reporter)?;
+    let (half, n) = (study.recipe.sessions / 2, study.recipe.sessions);
     Ok((
         union,
         format!(
-            "round 0 ({name}) trained on sessions 1-{half} (best validation loss {:.4} at \
-             epoch {} of {}) compensated sessions {}-{} as they were recorded again{measured}; \
-             the job trained on sessions 1-{half} open loop and {}-{} closed loop",
-            trained.best_val,
-            trained.best_epoch,
-            trained.epochs,
-            half + 1,
-            recipe.sessions,
-            half + 1,
-            recipe.sessions
+            "{how}; the job trained on sessions 1-{half} open loop and {}-{n} closed loop",
+            half + 1
         ),
     ))
 }

@@ -399,10 +399,12 @@ impl Robot {
         guess: &Configuration,
     ) -> Result<(Configuration, [f64; 3]), RobotError> {
         let first = self.solve_tool_from(target, guess);
-        if first.is_ok() || guess.head[1].abs() > 1e-3 {
+        if first.is_ok() {
             return first;
         }
-        // A guess on the head's singularity (tilt 0) cannot tell which way to tilt: try
+        // A guess on or near the head's singularity (tilt about 0) cannot tell which way
+        // to tilt, and an axis asked to tilt the other way from one tick to the next (a
+        // correction near the vertex) needs the revolution angle half a turn round: try
         // tilting from four revolution angles, keeping the first that converges.
         for k in 0..4 {
             let mut g = *guess;
