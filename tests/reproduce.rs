@@ -196,5 +196,42 @@ fn reproduce_shards_resumes_and_reports_over_seeds() {
         s(&dir.join("m")),
     ]);
     assert!(err.contains("another protocol"), "{err}");
+
+    // Closed-loop data are part of the data stage: a round-0 IASTGCN trained on session
+    // 1 records session 2 again with it compensating; a second call finds both done.
+    let out3 = dir.join("out3");
+    let closed = || {
+        let mut args = vec!["reproduce", "--config", s(&config), "--minutes", "1"];
+        args.extend(["--sessions", "2", "--closed-loop", "--every", "1"]);
+        args.extend(["--data-only", "--out", s(&out3)]);
+        cli(&args)
+    };
+    let text = closed();
+    assert!(
+        text.contains("closed-loop data: round 0 (iastgcn.seed1.round0) trained on sessions 1-1")
+            && text.contains("every job trained on sessions 1-1 open loop and 2-2 closed loop"),
+        "{text}"
+    );
+    let recorded = out3.join("data/closed-loop/hilbert.s02.csv");
+    let info = iastgcn::twin::RunInfo::read(&recorded).unwrap();
+    assert!(
+        info.controller
+            .ends_with("with iastgcn.seed1.round0 compensating (every 1 ticks)"),
+        "{}",
+        info.controller
+    );
+    let written = std::fs::metadata(&recorded).unwrap().modified().unwrap();
+    let again = closed();
+    assert!(again.contains("nothing more to train"), "{again}");
+    assert_eq!(
+        std::fs::metadata(&recorded).unwrap().modified().unwrap(),
+        written,
+        "the closed-loop recordings were made again"
+    );
+    let err = cli_fails(&["reproduce", "--closed-loop", "--out", s(&dir.join("y"))]);
+    assert!(
+        err.contains("--closed-loop") && err.contains("--sessions 2 or more"),
+        "{err}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -56,6 +56,12 @@ pub struct ReproduceArgs {
     pub merge: Vec<PathBuf>,
     #[command(flatten)]
     pub recipe: super::RecipeArgs,
+    /// Closed-loop data: in the data stage a round-0 IASTGCN (the first seed, core stage)
+    /// trained on the first half of the sessions records the others again with it
+    /// compensating (every --every ticks), and every job trains on both (the same
+    /// minutes; needs --sessions 2 or more). A folder keeps this choice.
+    #[arg(long)]
+    pub closed_loop: bool,
     #[command(flatten)]
     pub held_out: HeldOutArgs,
 }
@@ -83,6 +89,7 @@ pub fn run(device: Device, args: &ReproduceArgs) -> anyhow::Result<()> {
     }
     protocol.minutes = args.minutes;
     protocol.recipe = args.recipe.recipe_or(iastgcn::twin::Recipe::SINGLE)?;
+    protocol.closed_loop = args.closed_loop;
     protocol.seeds = args.seeds.clone();
     if !args.models.is_empty() {
         protocol.models = args.models.clone();

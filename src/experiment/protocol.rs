@@ -1,7 +1,9 @@
-//! What the demo and `iastgcn reproduce` share: the twin data of the protocol (the
-//! calibration set on a cold machine, the EKF calibration, one training session of three
-//! recordings under the calibrated controller) and the fitting of one model (core stage,
-//! then refinement, both written to files as they go).
+//! What the demo, `iastgcn reproduce` and `iastgcn scale` share: the twin data of the
+//! protocol (the calibration set on a cold machine, the EKF calibration, the training
+//! sessions under the calibrated controller), a round of closed-loop training data (a
+//! round-0 model compensating the second half of the sessions as they are recorded
+//! again), and the fitting of one model (core stage, then refinement, both written to
+//! files as they go).
 
 use std::path::{Path, PathBuf};
 
@@ -211,10 +213,10 @@ pub fn record_session(
     Ok(runs)
 }
 
-/// One round of closed-loop training data (docs/twin.md "Sessions"): a round-0 model
-/// trained on the first half of a recipe's sessions compensates the other sessions as
-/// they are recorded again, on the same days, placements and seeds as their open-loop
-/// recordings, under the calibrated controller.
+/// One round of closed-loop training data (docs/usage.md "`demo`" and "`scale`"): a
+/// round-0 model trained on the first half of a recipe's sessions compensates the other
+/// sessions as they are recorded again, on the same days, placements and seeds as their
+/// open-loop recordings, under the calibrated controller.
 pub struct ClosedLoopRound<'a> {
     /// The recipe of the open-loop recordings.
     pub recipe: &'a Recipe,

@@ -13,8 +13,8 @@ use serde::{Deserialize, Serialize};
 use super::evaluate::{finish, HeldOutConfig, NamedModel};
 use super::jobs::{clock, pin_toml, training_table, write_toml, JobRecord, Shard};
 use super::protocol::{
-    check_seeds, existing_data, fit_model, record_data, train_core, ModelFiles, CALIBRATION_SEED,
-    MACHINE_SEED, TRAINING_SEED,
+    check_seeds, existing_data, fit_model, record_closed_loop, record_data, train_core,
+    ClosedLoopRound, ModelFiles, CALIBRATION_SEED, MACHINE_SEED, TRAINING_SEED,
 };
 use super::report::curve::CurvePoint;
 use super::report::seeds::{seeded_name, Spread};
@@ -56,6 +56,13 @@ pub struct Protocol {
     /// over several (docs/twin.md "Sessions").
     #[serde(default)]
     pub recipe: Recipe,
+    /// Closed-loop training data (docs/usage.md "`reproduce`"): in the data stage a
+    /// round-0 IASTGCN (the first seed, core stage) trained on the first half of the
+    /// recipe's sessions compensates the other half as they are recorded again, at the
+    /// held-out sessions' prediction rate, and every job trains on the first half open
+    /// loop and the rest closed loop. Needs 2 sessions or more.
+    #[serde(default)]
+    pub closed_loop: bool,
 }
 
 fn default_machine() -> u64 {
@@ -77,6 +84,7 @@ impl Protocol {
             curve_models: vec!["iastgcn".into(), "tgcn".into()],
             machine_seed: MACHINE_SEED,
             recipe: Recipe::SINGLE,
+            closed_loop: false,
         }
     }
 
@@ -125,6 +133,13 @@ impl Protocol {
             )));
         }
         self.recipe.validate(self.minutes).map_err(Error::Invalid)?;
+        if self.closed_loop && self.recipe.sessions < 2 {
+            return Err(Error::Invalid(format!(
+                "--closed-loop records the second half of the sessions with a model trained \
+                 on the first: give --sessions 2 or more, got {}",
+                self.recipe.sessions
+            )));
+        }
         check_seeds(&self.seeds)?;
         if self.models.is_empty() {
             return Err(Error::Invalid("reproduce needs at least one model".into()));
@@ -307,6 +322,35 @@ pub fn reproduce(
             reporter,
         )?,
     };
+    // Closed-loop data belong to the data stage: every later call (a shard, the final
+    // report) finds the round-0 model finished and its recordings complete.
+    let (sources, closed_loop) = if protocol.closed_loop {
+        let seed = protocol.seeds[0];
+        let mut c = protocol.run.clone();
+        c.model.variant = Variant::Iastgcn;
+        c.train.seed = seed;
+        let name = format!("{}.round0", seeded_name(Variant::Iastgcn.name(), seed));
+        let round = ClosedLoopRound {
+            recipe: &protocol.recipe,
+            minutes: protocol.minutes,
+            machine_seed: protocol.machine_seed,
+            every: held_out.every,
+            files: ModelFiles::named(&out.join("models"), &name, true),
+            name,
+            dir: data_dir.join("closed-loop"),
+        };
+        let (union, how) = record_closed_loop(&device, &round, &c, &sources, reporter)?;
+        let (half, n) = (protocol.recipe.sessions / 2, protocol.recipe.sessions);
+        let how = format!(
+            "closed-loop data: {how}; every job trained on sessions 1-{half} open loop and \
+             {}-{n} closed loop",
+            half + 1
+        );
+        reporter.note(&how);
+        (union, Some(how))
+    } else {
+        (sources, None)
+    };
     let done = |jobs: &[Job]| jobs.iter().filter(|j| j.record_path(out).exists()).count();
     if data_only {
         return Ok(Outcome::Partial {
@@ -388,7 +432,14 @@ pub fn reproduce(
         });
     }
     report(
-        device, protocol, &jobs, held_out, &sources, began, out, reporter,
+        device,
+        protocol,
+        &jobs,
+        held_out,
+        (&sources, closed_loop),
+        began,
+        out,
+        reporter,
     )
     .map(|r| Outcome::Report(Box::new(r)))
 }
@@ -434,7 +485,7 @@ fn report(
     protocol: &Protocol,
     jobs: &[Job],
     held_out: &HeldOutConfig,
-    sources: &crate::data::DataSources,
+    (sources, closed_loop): (&crate::data::DataSources, Option<String>),
     began: Instant,
     out: &Path,
     reporter: &mut dyn Reporter,
@@ -490,6 +541,10 @@ fn report(
             held_out.describe_sessions(),
             held_out.every
         ),
+        closed_loop.unwrap_or_else(|| {
+            "open-loop data: every training session recorded under the calibrated controller alone"
+                .into()
+        }),
         "split: contiguous 70/20/10 blocks per recording (leakage-free); every seed sees the same split".into(),
         format!(
             "wall time of the jobs (summed over the runs that finished them): {}",
