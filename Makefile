@@ -4,7 +4,7 @@
 CARGO ?= cargo
 export NODEVICE_SELECT ?= 1
 
-.PHONY: vulkan test demo paper bench bench-compare bench-embed lint python header fuzz
+.PHONY: vulkan test demo paper bench bench-compare bench-polish bench-embed lint python header fuzz
 
 vulkan:
 	@.ci/ensure-vulkan
@@ -100,6 +100,19 @@ bench-compare: vulkan
 	@test -x $(BENCH_VENV)/bin/python || python3 -m venv $(BENCH_VENV)
 	$(BENCH_VENV)/bin/pip install -q $(if $(TORCH_INDEX),--extra-index-url $(TORCH_INDEX)) -r benches/pytorch/requirements.txt
 	$(BENCH_VENV)/bin/python benches/pytorch/compare.py
+
+## The mirror's heavy parts against NumPy on the same cores, in one call (docs/polishing.md
+## "Compute"): `cargo bench --bench polish` (the dwell solve and a control tick's removal on
+## 512² and 1024² maps; it writes each dwell problem with the engine's solution), then the
+## same solver in NumPy (benches/numpy/dwell.py, in a local venv with numpy) on those
+## problems: it checks it finds the same dwell, then times itself. Table in
+## target/bench-polish/compare.md.
+NUMPY_VENV ?= target/numpy-venv
+bench-polish:
+	$(CARGO) bench --bench polish
+	@test -x $(NUMPY_VENV)/bin/python || python3 -m venv $(NUMPY_VENV)
+	$(NUMPY_VENV)/bin/pip install -q -r benches/numpy/requirements.txt
+	$(NUMPY_VENV)/bin/python benches/numpy/dwell.py
 
 ## Per-tick latency of the predictor from Rust, C and Python in one run (benches/embed.rs,
 ## docs/embedding.md "Latency"): the mean tick per language, then 10^6 ticks per language

@@ -133,6 +133,9 @@ pub struct DwellSolver {
     iterations: usize,
     /// The force the kernel was made at, N.
     force: f64,
+    /// The kernel (side `2·reach + 1`) and its reach, kept for [`DwellSolver::write_problem`].
+    kernel: Vec<f64>,
+    reach: usize,
 }
 
 /// A solved dwell along a path.
@@ -233,7 +236,93 @@ impl DwellSolver {
             cutoff: 0.5 / spacing,
             iterations: 8,
             force,
+            kernel: kernel.to_vec(),
+            reach,
         })
+    }
+
+    /// Writes the problem that [`DwellSolver::solve`] solved for `measured` along `path`
+    /// within `bounds` over `area`, with its `solution`, to the safetensors file `out`
+    /// (atomically), for an implementation outside the engine to solve and check against
+    /// (`benches/numpy/dwell.py`, `make bench-polish`): f64 tensors `kernel`, `gain`,
+    /// `measured`, `cell_weight`, `bounds`, `area`, `seconds` and `removal`, u8 `glass`
+    /// and `clear`, and the path's cells as `segment_start` (i64, one more than the
+    /// segments) and `cell_pixel` (i64); the scalars (`n`, `reach`, `pitch`, `cutoff`,
+    /// `iterations`, `relaxation`, `gammas`, `force`, the solution's `gamma` and
+    /// `planned_rms`) in its metadata.
+    pub fn write_problem(
+        &self,
+        out: &std::path::Path,
+        measured: &HeightMap,
+        path: &PathRaster,
+        (bounds, area): (&[[f64; 2]], &[f64]),
+        solution: &Dwell,
+    ) -> Result<()> {
+        use safetensors::tensor::{Dtype, TensorView};
+        let n = self.glass.len().isqrt();
+        let side = 2 * self.reach + 1;
+        let mask = |m: &[bool]| m.iter().map(|&b| u8::from(b)).collect::<Vec<u8>>();
+        let (glass, clear) = (mask(&self.glass), mask(&self.clear));
+        let mut starts = vec![0i64];
+        let (mut pixels, mut weights) = (Vec::new(), Vec::new());
+        for cells in &path.cells {
+            for &(i, w) in cells {
+                pixels.push(i64::from(i));
+                weights.push(w);
+            }
+            starts.push(pixels.len() as i64);
+        }
+        let flat_bounds: Vec<f64> = bounds.iter().flatten().copied().collect();
+        let segments = bounds.len();
+        let f64s: [(&str, Vec<usize>, &[f64]); 8] = [
+            ("kernel", vec![side, side], &self.kernel),
+            ("gain", vec![n, n], &self.gain),
+            ("measured", vec![n, n], &measured.values),
+            ("cell_weight", vec![weights.len()], &weights),
+            ("bounds", vec![segments, 2], &flat_bounds),
+            ("area", vec![segments], area),
+            ("seconds", vec![segments], &solution.seconds),
+            ("removal", vec![n, n], &solution.removal.values),
+        ];
+        let err = |e: safetensors::SafeTensorError| {
+            crate::error::Error::Invalid(format!("{}: {e}", out.display()))
+        };
+        let mut views = Vec::new();
+        for (name, shape, values) in f64s {
+            let bytes: &[u8] = bytemuck::cast_slice(values);
+            views.push((
+                name,
+                TensorView::new(Dtype::F64, shape, bytes).map_err(err)?,
+            ));
+        }
+        for (name, values) in [("glass", &glass), ("clear", &clear)] {
+            let view = TensorView::new(Dtype::U8, vec![n, n], values).map_err(err)?;
+            views.push((name, view));
+        }
+        for (name, values) in [("segment_start", &starts), ("cell_pixel", &pixels)] {
+            let bytes: &[u8] = bytemuck::cast_slice(values);
+            views.push((
+                name,
+                TensorView::new(Dtype::I64, vec![values.len()], bytes).map_err(err)?,
+            ));
+        }
+        let metadata = [
+            ("n", n.to_string()),
+            ("reach", self.reach.to_string()),
+            ("pitch", path.pitch.to_string()),
+            ("cutoff", self.cutoff.to_string()),
+            ("iterations", self.iterations.to_string()),
+            ("relaxation", RELAXATION.to_string()),
+            ("gammas", GAMMAS.map(|g| g.to_string()).join(",")),
+            ("force", self.force.to_string()),
+            ("gamma", solution.gamma.to_string()),
+            ("planned_rms", solution.planned.rms.to_string()),
+        ]
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), v))
+        .collect();
+        let bytes = safetensors::serialize(views, Some(metadata)).map_err(err)?;
+        crate::error::write_file(out, &bytes)
     }
 
     /// The removal (nm) of the dwell density map `t` (s/mm²): the kernel convolved with
@@ -427,5 +516,52 @@ mod tests {
         // The plan's removal is its seconds laid on the path and convolved.
         let again = solver.removal(&raster.dwell_map(&dwell.seconds));
         assert_eq!(again, dwell.removal.values);
+
+        // The problem written for outside implementations reads back as solved: the
+        // path's cells lay the solution's seconds into the same dwell map.
+        let file = std::env::temp_dir().join(format!("dwell-{}.safetensors", std::process::id()));
+        solver
+            .write_problem(&file, &measured, &raster, (&bounds, &area), &dwell)
+            .unwrap();
+        let bytes = std::fs::read(&file).unwrap();
+        std::fs::remove_file(&file).unwrap();
+        let (_, meta) = safetensors::SafeTensors::read_metadata(&bytes).unwrap();
+        let meta = meta.metadata().clone().unwrap();
+        assert_eq!(meta["n"], "96");
+        assert_eq!(meta["gammas"], "0.01,0.03,0.1,0.3");
+        assert_eq!(
+            meta["planned_rms"].parse::<f64>().unwrap(),
+            dwell.planned.rms
+        );
+        let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+        let f64s = |name: &str| -> Vec<f64> {
+            let t = st.tensor(name).unwrap();
+            t.data()
+                .chunks(8)
+                .map(|b| f64::from_le_bytes(b.try_into().unwrap()))
+                .collect()
+        };
+        let i64s = |name: &str| -> Vec<i64> {
+            let t = st.tensor(name).unwrap();
+            t.data()
+                .chunks(8)
+                .map(|b| i64::from_le_bytes(b.try_into().unwrap()))
+                .collect()
+        };
+        assert_eq!(f64s("seconds"), dwell.seconds);
+        assert_eq!(st.tensor("kernel").unwrap().shape(), [2 * reach + 1; 2]);
+        let (starts, pixels, weights) = (
+            i64s("segment_start"),
+            i64s("cell_pixel"),
+            f64s("cell_weight"),
+        );
+        assert_eq!(starts.len(), bounds.len() + 1);
+        let mut laid = vec![0.0; grid.len()];
+        for (s, t) in dwell.seconds.iter().enumerate() {
+            for k in starts[s] as usize..starts[s + 1] as usize {
+                laid[pixels[k] as usize] += weights[k] * t / (grid.pitch * grid.pitch);
+            }
+        }
+        assert_eq!(laid, raster.dwell_map(&dwell.seconds));
     }
 }

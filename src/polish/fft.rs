@@ -1,17 +1,49 @@
 //! Two-dimensional FFTs (rows then columns, rustfft) and the linear convolution of a
-//! map with a small kernel through them: the dwell-time solver's heavy part.
+//! map with a small kernel through them: the dwell-time solver's heavy part. The rows
+//! are transformed in parallel (rayon), the columns as rows of a transposed copy (cache
+//! blocks of [`BLOCK`] columns), and a convolution skips the rows it knows to be zero
+//! and the columns it crops away: every transform that runs is the one a plain
+//! row-then-column pass would run, so the results are the same.
 
 use std::sync::Arc;
 
+use rayon::prelude::*;
 use rustfft::num_complex::Complex64;
 use rustfft::{Fft, FftPlanner};
+
+/// Columns moved together by a transpose: 16 complex values, four cache lines.
+const BLOCK: usize = 16;
 
 /// Forward and inverse 2-D transforms of a `size × size` complex array, row-major.
 pub struct Fft2 {
     size: usize,
     forward: Arc<dyn Fft<f64>>,
     inverse: Arc<dyn Fft<f64>>,
-    column: Vec<Complex64>,
+    transposed: Vec<Complex64>,
+}
+
+/// `dst[c·n + r] = src[r·n + c]` for the `n × n` array `src`, in blocks of columns.
+fn transpose(src: &[Complex64], dst: &mut [Complex64], n: usize) {
+    dst.par_chunks_mut(BLOCK * n)
+        .enumerate()
+        .for_each(|(block, out)| {
+            let c0 = block * BLOCK;
+            let width = out.len() / n;
+            for r in 0..n {
+                let row = &src[r * n + c0..][..width];
+                for (b, v) in row.iter().enumerate() {
+                    out[b * n + r] = *v;
+                }
+            }
+        });
+}
+
+/// Transforms the first `rows` rows (each `size` long) of `data` in place, in parallel.
+fn rows(fft: &dyn Fft<f64>, data: &mut [Complex64], size: usize, rows: usize) {
+    let per = rows.div_ceil(rayon::current_num_threads()).max(1);
+    data[..rows * size]
+        .par_chunks_mut(per * size)
+        .for_each(|chunk| fft.process(chunk));
 }
 
 impl Fft2 {
@@ -22,7 +54,7 @@ impl Fft2 {
             size,
             forward: planner.plan_fft_forward(size),
             inverse: planner.plan_fft_inverse(size),
-            column: vec![Complex64::default(); size],
+            transposed: vec![Complex64::default(); size * size],
         }
     }
 
@@ -31,38 +63,36 @@ impl Fft2 {
         self.size
     }
 
-    fn both_passes(&mut self, data: &mut [Complex64], inverse: bool) {
+    /// Rows, then columns; rows from `nonzero` on are taken as zero (their transform is
+    /// zero and is not computed), and only the first `kept` columns are transformed
+    /// (the others are left as the row pass left them).
+    fn both_passes(&mut self, data: &mut [Complex64], inverse: bool, nonzero: usize, kept: usize) {
         let n = self.size;
         let fft = if inverse {
             &self.inverse
         } else {
             &self.forward
         };
-        // Every row in one call (rustfft transforms consecutive chunks).
-        fft.process(data);
-        for c in 0..n {
-            for (r, v) in self.column.iter_mut().enumerate() {
-                *v = data[r * n + c];
-            }
-            fft.process(&mut self.column);
-            for (r, v) in self.column.iter().enumerate() {
-                data[r * n + c] = *v;
-            }
-        }
+        rows(fft.as_ref(), data, n, nonzero);
+        transpose(data, &mut self.transposed, n);
+        rows(fft.as_ref(), &mut self.transposed, n, kept);
+        transpose(&self.transposed, data, n);
     }
 
     /// In place, unnormalised.
     pub fn forward(&mut self, data: &mut [Complex64]) {
-        self.both_passes(data, false);
+        self.both_passes(data, false, self.size, self.size);
     }
 
     /// In place, divided by `size²`: `inverse(forward(x)) = x`.
     pub fn inverse(&mut self, data: &mut [Complex64]) {
-        self.both_passes(data, true);
+        self.both_passes(data, true, self.size, self.size);
+        self.normalise(data);
+    }
+
+    fn normalise(&self, data: &mut [Complex64]) {
         let scale = 1.0 / (self.size * self.size) as f64;
-        for v in data.iter_mut() {
-            *v *= scale;
-        }
+        data.par_iter_mut().for_each(|v| *v *= scale);
     }
 }
 
@@ -124,7 +154,7 @@ impl Convolver {
         &mut self,
         map: &[f64],
         out: &mut [f64],
-        f: impl Fn(Complex64, usize) -> Complex64,
+        f: impl Fn(Complex64, usize) -> Complex64 + Sync,
     ) {
         let (n, size) = (self.n, self.fft.size());
         self.work.fill(Complex64::default());
@@ -133,14 +163,19 @@ impl Convolver {
                 self.work[r * size + c] = Complex64::new(map[r * n + c], 0.0);
             }
         }
-        self.fft.forward(&mut self.work);
-        for (i, (w, s)) in self.work.iter_mut().zip(&self.spectrum).enumerate() {
-            *w *= f(*s, i);
-        }
-        self.fft.inverse(&mut self.work);
+        // The padding rows are zero; of the result only the first n rows and columns
+        // are kept.
+        self.fft.both_passes(&mut self.work, false, n, size);
+        self.work
+            .par_iter_mut()
+            .zip(self.spectrum.par_iter())
+            .enumerate()
+            .for_each(|(i, (w, s))| *w *= f(*s, i));
+        self.fft.both_passes(&mut self.work, true, size, n);
+        let scale = 1.0 / (size * size) as f64;
         for r in 0..n {
             for c in 0..n {
-                out[r * n + c] = self.work[r * size + c].re;
+                out[r * n + c] = (self.work[r * size + c] * scale).re;
             }
         }
     }

@@ -275,6 +275,23 @@ impl Polisher {
         dwell
     }
 
+    /// The dwell for `measured` at the nominal force (as [`Polisher::plan_at`] with 100 N),
+    /// with the problem and the solution written to the safetensors file `out` for an
+    /// implementation outside the engine to check against ([`DwellSolver::write_problem`]).
+    pub fn write_dwell_problem(
+        &mut self,
+        measured: &HeightMap,
+        out: &std::path::Path,
+    ) -> Result<Dwell> {
+        let dwell = self
+            .solver
+            .solve(measured, &self.raster, &self.bounds, &self.area);
+        let problem = (&self.bounds[..], &self.area[..]);
+        self.solver
+            .write_problem(out, measured, &self.raster, problem, &dwell)?;
+        Ok(dwell)
+    }
+
     /// Each raster segment's feed, mm/s: its length over its `seconds`.
     fn segment_feeds(&self, seconds: &[f64]) -> Vec<f64> {
         self.raster
