@@ -1,15 +1,15 @@
 //! The inference forward pass of the IASTGCN variants, the dense and the recurrent
 //! baselines, one window at a time (see the module above): the training forward of
-//! `tape.rs` (or `dense.rs`, `recurrent.rs`) without dropout, on a tape that is allocated
+//! `block/` (or `dense.rs`, `recurrent.rs`) without dropout, on a tape that is allocated
 //! once and reused window after window.
 
+use super::block::{forward, Tape};
 use super::conv_lstm::{ConvLstmNet, ConvLstmTape};
 use super::dense::{DenseNet, DenseTape};
 use super::flushing_subnormals;
 use super::product::{with_products, Products};
 use super::recurrent::{RecurrentNet, RecurrentTape};
 use super::slots::Slots;
-use super::tape::{forward, Tape};
 use crate::graph::Graph;
 use crate::model::config::{Family, ModelConfig};
 use crate::model::network::ModelError;

@@ -9,12 +9,12 @@
 //! schedule: X_t = X·(E' + I), the spatial attention folded into Q = Ψ·(I + S') and
 //! M = Q·X_t, and in the last block steps 4–7 at the last time step only; beyond the
 //! device, the last block's steps 1–3 run only at the K steps its convolution reads
-//! there (`tape.rs` `Cols`). Every
+//! there (`block/tape.rs` `Cols`). Every
 //! contraction is a [`product::gemm`] on a strided view of the row-major tensors (no
 //! copies, no transposes): in training the `gemm` crate's, in the predictor's forward an
 //! in-place kernel that allocates nothing (`product.rs`); the rest are loops over
 //! contiguous rows. The functions
-//! holding the IASTGCN blocks' loops (`tape.rs`, `backward.rs`) are compiled for AVX-512
+//! holding the IASTGCN blocks' loops (the steps of `block/`) are compiled for AVX-512
 //! and AVX2/FMA besides baseline x86-64 and chosen at their first call (`multiversion`);
 //! f32 arithmetic is never reassociated or contracted, and the sums that must vectorise
 //! use [`lanes_sum`]'s fixed partial sums, so every width gives the same bits. Working
@@ -23,8 +23,10 @@
 //! into the subnormal range, where x86 arithmetic takes a microcode assist per operation
 //! (an `iastgcn-t` step at 128 minutes per path ran 2.5–10× slower than at its start).
 //!
-//! Files: `product.rs` (the matrix products), `forward.rs` ([`NativeForward`]), `tape.rs` (the training forward of one
-//! window, keeping its intermediates), `backward.rs` (its backward), `step.rs`
+//! Files: `product.rs` (the matrix products), `forward.rs` ([`NativeForward`]), `block/`
+//! (the ST blocks' training forward of one window, keeping its intermediates on a tape,
+//! and its backward: one file per docs/model.md step with its `forward` and `backward`
+//! side by side, called in order and in reverse by `block/mod.rs`), `step.rs`
 //! ([`NativeTraining`]: a batch over threads, the loss, Adam), `slots.rs` (where each
 //! tensor sits in the parameter list), `graph_attention.rs` (ST-GAT's step 3, forward and
 //! backward), `dense.rs`, `recurrent.rs` and `conv_lstm.rs` (the
@@ -32,7 +34,7 @@
 //! time loop; ConvLSTM's). Tested against the WGSL path and the f64
 //! reference in tests/native_forward.rs and tests/native_train.rs.
 
-mod backward;
+mod block;
 mod conv_lstm;
 mod dense;
 mod forward;
@@ -41,7 +43,6 @@ mod product;
 mod recurrent;
 mod slots;
 mod step;
-mod tape;
 
 pub use forward::NativeForward;
 pub use product::product_for_bench;

@@ -1,17 +1,16 @@
 //! Training steps of the IASTGCN variants on the CPU in f32: the training forward of
-//! every window of a batch with its dropout (`tape.rs`), the loss of eq. 39 (plain or
-//! over ensembles), the backward pass (`backward.rs`) and Adam, with the windows split
-//! over threads. It is the device schedule's arithmetic (same masks, same loss, same
+//! every window of a batch with its dropout (`block/`), the loss of eq. 39 (plain or
+//! over ensembles), the backward pass (`block/`, its steps in reverse) and Adam, with
+//! the windows split over threads. It is the device schedule's arithmetic (same masks, same loss, same
 //! update as `shaders/adam.wgsl`); summation orders differ, so the two agree to rounding
 //! (tests/native_train.rs).
 
-use super::backward::{backward, Work};
+use super::block::{backward, forward, Masks, Tape, Work};
 use super::conv_lstm::{ConvLstmNet, ConvLstmTape};
 use super::dense::{DenseNet, DenseTape};
 use super::flushing_subnormals;
 use super::recurrent::{RecurrentNet, RecurrentTape};
 use super::slots::Slots;
-use super::tape::{forward, Masks, Tape};
 use crate::graph::Graph;
 use crate::model::config::{Family, ModelConfig};
 use crate::model::network::ModelError;
