@@ -35,6 +35,8 @@ mod residual_layer_norm;
 mod spatial_attention;
 mod tape;
 mod temporal_attention;
+#[cfg(test)]
+mod tests;
 
 use rayon::prelude::*;
 

@@ -1,0 +1,380 @@
+//! One test per step of the native ST block against the f64 reference of its op, forward
+//! and backward, on one random case, so that a wrong step is named by the failing test:
+//! `gated_dcc` against `ops::gated_dcc::cpu`, `residual_layer_norm` and
+//! `layer_norm_dropout` against `ops::layer_norm::cpu` (the residual 1×1 convolution and
+//! the ReLUs around it are written out here, a sum each). Each runs in a block with
+//! every output step and in a last block (steps 4–7 at T − 1, Z kept at the taps), gated
+//! (`iastgcn`) and not (`iastgcn-t`). The attentions and `graph_conv` have their f64
+//! steps inside `model::reference` only; tests/native_train.rs and
+//! tests/native_forward.rs check them through the whole network.
+
+use super::tape::{Masks, Tape, Work};
+use super::{gated_dcc, layer_norm_dropout, residual_layer_norm, Block};
+use crate::model::config::{ModelConfig, Variant};
+use crate::model::native::slots::Slots;
+use crate::model::params::{param_specs, Parameters};
+use crate::ops::dropout::keep;
+use crate::ops::gated_dcc::{cpu as dcc, Unfold};
+use crate::ops::layer_norm::{cpu as norm, LayerNorm};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// f32 steps against f64 sums of a few dozen terms of order 1: |a − e| ≤ ABS + REL·|e|.
+/// (`crate::testing` has the same comparison, but `model` may not import it.)
+const ABS: f64 = 2e-5;
+const REL: f64 = 2e-4;
+
+/// `n` values uniform in [lo, hi) from a generator seeded with `seed`.
+fn uniform(seed: u64, n: usize, lo: f64, hi: f64) -> Vec<f64> {
+    let mut g = ChaCha8Rng::seed_from_u64(seed);
+    (0..n).map(|_| g.random_range(lo..hi)).collect()
+}
+
+/// A small network of `variant` (C 8, T 12, L 2: block 1 is the last) with its
+/// parameters perturbed away from their initial values, and its memory.
+struct Case {
+    cfg: ModelConfig,
+    slots: Slots,
+    params: Vec<Vec<f32>>,
+    tape: Tape,
+    work: Work,
+}
+
+fn case(variant: Variant) -> Case {
+    let cfg = ModelConfig {
+        variant,
+        channels: 8,
+        window: 12,
+        blocks: 2,
+        ..ModelConfig::default()
+    };
+    let slots = Slots::new(&cfg, &param_specs(&cfg)).unwrap();
+    let params = Parameters::init(&cfg, 1)
+        .values
+        .into_iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let noise = uniform(100 + i as u64, v.len(), -0.2, 0.2);
+            v.iter().zip(noise).map(|(a, e)| a + e as f32).collect()
+        })
+        .collect();
+    Case {
+        tape: Tape::new(&cfg, &slots),
+        work: Work::new(&cfg),
+        cfg,
+        slots,
+        params,
+    }
+}
+
+fn wide(v: &[f32]) -> Vec<f64> {
+    v.iter().map(|&x| x as f64).collect()
+}
+
+/// `n` random values in [lo, hi), already f32.
+fn random(seed: u64, n: usize, lo: f64, hi: f64) -> Vec<f32> {
+    uniform(seed, n, lo, hi).iter().map(|&v| v as f32).collect()
+}
+
+/// Panics naming `what` and the worst element unless every element is within tolerance.
+fn check(what: &str, actual: &[f64], expected: &[f64]) {
+    assert_eq!(actual.len(), expected.len(), "{what}: lengths");
+    for (i, (a, e)) in actual.iter().zip(expected).enumerate() {
+        assert!(
+            (a - e).abs() <= ABS + REL * e.abs(),
+            "{what}: element {i} is {a}, expected {e}"
+        );
+    }
+}
+
+/// Step 4 forward and backward in block `l` of `variant`.
+fn gated_dcc_matches_its_reference(variant: Variant, l: usize) {
+    let Case {
+        cfg,
+        slots,
+        params,
+        mut tape,
+        mut work,
+    } = case(variant);
+    let s = &slots.blocks[l];
+    let (n, t, c, k) = (cfg.nodes, cfg.window, cfg.channels, cfg.kernel);
+    let b = Block::new(&cfg, &[], s, 1);
+    let bt = &mut tape.blocks[l];
+    let (cols, steps) = (bt.cols, bt.steps);
+    let what = |part: &str| format!("gated_dcc {} block {l}: {part}", variant.name());
+    // Z `[N, C, T]`, in the tape's layout (at the taps `[N, taps, C]`).
+    let z = random(6, n * c * t, -1.0, 1.0);
+    if cols.taps {
+        for i in 0..n {
+            for j in 0..cols.len {
+                for ch in 0..c {
+                    bt.z[(i * cols.len + j) * c + ch] =
+                        z[(i * c + ch) * t + cols.first + cols.stride * j];
+                }
+            }
+        }
+    } else {
+        bt.z.copy_from_slice(&z);
+    }
+    gated_dcc::forward(&b, &params, bt);
+    let u = Unfold {
+        rows: n,
+        channels: c,
+        kernel: k,
+        steps: t,
+        dilation: s.dilation,
+        outputs: steps,
+    };
+    let zf = wide(&z);
+    let conv =
+        |(w, bias): (usize, usize)| dcc::conv(&u, c, &wide(&params[w]), &wide(&params[bias]), &zf);
+    let gf = conv(s.filter);
+    let gg = s.gate.map(conv);
+    // bt.g is `[outs, N·steps]`; the reference `[N, C, steps]`.
+    let per_node = |half: usize| -> Vec<f64> {
+        let mut out = vec![0.0; n * c * steps];
+        for i in 0..n {
+            for o in 0..c {
+                for tau in 0..steps {
+                    out[(i * c + o) * steps + tau] =
+                        bt.g[(half * c + o) * n * steps + i * steps + tau] as f64;
+                }
+            }
+        }
+        out
+    };
+    match &gg {
+        Some(gg) => {
+            let tanh: Vec<f64> = gf.iter().map(|v| v.tanh()).collect();
+            let sigma: Vec<f64> = gg.iter().map(|v| 1.0 / (1.0 + (-v).exp())).collect();
+            check(&what("tanh(G_f)"), &per_node(0), &tanh);
+            check(&what("σ(G_g)"), &per_node(1), &sigma);
+        }
+        None => check(&what("G_f"), &per_node(0), &gf),
+    }
+    // Backward from dH.
+    let dh = random(7, n * c * steps, -1.0, 1.0);
+    work.da[..dh.len()].copy_from_slice(&dh);
+    let mut grads: Vec<Vec<f32>> = params.iter().map(|p| vec![0.0; p.len()]).collect();
+    gated_dcc::backward(&b, &params, bt, &mut grads, &mut work);
+    let dh = wide(&dh);
+    let (df, dg) = match &gg {
+        Some(gg) => {
+            let (df, dg) = dcc::gate_backward(&gf, gg, &dh);
+            (df, Some(dg))
+        }
+        // `iastgcn-t`: H = ReLU(G_f).
+        None => (
+            dh.iter()
+                .zip(&gf)
+                .map(|(d, f)| if *f > 0.0 { *d } else { 0.0 })
+                .collect(),
+            None,
+        ),
+    };
+    let (mut dz, dwf, dbf) = dcc::conv_backward(&u, c, &wide(&params[s.filter.0]), &zf, &df);
+    check(&what("d filter.weight"), &wide(&grads[s.filter.0]), &dwf);
+    check(&what("d filter.bias"), &wide(&grads[s.filter.1]), &dbf);
+    if let (Some((w, bias)), Some(dg)) = (s.gate, dg) {
+        let (dzg, dwg, dbg) = dcc::conv_backward(&u, c, &wide(&params[w]), &zf, &dg);
+        check(&what("d gate.weight"), &wide(&grads[w]), &dwg);
+        check(&what("d gate.bias"), &wide(&grads[bias]), &dbg);
+        for (a, g) in dz.iter_mut().zip(dzg) {
+            *a += g;
+        }
+    }
+    // dZ before Z's ReLU (step 3's), from the tape's layout back to `[N, C, T]`.
+    let native_dz: Vec<f64> = if cols.taps {
+        let mut out = vec![0.0; n * c * t];
+        for i in 0..n {
+            for j in 0..cols.len {
+                for ch in 0..c {
+                    out[(i * c + ch) * t + cols.first + cols.stride * j] =
+                        work.dz[(i * cols.len + j) * c + ch] as f64;
+                }
+            }
+        }
+        out
+    } else {
+        wide(&work.dz[..n * c * t])
+    };
+    check(&what("dZ"), &native_dz, &dz);
+}
+
+#[test]
+fn gated_dcc_every_step_and_at_the_taps() {
+    for variant in [Variant::Iastgcn, Variant::PlainTemporal] {
+        for l in [0, 1] {
+            gated_dcc_matches_its_reference(variant, l);
+        }
+    }
+}
+
+/// Steps 5–7 (`residual_layer_norm` then `layer_norm_dropout`) forward and backward in
+/// block `l` of `variant`, with the dropout of a training step or without.
+fn residual_layer_norm_dropout_match_their_reference(variant: Variant, l: usize, drop: bool) {
+    let Case {
+        cfg,
+        slots,
+        params,
+        mut tape,
+        mut work,
+    } = case(variant);
+    let s = &slots.blocks[l];
+    let (n, t, c, ci) = (cfg.nodes, cfg.window, cfg.channels, s.c_in);
+    let x = random(8, n * ci * t, -1.0, 1.0);
+    let b = Block::new(&cfg, &[], s, 1);
+    let bt = &mut tape.blocks[l];
+    let (t0, steps) = (bt.t0, bt.steps);
+    let last = l + 1 == cfg.blocks;
+    let what = |part: &str| {
+        format!(
+            "{} {} block {l}{}",
+            part,
+            variant.name(),
+            if drop { " with dropout" } else { "" }
+        )
+    };
+    // Step 4's output on the tape: [tanh(G_f); σ(G_g)] `[outs, N·steps]`, or G_f.
+    let gated = s.gate.is_some();
+    let half = c * n * steps;
+    let f = random(9, half, -1.0, 1.0);
+    let q = random(10, half, 0.0, 1.0);
+    bt.g[..half].copy_from_slice(&f);
+    if gated {
+        bt.g[half..2 * half].copy_from_slice(&q);
+    }
+    let masks = Masks {
+        seed: 3,
+        step: 4,
+        batch: 2,
+        item: 1,
+    };
+    let mask = drop.then(|| (masks.block(&cfg, l), masks.step));
+    let mut h = vec![0f32; n * c];
+    residual_layer_norm::forward(&b, &params, &x, bt);
+    layer_norm_dropout::forward(&b, &params, bt, mask, last.then_some(&mut h[..]));
+    // The reference, `[N, C, steps]`.
+    let (res_w, res_b) = (wide(&params[s.res.0]), wide(&params[s.res.1]));
+    let xf = wide(&x);
+    let at = |i: usize, o: usize, tau: usize| (i * c + o) * steps + tau;
+    let mut act = vec![0.0; n * c * steps];
+    for i in 0..n {
+        for o in 0..c {
+            for tau in 0..steps {
+                let r: f64 = (0..ci)
+                    .map(|ch| res_w[o * ci + ch] * xf[(i * ci + ch) * t + t0 + tau])
+                    .sum();
+                let g = o * n * steps + i * steps + tau;
+                let hv = if gated {
+                    f[g] as f64 * q[g] as f64
+                } else {
+                    (f[g] as f64).max(0.0)
+                };
+                act[at(i, o, tau)] = (res_b[o] + r + hv).max(0.0);
+            }
+        }
+    }
+    check(&what("residual_layer_norm: A"), &wide(&bt.act), &act);
+    let ln = LayerNorm::new(n, c, steps);
+    let (gamma, beta) = (wide(&params[s.gamma]), wide(&params[s.beta]));
+    let mut y = norm::forward(&ln, &act, &gamma, &beta);
+    // Step 7: element (i, o, t0 + τ) of the block's whole `[N, C, T]` output keeps its
+    // bit of the device's mask.
+    let scale = 1.0 / (1.0 - cfg.dropout);
+    let kept: Vec<bool> = (0..y.len())
+        .map(|e| {
+            let (io, tau) = (e / steps, e % steps);
+            mask.is_none_or(|((d, offset), step)| keep(&d, step, offset + io * t + t0 + tau))
+        })
+        .collect();
+    if drop {
+        for (v, &k) in y.iter_mut().zip(&kept) {
+            *v = if k { *v * scale } else { 0.0 };
+        }
+    }
+    let native_y = if last { wide(&h) } else { wide(&bt.y) };
+    check(&what("layer_norm_dropout: Y"), &native_y, &y);
+    // Backward from dY.
+    let dy = random(11, n * c * steps, -1.0, 1.0);
+    work.dy[..dy.len()].copy_from_slice(&dy);
+    let mut grads: Vec<Vec<f32>> = params.iter().map(|p| vec![0.0; p.len()]).collect();
+    layer_norm_dropout::backward(&b, bt, drop, &mut grads, &mut work);
+    residual_layer_norm::backward(&b, &params, &x, bt, true, &mut grads, &mut work);
+    let dy: Vec<f64> = dy
+        .iter()
+        .zip(&kept)
+        .map(|(&g, &k)| {
+            if !drop {
+                g as f64
+            } else if k {
+                g as f64 * scale
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let (mut da, dgamma, dbeta) = norm::backward(&ln, &act, &gamma, &dy);
+    check(
+        &what("layer_norm_dropout: dγ"),
+        &wide(&grads[s.gamma]),
+        &dgamma,
+    );
+    check(
+        &what("layer_norm_dropout: dβ"),
+        &wide(&grads[s.beta]),
+        &dbeta,
+    );
+    for (d, &a) in da.iter_mut().zip(&act) {
+        if a <= 0.0 {
+            *d = 0.0;
+        }
+    }
+    check(
+        &what("residual_layer_norm: dA"),
+        &wide(&work.da[..da.len()]),
+        &da,
+    );
+    let mut dw = vec![0.0; c * ci];
+    let mut db = vec![0.0; c];
+    let mut dx = vec![0.0; n * ci * t];
+    for i in 0..n {
+        for o in 0..c {
+            for tau in 0..steps {
+                let g = da[at(i, o, tau)];
+                db[o] += g;
+                for ch in 0..ci {
+                    let xi = (i * ci + ch) * t + t0 + tau;
+                    dw[o * ci + ch] += g * xf[xi];
+                    dx[xi] += g * res_w[o * ci + ch];
+                }
+            }
+        }
+    }
+    check(
+        &what("residual_layer_norm: d res.weight"),
+        &wide(&grads[s.res.0]),
+        &dw,
+    );
+    check(
+        &what("residual_layer_norm: d res.bias"),
+        &wide(&grads[s.res.1]),
+        &db,
+    );
+    check(
+        &what("residual_layer_norm: dX"),
+        &wide(&work.dx[..dx.len()]),
+        &dx,
+    );
+}
+
+#[test]
+fn residual_layer_norm_and_layer_norm_dropout_every_step_and_at_the_last() {
+    for variant in [Variant::Iastgcn, Variant::PlainTemporal] {
+        for l in [0, 1] {
+            for drop in [false, true] {
+                residual_layer_norm_dropout_match_their_reference(variant, l, drop);
+            }
+        }
+    }
+}
