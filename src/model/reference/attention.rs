@@ -4,7 +4,7 @@
 use super::{axpy, dot, row, row_mut, sigmoid, Dims, Grads, SpatialAttention, TemporalAttention};
 
 /// The temporal attention's parameters of one block (U1, U2, U3, be, Ve).
-pub(super) struct TemporalParams<'a> {
+pub(crate) struct TemporalParams<'a> {
     pub(super) u1: &'a [f64],
     pub(super) u2: &'a [f64],
     pub(super) u3: &'a [f64],
@@ -13,7 +13,7 @@ pub(super) struct TemporalParams<'a> {
 }
 
 /// The spatial attention's parameters of one block (W1, W2, W3, bs, Vs).
-pub(super) struct SpatialParams<'a> {
+pub(crate) struct SpatialParams<'a> {
     pub(super) w1: &'a [f64],
     pub(super) w2: &'a [f64],
     pub(super) w3: &'a [f64],
@@ -146,7 +146,7 @@ fn softmax_rows_backward(w: &[f64], dw: &[f64], len: usize) -> Vec<f64> {
 
 /// lhs = (X·U1)·U2, rhs = U3·X, P = lhs·rhs, E = Ve·σ(P + be), E' = softmax over the first
 /// time index, X_t = X·(E' + I).
-pub(super) fn temporal_attention(d: &Dims, x: &[f64], p: &TemporalParams) -> TemporalAttention {
+pub(crate) fn temporal_attention(d: &Dims, x: &[f64], p: &TemporalParams) -> TemporalAttention {
     let Dims {
         b: nb,
         n: nn,
@@ -222,7 +222,7 @@ pub(super) fn temporal_attention(d: &Dims, x: &[f64], p: &TemporalParams) -> Tem
 
 /// Backward of step 1: adds dL/dX to `dx` and the parameter gradients to `grads`.
 #[allow(clippy::too_many_arguments)]
-pub(super) fn temporal_attention_backward(
+pub(crate) fn temporal_attention_backward(
     d: &Dims,
     x: &[f64],
     p: &TemporalParams,
@@ -313,7 +313,7 @@ pub(super) fn temporal_attention_backward(
 
 /// lhs = (X_t·W1)·W2, rhs = W3·X_t, P = lhs·rhs, S = Vs·σ(P + bs), S' = softmax over j,
 /// X_s = (S' + I)·X_t.
-pub(super) fn spatial_attention(d: &Dims, xt: &[f64], p: &SpatialParams) -> SpatialAttention {
+pub(crate) fn spatial_attention(d: &Dims, xt: &[f64], p: &SpatialParams) -> SpatialAttention {
     let Dims {
         b: nb,
         n: nn,
@@ -377,7 +377,7 @@ pub(super) fn spatial_attention(d: &Dims, xt: &[f64], p: &SpatialParams) -> Spat
 }
 
 /// Backward of step 2: returns dL/dX_t and adds the parameter gradients to `grads`.
-pub(super) fn spatial_attention_backward(
+pub(crate) fn spatial_attention_backward(
     d: &Dims,
     xt: &[f64],
     p: &SpatialParams,

@@ -5,7 +5,7 @@ use super::{axpy, dot, row, row_mut, BlockParams, Dims, Grads};
 use crate::ops::graph_attention::{cpu as gat, GraphAttention};
 
 /// Ψ[i,j] = Σ_k θ_k·basis[k,i,j].
-pub(super) fn graph_kernel(nn: usize, basis: &[f64], theta: &[f64]) -> Vec<f64> {
+pub(crate) fn graph_kernel(nn: usize, basis: &[f64], theta: &[f64]) -> Vec<f64> {
     let mut psi = vec![0.0; nn * nn];
     for (k, &th) in theta.iter().enumerate() {
         axpy(&mut psi, th, row(basis, k, nn * nn));
@@ -71,7 +71,7 @@ fn channel_mix_backward(
 }
 
 /// Q = X_s·W (channels), Z = ReLU(Ψ·Q) (nodes). Returns (Q, Z).
-pub(super) fn graph_conv(d: &Dims, psi: &[f64], w: &[f64], xs: &[f64]) -> (Vec<f64>, Vec<f64>) {
+pub(crate) fn graph_conv(d: &Dims, psi: &[f64], w: &[f64], xs: &[f64]) -> (Vec<f64>, Vec<f64>) {
     let (nb, nn, ct) = (d.b, d.n, d.c * d.t);
     let q = channel_mix(d, w, xs);
     let mut z = vec![0.0; nb * nn * ct];
@@ -102,7 +102,7 @@ fn attention_shape(d: &Dims, heads: usize) -> GraphAttention {
 
 /// `st-gat`'s step 3: Q = X_s·W (channels), Z = ReLU(GAT(Q)) with the neighbour `mask`
 /// `[N,N]`. Returns (Q, Z).
-pub(super) fn graph_attention(
+pub(crate) fn graph_attention(
     d: &Dims,
     heads: usize,
     mask: &[f64],
@@ -118,7 +118,7 @@ pub(super) fn graph_attention(
 
 /// Backward of [`graph_attention`]: returns dL/dX_s and adds dW, da_src, da_dst.
 #[allow(clippy::too_many_arguments)]
-pub(super) fn graph_attention_backward(
+pub(crate) fn graph_attention_backward(
     d: &Dims,
     heads: usize,
     mask: &[f64],
@@ -145,7 +145,7 @@ pub(super) fn graph_attention_backward(
 
 /// Backward of step 3: returns dL/dX_s and adds dθ, dW to `grads`.
 #[allow(clippy::too_many_arguments)]
-pub(super) fn graph_conv_backward(
+pub(crate) fn graph_conv_backward(
     d: &Dims,
     basis: &[f64],
     p: &BlockParams,

@@ -26,10 +26,10 @@ pub mod conv_lstm;
 pub mod dense;
 pub mod recurrent;
 
-mod attention;
+pub(crate) mod attention;
 mod block;
 mod causal_conv;
-mod graph_conv;
+pub(crate) mod graph_conv;
 mod head;
 mod norm;
 
@@ -210,7 +210,7 @@ fn row_mut(x: &mut [f64], r: usize, len: usize) -> &mut [f64] {
 
 /// Shapes of block `l`.
 #[derive(Clone, Copy, Debug)]
-struct Dims {
+pub(crate) struct Dims {
     b: usize,
     n: usize,
     /// C_in.
@@ -220,7 +220,7 @@ struct Dims {
 }
 
 impl Dims {
-    fn new(config: &ModelConfig, batch: usize, l: usize) -> Dims {
+    pub(crate) fn new(config: &ModelConfig, batch: usize, l: usize) -> Dims {
         Dims {
             b: batch,
             n: config.nodes,
@@ -238,13 +238,13 @@ impl Dims {
 }
 
 /// Parameters looked up by name (docs/model.md names, `param_specs` order).
-struct Table<'a> {
+pub(crate) struct Table<'a> {
     specs: &'a [ParamSpec],
     values: &'a [Vec<f64>],
 }
 
 impl<'a> Table<'a> {
-    fn new(specs: &'a [ParamSpec], values: &'a [Vec<f64>]) -> Table<'a> {
+    pub(crate) fn new(specs: &'a [ParamSpec], values: &'a [Vec<f64>]) -> Table<'a> {
         assert_eq!(specs.len(), values.len(), "one value tensor per spec");
         for (s, v) in specs.iter().zip(values) {
             assert_eq!(
@@ -271,9 +271,9 @@ fn index(specs: &[ParamSpec], name: &str) -> usize {
 }
 
 /// Gradients in spec order, accumulated by name.
-struct Grads<'a> {
-    specs: &'a [ParamSpec],
-    values: Vec<Vec<f64>>,
+pub(crate) struct Grads<'a> {
+    pub(crate) specs: &'a [ParamSpec],
+    pub(crate) values: Vec<Vec<f64>>,
 }
 
 impl Grads<'_> {
@@ -449,10 +449,10 @@ fn add_weight_decay(specs: &[ParamSpec], params: &[Vec<f64>], grads: &mut [Vec<f
 }
 
 /// The parameters of block `l`.
-struct BlockParams<'a> {
+pub(crate) struct BlockParams<'a> {
     prefix: String,
-    temporal: Option<TemporalParams<'a>>,
-    spatial: Option<SpatialParams<'a>>,
+    pub(crate) temporal: Option<TemporalParams<'a>>,
+    pub(crate) spatial: Option<SpatialParams<'a>>,
     /// θ of the graph convolution (empty in `st-gat`).
     theta: &'a [f64],
     /// The channel mix W of step 3 (`gwc.W`, or `gat.W` in `st-gat`).
@@ -470,7 +470,7 @@ struct BlockParams<'a> {
 }
 
 impl<'a> BlockParams<'a> {
-    fn new(table: &Table<'a>, config: &ModelConfig, l: usize) -> BlockParams<'a> {
+    pub(crate) fn new(table: &Table<'a>, config: &ModelConfig, l: usize) -> BlockParams<'a> {
         let prefix = format!("blocks.{l}");
         let p = |s: &str| table.get(&format!("{prefix}.{s}"));
         let attention = config.variant.attention();

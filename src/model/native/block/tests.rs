@@ -1,18 +1,30 @@
 //! One test per step of the native ST block against the f64 reference of its op, forward
 //! and backward, on one random case, so that a wrong step is named by the failing test:
-//! `gated_dcc` against `ops::gated_dcc::cpu`, `residual_layer_norm` and
-//! `layer_norm_dropout` against `ops::layer_norm::cpu` (the residual 1×1 convolution and
-//! the ReLUs around it are written out here, a sum each). Each runs in a block with
-//! every output step and in a last block (steps 4–7 at T − 1, Z kept at the taps), gated
-//! (`iastgcn`) and not (`iastgcn-t`). The attentions and `graph_conv` have their f64
-//! steps inside `model::reference` only; tests/native_train.rs and
-//! tests/native_forward.rs check them through the whole network.
+//! `temporal_attention` and `spatial_attention` against `model::reference::attention`,
+//! `graph_conv` against `model::reference::graph_conv` (the node mixing (I + S')·X_t,
+//! which the reference does in step 2 and the native block in step 3, and at the taps the
+//! time mixing X·(I + E') are written out here), `gated_dcc` against
+//! `ops::gated_dcc::cpu`, `residual_layer_norm` and `layer_norm_dropout` against
+//! `ops::layer_norm::cpu` (the residual 1×1 convolution and the ReLUs around it are
+//! written out here, a sum each). Each runs in a block with every output step and in a
+//! last block (steps 4–7 at T − 1, X_t, M and Z kept at the taps), gated (`iastgcn`) and
+//! not (`iastgcn-t`); `graph_conv` in `iastgcn`, `iastgcn-a` (no attention),
+//! `iastgcn-s` (the Chebyshev basis) and `st-gat` (its graph attention, every step in
+//! both blocks). Each step reads its inputs from the reference's earlier steps (rounded
+//! to f32), not from the native ones, so that a wrong earlier step does not fail it.
 
-use super::tape::{Masks, Tape, Work};
-use super::{gated_dcc, layer_norm_dropout, residual_layer_norm, Block};
+use super::tape::{Cols, Masks, Tape, Work};
+use super::{
+    gated_dcc, graph_conv, layer_norm_dropout, residual_layer_norm, spatial_attention,
+    temporal_attention, Block,
+};
+use crate::graph::Graph;
 use crate::model::config::{ModelConfig, Variant};
 use crate::model::native::slots::Slots;
-use crate::model::params::{param_specs, Parameters};
+use crate::model::params::{graph_basis, param_specs, ParamSpec, Parameters};
+use crate::model::reference::{
+    attention, graph_conv as reference_gc, BlockParams, Dims, Grads, Table,
+};
 use crate::ops::dropout::keep;
 use crate::ops::gated_dcc::{cpu as dcc, Unfold};
 use crate::ops::layer_norm::{cpu as norm, LayerNorm};
@@ -375,6 +387,361 @@ fn residual_layer_norm_and_layer_norm_dropout_every_step_and_at_the_last() {
             for drop in [false, true] {
                 residual_layer_norm_dropout_match_their_reference(variant, l, drop);
             }
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Steps 1–3 against `model::reference`'s f64 steps (`attention.rs`, `graph_conv.rs`).
+
+fn narrow(v: &[f64]) -> Vec<f32> {
+    v.iter().map(|&x| x as f32).collect()
+}
+
+/// Zero gradients of every parameter, for the reference to add to.
+fn zero_grads(specs: &[ParamSpec]) -> Grads<'_> {
+    Grads {
+        specs,
+        values: specs.iter().map(|s| vec![0.0; s.numel()]).collect(),
+    }
+}
+
+/// Every parameter's gradient of the native step against the reference's: a step adds to
+/// its own parameters and leaves every other one zero.
+fn check_grads(what: &dyn Fn(&str) -> String, native: &[Vec<f32>], reference: &Grads) {
+    for ((spec, a), e) in reference.specs.iter().zip(native).zip(&reference.values) {
+        check(&what(&format!("d {}", spec.name)), &wide(a), e);
+    }
+}
+
+/// Rows of T `[.., T]` at the kept steps, `[.., cols.len]`.
+fn at_cols(cols: &Cols, v: &[f64], t: usize) -> Vec<f64> {
+    v.chunks(t)
+        .flat_map(|r| (0..cols.len).map(move |j| r[cols.first + cols.stride * j]))
+        .collect()
+}
+
+/// The adjoint of [`at_cols`]: rows of `cols.len` to rows of T, zero off the kept steps.
+fn from_cols(cols: &Cols, v: &[f64], t: usize) -> Vec<f64> {
+    let mut out = vec![0.0; v.len() / cols.len * t];
+    for (r, o) in v.chunks(cols.len).zip(out.chunks_mut(t)) {
+        for (j, &x) in r.iter().enumerate() {
+            o[cols.first + cols.stride * j] = x;
+        }
+    }
+    out
+}
+
+/// `[N, ch, cols.len]` in the tape's layout of Z: `[N, cols.len, ch]` at the taps.
+fn tape_layout(cols: &Cols, ch: usize, v: &[f64]) -> Vec<f64> {
+    if !cols.taps {
+        return v.to_vec();
+    }
+    let size = ch * cols.len;
+    let mut out = vec![0.0; v.len()];
+    for (s, o) in v.chunks(size).zip(out.chunks_mut(size)) {
+        for c in 0..ch {
+            for j in 0..cols.len {
+                o[j * ch + c] = s[c * cols.len + j];
+            }
+        }
+    }
+    out
+}
+
+/// The node mixing X_s = (I + S')·X_t (rows of `width` per node) backward from dX_s:
+/// (dS' = dX_s·X_tᵀ, dX_t = (I + S')ᵀ·dX_s). The reference computes it first thing in
+/// `spatial_attention_backward`, not as a function of its own, and the native block in
+/// `graph_conv` (Q = Ψ·(I + S')): written out here, a sum each.
+fn node_mix_backward(
+    n: usize,
+    width: usize,
+    s: &[f64],
+    xt: &[f64],
+    dxs: &[f64],
+) -> (Vec<f64>, Vec<f64>) {
+    let mut ds = vec![0.0; n * n];
+    let mut dxt = dxs.to_vec();
+    for i in 0..n {
+        let gi = &dxs[i * width..][..width];
+        for j in 0..n {
+            let xj = &xt[j * width..][..width];
+            ds[i * n + j] = gi.iter().zip(xj).map(|(g, x)| g * x).sum();
+            for (d, g) in dxt[j * width..][..width].iter_mut().zip(gi) {
+                *d += s[i * n + j] * g;
+            }
+        }
+    }
+    (ds, dxt)
+}
+
+/// The time mixing X_t = X·(I + E') (rows of T) backward from dX_t: (dE' = Xᵀ·dX_t,
+/// dX = dX_t·(I + E')ᵀ). The reference computes it first thing in
+/// `temporal_attention_backward`, which goes on to the attention's parameters: written
+/// out here for the spatial attention at the taps, which reads X and E' instead of X_t.
+fn time_mix_backward(t: usize, e: &[f64], x: &[f64], dxt: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let mut de = vec![0.0; t * t];
+    let mut dx = dxt.to_vec();
+    for ((xr, gr), dr) in x.chunks(t).zip(dxt.chunks(t)).zip(dx.chunks_mut(t)) {
+        for u in 0..t {
+            for v in 0..t {
+                de[u * t + v] += xr[u] * gr[v];
+                dr[u] += e[u * t + v] * gr[v];
+            }
+        }
+    }
+    (de, dx)
+}
+
+/// Step 1 forward and backward in block `l` of `variant`, against
+/// `reference::attention::temporal_attention` and its backward (the reference's dX_t zero
+/// off the steps the block keeps, and no dE' from step 2: `w.de` zero).
+fn temporal_attention_matches_its_reference(variant: Variant, l: usize) {
+    let Case {
+        cfg,
+        slots,
+        params,
+        mut tape,
+        mut work,
+    } = case(variant);
+    let s = &slots.blocks[l];
+    let (n, t, ci) = (cfg.nodes, cfg.window, s.c_in);
+    let b = Block::new(&cfg, &[], s, 1);
+    let bt = &mut tape.blocks[l];
+    let cols = bt.cols;
+    let what = |part: &str| format!("temporal_attention {} block {l}: {part}", variant.name());
+    let x = random(12, n * ci * t, -1.0, 1.0);
+    temporal_attention::forward(&b, &params, &x, bt);
+    let specs = param_specs(&cfg);
+    let values: Vec<Vec<f64>> = params.iter().map(|v| wide(v)).collect();
+    let table = Table::new(&specs, &values);
+    let p = BlockParams::new(&table, &cfg, l);
+    let tp = p.temporal.as_ref().expect("the variant attends");
+    let d = Dims::new(&cfg, 1, l);
+    let xf = wide(&x);
+    let ta = attention::temporal_attention(&d, &xf, tp);
+    check(&what("E'"), &wide(&bt.e), &ta.weights);
+    check(&what("X_t"), &wide(&bt.xt), &at_cols(&cols, &ta.output, t));
+    // Backward from dX_t at the kept steps.
+    let dxt = random(13, n * ci * cols.len, -1.0, 1.0);
+    work.dxt[..dxt.len()].copy_from_slice(&dxt);
+    work.de.fill(0.0);
+    work.dx.fill(0.0);
+    let mut grads: Vec<Vec<f32>> = params.iter().map(|p| vec![0.0; p.len()]).collect();
+    temporal_attention::backward(&b, &params, &x, bt, true, &mut grads, &mut work);
+    let mut reference = zero_grads(&specs);
+    let mut dx = vec![0.0; xf.len()];
+    attention::temporal_attention_backward(
+        &d,
+        &xf,
+        tp,
+        &ta,
+        &from_cols(&cols, &wide(&dxt), t),
+        &mut dx,
+        &mut reference,
+        &format!("blocks.{l}"),
+    );
+    check_grads(&what, &grads, &reference);
+    check(&what("dX"), &wide(&work.dx[..dx.len()]), &dx);
+}
+
+#[test]
+fn temporal_attention_every_step_and_at_the_taps() {
+    for variant in [Variant::Iastgcn, Variant::PlainTemporal] {
+        for l in [0, 1] {
+            temporal_attention_matches_its_reference(variant, l);
+        }
+    }
+}
+
+/// Step 2 forward and backward in block `l` of `variant`, against
+/// `reference::attention::spatial_attention` and its backward, on the reference's step 1
+/// (E' and X_t, rounded to f32 on the tape). The reference's step 2 ends with the node
+/// mixing X_s = (I + S')·X_t, which the native block does in `graph_conv`: the native
+/// step's input dS' is that mixing's (from a random dX_s, [`node_mix_backward`]), and its
+/// dX_t the reference's less the mixing's (I + S')ᵀ·dX_s; at the taps, where the native
+/// step reads X and E', that dX_t through [`time_mix_backward`] gives its dE' and dX.
+fn spatial_attention_matches_its_reference(variant: Variant, l: usize) {
+    let Case {
+        cfg,
+        slots,
+        params,
+        mut tape,
+        mut work,
+    } = case(variant);
+    let s = &slots.blocks[l];
+    let (n, t, ci) = (cfg.nodes, cfg.window, s.c_in);
+    let b = Block::new(&cfg, &[], s, 1);
+    let bt = &mut tape.blocks[l];
+    let cols = bt.cols;
+    let what = |part: &str| format!("spatial_attention {} block {l}: {part}", variant.name());
+    let x = random(14, n * ci * t, -1.0, 1.0);
+    let specs = param_specs(&cfg);
+    let values: Vec<Vec<f64>> = params.iter().map(|v| wide(v)).collect();
+    let table = Table::new(&specs, &values);
+    let p = BlockParams::new(&table, &cfg, l);
+    let (tp, sp) = (
+        p.temporal.as_ref().expect("the variant attends"),
+        p.spatial.as_ref().expect("the variant attends"),
+    );
+    let d = Dims::new(&cfg, 1, l);
+    let xf = wide(&x);
+    let ta = attention::temporal_attention(&d, &xf, tp);
+    let sa = attention::spatial_attention(&d, &ta.output, sp);
+    bt.e.copy_from_slice(&narrow(&ta.weights));
+    if !cols.taps {
+        bt.xt.copy_from_slice(&narrow(&ta.output));
+    }
+    spatial_attention::forward(&b, &params, &x, bt);
+    check(&what("S'"), &wide(&bt.s), &sa.weights);
+    // Backward from dX_s.
+    let dxs = uniform(15, n * ci * t, -1.0, 1.0);
+    let (dsp, mixed) = node_mix_backward(n, ci * t, &sa.weights, &ta.output, &dxs);
+    work.dsp.copy_from_slice(&narrow(&dsp));
+    work.dxt.fill(0.0);
+    work.de.fill(0.0);
+    work.dx.fill(0.0);
+    let mut grads: Vec<Vec<f32>> = params.iter().map(|p| vec![0.0; p.len()]).collect();
+    spatial_attention::backward(&b, &params, &x, bt, true, &mut grads, &mut work);
+    let mut reference = zero_grads(&specs);
+    let dxt = attention::spatial_attention_backward(
+        &d,
+        &ta.output,
+        sp,
+        &sa,
+        &dxs,
+        &mut reference,
+        &format!("blocks.{l}"),
+    );
+    check_grads(&what, &grads, &reference);
+    // The attention's part of dX_t.
+    let dxt: Vec<f64> = dxt.iter().zip(&mixed).map(|(a, m)| a - m).collect();
+    if cols.taps {
+        let (de, dx) = time_mix_backward(t, &ta.weights, &xf, &dxt);
+        check(&what("dE'"), &wide(&work.de[..t * t]), &de);
+        check(&what("dX"), &wide(&work.dx[..dx.len()]), &dx);
+    } else {
+        check(&what("dX_t"), &wide(&work.dxt[..dxt.len()]), &dxt);
+        check(&what("dE'"), &wide(&work.de[..t * t]), &vec![0.0; t * t]);
+    }
+}
+
+#[test]
+fn spatial_attention_every_step_and_at_the_taps() {
+    for variant in [Variant::Iastgcn, Variant::PlainTemporal] {
+        for l in [0, 1] {
+            spatial_attention_matches_its_reference(variant, l);
+        }
+    }
+}
+
+/// Step 3 forward and backward in block `l` of `variant` on the graph's basis, against
+/// `reference::graph_conv` (`graph_kernel`, `graph_conv` and its backward; `st-gat`:
+/// `graph_attention` and its backward), on the reference's steps 1–2 (X_t at the kept
+/// steps and S' rounded to f32 on the tape, X_s = (I + S')·X_t for the reference; X
+/// without attention). The native step's dS' and dX_t are the node mixing's
+/// ([`node_mix_backward`]) of the reference's dX_s; without attention, dX is dX_s.
+fn graph_conv_matches_its_reference(variant: Variant, l: usize) {
+    let Case {
+        cfg,
+        slots,
+        params,
+        mut tape,
+        mut work,
+    } = case(variant);
+    let s = &slots.blocks[l];
+    let (n, t, c, ci) = (cfg.nodes, cfg.window, cfg.channels, s.c_in);
+    let basis = graph_basis(&Graph::default_asset(), &cfg);
+    let basis32 = narrow(&basis);
+    let b = Block::new(&cfg, &basis32, s, 1);
+    let bt = &mut tape.blocks[l];
+    let cols = bt.cols;
+    let what = |part: &str| format!("graph_conv {} block {l}: {part}", variant.name());
+    let x = random(16, n * ci * t, -1.0, 1.0);
+    let specs = param_specs(&cfg);
+    let values: Vec<Vec<f64>> = params.iter().map(|v| wide(v)).collect();
+    let table = Table::new(&specs, &values);
+    let p = BlockParams::new(&table, &cfg, l);
+    let d = Dims::new(&cfg, 1, l);
+    let xf = wide(&x);
+    let attended = p.temporal.as_ref().zip(p.spatial.as_ref()).map(|(tp, sp)| {
+        let ta = attention::temporal_attention(&d, &xf, tp);
+        let sa = attention::spatial_attention(&d, &ta.output, sp);
+        (ta, sa)
+    });
+    if let Some((ta, sa)) = &attended {
+        bt.xt
+            .copy_from_slice(&narrow(&at_cols(&cols, &ta.output, t)));
+        bt.s.copy_from_slice(&narrow(&sa.weights));
+    }
+    let xs = attended.as_ref().map_or(&xf[..], |(_, sa)| &sa.output[..]);
+    graph_conv::forward(&b, &params, &x, bt);
+    let psi = s
+        .theta
+        .map(|theta| reference_gc::graph_kernel(n, &basis, &values[theta]))
+        .unwrap_or_default();
+    let (q, z) = if s.theta.is_some() {
+        check(&what("Ψ"), &wide(&bt.psi), &psi);
+        reference_gc::graph_conv(&d, &psi, &values[s.w], xs)
+    } else {
+        reference_gc::graph_attention(&d, cfg.heads, &basis, &p, xs)
+    };
+    check(
+        &what("Z"),
+        &wide(&bt.z),
+        &tape_layout(&cols, c, &at_cols(&cols, &z, t)),
+    );
+    // Backward from dZ at the kept steps (zero off them for the reference).
+    let dz = uniform(17, n * c * cols.len, -1.0, 1.0);
+    let dz32 = narrow(&tape_layout(&cols, c, &dz));
+    work.dz[..dz32.len()].copy_from_slice(&dz32);
+    work.dsp.fill(0.0);
+    work.dxt.fill(0.0);
+    work.dx.fill(0.0);
+    let mut grads: Vec<Vec<f32>> = params.iter().map(|p| vec![0.0; p.len()]).collect();
+    graph_conv::backward(&b, &params, &x, bt, true, &mut grads, &mut work);
+    let mut reference = zero_grads(&specs);
+    let dz = from_cols(&cols, &dz, t);
+    let dxs = if s.theta.is_some() {
+        reference_gc::graph_conv_backward(&d, &basis, &p, &psi, &q, &z, xs, &dz, &mut reference)
+    } else {
+        reference_gc::graph_attention_backward(
+            &d,
+            cfg.heads,
+            &basis,
+            &p,
+            &q,
+            &z,
+            xs,
+            &dz,
+            &mut reference,
+        )
+    };
+    check_grads(&what, &grads, &reference);
+    match &attended {
+        Some((ta, sa)) => {
+            let (dsp, dxt) = node_mix_backward(n, ci * t, &sa.weights, &ta.output, &dxs);
+            check(&what("dS'"), &wide(&work.dsp), &dsp);
+            check(
+                &what("dX_t"),
+                &wide(&work.dxt[..n * ci * cols.len]),
+                &at_cols(&cols, &dxt, t),
+            );
+        }
+        None => check(&what("dX"), &wide(&work.dx[..dxs.len()]), &dxs),
+    }
+}
+
+#[test]
+fn graph_conv_every_step_and_at_the_taps() {
+    for variant in [
+        Variant::Iastgcn,
+        Variant::NoAttention,
+        Variant::Chebyshev,
+        Variant::StGat,
+    ] {
+        for l in [0, 1] {
+            graph_conv_matches_its_reference(variant, l);
         }
     }
 }
