@@ -12,6 +12,7 @@
 //! `iastgcn-s` (the Chebyshev basis) and `st-gat` (its graph attention, every step in
 //! both blocks). Each step reads its inputs from the reference's earlier steps (rounded
 //! to f32), not from the native ones, so that a wrong earlier step does not fail it.
+#![cfg(test)]
 
 use super::tape::{Cols, Masks, Tape, Work};
 use super::{
