@@ -224,12 +224,10 @@ pub fn demo(
         };
         let (union, how) = record_closed_loop(&device, &round, &c, &sources, reporter)?;
         sources = union;
-        let (half, n) = (demo.recipe.sessions / 2, demo.recipe.sessions);
         Some(format!(
-            "closed-loop data: {how}; every model trained on sessions 1-{half} open loop and \
-             {}-{n} closed loop (one round-0 model for all, so that every model trains and is \
-             tested on the same data)",
-            half + 1
+            "closed-loop data: {how}; {} (one round-0 model for all, so that every model \
+             trains and is tested on the same data)",
+            round.training_set("every model")
         ))
     } else {
         None

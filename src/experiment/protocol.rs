@@ -234,6 +234,18 @@ pub struct ClosedLoopRound<'a> {
     pub dir: PathBuf,
 }
 
+impl ClosedLoopRound<'_> {
+    /// What `who` trained on once the round has run, in words: the first half of the
+    /// sessions open loop and the rest closed loop.
+    pub fn training_set(&self, who: &str) -> String {
+        let (half, n) = (self.recipe.sessions / 2, self.recipe.sessions);
+        format!(
+            "{who} trained on sessions 1-{half} open loop and {}-{n} closed loop",
+            half + 1
+        )
+    }
+}
+
 /// Runs `round`: trains the round-0 model (`config`) on the first half of `sources`'
 /// sessions, then records the others again with it compensating. Returns the first
 /// half's recordings with the closed-loop ones (the same minutes as `sources`), and

@@ -340,11 +340,9 @@ pub fn reproduce(
             dir: data_dir.join("closed-loop"),
         };
         let (union, how) = record_closed_loop(&device, &round, &c, &sources, reporter)?;
-        let (half, n) = (protocol.recipe.sessions / 2, protocol.recipe.sessions);
         let how = format!(
-            "closed-loop data: {how}; every job trained on sessions 1-{half} open loop and \
-             {}-{n} closed loop",
-            half + 1
+            "closed-loop data: {how}; {}",
+            round.training_set("every job")
         );
         reporter.note(&how);
         (union, Some(how))

@@ -588,14 +588,7 @@ fn closed_loop_sources(
         dir: out.join("models").join(format!("{}.closed", job.name())),
     };
     let (union, how) = record_closed_loop(device, &round, config, sources, reporter)?;
-    let (half, n) = (study.recipe.sessions / 2, study.recipe.sessions);
-    Ok((
-        union,
-        format!(
-            "{how}; the job trained on sessions 1-{half} open loop and {}-{n} closed loop",
-            half + 1
-        ),
-    ))
+    Ok((union, format!("{how}; {}", round.training_set("the job"))))
 }
 
 /// Every held-out session of the study with `model` in the loop: each path's scores
