@@ -3,16 +3,22 @@
 //! (the raster path at its held-out placement, a starting surface of seed 1 as the
 //! interferometer measures it). The solve is timed as `Polisher::plan_at` at 100 N runs
 //! it; a tick's removal as `Pad::remove` at the pad's pose with the nominal contact,
-//! centres spread over the glass (criterion's "thrpt" column is ticks per second).
+//! centres spread over the glass (criterion's "thrpt" column is ticks per second), on the
+//! native f64 path (`removal_tick`) and, where a wgpu adapter is there, through the WGSL
+//! kernel (`removal_tick_wgsl`: the ticks binned and sent in one batch of 1000, the kernel
+//! waited for).
 //!
 //! It also writes each size's dwell problem with the engine's solution to
 //! `target/bench-polish/dwell_<n>.safetensors`: `make bench-polish` hands those to the
 //! NumPy implementation of the same solver (benches/numpy/dwell.py), which checks that it
 //! finds the same seconds and times itself on the same cores in the same call.
 
+use std::sync::Arc;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use iastgcn::gpu::Gpu;
+use iastgcn::ops::removal::{Accumulator, Tick};
 use iastgcn::polish::{draw_surface, HeightMap, Pad, Polisher, Setup, StartingPoint};
 use iastgcn::twin::PathKind;
 
@@ -72,13 +78,7 @@ fn bench(c: &mut Criterion) {
         let radius = polisher.mirror.radius();
         let contact = pad.contact([0.0, 0.0], [0.0, 0.0], 100.0, radius);
         // Centres on a golden-angle spiral over the glass, one per tick.
-        let centres: Vec<[f64; 2]> = (0..per_iter)
-            .map(|k| {
-                let r = radius * ((k as f64 + 0.5) / per_iter as f64).sqrt();
-                let a = k as f64 * 2.399_963_229_728_653;
-                [r * a.cos(), r * a.sin()]
-            })
-            .collect();
+        let centres = spiral(radius, per_iter);
         let mut map = measured.clone();
         removal.bench_with_input(BenchmarkId::from_parameter(n), n, |b, _| {
             b.iter(|| {
@@ -89,6 +89,56 @@ fn bench(c: &mut Criterion) {
         });
     }
     removal.finish();
+
+    // The same ticks through the WGSL kernel, where an adapter is there: each iteration
+    // sends its 1000 ticks (binned on the host) and waits for the kernel; the removed
+    // depth stays on the device (a walk reads it back once at its end).
+    let Ok(gpu) = Gpu::new() else {
+        eprintln!("removal_tick_wgsl: no GPU adapter, skipped");
+        return;
+    };
+    let gpu = Arc::new(gpu);
+    eprintln!("removal_tick_wgsl on {}", gpu.info().name);
+    let mut kernel = c.benchmark_group("removal_tick_wgsl");
+    kernel.throughput(Throughput::Elements(per_iter));
+    kernel.sample_size(10);
+    for (n, polisher, _) in &ticks {
+        let pad = polisher.setup.pad;
+        let contact = pad.contact([0.0, 0.0], [0.0, 0.0], 100.0, polisher.mirror.radius());
+        let batch: Vec<Tick> = spiral(polisher.mirror.radius(), per_iter)
+            .into_iter()
+            .map(|centre| pad.tick(centre, &contact, 0.02))
+            .collect();
+        let mut acc = Accumulator::new(
+            gpu.clone(),
+            *n,
+            polisher.grid.pitch,
+            &polisher.glass,
+            pad.footprint(),
+            per_iter as usize,
+        )
+        .unwrap();
+        kernel.bench_with_input(BenchmarkId::from_parameter(n), n, |b, _| {
+            b.iter(|| {
+                for t in &batch {
+                    acc.push(t).unwrap();
+                }
+                gpu.wait().unwrap();
+            })
+        });
+    }
+    kernel.finish();
+}
+
+/// `count` centres on a golden-angle spiral over a disc of radius `radius`, mm.
+fn spiral(radius: f64, count: u64) -> Vec<[f64; 2]> {
+    (0..count)
+        .map(|k| {
+            let r = radius * ((k as f64 + 0.5) / count as f64).sqrt();
+            let a = k as f64 * 2.399_963_229_728_653;
+            [r * a.cos(), r * a.sin()]
+        })
+        .collect()
 }
 
 criterion_group! {

@@ -61,7 +61,10 @@ const ALLOWED: &[(&str, &[&str])] = &[
             "error",
         ],
     ),
-    ("polish", &["compensate", "twin", "robot", "error"]),
+    (
+        "polish",
+        &["compensate", "twin", "robot", "ops", "gpu", "error"],
+    ),
     (
         "experiment",
         &[
@@ -158,10 +161,7 @@ const NEVER: &[(&str, &[&str])] = &[
         ],
     ),
     ("compensate", &["experiment", "polish"]),
-    (
-        "polish",
-        &["experiment", "gpu", "ops", "model", "train", "data"],
-    ),
+    ("polish", &["experiment", "model", "train", "data"]),
 ];
 
 fn src() -> PathBuf {

@@ -87,12 +87,12 @@ pub fn run(adapter: Option<&str>, args: &PolishArgs) -> anyhow::Result<()> {
     setup.clear_aperture = args.clear_aperture_mm;
     let mut polisher = Polisher::new(setup).context("--pixel-mm")?;
     let checkpoints = named_checkpoints(&args.model)?;
-    // A GPU handle only when a model predicts (on a CPU adapter it runs the native path).
+    // The removal's WGSL kernel on a GPU; the models on whatever device runs them best.
+    let device = super::open_device(adapter)?;
+    polisher.remove_on(&device);
+    eprintln!("removal laid on {}", polisher.removal_device());
     let (mut models, window) = match checkpoints.first() {
-        Some((_, first)) => {
-            let device = super::open_device(adapter)?;
-            (predictors(&device, &checkpoints)?, first.config.window)
-        }
+        Some((_, first)) => (predictors(&device, &checkpoints)?, first.config.window),
         None => (Vec::new(), 48),
     };
     let spec = PolishSpec {

@@ -365,7 +365,7 @@ pub fn report(spec: &PolishSpec, polisher: &Polisher, result: &PolishResult) -> 
     );
     let _ = writeln!(
         out,
-        "- {} path at its held-out placement (rotation {}°, margin {} mm), feeds {}–{} mm/s; a {} × {} map of {} mm pixels; PV and RMS over the {} mm clear aperture, piston and tilt removed; interferometer noise {} nm per pixel",
+        "- {} path at its held-out placement (rotation {}°, margin {} mm), feeds {}–{} mm/s; a {} × {} map of {} mm pixels, the removal laid on {}; PV and RMS over the {} mm clear aperture, piston and tilt removed; interferometer noise {} nm per pixel",
         s.path.name(),
         s.params.rotation_deg,
         s.params.margin,
@@ -374,6 +374,7 @@ pub fn report(spec: &PolishSpec, polisher: &Polisher, result: &PolishResult) -> 
         polisher.grid.n,
         polisher.grid.n,
         s.pitch,
+        polisher.removal_device(),
         s.clear_aperture,
         s.interferometer_noise
     );

@@ -14,6 +14,7 @@ pub mod loss;
 pub mod lstm;
 pub mod matmul;
 pub mod outer;
+pub mod removal;
 pub mod softmax;
 pub mod time_step;
 pub mod unfold2d;
@@ -45,7 +46,7 @@ impl Accumulate {
 }
 
 /// Every op shader, for validation and for the pipeline warm-up.
-pub fn shaders() -> [&'static Shader; 17] {
+pub fn shaders() -> [&'static Shader; 18] {
     [
         &adam::SHADER,
         &bias::SHADER,
@@ -61,6 +62,7 @@ pub fn shaders() -> [&'static Shader; 17] {
         &matmul::SHADER,
         &matmul::SUBGROUP_SHADER,
         &outer::SHADER,
+        &removal::SHADER,
         &softmax::SHADER,
         &time_step::SHADER,
         &unfold2d::SHADER,

@@ -14,6 +14,8 @@ use super::map::{Grid, HeightMap};
 use super::tif::Pad;
 use crate::compensate::online::{self, Feedback, RunResult};
 use crate::error::{ensure, Error, Result};
+use crate::gpu::{Device, Gpu};
+use crate::ops::removal::{Accumulator, Tick};
 use crate::robot::Robot;
 use crate::twin::{
     gaussian, FeedPlan, Machine, MachineState, Mirror, Path, PathKind, PathParams, Sample,
@@ -104,7 +106,12 @@ pub struct Polisher {
     /// per unit area).
     area: Vec<f64>,
     solver: DwellSolver,
+    /// The adapter whose WGSL kernel lays the removal (`None`: the native f64 path).
+    removal_gpu: Option<Arc<Gpu>>,
 }
+
+/// Control ticks laid per dispatch of the removal kernel.
+const REMOVAL_BATCH: usize = 4096;
 
 impl Polisher {
     /// Prepares `setup` on the twin's mirror.
@@ -213,7 +220,32 @@ impl Polisher {
             bounds,
             area,
             solver,
+            removal_gpu: None,
         })
+    }
+
+    /// Lays the glass's removal where `device` does it best: with the WGSL kernel
+    /// (`ops::removal`, in f32) on a GPU, on the native f64 path on a CPU adapter or
+    /// without one (the default, bit for bit the reference).
+    pub fn remove_on(&mut self, device: &Device) {
+        self.removal_gpu = match device {
+            Device::Adapter(gpu) if !device.prefers_native() => Some(gpu.clone()),
+            _ => None,
+        };
+    }
+
+    /// Lays the removal with the WGSL kernel on `gpu` (any adapter, a CPU one too), or
+    /// on the native path with `None`.
+    pub fn remove_with_kernel(&mut self, gpu: Option<Arc<Gpu>>) {
+        self.removal_gpu = gpu;
+    }
+
+    /// Where the removal is laid: the adapter's name, or `native CPU (f64)`.
+    pub fn removal_device(&self) -> String {
+        self.removal_gpu.as_ref().map_or_else(
+            || "native CPU (f64)".to_string(),
+            |g| format!("{} (WGSL, f32)", g.info().name),
+        )
     }
 
     /// What the interferometer reports of `surface`: the heights plus its noise (seeded
@@ -349,29 +381,52 @@ impl Polisher {
         config.feed_plan = Some(Arc::new(plan));
         let dt = config.dt;
         let mut ticks = 0;
-        online::run_observed(
+        let mut kernel = match &self.removal_gpu {
+            Some(gpu) => Some(Accumulator::new(
+                gpu.clone(),
+                self.grid.n,
+                self.grid.pitch,
+                &self.glass,
+                self.setup.pad.footprint(),
+                REMOVAL_BATCH,
+            )?),
+            None => None,
+        };
+        let mut failed = None;
+        let run = online::run_observed(
             machine,
             controller,
             config,
             start,
             feedback,
             |s: &Sample, actual: &Isometry3<f64>| {
-                self.remove(s, actual, pose, dt, surface);
+                let tick = self.tick(s, actual, pose, dt);
+                match &mut kernel {
+                    None => self.setup.pad.footprint().remove_tick(
+                        self.grid.n,
+                        self.grid.pitch,
+                        &self.glass,
+                        &tick,
+                        &mut surface.values,
+                    ),
+                    Some(k) if failed.is_none() => failed = k.push(&tick).err(),
+                    Some(_) => {}
+                }
                 ticks += 1;
                 on_tick(ticks);
             },
-        )
+        )?;
+        if let Some(e) = failed {
+            return Err(e.into());
+        }
+        if let Some(k) = &mut kernel {
+            k.finish(&mut surface.values)?;
+        }
+        Ok(run)
     }
 
-    /// One tick's removal.
-    fn remove(
-        &self,
-        s: &Sample,
-        actual: &Isometry3<f64>,
-        pose: PoseSource,
-        dt: f64,
-        surface: &mut HeightMap,
-    ) {
+    /// One tick's removal: the pad's centre and contact at the pose `pose` takes.
+    fn tick(&self, s: &Sample, actual: &Isometry3<f64>, pose: PoseSource, dt: f64) -> Tick {
         let target = &s.hidden.target;
         let (true_centre, true_axis) = (actual.translation.vector, actual.rotation * Vector3::z());
         let (centre, axis) = match pose {
@@ -389,9 +444,7 @@ impl Polisher {
             s.hidden.force,
             self.mirror.radius(),
         );
-        self.setup
-            .pad
-            .remove(surface, &self.glass, [centre.x, centre.y], &contact, dt);
+        self.setup.pad.tick([centre.x, centre.y], &contact, dt)
     }
 }
 

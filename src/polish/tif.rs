@@ -20,6 +20,7 @@
 //! moment balance: the head holds the tool's attitude, so the moment goes into the head).
 
 use super::map::{Grid, HeightMap};
+use crate::ops::removal::{Footprint, Tick};
 
 /// The polishing pad and its removal constants.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -115,36 +116,37 @@ impl Pad {
         Contact { mean, gradient }
     }
 
-    /// The removal rate, nm/s, at offset `(dx, dy)` mm from the orbit's centre.
+    /// The pad as the removal sees it (`ops::removal`, which holds the removal's
+    /// arithmetic for the native path and the WGSL kernel alike).
+    pub fn footprint(&self) -> Footprint {
+        Footprint {
+            radius: self.radius,
+            orbit: self.orbit_radius,
+            preston: self.preston,
+            speed: self.speed(),
+        }
+    }
+
+    /// The removal rate, nm/s, at offset `(dx, dy)` mm from the orbit's centre
+    /// ([`Footprint::rate`]).
     #[inline]
     pub fn rate(&self, contact: &Contact, dx: f64, dy: f64) -> f64 {
-        use std::f64::consts::PI;
-        let (big, e) = (self.radius, self.orbit_radius);
-        let r = dx.hypot(dy);
-        let beta = if r <= big - e {
-            PI
-        } else if r >= big + e {
-            return 0.0;
-        } else {
-            ((r * r + e * e - big * big) / (2.0 * r * e))
-                .clamp(-1.0, 1.0)
-                .acos()
-        };
-        // ∫ u dφ over the arc in contact is 2·d·(β − e·sin β / |d|); at |d| = 0 the arc
-        // is the whole orbit and the integral vanishes.
-        let lever = if r > 0.0 {
-            beta - e * beta.sin() / r
-        } else {
-            0.0
-        };
-        let g_dot_d = contact.gradient[0] * dx + contact.gradient[1] * dy;
-        let pressure = (contact.mean * beta - g_dot_d * lever) / PI;
-        // mm/s → nm/s.
-        self.preston * self.speed() * pressure.max(0.0) * 1e6
+        self.footprint()
+            .rate(contact.mean, contact.gradient, dx, dy)
+    }
+
+    /// One control tick's removal: `seconds` at orbit centre `centre` (mm) under `contact`.
+    pub fn tick(&self, centre: [f64; 2], contact: &Contact, seconds: f64) -> Tick {
+        Tick {
+            centre,
+            mean: contact.mean,
+            gradient: contact.gradient,
+            seconds,
+        }
     }
 
     /// Removes `seconds` of the pad's removal at orbit centre `centre` (mm) from `map`,
-    /// on the pixels `on_glass` marks.
+    /// on the pixels `on_glass` marks ([`Footprint::remove_tick`]).
     pub fn remove(
         &self,
         map: &mut HeightMap,
@@ -154,25 +156,13 @@ impl Pad {
         seconds: f64,
     ) {
         let g = map.grid;
-        let reach = self.reach();
-        let [fc, fr] = g.locate(centre[0], centre[1]);
-        let span = reach / g.pitch;
-        let lo = |f: f64| ((f - span).floor().max(0.0)) as usize;
-        let hi = |f: f64| (((f + span).ceil()).max(-1.0) as isize).min(g.n as isize - 1);
-        let (r1, c1) = (hi(fr), hi(fc));
-        if r1 < 0 || c1 < 0 {
-            return;
-        }
-        for r in lo(fr)..=r1 as usize {
-            for c in lo(fc)..=c1 as usize {
-                let i = r * g.n + c;
-                if !on_glass[i] {
-                    continue;
-                }
-                let [x, y] = g.centre(r, c);
-                map.values[i] -= seconds * self.rate(contact, x - centre[0], y - centre[1]);
-            }
-        }
+        self.footprint().remove_tick(
+            g.n,
+            g.pitch,
+            on_glass,
+            &self.tick(centre, contact, seconds),
+            &mut map.values,
+        );
     }
 
     /// The nominal influence function on `grid`'s pixels (square, side `2·reach + 1`,

@@ -1,0 +1,352 @@
+//! The glass an orbital polishing pad removes at each control tick (docs/polishing.md
+//! "Tool influence function", "Compute"): the closed-form removal rate and one tick's
+//! removal in f64, which are both the reference and the native path
+//! (`polish::Pad::rate` and `Pad::remove` call them), and the WGSL kernel
+//! (`shaders/removal.wgsl`) that lays a batch of ticks over the map on a GPU,
+//! [`Accumulator`].
+//!
+//! The map is square, `n` pixels of side `pitch` mm a side, centred on the mirror's
+//! axis: pixel `(row, col)` has its centre at `((col + ½ − n/2)·pitch,
+//! (row + ½ − n/2)·pitch)` (`polish::Grid`).
+
+use std::sync::Arc;
+
+use crate::gpu::{
+    Binding, DType, Dispatch, Gpu, GpuError, Kernel, Readback, Recorder, Shader, Tensor,
+};
+
+/// The WGSL module of this family (`shaders/removal.wgsl`: `removal_accumulate`).
+pub static SHADER: Shader = Shader {
+    name: "removal",
+    source: include_str!("../../shaders/removal.wgsl"),
+    base: None,
+};
+
+static ACCUMULATE: Kernel = Kernel {
+    shader: &SHADER,
+    entry: "removal_accumulate",
+    bindings: &[
+        Binding::read(1),
+        Binding::read(2),
+        Binding::read(3),
+        Binding::read(4),
+        Binding::read_write(5),
+    ],
+};
+
+/// Pixels per side of the kernel's tiles (its workgroup is one tile).
+pub const TILE: usize = 16;
+
+/// The pad as the removal sees it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Footprint {
+    /// Pad radius R, mm.
+    pub radius: f64,
+    /// Orbit radius e, mm.
+    pub orbit: f64,
+    /// Preston's coefficient K, mm²/N.
+    pub preston: f64,
+    /// The sliding speed of every point of the pad, mm/s.
+    pub speed: f64,
+}
+
+/// One control tick: where the orbit's centre is, the pressure under the pad, and how
+/// long it stays.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Tick {
+    /// The orbit's centre, mm (the map's plane).
+    pub centre: [f64; 2],
+    /// Pressure at the pad's centre, N/mm².
+    pub mean: f64,
+    /// Its gradient across the pad in the map's plane, N/mm³ (`p(u) = mean − gradient·u`).
+    pub gradient: [f64; 2],
+    /// Seconds.
+    pub seconds: f64,
+}
+
+impl Footprint {
+    /// How far from the orbit's centre the pad reaches, mm.
+    pub fn reach(&self) -> f64 {
+        self.radius + self.orbit
+    }
+
+    /// The removal rate, nm/s, at offset `(dx, dy)` mm from the orbit's centre under
+    /// pressure `mean − gradient·u`: Preston's law averaged over the orbit in closed form,
+    /// `K·V·[mean·β − (gradient·d)·(β − e·sin β / |d|)]/π` with
+    /// `cos β = (|d|² + e² − R²)/(2·|d|·e)` (docs/polishing.md).
+    #[inline]
+    pub fn rate(&self, mean: f64, gradient: [f64; 2], dx: f64, dy: f64) -> f64 {
+        use std::f64::consts::PI;
+        let (big, e) = (self.radius, self.orbit);
+        let r = dx.hypot(dy);
+        let beta = if r <= big - e {
+            PI
+        } else if r >= big + e {
+            return 0.0;
+        } else {
+            ((r * r + e * e - big * big) / (2.0 * r * e))
+                .clamp(-1.0, 1.0)
+                .acos()
+        };
+        // ∫ u dφ over the arc in contact is 2·d·(β − e·sin β / |d|); at |d| = 0 the arc
+        // is the whole orbit and the integral vanishes.
+        let lever = if r > 0.0 {
+            beta - e * beta.sin() / r
+        } else {
+            0.0
+        };
+        let g_dot_d = gradient[0] * dx + gradient[1] * dy;
+        let pressure = (mean * beta - g_dot_d * lever) / PI;
+        // mm/s → nm/s.
+        self.preston * self.speed * pressure.max(0.0) * 1e6
+    }
+
+    /// The pixels a tick centred at fractional column/row `(fc, fr)` can reach on an
+    /// `n`-pixel map of side `pitch`: inclusive row and column ranges, or `None` off the map.
+    fn pixel_box(&self, n: usize, pitch: f64, fc: f64, fr: f64) -> Option<[usize; 4]> {
+        let span = self.reach() / pitch;
+        let lo = |f: f64| ((f - span).floor().max(0.0)) as usize;
+        let hi = |f: f64| (((f + span).ceil()).max(-1.0) as isize).min(n as isize - 1);
+        let (r1, c1) = (hi(fr), hi(fc));
+        if r1 < 0 || c1 < 0 {
+            return None;
+        }
+        Some([lo(fr), r1 as usize, lo(fc), c1 as usize])
+    }
+
+    /// Removes `tick`'s glass from `map` (`n × n` heights, nm, pixel side `pitch` mm) on
+    /// the pixels `glass` marks: the reference, and the native path.
+    pub fn remove_tick(&self, n: usize, pitch: f64, glass: &[bool], tick: &Tick, map: &mut [f64]) {
+        let half = 0.5 * n as f64;
+        let [x, y] = tick.centre;
+        let (fc, fr) = (x / pitch + half - 0.5, y / pitch + half - 0.5);
+        let Some([r0, r1, c0, c1]) = self.pixel_box(n, pitch, fc, fr) else {
+            return;
+        };
+        for r in r0..=r1 {
+            for c in c0..=c1 {
+                let i = r * n + c;
+                if !glass[i] {
+                    continue;
+                }
+                let px = (c as f64 + 0.5 - half) * pitch;
+                let py = (r as f64 + 0.5 - half) * pitch;
+                map[i] -= tick.seconds * self.rate(tick.mean, tick.gradient, px - x, py - y);
+            }
+        }
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct Params {
+    n: u32,
+    tiles: u32,
+    pitch: f32,
+    radius: f32,
+    orbit: f32,
+    scale: f32,
+    pad: [u32; 2],
+}
+
+/// Lays control ticks' removal over a map on a GPU: ticks are gathered on the host,
+/// binned to the kernel's tiles in tick order and laid down a batch at a time (no
+/// readback until [`Accumulator::finish`]); the removed depth stays on the device in f32.
+pub struct Accumulator {
+    gpu: Arc<Gpu>,
+    n: usize,
+    pitch: f64,
+    footprint: Footprint,
+    tiles: usize,
+    /// Ticks per batch.
+    capacity: usize,
+    /// The batch so far: two vec4 per tick.
+    batch: Vec<[f32; 4]>,
+    starts: Vec<u32>,
+    lists: Vec<u32>,
+    ticks: Tensor,
+    tile_start: Tensor,
+    tile_ticks: Tensor,
+    removed: Tensor,
+    dispatch: Dispatch,
+    readback: Readback,
+    host: Vec<f32>,
+    /// Ticks laid since the last [`Accumulator::finish`].
+    laid: usize,
+}
+
+impl Accumulator {
+    /// An accumulator for an `n × n` map of pixel side `pitch` mm whose pixels of glass
+    /// `glass` marks, for `footprint`, `capacity` ticks per batch.
+    pub fn new(
+        gpu: Arc<Gpu>,
+        n: usize,
+        pitch: f64,
+        glass: &[bool],
+        footprint: Footprint,
+        capacity: usize,
+    ) -> Result<Accumulator, GpuError> {
+        if glass.len() != n * n || n == 0 || capacity == 0 {
+            return Err(GpuError::Shape {
+                tensor: "removal glass mask".into(),
+                expected: format!(
+                    "{} pixels (n = {n}) and a batch of at least one tick",
+                    n * n
+                ),
+                got: format!("{} pixels, batch {capacity}", glass.len()),
+            });
+        }
+        let tiles = n.div_ceil(TILE);
+        // A tick's pixels span at most 2·span + 3 columns, so at most that over 16 tiles,
+        // plus one where the span straddles a tile's edge.
+        let span = (footprint.reach() / pitch).ceil() as usize;
+        let per_side = ((2 * span + 3).div_ceil(TILE) + 1).min(tiles);
+        let list_capacity = capacity * per_side * per_side;
+        let mut words = vec![0u32; (n * n).div_ceil(32)];
+        for (i, _) in glass.iter().enumerate().filter(|(_, g)| **g) {
+            words[i >> 5] |= 1 << (i & 31);
+        }
+        let mask = gpu.zeros("removal glass", &[words.len()], DType::U32)?;
+        gpu.write(&mask, &words)?;
+        let ticks = gpu.zeros("removal ticks", &[2 * capacity, 4], DType::F32)?;
+        let tile_start = gpu.zeros("removal tile starts", &[tiles * tiles + 1], DType::U32)?;
+        let tile_ticks = gpu.zeros("removal tile ticks", &[list_capacity], DType::U32)?;
+        let removed = gpu.zeros("removed", &[n * n], DType::F32)?;
+        let params = Params {
+            n: n as u32,
+            tiles: tiles as u32,
+            pitch: pitch as f32,
+            radius: footprint.radius as f32,
+            orbit: footprint.orbit as f32,
+            scale: (footprint.preston * footprint.speed * 1e6) as f32,
+            pad: [0; 2],
+        };
+        let dispatch = gpu.dispatch(
+            &ACCUMULATE,
+            &[],
+            &params,
+            &[&ticks, &tile_start, &tile_ticks, &mask, &removed],
+            [tiles as u32, tiles as u32, 1],
+        )?;
+        let readback = Readback::new(&gpu, "removed", removed.byte_len())?;
+        Ok(Accumulator {
+            gpu,
+            n,
+            pitch,
+            footprint,
+            tiles,
+            capacity,
+            batch: Vec::with_capacity(2 * capacity),
+            starts: vec![0; tiles * tiles + 1],
+            lists: vec![0; list_capacity],
+            ticks,
+            tile_start,
+            tile_ticks,
+            removed,
+            dispatch,
+            readback,
+            host: vec![0.0; n * n],
+            laid: 0,
+        })
+    }
+
+    /// Adds one tick; a full batch goes to the device.
+    pub fn push(&mut self, tick: &Tick) -> Result<(), GpuError> {
+        let t = tick;
+        self.batch.push([
+            t.centre[0] as f32,
+            t.centre[1] as f32,
+            t.mean as f32,
+            t.seconds as f32,
+        ]);
+        self.batch
+            .push([t.gradient[0] as f32, t.gradient[1] as f32, 0.0, 0.0]);
+        if self.batch.len() == 2 * self.capacity {
+            self.flush()?;
+        }
+        Ok(())
+    }
+
+    /// The tiles each tick of the batch reaches, as one list per tile in tick order.
+    fn bin(&mut self) -> usize {
+        let (n, pitch, tiles) = (self.n, self.pitch, self.tiles);
+        let half = 0.5 * n as f64;
+        let boxes: Vec<Option<[usize; 4]>> = self
+            .batch
+            .chunks(2)
+            .map(|t| {
+                let (x, y) = (f64::from(t[0][0]), f64::from(t[0][1]));
+                let (fc, fr) = (x / pitch + half - 0.5, y / pitch + half - 0.5);
+                self.footprint
+                    .pixel_box(n, pitch, fc, fr)
+                    .map(|[r0, r1, c0, c1]| [r0 / TILE, r1 / TILE, c0 / TILE, c1 / TILE])
+            })
+            .collect();
+        self.starts.iter_mut().for_each(|s| *s = 0);
+        for [r0, r1, c0, c1] in boxes.iter().flatten() {
+            for tr in *r0..=*r1 {
+                for tc in *c0..=*c1 {
+                    self.starts[tr * tiles + tc + 1] += 1;
+                }
+            }
+        }
+        for k in 1..self.starts.len() {
+            self.starts[k] += self.starts[k - 1];
+        }
+        let mut next = self.starts.clone();
+        for (t, b) in boxes.iter().enumerate() {
+            if let Some([r0, r1, c0, c1]) = b {
+                for tr in *r0..=*r1 {
+                    for tc in *c0..=*c1 {
+                        let slot = &mut next[tr * tiles + tc];
+                        self.lists[*slot as usize] = t as u32;
+                        *slot += 1;
+                    }
+                }
+            }
+        }
+        self.starts[tiles * tiles] as usize
+    }
+
+    /// Sends the ticks gathered so far to the device and lays them (no wait).
+    pub fn flush(&mut self) -> Result<(), GpuError> {
+        if self.batch.is_empty() {
+            return Ok(());
+        }
+        let used = self.bin();
+        debug_assert!(used <= self.lists.len());
+        let count = self.batch.len() / 2;
+        self.batch.resize(2 * self.capacity, [0.0; 4]);
+        self.gpu.write(&self.ticks, &self.batch)?;
+        self.gpu.write(&self.tile_start, &self.starts)?;
+        self.gpu.write(&self.tile_ticks, &self.lists)?;
+        let mut rec = Recorder::new(&self.gpu);
+        rec.dispatch(&self.dispatch);
+        rec.submit()?;
+        self.batch.clear();
+        self.laid += count;
+        Ok(())
+    }
+
+    /// Lays what is left, subtracts everything laid since the last call from `map`
+    /// (`n × n` heights, nm) and starts again from zero. Returns the ticks laid.
+    pub fn finish(&mut self, map: &mut [f64]) -> Result<usize, GpuError> {
+        if map.len() != self.n * self.n {
+            return Err(GpuError::Shape {
+                tensor: "removal map".into(),
+                expected: format!("{} heights", self.n * self.n),
+                got: format!("{}", map.len()),
+            });
+        }
+        self.flush()?;
+        let mut rec = Recorder::new(&self.gpu);
+        rec.read_into(&self.removed, &self.readback)?;
+        rec.zero(&self.removed);
+        rec.submit()?;
+        self.readback.read_into(&self.gpu, &mut self.host)?;
+        for (m, r) in map.iter_mut().zip(&self.host) {
+            *m -= f64::from(*r);
+        }
+        Ok(std::mem::take(&mut self.laid))
+    }
+}
