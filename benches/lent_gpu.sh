@@ -10,9 +10,9 @@
 #   apt-get $o update; (cd .gl && apt-get $o download libvulkan1 libegl1 libglvnd0 libopengl0 libgl1 libglx0 libgles2)
 # Then build and collect the binaries (also ignored), and carry both folders:
 #   cargo build --release --bin iastgcn
-#   cargo bench --no-run --bench model --bench kernels
+#   cargo bench --no-run --bench model --bench kernels --bench polish
 #   echo /.devbin/ >> .git/info/exclude; mkdir -p .devbin && cp target/release/iastgcn .devbin/ &&
-#     for b in model kernels; do cp "$(ls -t target/release/deps/$b-* | grep -v '\.d$' | head -1)" .devbin/$b; done
+#     for b in model kernels polish; do cp "$(ls -t target/release/deps/$b-* | grep -v '\.d$' | head -1)" .devbin/$b; done
 #   (there) benches/lent_gpu.sh .devbin "$OUT"
 # Test binaries built here (`cargo test --no-run`, then target/debug/deps/NAME-*,
 # stripped) and copied into the folder as NAME.test run first, on the GPU: e.g. the
@@ -21,7 +21,8 @@
 # In order: the adapter (`iastgcn info`), `iastgcn smoke` (every kernel against its CPU
 # reference on the GPU), the model bench's device rows (the baseline product, forward at
 # B = 1 and 64, the training step at B = 64, both shapes; IASTGCN_BENCH_CSV), the kernels
-# bench of both shapes' training step (each launch timed alone), and compare.py: the
+# bench of both shapes' training step (each launch timed alone), the mirror's removal and
+# dwell solve natively and as WGSL kernels (the polish bench, when carried), and compare.py: the
 # interop check and PyTorch on the same GPU through CUDA against those rows. Everything
 # lands in OUTDIR (log.txt holds all of it); about 2 minutes on an H200.
 set -u
@@ -64,6 +65,10 @@ for shape in paper small; do
     echo "== kernels bench, $shape training step"
     "$BIN/kernels" "$shape" train
 done
+if [ -x "$BIN/polish" ]; then
+    echo "== polish bench: the mirror's removal and dwell solve, native f64 against WGSL"
+    "$BIN/polish" --bench 2>&1 | grep -E '^(dwell_solve|removal_tick)|time:|thrpt:|planned RMS|skipped| on '
+fi
 echo "== against PyTorch (CUDA)"
 PYTHONUNBUFFERED=1 python3 benches/pytorch/compare.py --binary "$BIN/iastgcn" \
     --engine-csv "$OUTDIR/model.csv" --torch-device cuda --out "$OUTDIR"

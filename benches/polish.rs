@@ -6,7 +6,8 @@
 //! centres spread over the glass (criterion's "thrpt" column is ticks per second), on the
 //! native f64 path (`removal_tick`) and, where a wgpu adapter is there, through the WGSL
 //! kernel (`removal_tick_wgsl`: the ticks binned and sent in one batch of 1000, the kernel
-//! waited for).
+//! waited for). Where an adapter is there the dwell solve runs again with its FFTs as
+//! WGSL kernels (`dwell_solve_wgsl`, `ops::fft`; on a CPU adapter at 512² only).
 //!
 //! It also writes each size's dwell problem with the engine's solution to
 //! `target/bench-polish/dwell_<n>.safetensors`: `make bench-polish` hands those to the
@@ -64,7 +65,7 @@ fn bench(c: &mut Criterion) {
             file.display()
         );
         solve.bench_with_input(BenchmarkId::from_parameter(n), &n, |b, _| {
-            b.iter(|| polisher.plan_at(&measured, 100.0))
+            b.iter(|| polisher.plan_at(&measured, 100.0).unwrap())
         });
         ticks.push((n, polisher, measured));
     }
@@ -128,6 +129,30 @@ fn bench(c: &mut Criterion) {
         });
     }
     kernel.finish();
+
+    // The dwell solve with its FFTs on the adapter (ops::fft). On a CPU adapter only the
+    // 512 map: lavapipe takes tens of seconds per solve at 1024.
+    let mut solve = c.benchmark_group("dwell_solve_wgsl");
+    solve.sample_size(10);
+    solve.measurement_time(Duration::from_secs(20));
+    for (n, polisher, measured) in &mut ticks {
+        if *n > 512 && gpu.is_software() {
+            eprintln!("dwell_solve_wgsl/{n}: skipped on a CPU adapter");
+            continue;
+        }
+        let cpu = polisher.plan_at(measured, 100.0).unwrap();
+        polisher.solve_with_kernels(Some(gpu.clone())).unwrap();
+        let on_gpu = polisher.plan_at(measured, 100.0).unwrap();
+        eprintln!(
+            "dwell_solve_wgsl/{n}: planned RMS {:.4} nm (CPU {:.4}), gamma {} (CPU {})",
+            on_gpu.planned.rms, cpu.planned.rms, on_gpu.gamma, cpu.gamma
+        );
+        solve.bench_with_input(BenchmarkId::from_parameter(*n), n, |b, _| {
+            b.iter(|| polisher.plan_at(measured, 100.0).unwrap())
+        });
+        polisher.solve_with_kernels(None).unwrap();
+    }
+    solve.finish();
 }
 
 /// `count` centres on a golden-angle spiral over a disc of radius `radius`, mm.

@@ -29,7 +29,7 @@ fn polishing_removes_glass_at_the_true_pose_deterministically() {
         3,
     );
     let measured = polisher.measure(&start, 11);
-    let dwell = polisher.plan(&measured);
+    let dwell = polisher.plan(&measured).unwrap();
     let polish = |pose: PoseSource| -> HeightMap {
         let mut surface = start.clone();
         let plan = polisher.feed(&dwell).unwrap();

@@ -99,7 +99,7 @@ fn a_polishing_walk_on_the_kernel_matches_the_native_walk() {
         &StartingPoint::default(),
         3,
     );
-    let dwell = polisher.plan(&polisher.measure(&start, 11));
+    let dwell = polisher.plan(&polisher.measure(&start, 11)).unwrap();
     let walk = |polisher: &Polisher| -> HeightMap {
         let mut surface = start.clone();
         polisher

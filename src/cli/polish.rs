@@ -87,10 +87,15 @@ pub fn run(adapter: Option<&str>, args: &PolishArgs) -> anyhow::Result<()> {
     setup.clear_aperture = args.clear_aperture_mm;
     let mut polisher = Polisher::new(setup).context("--pixel-mm")?;
     let checkpoints = named_checkpoints(&args.model)?;
-    // The removal's WGSL kernel on a GPU; the models on whatever device runs them best.
+    // The removal's and the dwell solve's WGSL kernels on a GPU; the models on whatever
+    // device runs them best.
     let device = super::open_device(adapter)?;
-    polisher.remove_on(&device);
-    eprintln!("removal laid on {}", polisher.removal_device());
+    polisher.run_on(&device)?;
+    eprintln!(
+        "removal laid on {}, dwell solved on {}",
+        polisher.removal_device(),
+        polisher.solve_device()
+    );
     let (mut models, window) = match checkpoints.first() {
         Some((_, first)) => (predictors(&device, &checkpoints)?, first.config.window),
         None => (Vec::new(), 48),

@@ -436,7 +436,7 @@ fn mirror_section(
     let nominal = Robot::nominal(geometry.clone());
     let calibrated = Robot::new(geometry, file::load(&sources.calibration)?.errors);
     let mut polisher = Polisher::new(Setup::new(PathKind::Grid))?;
-    polisher.remove_on(device);
+    polisher.run_on(device)?;
     let result = polish::run(
         &mut polisher,
         spec,

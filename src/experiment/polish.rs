@@ -209,7 +209,7 @@ pub fn run(
                     rows.push(row);
                     break;
                 }
-                let dwell = polisher.plan(&measured);
+                let dwell = polisher.plan(&measured)?;
                 let plan = polisher.feed(&dwell)?;
                 let seconds = plan.duration(polisher.path_length());
                 let run_seed = spec.seed.wrapping_add(1000 * it as u64 + surface_seed);
@@ -365,7 +365,7 @@ pub fn report(spec: &PolishSpec, polisher: &Polisher, result: &PolishResult) -> 
     );
     let _ = writeln!(
         out,
-        "- {} path at its held-out placement (rotation {}°, margin {} mm), feeds {}–{} mm/s; a {} × {} map of {} mm pixels, the removal laid on {}; PV and RMS over the {} mm clear aperture, piston and tilt removed; interferometer noise {} nm per pixel",
+        "- {} path at its held-out placement (rotation {}°, margin {} mm), feeds {}–{} mm/s; a {} × {} map of {} mm pixels, the removal laid on {} and the dwell solved on {}; PV and RMS over the {} mm clear aperture, piston and tilt removed; interferometer noise {} nm per pixel",
         s.path.name(),
         s.params.rotation_deg,
         s.params.margin,
@@ -375,6 +375,7 @@ pub fn report(spec: &PolishSpec, polisher: &Polisher, result: &PolishResult) -> 
         polisher.grid.n,
         s.pitch,
         polisher.removal_device(),
+        polisher.solve_device(),
         s.clear_aperture,
         s.interferometer_noise
     );

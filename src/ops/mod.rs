@@ -5,6 +5,7 @@ pub mod adam;
 pub mod bias;
 pub mod dropout;
 pub mod elementwise;
+pub mod fft;
 pub mod gated_dcc;
 pub mod graph_attention;
 pub mod gru;
@@ -46,12 +47,13 @@ impl Accumulate {
 }
 
 /// Every op shader, for validation and for the pipeline warm-up.
-pub fn shaders() -> [&'static Shader; 18] {
+pub fn shaders() -> [&'static Shader; 19] {
     [
         &adam::SHADER,
         &bias::SHADER,
         &dropout::SHADER,
         &elementwise::SHADER,
+        &fft::SHADER,
         &gated_dcc::SHADER,
         &graph_attention::SHADER,
         &gru::SHADER,

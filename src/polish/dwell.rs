@@ -327,11 +327,17 @@ impl DwellSolver {
 
     /// The removal (nm) of the dwell density map `t` (s/mm²): the kernel convolved with
     /// `gain · t`.
-    pub fn removal(&mut self, t: &[f64]) -> Vec<f64> {
+    pub fn removal(&mut self, t: &[f64]) -> Result<Vec<f64>> {
         let u: Vec<f64> = t.iter().zip(&self.gain).map(|(t, g)| t * g).collect();
         let mut out = vec![0.0; u.len()];
-        self.conv.convolve(&u, &mut out);
-        out
+        self.conv.convolve(&u, &mut out)?;
+        Ok(out)
+    }
+
+    /// Runs the convolutions and inverse filters on `gpu` (WGSL, f32) from now on, or on
+    /// the CPU (f64, the default) with `None`.
+    pub fn run_on(&mut self, gpu: Option<std::sync::Arc<crate::gpu::Gpu>>) -> Result<()> {
+        Ok(self.conv.run_on(gpu)?)
     }
 
     /// What `measured` less `removal` leaves over the clear aperture.
@@ -358,7 +364,7 @@ impl DwellSolver {
         path: &PathRaster,
         bounds: &[[f64; 2]],
         area: &[f64],
-    ) -> Dwell {
+    ) -> Result<Dwell> {
         let n = measured.values.len();
         let lowest = measured
             .values
@@ -367,7 +373,7 @@ impl DwellSolver {
             .filter(|(_, &m)| m)
             .fold(f64::INFINITY, |m, (v, _)| m.min(*v));
         let least: Vec<f64> = bounds.iter().map(|b| b[0]).collect();
-        let floor = self.removal(&path.dwell_map(&least));
+        let floor = self.removal(&path.dwell_map(&least))?;
         // The least piston for which the wanted removal is at least what the fastest
         // feed everywhere removes.
         let layer = measured
@@ -414,7 +420,7 @@ impl DwellSolver {
             };
             let mut seconds = least.clone();
             for _ in 0..=self.iterations {
-                let removal = self.removal(&path.dwell_map(&seconds));
+                let removal = self.removal(&path.dwell_map(&seconds))?;
                 let left = self.left(measured, &removal);
                 if left.rms < best.planned.rms {
                     best = Dwell {
@@ -435,7 +441,7 @@ impl DwellSolver {
                         0.0
                     };
                 }
-                self.conv.filter(&residual, &mut step, inverse);
+                self.conv.filter(&residual, &mut step, inverse)?;
                 let along = path.sample(&step);
                 for (((t, d), b), (a, g)) in seconds
                     .iter_mut()
@@ -447,7 +453,7 @@ impl DwellSolver {
                 }
             }
         }
-        best
+        Ok(best)
     }
 }
 #[cfg(test)]
@@ -504,7 +510,7 @@ mod tests {
             }
         }
         let before = measured.figure(&clear);
-        let dwell = solver.solve(&measured, &raster, &bounds, &area);
+        let dwell = solver.solve(&measured, &raster, &bounds, &area).unwrap();
         assert!(
             dwell.planned.rms < 0.5 * before.rms,
             "{before:?} → {:?}",
@@ -514,7 +520,7 @@ mod tests {
             assert!(*t >= b[0] && *t <= b[1]);
         }
         // The plan's removal is its seconds laid on the path and convolved.
-        let again = solver.removal(&raster.dwell_map(&dwell.seconds));
+        let again = solver.removal(&raster.dwell_map(&dwell.seconds)).unwrap();
         assert_eq!(again, dwell.removal.values);
 
         // The problem written for outside implementations reads back as solved: the

@@ -11,6 +11,9 @@ use rayon::prelude::*;
 use rustfft::num_complex::Complex64;
 use rustfft::{Fft, FftPlanner};
 
+use crate::gpu::{Gpu, GpuError};
+use crate::ops::fft::Convolution;
+
 /// Columns moved together by a transpose: 16 complex values, four cache lines.
 const BLOCK: usize = 16;
 
@@ -104,6 +107,8 @@ pub struct Convolver {
     fft: Fft2,
     spectrum: Vec<Complex64>,
     work: Vec<Complex64>,
+    /// The same filtering by WGSL kernels on a GPU (`ops::fft`, f32), when set.
+    gpu: Option<Convolution>,
 }
 
 impl Convolver {
@@ -129,7 +134,18 @@ impl Convolver {
             fft,
             work: vec![Complex64::default(); size * size],
             spectrum,
+            gpu: None,
         }
+    }
+
+    /// Filters on `gpu` with the WGSL kernels of `ops::fft` (in f32) from now on, or on
+    /// the CPU (f64) with `None`.
+    pub fn run_on(&mut self, gpu: Option<Arc<Gpu>>) -> Result<(), GpuError> {
+        self.gpu = match gpu {
+            Some(g) => Some(Convolution::new(g, self.n, &self.spectrum)?),
+            None => None,
+        };
+        Ok(())
     }
 
     /// The kernel's spectrum on the padded square (for inverse filters).
@@ -143,14 +159,44 @@ impl Convolver {
     }
 
     /// `out = map ∗ kernel`, both `n × n`; `out` may not alias `map`.
-    pub fn convolve(&mut self, map: &[f64], out: &mut [f64]) {
-        self.filter(map, out, |s, _| s);
+    pub fn convolve(&mut self, map: &[f64], out: &mut [f64]) -> Result<(), GpuError> {
+        match &mut self.gpu {
+            Some(g) => g.convolve(map, out),
+            None => {
+                self.filter_cpu(map, out, |s, _| s);
+                Ok(())
+            }
+        }
     }
 
     /// `out = F⁻¹[F(map) · f(kernel spectrum, index)]` on the padded square, cropped
     /// back to `n × n`: [`Convolver::convolve`] with `f` the identity, an inverse filter
-    /// otherwise.
+    /// otherwise. On a GPU `f` is evaluated on the host and the product sent.
     pub fn filter(
+        &mut self,
+        map: &[f64],
+        out: &mut [f64],
+        f: impl Fn(Complex64, usize) -> Complex64 + Sync,
+    ) -> Result<(), GpuError> {
+        match &mut self.gpu {
+            Some(g) => {
+                let factor: Vec<Complex64> = self
+                    .spectrum
+                    .par_iter()
+                    .enumerate()
+                    .map(|(i, s)| f(*s, i))
+                    .collect();
+                g.filter(map, out, &factor)
+            }
+            None => {
+                self.filter_cpu(map, out, f);
+                Ok(())
+            }
+        }
+    }
+
+    /// [`Convolver::filter`] on the CPU, in f64.
+    fn filter_cpu(
         &mut self,
         map: &[f64],
         out: &mut [f64],
@@ -195,7 +241,7 @@ mod tests {
             .collect();
         let mut conv = Convolver::new(n, &kernel, reach);
         let mut out = vec![0.0; n * n];
-        conv.convolve(&map, &mut out);
+        conv.convolve(&map, &mut out).unwrap();
         for r in 0..n as isize {
             for c in 0..n as isize {
                 let mut want = 0.0;

@@ -108,7 +108,12 @@ pub struct Polisher {
     solver: DwellSolver,
     /// The adapter whose WGSL kernel lays the removal (`None`: the native f64 path).
     removal_gpu: Option<Arc<Gpu>>,
+    /// The adapter the dwell solver's FFTs run on, by name (`None`: the CPU).
+    solve_gpu: Option<String>,
 }
+
+/// What [`Polisher::removal_device`] and [`Polisher::solve_device`] say of the CPU path.
+const NATIVE: &str = "native CPU (f64)";
 
 /// Control ticks laid per dispatch of the removal kernel.
 const REMOVAL_BATCH: usize = 4096;
@@ -221,17 +226,35 @@ impl Polisher {
             area,
             solver,
             removal_gpu: None,
+            solve_gpu: None,
         })
     }
 
-    /// Lays the glass's removal where `device` does it best: with the WGSL kernel
-    /// (`ops::removal`, in f32) on a GPU, on the native f64 path on a CPU adapter or
-    /// without one (the default, bit for bit the reference).
-    pub fn remove_on(&mut self, device: &Device) {
-        self.removal_gpu = match device {
+    /// Runs the heavy parts where `device` does them best: the removal of every tick
+    /// (`ops::removal`) and the dwell solve's FFTs (`ops::fft`) as WGSL kernels, in f32,
+    /// on a GPU; on the native f64 path on a CPU adapter or without one (the default, bit
+    /// for bit the reference).
+    pub fn run_on(&mut self, device: &Device) -> Result<()> {
+        let gpu = match device {
             Device::Adapter(gpu) if !device.prefers_native() => Some(gpu.clone()),
             _ => None,
         };
+        self.remove_with_kernel(gpu.clone());
+        self.solve_with_kernels(gpu)
+    }
+
+    /// Solves the dwell with the FFTs of `ops::fft` on `gpu` (any adapter, a CPU one too),
+    /// or on the CPU (rustfft, f64) with `None`.
+    pub fn solve_with_kernels(&mut self, gpu: Option<Arc<Gpu>>) -> Result<()> {
+        self.solve_gpu = gpu.as_ref().map(|g| g.info().name.clone());
+        self.solver.run_on(gpu)
+    }
+
+    /// Where the dwell is solved: the adapter's name, or `native CPU (f64)`.
+    pub fn solve_device(&self) -> String {
+        self.solve_gpu
+            .as_ref()
+            .map_or_else(|| NATIVE.to_string(), |name| format!("{name} (WGSL, f32)"))
     }
 
     /// Lays the removal with the WGSL kernel on `gpu` (any adapter, a CPU one too), or
@@ -243,7 +266,7 @@ impl Polisher {
     /// Where the removal is laid: the adapter's name, or `native CPU (f64)`.
     pub fn removal_device(&self) -> String {
         self.removal_gpu.as_ref().map_or_else(
-            || "native CPU (f64)".to_string(),
+            || NATIVE.to_string(),
             |g| format!("{} (WGSL, f32)", g.info().name),
         )
     }
@@ -278,8 +301,8 @@ impl Polisher {
     /// still removes, whose own unevenness (the passes' ripple, the force's error) would
     /// otherwise stop the convergence; and the machine runs at the feeds it was trained
     /// at.
-    pub fn plan(&mut self, measured: &HeightMap) -> Dwell {
-        let first = self.plan_at(measured, DEFAULT_FORCE);
+    pub fn plan(&mut self, measured: &HeightMap) -> Result<Dwell> {
+        let first = self.plan_at(measured, DEFAULT_FORCE)?;
         let mut feeds = self.segment_feeds(&first.seconds);
         feeds.sort_by(f64::total_cmp);
         let median = feeds.get(feeds.len() / 2).copied().unwrap_or(DEFAULT_FEED);
@@ -290,7 +313,7 @@ impl Polisher {
     /// The dwell for `measured` with the pad pressed by `force` N: the removal scales
     /// with the force, so the solver's seconds at the nominal force are `force / 100 N`
     /// times the seconds at `force`, within bounds scaled alike.
-    pub fn plan_at(&mut self, measured: &HeightMap, force: f64) -> Dwell {
+    pub fn plan_at(&mut self, measured: &HeightMap, force: f64) -> Result<Dwell> {
         let scale = force / DEFAULT_FORCE;
         let bounds: Vec<[f64; 2]> = self
             .bounds
@@ -299,12 +322,12 @@ impl Polisher {
             .collect();
         let mut dwell = self
             .solver
-            .solve(measured, &self.raster, &bounds, &self.area);
+            .solve(measured, &self.raster, &bounds, &self.area)?;
         for t in dwell.seconds.iter_mut() {
             *t /= scale;
         }
         dwell.force = force;
-        dwell
+        Ok(dwell)
     }
 
     /// The dwell for `measured` at the nominal force (as [`Polisher::plan_at`] with 100 N),
@@ -317,7 +340,7 @@ impl Polisher {
     ) -> Result<Dwell> {
         let dwell = self
             .solver
-            .solve(measured, &self.raster, &self.bounds, &self.area);
+            .solve(measured, &self.raster, &self.bounds, &self.area)?;
         let problem = (&self.bounds[..], &self.area[..]);
         self.solver
             .write_problem(out, measured, &self.raster, problem, &dwell)?;
@@ -469,7 +492,7 @@ mod tests {
                 &StartingPoint::default(),
                 1,
             );
-            let dwell = polisher.plan(&surface);
+            let dwell = polisher.plan(&surface).unwrap();
             let plan = polisher.feed(&dwell).unwrap();
             let total = plan.duration(polisher.path_length());
             let (dt, pad) = (0.02, polisher.setup.pad);
