@@ -112,8 +112,14 @@ pub struct Polisher {
     solve_gpu: Option<String>,
 }
 
-/// What [`Polisher::removal_device`] and [`Polisher::solve_device`] say of the CPU path.
-const NATIVE: &str = "native CPU (f64)";
+/// What [`Polisher::removal_device`] and [`Polisher::solve_device`] say: the adapter
+/// `gpu` names, or the CPU path.
+fn described(gpu: Option<&str>) -> String {
+    gpu.map_or_else(
+        || "native CPU (f64)".to_string(),
+        |name| format!("{name} (WGSL, f32)"),
+    )
+}
 
 /// Control ticks laid per dispatch of the removal kernel.
 const REMOVAL_BATCH: usize = 4096;
@@ -252,9 +258,7 @@ impl Polisher {
 
     /// Where the dwell is solved: the adapter's name, or `native CPU (f64)`.
     pub fn solve_device(&self) -> String {
-        self.solve_gpu
-            .as_ref()
-            .map_or_else(|| NATIVE.to_string(), |name| format!("{name} (WGSL, f32)"))
+        described(self.solve_gpu.as_deref())
     }
 
     /// Lays the removal with the WGSL kernel on `gpu` (any adapter, a CPU one too), or
@@ -265,10 +269,7 @@ impl Polisher {
 
     /// Where the removal is laid: the adapter's name, or `native CPU (f64)`.
     pub fn removal_device(&self) -> String {
-        self.removal_gpu.as_ref().map_or_else(
-            || NATIVE.to_string(),
-            |g| format!("{} (WGSL, f32)", g.info().name),
-        )
+        described(self.removal_gpu.as_ref().map(|g| g.info().name.as_str()))
     }
 
     /// What the interferometer reports of `surface`: the heights plus its noise (seeded
@@ -415,7 +416,7 @@ impl Polisher {
             )?),
             None => None,
         };
-        let mut failed = None;
+        let (footprint, mut failed) = (self.setup.pad.footprint(), None);
         let run = online::run_observed(
             machine,
             controller,
@@ -425,7 +426,7 @@ impl Polisher {
             |s: &Sample, actual: &Isometry3<f64>| {
                 let tick = self.tick(s, actual, pose, dt);
                 match &mut kernel {
-                    None => self.setup.pad.footprint().remove_tick(
+                    None => footprint.remove_tick(
                         self.grid.n,
                         self.grid.pitch,
                         &self.glass,
