@@ -111,7 +111,7 @@ fn bench(c: &mut Criterion) {
             .map(|centre| pad.tick(centre, &contact, 0.02))
             .collect();
         let mut acc = Accumulator::new(
-            gpu.clone(),
+            &gpu,
             *n,
             polisher.grid.pitch,
             &polisher.glass,

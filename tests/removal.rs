@@ -51,7 +51,7 @@ fn the_kernel_lays_what_the_reference_removes() {
         for t in &ticks {
             footprint.remove_tick(n, pitch, &glass, t, &mut want);
         }
-        let mut acc = Accumulator::new(g.clone(), n, pitch, &glass, footprint, capacity).unwrap();
+        let mut acc = Accumulator::new(&g, n, pitch, &glass, footprint, capacity).unwrap();
         // Twice from the same accumulator: `finish` starts again from zero.
         for round in 0..2 {
             for t in &ticks {

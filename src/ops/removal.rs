@@ -9,8 +9,6 @@
 //! axis: pixel `(row, col)` has its centre at `((col + ½ − n/2)·pitch,
 //! (row + ½ − n/2)·pitch)` (`polish::Grid`).
 
-use std::sync::Arc;
-
 use crate::gpu::{
     Binding, DType, Dispatch, Gpu, GpuError, Kernel, Readback, Recorder, Shader, Tensor,
 };
@@ -152,8 +150,8 @@ struct Params {
 /// Lays control ticks' removal over a map on a GPU: ticks are gathered on the host,
 /// binned to the kernel's tiles in tick order and laid down a batch at a time (no
 /// readback until [`Accumulator::finish`]); the removed depth stays on the device in f32.
-pub struct Accumulator {
-    gpu: Arc<Gpu>,
+pub struct Accumulator<'g> {
+    gpu: &'g Gpu,
     n: usize,
     pitch: f64,
     footprint: Footprint,
@@ -175,17 +173,17 @@ pub struct Accumulator {
     laid: usize,
 }
 
-impl Accumulator {
+impl<'g> Accumulator<'g> {
     /// An accumulator for an `n × n` map of pixel side `pitch` mm whose pixels of glass
     /// `glass` marks, for `footprint`, `capacity` ticks per batch.
     pub fn new(
-        gpu: Arc<Gpu>,
+        gpu: &'g Gpu,
         n: usize,
         pitch: f64,
         glass: &[bool],
         footprint: Footprint,
         capacity: usize,
-    ) -> Result<Accumulator, GpuError> {
+    ) -> Result<Accumulator<'g>, GpuError> {
         if glass.len() != n * n || n == 0 || capacity == 0 {
             return Err(GpuError::Shape {
                 tensor: "removal glass mask".into(),
@@ -228,7 +226,7 @@ impl Accumulator {
             &[&ticks, &tile_start, &tile_ticks, &mask, &removed],
             [tiles as u32, tiles as u32, 1],
         )?;
-        let readback = Readback::new(&gpu, "removed", removed.byte_len())?;
+        let readback = Readback::new(gpu, "removed", removed.byte_len())?;
         Ok(Accumulator {
             gpu,
             n,
@@ -320,7 +318,7 @@ impl Accumulator {
         self.gpu.write(&self.ticks, &self.batch)?;
         self.gpu.write(&self.tile_start, &self.starts)?;
         self.gpu.write(&self.tile_ticks, &self.lists)?;
-        let mut rec = Recorder::new(&self.gpu);
+        let mut rec = Recorder::new(self.gpu);
         rec.dispatch(&self.dispatch);
         rec.submit()?;
         self.batch.clear();
@@ -339,11 +337,11 @@ impl Accumulator {
             });
         }
         self.flush()?;
-        let mut rec = Recorder::new(&self.gpu);
+        let mut rec = Recorder::new(self.gpu);
         rec.read_into(&self.removed, &self.readback)?;
         rec.zero(&self.removed);
         rec.submit()?;
-        self.readback.read_into(&self.gpu, &mut self.host)?;
+        self.readback.read_into(self.gpu, &mut self.host)?;
         for (m, r) in map.iter_mut().zip(&self.host) {
             *m -= f64::from(*r);
         }

@@ -407,7 +407,7 @@ impl Polisher {
         let mut ticks = 0;
         let mut kernel = match &self.removal_gpu {
             Some(gpu) => Some(Accumulator::new(
-                gpu.clone(),
+                gpu,
                 self.grid.n,
                 self.grid.pitch,
                 &self.glass,

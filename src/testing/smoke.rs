@@ -1,6 +1,7 @@
-//! The smoke check of a device (`iastgcn smoke`): the kernel families the model leans on
-//! run once on the device, are compared with the f64 CPU reference and are timed. A quick
-//! "does this GPU work" for a new machine.
+//! The smoke check of a device (`iastgcn smoke`): the kernel families the model leans on,
+//! and the mirror's (the pad's removal, the dwell solve's FFTs), run once on the device,
+//! are compared with the f64 CPU reference and are timed. A quick "does this GPU work"
+//! for a new machine.
 
 use std::time::Instant;
 
@@ -8,7 +9,9 @@ use super::{rng, round_f32, to_f32, uniform, worst, Tolerance, Worst};
 use crate::error::{Error, Result};
 use crate::gpu::{DType, Gpu, Recorder, Tensor};
 use crate::ops::elementwise::{self, Binary, Unary};
+use crate::ops::fft::{dft2, Transform2};
 use crate::ops::matmul::{self, Matmul};
+use crate::ops::removal::{Accumulator, Footprint, Tick};
 use crate::ops::Accumulate;
 
 /// The sizes and seed of the smoke check.
@@ -63,6 +66,8 @@ pub struct SmokeRow {
 pub fn smoke(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> {
     let mut rows = matmul_check(gpu, options)?;
     rows.extend(gated_unit_check(gpu, options)?);
+    rows.extend(removal_check(gpu, options)?);
+    rows.extend(fft_check(gpu, options)?);
     Ok(rows)
 }
 
@@ -72,16 +77,27 @@ struct Group<'a> {
     seconds: f64,
     includes_compile: bool,
     flops: Option<f64>,
-    checks: Vec<(&'a str, &'a Tensor, &'a [f64], Tolerance)>,
+    checks: Vec<(&'a str, Output<'a>, &'a [f64], Tolerance)>,
+}
+
+/// What a kernel produced: a tensor still on the device, or values already read back.
+enum Output<'a> {
+    Device(&'a Tensor),
+    Host(Vec<f64>),
 }
 
 impl Group<'_> {
     fn rows(self, gpu: &Gpu) -> Result<Vec<SmokeRow>> {
         self.checks
-            .iter()
-            .map(|&(what, tensor, expected, tolerance)| {
-                let got = gpu.read_f32(tensor)?;
-                let got: Vec<f64> = got[..tensor.numel()].iter().map(|&v| v as f64).collect();
+            .into_iter()
+            .map(|(what, output, expected, tolerance)| {
+                let got = match output {
+                    Output::Device(tensor) => {
+                        let got = gpu.read_f32(tensor)?;
+                        got[..tensor.numel()].iter().map(|&v| v as f64).collect()
+                    }
+                    Output::Host(values) => values,
+                };
                 let worst = worst(what, &got, expected, tolerance).map_err(Error::Invalid)?;
                 Ok(SmokeRow {
                     name: what.to_string(),
@@ -137,9 +153,9 @@ fn matmul_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> {
         includes_compile: false,
         flops: Some(3.0 * mm.flops()),
         checks: vec![
-            ("matmul forward", &yt, &y, tol(c)),
-            ("matmul backward dX", &dxt, &dx, tol(c)),
-            ("matmul backward dW", &dwt, &dw, tol(r)),
+            ("matmul forward", Output::Device(&yt), &y, tol(c)),
+            ("matmul backward dX", Output::Device(&dxt), &dx, tol(c)),
+            ("matmul backward dW", Output::Device(&dwt), &dw, tol(r)),
         ],
     }
     .rows(gpu)
@@ -192,10 +208,103 @@ fn gated_unit_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> 
         includes_compile: true,
         flops: None,
         checks: vec![
-            ("gate H", &h, &h_ref, tol),
-            ("gate dF", &df, &df_ref, tol),
-            ("gate dG", &dg, &dg_ref, tol),
+            ("gate H", Output::Device(&h), &h_ref, tol),
+            ("gate dF", Output::Device(&df), &df_ref, tol),
+            ("gate dG", Output::Device(&dg), &dg_ref, tol),
         ],
+    }
+    .rows(gpu)
+}
+
+/// The pad's removal (`ops::removal`): random tilted ticks of the twin's pad over a
+/// 64 × 64 map of 1 mm pixels, laid in batches of 256, against the f64 reference.
+fn removal_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> {
+    let (n, pitch, count) = (64, 1.0, 600);
+    let footprint = Footprint {
+        radius: 15.0,
+        orbit: 6.0,
+        preston: 2.4e-6,
+        speed: std::f64::consts::TAU * 6.0 * 300.0 / 60.0,
+    };
+    let mut g = rng(options.seed + 2);
+    let glass: Vec<bool> = (0..n * n)
+        .map(|i| {
+            let (r, c) = ((i / n) as f64 + 0.5 - 32.0, (i % n) as f64 + 0.5 - 32.0);
+            r.hypot(c) <= 29.0
+        })
+        .collect();
+    let values = uniform(&mut g, 5 * count, -1.0, 1.0);
+    let ticks: Vec<Tick> = values
+        .chunks(5)
+        .map(|v| Tick {
+            centre: [38.0 * v[0], 38.0 * v[1]],
+            mean: 0.125 + 0.075 * v[2],
+            gradient: [1e-3 * v[3], 1e-3 * v[4]],
+            seconds: 0.02,
+        })
+        .collect();
+    let mut expected = vec![0.0; n * n];
+    for t in &ticks {
+        footprint.remove_tick(n, pitch, &glass, t, &mut expected);
+    }
+    let mut acc = Accumulator::new(gpu, n, pitch, &glass, footprint, 256)?;
+    let t0 = Instant::now();
+    for t in &ticks {
+        acc.push(t)?;
+    }
+    let mut got = vec![0.0; n * n];
+    acc.finish(&mut got)?;
+    let seconds = t0.elapsed().as_secs_f64();
+    let peak = expected.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    Group {
+        name: format!("removal: {count} ticks over a {n}x{n} map"),
+        seconds,
+        includes_compile: true,
+        flops: None,
+        checks: vec![(
+            "removal",
+            Output::Host(got),
+            &expected,
+            Tolerance::new(1e-4 * peak, 1e-4),
+        )],
+    }
+    .rows(gpu)
+}
+
+/// The dwell solve's 2-D DFT (`ops::fft`): a random complex array of side 281 (the prime
+/// in the mirror's padded sides, 562 and 1124), forward, against the f64 DFT.
+fn fft_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> {
+    let side = 281;
+    let mut g = rng(options.seed + 3);
+    let x = round_f32(&uniform(&mut g, 2 * side * side, -1.0, 1.0));
+    let data = gpu.upload("fft data", &[side * side, 2], &to_f32(&x))?;
+    let transform = Transform2::new(gpu, &data, side)?;
+    let t0 = Instant::now();
+    let mut rec = Recorder::new(gpu);
+    transform.record_forward(&mut rec);
+    rec.submit()?;
+    gpu.wait()?;
+    let seconds = t0.elapsed().as_secs_f64();
+    let complex: Vec<rustfft::num_complex::Complex64> = x
+        .chunks(2)
+        .map(|v| rustfft::num_complex::Complex64::new(v[0], v[1]))
+        .collect();
+    let expected: Vec<f64> = dft2(&complex, side, false)
+        .iter()
+        .flat_map(|v| [v.re, v.im])
+        .collect();
+    let peak = expected.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    Group {
+        name: format!("fft 2-D forward, side {side} (Bluestein)"),
+        seconds,
+        includes_compile: true,
+        flops: None,
+        checks: vec![(
+            "fft 2-D forward",
+            Output::Device(&data),
+            &expected,
+            Tolerance::new(2e-6 * peak, 2e-6),
+        )],
     }
     .rows(gpu)
 }
