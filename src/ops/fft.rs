@@ -299,7 +299,7 @@ impl Convolution {
         }
         let data = complex(&gpu, "convolution data", size * size, None)?;
         let spectrum = to_f32(spectrum);
-        let factor = gpu.zeros("convolution factor", &[size * size, 2], DType::F32)?;
+        let factor = complex(&gpu, "convolution factor", size * size, None)?;
         gpu.write(&factor, &spectrum)?;
         let transform = Transform2::new(&gpu, &data, size)?;
         let max = gpu.limits().max_compute_workgroups_per_dimension;
@@ -334,6 +334,11 @@ impl Convolution {
     /// The side of the padded square.
     pub fn size(&self) -> usize {
         self.transform.size()
+    }
+
+    /// The adapter it runs on.
+    pub fn gpu(&self) -> &Gpu {
+        &self.gpu
     }
 
     /// `out = map ∗ kernel`, both `n × n`.

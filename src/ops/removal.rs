@@ -99,9 +99,12 @@ impl Footprint {
         self.preston * self.speed * pressure.max(0.0) * 1e6
     }
 
-    /// The pixels a tick centred at fractional column/row `(fc, fr)` can reach on an
-    /// `n`-pixel map of side `pitch`: inclusive row and column ranges, or `None` off the map.
-    fn pixel_box(&self, n: usize, pitch: f64, fc: f64, fr: f64) -> Option<[usize; 4]> {
+    /// The pixels a tick centred at `[x, y]` mm can reach on an `n`-pixel map of side
+    /// `pitch`: inclusive row and column ranges, or `None` off the map.
+    fn pixel_box(&self, n: usize, pitch: f64, [x, y]: [f64; 2]) -> Option<[usize; 4]> {
+        // The centre's fractional column and row (pixel centres at whole numbers).
+        let half = 0.5 * n as f64;
+        let (fc, fr) = (x / pitch + half - 0.5, y / pitch + half - 0.5);
         let span = self.reach() / pitch;
         let lo = |f: f64| ((f - span).floor().max(0.0)) as usize;
         let hi = |f: f64| (((f + span).ceil()).max(-1.0) as isize).min(n as isize - 1);
@@ -117,8 +120,7 @@ impl Footprint {
     pub fn remove_tick(&self, n: usize, pitch: f64, glass: &[bool], tick: &Tick, map: &mut [f64]) {
         let half = 0.5 * n as f64;
         let [x, y] = tick.centre;
-        let (fc, fr) = (x / pitch + half - 0.5, y / pitch + half - 0.5);
-        let Some([r0, r1, c0, c1]) = self.pixel_box(n, pitch, fc, fr) else {
+        let Some([r0, r1, c0, c1]) = self.pixel_box(n, pitch, tick.centre) else {
             return;
         };
         for r in r0..=r1 {
@@ -268,15 +270,14 @@ impl<'g> Accumulator<'g> {
     /// The tiles each tick of the batch reaches, as one list per tile in tick order.
     fn bin(&mut self) -> usize {
         let (n, pitch, tiles) = (self.n, self.pitch, self.tiles);
-        let half = 0.5 * n as f64;
         let boxes: Vec<Option<[usize; 4]>> = self
             .batch
             .chunks(2)
             .map(|t| {
-                let (x, y) = (f64::from(t[0][0]), f64::from(t[0][1]));
-                let (fc, fr) = (x / pitch + half - 0.5, y / pitch + half - 0.5);
+                // The centre as the kernel sees it (f32).
+                let centre = [f64::from(t[0][0]), f64::from(t[0][1])];
                 self.footprint
-                    .pixel_box(n, pitch, fc, fr)
+                    .pixel_box(n, pitch, centre)
                     .map(|[r0, r1, c0, c1]| [r0 / TILE, r1 / TILE, c0 / TILE, c1 / TILE])
             })
             .collect();

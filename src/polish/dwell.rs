@@ -334,6 +334,11 @@ impl DwellSolver {
         Ok(out)
     }
 
+    /// The adapter its convolutions run on, or `None` on the CPU.
+    pub fn gpu(&self) -> Option<&crate::gpu::Gpu> {
+        self.conv.gpu()
+    }
+
     /// Runs the convolutions and inverse filters on `gpu` (WGSL, f32) from now on, or on
     /// the CPU (f64, the default) with `None`.
     pub fn run_on(&mut self, gpu: Option<std::sync::Arc<crate::gpu::Gpu>>) -> Result<()> {

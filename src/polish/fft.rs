@@ -158,6 +158,11 @@ impl Convolver {
         self.fft.size()
     }
 
+    /// The adapter it filters on, or `None` on the CPU.
+    pub fn gpu(&self) -> Option<&Gpu> {
+        self.gpu.as_ref().map(Convolution::gpu)
+    }
+
     /// `out = map ∗ kernel`, both `n × n`; `out` may not alias `map`.
     pub fn convolve(&mut self, map: &[f64], out: &mut [f64]) -> Result<(), GpuError> {
         match &mut self.gpu {

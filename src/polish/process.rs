@@ -108,8 +108,6 @@ pub struct Polisher {
     solver: DwellSolver,
     /// The adapter whose WGSL kernel lays the removal (`None`: the native f64 path).
     removal_gpu: Option<Arc<Gpu>>,
-    /// The adapter the dwell solver's FFTs run on, by name (`None`: the CPU).
-    solve_gpu: Option<String>,
 }
 
 /// What [`Polisher::removal_device`] and [`Polisher::solve_device`] say: the adapter
@@ -232,7 +230,6 @@ impl Polisher {
             area,
             solver,
             removal_gpu: None,
-            solve_gpu: None,
         })
     }
 
@@ -252,13 +249,12 @@ impl Polisher {
     /// Solves the dwell with the FFTs of `ops::fft` on `gpu` (any adapter, a CPU one too),
     /// or on the CPU (rustfft, f64) with `None`.
     pub fn solve_with_kernels(&mut self, gpu: Option<Arc<Gpu>>) -> Result<()> {
-        self.solve_gpu = gpu.as_ref().map(|g| g.info().name.clone());
         self.solver.run_on(gpu)
     }
 
     /// Where the dwell is solved: the adapter's name, or `native CPU (f64)`.
     pub fn solve_device(&self) -> String {
-        described(self.solve_gpu.as_deref())
+        described(self.solver.gpu().map(|g| g.info().name.as_str()))
     }
 
     /// Lays the removal with the WGSL kernel on `gpu` (any adapter, a CPU one too), or
