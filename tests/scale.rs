@@ -1,7 +1,9 @@
 //! `iastgcn scale` end to end at a tiny size: the data once at the largest size, the jobs
 //! split over two shards, the summary after them; every size is scored on the same test
 //! windows and the same held-out session (the calibrated and oracle rows do not depend
-//! on the model); a job whose record is lost is redone from its state to the same scores;
+//! on the model); a validation session is scored beside it, kept out of the tables, and
+//! names the recommended model at each size by the rule recomputed here; a job whose
+//! record is lost is redone from its state to the same scores;
 //! a study grows by seeds; another setup in the same folder and bad sizes are refused.
 //! A closed-loop study records its second half of sessions again with a round-0 model
 //! compensating, on the same days, placements and seeds.
@@ -36,7 +38,8 @@ fn scale_shards_scores_every_size_alike_and_resumes() {
         let mut args = vec!["scale", "--config", s(&config), "--sizes", "0.25,0.5"];
         args.extend(["--seeds", "1,2", "--models", "tgcn,mlp"]);
         args.extend(["--held-out-minutes", "0.1", "--warm-up-minutes", "0.2"]);
-        args.extend(["--held-out-sessions", "2", "--out", s(&out)]);
+        args.extend(["--held-out-sessions", "1", "--validation-session"]);
+        args.extend(["--out", s(&out)]);
         args.extend(extra);
         cli(&args)
     };
@@ -63,8 +66,8 @@ fn scale_shards_scores_every_size_alike_and_resumes() {
         .collect();
     let first = &records[0];
     for r in &records {
-        // Four paths in each of two held-out sessions, the second on another day: its
-        // calibrated error differs on every path.
+        // Four paths in the held-out session and in the validation session after it,
+        // on another day: its calibrated error differs on every path.
         assert_eq!(r.paths.len(), 8, "{}", r.name);
         for (a, b) in r.paths[..4].iter().zip(&r.paths[4..]) {
             assert_eq!(
@@ -114,25 +117,65 @@ fn scale_shards_scores_every_size_alike_and_resumes() {
     }
 
     let summary = std::fs::read_to_string(out.join("scale_summary.csv")).unwrap();
-    // 2 models × 2 sizes × 4 paths, each over 2 seeds.
+    // 2 models × 2 sizes × 4 paths, each over 2 seeds and the one test session: the
+    // validation session is in no table.
     let rows: Vec<Vec<&str>> = summary
         .lines()
         .skip(1)
         .map(|l| l.split(',').collect())
         .collect();
     assert_eq!(rows.len(), 16, "{summary}");
-    assert!(rows.iter().all(|r| r[3] == "2" && r[4] == "2"), "{summary}");
+    assert!(rows.iter().all(|r| r[3] == "2" && r[4] == "1"), "{summary}");
     assert_eq!(
         (rows[0][0], rows[0][1], rows[0][5]),
         ("tgcn", "0.25", "grid")
     );
-    assert_eq!(
-        std::fs::read_to_string(out.join("scale.csv"))
-            .unwrap()
+    // Every job's row per path and session, each session's role named.
+    let jobs_csv = std::fs::read_to_string(out.join("scale.csv")).unwrap();
+    assert_eq!(jobs_csv.lines().count(), 1 + 64);
+    for (role, n) in [(",test", 32), (",validation", 32)] {
+        assert_eq!(jobs_csv.lines().filter(|l| l.ends_with(role)).count(), n);
+    }
+    // The recommendation at each size: the rule over the validation session's scores,
+    // computed here again from the records (mean over paths, then over seeds; the
+    // highest mean of position and attitude, if it removes anything).
+    let chosen = std::fs::read_to_string(out.join("scale_validation.csv")).unwrap();
+    for min in ["0.25", "0.5"] {
+        let mut best: Option<(f64, &str)> = None;
+        for m in ["tgcn", "mlp"] {
+            let score: Vec<[f64; 2]> = [1, 2]
+                .map(|k| record(&models.join(format!("{m}.min{min}.seed{k}.job.toml"))))
+                .iter()
+                .map(|r| {
+                    let v: Vec<[f64; 2]> = r.paths[4..]
+                        .iter()
+                        .map(|p| {
+                            assert_eq!(p.session, 1);
+                            p.removed(p.compensated)
+                        })
+                        .collect();
+                    [0, 1].map(|i| v.iter().map(|s| s[i]).sum::<f64>() / 4.0)
+                })
+                .collect();
+            let [pos, att] = [0, 1].map(|i| (score[0][i] + score[1][i]) / 2.0);
+            let line = format!("{min},{m},2,{pos:.3},{att:.3},{:.3},", (pos + att) / 2.0);
+            assert!(chosen.contains(&line), "{line}\n{chosen}");
+            if (pos + att) / 2.0 > best.map_or(0.0, |b| b.0) {
+                best = Some(((pos + att) / 2.0, m));
+            }
+        }
+        let recommended: Vec<&str> = chosen
             .lines()
-            .count(),
-        1 + 64
-    );
+            .filter(|l| l.starts_with(&format!("{min},")) && l.contains(",true,"))
+            .collect();
+        match best {
+            Some((_, m)) => assert!(
+                recommended.len() == 1 && recommended[0].starts_with(&format!("{min},{m},")),
+                "{min}: {m}\n{chosen}"
+            ),
+            None => assert!(recommended.is_empty(), "{chosen}"),
+        }
+    }
     let md = std::fs::read_to_string(out.join("scale.md")).unwrap();
     assert!(md.contains("Jobs finished in this folder: 8 "), "{md}");
     assert!(
@@ -140,7 +183,10 @@ fn scale_shards_scores_every_size_alike_and_resumes() {
         "{md}"
     );
     assert!(
-        md.contains("  - session 2: cold, ambient")
+        md.contains("  - session 2 (**validation**")
+            && md.contains("| session 2 (validation) |")
+            && md.contains("## Recommended model")
+            && md.contains("### 0.5 min per path")
             && md.contains("## By held-out session")
             && md.contains("## Where the error goes"),
         "{md}"
@@ -186,7 +232,8 @@ fn scale_shards_scores_every_size_alike_and_resumes() {
     let mut args = vec!["scale", "--config", s(&config), "--sizes", "0.25,0.5"];
     args.extend(["--seeds", "1,3", "--models", "tgcn,mlp", "--data-only"]);
     args.extend(["--held-out-minutes", "0.1", "--warm-up-minutes", "0.2"]);
-    args.extend(["--held-out-sessions", "2", "--out", s(&out)]);
+    args.extend(["--held-out-sessions", "1", "--validation-session"]);
+    args.extend(["--out", s(&out)]);
     let text = cli(&args);
     assert!(text.contains("4 of 8 jobs done"), "{text}");
     // Another setup in the same folder (here: recordings of another length), and sizes

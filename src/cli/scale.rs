@@ -71,6 +71,12 @@ pub struct ScaleArgs {
     /// (the same minutes; needs --sessions 2 or more). A folder keeps this choice.
     #[arg(long)]
     pub closed_loop: bool,
+    /// Also score every job on a validation session (the one after the held-out
+    /// sessions, never in the tables) and name the model recommended at each size there,
+    /// as `evaluate` does (scale.md "Recommended model", scale_validation.csv). A folder
+    /// keeps this choice.
+    #[arg(long)]
+    pub validation_session: bool,
     #[command(flatten)]
     pub held_out: HeldOutArgs,
 }
@@ -92,6 +98,7 @@ pub fn run(device: Device, args: &ScaleArgs) -> anyhow::Result<()> {
     study.refine = args.refine;
     study.ensemble = args.ensemble;
     study.closed_loop = args.closed_loop;
+    study.validation = args.validation_session;
     study.graph = args.graph.clone();
     let held = args.held_out.config_or(HeldOutConfig {
         minutes: study.held_out_minutes,

@@ -58,11 +58,23 @@ fn removed(calibrated: &TableVRow, by: &TableVRow) -> [f64; 2] {
     ]
 }
 
+/// One trained run on the validation session: the model it is a seed of (its seeds are
+/// grouped under this name), its own name, and the share of the calibrated error its
+/// compensation removed on each path, position and attitude, %.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ValidationRun {
+    /// The model (`iastgcn` for `iastgcn.seed1` …; a seed ensemble is a model of its own).
+    pub model: String,
+    /// The run's own name (a seed's, for the weights to deploy).
+    pub run: String,
+    /// Per path: position and attitude error removed, %.
+    pub shares: Vec<[f64; 2]>,
+}
+
 /// Scores every compensating model of `rows` (one validation session's Table V rows)
 /// and picks the one with the highest mean share removed, over its seeds.
 pub fn recommend(rows: &[TableVRow]) -> Recommendation {
-    // Per run name: the mean over paths of its share removed.
-    let mut runs: Vec<(String, Vec<[f64; 2]>)> = Vec::new();
+    let mut runs: Vec<ValidationRun> = Vec::new();
     for r in rows.iter().filter(|r| r.stage == "compensated") {
         let Some(cal) = rows.iter().find(|c| {
             c.trajectory == r.trajectory && c.session == r.session && c.stage == "calibrated"
@@ -70,33 +82,44 @@ pub fn recommend(rows: &[TableVRow]) -> Recommendation {
             continue;
         };
         let share = removed(cal, r);
-        match runs.iter_mut().find(|(m, _)| *m == r.model) {
-            Some((_, v)) => v.push(share),
-            None => runs.push((r.model.clone(), vec![share])),
+        match runs.iter_mut().find(|v| v.run == r.model) {
+            Some(v) => v.shares.push(share),
+            None => runs.push(ValidationRun {
+                model: split_name(&r.model).0.to_string(),
+                run: r.model.clone(),
+                shares: vec![share],
+            }),
         }
     }
+    recommend_runs(&runs)
+}
+
+/// The rule over trained runs: each model's score is the mean over its runs (seeds) of
+/// the mean over paths of the share removed; the highest mean of position and attitude
+/// is recommended, if it removes anything.
+pub fn recommend_runs(runs: &[ValidationRun]) -> Recommendation {
     let mean = |v: &[[f64; 2]], i: usize| v.iter().map(|s| s[i]).sum::<f64>() / v.len() as f64;
-    let per_run: Vec<(String, [f64; 2])> = runs
+    let per_run: Vec<(&ValidationRun, [f64; 2])> = runs
         .iter()
-        .map(|(m, v)| (m.clone(), [mean(v, 0), mean(v, 1)]))
+        .filter(|r| !r.shares.is_empty())
+        .map(|r| (r, [mean(&r.shares, 0), mean(&r.shares, 1)]))
         .collect();
     let mut scores: Vec<ValidationScore> = Vec::new();
-    for (name, _) in &per_run {
-        let group = split_name(name).0;
-        let of: Vec<&(String, [f64; 2])> = per_run
-            .iter()
-            .filter(|(n, _)| split_name(n).0 == group)
-            .collect();
-        if scores.iter().any(|v| v.model == group) {
+    for (run, _) in &per_run {
+        if scores.iter().any(|v| v.model == run.model) {
             continue;
         }
+        let of: Vec<&(&ValidationRun, [f64; 2])> = per_run
+            .iter()
+            .filter(|(r, _)| r.model == run.model)
+            .collect();
         let n = of.len() as f64;
         let best = of
             .iter()
             .max_by(|a, b| (a.1[0] + a.1[1]).total_cmp(&(b.1[0] + b.1[1])))
-            .map_or(name.clone(), |b| b.0.clone());
+            .map_or(run.run.clone(), |b| b.0.run.clone());
         scores.push(ValidationScore {
-            model: group.to_string(),
+            model: run.model.clone(),
             seeds: of.len(),
             position: of.iter().map(|r| r.1[0]).sum::<f64>() / n,
             attitude: of.iter().map(|r| r.1[1]).sum::<f64>() / n,
@@ -163,17 +186,26 @@ impl Recommendation {
     /// The report's section: the validation session (`session`: its number from 1 and
     /// how it ran, `HeldOutSession::describe`), each model's score, the choice and why.
     pub fn markdown(&self, session: (usize, &str), minutes: f64) -> String {
-        let mut s = format!(
+        format!(
             "Every model compensated a **validation session** of its own, not scored in \
              Table V: {minutes} min runs of the four paths, {}, the raster, the Hilbert curve \
              and the rosette placed where no training or test run lies, the spiral at its \
              one held-out placement (`PathParams::held_out_in`, session {}). Score: the \
              share of the calibrated controller's mean true error removed, position and \
              attitude, each the mean over the four paths and over the model's training \
-             seeds; the recommended model has the highest mean of the two.\n\n\
-             | Model | Seeds | Position removed (%) | Attitude removed (%) | Score |\n\
+             seeds; the recommended model has the highest mean of the two.\n\n{}\n{}\n",
+            session.1,
+            session.0,
+            self.table(),
+            self.sentence()
+        )
+    }
+
+    /// Every model's score as a Markdown table, the recommended model in bold.
+    pub fn table(&self) -> String {
+        let mut s = String::from(
+            "| Model | Seeds | Position removed (%) | Attitude removed (%) | Score |\n\
              |---|---:|---:|---:|---:|\n",
-            session.1, session.0
         );
         for (i, v) in self.scores.iter().enumerate() {
             let mark = if Some(i) == self.best { "**" } else { "" };
@@ -186,9 +218,6 @@ impl Recommendation {
                 v.score()
             ));
         }
-        s.push('\n');
-        s.push_str(&self.sentence());
-        s.push('\n');
         s
     }
 

@@ -25,6 +25,7 @@ use super::protocol::{
     check_seeds, epoch_seconds, existing_data, record_closed_loop, record_data, train_core,
     ClosedLoopRound, ModelFiles, MACHINE_SEED,
 };
+use super::recommend::{recommend_runs, validation_session, Recommendation, ValidationRun};
 use super::report::seeds::{seeded_name, Spread};
 use super::report::TableVRow;
 use crate::data::{DataSources, Dataset};
@@ -99,6 +100,12 @@ pub struct Study {
     /// Needs 2 or more sessions; a folder keeps this choice.
     #[serde(default)]
     pub closed_loop: bool,
+    /// Also score every job on a validation session (the next held-out session,
+    /// [`validation_session`], never in the tables) and name the model recommended at
+    /// each size there by `experiment::recommend`'s rule, as `evaluate` does. A folder
+    /// keeps this choice.
+    #[serde(default)]
+    pub validation: bool,
 }
 
 fn one_session() -> usize {
@@ -130,7 +137,20 @@ impl Study {
             graph: None,
             ensemble: false,
             closed_loop: false,
+            validation: false,
         }
+    }
+
+    /// The held-out sessions every job is scored on: the test sessions, then the
+    /// validation session when there is one.
+    pub fn scored_sessions(&self) -> usize {
+        self.held_out_sessions + usize::from(self.validation)
+    }
+
+    /// The validation session's index, if the study has one.
+    pub fn validation_index(&self) -> Option<usize> {
+        self.validation
+            .then(|| validation_session(self.held_out_sessions))
     }
 
     /// The held-out session every job is scored on.
@@ -501,6 +521,10 @@ pub fn scale(
     if study.ensemble && shard.is_none() {
         score_ensembles(&device, study, &sources, out, reporter)?;
     }
+    // Once more with nothing to do: a finished folder gets this build's summary.
+    if todo.is_empty() {
+        write_summary(study, out, reporter)?;
+    }
     Ok(Progress {
         done: done(&jobs),
         total: jobs.len(),
@@ -604,7 +628,7 @@ fn held_out_scores(
 ) -> Result<Vec<PathScore>> {
     let name = model.name.clone();
     let mut paths = Vec::new();
-    for k in 0..study.held_out_sessions {
+    for k in 0..study.scored_sessions() {
         let options = SessionOptions {
             open_loop: true,
             ..SessionOptions::rows(k)
@@ -848,12 +872,23 @@ fn points(records: &[ScaleRecord], order: &[String]) -> Vec<Point> {
 /// `scale.csv` (a row per job and path), `scale_summary.csv` (mean and SD over seeds per
 /// model, size and path), `scale.md` and `scale.png` from every finished job.
 pub fn write_summary(study: &Study, out: &Path, reporter: &mut dyn Reporter) -> Result<()> {
-    let records = records(out)?;
-    if records.is_empty() {
+    let all = records(out)?;
+    if all.is_empty() {
         return Ok(());
     }
+    let validation = study.validation_index();
+    // The tables and the plot score the test sessions only.
+    let records: Vec<ScaleRecord> = all
+        .iter()
+        .map(|r| {
+            let mut r = r.clone();
+            r.paths.retain(|p| Some(p.session) != validation);
+            r
+        })
+        .collect();
+    let recommended = recommendations(&all, validation);
     let f = |v: f64| format!("{v:.3}");
-    let rows: Vec<Vec<String>> = records
+    let rows: Vec<Vec<String>> = all
         .iter()
         .flat_map(|r| {
             r.paths.iter().map(move |p| {
@@ -881,6 +916,12 @@ pub fn write_summary(study: &Study, out: &Path, reporter: &mut dyn Reporter) -> 
                     f(p.open_loop[1]),
                     f(p.replayed[0]),
                     f(p.replayed[1]),
+                    if Some(p.session) == validation {
+                        "validation"
+                    } else {
+                        "test"
+                    }
+                    .into(),
                 ]
             })
         })
@@ -890,7 +931,7 @@ pub fn write_summary(study: &Study, out: &Path, reporter: &mut dyn Reporter) -> 
          test_att_mae_mdeg,calibrated_pos_um,oracle_pos_um,compensated_pos_um,\
          calibrated_att_mdeg,oracle_att_mdeg,compensated_att_mdeg,pos_removed_pct,\
          att_removed_pct,open_loop_pos_um,open_loop_att_mdeg,replayed_pos_um,\
-         replayed_att_mdeg",
+         replayed_att_mdeg,session_role",
         rows,
     );
     let points = points(&records, &study.models);
@@ -928,11 +969,18 @@ pub fn write_summary(study: &Study, out: &Path, reporter: &mut dyn Reporter) -> 
     );
     let mut batch = crate::atomic::Batch::new();
     let io = |p: &Path, e: std::io::Error| Error::io(p, e);
-    for (name, text) in [
+    let mut texts = vec![
         ("scale.csv", jobs_csv),
         ("scale_summary.csv", summary_csv),
-        ("scale.md", markdown(study, &records, &points)),
-    ] {
+        (
+            "scale.md",
+            markdown(study, (&records, &all), &points, &recommended),
+        ),
+    ];
+    if validation.is_some() {
+        texts.push(("scale_validation.csv", validation_csv(&recommended)));
+    }
+    for (name, text) in texts {
         let path = out.join(name);
         batch
             .add(&path, text.as_bytes())
@@ -943,12 +991,76 @@ pub fn write_summary(study: &Study, out: &Path, reporter: &mut dyn Reporter) -> 
         plot::draw(tmp, &panels(&points), 2, 3, (1500, 900))
     })?;
     batch.commit().map_err(|e| io(out, e))?;
+    for (minutes, r) in &recommended {
+        reporter.note(&format!("at {minutes} min per path: {}", r.sentence()));
+    }
     reporter.note(&format!(
         "summary of {} finished jobs: {}",
         records.len(),
         out.join("scale.md").display()
     ));
     Ok(())
+}
+
+/// The recommendation at each size from the validation session's scores of every record
+/// (each seed a run of its model; a seed ensemble a model of its own), by size; empty
+/// without a validation session.
+fn recommendations(
+    records: &[ScaleRecord],
+    validation: Option<usize>,
+) -> Vec<(f64, Recommendation)> {
+    let Some(k) = validation else {
+        return Vec::new();
+    };
+    let mut sizes: Vec<f64> = records.iter().map(|r| r.minutes).collect();
+    sizes.sort_by(f64::total_cmp);
+    sizes.dedup();
+    sizes
+        .into_iter()
+        .map(|minutes| {
+            let runs: Vec<ValidationRun> = records
+                .iter()
+                .filter(|r| r.minutes == minutes)
+                .map(|r| ValidationRun {
+                    model: r.model.clone(),
+                    run: r.name.clone(),
+                    shares: r
+                        .paths
+                        .iter()
+                        .filter(|p| p.session == k)
+                        .map(|p| p.removed(p.compensated))
+                        .collect(),
+                })
+                .collect();
+            (minutes, recommend_runs(&runs))
+        })
+        .collect()
+}
+
+/// `scale_validation.csv`: every model's score on the validation session, by size.
+fn validation_csv(recommended: &[(f64, Recommendation)]) -> String {
+    let f = |v: f64| format!("{v:.3}");
+    let rows = recommended
+        .iter()
+        .flat_map(|(minutes, r)| {
+            r.scores.iter().enumerate().map(move |(i, v)| {
+                vec![
+                    minutes.to_string(),
+                    v.model.clone(),
+                    v.seeds.to_string(),
+                    f(v.position),
+                    f(v.attitude),
+                    f(v.score()),
+                    (Some(i) == r.best).to_string(),
+                    v.best_seed.clone(),
+                ]
+            })
+        })
+        .collect();
+    csv_text(
+        "minutes,model,seeds,pos_removed_pct,att_removed_pct,score,recommended,best_run",
+        rows,
+    )
 }
 
 /// The plot: position error removed on each held-out path, Hilbert's attitude, and the
@@ -1038,7 +1150,12 @@ fn panels(points: &[Point]) -> Vec<Panel> {
 
 /// `scale.md`: what ran, then per path a table of error removed and test MAE per model
 /// and size, and the held-out sessions one by one.
-fn markdown(study: &Study, records: &[ScaleRecord], points: &[Point]) -> String {
+fn markdown(
+    study: &Study,
+    (records, all): (&[ScaleRecord], &[ScaleRecord]),
+    points: &[Point],
+    recommended: &[(f64, Recommendation)],
+) -> String {
     let minutes = study.recording_minutes;
     let ensembles = records
         .iter()
@@ -1063,8 +1180,19 @@ fn markdown(study: &Study, records: &[ScaleRecord], points: &[Point]) -> String 
     } else {
         "Core stage to early stopping (no refinement)"
     };
-    let sessions: Vec<String> = (0..study.held_out_sessions)
-        .map(|k| format!("  - session {}: {}", k + 1, held.session(k).describe()))
+    let sessions: Vec<String> = (0..study.scored_sessions())
+        .map(|k| {
+            let role = if Some(k) == study.validation_index() {
+                " (**validation**: the model is chosen here; not in the tables)"
+            } else {
+                ""
+            };
+            format!(
+                "  - session {}{role}: {}",
+                k + 1,
+                held.session(k).describe()
+            )
+        })
         .collect();
     let mut s = format!(
         "# Scaling study\n\n- {recorded}; a size of m minutes \
@@ -1133,8 +1261,48 @@ fn markdown(study: &Study, records: &[ScaleRecord], points: &[Point]) -> String 
             ));
         }
     }
+    s.push_str(&recommendation_section(recommended, points));
     s.push_str(&where_it_goes(points));
-    s.push_str(&by_session(records));
+    s.push_str(&by_session(all, study.validation_index()));
+    s
+}
+
+/// `scale.md`'s recommended model at each size: every model's score on the validation
+/// session, the choice, and what the chosen model does on the test sessions' Hilbert runs.
+fn recommendation_section(recommended: &[(f64, Recommendation)], points: &[Point]) -> String {
+    if recommended.is_empty() {
+        return String::new();
+    }
+    let mut s = String::from(
+        "\n## Recommended model\n\nAt each size, every model scored on the validation \
+         session (never in the tables above): the share of the calibrated controller's mean \
+         true error removed, position and attitude, each the mean over the four paths and \
+         the model's seeds; the highest mean of the two is recommended \
+         (`experiment::recommend`, as `evaluate` chooses).\n",
+    );
+    for (minutes, r) in recommended {
+        s.push_str(&format!(
+            "\n### {minutes} min per path\n\n{}\n{}",
+            r.table(),
+            r.sentence()
+        ));
+        let hilbert = r.model().and_then(|v| {
+            points
+                .iter()
+                .find(|p| p.model == v.model && p.minutes == *minutes && p.path == "hilbert")
+        });
+        if let Some(p) = hilbert {
+            s.push_str(&format!(
+                " On the test sessions' Hilbert runs it removes {} % of the position and {} % \
+                 of the attitude error (mean ± SD over {} seed(s) × {} session(s)).",
+                p.pos_removed.text(1),
+                p.att_removed.text(1),
+                p.seeds,
+                p.sessions
+            ));
+        }
+        s.push('\n');
+    }
     s
 }
 
@@ -1187,7 +1355,7 @@ fn where_it_goes(points: &[Point]) -> String {
 
 /// `scale.md`'s last section: per path and held-out session, the calibrated error, what
 /// the oracle removes, and each model and size's share removed (mean over seeds).
-fn by_session(records: &[ScaleRecord]) -> String {
+fn by_session(records: &[ScaleRecord], validation: Option<usize>) -> String {
     let sessions = records
         .iter()
         .flat_map(|r| r.paths.iter().map(|p| p.session))
@@ -1209,8 +1377,11 @@ fn by_session(records: &[ScaleRecord]) -> String {
     for path in PathKind::ALL.map(PathKind::name) {
         s.push_str(&format!("\n### {path}\n\n| | "));
         s.push_str(
-            &(1..=sessions)
-                .map(|k| format!("session {k}"))
+            &(0..sessions)
+                .map(|k| match Some(k) == validation {
+                    true => format!("session {} (validation)", k + 1),
+                    false => format!("session {}", k + 1),
+                })
                 .collect::<Vec<_>>()
                 .join(" | "),
         );
