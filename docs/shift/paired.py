@@ -5,12 +5,13 @@ calibrated error removed on every held-out path, paired by training seed and hel
 session. "better"/"worse" when the mean paired difference exceeds the SD of the paired
 differences (the demo's rule), else "within". Also the diagnosis columns per folder.
 
-    python3 docs/shift/paired.py docs/shift/s1 docs/shift/s4 [model [model_b]]
+    python3 docs/shift/paired.py docs/shift/s1 docs/shift/s4 [model [model_b]] [--sessions=1,2,3]
 
 With a second model, the first folder's `model` is compared with the second folder's
 `model_b` (the same folder twice compares two models on the same data). A seed ensemble
 (`<model>-ensemble`, `scale --ensemble`, recorded as seed 0) is paired with each seed of
-the other side on the same held-out session.
+the other side on the same held-out session. `--sessions=` keeps only the held-out
+sessions listed (from 1), e.g. to leave out a folder's validation session.
 """
 import statistics
 import sys
@@ -39,10 +40,16 @@ def spread(v):
 
 
 def main():
-    a, b = sys.argv[1], sys.argv[2]
-    model = sys.argv[3] if len(sys.argv) > 3 else "iastgcn"
-    model_b = sys.argv[4] if len(sys.argv) > 4 else model
+    only = [a.split("=", 1)[1] for a in sys.argv[1:] if a.startswith("--sessions=")]
+    args = [a for a in sys.argv[1:] if not a.startswith("--sessions=")]
+    a, b = args[0], args[1]
+    model = args[2] if len(args) > 2 else "iastgcn"
+    model_b = args[3] if len(args) > 3 else model
     ra, rb = records(a, model), records(b, model_b)
+    if only:
+        keep = {int(k) - 1 for k in only[0].split(",")}
+        ra = {k: v for k, v in ra.items() if k[1] in keep}
+        rb = {k: v for k, v in rb.items() if k[1] in keep}
     # An ensemble (seed 0) stands beside every seed of the other side, session by session.
     for one, other in ((ra, rb), (rb, ra)):
         if one and all(k[0] == 0 for k in one) and not all(k[0] == 0 for k in other):
