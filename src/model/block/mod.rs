@@ -1,9 +1,35 @@
 //! One ST block on the device (docs/model.md steps 1–7): its activation buffers and the
-//! shape of every op it runs, shared by the forward schedule (`forward.rs`) and the
-//! backward one (`backward.rs`), each op by op in the order of docs/model.md.
+//! shape of every op it runs, and the steps as named methods, one file per step holding
+//! its `_forward` and its `_backward` side by side (as the native block,
+//! `model::native::block`, does). [`Block::forward`] (`forward.rs`) calls the steps in
+//! order and [`Block::backward`] (`backward.rs`) the same list reversed, each backward
+//! step taking the gradient the later step left and returning what the earlier one needs
+//! (its buffers from `Scratch`).
+//!
+//! | step | docs/model.md | native step |
+//! |---|---|---|
+//! | `temporal_attention` | 1: E' and X_t = X·(E' + I) | the same |
+//! | `spatial_attention` | 2: S'; backward: dX_t, Qᵀ·dM (step 3's term) added last | S'; dX_t without Qᵀ·dM |
+//! | `graph_conv` | 3: Ψ, Q = Ψ·(I + S'), M = Q·X_t, Z = ReLU(Wᵀ·M); backward from dG, past Z's ReLU | the same, backward from dZ |
+//! | `graph_attention` | 3 of `st-gat`: Q = Wᵀ·X, α, Z = ReLU(Σ_j α_ij Q_j); backward from dG | inside `graph_conv` |
+//! | `gated_dcc` | 4: the unfolding, G_f and G_g with their biases, and H = tanh(G_f) ⊙ σ(G_g) (ReLU(G_f) in `iastgcn-t`); backward to dG, Z's ReLU mask fused into the unfolding's backward | no H (`residual_layer_norm` forms it); backward to dZ |
+//! | `residual_layer_norm` | 5 and 6: A = ReLU(H + R + b) accumulated onto H, then the whole LayerNorm | 5 and 6 up to the statistics |
+//! | `dropout` | 7 | fused with 6's affine map in `layer_norm_dropout` |
+//!
+//! The schedule is the one the single forward and backward functions built before the
+//! split: the same ops in the same order on the same buffers. The native block's tests
+//! (`model::native::block::tests`) run each step here too, against the same f64
+//! reference values as the native step.
 
 mod backward;
+mod dropout;
 mod forward;
+mod gated_dcc;
+mod graph_attention;
+mod graph_conv;
+mod residual_layer_norm;
+mod spatial_attention;
+mod temporal_attention;
 
 use super::config::ModelConfig;
 use crate::gpu::{DType, Gpu, GpuError, Tensor};

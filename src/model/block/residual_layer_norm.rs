@@ -1,0 +1,128 @@
+//! Steps 5–6, the residual 1×1 convolution and LayerNorm (docs/model.md), forward and
+//! backward. The boundaries differ from the native `residual_layer_norm`'s (R,
+//! A = ReLU(H + R) and the statistics) and `layer_norm_dropout`'s (the affine map and the
+//! dropout): here the residual product accumulates onto H (step 4 wrote it) with its bias
+//! and the ReLU in the epilogue, and LayerNorm is whole, affine map included; the dropout
+//! is `dropout.rs`.
+
+use super::{Block, ParamTable, Pass};
+use crate::gpu::{Gpu, GpuError, Tensor};
+use crate::model::schedule::{Scratch, Steps};
+use crate::ops::layer_norm::LayerNorm;
+use crate::ops::matmul::Epilogue;
+use crate::ops::Accumulate::{Add, Overwrite};
+
+impl Block {
+    /// A = ReLU(H + R + res.bias) in place of H (`s`), then Y = LayerNorm(A) (into `y`
+    /// for [`Pass::Train`]; inference has no dropout and writes the block output).
+    pub(crate) fn residual_layer_norm_forward(
+        &self,
+        gpu: &Gpu,
+        p: &dyn ParamTable,
+        steps: &mut Steps,
+        pass: Pass,
+    ) -> Result<(), GpuError> {
+        let w = |s: &str| p.param(&self.name(s));
+        let x = &self.input;
+        let residual = Epilogue {
+            bias: Some(w("res.bias")),
+            relu: true,
+            ..Epilogue::default()
+        };
+        let x_res = match &self.x_last {
+            Some(x_last) => {
+                steps.run(self.input_last_step().forward(gpu, x, x_last))?;
+                x_last
+            }
+            None => x,
+        };
+        steps.run(self.mm_res().forward_with(
+            gpu,
+            w("res.weight"),
+            x_res,
+            &self.s,
+            Add,
+            residual,
+        ))?;
+        let y = if pass == Pass::Train {
+            &self.y
+        } else {
+            &self.output
+        };
+        steps.run(self.layer_norm().forward(
+            gpu,
+            &self.s,
+            w("ln.gamma"),
+            w("ln.beta"),
+            y,
+            &self.mean,
+            &self.rstd,
+        ))?;
+        Ok(())
+    }
+
+    /// From dY (`[B, N, C, to]`) into dγ, dβ, d res.weight and d res.bias; dA masked by
+    /// A's ReLU (returned: it is dH, and dR) and dX = res.weightᵀ·dA, which *overwrites*
+    /// `d_in` (all of it; zero off the last step in a trimmed block) for the later steps'
+    /// backward to add to.
+    pub(crate) fn residual_layer_norm_backward(
+        &self,
+        gpu: &Gpu,
+        p: &dyn ParamTable,
+        scratch: &mut Scratch,
+        steps: &mut Steps,
+        dy: &Tensor,
+        d_in: &Tensor,
+    ) -> Result<Tensor, GpuError> {
+        let d = self.d;
+        let w = |s: &str| p.param(&self.name(s));
+        let dw = |s: &str| p.grad(&self.name(s));
+        let x = &self.input;
+        // LayerNorm and the ReLU before it (its input was the ReLU's output; the mask is
+        // applied by the LayerNorm backward).
+        let ln = LayerNorm {
+            relu_input: true,
+            ..self.layer_norm()
+        };
+        let ds = scratch.get("dS", &[d.b, d.n, d.c, d.to])?;
+        steps.run(ln.backward_input(
+            gpu,
+            &self.s,
+            w("ln.gamma"),
+            dy,
+            &self.mean,
+            &self.rstd,
+            &ds,
+            Overwrite,
+        ))?;
+        steps.run(ln.backward_params(
+            gpu,
+            &self.s,
+            dy,
+            &self.mean,
+            &self.rstd,
+            dw("ln.gamma"),
+            dw("ln.beta"),
+            Overwrite,
+        ))?;
+        // Residual: ∂/∂H = ∂/∂R = dS.
+        let bias = self.channel_bias();
+        let res = self.mm_res();
+        steps.run(bias.backward(gpu, &ds, dw("res.bias"), Overwrite))?;
+        match &self.x_last {
+            Some(x_last) => {
+                // Only the last step of the input reached the residual: its gradient
+                // there, zero elsewhere (this writes all of d_in).
+                let dx_last = scratch.get("dx_last", &[d.b, d.n, d.ci])?;
+                steps.run(res.backward_a(gpu, x_last, &ds, dw("res.weight"), Overwrite))?;
+                steps.run(res.backward_b(gpu, w("res.weight"), &ds, &dx_last, Overwrite))?;
+                steps.run(self.input_last_step().backward(gpu, &dx_last, d_in))?;
+            }
+            None => {
+                steps.run(res.backward_a(gpu, x, &ds, dw("res.weight"), Overwrite))?;
+                steps.run(res.backward_b(gpu, w("res.weight"), &ds, d_in, Overwrite))?;
+            }
+        }
+        Ok(ds)
+    }
+}
