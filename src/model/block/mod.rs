@@ -495,4 +495,27 @@ impl Block {
     pub fn dropout(&self) -> Dropout {
         self.dropout
     }
+
+    /// A buffer the steps read or write, by its role, for the tests that run one step
+    /// alone (`model::native::block::tests`): `input`, `E'`, `X_t`, `S'`, `Psi`, `Z`,
+    /// `G_f`, `G_g`, `H` (then A = ReLU(H + R + b)), `Y`, `output`.
+    #[cfg(test)]
+    pub(crate) fn buffer(&self, role: &str) -> &Tensor {
+        // invariant: test support: an attention buffer is asked for only in a variant with it.
+        let attention = || self.sat.as_ref().expect("the variant attends");
+        match role {
+            "input" => &self.input,
+            "E'" => &self.tat.as_ref().expect("the variant attends").ep,
+            "X_t" => &attention().xt,
+            "S'" => &attention().sp,
+            "Psi" => &self.psi,
+            "Z" => &self.z,
+            "G_f" => &self.f,
+            "G_g" => &self.gg,
+            "H" => &self.s,
+            "Y" => &self.y,
+            "output" => &self.output,
+            _ => panic!("no block buffer {role}"),
+        }
+    }
 }
