@@ -1,0 +1,308 @@
+//! One test per step of the ST block across its three implementations: the same random
+//! case goes through the f64 reference of the step's op, the native f32 step (this
+//! module's parent) and the WGSL step (`model::block`, run alone on the device), forward
+//! and backward, so that a wrong step in either implementation is named by the failing
+//! assertion ("gated_dcc iastgcn block 1 (wgsl): d gate.weight: element 3 …"; "(native)"
+//! for the native step). One file per step, each with its test, its reference and what
+//! only it writes out:
+//!
+//! | file | step | reference |
+//! |---|---|---|
+//! | `temporal_attention.rs` | 1 | `model::reference::attention` |
+//! | `spatial_attention.rs` | 2 (and at the taps the time mixing X·(I + E'), written out there) | `model::reference::attention` |
+//! | `graph_conv.rs` | 3 (`st-gat`: its graph attention) | `model::reference::graph_conv` |
+//! | `gated_dcc.rs` | 4 | `ops::gated_dcc::cpu` |
+//! | `residual_layer_norm.rs` | 5–7: native `residual_layer_norm` and `layer_norm_dropout`, WGSL `residual_layer_norm` and `dropout` | `ops::layer_norm::cpu` (the residual 1×1 convolution and the ReLUs around it written out there, a sum each) |
+//!
+//! Each runs in a block with every output step and in a last block, gated (`iastgcn`)
+//! and not (`iastgcn-t`); `graph_conv` in `iastgcn`, `iastgcn-a` (no attention),
+//! `iastgcn-s` (the Chebyshev basis) and `st-gat` (its graph attention, every step in
+//! both blocks). In the last block the native steps keep steps 4–7 at T − 1 and X_t, M
+//! and Z at the taps; the WGSL block ([`Extent::LastStep`]) computes steps 4–7 at T − 1
+//! and steps 1–3 on all T steps, and is compared there. Each step reads its inputs from
+//! the reference's earlier steps (rounded to f32), not from the implementation's own, so
+//! that a wrong earlier step does not fail it; where a WGSL step's boundary differs from
+//! the native one (`model::block`'s step table), its input or output is converted in the
+//! step's file (dG = dZ masked by Z > 0, the dropout of a batch of one). Both f32 paths
+//! are held to the same tolerance.
+//!
+//! This file holds what more than one step's test uses: the random case ([`case`]), the
+//! comparisons ([`check`], [`check_grads`]), the WGSL block run one step at a time
+//! ([`Device`]), the kept steps' layout ([`at_cols`], [`from_cols`]) and the node mixing
+//! (I + S')·X_t, which the reference does in step 2 and both blocks in step 3, backward
+//! ([`node_mix_backward`]).
+#![cfg(test)]
+
+mod gated_dcc;
+mod graph_conv;
+mod residual_layer_norm;
+mod spatial_attention;
+mod temporal_attention;
+
+use super::tape::{Cols, Tape, Work};
+use crate::gpu::{DType, Gpu, GpuError, Recorder, Tensor};
+use crate::model::block::{Block as Wgsl, Extent, ParamTable};
+use crate::model::config::{ModelConfig, Variant};
+use crate::model::native::slots::Slots;
+use crate::model::params::{param_specs, ParamSpec, Parameters};
+use crate::model::reference::Grads;
+use crate::model::schedule::{Scratch, Steps};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::collections::HashMap;
+use std::sync::OnceLock;
+
+/// f32 steps against f64 sums of a few dozen terms of order 1: |a − e| ≤ ABS + REL·|e|.
+/// (`crate::testing` has the same comparison, but `model` may not import it.)
+const ABS: f64 = 2e-5;
+const REL: f64 = 2e-4;
+
+/// `n` values uniform in [lo, hi) from a generator seeded with `seed`.
+fn uniform(seed: u64, n: usize, lo: f64, hi: f64) -> Vec<f64> {
+    let mut g = ChaCha8Rng::seed_from_u64(seed);
+    (0..n).map(|_| g.random_range(lo..hi)).collect()
+}
+
+/// A small network of `variant` (C 8, T 12, L 2: block 1 is the last) with its
+/// parameters perturbed away from their initial values, and its memory.
+struct Case {
+    cfg: ModelConfig,
+    slots: Slots,
+    params: Vec<Vec<f32>>,
+    tape: Tape,
+    work: Work,
+}
+
+fn case(variant: Variant) -> Case {
+    let cfg = ModelConfig {
+        variant,
+        channels: 8,
+        window: 12,
+        blocks: 2,
+        ..ModelConfig::default()
+    };
+    let slots = Slots::new(&cfg, &param_specs(&cfg)).unwrap();
+    let params = Parameters::init(&cfg, 1)
+        .values
+        .into_iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let noise = uniform(100 + i as u64, v.len(), -0.2, 0.2);
+            v.iter().zip(noise).map(|(a, e)| a + e as f32).collect()
+        })
+        .collect();
+    Case {
+        tape: Tape::new(&cfg, &slots),
+        work: Work::new(&cfg),
+        cfg,
+        slots,
+        params,
+    }
+}
+
+fn wide(v: &[f32]) -> Vec<f64> {
+    v.iter().map(|&x| x as f64).collect()
+}
+
+/// `n` random values in [lo, hi), already f32.
+fn random(seed: u64, n: usize, lo: f64, hi: f64) -> Vec<f32> {
+    uniform(seed, n, lo, hi).iter().map(|&v| v as f32).collect()
+}
+
+/// Panics naming `what` and the worst element unless every element is within tolerance.
+fn check(what: &str, actual: &[f64], expected: &[f64]) {
+    assert_eq!(actual.len(), expected.len(), "{what}: lengths");
+    for (i, (a, e)) in actual.iter().zip(expected).enumerate() {
+        assert!(
+            (a - e).abs() <= ABS + REL * e.abs(),
+            "{what}: element {i} is {a}, expected {e}"
+        );
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// The WGSL block (`model::block`), one step at a time.
+
+/// The device every test shares (made as `crate::testing::gpu()` makes one; `model` may
+/// not import `testing`): each test's pipelines are compiled once.
+fn gpu() -> &'static Gpu {
+    static GPU: OnceLock<Gpu> = OnceLock::new();
+    // invariant: test support: a test without a device fails with the reason.
+    GPU.get_or_init(|| Gpu::new().unwrap_or_else(|e| panic!("{e}")))
+}
+
+/// The parameters and their (zeroed) gradients on the device, by name, and the graph
+/// basis.
+struct DeviceParams {
+    tensors: HashMap<String, (Tensor, Tensor)>,
+    basis: Option<Tensor>,
+}
+
+impl ParamTable for DeviceParams {
+    fn param(&self, name: &str) -> &Tensor {
+        if name == "graph.basis" {
+            return self.basis.as_ref().expect("the case has a graph basis");
+        }
+        &self.tensors[name].0
+    }
+
+    fn grad(&self, name: &str) -> &Tensor {
+        &self.tensors[name].1
+    }
+}
+
+/// Block `l` of the WGSL path on one window (batch 1) of `cfg`, with `params` (in
+/// `param_specs` order), the graph `basis` (`[terms, N, N]`, empty for none) and the
+/// block input `x` `[N, C_in, T]` uploaded: [`Extent::LastStep`] for the last block, as
+/// the network builds it (steps 4–7 at T − 1 only), [`Extent::Window`] otherwise; its
+/// dropout seeded with [`Device::SEED`].
+struct Device {
+    specs: Vec<ParamSpec>,
+    table: DeviceParams,
+    block: Wgsl,
+}
+
+impl Device {
+    const SEED: u32 = 3;
+
+    fn new(cfg: &ModelConfig, l: usize, params: &[Vec<f32>], basis: &[f32], x: &[f32]) -> Device {
+        let g = gpu();
+        let specs = param_specs(cfg);
+        let tensors = specs
+            .iter()
+            .zip(params)
+            .map(|(spec, v)| {
+                let value = g.upload(&spec.name, &spec.shape, v).unwrap();
+                let grad = g.zeros(&format!("grad {}", spec.name), &spec.shape, DType::F32);
+                (spec.name.clone(), (value, grad.unwrap()))
+            })
+            .collect();
+        let basis =
+            (!basis.is_empty()).then(|| g.upload("graph.basis", &[basis.len()], basis).unwrap());
+        let (n, t, ci) = (cfg.nodes, cfg.window, cfg.block_input(l));
+        let input = g.upload("x", &[1, n, ci, t], x).unwrap();
+        let extent = if l + 1 == cfg.blocks {
+            Extent::LastStep
+        } else {
+            Extent::Window
+        };
+        let block = Wgsl::new(g, cfg, l, 1, &input, Device::SEED, extent).unwrap();
+        Device {
+            specs,
+            table: DeviceParams { tensors, basis },
+            block,
+        }
+    }
+
+    /// Overwrites the block's buffer of `role` ([`Wgsl::buffer`]).
+    fn write(&self, role: &str, data: &[f32]) {
+        gpu().write(self.block.buffer(role), data).unwrap();
+    }
+
+    /// A new device tensor holding `data`.
+    fn upload(&self, name: &str, data: &[f32]) -> Tensor {
+        gpu().upload(name, &[data.len()], data).unwrap()
+    }
+
+    fn read(&self, t: &Tensor) -> Vec<f64> {
+        let mut v = gpu().read_f32(t).unwrap();
+        v.truncate(t.numel());
+        wide(&v)
+    }
+
+    fn read_buffer(&self, role: &str) -> Vec<f64> {
+        self.read(self.block.buffer(role))
+    }
+
+    /// Every parameter's gradient, in `param_specs` order.
+    fn grads(&self) -> Vec<Vec<f32>> {
+        self.specs
+            .iter()
+            .map(|s| narrow(&self.read(self.table.grad(&s.name))))
+            .collect()
+    }
+
+    /// Runs the dispatches `f` schedules (one step's methods) and waits for them;
+    /// returns what `f` returned.
+    fn run<R>(
+        &self,
+        f: impl FnOnce(&Wgsl, &DeviceParams, &mut Scratch, &mut Steps) -> Result<R, GpuError>,
+    ) -> R {
+        let g = gpu();
+        let mut scratch = Scratch::new(g);
+        let mut steps = Steps::default();
+        let r = f(&self.block, &self.table, &mut scratch, &mut steps).unwrap();
+        let mut rec = Recorder::new(g);
+        steps.record(&mut rec).unwrap();
+        rec.submit().unwrap();
+        g.wait().unwrap();
+        r
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// For steps 1–3, against `model::reference`'s f64 steps (`attention.rs`, `graph_conv.rs`).
+
+fn narrow(v: &[f64]) -> Vec<f32> {
+    v.iter().map(|&x| x as f32).collect()
+}
+
+/// Zero gradients of every parameter, for the reference to add to.
+fn zero_grads(specs: &[ParamSpec]) -> Grads<'_> {
+    Grads {
+        specs,
+        values: specs.iter().map(|s| vec![0.0; s.numel()]).collect(),
+    }
+}
+
+/// Every parameter's gradient of the native step against the reference's: a step adds to
+/// its own parameters and leaves every other one zero.
+fn check_grads(what: &dyn Fn(&str) -> String, native: &[Vec<f32>], reference: &Grads) {
+    for ((spec, a), e) in reference.specs.iter().zip(native).zip(&reference.values) {
+        check(&what(&format!("d {}", spec.name)), &wide(a), e);
+    }
+}
+
+/// Rows of T `[.., T]` at the kept steps, `[.., cols.len]`.
+fn at_cols(cols: &Cols, v: &[f64], t: usize) -> Vec<f64> {
+    v.chunks(t)
+        .flat_map(|r| (0..cols.len).map(move |j| r[cols.first + cols.stride * j]))
+        .collect()
+}
+
+/// The adjoint of [`at_cols`]: rows of `cols.len` to rows of T, zero off the kept steps.
+fn from_cols(cols: &Cols, v: &[f64], t: usize) -> Vec<f64> {
+    let mut out = vec![0.0; v.len() / cols.len * t];
+    for (r, o) in v.chunks(cols.len).zip(out.chunks_mut(t)) {
+        for (j, &x) in r.iter().enumerate() {
+            o[cols.first + cols.stride * j] = x;
+        }
+    }
+    out
+}
+
+/// The node mixing X_s = (I + S')·X_t (rows of `width` per node) backward from dX_s:
+/// (dS' = dX_s·X_tᵀ, dX_t = (I + S')ᵀ·dX_s). The reference computes it first thing in
+/// `spatial_attention_backward`, not as a function of its own, and the native block in
+/// `graph_conv` (Q = Ψ·(I + S')): written out here, a sum each.
+fn node_mix_backward(
+    n: usize,
+    width: usize,
+    s: &[f64],
+    xt: &[f64],
+    dxs: &[f64],
+) -> (Vec<f64>, Vec<f64>) {
+    let mut ds = vec![0.0; n * n];
+    let mut dxt = dxs.to_vec();
+    for i in 0..n {
+        let gi = &dxs[i * width..][..width];
+        for j in 0..n {
+            let xj = &xt[j * width..][..width];
+            ds[i * n + j] = gi.iter().zip(xj).map(|(g, x)| g * x).sum();
+            for (d, g) in dxt[j * width..][..width].iter_mut().zip(gi) {
+                *d += s[i * n + j] * g;
+            }
+        }
+    }
+    (ds, dxt)
+}
