@@ -4,11 +4,11 @@
 use super::attention::{
     spatial_attention, spatial_attention_backward, temporal_attention, temporal_attention_backward,
 };
-use super::causal_conv::{causal_conv, temporal_conv_backward, temporal_output};
+use super::gated_dcc::{gated_dcc_backward, gated_dcc_conv, gated_dcc_output};
 use super::graph_conv::{
     graph_attention, graph_attention_backward, graph_conv, graph_conv_backward, graph_kernel,
 };
-use super::norm::{layer_norm, layer_norm_backward, residual, residual_backward};
+use super::residual_layer_norm::{layer_norm, layer_norm_backward, residual, residual_backward};
 use super::{axpy, BlockParams, BlockTape, Dims, DropoutStep, Grads};
 use crate::model::ModelConfig;
 use crate::ops::dropout::keep;
@@ -41,9 +41,9 @@ pub(super) fn block_forward(
     };
     // Step 4.
     let dil = config.dilation(l);
-    let filter = causal_conv(d, dil, p.filter_weight, p.filter_bias, &z);
-    let gate = p.gate.map(|(w, b)| causal_conv(d, dil, w, b, &z));
-    let h = temporal_output(&filter, gate.as_deref());
+    let filter = gated_dcc_conv(d, dil, p.filter_weight, p.filter_bias, &z);
+    let gate = p.gate.map(|(w, b)| gated_dcc_conv(d, dil, w, b, &z));
+    let h = gated_dcc_output(&filter, gate.as_deref());
     // Step 5, and the ReLU of step 6.
     let mut act = residual(d, p.res_weight, p.res_bias, x);
     for (a, h) in act.iter_mut().zip(&h) {
@@ -114,7 +114,7 @@ pub(super) fn block_backward(
     grads.add(&p.name("res.bias"), &db);
     // Step 4.
     let dil = config.dilation(l);
-    let dz = temporal_conv_backward(
+    let dz = gated_dcc_backward(
         d,
         dil,
         p,

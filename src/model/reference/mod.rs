@@ -9,7 +9,7 @@
 //!
 //! This file holds the tape, the helpers and parameter lookup every step uses, and the
 //! whole network; one file per op family holds the steps: `attention.rs` (steps 1–2),
-//! `graph_conv.rs` (step 3), `causal_conv.rs` (step 4), `norm.rs` (steps 5–6),
+//! `graph_conv.rs` (step 3), `gated_dcc.rs` (step 4), `residual_layer_norm.rs` (steps 5–6),
 //! `block.rs` (one ST block, steps 1–7) and `head.rs` (the head and the loss weights).
 //! Where an op has its own f64 reference next to its kernels (`ops::gated_dcc::cpu` for
 //! step 4, `ops::layer_norm::cpu` for step 6), the step here composes that one instead of
@@ -28,10 +28,10 @@ pub mod recurrent;
 
 pub(crate) mod attention;
 mod block;
-mod causal_conv;
+mod gated_dcc;
 pub(crate) mod graph_conv;
 mod head;
-mod norm;
+mod residual_layer_norm;
 
 use super::{ModelConfig, ParamSpec};
 use crate::ops::dropout::Dropout;

@@ -24,7 +24,7 @@ fn taps(d: &Dims, weight: &[f64]) -> usize {
 }
 
 /// G[b,n,o,t] = bias[o] + Σ_c Σ_k weight[o,c,k]·Z[b,n,c,t − dil·k] (zero before t = 0).
-pub(super) fn causal_conv(
+pub(super) fn gated_dcc_conv(
     d: &Dims,
     dil: usize,
     weight: &[f64],
@@ -35,7 +35,7 @@ pub(super) fn causal_conv(
 }
 
 /// H = tanh(G_f) ⊙ σ(G_g) (gated, eq. 31) or ReLU(G_f) (`iastgcn-t`).
-pub(super) fn temporal_output(filter: &[f64], gate: Option<&[f64]>) -> Vec<f64> {
+pub(super) fn gated_dcc_output(filter: &[f64], gate: Option<&[f64]>) -> Vec<f64> {
     match gate {
         Some(gate) => cpu::gate(filter, gate),
         None => filter.iter().map(|&f| f.max(0.0)).collect(),
@@ -44,7 +44,7 @@ pub(super) fn temporal_output(filter: &[f64], gate: Option<&[f64]>) -> Vec<f64> 
 
 /// Backward of step 4 from dL/dH: returns dL/dZ, adds the convolution gradients.
 #[allow(clippy::too_many_arguments)]
-pub(super) fn temporal_conv_backward(
+pub(super) fn gated_dcc_backward(
     d: &Dims,
     dil: usize,
     p: &BlockParams,
