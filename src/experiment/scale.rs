@@ -9,7 +9,10 @@
 //! against hidden truth. Jobs are resumable and shardable
 //! as `reproduce`'s; the summary (`scale.csv`, `scale_summary.csv`, `scale.md`,
 //! `scale.png`) is rewritten from every finished job after each one, so a study stopped
-//! early still reports what it has.
+//! early still reports what it has. With a validation session (`Study::validation`)
+//! every job is scored on one more held-out session, kept out of those tables, on which
+//! `experiment::recommend`'s rule names the model to use at each size (`scale.md`
+//! "Recommended model", `scale_validation.csv`).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -869,8 +872,9 @@ fn points(records: &[ScaleRecord], order: &[String]) -> Vec<Point> {
     out
 }
 
-/// `scale.csv` (a row per job and path), `scale_summary.csv` (mean and SD over seeds per
-/// model, size and path), `scale.md` and `scale.png` from every finished job.
+/// `scale.csv` (a row per job, session and path), `scale_summary.csv` (mean and SD over
+/// seeds and test sessions per model, size and path), `scale.md`, `scale.png` and, with a
+/// validation session, `scale_validation.csv`, from every finished job.
 pub fn write_summary(study: &Study, out: &Path, reporter: &mut dyn Reporter) -> Result<()> {
     let all = records(out)?;
     if all.is_empty() {
