@@ -83,8 +83,9 @@ pub struct Network {
     loss_slots: [usize; 2],
 }
 
-/// Name lookups for the block schedules.
-struct Table<'a> {
+/// Name lookups for the block schedules (also the step tests' table,
+/// `model::native::block::tests`).
+pub(crate) struct Table<'a> {
     specs: &'a [ParamSpec],
     params: &'a [Tensor],
     grads: &'a [Tensor],
@@ -92,7 +93,22 @@ struct Table<'a> {
     basis: Option<&'a Tensor>,
 }
 
-impl Table<'_> {
+impl<'a> Table<'a> {
+    /// The table of `params` and `grads`, each in `specs` order, and the graph basis.
+    pub(crate) fn new(
+        specs: &'a [ParamSpec],
+        params: &'a [Tensor],
+        grads: &'a [Tensor],
+        basis: Option<&'a Tensor>,
+    ) -> Table<'a> {
+        Table {
+            specs,
+            params,
+            grads,
+            basis,
+        }
+    }
+
     fn index(&self, name: &str) -> usize {
         // invariant: the schedules ask only for names of param_specs(config), from which the table is built.
         self.specs
@@ -204,12 +220,7 @@ impl Network {
         let target = gpu.zeros("y", &[batch, o], DType::F32)?;
         let output = gpu.zeros("y_hat", &[batch, o], DType::F32)?;
         let loss = gpu.zeros("loss", &[1], DType::F32)?;
-        let table = Table {
-            specs: &specs,
-            params: &params,
-            grads: &grads,
-            basis: basis.as_ref(),
-        };
+        let table = Table::new(&specs, &params, &grads, basis.as_ref());
         let io = Io {
             input: &input,
             input_grad: &input_grad,

@@ -41,15 +41,15 @@ mod temporal_attention;
 
 use super::tape::{Cols, Tape, Work};
 use crate::gpu::{DType, Gpu, GpuError, Recorder, Tensor};
-use crate::model::block::{Block as Wgsl, Extent, ParamTable};
+use crate::model::block::{Block as Wgsl, Extent};
 use crate::model::config::{ModelConfig, Variant};
 use crate::model::native::slots::Slots;
+use crate::model::network::Table;
 use crate::model::params::{param_specs, ParamSpec, Parameters};
 use crate::model::reference::Grads;
 use crate::model::schedule::{Scratch, Steps};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use std::collections::HashMap;
 use std::sync::OnceLock;
 
 /// f32 steps against f64 sums of a few dozen terms of order 1: |a − e| ≤ ABS + REL·|e|.
@@ -131,26 +131,6 @@ fn gpu() -> &'static Gpu {
     GPU.get_or_init(|| Gpu::new().unwrap_or_else(|e| panic!("{e}")))
 }
 
-/// The parameters and their (zeroed) gradients on the device, by name, and the graph
-/// basis.
-struct DeviceParams {
-    tensors: HashMap<String, (Tensor, Tensor)>,
-    basis: Option<Tensor>,
-}
-
-impl ParamTable for DeviceParams {
-    fn param(&self, name: &str) -> &Tensor {
-        if name == "graph.basis" {
-            return self.basis.as_ref().expect("the case has a graph basis");
-        }
-        &self.tensors[name].0
-    }
-
-    fn grad(&self, name: &str) -> &Tensor {
-        &self.tensors[name].1
-    }
-}
-
 /// Block `l` of the WGSL path on one window (batch 1) of `cfg`, with `params` (in
 /// `param_specs` order), the graph `basis` (`[terms, N, N]`, empty for none) and the
 /// block input `x` `[N, C_in, T]` uploaded: [`Extent::LastStep`] for the last block, as
@@ -158,7 +138,10 @@ impl ParamTable for DeviceParams {
 /// dropout seeded with [`Device::SEED`].
 struct Device {
     specs: Vec<ParamSpec>,
-    table: DeviceParams,
+    /// The parameters and their (zeroed) gradients, in `specs` order.
+    params: Vec<Tensor>,
+    grads: Vec<Tensor>,
+    basis: Option<Tensor>,
     block: Wgsl,
 }
 
@@ -168,15 +151,15 @@ impl Device {
     fn new(cfg: &ModelConfig, l: usize, params: &[Vec<f32>], basis: &[f32], x: &[f32]) -> Device {
         let g = gpu();
         let specs = param_specs(cfg);
-        let tensors = specs
+        let (params, grads) = specs
             .iter()
             .zip(params)
             .map(|(spec, v)| {
                 let value = g.upload(&spec.name, &spec.shape, v).unwrap();
                 let grad = g.zeros(&format!("grad {}", spec.name), &spec.shape, DType::F32);
-                (spec.name.clone(), (value, grad.unwrap()))
+                (value, grad.unwrap())
             })
-            .collect();
+            .unzip();
         let basis =
             (!basis.is_empty()).then(|| g.upload("graph.basis", &[basis.len()], basis).unwrap());
         let (n, t, ci) = (cfg.nodes, cfg.window, cfg.block_input(l));
@@ -189,9 +172,16 @@ impl Device {
         let block = Wgsl::new(g, cfg, l, 1, &input, Device::SEED, extent).unwrap();
         Device {
             specs,
-            table: DeviceParams { tensors, basis },
+            params,
+            grads,
+            basis,
             block,
         }
+    }
+
+    /// The parameters by name, as the network's schedules look them up.
+    fn table(&self) -> Table<'_> {
+        Table::new(&self.specs, &self.params, &self.grads, self.basis.as_ref())
     }
 
     /// Overwrites the block's buffer of `role` ([`Wgsl::buffer`]).
@@ -216,22 +206,19 @@ impl Device {
 
     /// Every parameter's gradient, in `param_specs` order.
     fn grads(&self) -> Vec<Vec<f32>> {
-        self.specs
-            .iter()
-            .map(|s| narrow(&self.read(self.table.grad(&s.name))))
-            .collect()
+        self.grads.iter().map(|t| narrow(&self.read(t))).collect()
     }
 
     /// Runs the dispatches `f` schedules (one step's methods) and waits for them;
     /// returns what `f` returned.
     fn run<R>(
         &self,
-        f: impl FnOnce(&Wgsl, &DeviceParams, &mut Scratch, &mut Steps) -> Result<R, GpuError>,
+        f: impl FnOnce(&Wgsl, &Table, &mut Scratch, &mut Steps) -> Result<R, GpuError>,
     ) -> R {
         let g = gpu();
         let mut scratch = Scratch::new(g);
         let mut steps = Steps::default();
-        let r = f(&self.block, &self.table, &mut scratch, &mut steps).unwrap();
+        let r = f(&self.block, &self.table(), &mut scratch, &mut steps).unwrap();
         let mut rec = Recorder::new(g);
         steps.record(&mut rec).unwrap();
         rec.submit().unwrap();
