@@ -10,7 +10,8 @@ use common::{cli, cli_fails};
 use iastgcn::experiment::evaluate::HeldOutConfig;
 use iastgcn::robot::Geometry;
 use iastgcn::twin::{
-    draw_machine, Conditions, Day, PathKind, PathParams, Placement, Recipe, RunInfo,
+    draw_machine, Conditions, Day, PathKind, PathOrder, PathParams, Placement, PlannedSession,
+    Recipe, RunInfo,
 };
 
 fn s(p: &Path) -> &str {
@@ -48,6 +49,7 @@ fn several_sessions_split_the_minutes_each_on_its_own_day_and_placement() {
     let recipe = Recipe {
         sessions: 4,
         placement: Placement::Varied,
+        path_order: PathOrder::Fixed,
     };
     let plan = recipe.plan(8.0, 201, 3);
     assert_eq!(plan, recipe.plan(8.0, 201, 3), "the plan is deterministic");
@@ -90,6 +92,42 @@ fn several_sessions_split_the_minutes_each_on_its_own_day_and_placement() {
             .iter()
             .all(|r| r.placement() == PathParams::default()));
     }
+    // Spread placement: the same days and seeds, session s's runs at the s-th spread
+    // turn of each pattern (docs/twin.md "Sessions"), recorded in their sidecars.
+    let spread = Recipe {
+        placement: Placement::Spread,
+        ..recipe
+    }
+    .plan(8.0, 201, 3);
+    for (s, (a, b)) in spread.iter().zip(&plan).enumerate() {
+        assert_eq!(a.conditions, b.conditions);
+        for ((r, q), kind) in a.runs.iter().zip(&b.runs).zip(PathKind::TRAINING) {
+            assert_eq!(r.seed, q.seed);
+            assert_eq!(r.placement(), PathParams::spread(kind, s));
+        }
+    }
+    assert_eq!("spread".parse::<Placement>(), Ok(Placement::Spread));
+    // Rotated order: session s starts with path (s − 1) mod 3 and goes round; each run
+    // keeps the seed, day and placement its path has in the fixed order.
+    let rotated = Recipe {
+        path_order: PathOrder::Rotated,
+        ..recipe
+    }
+    .plan(8.0, 201, 3);
+    let order = |session: &PlannedSession| -> Vec<String> {
+        session.runs.iter().map(|r| r.path.clone()).collect()
+    };
+    for (s, first) in [(0, "grid"), (1, "fermat"), (2, "hilbert"), (3, "grid")] {
+        assert_eq!(order(&rotated[s])[0], first, "session {}", s + 1);
+        for r in &rotated[s].runs {
+            let same = plan[s].runs.iter().find(|q| q.path == r.path).unwrap();
+            assert_eq!(r, same);
+        }
+    }
+    assert_eq!(order(&rotated[1]), ["fermat", "hilbert", "grid"]);
+    assert_eq!("rotated".parse::<PathOrder>(), Ok(PathOrder::Rotated));
+    assert!("sideways".parse::<PathOrder>().is_err());
+    assert_eq!(Placement::Spread.name(), "spread");
 }
 
 #[test]
@@ -203,11 +241,55 @@ fn simulate_records_a_training_set_in_sessions_deterministically() {
             "{name}"
         );
     }
+    // Spread placements with the paths' order rotated: session 2 runs fermat, hilbert,
+    // grid, so fermat starts it cold and grid runs last; each run keeps its path's seed
+    // and day, at its spread placement.
+    let c = dir.join("c");
+    let text = training_set(
+        &c,
+        &[
+            "--sessions",
+            "2",
+            "--placement",
+            "spread",
+            "--path-order",
+            "rotated",
+        ],
+    );
+    assert!(text.contains("path order rotated"), "{text}");
+    for session in 1..=2 {
+        for kind in PathKind::TRAINING {
+            let name = format!("{}.s{session:02}.csv", kind.name());
+            let (info, varied) = (
+                RunInfo::read(&c.join(&name)).unwrap(),
+                RunInfo::read(&a.join(&name)).unwrap(),
+            );
+            assert_eq!(info.placement(), PathParams::spread(kind, session - 1));
+            assert_eq!((info.seed, info.day()), (varied.seed, varied.day()));
+            let first = if session == 1 {
+                PathKind::Grid
+            } else {
+                PathKind::Fermat
+            };
+            let start = if kind == first { "cold" } else { "warm" };
+            assert_eq!(info.start, start, "{name}");
+        }
+    }
+    // Session 2's grid runs after the other two (two 15 s runs and their idles): later on
+    // the session's clock and with warmer screws than session 1's grid, which starts the
+    // day cold.
+    let info = |name: &str| RunInfo::read(&c.join(name)).unwrap();
+    let (late, first) = (info("grid.s02.csv"), info("grid.s01.csv"));
+    assert!(
+        late.session_clock_s > 30.0 && first.session_clock_s == 0.0,
+        "{late:?}"
+    );
+    assert!(late.screw_rise_k.iter().all(|t| *t > 0.0) && first.screw_rise_k == [0.0; 3]);
     // Refused before any work, the flag named (and every needle in the message), with
     // nothing written where the output would have gone.
     let graph = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/graph-force.toml");
     let training = ["simulate", "--trajectory", "training"];
-    let cases: [(&[&str], &[&str]); 7] = [
+    let cases: [(&[&str], &[&str]); 9] = [
         (
             &["--minutes", "0.5", "--sessions", "3"],
             &["--sessions", "at most 2 sessions"],
@@ -215,6 +297,17 @@ fn simulate_records_a_training_set_in_sessions_deterministically() {
         (&["--sessions", "0"], &["--sessions"]),
         (&["--sessions", "65"], &["--sessions"]),
         (&["--placement", "diagonal"], &["--placement"]),
+        (&["--path-order", "backwards"], &["--path-order"]),
+        (
+            &[
+                "simulate",
+                "--trajectory",
+                "grid",
+                "--path-order",
+                "rotated",
+            ],
+            &["--path-order", "--trajectory training"],
+        ),
         (
             &["simulate", "--trajectory", "grid", "--sessions", "2"],
             &["--trajectory training"],

@@ -3,6 +3,9 @@
 //! carries over from one run of a session to the next.
 
 use iastgcn::robot::{Geometry, Robot};
+use iastgcn::twin::retrace::{
+    longest_retrace, retrace_limit, samples, spread_candidate_deg, spread_placements, HeldOut,
+};
 use iastgcn::twin::{
     draw_machine, Mirror, Path, PathKind, PathParams, Sample, SimConfig, Simulation, CHANNELS,
 };
@@ -100,68 +103,6 @@ fn no_channel_is_a_truth_term_plus_noise() {
     }
     println!("highest |correlation| of a channel with a truth term: {worst:?}");
     assert!(failures.is_empty(), "{failures:#?}");
-}
-
-/// Points every `step` mm along the whole path (both ways walked by `Path::at`).
-fn samples(path: &Path, step: f64) -> Vec<[f64; 2]> {
-    let n = (path.length() / step).ceil() as usize;
-    (0..=n).map(|i| path.at(i as f64 * step)).collect()
-}
-
-/// The longest stretch (in samples of `held`) along which `held` follows `trained` in
-/// order: consecutive held-out samples within `tol` of training samples that are
-/// themselves consecutive along the training path (either way), up to `reach` indices.
-fn longest_retrace(held: &[[f64; 2]], trained: &[[f64; 2]], tol: f64, reach: usize) -> usize {
-    let mut cells = std::collections::HashMap::<(i64, i64), Vec<usize>>::new();
-    let key = |p: [f64; 2]| ((p[0] / tol).floor() as i64, (p[1] / tol).floor() as i64);
-    for (j, p) in trained.iter().enumerate() {
-        cells.entry(key(*p)).or_default().push(j);
-    }
-    let near = |p: [f64; 2]| -> Vec<usize> {
-        let (cx, cy) = key(p);
-        let mut out = Vec::new();
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for &j in cells.get(&(cx + dx, cy + dy)).map_or(&[][..], |v| &v[..]) {
-                    let q = trained[j];
-                    if (p[0] - q[0]).hypot(p[1] - q[1]) <= tol {
-                        out.push(j);
-                    }
-                }
-            }
-        }
-        out
-    };
-    let (mut longest, mut prev): (usize, Vec<(usize, usize)>) = (0, Vec::new());
-    for p in held {
-        let now: Vec<(usize, usize)> = near(*p)
-            .into_iter()
-            .map(|j| {
-                let run = prev
-                    .iter()
-                    .filter(|(k, _)| j.abs_diff(*k) <= reach)
-                    .map(|(_, r)| r + 1)
-                    .max()
-                    .unwrap_or(1);
-                (j, run)
-            })
-            .collect();
-        longest = longest.max(now.iter().map(|(_, r)| *r).max().unwrap_or(0));
-        prev = now;
-    }
-    longest
-}
-
-/// The longest a held-out path may follow a training path, mm: a window (48 ticks at up
-/// to 26 mm/s, under 25 mm; 20 taken) along its own pattern, three along another (where
-/// a straight pass runs tangent to a curved one).
-fn retrace_limit(trained: PathKind, held: PathKind) -> usize {
-    let window_mm = 20;
-    if trained == held {
-        window_mm
-    } else {
-        3 * window_mm
-    }
 }
 
 #[test]
@@ -263,6 +204,66 @@ fn no_held_out_session_retraces_any_training_placement() {
         1.0,
     );
     assert!(longest_retrace(&held[..200], &spiral, 1.0, 6) >= 199);
+}
+
+#[test]
+fn spread_placements_follow_their_rule_and_keep_held_out_unseen() {
+    // `--placement spread` (docs/twin.md "Sessions"): the table behind PathParams::spread
+    // is what the rule chooses (turns by golden sections of the pattern's direction
+    // period, skipping any that retraces a held-out placement of any session, with the
+    // pairs and limits of the test above).
+    let m = Mirror::default();
+    let held = HeldOut::new(&m);
+    for kind in PathKind::TRAINING {
+        let table: Vec<PathParams> = (0..PathParams::SPREAD_PLACEMENTS)
+            .map(|k| PathParams::spread(kind, k))
+            .collect();
+        assert_eq!(
+            spread_placements(&m, kind, PathParams::SPREAD_PLACEMENTS),
+            table,
+            "{kind:?}: the table and the rule disagree"
+        );
+        for (k, p) in table.iter().enumerate() {
+            assert_eq!(p.reverse, k % 2 == 1, "{kind:?} spread placement {k}");
+        }
+        assert_eq!(table[0], PathParams::default());
+        // Placements repeat after the table's length, as the quarter turns do after 4.
+        assert_eq!(
+            PathParams::spread(kind, PathParams::SPREAD_PLACEMENTS + 3),
+            table[3]
+        );
+        // The strokes run every way: over the first four sessions the turns, taken
+        // modulo the pattern's direction period, are at least 8° apart.
+        let period = iastgcn::twin::retrace::direction_period_deg(kind);
+        for i in 0..4 {
+            for j in 0..i {
+                let d = (table[i].rotation_deg - table[j].rotation_deg).rem_euclid(period);
+                assert!(d.min(period - d) >= 8.0, "{kind:?}: {i} and {j} too close");
+            }
+        }
+    }
+    // The rule has teeth: a candidate the rule skipped (the Hilbert curve a few degrees
+    // off its held-out turn) retraces a held-out placement, and is not in the table.
+    let skipped = (0..64)
+        .map(|i| spread_candidate_deg(PathKind::Hilbert, i))
+        .find(|deg| {
+            !(0..PathParams::SPREAD_PLACEMENTS)
+                .any(|k| PathParams::spread(PathKind::Hilbert, k).rotation_deg == *deg)
+        })
+        .expect("the rule skips some candidate");
+    let at = PathParams {
+        rotation_deg: skipped,
+        ..PathParams::default()
+    };
+    assert!(
+        !held.retraced_by(&m, PathKind::Hilbert, &at).is_empty(),
+        "{skipped}°"
+    );
+    // The rosette is never trained on: its spread placement is the default.
+    assert_eq!(
+        PathParams::spread(PathKind::Rosette, 5),
+        PathParams::default()
+    );
 }
 
 #[test]

@@ -71,7 +71,9 @@ def test_record_data_in_sessions_and_its_refusals(tmp_path: Path):
         iastgcn.record_data(tmp_path / "x", minutes=0.5, sessions=3)
     with pytest.raises(iastgcn.Error, match="placement"):
         iastgcn.record_data(tmp_path / "y", minutes=0.5, sessions=2, placement="diagonal")
-    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+    with pytest.raises(iastgcn.Error, match="path order"):
+        iastgcn.record_data(tmp_path / "z", minutes=0.5, sessions=2, path_order="sideways")
+    assert not any((tmp_path / d).exists() for d in ("x", "y", "z"))
 
 
 def test_hybrid_calibration_matches_the_command(profile_dir: Path, twin_data: dict,

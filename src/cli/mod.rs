@@ -105,16 +105,22 @@ pub struct RecipeArgs {
     /// Default: 4 for `demo`, 1 elsewhere.
     #[arg(long, value_parser = count(1..=64))]
     pub sessions: Option<usize>,
-    /// Where the sessions' runs lie on the part: `fixed` (the default placement) or
-    /// `varied` (quarter turns and reversals that never retrace a held-out placement).
+    /// Where the sessions' runs lie on the part: `fixed` (the default placement),
+    /// `varied` (quarter turns and reversals) or `spread` (turns spread over every angle,
+    /// so the strokes run every way, and reversals); none retraces a held-out placement.
     /// Default: `varied` for `demo`, `fixed` elsewhere.
-    #[arg(long, value_parser = ["fixed", "varied"])]
+    #[arg(long, value_parser = ["fixed", "varied", "spread"])]
     pub placement: Option<String>,
+    /// In which order each session runs its paths: `fixed` (grid, fermat, hilbert) or
+    /// `rotated` (session s starts with the s-th path and goes round, so that every path
+    /// starts a day cold in one session of three). Default: `fixed`.
+    #[arg(long, value_parser = ["fixed", "rotated"])]
+    pub path_order: Option<String>,
 }
 
 impl RecipeArgs {
-    /// The recipe these flags ask for, `default`'s sessions and placement where a flag is
-    /// absent.
+    /// The recipe these flags ask for, `default`'s sessions, placement and path order
+    /// where a flag is absent.
     pub fn recipe_or(
         &self,
         default: iastgcn::twin::Recipe,
@@ -125,12 +131,16 @@ impl RecipeArgs {
                 Some(p) => p.parse().map_err(anyhow::Error::msg)?,
                 None => default.placement,
             },
+            path_order: match &self.path_order {
+                Some(o) => o.parse().map_err(anyhow::Error::msg)?,
+                None => default.path_order,
+            },
         })
     }
 
-    /// Whether either flag was given.
+    /// Whether any of the flags was given.
     pub fn given(&self) -> bool {
-        self.sessions.is_some() || self.placement.is_some()
+        self.sessions.is_some() || self.placement.is_some() || self.path_order.is_some()
     }
 }
 

@@ -88,7 +88,7 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
     }
     anyhow::ensure!(
         !args.recipe.given(),
-        "--sessions and --placement describe a training set: give --trajectory training, or \
+        "--sessions, --placement and --path-order describe a training set: give --trajectory training, or \
          leave them out for a single run (--rotation and --reverse place it)"
     );
     let machine = draw_machine(geometry.clone(), args.machine_seed);
@@ -188,11 +188,12 @@ fn training_set(args: &SimulateArgs, recipe: &Recipe) -> anyhow::Result<()> {
     )?;
     println!(
         "wrote a training set of {} recordings ({} min per path in {} session(s), placement \
-         {}) and {} into {}",
+         {}, path order {}) and {} into {}",
         sources.recordings.len(),
         args.minutes,
         recipe.sessions,
         recipe.placement.name(),
+        recipe.path_order.name(),
         sources.calibration.display(),
         args.out.display()
     );

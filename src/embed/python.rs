@@ -409,15 +409,16 @@ fn scoring(hold_out_every: usize, test: Option<PathBuf>) -> Scoring {
     }
 }
 
-/// record_data(out, minutes=2.0, machine_seed=1, sessions=1, placement="fixed", progress=None) -> dict
+/// record_data(out, minutes=2.0, machine_seed=1, sessions=1, placement="fixed", path_order="fixed", progress=None) -> dict
 ///
 /// The demo's data on the twin, into the folder `out`: a calibration set of a cold
 /// machine, its EKF calibration, and `minutes` of training recordings per path (grid,
 /// fermat, hilbert), in one session or split over `sessions` (each a day of its own
-/// starting cold; `placement` "fixed" or "varied", docs/twin.md "Sessions"). Returns the
+/// starting cold; `placement` "fixed", "varied" or "spread", `path_order` "fixed" or
+/// "rotated", docs/twin.md "Sessions"). Returns the
 /// files: {"recordings": [...], "calibration": ...}.
 #[pyfunction]
-#[pyo3(signature = (out, minutes=2.0, machine_seed=1, sessions=1, placement="fixed", progress=None))]
+#[pyo3(signature = (out, minutes=2.0, machine_seed=1, sessions=1, placement="fixed", path_order="fixed", progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn record_data<'py>(
     py: Python<'py>,
@@ -426,6 +427,7 @@ fn record_data<'py>(
     machine_seed: u64,
     sessions: usize,
     placement: &str,
+    path_order: &str,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Bound<'py, PyAny>> {
     if !(minutes.is_finite() && minutes > 0.0) {
@@ -434,6 +436,7 @@ fn record_data<'py>(
     let recipe = crate::twin::Recipe {
         sessions,
         placement: placement.parse().map_err(raise)?,
+        path_order: path_order.parse().map_err(raise)?,
     };
     recipe.validate(minutes).map_err(raise)?;
     let sources = long_call(py, progress, |r| {

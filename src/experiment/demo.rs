@@ -30,7 +30,7 @@ use crate::polish::{Polisher, Setup, StartingPoint};
 use crate::progress::Reporter;
 use crate::robot::{Geometry, Robot};
 use crate::train::{build_dataset, RunConfig};
-use crate::twin::{draw_machine, PathKind, Placement, Recipe};
+use crate::twin::{draw_machine, PathKind, PathOrder, Placement, Recipe};
 
 /// Length of each of the demo's training recordings, minutes: the most data with which
 /// three seeds of its eight models fit `make demo`'s 15 minutes on 2 CPU cores with a
@@ -91,6 +91,7 @@ pub fn demo_mirror() -> PolishSpec {
 pub const DEMO_RECIPE: Recipe = Recipe {
     sessions: 4,
     placement: Placement::Varied,
+    path_order: PathOrder::Fixed,
 };
 
 /// The demo's held-out sessions: three, of 0.5 min runs from seed 301, the first after

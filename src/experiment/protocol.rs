@@ -191,7 +191,8 @@ pub fn record_session(
 ) -> Result<Vec<RecordedRun>> {
     let mut state = machine.cold_on(session.conditions.day);
     let mut runs = Vec::new();
-    for (mut info, kind) in session.runs.into_iter().zip(PathKind::TRAINING) {
+    for mut info in session.runs {
+        let kind: PathKind = info.path.parse().map_err(Error::Invalid)?;
         let path = &to(kind);
         info.controller = name.to_string();
         let correct = correct.as_mut().map(|c| &mut **c as Corrector<'_>);

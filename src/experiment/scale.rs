@@ -40,7 +40,7 @@ use crate::plot::{self, Panel, Series};
 use crate::progress::Reporter;
 use crate::train::log::csv_text;
 use crate::train::{build_dataset, by_path, recording_path, refine, RunConfig, TestMetrics};
-use crate::twin::{PathKind, Recipe};
+use crate::twin::{PathKind, PathOrder, Recipe};
 
 /// The paper's Table V on its Hilbert run (its only compensated path): the share of the
 /// calibrated error its IASTGCN removed, position and attitude, % (0.1393 → 0.0591 mm,
@@ -1171,10 +1171,14 @@ fn markdown(
     } else {
         format!(
             "Recordings of {minutes} min per path in {} sessions of {} min (each a day of its \
-             own starting cold, placements {}; docs/twin.md \"Sessions\")",
+             own starting cold, placements {}{}; docs/twin.md \"Sessions\")",
             recipe.sessions,
             minutes / recipe.sessions as f64,
-            recipe.placement.name()
+            recipe.placement.name(),
+            match recipe.path_order {
+                PathOrder::Fixed => "",
+                PathOrder::Rotated => ", the paths' order rotated from session to session",
+            }
         )
     };
     let held = study.held_out();

@@ -7,6 +7,7 @@ pub mod arm;
 mod machine;
 mod mirror;
 mod noise;
+pub mod retrace;
 pub mod sensors;
 pub mod session;
 mod simulate;
@@ -20,7 +21,7 @@ pub use noise::gaussian;
 pub use sensors::{
     Installation, Instruments, Scene, SensorRates, SensorSpecs, CHANNELS, CHANNEL_UNITS,
 };
-pub use session::{Conditions, Placement, PlannedSession, Recipe, RunInfo};
+pub use session::{Conditions, PathOrder, Placement, PlannedSession, Recipe, RunInfo};
 pub use simulate::{
     measure_calibration, pose_error, CalibrationMeasurement, Correction, Hidden, Sample, SimConfig,
     Simulation, DEFAULT_FEED, DEFAULT_FORCE,

@@ -228,16 +228,19 @@ impl Conditions {
 pub enum Placement {
     /// Every session at the default placement.
     Fixed,
-    /// Session s at [`PathParams::training`]`(kind, s − 1)`.
+    /// Session s at [`PathParams::training`]`(kind, s − 1)`: quarter turns.
     Varied,
+    /// Session s at [`PathParams::spread`]`(kind, s − 1)`: turns spread over every angle.
+    Spread,
 }
 
 impl Placement {
-    /// `fixed` or `varied`.
+    /// `fixed`, `varied` or `spread`.
     pub fn name(self) -> &'static str {
         match self {
             Placement::Fixed => "fixed",
             Placement::Varied => "varied",
+            Placement::Spread => "spread",
         }
     }
 }
@@ -248,7 +251,55 @@ impl std::str::FromStr for Placement {
         match s {
             "fixed" => Ok(Placement::Fixed),
             "varied" => Ok(Placement::Varied),
-            _ => Err(format!("unknown placement {s:?}: expected fixed or varied")),
+            "spread" => Ok(Placement::Spread),
+            _ => Err(format!(
+                "unknown placement {s:?}: expected fixed, varied or spread"
+            )),
+        }
+    }
+}
+
+/// In which order each session of a multi-session recipe runs its paths.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PathOrder {
+    /// Grid, fermat, hilbert in every session.
+    #[default]
+    Fixed,
+    /// Session s starts with path (s − 1) mod 3 of grid, fermat, hilbert and goes round:
+    /// every path starts a day cold in one session of three, and runs after the other
+    /// two (warm) in another.
+    Rotated,
+}
+
+impl PathOrder {
+    /// `fixed` or `rotated`.
+    pub fn name(self) -> &'static str {
+        match self {
+            PathOrder::Fixed => "fixed",
+            PathOrder::Rotated => "rotated",
+        }
+    }
+
+    /// The paths session `session` (from 1) runs, in order.
+    pub fn paths(self, session: usize) -> [PathKind; 3] {
+        let mut kinds = PathKind::TRAINING;
+        if self == PathOrder::Rotated {
+            kinds.rotate_left((session - 1) % PathKind::TRAINING.len());
+        }
+        kinds
+    }
+}
+
+impl std::str::FromStr for PathOrder {
+    type Err = String;
+    fn from_str(s: &str) -> Result<PathOrder, String> {
+        match s {
+            "fixed" => Ok(PathOrder::Fixed),
+            "rotated" => Ok(PathOrder::Rotated),
+            _ => Err(format!(
+                "unknown path order {s:?}: expected fixed or rotated"
+            )),
         }
     }
 }
@@ -258,13 +309,17 @@ impl std::str::FromStr for Placement {
 /// calibration day, grid, fermat and hilbert in turn at the default placement, 30 s idle
 /// between runs. With several, each session is a day of its own: it starts cold under
 /// conditions drawn from [`Conditions::draw`], runs the three paths for minutes/sessions
-/// each at its placement, with its own seeds.
+/// each at its placement, in its order, with its own seeds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Recipe {
     /// Sessions per training set (1: the single session).
     pub sessions: usize,
     /// Where each session's runs lie on the part.
     pub placement: Placement,
+    /// In which order each session runs its paths (absent in a folder pinned before the
+    /// choice existed: fixed).
+    #[serde(default)]
+    pub path_order: PathOrder,
 }
 
 impl Default for Recipe {
@@ -279,7 +334,8 @@ impl Default for Recipe {
 pub struct PlannedSession {
     /// The session's conditions.
     pub conditions: Conditions,
-    /// Its runs in order: grid, fermat, hilbert.
+    /// Its runs in the order they run (grid, fermat, hilbert unless the recipe's
+    /// [`PathOrder`] rotates them).
     pub runs: Vec<RunInfo>,
 }
 
@@ -288,6 +344,7 @@ impl Recipe {
     pub const SINGLE: Recipe = Recipe {
         sessions: 1,
         placement: Placement::Fixed,
+        path_order: PathOrder::Fixed,
     };
     /// The most sessions a recipe may have.
     pub const MAX_SESSIONS: usize = 64;
@@ -305,9 +362,13 @@ impl Recipe {
                 first_seed + 2
             );
         }
+        let order = match self.path_order {
+            PathOrder::Fixed => "",
+            PathOrder::Rotated => ", the paths' order rotated from session to session",
+        };
         format!(
             "{minutes} min per path in {} session(s), each a day of its own starting cold \
-             (its ambient, feed and force drawn as docs/twin.md \"Days\" says), placements {}, \
+             (its ambient, feed and force drawn as docs/twin.md \"Days\" says), placements {}{order}, \
              seeds from {}",
             self.sessions,
             self.placement.name(),
@@ -349,10 +410,10 @@ impl Recipe {
 
     /// The sessions to record with `minutes` per path in all, from `first_seed` on the
     /// machine `machine_seed` (in every run's info). A single session's runs take seeds
-    /// `first_seed`, +1, +2 and run under [`Conditions::NOMINAL`]; with several, the runs
-    /// take `first_seed · 100` onwards, counting up run by run through the sessions (apart
-    /// from the held-out sessions' seeds), and session s draws its conditions from
-    /// `first_seed · 1000 + s`.
+    /// `first_seed`, +1, +2 and run under [`Conditions::NOMINAL`]; with several, session
+    /// s's run of path i (grid 0, fermat 1, hilbert 2, whatever the order it runs in)
+    /// takes seed `first_seed · 100 + 3(s − 1) + i` (apart from the held-out sessions'
+    /// seeds), and session s draws its conditions from `first_seed · 1000 + s`.
     pub fn plan(&self, minutes: f64, first_seed: u64, machine_seed: u64) -> Vec<PlannedSession> {
         let seconds = minutes * 60.0 / self.sessions as f64;
         (1..=self.sessions)
@@ -362,13 +423,20 @@ impl Recipe {
                 } else {
                     Conditions::draw(first_seed * 1000 + s as u64)
                 };
-                let runs = PathKind::TRAINING
+                let runs = self
+                    .path_order
+                    .paths(s)
                     .into_iter()
-                    .enumerate()
-                    .map(|(i, kind)| {
+                    .map(|kind| {
+                        // A run's seed follows its path, whatever the order.
+                        let i = PathKind::TRAINING
+                            .iter()
+                            .position(|k| *k == kind)
+                            .unwrap_or(0);
                         let params = match self.placement {
                             Placement::Fixed => PathParams::default(),
                             Placement::Varied => PathParams::training(kind, s - 1),
+                            Placement::Spread => PathParams::spread(kind, s - 1),
                         };
                         let seed = if self.sessions == 1 {
                             first_seed + i as u64

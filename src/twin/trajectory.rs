@@ -156,7 +156,50 @@ impl PathParams {
 
     /// How many distinct training placements [`PathParams::training`] has per path.
     pub const TRAINING_PLACEMENTS: usize = 4;
+
+    /// The spread training placement `k` (of [`PathParams::SPREAD_PLACEMENTS`], taken
+    /// modulo) of a multi-session recording with `--placement spread` (docs/twin.md
+    /// "Sessions"): the pattern turned so that the strokes' directions spread over every
+    /// angle (not only the quarter turns of [`PathParams::training`]), every other one
+    /// walked the other way, none retracing a held-out placement. The turns are those
+    /// `twin::retrace::spread_placements` chooses by its rule (golden sections of the
+    /// pattern's direction period, skipping any that retraces a held-out placement),
+    /// written out here; `tests/twin_honest.rs` checks that the two agree. Placement 0 is
+    /// the default one; the rosette, never trained on, keeps the default.
+    pub fn spread(kind: PathKind, k: usize) -> PathParams {
+        let k = k % PathParams::SPREAD_PLACEMENTS;
+        let rotation_deg = match kind {
+            PathKind::Grid => SPREAD_GRID_DEG[k],
+            PathKind::Fermat => SPREAD_FERMAT_DEG[k],
+            PathKind::Hilbert => SPREAD_HILBERT_DEG[k],
+            PathKind::Rosette => return PathParams::default(),
+        };
+        PathParams {
+            rotation_deg,
+            reverse: k % 2 == 1,
+            ..PathParams::default()
+        }
+    }
+
+    /// How many distinct spread placements [`PathParams::spread`] has per path.
+    pub const SPREAD_PLACEMENTS: usize = 16;
 }
+
+/// The raster's spread turns, degrees ([`PathParams::spread`]).
+const SPREAD_GRID_DEG: [f64; PathParams::SPREAD_PLACEMENTS] = [
+    0.0, 334.0, 85.0, 196.0, 239.0, 170.0, 281.0, 186.0, 229.0, 160.0, 271.0, 22.0, 314.0, 65.0,
+    356.0, 150.0,
+];
+/// The spiral's spread turns, degrees ([`PathParams::spread`]).
+const SPREAD_FERMAT_DEG: [f64; PathParams::SPREAD_PLACEMENTS] = [
+    0.0, 85.0, 307.0, 32.0, 255.0, 117.0, 340.0, 65.0, 287.0, 12.0, 97.0, 320.0, 45.0, 267.0,
+    130.0, 352.0,
+];
+/// The Hilbert curve's spread turns, degrees ([`PathParams::spread`]).
+const SPREAD_HILBERT_DEG: [f64; PathParams::SPREAD_PLACEMENTS] = [
+    0.0, 201.0, 347.0, 98.0, 299.0, 85.0, 196.0, 342.0, 37.0, 93.0, 294.0, 80.0, 191.0, 337.0,
+    32.0, 178.0,
+];
 
 /// A planar polyline `(x, y)` with its cumulative arc length.
 #[derive(Clone, Debug)]
