@@ -108,7 +108,7 @@ pub struct RecipeArgs {
     /// Where the sessions' runs lie on the part: `fixed` (the default placement),
     /// `varied` (quarter turns and reversals) or `spread` (turns spread over every angle,
     /// so the strokes run every way, and reversals); none retraces a held-out placement.
-    /// Default: `varied` for `demo`, `fixed` elsewhere.
+    /// Default: `spread` for `demo`, `fixed` elsewhere.
     #[arg(long, value_parser = ["fixed", "varied", "spread"])]
     pub placement: Option<String>,
     /// In which order each session runs its paths: `fixed` (grid, fermat, hilbert) or
