@@ -44,7 +44,7 @@ fn setup(name: &str) -> (PathBuf, PathBuf, PathBuf, PathBuf) {
     (dir, cal, rec, model)
 }
 
-/// `compensate` of a short rosette run with `model` under `cal` (and `extra` flags),
+/// `compensate` of a short Hilbert run with `model` under `cal` (and `extra` flags),
 /// whatever its exit status.
 fn compensate(model: &Path, cal: &Path, extra: &[&str]) -> std::process::Output {
     let mut args = vec!["compensate", "--model", s(model), "--calibration", s(cal)];
@@ -127,5 +127,27 @@ fn compensate_warns_on_another_machine_and_says_where_it_predicted() {
     } else {
         assert!(!line.contains("native"), "{line}");
     }
+    // The run lies at its held-out placement unless --rotation / --reverse place it: the
+    // output names the placement, and the calibrated row (no model in it) moves with it.
+    assert!(
+        stdout.contains("hilbert turned 53°, walked from its other end"),
+        "{stdout}"
+    );
+    let turned = compensate(&model, &cal, &["--rotation", "450", "--reverse"]);
+    let turned_out = String::from_utf8_lossy(&turned.stdout);
+    assert!(
+        turned_out.contains("hilbert turned 90°, walked from its other end"),
+        "{turned_out}"
+    );
+    let calibrated = |text: &str| {
+        text.lines()
+            .find(|l| l.contains("calibrated"))
+            .map(str::to_string)
+            .unwrap_or_else(|| panic!("no calibrated row in {text}"))
+    };
+    assert_ne!(calibrated(&stdout), calibrated(&turned_out));
+    let bad = compensate(&model, &cal, &["--rotation", "NaN"]);
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("--rotation"));
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -52,6 +52,14 @@ pub struct RunArgs {
     /// Robot geometry asset (default: the embedded assets/robot.toml).
     #[arg(long, visible_alias = "arm")]
     pub robot: Option<PathBuf>,
+    /// Turn the path this many degrees on the part instead of its held-out placement
+    /// (the held-out margin kept); nothing checks that it keeps clear of the training
+    /// recordings.
+    #[arg(long)]
+    pub rotation: Option<f64>,
+    /// Walk the path from its other end (with --rotation; 0 when absent).
+    #[arg(long)]
+    pub reverse: bool,
 }
 
 impl RunArgs {
@@ -80,7 +88,27 @@ impl RunArgs {
             seed: self.seed,
             machine_seed: self.machine_seed,
             robot: self.robot.clone(),
+            placement: self.placement()?,
         })
+    }
+
+    /// The placement `--rotation` and `--reverse` ask for, on the held-out margin; `None`
+    /// (the held-out placement) without either.
+    fn placement(&self) -> anyhow::Result<Option<iastgcn::twin::PathParams>> {
+        if self.rotation.is_none() && !self.reverse {
+            return Ok(None);
+        }
+        let rotation_deg = self.rotation.unwrap_or(0.0);
+        anyhow::ensure!(
+            rotation_deg.is_finite(),
+            "--rotation: a finite angle in degrees, got {rotation_deg}"
+        );
+        let path = self.trajectory.parse().map_err(anyhow::Error::msg)?;
+        Ok(Some(iastgcn::twin::PathParams {
+            rotation_deg: rotation_deg.rem_euclid(360.0),
+            reverse: self.reverse,
+            ..iastgcn::twin::PathParams::held_out(path)
+        }))
     }
 }
 
@@ -135,6 +163,16 @@ pub fn run(device: Device, args: &CompensateArgs) -> anyhow::Result<()> {
     )
     .context("compensation run")?;
     console.end();
+    println!(
+        "{} turned {}°{}",
+        run.path.name(),
+        run.params.rotation_deg,
+        if run.params.reverse {
+            ", walked from its other end"
+        } else {
+            ""
+        }
+    );
     for line in table_v_lines(&rows) {
         println!("{line}");
     }

@@ -74,6 +74,8 @@ pub fn run(adapter: Option<&str>, args: &PolishArgs) -> anyhow::Result<()> {
         seed: args.seed,
         machine_seed: args.machine_seed,
         robot: None,
+        rotation: None,
+        reverse: false,
     };
     run_args.warn_other_machine()?;
     let Prepared {

@@ -93,6 +93,10 @@ pub struct RunSpec {
     pub machine_seed: u64,
     /// Robot geometry asset (the embedded one when `None`).
     pub robot: Option<PathBuf>,
+    /// Where the path lies on the part: its held-out placement
+    /// ([`PathParams::held_out`]) when `None`. Nothing checks that another placement
+    /// keeps clear of the training recordings.
+    pub placement: Option<PathParams>,
 }
 
 /// A held-out run ready to go: the machine, both controllers, and the run itself
@@ -127,7 +131,9 @@ impl RunSpec {
         .map_err(|e| e.context("warm-up run"))?;
         let run = HeldOut {
             path: self.path,
-            params: PathParams::held_out(self.path),
+            params: self
+                .placement
+                .unwrap_or_else(|| PathParams::held_out(self.path)),
             seconds: self.minutes * 60.0,
             seed: self.seed,
             start,
