@@ -125,6 +125,8 @@ fn several_sessions_split_the_minutes_each_on_its_own_day_and_placement() {
         }
     }
     assert_eq!(order(&rotated[1]), ["fermat", "hilbert", "grid"]);
+    assert_eq!(PathOrder::Rotated.paths(0), PathOrder::Rotated.paths(1));
+    assert_eq!(PathOrder::Rotated.paths(4), PathOrder::Fixed.paths(2));
     assert_eq!("rotated".parse::<PathOrder>(), Ok(PathOrder::Rotated));
     assert!("sideways".parse::<PathOrder>().is_err());
     assert_eq!(Placement::Spread.name(), "spread");

@@ -4,7 +4,8 @@
 
 use iastgcn::robot::{Geometry, Robot};
 use iastgcn::twin::retrace::{
-    longest_retrace, retrace_limit, samples, spread_candidate_deg, spread_placements, HeldOut,
+    longest_retrace, retrace_limit, samples, spread_candidate_deg, spread_placements,
+    HeldOutPlacements,
 };
 use iastgcn::twin::{
     draw_machine, Mirror, Path, PathKind, PathParams, Sample, SimConfig, Simulation, CHANNELS,
@@ -213,7 +214,7 @@ fn spread_placements_follow_their_rule_and_keep_held_out_unseen() {
     // period, skipping any that retraces a held-out placement of any session, with the
     // pairs and limits of the test above).
     let m = Mirror::default();
-    let held = HeldOut::new(&m);
+    let held = HeldOutPlacements::new(&m);
     for kind in PathKind::TRAINING {
         let table: Vec<PathParams> = (0..PathParams::SPREAD_PLACEMENTS)
             .map(|k| PathParams::spread(kind, k))

@@ -75,13 +75,13 @@ pub fn retrace_limit(trained: PathKind, held: PathKind) -> usize {
 
 /// Every held-out placement of every pattern, sampled every 1 mm: what a training
 /// placement is checked against.
-pub struct HeldOut {
+pub struct HeldOutPlacements {
     placements: Vec<(PathKind, usize, Vec<[f64; 2]>)>,
 }
 
-impl HeldOut {
+impl HeldOutPlacements {
     /// The held-out placements of every pattern in sessions 0–3 on `mirror`.
-    pub fn new(mirror: &Mirror) -> HeldOut {
+    pub fn new(mirror: &Mirror) -> HeldOutPlacements {
         let placements = PathKind::ALL
             .into_iter()
             .flat_map(|kind| (0..HELD_OUT_PLACEMENTS).map(move |s| (kind, s)))
@@ -90,7 +90,7 @@ impl HeldOut {
                 (kind, s, samples(&Path::generate(kind, mirror, &p), 1.0))
             })
             .collect();
-        HeldOut { placements }
+        HeldOutPlacements { placements }
     }
 
     /// The held-out placements that a training run of `kind` at `params` retraces beyond
@@ -145,7 +145,7 @@ pub fn spread_candidate_deg(kind: PathKind, i: usize) -> f64 {
 /// `tests/twin_honest.rs` checks that they agree. Fewer than `n` only if 4096 candidates
 /// leave fewer.
 pub fn spread_placements(mirror: &Mirror, kind: PathKind, n: usize) -> Vec<PathParams> {
-    let held = HeldOut::new(mirror);
+    let held = HeldOutPlacements::new(mirror);
     let mut kept = Vec::with_capacity(n);
     for i in 0..4096 {
         if kept.len() == n {

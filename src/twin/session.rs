@@ -281,11 +281,11 @@ impl PathOrder {
         }
     }
 
-    /// The paths session `session` (from 1) runs, in order.
+    /// The paths session `session` (from 1; 0 reads as 1) runs, in order.
     pub fn paths(self, session: usize) -> [PathKind; 3] {
         let mut kinds = PathKind::TRAINING;
         if self == PathOrder::Rotated {
-            kinds.rotate_left((session - 1) % PathKind::TRAINING.len());
+            kinds.rotate_left(session.saturating_sub(1) % PathKind::TRAINING.len());
         }
         kinds
     }
