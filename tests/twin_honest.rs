@@ -156,28 +156,16 @@ fn no_held_out_session_retraces_any_training_placement() {
     // training placement of its own pattern for 20 mm (1 mm tolerance), nor another
     // pattern's for three windows: the rule of the test above, over every pair.
     let m = Mirror::default();
-    let trained: Vec<(PathKind, usize, Vec<[f64; 2]>)> = PathKind::TRAINING
-        .iter()
-        .flat_map(|&kind| (0..PathParams::TRAINING_PLACEMENTS).map(move |k| (kind, k)))
-        .map(|(kind, k)| {
-            let p = PathParams::training(kind, k);
-            (kind, k, samples(&Path::generate(kind, &m, &p), 0.5))
-        })
-        .collect();
+    let held = HeldOutPlacements::new(&m);
     let mut retraced = Vec::new();
-    for kind in PathKind::ALL {
-        // Sessions 0-3: the placements repeat from session 4 on.
-        for session in 0..4 {
-            let p = PathParams::held_out_in(kind, session);
-            let held = samples(&Path::generate(kind, &m, &p), 1.0);
-            for (trained_kind, k, t) in &trained {
-                let mm = longest_retrace(&held, t, 1.0, 6);
-                if mm >= retrace_limit(*trained_kind, kind) {
-                    retraced.push(format!(
-                        "{kind:?} of held-out session {session} follows {trained_kind:?} at \
-                         training placement {k} for {mm} mm"
-                    ));
-                }
+    for trained_kind in PathKind::TRAINING {
+        for k in 0..PathParams::TRAINING_PLACEMENTS {
+            let p = PathParams::training(trained_kind, k);
+            for (kind, session, mm) in held.retraced_by(&m, trained_kind, &p) {
+                retraced.push(format!(
+                    "{kind:?} of held-out session {session} follows {trained_kind:?} at \
+                     training placement {k} for {mm} mm"
+                ));
             }
         }
     }

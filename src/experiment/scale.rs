@@ -40,7 +40,7 @@ use crate::plot::{self, Panel, Series};
 use crate::progress::Reporter;
 use crate::train::log::csv_text;
 use crate::train::{build_dataset, by_path, recording_path, refine, RunConfig, TestMetrics};
-use crate::twin::{PathKind, PathOrder, Recipe};
+use crate::twin::{PathKind, Recipe};
 
 /// The paper's Table V on its Hilbert run (its only compensated path): the share of the
 /// calibrated error its IASTGCN removed, position and attitude, % (0.1393 → 0.0591 mm,
@@ -1175,10 +1175,7 @@ fn markdown(
             recipe.sessions,
             minutes / recipe.sessions as f64,
             recipe.placement.name(),
-            match recipe.path_order {
-                PathOrder::Fixed => "",
-                PathOrder::Rotated => ", the paths' order rotated from session to session",
-            }
+            recipe.path_order.phrase()
         )
     };
     let held = study.held_out();

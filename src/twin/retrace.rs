@@ -7,10 +7,6 @@
 use super::mirror::Mirror;
 use super::trajectory::{Path, PathKind, PathParams};
 
-/// Held-out sessions whose placements differ: [`PathParams::held_out_in`] repeats from
-/// session 4 on.
-pub const HELD_OUT_PLACEMENTS: usize = 4;
-
 /// Points every `step` mm along the whole path.
 pub fn samples(path: &Path, step: f64) -> Vec<[f64; 2]> {
     let n = (path.length() / step).ceil() as usize;
@@ -80,11 +76,12 @@ pub struct HeldOutPlacements {
 }
 
 impl HeldOutPlacements {
-    /// The held-out placements of every pattern in sessions 0–3 on `mirror`.
+    /// The held-out placements of every pattern in every held-out session
+    /// ([`PathParams::HELD_OUT_PLACEMENTS`] distinct ones) on `mirror`.
     pub fn new(mirror: &Mirror) -> HeldOutPlacements {
         let placements = PathKind::ALL
             .into_iter()
-            .flat_map(|kind| (0..HELD_OUT_PLACEMENTS).map(move |s| (kind, s)))
+            .flat_map(|kind| (0..PathParams::HELD_OUT_PLACEMENTS).map(move |s| (kind, s)))
             .map(|(kind, s)| {
                 let p = PathParams::held_out_in(kind, s);
                 (kind, s, samples(&Path::generate(kind, mirror, &p), 1.0))

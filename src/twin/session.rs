@@ -281,6 +281,14 @@ impl PathOrder {
         }
     }
 
+    /// How a recipe's description says this order: nothing for the fixed one.
+    pub fn phrase(self) -> &'static str {
+        match self {
+            PathOrder::Fixed => "",
+            PathOrder::Rotated => ", the paths' order rotated from session to session",
+        }
+    }
+
     /// The paths session `session` (from 1; 0 reads as 1) runs, in order.
     pub fn paths(self, session: usize) -> [PathKind; 3] {
         let mut kinds = PathKind::TRAINING;
@@ -362,10 +370,7 @@ impl Recipe {
                 first_seed + 2
             );
         }
-        let order = match self.path_order {
-            PathOrder::Fixed => "",
-            PathOrder::Rotated => ", the paths' order rotated from session to session",
-        };
+        let order = self.path_order.phrase();
         format!(
             "{minutes} min per path in {} session(s), each a day of its own starting cold \
              (its ambient, feed and force drawn as docs/twin.md \"Days\" says), placements {}{order}, \

@@ -122,7 +122,7 @@ impl PathParams {
     /// any training placement ([`PathParams::training`]).
     pub fn held_out_in(kind: PathKind, session: usize) -> PathParams {
         let mut p = PathParams::held_out(kind);
-        let k = session % 4;
+        let k = session % PathParams::HELD_OUT_PLACEMENTS;
         match kind {
             PathKind::Grid | PathKind::Hilbert => p.rotation_deg += 90.0 * k as f64,
             PathKind::Fermat => p.reverse ^= k % 2 == 1,
@@ -156,6 +156,10 @@ impl PathParams {
 
     /// How many distinct training placements [`PathParams::training`] has per path.
     pub const TRAINING_PLACEMENTS: usize = 4;
+
+    /// How many distinct held-out placements [`PathParams::held_out_in`] has per path:
+    /// they repeat from session 4 on.
+    pub const HELD_OUT_PLACEMENTS: usize = 4;
 
     /// The spread training placement `k` (of [`PathParams::SPREAD_PLACEMENTS`], taken
     /// modulo) of a multi-session recording with `--placement spread` (docs/twin.md
