@@ -77,14 +77,14 @@ fn bench(c: &mut Criterion) {
     for (n, polisher, measured) in &ticks {
         let pad = polisher.setup.pad;
         let radius = polisher.mirror.radius();
-        let contact = pad.contact([0.0, 0.0], [0.0, 0.0], 100.0, radius);
+        let contact = pad.contact([0.0, 0.0], 100.0);
         // Centres on a golden-angle spiral over the glass, one per tick.
         let centres = spiral(radius, per_iter);
         let mut map = measured.clone();
         removal.bench_with_input(BenchmarkId::from_parameter(n), n, |b, _| {
             b.iter(|| {
                 for &centre in &centres {
-                    pad.remove(&mut map, &polisher.glass, centre, &contact, 0.02);
+                    pad.remove(&mut map, &polisher.glass, radius, centre, &contact, 0.02);
                 }
             })
         });
@@ -105,7 +105,7 @@ fn bench(c: &mut Criterion) {
     kernel.sample_size(10);
     for (n, polisher, _) in &ticks {
         let pad = polisher.setup.pad;
-        let contact = pad.contact([0.0, 0.0], [0.0, 0.0], 100.0, polisher.mirror.radius());
+        let contact = pad.contact([0.0, 0.0], 100.0);
         let batch: Vec<Tick> = spiral(polisher.mirror.radius(), per_iter)
             .into_iter()
             .map(|centre| pad.tick(centre, &contact, 0.02))
@@ -115,7 +115,7 @@ fn bench(c: &mut Criterion) {
             *n,
             polisher.grid.pitch,
             &polisher.glass,
-            pad.footprint(),
+            pad.footprint(polisher.mirror.radius()),
             per_iter as usize,
         )
         .unwrap();

@@ -46,20 +46,84 @@ pub struct Footprint {
     pub preston: f64,
     /// The sliding speed of every point of the pad, mm/s.
     pub speed: f64,
+    /// Radius of the glass, mm: a disc centred on the map's axis, larger than the pad
+    /// (`f64::INFINITY`: no rim).
+    pub glass: f64,
 }
 
-/// One control tick: where the orbit's centre is, the pressure under the pad, and how
-/// long it stays.
+/// One control tick: where the orbit's centre is, how hard the pad is pressed, how its
+/// pressure leans, and how long it stays.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Tick {
     /// The orbit's centre, mm (the map's plane).
     pub centre: [f64; 2],
-    /// Pressure at the pad's centre, N/mm².
-    pub mean: f64,
-    /// Its gradient across the pad in the map's plane, N/mm³ (`p(u) = mean − gradient·u`).
+    /// The contact force, N.
+    pub force: f64,
+    /// The pressure's gradient across the pad in the map's plane, N/mm³ (`p(u) = p₀ −
+    /// gradient·u` at offset `u` from the pad's centre).
     pub gradient: [f64; 2],
     /// Seconds.
     pub seconds: f64,
+}
+
+/// Phases of the orbit over which the pressure at the pad's centre is averaged when the
+/// pad overhangs the rim somewhere on its orbit (the trapezoidal rule, exact for a
+/// periodic function up to its 63rd harmonic).
+pub const ORBIT_PHASES: usize = 64;
+
+/// Gauss–Legendre's 16-point rule on [−1, 1], its positive half: nodes and weights (the
+/// arc of the orbit over which a pixel near the rim is under the pad).
+pub const ARC_NODES: [[f64; 2]; 8] = [
+    [0.095_012_509_837_637_44, 0.189_450_610_455_068_5],
+    [0.281_603_550_779_258_9, 0.182_603_415_044_923_6],
+    [0.458_016_777_657_227_4, 0.169_156_519_395_002_5],
+    [0.617_876_244_402_643_7, 0.149_595_988_816_576_7],
+    [0.755_404_408_355_003, 0.124_628_971_255_533_9],
+    [0.865_631_202_387_831_7, 0.095_158_511_682_492_78],
+    [0.944_575_023_073_232_6, 0.062_253_523_938_647_89],
+    [0.989_400_934_991_649_9, 0.027_152_459_411_754_09],
+];
+
+/// The part of a disc of radius `a` centred at `p` that lies on a disc of glass of
+/// radius `big` > `a` centred at the origin: its area (mm²) and its first moment about
+/// the small disc's centre (mm³, a vector in the plane). In closed form: the part is a
+/// segment of the small disc beyond the common chord plus a segment of the glass inside
+/// it, and the two segments' moments about the chord cancel, leaving `d·A_glass` towards
+/// the origin (`d = |p|`, `A_glass` the glass's segment).
+pub fn on_glass(a: f64, p: [f64; 2], big: f64) -> (f64, [f64; 2]) {
+    use std::f64::consts::PI;
+    let d = p[0].hypot(p[1]);
+    if d + a <= big {
+        (PI * a * a, [0.0, 0.0])
+    } else if d >= a + big {
+        (0.0, [0.0, 0.0])
+    } else {
+        // The chord's distance from the small disc's centre, towards the origin, and
+        // from the origin, outwards; its half-length.
+        let h = ((d - big) * (d + big) + a * a) / (2.0 * d);
+        let hg = d - h;
+        let w = (a * a - h * h).max(0.0).sqrt();
+        let small = a * a * (h / a).clamp(-1.0, 1.0).acos() - h * w;
+        // The glass's segment, `big²·(x − sin x)/2` with `x` the angle the chord
+        // subtends at the origin: in a form that keeps its digits when the segment is a
+        // sliver of a large disc (the WGSL kernel's, in f32).
+        let glass = 0.5 * big * big * chord_segment(2.0 * w.atan2(hg));
+        let m = glass; // d·A_glass along −p/d.
+        (small + glass, [-p[0] * m, -p[1] * m])
+    }
+}
+
+/// `x − sin x` for `x` in [0, 2π], by its series where the difference would lose its
+/// digits (`x < 1`).
+pub fn chord_segment(x: f64) -> f64 {
+    if x < 1.0 {
+        let x2 = x * x;
+        // x³/3! − x⁵/5! + x⁷/7! − x⁹/9! + x¹¹/11!: the next term is under 2e-10 of it.
+        x * x2 / 6.0
+            * (1.0 - x2 / 20.0 * (1.0 - x2 / 42.0 * (1.0 - x2 / 72.0 * (1.0 - x2 / 110.0))))
+    } else {
+        x - x.sin()
+    }
 }
 
 impl Footprint {
@@ -68,12 +132,58 @@ impl Footprint {
         self.radius + self.orbit
     }
 
-    /// The removal rate, nm/s, at offset `(dx, dy)` mm from the orbit's centre under
-    /// pressure `mean − gradient·u`: Preston's law averaged over the orbit in closed form,
-    /// `K·V·[mean·β − (gradient·d)·(β − e·sin β / |d|)]/π` with
-    /// `cos β = (|d|² + e² − R²)/(2·|d|·e)` (docs/polishing.md).
+    /// Whether the pad hangs over the rim somewhere on the orbit centred at `centre`.
+    pub fn touches_rim(&self, centre: [f64; 2]) -> bool {
+        centre[0].hypot(centre[1]) + self.reach() > self.glass
+    }
+
+    /// The pressure at the pad's centre, N/mm², when that centre is at `p`: the force
+    /// balanced over the part of the pad on the glass, `p₀ = (F + g·S)/A` (A its area, S
+    /// its first moment about the pad's centre; a pad square to the glass and clear of
+    /// the rim: F/(πR²)). The area is taken as at least a quarter of the pad's (the paths
+    /// keep a margin).
     #[inline]
-    pub fn rate(&self, mean: f64, gradient: [f64; 2], dx: f64, dy: f64) -> f64 {
+    pub fn centre_pressure(&self, tick: &Tick, p: [f64; 2]) -> f64 {
+        let (area, s) = on_glass(self.radius, p, self.glass);
+        let floor = 0.25 * std::f64::consts::PI * self.radius * self.radius;
+        let g = tick.gradient;
+        (tick.force.max(0.0) + g[0] * s[0] + g[1] * s[1]) / area.max(floor)
+    }
+
+    /// The pressure at the pad's centre at phase `phi` of `tick`'s orbit.
+    #[inline]
+    fn phase_pressure(&self, tick: &Tick, phi: f64) -> f64 {
+        let (s, c) = phi.sin_cos();
+        let [x, y] = tick.centre;
+        self.centre_pressure(tick, [x + self.orbit * c, y + self.orbit * s])
+    }
+
+    /// The pressure at the pad's centre averaged over `tick`'s orbit, N/mm² (what a point
+    /// under the pad for the whole orbit sees, with the gradient's part, which averages
+    /// out): F/(πR²) clear of the rim, the mean over [`ORBIT_PHASES`] phases where the
+    /// pad overhangs it.
+    pub fn orbit_pressure(&self, tick: &Tick) -> f64 {
+        if !self.touches_rim(tick.centre) {
+            return tick.force.max(0.0) / (std::f64::consts::PI * self.radius * self.radius);
+        }
+        let sum: f64 = (0..ORBIT_PHASES)
+            .map(|j| {
+                let phi = std::f64::consts::TAU * j as f64 / ORBIT_PHASES as f64;
+                self.phase_pressure(tick, phi)
+            })
+            .sum();
+        sum / ORBIT_PHASES as f64
+    }
+
+    /// The removal rate, nm/s, at offset `(dx, dy)` mm from `tick`'s orbit centre, with
+    /// `orbit_pressure` its [`Footprint::orbit_pressure`]: Preston's law averaged over the
+    /// orbit. A point at offset `d` is under the pad over the arc of phases within β of
+    /// its own direction, `cos β = (|d|² + e² − R²)/(2·|d|·e)` (docs/polishing.md); the
+    /// pressure at the pad's centre `p₀(φ)` is constant clear of the rim, giving the
+    /// closed form `K·V·[p₀·β − (g·d)·(β − e·sin β / |d|)]/π`, and near the rim
+    /// `p₀·β` becomes `½∫ p₀(φ) dφ` over the arc (Gauss–Legendre, [`ARC_NODES`]).
+    #[inline]
+    pub fn rate(&self, tick: &Tick, orbit_pressure: f64, dx: f64, dy: f64) -> f64 {
         use std::f64::consts::PI;
         let (big, e) = (self.radius, self.orbit);
         let r = dx.hypot(dy);
@@ -86,6 +196,19 @@ impl Footprint {
                 .clamp(-1.0, 1.0)
                 .acos()
         };
+        let arc = if beta == PI || !self.touches_rim(tick.centre) {
+            orbit_pressure * beta
+        } else {
+            let theta = dy.atan2(dx);
+            let sum: f64 = ARC_NODES
+                .iter()
+                .map(|[x, w]| {
+                    w * (self.phase_pressure(tick, theta + beta * x)
+                        + self.phase_pressure(tick, theta - beta * x))
+                })
+                .sum();
+            0.5 * beta * sum
+        };
         // ∫ u dφ over the arc in contact is 2·d·(β − e·sin β / |d|); at |d| = 0 the arc
         // is the whole orbit and the integral vanishes.
         let lever = if r > 0.0 {
@@ -93,8 +216,9 @@ impl Footprint {
         } else {
             0.0
         };
-        let g_dot_d = gradient[0] * dx + gradient[1] * dy;
-        let pressure = (mean * beta - g_dot_d * lever) / PI;
+        let g = tick.gradient;
+        let g_dot_d = g[0] * dx + g[1] * dy;
+        let pressure = (arc - g_dot_d * lever) / PI;
         // mm/s → nm/s.
         self.preston * self.speed * pressure.max(0.0) * 1e6
     }
@@ -123,6 +247,7 @@ impl Footprint {
         let Some([r0, r1, c0, c1]) = self.pixel_box(n, pitch, tick.centre) else {
             return;
         };
+        let mean = self.orbit_pressure(tick);
         for r in r0..=r1 {
             for c in c0..=c1 {
                 let i = r * n + c;
@@ -131,7 +256,7 @@ impl Footprint {
                 }
                 let px = (c as f64 + 0.5 - half) * pitch;
                 let py = (r as f64 + 0.5 - half) * pitch;
-                map[i] -= tick.seconds * self.rate(tick.mean, tick.gradient, px - x, py - y);
+                map[i] -= tick.seconds * self.rate(tick, mean, px - x, py - y);
             }
         }
     }
@@ -146,7 +271,8 @@ struct Params {
     radius: f32,
     orbit: f32,
     scale: f32,
-    pad: [u32; 2],
+    glass: f32,
+    pad: u32,
 }
 
 /// Lays control ticks' removal over a map on a GPU: ticks are gathered on the host,
@@ -219,7 +345,8 @@ impl<'g> Accumulator<'g> {
             radius: footprint.radius as f32,
             orbit: footprint.orbit as f32,
             scale: (footprint.preston * footprint.speed * 1e6) as f32,
-            pad: [0; 2],
+            glass: footprint.glass.min(f64::from(f32::MAX)) as f32,
+            pad: 0,
         };
         let dispatch = gpu.dispatch(
             &ACCUMULATE,
@@ -253,14 +380,26 @@ impl<'g> Accumulator<'g> {
     /// Adds one tick; a full batch goes to the device.
     pub fn push(&mut self, tick: &Tick) -> Result<(), GpuError> {
         let t = tick;
+        // The orbit's mean pressure is the host's (in f64, over the orbit's phases); the
+        // kernel evaluates the pressure along an arc itself only where the pad overhangs
+        // the rim.
+        let rim = if self.footprint.touches_rim(t.centre) {
+            1.0
+        } else {
+            0.0
+        };
         self.batch.push([
             t.centre[0] as f32,
             t.centre[1] as f32,
-            t.mean as f32,
+            self.footprint.orbit_pressure(t) as f32,
             t.seconds as f32,
         ]);
-        self.batch
-            .push([t.gradient[0] as f32, t.gradient[1] as f32, 0.0, 0.0]);
+        self.batch.push([
+            t.gradient[0] as f32,
+            t.gradient[1] as f32,
+            t.force as f32,
+            rim,
+        ]);
         if self.batch.len() == 2 * self.capacity {
             self.flush()?;
         }

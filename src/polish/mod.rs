@@ -17,4 +17,4 @@ pub use fft::{Convolver, Fft2};
 pub use map::{Figure, Grid, HeightMap};
 pub use process::{Polisher, PoseSource, Setup, CLEAR_APERTURE, FORCE_RANGE};
 pub use surface::{draw as draw_surface, StartingPoint};
-pub use tif::{overlap_area, Contact, Pad};
+pub use tif::{Contact, Pad};

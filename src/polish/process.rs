@@ -201,10 +201,17 @@ impl Polisher {
             .collect();
         let bounds = raster.lengths.iter().map(|l| [l / hi, l / lo]).collect();
         let (kernel, reach) = pad.kernel(grid, DEFAULT_FORCE);
+        // A dwell point's gain at the rim: the orbit's mean pressure at the pad's centre
+        // over what it would be clear of the rim.
+        let footprint = pad.footprint(mirror.radius());
         let gain = (0..grid.len())
             .map(|i| {
-                let [x, y] = grid.centre(i / grid.n, i % grid.n);
-                pad.contact([x, y], [0.0, 0.0], 1.0, mirror.radius()).mean * pad.area()
+                let tick = pad.tick(
+                    grid.centre(i / grid.n, i % grid.n),
+                    &pad.contact([0.0; 2], 1.0),
+                    1.0,
+                );
+                footprint.orbit_pressure(&tick) * pad.area()
             })
             .collect();
         let solver = DwellSolver::new(
@@ -407,12 +414,12 @@ impl Polisher {
                 self.grid.n,
                 self.grid.pitch,
                 &self.glass,
-                self.setup.pad.footprint(),
+                self.setup.pad.footprint(self.mirror.radius()),
                 REMOVAL_BATCH,
             )?),
             None => None,
         };
-        let (footprint, mut failed) = (self.setup.pad.footprint(), None);
+        let (footprint, mut failed) = (self.setup.pad.footprint(self.mirror.radius()), None);
         let run = online::run_observed(
             machine,
             controller,
@@ -458,12 +465,7 @@ impl Polisher {
         // The glass's normal where the pad really is; the face's tilt against it.
         let normal = self.mirror.target(centre.x, centre.y).axis;
         let across = axis - normal * axis.dot(&normal);
-        let contact = self.setup.pad.contact(
-            [centre.x, centre.y],
-            [across.x, across.y],
-            s.hidden.force,
-            self.mirror.radius(),
-        );
+        let contact = self.setup.pad.contact([across.x, across.y], s.hidden.force);
         self.setup.pad.tick([centre.x, centre.y], &contact, dt)
     }
 }
@@ -497,9 +499,9 @@ mod tests {
             let (mut arc, mut t) = (0.0, 0.0);
             while t < total {
                 let [x, y] = polisher.path.at(arc);
-                let contact =
-                    pad.contact([x, y], [0.0, 0.0], dwell.force, polisher.mirror.radius());
-                pad.remove(&mut walked, &polisher.glass, [x, y], &contact, dt);
+                let contact = pad.contact([0.0, 0.0], dwell.force);
+                let glass = polisher.mirror.radius();
+                pad.remove(&mut walked, &polisher.glass, glass, [x, y], &contact, dt);
                 arc += plan.feed_at(arc) * dt;
                 t += dt;
             }

@@ -15,9 +15,11 @@
 //! rate(d) = K·V·[ p₀·β/π − (g·d)·(β − e·sin β / |d|)/π ]
 //! ```
 //!
-//! `p₀` balances the contact force over the part of the pad on the glass (the pad's
-//! centre's overhang at the rim, in the manner of Kim & Burge's edge model without its
-//! moment balance: the head holds the tool's attitude, so the moment goes into the head).
+//! `p₀` balances the contact force over the part of the pad on the glass, at every phase
+//! of the orbit: where the pad overhangs the rim, the part on the glass is pressed harder
+//! and `p₀` changes along the orbit, so the `p₀·β` above becomes its integral over the arc
+//! (`ops::removal`; in the manner of Kim & Burge's edge model with the force balanced and
+//! the moment taken by the head, which holds the tool's attitude).
 
 use super::map::{Grid, HeightMap};
 use crate::ops::removal::{Footprint, Tick};
@@ -54,31 +56,15 @@ impl Default for Pad {
     }
 }
 
-/// The pressure under the pad at one instant: `p(u) = mean − gradient·u`, N/mm².
+/// How the pad is pressed at one instant: the contact force and the pressure's gradient
+/// across the pad (`p(u) = p₀ − gradient·u`, p₀ the force over the part of the pad on
+/// the glass, [`Footprint::centre_pressure`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Contact {
-    /// Pressure at the pad's centre, N/mm².
-    pub mean: f64,
-    /// Its gradient across the pad in the map's xy plane, N/mm³.
+    /// The contact force, N.
+    pub force: f64,
+    /// The pressure's gradient across the pad in the map's xy plane, N/mm³.
     pub gradient: [f64; 2],
-}
-
-/// Area of the part of a disc of radius `a` centred `d` from the centre of a disc of
-/// radius `big` that lies inside it.
-pub fn overlap_area(a: f64, d: f64, big: f64) -> f64 {
-    use std::f64::consts::PI;
-    if d >= a + big {
-        0.0
-    } else if d + a <= big {
-        PI * a * a
-    } else if d + big <= a {
-        PI * big * big
-    } else {
-        let alpha = ((d * d + a * a - big * big) / (2.0 * d * a)).clamp(-1.0, 1.0);
-        let gamma = ((d * d + big * big - a * a) / (2.0 * d * big)).clamp(-1.0, 1.0);
-        let k = ((-d + a + big) * (d + a - big) * (d - a + big) * (d + a + big)).max(0.0);
-        a * a * alpha.acos() + big * big * gamma.acos() - 0.5 * k.sqrt()
-    }
 }
 
 impl Pad {
@@ -97,66 +83,66 @@ impl Pad {
         std::f64::consts::PI * self.radius * self.radius
     }
 
-    /// The contact of the pad centred at `centre` (mm, the map's plane) on glass of
-    /// radius `glass` mm, pressed with `force` N, its face tilted by `tilt` (the tool
-    /// axis's component across the surface normal, rad, in the map's plane). The
-    /// pressure balances the force over the part of the pad on the glass (never less
-    /// than a quarter of the pad: the paths keep a margin); the tilt's gradient is
-    /// limited so that the pad's rim never lifts off (pressure ≥ 0 everywhere).
-    pub fn contact(&self, centre: [f64; 2], tilt: [f64; 2], force: f64, glass: f64) -> Contact {
-        let on_glass =
-            overlap_area(self.radius, centre[0].hypot(centre[1]), glass).max(0.25 * self.area());
-        let mean = force.max(0.0) / on_glass;
+    /// The contact of the pad pressed with `force` N, its face tilted by `tilt` (the tool
+    /// axis's component across the surface normal, rad, in the map's plane): the tilt's
+    /// gradient `k·tilt`, limited so that the pad's rim never lifts off the glass where
+    /// the whole pad is on it (`|g|·R ≤ F/(πR²)`).
+    pub fn contact(&self, tilt: [f64; 2], force: f64) -> Contact {
+        let mean = force.max(0.0) / self.area();
         let mut gradient = [self.stiffness * tilt[0], self.stiffness * tilt[1]];
         let size = gradient[0].hypot(gradient[1]) * self.radius;
         if size > mean {
             let s = mean / size;
             gradient = [gradient[0] * s, gradient[1] * s];
         }
-        Contact { mean, gradient }
+        Contact { force, gradient }
     }
 
-    /// The pad as the removal sees it (`ops::removal`, which holds the removal's
-    /// arithmetic for the native path and the WGSL kernel alike).
-    pub fn footprint(&self) -> Footprint {
+    /// The pad as the removal sees it on a disc of glass of radius `glass` mm
+    /// (`ops::removal`, which holds the removal's arithmetic for the native path and the
+    /// WGSL kernel alike; `f64::INFINITY`: no rim).
+    pub fn footprint(&self, glass: f64) -> Footprint {
         Footprint {
             radius: self.radius,
             orbit: self.orbit_radius,
             preston: self.preston,
             speed: self.speed(),
+            glass,
         }
     }
 
-    /// The removal rate, nm/s, at offset `(dx, dy)` mm from the orbit's centre
-    /// ([`Footprint::rate`]).
-    #[inline]
+    /// The removal rate, nm/s, at offset `(dx, dy)` mm from the orbit's centre under
+    /// `contact`, clear of any rim ([`Footprint::rate`]).
     pub fn rate(&self, contact: &Contact, dx: f64, dy: f64) -> f64 {
-        self.footprint()
-            .rate(contact.mean, contact.gradient, dx, dy)
+        let footprint = self.footprint(f64::INFINITY);
+        let tick = self.tick([0.0, 0.0], contact, 1.0);
+        footprint.rate(&tick, footprint.orbit_pressure(&tick), dx, dy)
     }
 
     /// One control tick's removal: `seconds` at orbit centre `centre` (mm) under `contact`.
     pub fn tick(&self, centre: [f64; 2], contact: &Contact, seconds: f64) -> Tick {
         Tick {
             centre,
-            mean: contact.mean,
+            force: contact.force,
             gradient: contact.gradient,
             seconds,
         }
     }
 
     /// Removes `seconds` of the pad's removal at orbit centre `centre` (mm) from `map`,
-    /// on the pixels `on_glass` marks ([`Footprint::remove_tick`]).
+    /// on the pixels `on_glass` marks, the glass a disc of radius `glass` mm
+    /// ([`Footprint::remove_tick`]).
     pub fn remove(
         &self,
         map: &mut HeightMap,
         on_glass: &[bool],
+        glass: f64,
         centre: [f64; 2],
         contact: &Contact,
         seconds: f64,
     ) {
         let g = map.grid;
-        self.footprint().remove_tick(
+        self.footprint(glass).remove_tick(
             g.n,
             g.pitch,
             on_glass,
@@ -173,7 +159,7 @@ impl Pad {
         let reach = (self.reach() / grid.pitch).ceil() as usize;
         let side = 2 * reach + 1;
         let contact = Contact {
-            mean: force / self.area(),
+            force,
             gradient: [0.0, 0.0],
         };
         let area = grid.pitch * grid.pitch;
@@ -199,9 +185,10 @@ mod tests {
     fn rate_matches_the_orbit_average() {
         let pad = Pad::default();
         let contact = Contact {
-            mean: 0.08,
+            force: 0.08 * pad.area(),
             gradient: [3e-4, -2e-4],
         };
+        let mean = 0.08;
         let steps = 200_000;
         for &(dx, dy) in &[
             (0.0, 0.0),
@@ -218,7 +205,7 @@ mod tests {
                     dy - pad.orbit_radius * phi.sin(),
                 );
                 if ux.hypot(uy) < pad.radius {
-                    sum += contact.mean - contact.gradient[0] * ux - contact.gradient[1] * uy;
+                    sum += mean - contact.gradient[0] * ux - contact.gradient[1] * uy;
                 }
             }
             let want = pad.preston * pad.speed() * sum / steps as f64 * 1e6;
@@ -238,9 +225,16 @@ mod tests {
         let grid = Grid { n: 200, pitch: 0.5 };
         let on_glass = vec![true; grid.len()];
         for tilt in [[0.0, 0.0], [2e-3, 0.0]] {
-            let contact = pad.contact([0.0, 0.0], tilt, 100.0, 1e9);
+            let contact = pad.contact(tilt, 100.0);
             let mut map = HeightMap::zeros(grid);
-            pad.remove(&mut map, &on_glass, [0.0, 0.0], &contact, 1.0);
+            pad.remove(
+                &mut map,
+                &on_glass,
+                f64::INFINITY,
+                [0.0, 0.0],
+                &contact,
+                1.0,
+            );
             let (mut vol, mut mx) = (0.0, 0.0);
             for r in 0..grid.n {
                 for c in 0..grid.n {
@@ -257,7 +251,8 @@ mod tests {
             } else {
                 // Linear pressure over a disc moves the centroid by −g·R²/(4·p₀) for a
                 // still pad; the orbit spreads it further out, at the same shift.
-                let want = -contact.gradient[0] * pad.radius.powi(2) / (4.0 * contact.mean);
+                let want =
+                    -contact.gradient[0] * pad.radius.powi(2) / (4.0 * contact.force / pad.area());
                 assert!(
                     (centroid - want).abs() < 0.02 * want.abs(),
                     "tilted centroid {centroid} against {want}"
@@ -274,14 +269,21 @@ mod tests {
         let pad = Pad::default();
         let grid = Grid { n: 160, pitch: 0.5 };
         let on_glass = vec![true; grid.len()];
-        let contact = pad.contact([0.0, 0.0], [1e-3, -2e-3], 100.0, 1e9);
+        let contact = pad.contact([1e-3, -2e-3], 100.0);
         let walk = |d: f64| {
             let mut map = HeightMap::zeros(grid);
             for i in -4..=4 {
                 for j in -4..=4 {
                     let (x, y) = (3.0 * i as f64 + 0.2, 3.0 * j as f64 - 0.1);
                     let seconds = 1.0 + 0.04 * x + 0.01 * y;
-                    pad.remove(&mut map, &on_glass, [x + d, y], &contact, seconds);
+                    pad.remove(
+                        &mut map,
+                        &on_glass,
+                        f64::INFINITY,
+                        [x + d, y],
+                        &contact,
+                        seconds,
+                    );
                 }
             }
             map
@@ -310,7 +312,7 @@ mod tests {
         let pad = Pad::default();
         let grid = Grid { n: 128, pitch: 1.0 };
         let on_glass = vec![true; grid.len()];
-        let contact = pad.contact([0.0, 0.0], [0.0, 0.0], 100.0, 1e9);
+        let contact = pad.contact([0.0, 0.0], 100.0);
         let period = 20.0;
         let k = std::f64::consts::TAU / period;
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
@@ -329,7 +331,14 @@ mod tests {
                             crate::twin::gaussian(rng, sigma),
                             crate::twin::gaussian(rng, sigma),
                         );
-                        pad.remove(&mut map, &on_glass, [x + dx, y + dy], &contact, seconds);
+                        pad.remove(
+                            &mut map,
+                            &on_glass,
+                            f64::INFINITY,
+                            [x + dx, y + dy],
+                            &contact,
+                            seconds,
+                        );
                     }
                 }
             }
@@ -359,15 +368,149 @@ mod tests {
         );
     }
 
+    /// The part of the pad on the glass, in closed form, against the pad's disc summed
+    /// on a fine lattice: its area and first moment, on the glass, astride the rim and
+    /// mostly off it.
     #[test]
-    fn overlap_area_limits() {
-        use std::f64::consts::PI;
-        assert_eq!(overlap_area(1.0, 0.0, 10.0), PI);
-        assert_eq!(overlap_area(1.0, 12.0, 10.0), 0.0);
-        // Half the pad over a straight edge, nearly, for a huge disc.
-        let half = overlap_area(1.0, 1000.0, 1000.0);
-        assert!((half - 0.5 * PI).abs() < 1e-3, "{half}");
-        let rim = Pad::default().contact([250.0, 0.0], [0.0, 0.0], 100.0, 255.0);
-        assert!(rim.mean > 100.0 / Pad::default().area());
+    fn the_part_on_the_glass_matches_a_lattice_sum() {
+        use crate::ops::removal::on_glass;
+        let (a, big) = (15.0, 255.0);
+        let steps = 1500;
+        let h = 2.0 * a / steps as f64;
+        for p in [
+            [0.0, 0.0],
+            [230.0, 0.0],
+            [176.0, 176.0],
+            [-250.0, 9.0],
+            [0.0, -262.0],
+        ] {
+            let (mut area, mut m) = (0.0, [0.0, 0.0]);
+            for i in 0..steps {
+                for j in 0..steps {
+                    let (u, v) = (-a + (i as f64 + 0.5) * h, -a + (j as f64 + 0.5) * h);
+                    if u.hypot(v) < a && (p[0] + u).hypot(p[1] + v) < big {
+                        area += h * h;
+                        m[0] += u * h * h;
+                        m[1] += v * h * h;
+                    }
+                }
+            }
+            let (got, s) = on_glass(a, p, big);
+            let full = std::f64::consts::PI * a * a;
+            assert!(
+                (got - area).abs() < 2e-4 * full,
+                "{p:?}: area {got} against {area}"
+            );
+            for k in 0..2 {
+                assert!(
+                    (s[k] - m[k]).abs() < 2e-4 * full * a,
+                    "{p:?}: moment {s:?} against {m:?}"
+                );
+            }
+        }
+        assert_eq!(on_glass(a, [0.0, 300.0], big).0, 0.0);
+    }
+
+    /// Near the rim the rate's quadrature over the arc against the orbit averaged by
+    /// brute force (200 000 phases, the pad's part on the glass at each): a tilted pad
+    /// whose orbit crosses the rim, at points on and beyond its footprint.
+    #[test]
+    fn rate_at_the_rim_matches_the_orbit_average() {
+        let pad = Pad::default();
+        let big = 255.0;
+        let footprint = pad.footprint(big);
+        let contact = pad.contact([2e-3, -1e-3], 90.0);
+        let steps = 200_000;
+        for centre in [[240.0, 0.0], [0.0, -246.0], [170.0, 175.0]] {
+            let tick = pad.tick(centre, &contact, 1.0);
+            assert!(footprint.touches_rim(centre));
+            let mean = footprint.orbit_pressure(&tick);
+            let mut peak = 0.0f64;
+            let mut worst = 0.0f64;
+            for &(dx, dy) in &[
+                (0.0, 0.0),
+                (5.0, 3.0),
+                (-11.0, 4.0),
+                (12.0, -10.0),
+                (-3.0, 18.5),
+                (19.0, 2.0),
+                (6.0, -16.0),
+            ] {
+                let mut sum = 0.0;
+                for k in 0..steps {
+                    let phi = std::f64::consts::TAU * (k as f64 + 0.5) / steps as f64;
+                    let (ox, oy) = (pad.orbit_radius * phi.cos(), pad.orbit_radius * phi.sin());
+                    let (ux, uy) = (dx - ox, dy - oy);
+                    if ux.hypot(uy) < pad.radius {
+                        let p0 = footprint.centre_pressure(&tick, [centre[0] + ox, centre[1] + oy]);
+                        sum += p0 - contact.gradient[0] * ux - contact.gradient[1] * uy;
+                    }
+                }
+                let want = pad.preston * pad.speed() * sum / steps as f64 * 1e6;
+                let got = footprint.rate(&tick, mean, dx, dy);
+                peak = peak.max(want.abs());
+                worst = worst.max((got - want).abs());
+            }
+            assert!(
+                worst < 1e-4 * peak,
+                "{centre:?}: worst {worst} of {peak} nm/s"
+            );
+        }
+    }
+
+    /// Where the pad overhangs the rim, the whole force still presses on the glass: the
+    /// volume removed from the glass is Preston's K·V·F, tilted or not, and the depth
+    /// under the overhanging pad is larger than clear of the rim.
+    #[test]
+    fn at_the_rim_the_force_removes_kvf_from_the_glass() {
+        let pad = Pad::default();
+        let grid = Grid {
+            n: 720,
+            pitch: 0.25,
+        };
+        let big = 80.0;
+        let on_glass = grid.disc(big);
+        let kvf = pad.preston * pad.speed() * 100.0;
+        let depth = |map: &HeightMap, x: f64| {
+            let (r, c) = (
+                grid.n / 2,
+                ((x / grid.pitch) + 0.5 * grid.n as f64) as usize,
+            );
+            -map.values[r * grid.n + c]
+        };
+        let mut clear = HeightMap::zeros(grid);
+        pad.remove(
+            &mut clear,
+            &on_glass,
+            big,
+            [0.0, 0.0],
+            &pad.contact([0.0, 0.0], 100.0),
+            1.0,
+        );
+        for (centre, tilt) in [
+            ([70.0, 0.0], [0.0, 0.0]),
+            ([75.0, 0.0], [3e-3, 1e-3]),
+            ([0.0, 80.0], [-2e-3, 2e-3]),
+        ] {
+            let contact = pad.contact(tilt, 100.0);
+            let mut map = HeightMap::zeros(grid);
+            pad.remove(&mut map, &on_glass, big, centre, &contact, 1.0);
+            let vol: f64 = map
+                .values
+                .iter()
+                .map(|v| -v * 1e-6 * grid.pitch * grid.pitch)
+                .sum();
+            assert!(
+                (vol - kvf).abs() < 5e-3 * kvf,
+                "{centre:?}: volume {vol} against {kvf}"
+            );
+            if centre[1] == 0.0 {
+                let (at, inside) = (depth(&map, centre[0]), depth(&clear, 0.0));
+                assert!(
+                    at > 1.02 * inside,
+                    "{centre:?}: {at} nm against {inside} clear of the rim"
+                );
+            }
+        }
     }
 }

@@ -225,6 +225,7 @@ fn removal_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> {
         orbit: 6.0,
         preston: 2.4e-6,
         speed: std::f64::consts::TAU * 6.0 * 300.0 / 60.0,
+        glass: 29.0,
     };
     let mut g = rng(options.seed + 2);
     let glass: Vec<bool> = (0..n * n)
@@ -238,7 +239,7 @@ fn removal_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> {
         .chunks(5)
         .map(|v| Tick {
             centre: [38.0 * v[0], 38.0 * v[1]],
-            mean: 0.125 + 0.075 * v[2],
+            force: 700.0 * (0.125 + 0.075 * v[2]),
             gradient: [1e-3 * v[3], 1e-3 * v[4]],
             seconds: 0.02,
         })
