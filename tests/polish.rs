@@ -79,6 +79,30 @@ fn polishing_removes_glass_at_the_true_pose_deterministically() {
     assert!(differs > 0.1, "the pose error left no mark: {differs} nm");
 }
 
+/// A set-up the removal's model does not hold for is refused before any work, naming the
+/// field: a pad as large as the mirror, an orbit wider than the pad, NaN or negative
+/// constants.
+#[test]
+fn impossible_pads_are_refused_naming_the_field() {
+    type Spoil = fn(&mut Setup);
+    let cases: [(&str, Spoil); 5] = [
+        ("quarter of the mirror", |s| s.pad.radius = 200.0),
+        ("orbit_radius", |s| s.pad.orbit_radius = 20.0),
+        ("preston", |s| s.pad.preston = f64::NAN),
+        ("radius", |s| s.pad.radius = -1.0),
+        ("stiffness", |s| s.pad.stiffness = -0.1),
+    ];
+    for (field, spoil) in cases {
+        let mut setup = Setup::new(PathKind::Grid);
+        spoil(&mut setup);
+        let message = match Polisher::new(setup) {
+            Ok(_) => panic!("a pad with a bad {field} was accepted"),
+            Err(e) => e.to_string(),
+        };
+        assert!(message.contains(field), "{field}: {message}");
+    }
+}
+
 fn row(seed: u64, controller: &str, iteration: usize, pv: f64, rms: f64) -> PolishRow {
     PolishRow {
         surface_seed: seed,

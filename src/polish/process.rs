@@ -146,6 +146,35 @@ impl Polisher {
             )
         })?;
         let pad = setup.pad;
+        for (field, value) in [
+            ("radius", pad.radius),
+            ("orbit_radius", pad.orbit_radius),
+            ("orbit_rpm", pad.orbit_rpm),
+            ("preston", pad.preston),
+        ] {
+            ensure(value.is_finite() && value > 0.0, || {
+                format!("the pad's {field} must be a positive number, got {value}")
+            })?;
+        }
+        ensure(pad.stiffness.is_finite() && pad.stiffness >= 0.0, || {
+            format!(
+                "the pad's stiffness must be ≥ 0 N/mm³, got {}",
+                pad.stiffness
+            )
+        })?;
+        ensure(pad.orbit_radius < pad.radius, || {
+            format!(
+                "the pad's orbit_radius ({} mm) must be less than its radius ({} mm): the pad covers its orbit's centre",
+                pad.orbit_radius, pad.radius
+            )
+        })?;
+        ensure(4.0 * pad.reach() < mirror.diameter, || {
+            format!(
+                "the pad reaches {} mm from its orbit's centre (radius + orbit_radius): more than a quarter of the mirror's {} mm",
+                pad.reach(),
+                mirror.diameter
+            )
+        })?;
         let grid = Grid::covering(mirror.radius() + pad.reach(), setup.pitch)?;
         let glass = grid.disc(mirror.radius());
         let clear = grid.disc(0.5 * setup.clear_aperture);
