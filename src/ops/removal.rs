@@ -108,8 +108,8 @@ pub fn on_glass(a: f64, p: [f64; 2], big: f64) -> (f64, [f64; 2]) {
         // subtends at the origin: in a form that keeps its digits when the segment is a
         // sliver of a large disc (the WGSL kernel's, in f32).
         let glass = 0.5 * big * big * chord_segment(2.0 * w.atan2(hg));
-        let m = glass; // d·A_glass along −p/d.
-        (small + glass, [-p[0] * m, -p[1] * m])
+        // The moment d·A_glass along −p/d.
+        (small + glass, [-p[0] * glass, -p[1] * glass])
     }
 }
 

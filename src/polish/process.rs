@@ -235,11 +235,11 @@ impl Polisher {
         let footprint = pad.footprint(mirror.radius());
         let gain = (0..grid.len())
             .map(|i| {
-                let tick = pad.tick(
-                    grid.centre(i / grid.n, i % grid.n),
-                    &pad.contact([0.0; 2], 1.0),
-                    1.0,
-                );
+                let tick = Tick {
+                    centre: grid.centre(i / grid.n, i % grid.n),
+                    force: 1.0,
+                    ..Tick::default()
+                };
                 footprint.orbit_pressure(&tick) * pad.area()
             })
             .collect();
