@@ -1,23 +1,29 @@
-//! Per-kernel profile of the network: every step of a schedule timed on its own
-//! (`Network::profile`), grouped across blocks, with its share of the pass, its GFLOP/s
-//! and its ratio to the project's best matmul measured in the same run. This is the
-//! "every heavy kernel at ≥ 70 % of the best matmul" check of the GPU issue.
+//! Per-kernel profile of the network (`Network::profile`): every step of a pass, grouped
+//! across blocks, with its share of the pass, its GFLOP/s and its ratio to the project's
+//! best matmul measured in the same run. This is the "every heavy kernel at ≥ 70 % of
+//! the best matmul" check of the GPU issue.
 //!
 //! `cargo bench --bench kernels` profiles the training step (forward + loss + backward)
 //! and the inference forward at B = 64 for the paper shape (C 64, T 100, L 5) and the
 //! small shape (C 16, T 48, L 3). Arguments pick a subset: `-- paper`, `-- small`,
-//! `-- train`, `-- infer`. Each step is submitted alone and waited for (~0.5 ms of
-//! overhead on lavapipe), twice, keeping the faster; a heavy step is one that takes at
-//! least 2 % of its pass. The baseline is measured just before and just after each pass
-//! and their mean is the reference. About 2 minutes for everything on the 2-core lavapipe
-//! machine.
+//! `-- train`, `-- infer`; `-- alone` times each step submitted alone.
+//!
+//! Where the device has timestamp queries (lavapipe and the usual Vulkan, DX12 and Metal
+//! drivers), the whole pass runs in one submit as training runs it and each launch is
+//! timed by timestamps at its start and end; the report adds the pass's wall time in
+//! one untimed submit, the span from the first launch to the last, and the time between
+//! launches (barriers, copies). Otherwise (or with `-- alone`) each step is submitted
+//! alone and waited for, so every row carries a submit's cost (~0.25 ms on an H200,
+//! ~0.5 ms on lavapipe). Best of two repeats either way; a heavy step takes at least 2 %
+//! of its pass. The baseline is measured just before and just after each pass and their
+//! mean is the reference. About 2 minutes for everything on the 2-core lavapipe machine.
 
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
 use common::network;
 use iastgcn::gpu::{Dispatch, Gpu, Recorder};
-use iastgcn::model::{ModelConfig, Pass, StepTime};
+use iastgcn::model::{ModelConfig, Network, Pass, Profile, Timing};
 use iastgcn::ops::matmul::Matmul;
 
 mod common;
@@ -58,8 +64,30 @@ struct Row {
     flops: f64,
 }
 
-fn report(title: &str, times: &[StepTime], base: f64) {
-    let total: Duration = times.iter().map(|t| t.time).sum();
+/// The pass's wall time in one untimed submit (record, submit, wait), best of 3.
+fn wall(gpu: &Gpu, net: &Network, pass: Pass) -> Duration {
+    (0..3)
+        .map(|_| {
+            let mut rec = Recorder::new(gpu);
+            match pass {
+                Pass::Train => {
+                    net.record_train_forward(&mut rec).unwrap();
+                    net.record_backward(&mut rec).unwrap();
+                }
+                Pass::Inference => net.record_forward(&mut rec).unwrap(),
+            }
+            let t0 = Instant::now();
+            rec.submit().unwrap();
+            gpu.wait().unwrap();
+            t0.elapsed()
+        })
+        .min()
+        .unwrap()
+}
+
+fn report(title: &str, profile: &Profile, wall: Duration, base: f64) {
+    let times = &profile.steps;
+    let total = profile.launches();
     let mut rows: BTreeMap<(String, String), Row> = BTreeMap::new();
     for t in times {
         let kernel = t
@@ -77,16 +105,32 @@ fn report(title: &str, times: &[StepTime], base: f64) {
     rows.sort_by_key(|r| std::cmp::Reverse(r.1.time));
     let gemm_time: Duration = times.iter().filter(|t| t.flops > 0.0).map(|t| t.time).sum();
     let flops: f64 = times.iter().map(|t| t.flops).sum();
+    let launches: usize = times.iter().filter(|t| t.kernel != "copy").count();
+    match profile.timing {
+        Timing::Timestamps => eprintln!(
+            "\n{title}: {} steps ({launches} kernels) in one submit: {wall:.3?} wall, \
+             {:.3?} from the first launch's start to the last one's end, {total:.3?} in \
+             launches, {:.3?} ({:.1}%) between them (barriers, copies)",
+            times.len(),
+            profile.span,
+            profile.between_launches(),
+            100.0 * profile.between_launches().as_secs_f64() / profile.span.as_secs_f64(),
+        ),
+        Timing::Alone => eprintln!(
+            "\n{title}: {} steps ({launches} kernels), {total:.3?} when each is timed alone \
+             ({wall:.3?} wall in one submit)",
+            times.len(),
+        ),
+    }
     eprintln!(
-        "\n{title}: {} steps, {total:.3?} when each is timed alone; contractions {:.1}% of it \
-         at {:.2} GFLOP/s overall ({:.2}× the baseline)",
-        times.len(),
+        "  contractions {:.1}% of the launches' time at {:.2} GFLOP/s overall \
+         ({:.2}× the baseline)",
         100.0 * gemm_time.as_secs_f64() / total.as_secs_f64(),
         flops / gemm_time.as_secs_f64() / 1e9,
         flops / gemm_time.as_secs_f64() / 1e9 / base,
     );
     eprintln!(
-        "  {:<14} {:<34} {:>5} {:>10} {:>6} {:>8} {:>6}",
+        "  {:<26} {:<34} {:>5} {:>10} {:>6} {:>8} {:>6}",
         "kernel", "writes", "steps", "time", "%", "GFLOP/s", "ratio"
     );
     let mut shown = Duration::ZERO;
@@ -108,7 +152,7 @@ fn report(title: &str, times: &[StepTime], base: f64) {
             ""
         };
         eprintln!(
-            "  {kernel:<14} {target:<34} {:>5} {:>10.3?} {:>6.2} {gflops:>8} {ratio:>6}{mark}",
+            "  {kernel:<26} {target:<34} {:>5} {:>10.3?} {:>6.2} {gflops:>8} {ratio:>6}{mark}",
             r.steps,
             r.time,
             100.0 * share,
@@ -134,6 +178,18 @@ fn main() {
         !named || args.iter().any(|a| a == what)
     };
     let gpu = Gpu::new().expect("a GPU adapter (make bench installs lavapipe)");
+    let timing = if std::env::args().any(|a| a == "alone") {
+        Timing::Alone
+    } else {
+        Timing::best(&gpu)
+    };
+    eprintln!(
+        "timing: {}",
+        match timing {
+            Timing::Timestamps => "the whole pass in one submit, each launch between timestamps",
+            Timing::Alone => "each step submitted alone and waited for",
+        }
+    );
     let product = common::baseline(&gpu);
     let shapes = [
         ("paper C64 T100 L5", "paper", ModelConfig::default()),
@@ -152,19 +208,20 @@ fn main() {
                 continue;
             }
             // Untimed once: the first dispatch of each pipeline JIT-compiles it.
-            net.profile(&gpu, pass, 1).unwrap();
+            net.profile(&gpu, pass, timing, 1).unwrap();
             // The baseline just before and just after the pass, their mean counting: on a
             // shared machine the speed drifts within a run (by up to 1.7x within a minute
             // on 2026-11-22), and a baseline taken minutes away drifts the ratios with it.
             let before = baseline(&gpu, &product);
-            let times = net.profile(&gpu, pass, 2).unwrap();
+            let profile = net.profile(&gpu, pass, timing, 2).unwrap();
+            let wall = wall(&gpu, &net, pass);
             let after = baseline(&gpu, &product);
             let base = 0.5 * (before + after);
             eprintln!(
                 "\nbaseline matmul 896x[64,192]x[192,100] around this pass: \
                  {before:.2} / {after:.2} GFLOP/s"
             );
-            report(&format!("{name} {label} B={BATCH}"), &times, base);
+            report(&format!("{name} {label} B={BATCH}"), &profile, wall, base);
         }
     }
 }

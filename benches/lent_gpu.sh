@@ -21,7 +21,7 @@
 # In order: the adapter (`iastgcn info`), `iastgcn smoke` (every kernel against its CPU
 # reference on the GPU), the model bench's device rows (the baseline product, forward at
 # B = 1 and 64, the training step at B = 64, both shapes; IASTGCN_BENCH_CSV), the kernels
-# bench of both shapes' training step (each launch timed alone), the mirror's removal and
+# bench of both shapes' training step (in one submit, each launch between timestamps), the mirror's removal and
 # dwell solve natively and as WGSL kernels (the polish bench, when carried), and compare.py: the
 # interop check and PyTorch on the same GPU through CUDA against those rows. Everything
 # lands in OUTDIR (log.txt holds all of it); about 2 minutes on an H200.

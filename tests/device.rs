@@ -2,7 +2,9 @@
 //! tensors, the pipeline cache, the recorder and explicit readback; the smoke check of a
 //! device, from the library and from the command line.
 
-use iastgcn::gpu::{choose_adapter, DType, GpuError, Readback, Recorder, SUBGROUPS_ENV};
+use iastgcn::gpu::{
+    choose_adapter, DType, GpuError, Readback, Recorder, Timestamps, SUBGROUPS_ENV,
+};
 use iastgcn::ops::elementwise::{self, Unary};
 use iastgcn::ops::matmul;
 use iastgcn::ops::Accumulate;
@@ -110,6 +112,79 @@ fn recorder_batches_copy_zero_and_dispatch_in_one_submit() {
     rec.read_into(&y, &rb).unwrap();
     rec.submit().unwrap();
     assert!(rb.read_f32(&g).unwrap().iter().all(|&v| v == 0.0));
+}
+
+#[test]
+fn a_timed_recorder_times_each_launch_in_one_submit_and_computes_the_same() {
+    let g = gpu();
+    assert!(
+        g.has_timestamps(),
+        "{} offers timestamp queries, so the device opens with them",
+        g.info().name
+    );
+    // A product of 2·384³ FLOPs and a ReLU of 700 floats, twice each, alternating.
+    let mm = matmul::Matmul::new(384, 384, 384);
+    let ramp =
+        |len: usize| -> Vec<f32> { (0..len).map(|i| ((i % 97) as f32 - 48.0) / 50.0).collect() };
+    let a = g.upload("a", &[mm.a_len()], &ramp(mm.a_len())).unwrap();
+    let b = g.upload("b", &[mm.b_len()], &ramp(mm.b_len())).unwrap();
+    let c = g.zeros("c", &[mm.c_len()], DType::F32).unwrap();
+    let product = mm.forward(&g, &a, &b, &c, Accumulate::Overwrite).unwrap();
+    let x = g.upload("x", &[700], &ramp(700)).unwrap();
+    let y = g.zeros("y", &[700], DType::F32).unwrap();
+    let relu = elementwise::unary_forward(&g, Unary::Relu, &x, &y, Accumulate::Add).unwrap();
+    let run = |timed: Option<&Timestamps>| {
+        g.write(&y, &[0.0f32; 700]).unwrap();
+        let mut rec = match timed {
+            Some(stamps) => Recorder::timed(&g, stamps),
+            None => Recorder::new(&g),
+        };
+        for d in [&relu, &product, &relu, &product] {
+            rec.dispatch(d);
+        }
+        let launches = rec.timed_launches();
+        rec.submit().unwrap();
+        g.wait().unwrap();
+        (launches, g.read_f32(&c).unwrap(), g.read_f32(&y).unwrap())
+    };
+    let (untimed, c_plain, y_plain) = run(None);
+    assert_eq!(untimed, 0);
+    let stamps = Timestamps::new(&g, 4).unwrap();
+    let (launches, c_timed, y_timed) = run(Some(&stamps));
+    assert_eq!(launches, 4);
+    assert_eq!(
+        c_timed, c_plain,
+        "timing a launch changes nothing it computes"
+    );
+    assert_eq!(y_timed, y_plain);
+    let t = stamps.read(&g, 4).unwrap();
+    for (i, w) in t.windows(2).enumerate() {
+        assert!(
+            w[1].start_ns >= w[0].end_ns,
+            "launch {} starts before launch {i} ends: {t:?}",
+            i + 1
+        );
+    }
+    let (relus, products) = (
+        t[0].duration_ns() + t[2].duration_ns(),
+        t[1].duration_ns() + t[3].duration_ns(),
+    );
+    assert!(
+        products > 5.0 * relus && relus > 0.0,
+        "the 113-MFLOP products ({products} ns) take far longer than the 700-float ReLUs \
+         ({relus} ns; lavapipe: ~0.4 ms a launch against ~10 ms): {t:?}"
+    );
+    // More launches than the timestamps hold: refused at the submit, saying so.
+    let one = Timestamps::new(&g, 1).unwrap();
+    let mut rec = Recorder::timed(&g, &one);
+    rec.dispatch(&relu);
+    rec.dispatch(&relu);
+    let err = rec.submit().unwrap_err().to_string();
+    assert!(err.contains("2 launches") && err.contains("for 1"), "{err}");
+    assert!(
+        stamps.read(&g, 5).is_err(),
+        "reading past the capacity is refused"
+    );
 }
 
 #[test]

@@ -7,7 +7,7 @@
 use common::parameters;
 use iastgcn::graph::Graph;
 use iastgcn::model::reference::{self, DropoutStep, Loss};
-use iastgcn::model::{graph_basis, ModelConfig, Network, Variant};
+use iastgcn::model::{graph_basis, ModelConfig, Network, Pass, Timing, Variant};
 use iastgcn::testing::{compare, gpu, rng, to_f32, uniform, Tolerance};
 
 mod common;
@@ -189,4 +189,42 @@ fn paper_shape_forward_matches_reference() {
     )
     .unwrap();
     println!("paper shape: {w}; GPU forward {gpu_time:?} (first run, incl. pipeline creation), f64 reference {cpu_time:?}");
+}
+
+#[test]
+fn a_profile_times_every_step_of_the_training_step_in_one_submit() {
+    let g = gpu();
+    let graph = Graph::default_asset();
+    let config = ModelConfig::gradient_check(Variant::Iastgcn);
+    let batch = 4;
+    let net = Network::new(&g, &config, &graph, batch, DROPOUT_SEED).unwrap();
+    net.load_parameters(&g, &parameters(&config, 5)).unwrap();
+    let (_, forward, backward) = net.schedule_sizes();
+    for timing in [Timing::Timestamps, Timing::Alone] {
+        let p = net.profile(&g, Pass::Train, timing, 2).unwrap();
+        assert_eq!(p.timing, timing);
+        assert_eq!(
+            p.steps.len(),
+            forward + backward,
+            "{timing:?}: one row per step"
+        );
+        let kernels = p.steps.iter().filter(|s| s.kernel != "copy");
+        assert!(
+            kernels.clone().all(|s| s.time > std::time::Duration::ZERO),
+            "{timing:?}: every launch takes time"
+        );
+        assert!(kernels.clone().any(|s| s.kernel.ends_with("loss_forward")));
+        assert!(
+            kernels.filter(|s| s.flops > 0.0).count() > 10,
+            "{timing:?}: the products"
+        );
+        assert!(
+            p.span >= p.launches(),
+            "{timing:?}: the span holds every launch"
+        );
+    }
+    let infer = net
+        .profile(&g, Pass::Inference, Timing::Timestamps, 1)
+        .unwrap();
+    assert_eq!(infer.steps.len(), net.schedule_sizes().0);
 }

@@ -225,11 +225,13 @@ impl Gpu {
             adapter_features & wgpu::Features::SUBGROUP
         } else {
             wgpu::Features::empty()
-        };
+        } | (adapter_features & wgpu::Features::TIMESTAMP_QUERY);
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("iastgcn"),
             // Subgroup operations where offered: the matmul's lavapipe kernel shares
             // operand loads across a subgroup's lanes (ops/matmul/plan.rs picks it).
+            // Timestamp queries where offered: profiles time each launch in one submit
+            // (gpu/timestamps.rs); nothing else writes them.
             required_features: wanted_features,
             // wgpu's defaults are far below what compute needs (256 MiB buffers, 16 KiB
             // workgroup memory); ask for everything the adapter offers.
@@ -302,6 +304,14 @@ impl Gpu {
         let fixed = self.info.subgroup_min_size == self.info.subgroup_max_size;
         let enabled = self.device.features().contains(wgpu::Features::SUBGROUP);
         (enabled && fixed).then_some(self.info.subgroup_min_size)
+    }
+
+    /// True when the device was opened with timestamp queries (the adapter offers them),
+    /// so [`super::Timestamps`] can time launches.
+    pub fn has_timestamps(&self) -> bool {
+        self.device
+            .features()
+            .contains(wgpu::Features::TIMESTAMP_QUERY)
     }
 
     /// True when the adapter is a CPU implementation (lavapipe, WARP, ...).

@@ -6,6 +6,7 @@ mod device;
 mod pipeline;
 mod recorder;
 mod tensor;
+mod timestamps;
 
 pub use device::{
     choose_adapter, describe, Allocation, Device, Gpu, ADAPTER_ENV, BACKENDS, INSTALL_HINT,
@@ -14,6 +15,7 @@ pub use device::{
 pub use pipeline::{validate_wgsl, Access, Binding, Kernel, PipelineCache, Shader, COMMON_WGSL};
 pub use recorder::{Dispatch, Recorder};
 pub use tensor::{DType, Readback, Tensor};
+pub use timestamps::{Interval, Timestamps};
 
 use wgpu::util::DeviceExt;
 

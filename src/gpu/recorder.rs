@@ -3,6 +3,7 @@
 use std::sync::Arc;
 
 use super::pipeline::Pipeline;
+use super::timestamps::Timestamps;
 use super::{Gpu, GpuError, Readback, Tensor};
 
 /// One kernel launch with its buffers bound: built once, recorded any number of times.
@@ -91,6 +92,10 @@ pub struct Recorder<'g> {
     dispatches: usize,
     /// The first dispatch's label, for errors.
     first: Option<String>,
+    /// Where a timed recorder writes each launch's start and end ([`Recorder::timed`]).
+    stamps: Option<&'g Timestamps>,
+    /// Launches recorded with timestamps so far.
+    timed: u32,
 }
 
 impl<'g> Recorder<'g> {
@@ -107,16 +112,42 @@ impl<'g> Recorder<'g> {
             pass: None,
             dispatches: 0,
             first: None,
+            stamps: None,
+            timed: 0,
         }
+    }
+
+    /// A recorder that times every launch: each runs in its own compute pass with a
+    /// timestamp at its start and end, still in one submit and in order. After the
+    /// submit, [`Timestamps::read`] gives the intervals, [`Recorder::timed_launches`]
+    /// how many. More launches than `stamps` holds make the submit fail.
+    pub fn timed(gpu: &'g Gpu, stamps: &'g Timestamps) -> Recorder<'g> {
+        Recorder {
+            stamps: Some(stamps),
+            ..Recorder::new(gpu)
+        }
+    }
+
+    /// Launches recorded so far by a timed recorder, in the order [`Timestamps::read`]
+    /// returns their intervals (0 for an untimed one).
+    pub fn timed_launches(&self) -> usize {
+        self.timed as usize
     }
 
     /// Records one dispatch (with the launches chained to it).
     pub fn dispatch(&mut self, d: &Dispatch) {
+        if self.stamps.is_some() {
+            self.end_pass();
+        }
+        let launch = self.timed;
+        let writes = self
+            .stamps
+            .and_then(|s| ((launch as usize) < s.capacity()).then(|| s.writes(launch)));
         let pass = self.pass.get_or_insert_with(|| {
             self.encoder
                 .begin_compute_pass(&wgpu::ComputePassDescriptor {
                     label: Some("ops"),
-                    timestamp_writes: None,
+                    timestamp_writes: writes,
                 })
                 .forget_lifetime()
         });
@@ -125,6 +156,10 @@ impl<'g> Recorder<'g> {
         let [x, y, z] = d.workgroups;
         pass.dispatch_workgroups(x, y, z);
         self.dispatches += 1;
+        if self.stamps.is_some() {
+            self.timed += 1;
+            self.end_pass();
+        }
         if self.first.is_none() {
             self.first = Some(d.label.clone());
         }
@@ -223,6 +258,16 @@ impl<'g> Recorder<'g> {
         self.end_pass();
         let gpu = self.gpu;
         let (dispatches, first) = (self.dispatches, self.first.take());
+        if let Some(stamps) = self.stamps {
+            if self.timed as usize > stamps.capacity() {
+                return Err(GpuError::Device(format!(
+                    "{} launches recorded to be timed, timestamps for {}",
+                    self.timed,
+                    stamps.capacity()
+                )));
+            }
+            stamps.resolve(&mut self.encoder, self.timed);
+        }
         let encoder = self.encoder;
         let (index, error) = gpu.scoped(wgpu::ErrorFilter::Validation, || {
             gpu.queue.submit([encoder.finish()])

@@ -26,4 +26,4 @@ pub mod schedule;
 pub use native::{product_for_bench, NativeAdam, NativeForward, NativeStepShape, NativeTraining};
 pub use network::{ModelError, Network, Pass};
 pub use predictor::{Backend, Features, Predictor, Residual};
-pub use schedule::StepTime;
+pub use schedule::{Profile, StepTime, Timing};

@@ -10,7 +10,7 @@ use super::conv_lstm::ConvLstmBody;
 use super::dense::{Architecture, DenseBody};
 use super::params::{check_parameter_count, graph_basis, param_specs, ParamSpec, Parameters};
 use super::recurrent::{RecurrentBody, TimeLoop};
-use super::schedule::{Scratch, StepTime, Steps};
+use super::schedule::{self, Profile, Scratch, Steps, Timing};
 use crate::gpu::{DType, Gpu, GpuError, Recorder, Tensor};
 use crate::graph::Graph;
 use crate::ops::bias::Bias;
@@ -454,21 +454,21 @@ impl Network {
         Ok(())
     }
 
-    /// Times each step of a schedule on its own ([`Steps::profile`]): `Pass::Train`
-    /// profiles the training forward then the backward. For benchmarks.
+    /// Where the time of one pass goes, step by step: the training step (forward, loss
+    /// and backward, recorded as training records them) or the inference forward, timed
+    /// as `timing` says ([`Timing::best`] picks timestamps where the device has them).
     pub fn profile(
         &self,
         gpu: &Gpu,
         pass: Pass,
+        timing: Timing,
         repeats: usize,
-    ) -> Result<Vec<StepTime>, GpuError> {
+    ) -> Result<Profile, GpuError> {
         match pass {
-            Pass::Inference => self.infer.profile(gpu, repeats),
+            Pass::Inference => schedule::profile(gpu, &[&self.infer], timing, repeats),
             Pass::Train => {
                 self.expect_training()?;
-                let mut times = self.train.profile(gpu, repeats)?;
-                times.extend(self.backward.profile(gpu, repeats)?);
-                Ok(times)
+                schedule::profile(gpu, &[&self.train, &self.backward], timing, repeats)
             }
         }
     }

@@ -4,7 +4,7 @@
 use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
-use crate::gpu::{DType, Dispatch, Gpu, GpuError, Recorder, Tensor};
+use crate::gpu::{DType, Dispatch, Gpu, GpuError, Recorder, Tensor, Timestamps};
 
 /// One entry of a schedule.
 #[derive(Debug)]
@@ -93,43 +93,9 @@ impl Steps {
         }
         Ok(())
     }
-
-    /// Times every step on its own: each is submitted alone and waited for, `repeats`
-    /// times, keeping the fastest. The steps run in schedule order, so each reads what
-    /// the steps before it wrote. A submit + wait costs ~0.5 ms on lavapipe, which is
-    /// in every figure: read the small steps as upper bounds.
-    pub fn profile(&self, gpu: &Gpu, repeats: usize) -> Result<Vec<StepTime>, GpuError> {
-        let mut times = Vec::with_capacity(self.0.len());
-        for step in &self.0 {
-            let mut best = Duration::MAX;
-            for _ in 0..repeats.max(1) {
-                let mut rec = Recorder::new(gpu);
-                Self::record_step(step, &mut rec)?;
-                let t0 = Instant::now();
-                rec.submit()?;
-                gpu.wait()?;
-                best = best.min(t0.elapsed());
-            }
-            times.push(match step {
-                Step::Run(d) => StepTime {
-                    kernel: d.label().to_string(),
-                    target: d.target().to_string(),
-                    flops: d.flops(),
-                    time: best,
-                },
-                Step::CopyRange { src, dst, .. } => StepTime {
-                    kernel: "copy".into(),
-                    target: format!("{} <- {}", dst.name(), src.name()),
-                    flops: 0.0,
-                    time: best,
-                },
-            });
-        }
-        Ok(times)
-    }
 }
 
-/// One step's time from [`Steps::profile`].
+/// One step's time in a [`Profile`].
 #[derive(Clone, Debug)]
 pub struct StepTime {
     /// `shader::entry`, or `copy`.
@@ -138,7 +104,9 @@ pub struct StepTime {
     pub target: String,
     /// FLOPs of a contraction, 0 otherwise.
     pub flops: f64,
-    /// The fastest of the repeats, submit and wait included.
+    /// The fastest of the repeats: with [`Timing::Timestamps`] the device's time of the
+    /// step's launches (a copy reads 0: it falls between launches), with
+    /// [`Timing::Alone`] its submit and wait included.
     pub time: Duration,
 }
 
@@ -147,6 +115,145 @@ impl StepTime {
     pub fn gflops(&self) -> f64 {
         self.flops / self.time.as_secs_f64() / 1e9
     }
+}
+
+/// How a profile timed its steps.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Timing {
+    /// The whole pass in one submit, as training runs it, each launch timed by the
+    /// device's timestamps at its start and end (needs [`Gpu::has_timestamps`]).
+    Timestamps,
+    /// Each step submitted alone and waited for: the submit's cost is in every figure
+    /// (~0.25 ms on an H200, ~0.5 ms on lavapipe), so small steps read as upper bounds.
+    Alone,
+}
+
+impl Timing {
+    /// Timestamps where the device has them, else each step alone.
+    pub fn best(gpu: &Gpu) -> Timing {
+        if gpu.has_timestamps() {
+            Timing::Timestamps
+        } else {
+            Timing::Alone
+        }
+    }
+}
+
+/// Where a pass's time goes, step by step ([`profile`]).
+#[derive(Clone, Debug)]
+pub struct Profile {
+    /// Every step of the pass, in schedule order.
+    pub steps: Vec<StepTime>,
+    /// How they were timed.
+    pub timing: Timing,
+    /// With timestamps, the fastest repeat's time from the first launch's start to the
+    /// last one's end; each step alone, the sum of the steps.
+    pub span: Duration,
+}
+
+impl Profile {
+    /// The steps' times summed.
+    pub fn launches(&self) -> Duration {
+        self.steps.iter().map(|s| s.time).sum()
+    }
+
+    /// The part of the span outside every launch (barriers, copies, gaps in the
+    /// device's front end); 0 when each step ran alone.
+    pub fn between_launches(&self) -> Duration {
+        self.span.saturating_sub(self.launches())
+    }
+}
+
+/// Times the steps of `passes`, recorded one after the other as a training step records
+/// them, `repeats` times, keeping each step's fastest. They run in schedule order, so
+/// each reads what the steps before it wrote.
+pub fn profile(
+    gpu: &Gpu,
+    passes: &[&Steps],
+    timing: Timing,
+    repeats: usize,
+) -> Result<Profile, GpuError> {
+    let steps = || passes.iter().flat_map(|p| p.0.iter());
+    let mut times: Vec<StepTime> = steps()
+        .map(|step| match step {
+            Step::Run(d) => StepTime {
+                kernel: d.label().to_string(),
+                target: d.target().to_string(),
+                flops: d.flops(),
+                time: Duration::MAX,
+            },
+            Step::CopyRange { src, dst, .. } => StepTime {
+                kernel: "copy".into(),
+                target: format!("{} <- {}", dst.name(), src.name()),
+                flops: 0.0,
+                time: Duration::MAX,
+            },
+        })
+        .collect();
+    let mut span = Duration::MAX;
+    match timing {
+        Timing::Alone => {
+            for _ in 0..repeats.max(1) {
+                for (step, time) in steps().zip(times.iter_mut()) {
+                    let mut rec = Recorder::new(gpu);
+                    Steps::record_step(step, &mut rec)?;
+                    let t0 = Instant::now();
+                    rec.submit()?;
+                    gpu.wait()?;
+                    time.time = time.time.min(t0.elapsed());
+                }
+            }
+            span = times.iter().map(|t| t.time).sum();
+        }
+        Timing::Timestamps => {
+            let launches: usize = steps()
+                .map(|step| match step {
+                    Step::Run(d) => d.launches(),
+                    Step::CopyRange { .. } => 0,
+                })
+                .sum();
+            let stamps = Timestamps::new(gpu, launches)?;
+            for _ in 0..repeats.max(1) {
+                let mut rec = Recorder::timed(gpu, &stamps);
+                for pass in passes {
+                    pass.record(&mut rec)?;
+                }
+                let timed = rec.timed_launches();
+                rec.submit()?;
+                let intervals = stamps.read(gpu, timed)?;
+                let mut next = intervals.iter();
+                for (step, time) in steps().zip(times.iter_mut()) {
+                    let ns: f64 = match step {
+                        Step::Run(d) => next
+                            .by_ref()
+                            .take(d.launches())
+                            .map(|i| i.duration_ns())
+                            .sum(),
+                        Step::CopyRange { .. } => 0.0,
+                    };
+                    time.time = time.time.min(Duration::from_secs_f64(ns * 1e-9));
+                }
+                let start = intervals
+                    .iter()
+                    .map(|i| i.start_ns)
+                    .fold(f64::INFINITY, f64::min);
+                let end = intervals
+                    .iter()
+                    .map(|i| i.end_ns)
+                    .fold(f64::NEG_INFINITY, f64::max);
+                if end > start {
+                    span = span.min(Duration::from_secs_f64((end - start) * 1e-9));
+                } else {
+                    span = Duration::ZERO;
+                }
+            }
+        }
+    }
+    Ok(Profile {
+        steps: times,
+        timing,
+        span,
+    })
 }
 
 /// Scratch buffers shared by the backward passes of all blocks (only one block's
