@@ -6,7 +6,8 @@
 //! `cargo bench --bench kernels` profiles the training step (forward + loss + backward)
 //! and the inference forward at B = 64 for the paper shape (C 64, T 100, L 5) and the
 //! small shape (C 16, T 48, L 3). Arguments pick a subset: `-- paper`, `-- small`,
-//! `-- train`, `-- infer`; `-- alone` times each step submitted alone.
+//! `-- train`, `-- infer`; `-- alone` times each step submitted alone; `-- all` lists
+//! every row (else those under 0.5 % of the pass are summed in one line).
 //!
 //! Where the device has timestamp queries (lavapipe and the usual Vulkan, DX12 and Metal
 //! drivers), the whole pass runs in one submit as training runs it and each launch is
@@ -85,11 +86,12 @@ fn wall(gpu: &Gpu, net: &Network, pass: Pass) -> Duration {
         .unwrap()
 }
 
-fn report(title: &str, profile: &Profile, wall: Duration, base: f64) {
+fn report(title: &str, profile: &Profile, wall: Duration, base: f64, all_rows: bool) {
     let times = &profile.steps;
+    let copies = times.iter().filter(|t| t.kernel == "copy").count();
     let total = profile.launches();
     let mut rows: BTreeMap<(String, String), Row> = BTreeMap::new();
-    for t in times {
+    for t in times.iter().filter(|t| t.kernel != "copy") {
         let kernel = t
             .kernel
             .rsplit("::")
@@ -105,21 +107,19 @@ fn report(title: &str, profile: &Profile, wall: Duration, base: f64) {
     rows.sort_by_key(|r| std::cmp::Reverse(r.1.time));
     let gemm_time: Duration = times.iter().filter(|t| t.flops > 0.0).map(|t| t.time).sum();
     let flops: f64 = times.iter().map(|t| t.flops).sum();
-    let launches: usize = times.iter().filter(|t| t.kernel != "copy").count();
+    let kernels = times.len() - copies;
     match profile.timing {
         Timing::Timestamps => eprintln!(
-            "\n{title}: {} steps ({launches} kernels) in one submit: {wall:.3?} wall, \
-             {:.3?} from the first launch's start to the last one's end, {total:.3?} in \
-             launches, {:.3?} ({:.1}%) between them (barriers, copies)",
-            times.len(),
+            "\n{title}: {kernels} kernels and {copies} copies in one submit: {wall:.3?} \
+             wall, {:.3?} from the first launch's start to the last one's end, {total:.3?} \
+             in launches, {:.3?} ({:.1}%) between them (barriers, the copies)",
             profile.span,
             profile.between_launches(),
             100.0 * profile.between_launches().as_secs_f64() / profile.span.as_secs_f64(),
         ),
         Timing::Alone => eprintln!(
-            "\n{title}: {} steps ({launches} kernels), {total:.3?} when each is timed alone \
-             ({wall:.3?} wall in one submit)",
-            times.len(),
+            "\n{title}: {kernels} kernels and {copies} copies, {total:.3?} when each is \
+             timed alone ({wall:.3?} wall in one submit)",
         ),
     }
     eprintln!(
@@ -136,7 +136,7 @@ fn report(title: &str, profile: &Profile, wall: Duration, base: f64) {
     let mut shown = Duration::ZERO;
     for ((kernel, target), r) in &rows {
         let share = r.time.as_secs_f64() / total.as_secs_f64();
-        if share < 0.005 {
+        if share < 0.005 && !all_rows {
             continue;
         }
         shown += r.time;
@@ -158,10 +158,12 @@ fn report(title: &str, profile: &Profile, wall: Duration, base: f64) {
             100.0 * share,
         );
     }
-    eprintln!(
-        "  (rows under 0.5% left out: {:.2?} in all)",
-        total.saturating_sub(shown)
-    );
+    if !all_rows {
+        eprintln!(
+            "  (rows under 0.5% left out: {:.2?} in all; `-- all` lists them)",
+            total.saturating_sub(shown)
+        );
+    }
 }
 
 fn gflops_ratio(r: &Row, base: f64) -> f64 {
@@ -178,6 +180,7 @@ fn main() {
         !named || args.iter().any(|a| a == what)
     };
     let gpu = Gpu::new().expect("a GPU adapter (make bench installs lavapipe)");
+    let all_rows = std::env::args().any(|a| a == "all");
     let timing = if std::env::args().any(|a| a == "alone") {
         Timing::Alone
     } else {
@@ -221,7 +224,13 @@ fn main() {
                 "\nbaseline matmul 896x[64,192]x[192,100] around this pass: \
                  {before:.2} / {after:.2} GFLOP/s"
             );
-            report(&format!("{name} {label} B={BATCH}"), &profile, wall, base);
+            report(
+                &format!("{name} {label} B={BATCH}"),
+                &profile,
+                wall,
+                base,
+                all_rows,
+            );
         }
     }
 }
