@@ -76,6 +76,11 @@ override C_VEC: bool = false;
 // The gated activation: C = tanh(gate_f) * sigmoid(C) elementwise (after the bias), the
 // gate of the gated convolution fused into the gate product (gated_dcc.wgsl has it alone).
 override GATE: bool = false;
+// A sigmoid fused into a product (never with GATE or RELU): 1: C = sigmoid(C) (after the
+// bias), an attention's scores; 2: C = C * s * (1 - s) with s = gate_f laid out like C
+// (a sigmoid's output), the sigmoid's backward fused into the product of its output's
+// gradient (elementwise.wgsl has both alone).
+override SIGMOID: u32 = 0u;
 // The product with an identity added to one operand, the identity's term added here:
 // 1: C = op(A)·(op(B) + I), element (i, j) of op(A) added (k = n); 2: C = (op(A) + I)·op(B),
 // element (i, j) of op(B) added (k = m). Never with a reduction over a batch axis.
@@ -195,6 +200,12 @@ fn store_row(z: u32, row: u32, col0: u32, v: vec4<f32>) {
                               tanh_stable(gate_f[o + 2u]), tanh_stable(gate_f[o + 3u]));
             x = f * vec4<f32>(sigmoid(x.x), sigmoid(x.y), sigmoid(x.z), sigmoid(x.w));
         }
+        if SIGMOID == 1u {
+            x = vec4<f32>(sigmoid(x.x), sigmoid(x.y), sigmoid(x.z), sigmoid(x.w));
+        } else if SIGMOID == 2u {
+            let s = vec4<f32>(gate_f[o], gate_f[o + 1u], gate_f[o + 2u], gate_f[o + 3u]);
+            x = x * s * (1.0 - s);
+        }
         if RELU {
             x = vec4<f32>(relu(x.x), relu(x.y), relu(x.z), relu(x.w));
         }
@@ -219,6 +230,12 @@ fn store_row(z: u32, row: u32, col0: u32, v: vec4<f32>) {
             }
             if GATE {
                 x = tanh_stable(gate_f[o + j]) * sigmoid(x);
+            }
+            if SIGMOID == 1u {
+                x = sigmoid(x);
+            } else if SIGMOID == 2u {
+                let s = gate_f[o + j];
+                x = x * s * (1.0 - s);
             }
             if RELU {
                 x = relu(x);

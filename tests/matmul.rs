@@ -370,6 +370,106 @@ fn gate_epilogue_applies_tanh_of_the_filter_times_sigmoid() {
 }
 
 #[test]
+fn sigmoid_epilogues_give_an_attentions_scores_and_their_gradient() {
+    // Forward: S = σ(op(A)·op(B) + bias matrix), the attention scores (T×T items, and the
+    // spatial N×N ones with a transposed B). Backward: dB = (op(A)ᵀ·dC) ⊙ s ⊙ (1 − s) for
+    // the product V·s that reads them, on shared and per-item weights.
+    let g = gpu();
+    let sigma = |x: f64| 1.0 / (1.0 + (-x).exp());
+    let scores = [
+        Matmul::new(20, 20, 14).batched(3),
+        Matmul::new(14, 14, 20).batched(2).transpose_b(true),
+    ];
+    for (i, mm) in on_every_kernel(&g, scores).into_iter().enumerate() {
+        let x = inputs(&mm, 700 + i as u64);
+        let add: Vec<f64> = (0..mm.m * mm.n).map(|j| 0.3 - j as f64 * 0.002).collect();
+        let (a, b, ta) = (
+            upload(&g, "a", &x.a),
+            upload(&g, "b", &x.b),
+            upload(&g, "be", &add),
+        );
+        let c = g.zeros("sig", &[mm.c_len()], DType::F32).unwrap();
+        let epilogue = Epilogue {
+            matrix: Some(&ta),
+            sigmoid: true,
+            ..Epilogue::default()
+        };
+        g.run(&[mm
+            .forward_with(&g, &a, &b, &c, Accumulate::Overwrite, epilogue)
+            .unwrap()])
+            .unwrap();
+        let want: Vec<f64> = cpu::forward(&mm, &x.a, &x.b)
+            .iter()
+            .enumerate()
+            .map(|(j, v)| sigma(v + add[j % (mm.m * mm.n)]))
+            .collect();
+        compare_tensor(&g, &format!("{mm:?} σ(· + be)"), &c, &want, gpu_tol(mm.k)).unwrap();
+    }
+    let weights = [
+        Matmul::new(20, 20, 20).batched(3).share_a(true),
+        Matmul::new(14, 14, 14).batched(2),
+        Matmul::new(12, 36, 12).batched(2).share_a(true),
+    ];
+    for (i, mm) in on_every_kernel(&g, weights).into_iter().enumerate() {
+        let x = inputs(&mm, 720 + i as u64);
+        let s = round_f32(&uniform(&mut rng(740 + i as u64), mm.b_len(), 0.01, 0.99));
+        let (a, dc, ts) = (
+            upload(&g, "a", &x.a),
+            upload(&g, "dc", &x.dc),
+            upload(&g, "s", &s),
+        );
+        let db = g.zeros("dP", &[mm.b_len()], DType::F32).unwrap();
+        let epilogue = Epilogue {
+            sigmoid_backward: Some(&ts),
+            ..Epilogue::default()
+        };
+        g.run(&[mm
+            .backward_b_with(&g, &a, &dc, &db, Accumulate::Overwrite, epilogue)
+            .unwrap()])
+            .unwrap();
+        let (_, dsig) = cpu::backward(&mm, &x.a, &x.b, &x.dc);
+        let want: Vec<f64> = dsig
+            .iter()
+            .zip(&s)
+            .map(|(d, s)| d * s * (1.0 - s))
+            .collect();
+        compare_tensor(&g, &format!("{mm:?} dP"), &db, &want, gpu_tol(mm.m)).unwrap();
+        // Refused: onto an accumulation, two activations, a tensor not laid out like dB,
+        // a bias on a gradient.
+        let err = |e: Epilogue, acc| {
+            mm.backward_b_with(&g, &a, &dc, &db, acc, e)
+                .unwrap_err()
+                .to_string()
+        };
+        let msg = err(epilogue, Accumulate::Add);
+        assert!(msg.contains("dP") && msg.contains("accumulation"), "{msg}");
+        let both = Epilogue {
+            relu: true,
+            ..epilogue
+        };
+        let msg = err(both, Accumulate::Overwrite);
+        assert!(msg.contains("one of ReLU"), "{msg}");
+        let short = g.zeros("s short", &[mm.b_len() - 1], DType::F32).unwrap();
+        let msg = err(
+            Epilogue {
+                sigmoid_backward: Some(&short),
+                ..Epilogue::default()
+            },
+            Accumulate::Overwrite,
+        );
+        assert!(msg.contains("s short"), "{msg}");
+        let msg = err(
+            Epilogue {
+                bias: Some(&ts),
+                ..Epilogue::default()
+            },
+            Accumulate::Overwrite,
+        );
+        assert!(msg.contains("an activation alone"), "{msg}");
+    }
+}
+
+#[test]
 fn accumulate_adds_to_existing_values() {
     let g = gpu();
     let shape = Matmul::new(9, 6, 5)

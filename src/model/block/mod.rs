@@ -92,7 +92,7 @@ struct Temporal {
     xu1: Tensor,
     lhs: Tensor,
     rhs: Tensor,
-    p: Tensor,
+    /// σ(lhs·rhs + be): the scores, bias and sigmoid applied in the product's epilogue.
     sig: Tensor,
     e: Tensor,
     ep: Tensor,
@@ -104,7 +104,7 @@ struct Spatial {
     xw1: Tensor,
     lhs: Tensor,
     rhs: Tensor,
-    p: Tensor,
+    /// σ(lhs·rhsᵀ + bs), as in the temporal attention.
     sig: Tensor,
     s: Tensor,
     sp: Tensor,
@@ -198,7 +198,6 @@ impl Block {
                 xu1: z("tat.xu1", &[b, ci, t])?,
                 lhs: z("tat.lhs", &[b, t, n])?,
                 rhs: z("tat.rhs", &[b, n, t])?,
-                p: z("tat.P", &[b, t, t])?,
                 sig: z("tat.sig", &[b, t, t])?,
                 e: z("tat.E", &[b, t, t])?,
                 ep: z("tat.E'", &[b, t, t])?,
@@ -208,7 +207,6 @@ impl Block {
                 xw1: z("sat.xw1", &[b, n, ci])?,
                 lhs: z("sat.lhs", &[b, n, t])?,
                 rhs: z("sat.rhs", &[b, n, t])?,
-                p: z("sat.P", &[b, n, n])?,
                 sig: z("sat.sig", &[b, n, n])?,
                 s: z("sat.S", &[b, n, n])?,
                 sp: z("sat.S'", &[b, n, n])?,

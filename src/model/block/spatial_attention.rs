@@ -7,7 +7,7 @@
 use super::{Block, ParamTable};
 use crate::gpu::{Gpu, GpuError, Tensor};
 use crate::model::schedule::{Scratch, Steps};
-use crate::ops::elementwise::{unary_backward, unary_forward, Unary};
+use crate::ops::matmul::Epilogue;
 use crate::ops::outer::Second;
 use crate::ops::Accumulate::Overwrite;
 
@@ -36,19 +36,16 @@ impl Block {
             self.mm_w3()
                 .forward(gpu, w("sat.W3"), xt, &sa.rhs, Overwrite),
         )?;
+        // σ(P + bs), P = lhs·rhsᵀ, in the product's epilogue.
+        let scores = Epilogue {
+            matrix: Some(w("sat.bs")),
+            sigmoid: true,
+            ..Epilogue::default()
+        };
         steps.run(
             self.mm_sp()
-                .forward(gpu, &sa.lhs, &sa.rhs, &sa.p, Overwrite),
+                .forward_with(gpu, &sa.lhs, &sa.rhs, &sa.sig, Overwrite, scores),
         )?;
-        let bs = self.spatial_score_bias();
-        steps.run(bs.forward(gpu, w("sat.bs"), &sa.p))?;
-        steps.run(unary_forward(
-            gpu,
-            Unary::Sigmoid,
-            &sa.p,
-            &sa.sig,
-            Overwrite,
-        ))?;
         steps.run(
             self.mm_vs()
                 .forward(gpu, w("sat.Vs"), &sa.sig, &sa.s, Overwrite),
@@ -75,11 +72,7 @@ impl Block {
         let w = |s: &str| p.param(&self.name(s));
         let dw = |s: &str| p.grad(&self.name(s));
         let nn = [d.b, d.n, d.n];
-        let (dss, dsig, dp) = (
-            scratch.get("sat.dS", &nn)?,
-            scratch.get("sat.dsig", &nn)?,
-            scratch.get("sat.dP", &nn)?,
-        );
+        let (dss, dp) = (scratch.get("sat.dS", &nn)?, scratch.get("sat.dP", &nn)?);
         let dxt = scratch.get("dX_t", &[d.b, d.n, d.ci, d.t])?;
         let xt = &sa.xt;
         steps.run(
@@ -88,15 +81,12 @@ impl Block {
         )?;
         let mvs = self.mm_vs();
         steps.run(mvs.backward_a(gpu, &sa.sig, &dss, dw("sat.Vs"), Overwrite))?;
-        steps.run(mvs.backward_b(gpu, w("sat.Vs"), &dss, &dsig, Overwrite))?;
-        steps.run(unary_backward(
-            gpu,
-            Unary::Sigmoid,
-            &sa.sig,
-            &dsig,
-            &dp,
-            Overwrite,
-        ))?;
+        // dP = (Vsᵀ·dS) ⊙ σ'(·), the sigmoid's backward in the product's epilogue.
+        let sigmoid = Epilogue {
+            sigmoid_backward: Some(&sa.sig),
+            ..Epilogue::default()
+        };
+        steps.run(mvs.backward_b_with(gpu, w("sat.Vs"), &dss, &dp, Overwrite, sigmoid))?;
         let bs = self.spatial_score_bias();
         steps.run(bs.backward(gpu, &dp, dw("sat.bs"), Overwrite))?;
         let msp = self.mm_sp();

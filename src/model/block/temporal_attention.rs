@@ -4,7 +4,7 @@
 use super::{Block, ParamTable};
 use crate::gpu::{Gpu, GpuError, Tensor};
 use crate::model::schedule::{Scratch, Steps};
-use crate::ops::elementwise::{unary_backward, unary_forward, Unary};
+use crate::ops::matmul::Epilogue;
 use crate::ops::outer::Second;
 use crate::ops::Accumulate::{Add, Overwrite};
 
@@ -34,19 +34,16 @@ impl Block {
             self.mm_u3()
                 .forward(gpu, w("tat.U3"), x, &ta.rhs, Overwrite),
         )?;
+        // σ(P + be), P = lhs·rhs, in the product's epilogue.
+        let scores = Epilogue {
+            matrix: Some(w("tat.be")),
+            sigmoid: true,
+            ..Epilogue::default()
+        };
         steps.run(
             self.mm_tp()
-                .forward(gpu, &ta.lhs, &ta.rhs, &ta.p, Overwrite),
+                .forward_with(gpu, &ta.lhs, &ta.rhs, &ta.sig, Overwrite, scores),
         )?;
-        let be = self.temporal_score_bias();
-        steps.run(be.forward(gpu, w("tat.be"), &ta.p))?;
-        steps.run(unary_forward(
-            gpu,
-            Unary::Sigmoid,
-            &ta.p,
-            &ta.sig,
-            Overwrite,
-        ))?;
         steps.run(
             self.mm_ve()
                 .forward(gpu, w("tat.Ve"), &ta.sig, &ta.e, Overwrite),
@@ -77,10 +74,9 @@ impl Block {
         let x = &self.input;
         // X_t = X·(E' + I), so dX += dX_t·(E' + I)ᵀ.
         let tt = [d.b, d.t, d.t];
-        let (dep, de, dsig, dp) = (
+        let (dep, de, dp) = (
             scratch.get("tat.dE'", &tt)?,
             scratch.get("tat.dE", &tt)?,
-            scratch.get("tat.dsig", &tt)?,
             scratch.get("tat.dP", &tt)?,
         );
         let mxt = self.mm_xt();
@@ -92,15 +88,12 @@ impl Block {
         )?;
         let mve = self.mm_ve();
         steps.run(mve.backward_a(gpu, &ta.sig, &de, dw("tat.Ve"), Overwrite))?;
-        steps.run(mve.backward_b(gpu, w("tat.Ve"), &de, &dsig, Overwrite))?;
-        steps.run(unary_backward(
-            gpu,
-            Unary::Sigmoid,
-            &ta.sig,
-            &dsig,
-            &dp,
-            Overwrite,
-        ))?;
+        // dP = (Veᵀ·dE) ⊙ σ'(·), the sigmoid's backward in the product's epilogue.
+        let sigmoid = Epilogue {
+            sigmoid_backward: Some(&ta.sig),
+            ..Epilogue::default()
+        };
+        steps.run(mve.backward_b_with(gpu, w("tat.Ve"), &de, &dp, Overwrite, sigmoid))?;
         let be = self.temporal_score_bias();
         steps.run(be.backward(gpu, &dp, dw("tat.be"), Overwrite))?;
         let mtp = self.mm_tp();

@@ -62,6 +62,22 @@ impl Matmul {
     ) -> Result<Dispatch, GpuError> {
         a.expect_len(self.a_len())?;
         b.expect_len(self.b_len())?;
+        c.expect_len(self.c_len())?;
+        self.check_epilogue(c, accumulate, &epilogue)?;
+        self.check_identity(c)?;
+        self.forward_gemm()
+            .dispatch_with(gpu, a, b, c, accumulate, epilogue)
+    }
+
+    /// Refuses an epilogue the kernel cannot apply to this product's C: a bias or a
+    /// matrix of the wrong length, both at once, a tensor not laid out like C, two
+    /// activations, or a sigmoid's backward onto an accumulated C.
+    fn check_epilogue(
+        &self,
+        c: &Tensor,
+        accumulate: Accumulate,
+        epilogue: &Epilogue,
+    ) -> Result<(), GpuError> {
         if let Some(bias) = epilogue.bias {
             bias.expect_len(self.m)?;
         }
@@ -75,13 +91,8 @@ impl Matmul {
                 });
             }
         }
-        if let Some(gate) = epilogue.gate {
-            gate.expect_len(self.c_len())?;
-        }
-        c.expect_len(self.c_len())?;
-        self.check_identity(c)?;
-        self.forward_gemm()
-            .dispatch_with(gpu, a, b, c, accumulate, epilogue)
+        check_activation(c, self.c_len(), accumulate, epilogue)?;
+        self.check_identity(c)
     }
 
     /// `da (+)= ∂L/∂a` given `dc = ∂L/∂c` (needs `b`).
@@ -111,13 +122,69 @@ impl Matmul {
         db: &Tensor,
         accumulate: Accumulate,
     ) -> Result<Dispatch, GpuError> {
+        self.backward_b_with(gpu, a, dc, db, accumulate, Epilogue::default())
+    }
+
+    /// [`Matmul::backward_b`] with an epilogue on `db` (laid out like B): e.g. the
+    /// backward of a sigmoid that produced B, `db = (op(a)ᵀ·dc) ⊙ s ⊙ (1 − s)`.
+    pub fn backward_b_with(
+        &self,
+        gpu: &Gpu,
+        a: &Tensor,
+        dc: &Tensor,
+        db: &Tensor,
+        accumulate: Accumulate,
+        epilogue: Epilogue,
+    ) -> Result<Dispatch, GpuError> {
         a.expect_len(self.a_len())?;
         dc.expect_len(self.c_len())?;
         db.expect_len(self.b_len())?;
+        if epilogue.bias.is_some() || epilogue.matrix.is_some() || epilogue.gate.is_some() {
+            return Err(GpuError::Shape {
+                tensor: db.name().to_string(),
+                expected: "an activation alone in the epilogue of a gradient".into(),
+                got: format!("{epilogue:?}"),
+            });
+        }
+        check_activation(db, self.b_len(), accumulate, &epilogue)?;
         let (gemm, dc_first) = self.backward_b_gemm();
         let (lhs, rhs) = if dc_first { (dc, a) } else { (a, dc) };
-        gemm.dispatch(gpu, lhs, rhs, db, accumulate)
+        gemm.dispatch_with(gpu, lhs, rhs, db, accumulate, epilogue)
     }
+}
+
+/// The epilogue's activation on an output of `len` elements: at most one, the tensor it
+/// reads laid out like the output, and a sigmoid's backward never onto an accumulation.
+fn check_activation(
+    out: &Tensor,
+    len: usize,
+    accumulate: Accumulate,
+    epilogue: &Epilogue,
+) -> Result<(), GpuError> {
+    if let Some(t) = epilogue.like_c() {
+        t.expect_len(len)?;
+    }
+    let activations = [
+        epilogue.relu,
+        epilogue.gate.is_some(),
+        epilogue.sigmoid,
+        epilogue.sigmoid_backward.is_some(),
+    ];
+    if activations.iter().filter(|&&a| a).count() > 1 {
+        return Err(GpuError::Shape {
+            tensor: out.name().to_string(),
+            expected: "one of ReLU, gate, sigmoid or its backward in an epilogue".into(),
+            got: format!("{epilogue:?}"),
+        });
+    }
+    if epilogue.sigmoid_backward.is_some() && accumulate == Accumulate::Add {
+        return Err(GpuError::Shape {
+            tensor: out.name().to_string(),
+            expected: "a sigmoid's backward overwriting its output".into(),
+            got: "accumulation onto it".into(),
+        });
+    }
+    Ok(())
 }
 
 impl Gemm {
@@ -159,6 +226,7 @@ impl Gemm {
             ("BIAS", f64::from(bias_mode)),
             ("RELU", flag(epilogue.relu)),
             ("GATE", flag(epilogue.gate.is_some())),
+            ("SIGMOID", f64::from(epilogue.sigmoid_mode())),
             ("C_VEC", flag(self.n.is_multiple_of(4))),
             ("PLUS_I", f64::from(self.plus.mode())),
         ]);
@@ -349,7 +417,7 @@ impl Gemm {
     ) -> Result<Dispatch, GpuError> {
         let bias = epilogue.bias.or(epilogue.matrix);
         out.expect_distinct(
-            [Some(lhs), Some(rhs), bias, epilogue.gate]
+            [Some(lhs), Some(rhs), bias, epilogue.like_c()]
                 .into_iter()
                 .flatten(),
         )?;
@@ -424,7 +492,7 @@ impl Gemm {
         } else {
             gemm.tiled_grid(gpu, out_batches, &mut constants)?
         };
-        let gate = epilogue.gate.unwrap_or(lhs);
+        let gate = epilogue.like_c().unwrap_or(lhs);
         let tensors = [lhs, rhs, lhs, rhs, bias.unwrap_or(lhs), gate, out, out];
         let d = gpu.dispatch(kernel, &constants, &params, &tensors, groups)?;
         Ok(d.with_flops(flops))

@@ -130,12 +130,39 @@ pub struct Epilogue<'t> {
     /// Laid out like C: the output becomes `tanh(gate) ⊙ σ(product + bias)`, the gated
     /// activation fused into the gate product.
     pub gate: Option<&'t Tensor>,
+    /// σ(·) of the final value (after the bias): an attention's scores fused into the
+    /// product that forms them.
+    pub sigmoid: bool,
+    /// Laid out like C, the output `s` of a sigmoid: the output becomes
+    /// `product ⊙ s ⊙ (1 − s)`, the sigmoid's backward fused into the product of its
+    /// output's gradient (overwriting C only).
+    pub sigmoid_backward: Option<&'t Tensor>,
 }
 
 impl Epilogue<'_> {
     /// Nothing added or applied: the product alone.
     pub(super) fn is_plain(&self) -> bool {
-        self.bias.is_none() && self.matrix.is_none() && self.gate.is_none() && !self.relu
+        self.bias.is_none()
+            && self.matrix.is_none()
+            && self.gate.is_none()
+            && !self.relu
+            && !self.sigmoid
+            && self.sigmoid_backward.is_none()
+    }
+
+    /// The tensor laid out like C that the epilogue reads (the gate's filter or the
+    /// sigmoid's output), if any.
+    pub(super) fn like_c(&self) -> Option<&Tensor> {
+        self.gate.or(self.sigmoid_backward)
+    }
+
+    /// `SIGMOID` of `matmul.wgsl`: 0 none, 1 σ of the output, 2 the sigmoid's backward.
+    pub(super) fn sigmoid_mode(&self) -> u32 {
+        match (self.sigmoid, self.sigmoid_backward) {
+            (true, _) => 1,
+            (false, Some(_)) => 2,
+            (false, None) => 0,
+        }
     }
 }
 
