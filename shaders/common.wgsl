@@ -17,6 +17,19 @@ fn sigmoid(x: f32) -> f32 {
     return select(e * s, s, x >= 0.0);
 }
 
+// "lowbias32" integer hash (Chris Wellons): good avalanche, a few operations. Dropout's
+// mask (ops/dropout.rs): element i of a training step is kept when
+// lowbias32(i ^ key) >= threshold, key = lowbias32(seed ^ lowbias32(step)).
+fn lowbias32(v: u32) -> u32 {
+    var h = v;
+    h ^= h >> 16u;
+    h *= 0x7feb352du;
+    h ^= h >> 15u;
+    h *= 0x846ca68bu;
+    h ^= h >> 16u;
+    return h;
+}
+
 // tanh that stays finite for large |x| on every driver (some expand tanh into exp(2x)).
 fn tanh_stable(x: f32) -> f32 {
     let e = exp(-2.0 * abs(x));

@@ -22,17 +22,7 @@ const DROP_WG: u32 = 256u;
 @group(0) @binding(1) var<storage, read> src: array<f32>;
 @group(0) @binding(2) var<storage, read_write> dst: array<f32>;
 
-// "lowbias32" integer hash (Chris Wellons): good avalanche, a few operations.
-fn lowbias32(v: u32) -> u32 {
-    var h = v;
-    h ^= h >> 16u;
-    h *= 0x7feb352du;
-    h ^= h >> 15u;
-    h *= 0x846ca68bu;
-    h ^= h >> 16u;
-    return h;
-}
-
+// lowbias32 is common.wgsl's (shared with layer_norm.wgsl, which fuses this mask).
 fn keep(i: u32) -> bool {
     return lowbias32(i ^ lowbias32(p.seed ^ lowbias32(p.step))) >= p.threshold;
 }

@@ -3,6 +3,10 @@
 //
 // Rows are (b·N + n, t) pairs: `outer` = B·N blocks of C·T elements, channel stride T.
 // Forward saves each row's mean and 1/σ for the backward pass.
+//
+// With `drop`, the dropout that follows (step 7, dropout.wgsl's mask) is fused in: the
+// forward writes the dropped output, and the backward reads its gradient through the
+// same mask (element i keeps its bit of index i·drop_stride + drop_offset).
 
 struct LnParams {
     outer: u32,
@@ -13,8 +17,13 @@ struct LnParams {
     // Backward input: x is a ReLU's output and the gradient wanted is its input's,
     // (x > 0)·dx.
     relu_input: u32,
-    _pad1: u32,
-    _pad2: u32,
+    drop: u32,
+    // lowbias32(seed ^ lowbias32(step)) of the training step (common.wgsl).
+    drop_key: u32,
+    drop_threshold: u32,
+    drop_scale: f32,
+    drop_stride: u32,
+    drop_offset: u32,
 }
 
 const LN_WG: u32 = 256u;
@@ -26,6 +35,25 @@ const LN_WG: u32 = 256u;
 @group(0) @binding(4) var<storage, read_write> y: array<f32>;
 @group(0) @binding(5) var<storage, read_write> mean: array<f32>;
 @group(0) @binding(6) var<storage, read_write> rstd: array<f32>;
+
+// Element i's value through the dropout: 0, or scaled by 1/(1 − p) (itself without it).
+fn dropped(v: f32, i: u32) -> f32 {
+    if p.drop == 0u {
+        return v;
+    }
+    let kept = lowbias32((i * p.drop_stride + p.drop_offset) ^ p.drop_key) >= p.drop_threshold;
+    return select(0.0, v * p.drop_scale, kept);
+}
+
+// The same for elements 4q .. 4q+3.
+fn dropped4(v: vec4<f32>, q: u32) -> vec4<f32> {
+    if p.drop == 0u {
+        return v;
+    }
+    let i = 4u * q;
+    return vec4<f32>(dropped(v.x, i), dropped(v.y, i + 1u), dropped(v.z, i + 2u),
+                     dropped(v.w, i + 3u));
+}
 
 // First element of row `row` (= o·T + t) and the channel stride.
 fn row_base(row: u32) -> u32 {
@@ -58,7 +86,7 @@ fn layer_norm_forward(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgro
     rstd[row] = r;
     for (var k = 0u; k < p.channels; k++) {
         let i = base + k * p.steps;
-        y[i] = gamma[k] * (x[i] - mu) * r + beta[k];
+        y[i] = dropped(gamma[k] * (x[i] - mu) * r + beta[k], i);
     }
 }
 
@@ -86,7 +114,7 @@ fn layer_norm_backward_input(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_
     var sgx = 0.0;
     for (var k = 0u; k < p.channels; k++) {
         let i = base + k * p.steps;
-        let g = bdy[i] * bgamma[k];
+        let g = dropped(bdy[i], i) * bgamma[k];
         sg += g;
         sgx += g * (bx[i] - mu) * r;
     }
@@ -94,7 +122,7 @@ fn layer_norm_backward_input(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_
     for (var k = 0u; k < p.channels; k++) {
         let i = base + k * p.steps;
         let xh = (bx[i] - mu) * r;
-        var v = r / c * (c * bdy[i] * bgamma[k] - sg - xh * sgx);
+        var v = r / c * (c * dropped(bdy[i], i) * bgamma[k] - sg - xh * sgx);
         if p.relu_input != 0u && bx[i] <= 0.0 {
             v = 0.0;
         }
@@ -145,7 +173,7 @@ fn layer_norm_forward4(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgr
     rstd4[q] = r;
     for (var k = 0u; k < p.channels; k++) {
         let i = base + k * quads;
-        y4[i] = gamma[k] * (x4[i] - mu) * r + beta[k];
+        y4[i] = dropped4(gamma[k] * (x4[i] - mu) * r + beta[k], i);
     }
 }
 
@@ -170,7 +198,7 @@ fn layer_norm_backward_input4(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num
     var sgx = vec4<f32>(0.0);
     for (var k = 0u; k < p.channels; k++) {
         let i = base + k * quads;
-        let g = bdy4[i] * bgamma[k];
+        let g = dropped4(bdy4[i], i) * bgamma[k];
         sg += g;
         sgx += g * (bx4[i] - mu) * r;
     }
@@ -178,7 +206,7 @@ fn layer_norm_backward_input4(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num
     for (var k = 0u; k < p.channels; k++) {
         let i = base + k * quads;
         let xh = (bx4[i] - mu) * r;
-        var v = r / c * (c * bdy4[i] * bgamma[k] - sg - xh * sgx);
+        var v = r / c * (c * dropped4(bdy4[i], i) * bgamma[k] - sg - xh * sgx);
         if p.relu_input != 0u {
             v = select(vec4<f32>(0.0), v, bx4[i] > vec4<f32>(0.0));
         }
@@ -189,7 +217,8 @@ fn layer_norm_backward_input4(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num
     }
 }
 
-// Parameter gradients: dγ[c] = Σ dy·x̂, dβ[c] = Σ dy over all rows. One workgroup per
+// Parameter gradients: dγ[c] = Σ dy·x̂, dβ[c] = Σ dy over all rows (dy through the
+// dropout's mask when it is fused). One workgroup per
 // channel; its threads stride over the rows and reduce in workgroup memory.
 
 @group(0) @binding(1) var<storage, read> px: array<f32>;
@@ -212,7 +241,7 @@ fn layer_norm_backward_params(@builtin(workgroup_id) wg: vec3<u32>, @builtin(loc
     var at = flat_walk(li, LN_WG, p.steps);
     for (var row = li; row < rows; row += LN_WG) {
         let i = (at.o * p.channels + k) * p.steps + at.i;
-        let g = pdy[i];
+        let g = dropped(pdy[i], i);
         sg += g * (px[i] - pmean[row]) * prstd[row];
         sb += g;
         at = flat_walk_next(at);

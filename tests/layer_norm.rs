@@ -2,6 +2,7 @@
 //! f64 backward, and the f64 backward vs central differences, on ragged shapes.
 
 use iastgcn::gpu::{DType, Gpu, Tensor};
+use iastgcn::ops::dropout::{keep, Dropout};
 use iastgcn::ops::layer_norm::{cpu, LayerNorm};
 use iastgcn::ops::Accumulate;
 use iastgcn::testing::{
@@ -211,5 +212,99 @@ fn relu_input_masks_the_input_gradient() {
             .collect();
         assert!(masked.iter().zip(&dx_ref).any(|(m, d)| m != d));
         compare_tensor(&g, "dx masked", &dx, &masked, Tolerance::new(3e-5, 3e-5)).unwrap();
+    }
+}
+
+#[test]
+fn fused_dropout_gives_the_dropout_ops_mask_forward_and_backward() {
+    // The dropout of a training step fused into the LayerNorm (docs/model.md step 7): the
+    // forward writes mask ⊙ y/(1 − p), the backward kernels read the gradient of that
+    // output through the same mask, bit for bit `ops::dropout`'s, at the step set by
+    // `set_step`; a strided mask (the trimmed last block's) as well. Four rows per
+    // invocation and one.
+    let g = gpu();
+    for (outer, channels, steps, strided) in [(6, 16, 8, false), (5, 7, 3, false), (9, 5, 1, true)]
+    {
+        let plain = LayerNorm::new(outer, channels, steps);
+        let whole = Dropout::new(plain.len() * 7, 0.3, 11);
+        let dropout = if strided {
+            whole.strided(plain.len(), 7, 6)
+        } else {
+            Dropout::new(plain.len(), 0.3, 11)
+        };
+        let mut r = rng(90 + steps as u64);
+        let x = round_f32(&uniform(&mut r, plain.len(), -2.0, 3.0));
+        let gamma = round_f32(&uniform(&mut r, channels, 0.5, 1.5));
+        let beta = round_f32(&uniform(&mut r, channels, -0.5, 0.5));
+        let dy = round_f32(&uniform(&mut r, plain.len(), -1.0, 1.0));
+        let (xt, gt, bt, dyt) = (
+            upload(&g, "x", &x),
+            upload(&g, "gamma", &gamma),
+            upload(&g, "beta", &beta),
+            upload(&g, "d output", &dy),
+        );
+        let z = |n: &str, len: usize| g.zeros(n, &[len], DType::F32).unwrap();
+        let (y, mean, rstd) = (
+            z("output", plain.len()),
+            z("mean", plain.rows()),
+            z("rstd", plain.rows()),
+        );
+        let (dx, dg, db) = (
+            z("dx", plain.len()),
+            z("dgamma", channels),
+            z("dbeta", channels),
+        );
+        let ln = LayerNorm {
+            dropout: Some(dropout),
+            ..plain
+        };
+        let run = [
+            ln.forward(&g, &xt, &gt, &bt, &y, &mean, &rstd).unwrap(),
+            ln.backward_input(&g, &xt, &gt, &dyt, &mean, &rstd, &dx, Accumulate::Overwrite)
+                .unwrap(),
+            ln.backward_params(&g, &xt, &dyt, &mean, &rstd, &dg, &db, Accumulate::Overwrite)
+                .unwrap(),
+        ];
+        let tol = Tolerance::new(3e-5, 3e-5);
+        let mut dropped_at = Vec::new();
+        for step in [3, 4] {
+            for d in &run {
+                ln.set_step(&g, d, step, Accumulate::Overwrite).unwrap();
+            }
+            g.run(&run).unwrap();
+            let kept: Vec<bool> = (0..ln.len()).map(|i| keep(&dropout, step, i)).collect();
+            let scale = 1.0 / (1.0 - dropout.p);
+            let mask = |v: &[f64]| -> Vec<f64> {
+                v.iter()
+                    .zip(&kept)
+                    .map(|(v, &k)| if k { v * scale } else { 0.0 })
+                    .collect()
+            };
+            let what = format!("{ln:?} step {step}");
+            let want = mask(&cpu::forward(&plain, &x, &gamma, &beta));
+            compare_tensor(&g, &format!("{what} output"), &y, &want, tol).unwrap();
+            let (dx_ref, dg_ref, db_ref) = cpu::backward(&plain, &x, &gamma, &mask(&dy));
+            compare_tensor(&g, &format!("{what} dx"), &dx, &dx_ref, tol).unwrap();
+            compare_tensor(&g, &format!("{what} dgamma"), &dg, &dg_ref, tol).unwrap();
+            compare_tensor(&g, &format!("{what} dbeta"), &db, &db_ref, tol).unwrap();
+            let got = g.read_f32(&y).unwrap();
+            let zeros: Vec<bool> = got.iter().map(|&v| v == 0.0).collect();
+            assert!(
+                zeros.iter().zip(&kept).all(|(z, k)| *z != *k),
+                "{what}: exactly the dropped elements are zero"
+            );
+            dropped_at.push(zeros);
+        }
+        assert_ne!(dropped_at[0], dropped_at[1], "the mask follows the step");
+        // A dropout over another number of elements is refused, naming it.
+        let wrong = LayerNorm {
+            dropout: Some(Dropout::new(plain.len() + 1, 0.3, 11)),
+            ..plain
+        };
+        let err = wrong
+            .forward(&g, &xt, &gt, &bt, &y, &mean, &rstd)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("dropout fused"), "{err}");
     }
 }

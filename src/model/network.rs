@@ -3,7 +3,7 @@
 //! pipeline is created after [`Network::new`]; a training step reads nothing back.
 
 pub use super::block::Pass;
-use super::block::{Block, DropoutSlots, Extent, ParamTable};
+use super::block::{Block, DropoutSlots, Extent, MaskedStep, ParamTable};
 use super::config::Family;
 use super::config::ModelConfig;
 use super::conv_lstm::ConvLstmBody;
@@ -276,7 +276,7 @@ impl Network {
         group: usize,
         table: &Table,
         blocks: &[Block],
-        fwd_slots: &[Option<usize>],
+        fwd_slots: &[Option<MaskedStep>],
         input_grad: &Tensor,
         output: &Tensor,
         target: &Tensor,
@@ -328,12 +328,11 @@ impl Network {
             } else {
                 &ping[l % 2]
             };
-            let slot = block.backward(gpu, table, &mut scratch, backward, d_out, d_in)?;
+            let masked = block.backward(gpu, table, &mut scratch, backward, d_out, d_in)?;
             dropout.push(DropoutSlots {
-                dropout: block.dropout(),
-                // invariant: a training schedule records one dropout slot per block.
+                // invariant: a training forward records its LayerNorm's dropout per block.
                 forward: fwd_slots[l].expect("training forward has dropout"),
-                backward: slot,
+                backward: masked,
             });
         }
         Ok(loss_slots)
@@ -445,10 +444,15 @@ impl Network {
     /// Points every dropout mask at training step `step` (rewrites uniforms only).
     pub fn set_step(&self, gpu: &Gpu, step: u32) -> Result<(), GpuError> {
         for s in &self.dropout {
-            for (steps, i) in [(&self.train, s.forward), (&self.backward, s.backward)] {
+            let [input, params] = s.backward;
+            for (steps, m) in [
+                (&self.train, s.forward),
+                (&self.backward, input),
+                (&self.backward, params),
+            ] {
                 // invariant: the slots were recorded as dispatches when the schedule was built.
-                let d = steps.dispatch(i).expect("dropout slot is a dispatch");
-                s.dropout.set_step(gpu, d, step, Accumulate::Overwrite)?;
+                let d = steps.dispatch(m.index).expect("dropout slot is a dispatch");
+                m.layer_norm.set_step(gpu, d, step, Accumulate::Overwrite)?;
             }
         }
         Ok(())

@@ -77,12 +77,29 @@ impl Dropout {
             n: self.n as u32,
             seed: self.seed,
             step,
-            threshold: threshold(self.p),
-            scale: (1.0 / (1.0 - self.p)) as f32,
+            threshold: self.threshold(),
+            scale: self.scale(),
             accumulate: accumulate.flag(),
             stride: self.stride as u32,
             offset: self.offset as u32,
         }
+    }
+
+    /// The hash key of training step `step`: element i is kept when
+    /// `lowbias32(i·stride + offset ^ key) ≥ threshold` (a kernel that fuses the mask
+    /// takes the key, the threshold and the scale as parameters).
+    pub(crate) fn key(&self, step: u32) -> u32 {
+        lowbias32(self.seed ^ lowbias32(step))
+    }
+
+    /// `p·2³²`: elements whose hash is below it are dropped.
+    pub(crate) fn threshold(&self) -> u32 {
+        threshold(self.p)
+    }
+
+    /// 1/(1−p), the factor of a kept element.
+    pub(crate) fn scale(&self) -> f32 {
+        (1.0 / (1.0 - self.p)) as f32
     }
 
     /// Applies the mask of training step `step` to `src` into `dst` (forward: x → y;
@@ -143,5 +160,5 @@ pub fn lowbias32(v: u32) -> u32 {
 /// The CPU reference of the mask: `true` where element `i` is kept at `step`.
 pub fn keep(d: &Dropout, step: u32, i: usize) -> bool {
     let index = (i * d.stride + d.offset) as u32;
-    lowbias32(index ^ lowbias32(d.seed ^ lowbias32(step))) >= threshold(d.p)
+    lowbias32(index ^ d.key(step)) >= threshold(d.p)
 }

@@ -1,7 +1,9 @@
 //! LayerNorm over the channel axis of `[B, N, C, T]` (docs/model.md step 6): forward, input and
-//! parameter gradients, and the f64 CPU reference.
+//! parameter gradients, and the f64 CPU reference. The dropout that follows it in a
+//! training step (step 7) can be fused in ([`LayerNorm::dropout`]).
 
 use crate::gpu::{grid_1d, Binding, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
+use crate::ops::dropout::Dropout;
 use crate::ops::Accumulate;
 
 /// The WGSL module of this family (`shaders/layer_norm.wgsl`: forward, input gradient,
@@ -65,6 +67,11 @@ pub struct LayerNorm {
     /// x is the output of a ReLU: [`LayerNorm::backward_input`] returns the gradient with
     /// respect to the ReLU's input, `(x > 0) · ∂L/∂x` (one elementwise pass fewer).
     pub relu_input: bool,
+    /// The dropout that follows, fused in (over all [`LayerNorm::len`] elements): the
+    /// forward writes `dropout(y)` and both backward kernels take the gradient of the
+    /// dropped output, reading it through the same mask. Its training step is that of
+    /// [`LayerNorm::set_step`] (0 when built).
+    pub dropout: Option<Dropout>,
 }
 
 #[repr(C)]
@@ -76,7 +83,12 @@ struct Params {
     accumulate: u32,
     eps: f32,
     relu_input: u32,
-    _pad: [u32; 2],
+    drop: u32,
+    drop_key: u32,
+    drop_threshold: u32,
+    drop_scale: f32,
+    drop_stride: u32,
+    drop_offset: u32,
 }
 
 impl LayerNorm {
@@ -88,6 +100,7 @@ impl LayerNorm {
             steps,
             eps: 1e-5,
             relu_input: false,
+            dropout: None,
         }
     }
 
@@ -106,7 +119,8 @@ impl LayerNorm {
         self.outer * self.steps
     }
 
-    fn params(&self, accumulate: Accumulate) -> Params {
+    fn params(&self, accumulate: Accumulate, step: u32) -> Params {
+        let d = self.dropout;
         Params {
             outer: self.outer as u32,
             channels: self.channels as u32,
@@ -114,8 +128,26 @@ impl LayerNorm {
             accumulate: accumulate.flag(),
             eps: self.eps,
             relu_input: self.relu_input as u32,
-            _pad: [0; 2],
+            drop: d.is_some() as u32,
+            drop_key: d.map_or(0, |d| d.key(step)),
+            drop_threshold: d.map_or(0, |d| d.threshold()),
+            drop_scale: d.map_or(1.0, |d| d.scale()),
+            drop_stride: d.map_or(1, |d| d.stride as u32),
+            drop_offset: d.map_or(0, |d| d.offset as u32),
         }
+    }
+
+    /// Points a dispatch built by this LayerNorm (with its dropout) at the mask of
+    /// training step `step` (no allocation: rewrites its uniform block). `accumulate`
+    /// is the one it was built with.
+    pub fn set_step(
+        &self,
+        gpu: &Gpu,
+        dispatch: &Dispatch,
+        step: u32,
+        accumulate: Accumulate,
+    ) -> Result<(), GpuError> {
+        dispatch.write_params(gpu, &self.params(accumulate, step))
     }
 
     fn check(
@@ -124,6 +156,13 @@ impl LayerNorm {
         per_channel: &[&Tensor],
         per_row: &[&Tensor],
     ) -> Result<(), GpuError> {
+        if let Some(d) = self.dropout.filter(|d| d.n != self.len()) {
+            return Err(GpuError::Shape {
+                tensor: format!("dropout fused into the LayerNorm of {}", full[0].name()),
+                expected: format!("{} elements", self.len()),
+                got: format!("{}", d.n),
+            });
+        }
         full.iter().try_for_each(|t| t.expect_len(self.len()))?;
         per_channel
             .iter()
@@ -146,7 +185,8 @@ impl LayerNorm {
         )
     }
 
-    /// `y = γ ⊙ (x − μ)/σ + β`; saves `mean` and `rstd` (`[rows]`) for the backward pass.
+    /// `y = γ ⊙ (x − μ)/σ + β` (then the dropout, when fused); saves `mean` and `rstd`
+    /// (`[rows]`) for the backward pass.
     // A kernel's dispatch takes each of its bindings by name; grouping them would hide
     // which tensor goes where.
     #[allow(clippy::too_many_arguments)]
@@ -164,13 +204,13 @@ impl LayerNorm {
         gpu.dispatch(
             if self.quads() { &FORWARD4 } else { &FORWARD },
             &[],
-            &self.params(Accumulate::Overwrite),
+            &self.params(Accumulate::Overwrite, 0),
             &[x, gamma, beta, y, mean, rstd],
             self.row_grid(gpu),
         )
     }
 
-    /// `dx (+)= ∂L/∂x` from `dy`.
+    /// `dx (+)= ∂L/∂x` from `dy` (the dropped output's gradient, when the dropout is fused).
     #[allow(clippy::too_many_arguments)]
     pub fn backward_input(
         &self,
@@ -191,13 +231,14 @@ impl LayerNorm {
                 &BACKWARD_INPUT
             },
             &[],
-            &self.params(accumulate),
+            &self.params(accumulate, 0),
             &[x, gamma, dy, mean, rstd, dx],
             self.row_grid(gpu),
         )
     }
 
-    /// `dγ, dβ (+)=` their gradients from `dy` (one workgroup per channel).
+    /// `dγ, dβ (+)=` their gradients from `dy` (one workgroup per channel; `dy` as in
+    /// [`LayerNorm::backward_input`]).
     #[allow(clippy::too_many_arguments)]
     pub fn backward_params(
         &self,
@@ -214,7 +255,7 @@ impl LayerNorm {
         gpu.dispatch(
             &BACKWARD_PARAMS,
             &[],
-            &self.params(accumulate),
+            &self.params(accumulate, 0),
             &[x, dy, mean, rstd, dgamma, dbeta],
             [self.channels as u32, 1, 1],
         )

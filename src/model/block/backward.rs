@@ -2,14 +2,14 @@
 //! ∂ℒ/∂output into the parameter gradients and ∂ℒ/∂input, each step taking the gradient
 //! the later step left and returning what the earlier one needs.
 
-use super::{Block, ParamTable};
+use super::{Block, MaskedStep, ParamTable};
 use crate::gpu::{Gpu, GpuError, Tensor};
 use crate::model::schedule::{Scratch, Steps};
 
 impl Block {
     /// The backward pass of a training forward: from `d_out` (∂ℒ/∂output) into the
-    /// parameter gradients and `d_in` (∂ℒ/∂input, overwritten). Returns the index of
-    /// the dropout dispatch.
+    /// parameter gradients and `d_in` (∂ℒ/∂input, overwritten). Returns the two
+    /// dispatches that read the dropout's mask.
     pub fn backward(
         &self,
         gpu: &Gpu,
@@ -18,10 +18,10 @@ impl Block {
         steps: &mut Steps,
         d_out: &Tensor,
         d_in: &Tensor,
-    ) -> Result<usize, GpuError> {
-        let (dy, slot) = self.dropout_backward(gpu, scratch, steps, d_out)?;
+    ) -> Result<[MaskedStep; 2], GpuError> {
         // Writes all of d_in; the steps below add to it.
-        let dh = self.residual_layer_norm_backward(gpu, p, scratch, steps, &dy, d_in)?;
+        let (dh, masked) =
+            self.residual_layer_norm_backward(gpu, p, scratch, steps, d_out, d_in)?;
         let dg = self.gated_dcc_backward(gpu, p, scratch, steps, &dh)?;
         if self.gat.is_some() {
             self.graph_attention_backward(gpu, p, scratch, steps, &dg, d_in)?;
@@ -29,6 +29,6 @@ impl Block {
             let dxt = self.spatial_attention_backward(gpu, p, scratch, steps, &g.dsp, &g.dm)?;
             self.temporal_attention_backward(gpu, p, scratch, steps, &dxt, d_in)?;
         }
-        Ok(slot)
+        Ok(masked)
     }
 }

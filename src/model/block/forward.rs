@@ -2,21 +2,22 @@
 //! in its own file beside its backward.
 
 use super::Pass;
-use super::{Block, ParamTable};
+use super::{Block, MaskedStep, ParamTable};
 use crate::gpu::{Gpu, GpuError};
 use crate::model::schedule::Steps;
 
 impl Block {
-    /// The forward pass. For [`Pass::Train`], dropout (whose step is set later through the
-    /// returned slot) writes the output and G_g and Y are kept for the backward pass;
-    /// otherwise the gate is fused into the gate product and LayerNorm writes the output.
+    /// The forward pass. For [`Pass::Train`], LayerNorm writes the output through the
+    /// dropout (its mask's step is set later through the returned dispatch) and G_g is
+    /// kept for the backward pass; otherwise the gate is fused into the gate product and
+    /// LayerNorm writes the output as it is.
     pub fn forward(
         &self,
         gpu: &Gpu,
         p: &dyn ParamTable,
         steps: &mut Steps,
         pass: Pass,
-    ) -> Result<Option<usize>, GpuError> {
+    ) -> Result<Option<MaskedStep>, GpuError> {
         self.temporal_attention_forward(gpu, p, steps)?;
         self.spatial_attention_forward(gpu, p, steps)?;
         if self.gat.is_some() {
@@ -25,11 +26,6 @@ impl Block {
             self.graph_conv_forward(gpu, p, steps)?;
         }
         self.gated_dcc_forward(gpu, p, steps, pass)?;
-        self.residual_layer_norm_forward(gpu, p, steps, pass)?;
-        match pass {
-            Pass::Train => Ok(Some(self.dropout_forward(gpu, steps)?)),
-            // Inference has no dropout: LayerNorm wrote the block output itself.
-            Pass::Inference => Ok(None),
-        }
+        self.residual_layer_norm_forward(gpu, p, steps, pass)
     }
 }

@@ -13,8 +13,7 @@
 //! | `graph_conv` | 3: Ψ, Q = Ψ·(I + S'), M = Q·X_t, Z = ReLU(Wᵀ·M); backward from dG, past Z's ReLU | the same, backward from dZ |
 //! | `graph_attention` | 3 of `st-gat`: Q = Wᵀ·X, α, Z = ReLU(Σ_j α_ij Q_j); backward from dG | inside `graph_conv` |
 //! | `gated_dcc` | 4: the unfolding, G_f and G_g with their biases, and H = tanh(G_f) ⊙ σ(G_g) (ReLU(G_f) in `iastgcn-t`); backward to dG, Z's ReLU mask fused into the unfolding's backward | no H (`residual_layer_norm` forms it); backward to dZ |
-//! | `residual_layer_norm` | 5 and 6: A = ReLU(H + R + b) accumulated onto H, then the whole LayerNorm | 5 and 6 up to the statistics |
-//! | `dropout` | 7 | fused with 6's affine map in `layer_norm_dropout` |
+//! | `residual_layer_norm` | 5–7: A = ReLU(H + R + b) accumulated onto H, then the whole LayerNorm with the dropout of a training step fused into its kernels | 5 and 6 up to the statistics; 6's affine map and 7 in `layer_norm_dropout` |
 //!
 //! The schedule is the one the single forward and backward functions built before the
 //! split: the same ops in the same order on the same buffers. The native block's tests
@@ -22,7 +21,6 @@
 //! reference values as the native step.
 
 mod backward;
-mod dropout;
 mod forward;
 mod gated_dcc;
 mod graph_attention;
@@ -146,7 +144,6 @@ pub struct Block {
     gg: Tensor,
     /// H, then ReLU(H + R + bias) once the residual product has accumulated onto it.
     s: Tensor,
-    y: Tensor,
     mean: Tensor,
     rstd: Tensor,
     /// The input's last step `[B, N, C_in]`, for the residual of a trimmed block.
@@ -154,16 +151,24 @@ pub struct Block {
     /// `[tcn.filter.weight; tcn.gate.weight]` as one `[2C, C·K]` matrix (gated variants),
     /// copied in each backward pass: the two convolutions' backward is one product.
     w_fg: Option<Tensor>,
-    /// The block output `[B, N, C, to]`: `y` after dropout (training) or a copy of it
-    /// (inference).
+    /// The block output `[B, N, C, to]`: LayerNorm's, through the dropout in training.
     pub output: Tensor,
 }
 
-/// Indices of a block's dropout dispatch in the forward and backward schedules.
+/// A dispatch that reads the dropout's mask: the LayerNorm it was built from (with the
+/// fused dropout) and its index in its schedule, so that its mask can follow the
+/// training step ([`LayerNorm::set_step`]).
+#[derive(Clone, Copy, Debug)]
+pub struct MaskedStep {
+    pub layer_norm: LayerNorm,
+    pub index: usize,
+}
+
+/// A block's dispatches that read the dropout's mask: the forward's LayerNorm, and the
+/// backward's input and parameter gradients.
 pub struct DropoutSlots {
-    pub dropout: Dropout,
-    pub forward: usize,
-    pub backward: usize,
+    pub forward: MaskedStep,
+    pub backward: [MaskedStep; 2],
 }
 
 impl Block {
@@ -256,7 +261,6 @@ impl Block {
             f: z("tcn.G_f", &out)?,
             gg: z("tcn.G_g", &out)?,
             s: z("relu(H+R)", &out)?,
-            y: z("Y", &out)?,
             mean: z("ln.mean", &[b * n * d.to])?,
             rstd: z("ln.rstd", &[b * n * d.to])?,
             x_last: trimmed.then(|| z("x_last", &[b, n, ci])).transpose()?,
@@ -474,6 +478,14 @@ impl Block {
         }
     }
 
+    /// The LayerNorm of a training step: the dropout fused in.
+    pub(crate) fn layer_norm_dropout(&self) -> LayerNorm {
+        LayerNorm {
+            dropout: Some(self.dropout),
+            ..self.layer_norm()
+        }
+    }
+
     fn temporal_softmax(&self) -> Softmax {
         Softmax {
             outer: self.d.b,
@@ -490,13 +502,9 @@ impl Block {
         }
     }
 
-    pub fn dropout(&self) -> Dropout {
-        self.dropout
-    }
-
     /// A buffer the steps read or write, by its role, for the tests that run one step
     /// alone (`model::native::block::tests`): `input`, `E'`, `X_t`, `S'`, `Psi`, `Z`,
-    /// `G_f`, `G_g`, `H` (then A = ReLU(H + R + b)), `Y`, `output`.
+    /// `G_f`, `G_g`, `H` (then A = ReLU(H + R + b)), `output`.
     #[cfg(test)]
     pub(crate) fn buffer(&self, role: &str) -> &Tensor {
         // invariant: test support: an attention buffer is asked for only in a variant with it.
@@ -511,7 +519,6 @@ impl Block {
             "G_f" => &self.f,
             "G_g" => &self.gg,
             "H" => &self.s,
-            "Y" => &self.y,
             "output" => &self.output,
             _ => panic!("no block buffer {role}"),
         }

@@ -1,11 +1,12 @@
-//! Steps 5–6, the residual 1×1 convolution and LayerNorm (docs/model.md), forward and
-//! backward. The boundaries differ from the native `residual_layer_norm`'s (R,
-//! A = ReLU(H + R) and the statistics) and `layer_norm_dropout`'s (the affine map and the
-//! dropout): here the residual product accumulates onto H (step 4 wrote it) with its bias
-//! and the ReLU in the epilogue, and LayerNorm is whole, affine map included; the dropout
-//! is `dropout.rs`.
+//! Steps 5–7, the residual 1×1 convolution, LayerNorm and the dropout (docs/model.md),
+//! forward and backward. The boundaries differ from the native `residual_layer_norm`'s
+//! (R, A = ReLU(H + R) and the statistics) and `layer_norm_dropout`'s (the affine map and
+//! the dropout): here the residual product accumulates onto H (step 4 wrote it) with its
+//! bias and the ReLU in the epilogue, and LayerNorm is whole, affine map included, with
+//! the dropout of a training step fused into its kernels (the forward writes the dropped
+//! output; the backward reads ∂ℒ/∂output through the same mask).
 
-use super::{Block, ParamTable, Pass};
+use super::{Block, MaskedStep, ParamTable, Pass};
 use crate::gpu::{Gpu, GpuError, Tensor};
 use crate::model::schedule::{Scratch, Steps};
 use crate::ops::layer_norm::LayerNorm;
@@ -13,15 +14,16 @@ use crate::ops::matmul::Epilogue;
 use crate::ops::Accumulate::{Add, Overwrite};
 
 impl Block {
-    /// A = ReLU(H + R + res.bias) in place of H (`s`), then Y = LayerNorm(A) (into `y`
-    /// for [`Pass::Train`]; inference has no dropout and writes the block output).
+    /// A = ReLU(H + R + res.bias) in place of H (`s`), then the block output
+    /// LayerNorm(A), through the dropout for [`Pass::Train`] (whose LayerNorm dispatch is
+    /// returned, for its mask to follow the training step).
     pub(crate) fn residual_layer_norm_forward(
         &self,
         gpu: &Gpu,
         p: &dyn ParamTable,
         steps: &mut Steps,
         pass: Pass,
-    ) -> Result<(), GpuError> {
+    ) -> Result<Option<MaskedStep>, GpuError> {
         let w = |s: &str| p.param(&self.name(s));
         let x = &self.input;
         let residual = Epilogue {
@@ -44,67 +46,81 @@ impl Block {
             Add,
             residual,
         ))?;
-        let y = if pass == Pass::Train {
-            &self.y
-        } else {
-            &self.output
+        let ln = match pass {
+            Pass::Train => self.layer_norm_dropout(),
+            Pass::Inference => self.layer_norm(),
         };
-        steps.run(self.layer_norm().forward(
+        let index = steps.run(ln.forward(
             gpu,
             &self.s,
             w("ln.gamma"),
             w("ln.beta"),
-            y,
+            &self.output,
             &self.mean,
             &self.rstd,
         ))?;
-        Ok(())
+        Ok((pass == Pass::Train).then_some(MaskedStep {
+            layer_norm: ln,
+            index,
+        }))
     }
 
-    /// From dY (`[B, N, C, to]`) into dγ, dβ, d res.weight and d res.bias; dA masked by
-    /// A's ReLU (returned: it is dH, and dR) and dX = res.weightᵀ·dA, which *overwrites*
-    /// `d_in` (all of it; zero off the last step in a trimmed block) for the later steps'
-    /// backward to add to.
+    /// From ∂ℒ/∂output (`d_out`, `[B, N, C, to]`, read through the dropout's mask) into
+    /// dγ, dβ, d res.weight and d res.bias; dA masked by A's ReLU (returned: it is dH,
+    /// and dR) and dX = res.weightᵀ·dA, which *overwrites* `d_in` (all of it; zero off
+    /// the last step in a trimmed block) for the later steps' backward to add to. Also
+    /// returns the two LayerNorm dispatches that read the mask.
     pub(crate) fn residual_layer_norm_backward(
         &self,
         gpu: &Gpu,
         p: &dyn ParamTable,
         scratch: &mut Scratch,
         steps: &mut Steps,
-        dy: &Tensor,
+        d_out: &Tensor,
         d_in: &Tensor,
-    ) -> Result<Tensor, GpuError> {
+    ) -> Result<(Tensor, [MaskedStep; 2]), GpuError> {
         let d = self.d;
         let w = |s: &str| p.param(&self.name(s));
         let dw = |s: &str| p.grad(&self.name(s));
         let x = &self.input;
         // LayerNorm and the ReLU before it (its input was the ReLU's output; the mask is
-        // applied by the LayerNorm backward).
-        let ln = LayerNorm {
+        // applied by the LayerNorm backward), from the dropped output's gradient.
+        let ln = self.layer_norm_dropout();
+        let ln_relu = LayerNorm {
             relu_input: true,
-            ..self.layer_norm()
+            ..ln
         };
         let ds = scratch.get("dS", &[d.b, d.n, d.c, d.to])?;
-        steps.run(ln.backward_input(
+        let input = steps.run(ln_relu.backward_input(
             gpu,
             &self.s,
             w("ln.gamma"),
-            dy,
+            d_out,
             &self.mean,
             &self.rstd,
             &ds,
             Overwrite,
         ))?;
-        steps.run(ln.backward_params(
+        let params = steps.run(ln.backward_params(
             gpu,
             &self.s,
-            dy,
+            d_out,
             &self.mean,
             &self.rstd,
             dw("ln.gamma"),
             dw("ln.beta"),
             Overwrite,
         ))?;
+        let masked = [
+            MaskedStep {
+                layer_norm: ln_relu,
+                index: input,
+            },
+            MaskedStep {
+                layer_norm: ln,
+                index: params,
+            },
+        ];
         // Residual: ∂/∂H = ∂/∂R = dS.
         let bias = self.channel_bias();
         let res = self.mm_res();
@@ -123,6 +139,6 @@ impl Block {
                 steps.run(res.backward_b(gpu, w("res.weight"), &ds, d_in, Overwrite))?;
             }
         }
-        Ok(ds)
+        Ok((ds, masked))
     }
 }

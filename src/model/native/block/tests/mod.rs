@@ -12,7 +12,7 @@
 //! | `spatial_attention.rs` | 2 (and at the taps the time mixing X·(I + E'), written out there) | `model::reference::attention` |
 //! | `graph_conv.rs` | 3 (`st-gat`: its graph attention) | `model::reference::graph_conv` |
 //! | `gated_dcc.rs` | 4 | `ops::gated_dcc::cpu` |
-//! | `residual_layer_norm.rs` | 5–7: native `residual_layer_norm` and `layer_norm_dropout`, WGSL `residual_layer_norm` and `dropout` | `ops::layer_norm::cpu` (the residual 1×1 convolution and the ReLUs around it written out there, a sum each) |
+//! | `residual_layer_norm.rs` | 5–7: native `residual_layer_norm` and `layer_norm_dropout`, WGSL `residual_layer_norm` (the dropout fused into its LayerNorm) | `ops::layer_norm::cpu` (the residual 1×1 convolution and the ReLUs around it written out there, a sum each) |
 //!
 //! Each runs in a block with every output step and in a last block, gated (`iastgcn`)
 //! and not (`iastgcn-t`); `graph_conv` in `iastgcn`, `iastgcn-a` (no attention),

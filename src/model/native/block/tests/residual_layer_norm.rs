@@ -2,15 +2,18 @@
 //! `ops::layer_norm::cpu` with the residual 1×1 convolution and the ReLUs around it
 //! written out here ([`norm_reference`]): on a random X and step 4's output, the native
 //! `residual_layer_norm` then `layer_norm_dropout` and the WGSL `residual_layer_norm`
-//! then `dropout` give A = ReLU(H + R + b) and Y, then back from a random dY dγ, dβ, dA,
-//! the residual's gradients and dX, in both blocks of `iastgcn` and `iastgcn-t`, with
-//! the dropout of a training step and without.
+//! (the dropout fused into its LayerNorm) give A = ReLU(H + R + b) and Y, then back from
+//! a random dY dγ, dβ, dA, the residual's gradients and dX, in both blocks of `iastgcn`
+//! and `iastgcn-t`, with the dropout of a training step and without (the WGSL step
+//! without dropout is inference's forward: its training step always has one).
 #![cfg(test)]
 
 use super::{case, check, gpu, narrow, random, wide, Case, Device};
-use crate::model::block::Pass;
+use crate::gpu::GpuError;
+use crate::model::block::{MaskedStep, Pass};
 use crate::model::config::Variant;
 use crate::model::native::block::{layer_norm_dropout, residual_layer_norm, Block, Masks};
+use crate::model::schedule::Steps;
 use crate::ops::dropout::keep;
 use crate::ops::layer_norm::{cpu as norm, LayerNorm};
 use crate::ops::Accumulate::Overwrite;
@@ -88,8 +91,7 @@ fn norm_reference(
 
 /// Steps 5–7 forward and backward in block `l` of `variant`, with the dropout of a
 /// training step or without: the native `residual_layer_norm` then `layer_norm_dropout`,
-/// and the WGSL `residual_layer_norm` then `dropout` (without dropout, the WGSL check
-/// reads Y before the dropout and starts the backward from dY).
+/// and the WGSL `residual_layer_norm` (without dropout, its inference forward alone).
 fn residual_layer_norm_dropout_match_their_reference(variant: Variant, l: usize, drop: bool) {
     let Case {
         cfg,
@@ -226,18 +228,32 @@ fn residual_layer_norm_dropout_match_their_reference(variant: Variant, l: usize,
     // two), and the block's own steps are at T − 1 in the last block as in the native.
     let dev = Device::new(&cfg, l, &params, &[], &x);
     dev.write("H", &narrow(&hv));
-    dev.run(|b, p, _, st| b.residual_layer_norm_forward(gpu(), p, st, Pass::Train));
     let what_wgsl = |part: &str| what("wgsl", part);
-    check(
-        &what_wgsl("residual_layer_norm: A"),
-        &dev.read_buffer("H"),
-        &act,
-    );
     let one = Masks {
         batch: 1,
         item: 0,
         ..masks
     };
+    // Every dispatch that reads the mask, at the step of the batch of one.
+    let at_step = |st: &Steps, m: MaskedStep| -> Result<(), GpuError> {
+        let d = st.dispatch(m.index).expect("a masked step is a dispatch");
+        m.layer_norm.set_step(gpu(), d, one.step, Overwrite)
+    };
+    // Steps 5–7 of a training step, the dropout fused into LayerNorm's kernels; without
+    // dropout the WGSL step is inference's (its training step always has one), and the
+    // check stops after the forward.
+    let pass = if drop { Pass::Train } else { Pass::Inference };
+    dev.run(
+        |b, p, _, st| match b.residual_layer_norm_forward(gpu(), p, st, pass)? {
+            Some(masked) => at_step(st, masked),
+            None => Ok(()),
+        },
+    );
+    check(
+        &what_wgsl("residual_layer_norm: A"),
+        &dev.read_buffer("H"),
+        &act,
+    );
     let kept = kept_in(&one);
     let e = norm_reference(
         dims,
@@ -248,31 +264,21 @@ fn residual_layer_norm_dropout_match_their_reference(variant: Variant, l: usize,
         drop.then_some((&kept[..], scale)),
         &dy,
     );
-    let d_out = dev.upload("d output", &dy);
-    let d_in = dev.upload("dX", &vec![0.0; n * ci * t]);
-    let ds = if drop {
-        dev.run(|b, _, _, st| {
-            let slot = b.dropout_forward(gpu(), st)?;
-            let d = st.dispatch(slot).expect("the dropout is a dispatch");
-            b.dropout().set_step(gpu(), d, one.step, Overwrite)?;
-            Ok(slot)
+    check(
+        &what_wgsl("residual_layer_norm: Y"),
+        &dev.read_buffer("output"),
+        &e.y,
+    );
+    if drop {
+        let d_out = dev.upload("d output", &dy);
+        let d_in = dev.upload("dX", &vec![0.0; n * ci * t]);
+        let ds = dev.run(|b, p, sc, st| {
+            let (ds, masked) = b.residual_layer_norm_backward(gpu(), p, sc, st, &d_out, &d_in)?;
+            masked.into_iter().try_for_each(|m| at_step(st, m))?;
+            Ok(ds)
         });
-        check(&what_wgsl("dropout: Y"), &dev.read_buffer("output"), &e.y);
-        dev.run(|b, p, sc, st| {
-            let (dy, slot) = b.dropout_backward(gpu(), sc, st, &d_out)?;
-            let d = st.dispatch(slot).expect("the dropout is a dispatch");
-            b.dropout().set_step(gpu(), d, one.step, Overwrite)?;
-            b.residual_layer_norm_backward(gpu(), p, sc, st, &dy, &d_in)
-        })
-    } else {
-        check(
-            &what_wgsl("residual_layer_norm: Y"),
-            &dev.read_buffer("Y"),
-            &e.y,
-        );
-        dev.run(|b, p, sc, st| b.residual_layer_norm_backward(gpu(), p, sc, st, &d_out, &d_in))
-    };
-    checks("wgsl", &dev.grads(), &dev.read(&ds), &dev.read(&d_in), &e);
+        checks("wgsl", &dev.grads(), &dev.read(&ds), &dev.read(&d_in), &e);
+    }
 }
 
 #[test]
