@@ -306,6 +306,18 @@ impl Readback {
                 got: format!("{}", out.len()),
             });
         }
+        self.map_read(gpu, |bytes| {
+            out.copy_from_slice(&bytemuck::cast_slice::<u8, f32>(bytes)[..out.len()]);
+        })
+    }
+
+    /// Waits for submitted work, maps the whole staging buffer and hands its bytes to
+    /// `read` (any element type: [`super::Timestamps`] reads its u64 ticks this way).
+    pub(crate) fn map_read<T>(
+        &self,
+        gpu: &Gpu,
+        read: impl FnOnce(&[u8]) -> T,
+    ) -> Result<T, GpuError> {
         let (tx, rx) = std::sync::mpsc::channel();
         self.buffer.map_async(wgpu::MapMode::Read, .., move |r| {
             let _ = tx.send(r);
@@ -314,15 +326,20 @@ impl Readback {
         rx.recv()
             .map_err(|e| GpuError::Readback(format!("{}: {e}", self.name)))?
             .map_err(|e| GpuError::Readback(format!("{}: {e}", self.name)))?;
-        {
+        let value = {
             let view = self
                 .buffer
                 .get_mapped_range(..)
                 .map_err(|e| GpuError::Readback(format!("{}: {e}", self.name)))?;
-            out.copy_from_slice(&bytemuck::cast_slice::<u8, f32>(&view)[..out.len()]);
-        }
+            read(&view)
+        };
         self.buffer.unmap();
-        Ok(())
+        Ok(value)
+    }
+
+    /// The staging buffer, for a copy into it that is not a tensor's.
+    pub(crate) fn buffer(&self) -> &wgpu::Buffer {
+        &self.buffer
     }
 
     /// Waits for submitted work and returns the whole staging buffer as f32.

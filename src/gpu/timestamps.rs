@@ -8,7 +8,7 @@
 //! them; what lies between one launch's end and the next one's start (barriers, copies,
 //! the front end's gaps) is what a profile calls the time between launches.
 
-use super::{Gpu, GpuError};
+use super::{Gpu, GpuError, Readback};
 
 /// Queries in one query set (wgpu's cap).
 const PER_SET: u32 = wgpu::QUERY_SET_MAX_QUERIES;
@@ -19,7 +19,7 @@ const LAUNCHES_PER_SET: u32 = PER_SET / 2;
 pub struct Timestamps {
     sets: Vec<wgpu::QuerySet>,
     resolved: wgpu::Buffer,
-    staging: wgpu::Buffer,
+    staging: Readback,
     capacity: u32,
     /// Nanoseconds per tick of the device's timestamp counter.
     period_ns: f64,
@@ -64,23 +64,14 @@ impl Timestamps {
             })
             .collect::<Vec<_>>();
         let bytes = sets.len() as u64 * u64::from(PER_SET) * wgpu::QUERY_SIZE as u64;
-        let buffer = |label: &str, usage| {
-            gpu.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size: bytes,
-                usage,
-                mapped_at_creation: false,
-            })
-        };
         Ok(Timestamps {
-            resolved: buffer(
-                "timestamps resolved",
-                wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
-            ),
-            staging: buffer(
-                "timestamps staging",
-                wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            ),
+            resolved: gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("timestamps resolved"),
+                size: bytes,
+                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            }),
+            staging: Readback::new(gpu, "timestamps", bytes)?,
             sets,
             capacity,
             period_ns: f64::from(gpu.queue.get_timestamp_period()),
@@ -117,7 +108,7 @@ impl Timestamps {
             encoder.copy_buffer_to_buffer(
                 &self.resolved,
                 offset,
-                &self.staging,
+                self.staging.buffer(),
                 offset,
                 u64::from(queries) * wgpu::QUERY_SIZE as u64,
             );
@@ -133,16 +124,8 @@ impl Timestamps {
                 self.capacity
             )));
         }
-        let (tx, rx) = std::sync::mpsc::channel();
-        self.staging.map_async(wgpu::MapMode::Read, .., move |r| {
-            let _ = tx.send(r);
-        });
-        gpu.wait()?;
-        let failed = |e: &dyn std::fmt::Display| GpuError::Readback(format!("timestamps: {e}"));
-        rx.recv().map_err(|e| failed(&e))?.map_err(|e| failed(&e))?;
-        let intervals = {
-            let view = self.staging.get_mapped_range(..).map_err(|e| failed(&e))?;
-            let ticks: &[u64] = bytemuck::cast_slice(&view);
+        let intervals = self.staging.map_read(gpu, |bytes| {
+            let ticks: &[u64] = bytemuck::cast_slice(bytes);
             (0..launches)
                 .map(|launch| {
                     let set = launch / LAUNCHES_PER_SET as usize;
@@ -153,8 +136,7 @@ impl Timestamps {
                     }
                 })
                 .collect()
-        };
-        self.staging.unmap();
+        })?;
         Ok(intervals)
     }
 }

@@ -160,5 +160,5 @@ pub fn lowbias32(v: u32) -> u32 {
 /// The CPU reference of the mask: `true` where element `i` is kept at `step`.
 pub fn keep(d: &Dropout, step: u32, i: usize) -> bool {
     let index = (i * d.stride + d.offset) as u32;
-    lowbias32(index ^ d.key(step)) >= threshold(d.p)
+    lowbias32(index ^ d.key(step)) >= d.threshold()
 }
