@@ -394,21 +394,48 @@ fn outer4(y: vec4<f32>, x: vec4<f32>) -> mat4x4<f32> {
 }
 
 // The second launch of a split reduction: the `batches` partial results of each batch
-// item of C, as a `matmul` launch with `chunk` set wrote them, summed in order (the
-// result does not depend on the grid): c[i] (+)= sum over z of a[(item * batches + z) * m
-// + j] for i = item * m + j, m the length of one item of C, n the length of C. A 1-D grid
-// folded into x and y.
-@compute @workgroup_size(64, 1, 1)
-fn sum_partials(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
-    let i = gid.y * groups.x * 64u + gid.x;
-    if i >= p.n {
-        return;
-    }
-    let item = i / p.m;
-    let j = i - item * p.m;
+// item of C, as a `matmul` launch with `chunk` set wrote them, summed in a fixed order
+// (the result does not depend on the grid): c[i] (+)= sum over z of a[(item * batches +
+// z) * m + j] for i = item * m + j, m the length of one item of C, n the length of C.
+// SUM_LANES lanes (a power of two dividing 64) add each output's partial sums: lane l
+// adds z = l, l + SUM_LANES, ... in order, then the lanes' sums are added in a fixed tree
+// in workgroup memory (one lane adding all of them in order when SUM_LANES = 1). A
+// workgroup holds 64 / SUM_LANES consecutive outputs, the lanes of one output that far
+// apart so that neighbouring invocations read neighbouring outputs. A 1-D grid of
+// workgroups folded into x and y.
+override SUM_LANES: u32 = 1u;
+const SUM_WG: u32 = 64u;
+var<workgroup> lane_sums: array<f32, SUM_WG>;
+
+@compute @workgroup_size(SUM_WG, 1, 1)
+fn sum_partials(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>,
+                @builtin(local_invocation_index) li: u32) {
+    let outputs = SUM_WG / SUM_LANES;
+    let x = li % outputs;
+    let lane = li / outputs;
+    let i = (wg.y * groups.x + wg.x) * outputs + x;
+    let live = i < p.n;
     var s = 0.0;
-    for (var z = 0u; z < p.batches; z++) {
-        s += a[(item * p.batches + z) * p.m + j];
+    if live {
+        let item = i / p.m;
+        let j = i - item * p.m;
+        for (var z = lane; z < p.batches; z += SUM_LANES) {
+            s += a[(item * p.batches + z) * p.m + j];
+        }
+    }
+    if SUM_LANES > 1u {
+        lane_sums[li] = s;
+        workgroupBarrier();
+        for (var half = SUM_LANES / 2u; half > 0u; half /= 2u) {
+            if lane < half {
+                lane_sums[li] += lane_sums[li + half * outputs];
+            }
+            workgroupBarrier();
+        }
+        s = lane_sums[x];
+    }
+    if !live || lane != 0u {
+        return;
     }
     if p.accumulate != 0u {
         s += c[i];

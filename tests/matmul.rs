@@ -6,7 +6,7 @@
 
 use iastgcn::gpu::{DType, Gpu, Tensor};
 use iastgcn::ops::gated_dcc;
-use iastgcn::ops::matmul::{cpu, plan, Epilogue, Loads, Matmul, Tiling};
+use iastgcn::ops::matmul::{cpu, plan, Epilogue, Loads, Matmul, SplitProfile, Tiling};
 use iastgcn::ops::Accumulate;
 use iastgcn::testing::{
     check_gradient, compare_tensor, dot, gpu, rng, round_f32, to_f32, uniform, Tolerance,
@@ -103,6 +103,15 @@ fn on_every_kernel(g: &Gpu, shapes: impl IntoIterator<Item = Matmul>) -> Vec<Mat
     shapes
         .into_iter()
         .flat_map(|mm| t.iter().map(move |&k| mm.tiling(k)))
+        .collect()
+}
+
+/// Each shape with the CPU's and the GPU's split plans (chunk lengths, lanes adding each
+/// output's partial sums), whatever the device.
+fn on_both_split_plans(shapes: impl IntoIterator<Item = Matmul>) -> Vec<Matmul> {
+    shapes
+        .into_iter()
+        .flat_map(|mm| [SplitProfile::Cpu, SplitProfile::Gpu].map(|p| mm.split_profile(p)))
         .collect()
 }
 
@@ -581,7 +590,7 @@ fn split_weight_gradients_match_reference() {
                 .transpose_b(tb)
                 .share_a(shared_a)
                 .share_b(!shared_a);
-            for mm in on_every_kernel(&g, [shape]) {
+            for mm in on_every_kernel(&g, on_both_split_plans([shape])) {
                 check_gradient_launches(&g, &mm, shared_a, 2, 500 + (2 * i + j) as u64);
             }
         }
@@ -620,7 +629,27 @@ fn single_row_gradients_are_split_into_chunks() {
     // 12 289 is prime: no chunk length divides it.
     shapes.push((Matmul::new(12289, 1, 20), false, 1));
     for (i, (mm, grad_a, launches)) in shapes.into_iter().enumerate() {
-        check_gradient_launches(&g, &mm, grad_a, launches, 700 + i as u64);
+        for mm in on_both_split_plans([mm]) {
+            check_gradient_launches(&g, &mm, grad_a, launches, 700 + i as u64);
+        }
+    }
+}
+
+#[test]
+fn many_partial_sums_are_added_by_lanes() {
+    // A shared A's gradient ([3, 5] summed over many items of k = 4) split into chunks of
+    // 64 items by the GPU's plan (256 on a CPU's): 20 to 601 partial sums per output, which
+    // the GPU's plan adds with 2 to 64 lanes each (at least 8 sums per lane; a count no
+    // multiple of the lanes, a last chunk 7 items short), 15 outputs in one workgroup, with
+    // and without accumulation; the CPU's plan adds them with one lane, in order.
+    let g = gpu();
+    for (i, partials) in [20, 40, 70, 130, 300, 601].into_iter().enumerate() {
+        let shape = Matmul::new(3, 4, 5)
+            .batched(64 * partials - 7)
+            .share_a(true);
+        for mm in on_both_split_plans([shape]) {
+            check_gradient_launches(&g, &mm, true, 2, 950 + i as u64);
+        }
     }
 }
 
@@ -640,7 +669,10 @@ fn long_reductions_are_split_within_batch_items() {
                 .transpose_a(ta)
                 .transpose_b(tb)
         });
-        for (i, mm) in on_every_kernel(&g, shapes).into_iter().enumerate() {
+        for (i, mm) in on_every_kernel(&g, on_both_split_plans(shapes))
+            .into_iter()
+            .enumerate()
+        {
             let x = inputs(&mm, 900 + i as u64);
             let (a, b) = (upload(&g, "a", &x.a), upload(&g, "b", &x.b));
             let want = cpu::forward(&mm, &x.a, &x.b);
@@ -660,7 +692,9 @@ fn long_reductions_are_split_within_batch_items() {
             .batched(2)
             .transpose_a(ta)
             .transpose_b(tb);
-        check_gradient_launches(&g, &mix, true, 2, 910);
+        for mix in on_both_split_plans([mix]) {
+            check_gradient_launches(&g, &mix, true, 2, 910);
+        }
     }
     // No multiple of 4 in [256, 1024] divides 4099: one launch, as before.
     check_gradient_launches(&g, &Matmul::new(6, 4099, 7).batched(2), true, 1, 920);

@@ -5,7 +5,7 @@ use super::plan::{Gemm, Matmul, Plus, SplitLimits, Tiling};
 use super::{
     subgroup_kernel_available, Epilogue, BLOCK, COLS_MAX_M, COLS_MIN_N, COLS_PER_GROUP, COLS_TILE,
     KERNEL, KERNEL_ROW, KERNEL_SUBGROUP, KERNEL_SUBGROUP_COLS, KERNEL_SUM, MAX_GROUP_Y, MAX_TILES,
-    ROW_BLOCK, ROW_WORKGROUP, SUBGROUP_LANES, TILE_COLS, TILE_ROWS, WORKGROUP,
+    ROW_BLOCK, ROW_WORKGROUP, SUBGROUP_LANES, SUM_WORKGROUP, TILE_COLS, TILE_ROWS, WORKGROUP,
 };
 use crate::gpu::{grid_1d, DType, Dispatch, Gpu, GpuError, Kernel, Tensor};
 use crate::ops::Accumulate;
@@ -343,13 +343,14 @@ impl Gemm {
     }
 
     /// The two launches of a split product: partial sums over `chunk` items each, then
-    /// their sum into `out` (accumulating when `params.accumulate` is set).
+    /// their sum into `out` (accumulating when `params.accumulate` is set) by as many
+    /// lanes per output as [`Gemm::sum_lanes`] gives for `limits`.
     fn dispatch_split(
         self,
         gpu: &Gpu,
         [lhs, rhs, out]: [&Tensor; 3],
         params: Params,
-        chunk: usize,
+        (chunk, limits): (usize, SplitLimits),
         flops: f64,
     ) -> Result<Dispatch, GpuError> {
         // Chunks per item of C (one item for a batch-summed gradient, one per batch item
@@ -384,13 +385,15 @@ impl Gemm {
             batches: per_item as u32,
             ..params
         };
+        let lanes = Gemm::sum_lanes(per_item, items * len, limits);
         let limit = gpu.limits().max_compute_workgroups_per_dimension;
-        let groups = grid_1d(items * len, 64, limit);
+        let groups = grid_1d(items * len * lanes, SUM_WORKGROUP as u32, limit);
         let tensors = [&partials; 6]
             .into_iter()
             .chain([out, out])
             .collect::<Vec<_>>();
-        let sum = gpu.dispatch(&KERNEL_SUM, &[], &sum, &tensors, groups)?;
+        let constants = [("SUM_LANES", lanes as f64)];
+        let sum = gpu.dispatch(&KERNEL_SUM, &constants, &sum, &tensors, groups)?;
         Ok(first.then(sum).with_flops(flops))
     }
 
@@ -477,13 +480,9 @@ impl Gemm {
             b_slice: b_slice as u32,
         };
         let plain = epilogue.is_plain() && gemm.plus == Plus::None;
-        let limits = if gpu.is_software() {
-            SplitLimits::CPU
-        } else {
-            SplitLimits::GPU
-        };
+        let limits = gemm.split.limits(gpu.is_software());
         if let Some(chunk) = gemm.split_chunk(reduce, limits).filter(|_| plain) {
-            return gemm.dispatch_split(gpu, [lhs, rhs, out], params, chunk, flops);
+            return gemm.dispatch_split(gpu, [lhs, rhs, out], params, (chunk, limits), flops);
         }
         let mut constants = gemm.constants(&epilogue, swapped);
         constants.push(("REDUCE", f64::from(u8::from(reduce > 1))));

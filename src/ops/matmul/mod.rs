@@ -16,7 +16,7 @@ mod plan;
 
 pub mod cpu;
 
-pub use plan::{plan, Matmul, Tiling};
+pub use plan::{plan, Matmul, SplitProfile, Tiling};
 
 use crate::gpu::{Binding, Gpu, Kernel, Shader, Tensor};
 
@@ -88,6 +88,8 @@ static KERNEL_ROW: Kernel = Kernel {
 
 /// Invocations per workgroup of [`KERNEL_ROW`].
 const ROW_WORKGROUP: usize = 64;
+/// Invocations per workgroup of [`KERNEL_SUM`] (the most lanes per output).
+const SUM_WORKGROUP: usize = plan::SUM_MAX_LANES;
 
 /// Outputs per invocation along each axis of the block kernel (8×8: large blocks are what
 /// pays on lavapipe, 2× the GFLOP/s of 4×4 blocks), and invocations per workgroup axis

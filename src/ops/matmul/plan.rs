@@ -19,6 +19,34 @@ pub enum Tiling {
     Subgroup,
 }
 
+/// Which device's limits shape a split reduction: the chunk lengths
+/// ([`Gemm::split_chunk`]) and the lanes that add each output's partial sums
+/// ([`Gemm::sum_lanes`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum SplitProfile {
+    /// From the adapter: [`SplitProfile::Cpu`] on a CPU implementation (lavapipe, WARP),
+    /// else [`SplitProfile::Gpu`].
+    #[default]
+    Auto,
+    /// Long invocations, and each output's partial sums added by one lane in order.
+    Cpu,
+    /// Short invocations, and up to 64 lanes per output adding its partial sums (for
+    /// tests and benches that check the GPU's plan on any device).
+    Gpu,
+}
+
+impl SplitProfile {
+    /// The limits this profile gives on `gpu`'s adapter.
+    pub(super) fn limits(self, software: bool) -> SplitLimits {
+        match self {
+            SplitProfile::Cpu => SplitLimits::CPU,
+            SplitProfile::Gpu => SplitLimits::GPU,
+            SplitProfile::Auto if software => SplitLimits::CPU,
+            SplitProfile::Auto => SplitLimits::GPU,
+        }
+    }
+}
+
 /// Operand bytes per chunk of a split reduction (about one core's L2), and the most
 /// scratch its partial results may take (see [`Gemm::split_chunk`]).
 const SPLIT_CHUNK_BYTES: usize = 1 << 20;
@@ -35,21 +63,32 @@ pub(super) struct SplitLimits {
     pub(super) row_macs: usize,
     /// Steps along the reduction (items × k) per invocation of a tiled kernel, at most.
     pub(super) tiled_steps: usize,
+    /// Lanes that add one output's partial sums in the second launch, at most
+    /// ([`Gemm::sum_lanes`]).
+    pub(super) sum_lanes: usize,
 }
 
 impl SplitLimits {
     pub(super) const CPU: SplitLimits = SplitLimits {
         row_macs: ROW_CHUNK_MACS,
         tiled_steps: TILED_CHUNK_STEPS,
+        sum_lanes: 1,
     };
     pub(super) const GPU: SplitLimits = SplitLimits {
         row_macs: 512,
         tiled_steps: 256,
+        sum_lanes: SUM_MAX_LANES,
     };
 }
 /// Steps along the reduction (items × k) that one invocation of a tiled kernel sums in a
 /// split product, at most (see [`Gemm::split_chunk`]).
 const TILED_CHUNK_STEPS: usize = 1024;
+/// The most lanes adding one output's partial sums (one workgroup of `sum_partials`),
+/// the fewest partial sums each lane adds, and the most invocations of that launch
+/// ([`Gemm::sum_lanes`]).
+pub(super) const SUM_MAX_LANES: usize = 64;
+const SUM_MIN_PER_LANE: usize = 8;
+const SUM_MAX_INVOCATIONS: usize = 1 << 18;
 
 /// Shape of one (batched) product.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -78,6 +117,9 @@ pub struct Matmul {
     /// The kernel for products of more than one row ([`Tiling::Auto`] unless a test or a
     /// benchmark wants one).
     pub tiling: Tiling,
+    /// Which device's limits shape a split reduction ([`SplitProfile::Auto`] unless a
+    /// test or a benchmark wants one).
+    pub split: SplitProfile,
 }
 
 /// A strided 2-D view with a batch stride (0 when shared).
@@ -129,6 +171,7 @@ impl Matmul {
             shared_b: false,
             plus_identity: false,
             tiling: Tiling::Auto,
+            split: SplitProfile::Auto,
         }
     }
 
@@ -170,6 +213,11 @@ impl Matmul {
     /// Sets [`Matmul::tiling`], the kernel for products of more than one row.
     pub fn tiling(self, tiling: Tiling) -> Matmul {
         Matmul { tiling, ..self }
+    }
+
+    /// Sets [`Matmul::split`], which device's limits shape a split reduction.
+    pub fn split_profile(self, split: SplitProfile) -> Matmul {
+        Matmul { split, ..self }
     }
 
     /// `plus_identity` needs a square op(B) of more than one row, and dA per batch item
@@ -231,6 +279,7 @@ impl Matmul {
             batch: self.batch,
             plus: self.identity_on(Plus::Lhs),
             tiling: self.tiling,
+            split: self.split,
             parts: 1,
         }
     }
@@ -260,6 +309,7 @@ impl Matmul {
                 batch: self.batch,
                 plus: self.identity_on(Plus::Rhs),
                 tiling: self.tiling,
+                split: self.split,
                 parts: 1,
             };
             (gemm, true)
@@ -274,6 +324,7 @@ impl Matmul {
                 batch: self.batch,
                 plus: self.identity_on(Plus::Lhs),
                 tiling: self.tiling,
+                split: self.split,
                 parts: 1,
             };
             (gemm, false)
@@ -295,6 +346,7 @@ impl Matmul {
                 batch: self.batch,
                 plus: Plus::None,
                 tiling: self.tiling,
+                split: self.split,
                 parts: 1,
             };
             (gemm, true)
@@ -309,6 +361,7 @@ impl Matmul {
                 batch: self.batch,
                 plus: Plus::None,
                 tiling: self.tiling,
+                split: self.split,
                 parts: 1,
             };
             (gemm, false)
@@ -330,6 +383,7 @@ pub(super) struct Gemm {
     /// An operand added to the product in the epilogue (never with `out_shared`).
     pub(super) plus: Plus,
     pub(super) tiling: Tiling,
+    pub(super) split: SplitProfile,
     /// Slices of length `k` that each batch item's reduction is cut into (1: none),
     /// summed into the same item of C ([`Gemm::item_k_split`]), or with `out_shared` into
     /// the one C with every item's ([`Gemm::shared_k_split`]).
@@ -454,6 +508,28 @@ impl Gemm {
         (chunk < reduce).then_some(chunk)
     }
 
+    /// Lanes that add each output's `partials` partial sums in the second launch of a
+    /// split product (`sum_partials`; `outputs` sums in all): a power of two, each lane
+    /// adding every lanes-th partial sum in order and the lanes' sums then added in a
+    /// fixed tree in workgroup memory, so the result does not depend on the grid. One lane
+    /// adds them all on a CPU adapter (`limits.sum_lanes` = 1, the order of every earlier
+    /// build). On a GPU each lane adds at least 8, up to 64 lanes per output while the
+    /// launch stays within 2¹⁸ invocations: one lane per output made that launch a chain of
+    /// dependent loads as long as the partial sums are many (1 024 for each of the 14
+    /// outputs of the temporal attention's U1 gradient at the paper's shape, 448 for each
+    /// of the 4 096 of the graph convolution's W), which a GPU cannot overlap when a few
+    /// dozen lanes are busy.
+    pub(super) fn sum_lanes(partials: usize, outputs: usize, limits: SplitLimits) -> usize {
+        let mut lanes = 1;
+        while lanes * 2 <= limits.sum_lanes
+            && lanes * 2 * SUM_MIN_PER_LANE <= partials
+            && lanes * 2 * outputs <= SUM_MAX_INVOCATIONS
+        {
+            lanes *= 2;
+        }
+        lanes
+    }
+
     /// A single row of C with a long reduction and no batch (`xw1`'s weight gradient
     /// sums over B·N·C_in = 57 344 rows at the paper's shape) as the same product summed
     /// over chunks of k: k' = a divisor of k of at most [`ROW_CHUNK_MACS`] / 8 (a multiple
@@ -566,4 +642,28 @@ pub fn plan(mm: &Matmul) -> [(&'static str, Loads); 3] {
         describe(mm.backward_a_gemm().0),
         describe(mm.backward_b_gemm().0),
     ]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{Gemm, SplitLimits};
+
+    #[test]
+    fn partial_sums_take_more_lanes_the_longer_they_are_on_a_gpu() {
+        // (partial sums per output, outputs, lanes on a GPU): the paper shape's U1 (1 024
+        // sums for each of 14 outputs) takes the most lanes; the graph convolution's W
+        // (448 for 4 096) at least 8 sums per lane; the gated convolution's dW_fg (299
+        // for 24 576) as many as 2¹⁸ invocations allow; a few sums stay on one lane.
+        let gpu = [
+            (1024, 14, 64),
+            (448, 4096, 32),
+            (299, 24576, 8),
+            (20, 15, 2),
+        ];
+        for (partials, outputs, lanes) in gpu.into_iter().chain([(7, 10000, 1), (15, 3, 1)]) {
+            let got = Gemm::sum_lanes(partials, outputs, SplitLimits::GPU);
+            assert_eq!(got, lanes, "{partials} partial sums for {outputs} outputs");
+            assert_eq!(Gemm::sum_lanes(partials, outputs, SplitLimits::CPU), 1);
+        }
+    }
 }
