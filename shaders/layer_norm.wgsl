@@ -24,6 +24,12 @@ struct LnParams {
     drop_scale: f32,
     drop_stride: u32,
     drop_offset: u32,
+    // The parameter gradients split along the outer axis: blocks per slice and number of
+    // slices (the whole axis and 1 when unsplit).
+    slice: u32,
+    slices: u32,
+    pad0: u32,
+    pad1: u32,
 }
 
 const LN_WG: u32 = 256u;
@@ -218,8 +224,12 @@ fn layer_norm_backward_input4(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num
 }
 
 // Parameter gradients: dγ[c] = Σ dy·x̂, dβ[c] = Σ dy over all rows (dy through the
-// dropout's mask when it is fused). One workgroup per
-// channel; its threads stride over the rows and reduce in workgroup memory.
+// dropout's mask when it is fused). One workgroup per channel and slice of the outer
+// axis (workgroup (c, s)); its threads stride over the slice's rows and reduce in
+// workgroup memory. Unsplit (slices = 1), it writes dγ[c] and dβ[c]; split (a GPU has far
+// more workgroups to fill than channels), it writes its slice's sums to element
+// s·C + c of two scratch buffers, always overwriting, and `layer_norm_params_sum` adds
+// the slices in order.
 
 @group(0) @binding(1) var<storage, read> px: array<f32>;
 @group(0) @binding(2) var<storage, read> pdy: array<f32>;
@@ -234,12 +244,14 @@ var<workgroup> red_b: array<f32, 256>;
 @compute @workgroup_size(256)
 fn layer_norm_backward_params(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) li: u32) {
     let k = wg.x;
-    let rows = p.outer * p.steps;
+    let slice = wg.y;
+    let begin = slice * p.slice;
+    let end = min(begin + p.slice, p.outer) * p.steps;
     var sg = 0.0;
     var sb = 0.0;
-    // row = o * steps + t from li by LN_WG, (o, t) kept by `flat_walk`.
-    var at = flat_walk(li, LN_WG, p.steps);
-    for (var row = li; row < rows; row += LN_WG) {
+    // row = o * steps + t from the slice's first row by LN_WG, (o, t) kept by `flat_walk`.
+    var at = flat_walk(begin * p.steps + li, LN_WG, p.steps);
+    for (var row = begin * p.steps + li; row < end; row += LN_WG) {
         let i = (at.o * p.channels + k) * p.steps + at.i;
         let g = dropped(pdy[i], i);
         sg += g * (px[i] - pmean[row]) * prstd[row];
@@ -257,12 +269,38 @@ fn layer_norm_backward_params(@builtin(workgroup_id) wg: vec3<u32>, @builtin(loc
         workgroupBarrier();
     }
     if li == 0u {
-        if p.accumulate != 0u {
-            dgamma[k] = dgamma[k] + red_g[0];
-            dbeta[k] = dbeta[k] + red_b[0];
+        let o = slice * p.channels + k;
+        if p.accumulate != 0u && p.slices == 1u {
+            dgamma[o] = dgamma[o] + red_g[0];
+            dbeta[o] = dbeta[o] + red_b[0];
         } else {
-            dgamma[k] = red_g[0];
-            dbeta[k] = red_b[0];
+            dgamma[o] = red_g[0];
+            dbeta[o] = red_b[0];
         }
     }
+}
+
+// The second launch of a split parameter gradient: dγ[c] (+)= Σ_s partial_g[s·C + c] and
+// dβ likewise, the slices added in order, one invocation per channel.
+@group(0) @binding(1) var<storage, read> partial_g: array<f32>;
+@group(0) @binding(2) var<storage, read> partial_b: array<f32>;
+
+@compute @workgroup_size(64)
+fn layer_norm_params_sum(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let k = gid.x;
+    if k >= p.channels {
+        return;
+    }
+    var sg = 0.0;
+    var sb = 0.0;
+    for (var s = 0u; s < p.slices; s++) {
+        sg += partial_g[s * p.channels + k];
+        sb += partial_b[s * p.channels + k];
+    }
+    if p.accumulate != 0u {
+        sg += dgamma[k];
+        sb += dbeta[k];
+    }
+    dgamma[k] = sg;
+    dbeta[k] = sb;
 }

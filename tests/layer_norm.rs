@@ -15,8 +15,9 @@ fn upload(g: &Gpu, name: &str, data: &[f64]) -> Tensor {
 
 /// Ragged shapes, including C = 64 and T not a multiple of anything, and more rows than
 /// one workgroup; then T multiples of 4 (four rows per invocation), again past one
-/// workgroup.
-const SHAPES: [(usize, usize, usize); 8] = [
+/// workgroup; last, rows enough for the parameter gradients to be split into 6 slices
+/// of the outer axis, the last one short (`LayerNorm::grad_slices`).
+const SHAPES: [(usize, usize, usize); 9] = [
     (1, 1, 1),
     // Steps longer than, and equal to, the 256 rows a parameter-gradient group strides by.
     (3, 6, 300),
@@ -26,6 +27,7 @@ const SHAPES: [(usize, usize, usize); 8] = [
     (29, 16, 11),
     (3, 16, 8),
     (100, 8, 16),
+    (29, 8, 1700),
 ];
 
 #[test]
@@ -134,38 +136,46 @@ fn reference_backward_matches_finite_differences() {
 #[test]
 fn gradients_accumulate_when_asked() {
     let g = gpu();
-    let ln = LayerNorm::new(4, 8, 5);
+    // Unsplit, and split into 2 slices (the slices' sum accumulates, not each slice).
+    for (outer, steps) in [(4, 5), (30, 600)] {
+        let ln = LayerNorm::new(outer, 8, steps);
+        assert_eq!(ln.grad_slices().0, if outer == 4 { 1 } else { 2 });
+        accumulates(&g, ln);
+    }
+}
+
+fn accumulates(g: &Gpu, ln: LayerNorm) {
     let mut r = rng(9);
     let x = round_f32(&uniform(&mut r, ln.len(), -1.0, 1.0));
     let gamma = round_f32(&uniform(&mut r, 8, 0.5, 1.5));
     let dy = round_f32(&uniform(&mut r, ln.len(), -1.0, 1.0));
     let (xt, gt, dyt) = (
-        upload(&g, "x", &x),
-        upload(&g, "gamma", &gamma),
-        upload(&g, "dy", &dy),
+        upload(g, "x", &x),
+        upload(g, "gamma", &gamma),
+        upload(g, "dy", &dy),
     );
     let beta = g.zeros("beta", &[8], DType::F32).unwrap();
     let z = |n: &str, len: usize| g.zeros(n, &[len], DType::F32).unwrap();
     let (y, mean, rstd) = (z("y", ln.len()), z("mean", ln.rows()), z("rstd", ln.rows()));
-    let dx = upload(&g, "dx", &vec![1.0; ln.len()]);
+    let dx = upload(g, "dx", &vec![1.0; ln.len()]);
     let (dg, db) = (
-        upload(&g, "dgamma", &[2.0; 8]),
-        upload(&g, "dbeta", &[3.0; 8]),
+        upload(g, "dgamma", &[2.0; 8]),
+        upload(g, "dbeta", &[3.0; 8]),
     );
     g.run(&[
-        ln.forward(&g, &xt, &gt, &beta, &y, &mean, &rstd).unwrap(),
-        ln.backward_input(&g, &xt, &gt, &dyt, &mean, &rstd, &dx, Accumulate::Add)
+        ln.forward(g, &xt, &gt, &beta, &y, &mean, &rstd).unwrap(),
+        ln.backward_input(g, &xt, &gt, &dyt, &mean, &rstd, &dx, Accumulate::Add)
             .unwrap(),
-        ln.backward_params(&g, &xt, &dyt, &mean, &rstd, &dg, &db, Accumulate::Add)
+        ln.backward_params(g, &xt, &dyt, &mean, &rstd, &dg, &db, Accumulate::Add)
             .unwrap(),
     ])
     .unwrap();
     let (dx_ref, dg_ref, db_ref) = cpu::backward(&ln, &x, &gamma, &dy);
     let plus = |v: &[f64], c: f64| v.iter().map(|a| a + c).collect::<Vec<_>>();
     let tol = Tolerance::new(3e-5, 3e-5);
-    compare_tensor(&g, "dx", &dx, &plus(&dx_ref, 1.0), tol).unwrap();
-    compare_tensor(&g, "dgamma", &dg, &plus(&dg_ref, 2.0), tol).unwrap();
-    compare_tensor(&g, "dbeta", &db, &plus(&db_ref, 3.0), tol).unwrap();
+    compare_tensor(g, "dx", &dx, &plus(&dx_ref, 1.0), tol).unwrap();
+    compare_tensor(g, "dgamma", &dg, &plus(&dg_ref, 2.0), tol).unwrap();
+    compare_tensor(g, "dbeta", &db, &plus(&db_ref, 3.0), tol).unwrap();
 }
 
 #[test]
@@ -223,8 +233,15 @@ fn fused_dropout_gives_the_dropout_ops_mask_forward_and_backward() {
     // `set_step`; a strided mask (the trimmed last block's) as well. Four rows per
     // invocation and one.
     let g = gpu();
-    for (outer, channels, steps, strided) in [(6, 16, 8, false), (5, 7, 3, false), (9, 5, 1, true)]
-    {
+    // The last shape's parameter gradients are split into 2 slices: `set_step` moves the
+    // mask of the launch that reads the gradient, the first.
+    let shapes = [
+        (6, 16, 8, false),
+        (5, 7, 3, false),
+        (9, 5, 1, true),
+        (30, 4, 600, false),
+    ];
+    for (outer, channels, steps, strided) in shapes {
         let plain = LayerNorm::new(outer, channels, steps);
         let whole = Dropout::new(plain.len() * 7, 0.3, 11);
         let dropout = if strided {
