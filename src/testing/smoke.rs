@@ -1,4 +1,5 @@
-//! The smoke check of a device (`iastgcn smoke`): the kernel families the model leans on,
+//! The smoke check of a device (`iastgcn smoke`): the kernel families the model leans on
+//! (products, the split reductions of weight gradients, the LayerNorm, the gate),
 //! and the mirror's (the pad's removal, the dwell solve's FFTs), run once on the device,
 //! are compared with the f64 CPU reference and are timed. A quick "does this GPU work"
 //! for a new machine.
@@ -10,6 +11,7 @@ use crate::error::{Error, Result};
 use crate::gpu::{DType, Gpu, Recorder, Tensor};
 use crate::ops::elementwise::{self, Binary, Unary};
 use crate::ops::fft::{dft2, Transform2};
+use crate::ops::layer_norm::{self, LayerNorm};
 use crate::ops::matmul::{self, Matmul};
 use crate::ops::removal::{Accumulator, Footprint, Tick};
 use crate::ops::Accumulate;
@@ -65,6 +67,8 @@ pub struct SmokeRow {
 /// (`Err` only when the device or a tensor cannot be used).
 pub fn smoke(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> {
     let mut rows = matmul_check(gpu, options)?;
+    rows.extend(reduction_check(gpu, options)?);
+    rows.extend(layer_norm_check(gpu, options)?);
     rows.extend(gated_unit_check(gpu, options)?);
     rows.extend(removal_check(gpu, options)?);
     rows.extend(fft_check(gpu, options)?);
@@ -156,6 +160,118 @@ fn matmul_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> {
             ("matmul forward", Output::Device(&yt), &y, tol(c)),
             ("matmul backward dX", Output::Device(&dxt), &dx, tol(c)),
             ("matmul backward dW", Output::Device(&dwt), &dw, tol(r)),
+        ],
+    }
+    .rows(gpu)
+}
+
+/// Weight gradients summed over a batch as the model's are, split into partial sums
+/// that a second launch adds, which a GPU plans differently from a CPU adapter
+/// (`ops::matmul`'s split reduction): a 1×1 convolution's W over 112 windows of 100
+/// steps, and a rank-1 weight's single row (the temporal attention's U1: 14 values over
+/// 64 items of C·100 steps, the most partial sums per output on a GPU).
+fn reduction_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> {
+    let c = options.channels;
+    let conv = Matmul::new(100, c, c).batched(112).share_b(true);
+    let row = Matmul::new(1, c * 100, 14).batched(64).share_a(true);
+    let mut g = rng(options.seed + 4);
+    let mut inputs = |mm: &Matmul| {
+        let mut draw = |n: usize| round_f32(&uniform(&mut g, n, -1.0, 1.0));
+        (draw(mm.a_len()), draw(mm.b_len()), draw(mm.c_len()))
+    };
+    let (cx, cw, cdy) = inputs(&conv);
+    let (ru, rx, rdy) = inputs(&row);
+    let up = |name: &str, v: &[f64]| gpu.upload(name, &[v.len()], &to_f32(v));
+    let (cxt, cdyt, rxt, rdyt) = (
+        up("x", &cx)?,
+        up("dy", &cdy)?,
+        up("x", &rx)?,
+        up("dy", &rdy)?,
+    );
+    let dw = gpu.zeros("dW", &[c, c], DType::F32)?;
+    let du = gpu.zeros("dU1", &[14], DType::F32)?;
+    let step = [
+        conv.backward_b(gpu, &cxt, &cdyt, &dw, Accumulate::Overwrite)?,
+        row.backward_a(gpu, &rxt, &rdyt, &du, Accumulate::Overwrite)?,
+    ];
+    let t0 = Instant::now();
+    gpu.run(&step)?;
+    let seconds = t0.elapsed().as_secs_f64();
+    let (_, dw_ref) = matmul::cpu::backward(&conv, &cx, &cw, &cdy);
+    let (du_ref, _) = matmul::cpu::backward(&row, &ru, &rx, &rdy);
+    let tol = |k: usize| Tolerance::new(1e-6 * (k as f64).sqrt() * 4.0, 1e-4);
+    Group {
+        name: format!("split weight gradients [{c},{c}] x112, [1,14] x64"),
+        seconds,
+        includes_compile: true,
+        flops: Some(conv.flops() + row.flops()),
+        checks: vec![
+            (
+                "batch-summed dW",
+                Output::Device(&dw),
+                &dw_ref,
+                tol(112 * 100),
+            ),
+            (
+                "batch-summed row",
+                Output::Device(&du),
+                &du_ref,
+                tol(64 * c * 100),
+            ),
+        ],
+    }
+    .rows(gpu)
+}
+
+/// The channel LayerNorm of docs/model.md step 6 over 224 rows of C channels and 100
+/// steps, forward and backward: the parameter gradients sum 22 400 terms per channel,
+/// split over slices of the rows (`ops::layer_norm`).
+fn layer_norm_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> {
+    let c = options.channels;
+    let ln = LayerNorm::new(224, c, 100);
+    let mut g = rng(options.seed + 5);
+    let x = round_f32(&uniform(&mut g, ln.len(), -2.0, 3.0));
+    let gamma = round_f32(&uniform(&mut g, c, 0.5, 1.5));
+    let beta = round_f32(&uniform(&mut g, c, -0.5, 0.5));
+    let dy = round_f32(&uniform(&mut g, ln.len(), -1.0, 1.0));
+    let up = |name: &str, v: &[f64]| gpu.upload(name, &[v.len()], &to_f32(v));
+    let (xt, gt, bt, dyt) = (
+        up("x", &x)?,
+        up("gamma", &gamma)?,
+        up("beta", &beta)?,
+        up("dy", &dy)?,
+    );
+    let z = |name: &str, n: usize| gpu.zeros(name, &[n], DType::F32);
+    let (y, mean, rstd) = (
+        z("y", ln.len())?,
+        z("mean", ln.rows())?,
+        z("rstd", ln.rows())?,
+    );
+    let (dx, dg, db) = (z("dx", ln.len())?, z("dgamma", c)?, z("dbeta", c)?);
+    let new = Accumulate::Overwrite;
+    let step = [
+        ln.forward(gpu, &xt, &gt, &bt, &y, &mean, &rstd)?,
+        ln.backward_input(gpu, &xt, &gt, &dyt, &mean, &rstd, &dx, new)?,
+        ln.backward_params(gpu, &xt, &dyt, &mean, &rstd, &dg, &db, new)?,
+    ];
+    let t0 = Instant::now();
+    gpu.run(&step)?;
+    let seconds = t0.elapsed().as_secs_f64();
+    let y_ref = layer_norm::cpu::forward(&ln, &x, &gamma, &beta);
+    let (dx_ref, dg_ref, db_ref) = layer_norm::cpu::backward(&ln, &x, &gamma, &dy);
+    // Normalised values are O(1); the parameter gradients sum `rows` such terms.
+    let tol = Tolerance::new(5e-5, 5e-5);
+    let sums = Tolerance::new(8e-6 * (ln.rows() as f64).sqrt(), 1e-4);
+    Group {
+        name: format!("layernorm [224,{c},100] fwd+bwd"),
+        seconds,
+        includes_compile: true,
+        flops: None,
+        checks: vec![
+            ("layernorm y", Output::Device(&y), &y_ref, tol),
+            ("layernorm dX", Output::Device(&dx), &dx_ref, tol),
+            ("layernorm dgamma", Output::Device(&dg), &dg_ref, sums),
+            ("layernorm dbeta", Output::Device(&db), &db_ref, sums),
         ],
     }
     .rows(gpu)
