@@ -4,9 +4,9 @@
 //! One file past 600 lines on purpose: every test draws on the shared shape list and
 //! helpers at the top, and each file in tests/ is one more test binary to build and link.
 
-use iastgcn::gpu::{DType, Gpu, Tensor};
+use iastgcn::gpu::{DType, Gpu, Planning, Tensor};
 use iastgcn::ops::gated_dcc;
-use iastgcn::ops::matmul::{cpu, plan, Epilogue, Loads, Matmul, SplitProfile, Tiling};
+use iastgcn::ops::matmul::{cpu, plan, Epilogue, Loads, Matmul, Tiling};
 use iastgcn::ops::Accumulate;
 use iastgcn::testing::{
     check_gradient, compare_tensor, dot, gpu, rng, round_f32, to_f32, uniform, Tolerance,
@@ -106,13 +106,10 @@ fn on_every_kernel(g: &Gpu, shapes: impl IntoIterator<Item = Matmul>) -> Vec<Mat
         .collect()
 }
 
-/// Each shape with the CPU's and the GPU's split plans (chunk lengths, lanes adding each
-/// output's partial sums), whatever the device.
-fn on_both_split_plans(shapes: impl IntoIterator<Item = Matmul>) -> Vec<Matmul> {
-    shapes
-        .into_iter()
-        .flat_map(|mm| [SplitProfile::Cpu, SplitProfile::Gpu].map(|p| mm.split_profile(p)))
-        .collect()
+/// The device twice: launches planned as for a CPU adapter and as for a GPU (split
+/// reductions' chunk lengths, lanes adding each output's partial sums), whatever it is.
+fn both_plans() -> [Gpu; 2] {
+    [Planning::Cpu, Planning::Gpu].map(|p| gpu().with_planning(p))
 }
 
 /// f32 sums of `k` products of values in [-1, 1]: √k·few ulps absolute, far below the
@@ -575,23 +572,24 @@ fn split_weight_gradients_match_reference() {
     // items: chunks of 10, the last one short), and chunks of ~1 MiB of operands where
     // rows and columns of C are many (m + n > 256: 268 rows, 24 items per chunk of 30);
     // ragged output blocks, every transpose, with and without accumulation.
-    let g = gpu();
-    for (i, (ta, tb)) in [(false, false), (true, false), (false, true), (true, true)]
-        .into_iter()
-        .enumerate()
-    {
-        for (j, (rows, k, items)) in [(12, 100, 35), (260, 40, 30)].into_iter().enumerate() {
-            let shared_a = i % 2 == 0;
-            // The gradient is [rows, 8] (or its transpose), reduced over k steps of `items`.
-            let (m, n, kk) = if shared_a { (rows, k, 8) } else { (k, 8, rows) };
-            let shape = Matmul::new(m, n, kk)
-                .batched(items)
-                .transpose_a(ta)
-                .transpose_b(tb)
-                .share_a(shared_a)
-                .share_b(!shared_a);
-            for mm in on_every_kernel(&g, on_both_split_plans([shape])) {
-                check_gradient_launches(&g, &mm, shared_a, 2, 500 + (2 * i + j) as u64);
+    for g in both_plans() {
+        for (i, (ta, tb)) in [(false, false), (true, false), (false, true), (true, true)]
+            .into_iter()
+            .enumerate()
+        {
+            for (j, (rows, k, items)) in [(12, 100, 35), (260, 40, 30)].into_iter().enumerate() {
+                let shared_a = i % 2 == 0;
+                // The gradient is [rows, 8] (or its transpose), reduced over k steps of `items`.
+                let (m, n, kk) = if shared_a { (rows, k, 8) } else { (k, 8, rows) };
+                let shape = Matmul::new(m, n, kk)
+                    .batched(items)
+                    .transpose_a(ta)
+                    .transpose_b(tb)
+                    .share_a(shared_a)
+                    .share_b(!shared_a);
+                for mm in on_every_kernel(&g, [shape]) {
+                    check_gradient_launches(&g, &mm, shared_a, 2, 500 + (2 * i + j) as u64);
+                }
             }
         }
     }
@@ -604,7 +602,6 @@ fn single_row_gradients_are_split_into_chunks() {
     // rows of one product): the row kernel sums chunks of ~4096 multiply-adds (512 on a
     // GPU) into partial rows, and a second launch adds them. Ragged chunk counts, both layouts of each operand, with and without
     // accumulation; a k with no divisor to split at stays one launch.
-    let g = gpu();
     let mut shapes = Vec::new();
     for (ta, tb) in [(false, false), (true, false), (false, true), (true, true)] {
         // dA: m = 1, n = 10, k = 700 summed over 12 items in chunks of 5 (the last short).
@@ -629,7 +626,7 @@ fn single_row_gradients_are_split_into_chunks() {
     // 12 289 is prime: no chunk length divides it.
     shapes.push((Matmul::new(12289, 1, 20), false, 1));
     for (i, (mm, grad_a, launches)) in shapes.into_iter().enumerate() {
-        for mm in on_both_split_plans([mm]) {
+        for g in both_plans() {
             check_gradient_launches(&g, &mm, grad_a, launches, 700 + i as u64);
         }
     }
@@ -642,13 +639,13 @@ fn many_partial_sums_are_added_by_lanes() {
     // the GPU's plan adds with 2 to 64 lanes each (at least 8 sums per lane; a count no
     // multiple of the lanes, a last chunk 7 items short), 15 outputs in one workgroup, with
     // and without accumulation; the CPU's plan adds them with one lane, in order.
-    let g = gpu();
+    let plans = both_plans();
     for (i, partials) in [20, 40, 70, 130, 300, 601].into_iter().enumerate() {
         let shape = Matmul::new(3, 4, 5)
             .batched(64 * partials - 7)
             .share_a(true);
-        for mm in on_both_split_plans([shape]) {
-            check_gradient_launches(&g, &mm, true, 2, 950 + i as u64);
+        for g in &plans {
+            check_gradient_launches(g, &shape, true, 2, 950 + i as u64);
         }
     }
 }
@@ -657,47 +654,45 @@ fn many_partial_sums_are_added_by_lanes() {
 fn long_reductions_are_split_within_batch_items() {
     // A batched product with few blocks of C and a long k (the graph convolution's
     // dQ = dM·X_tᵀ, 14 × 14 per window over k = C·T) is cut along k into slices of a
-    // multiple-of-4 divisor of k in [256, 1024], each slice summed by its own
-    // invocations and an item's slices added by a second launch.
-    let g = gpu();
-    for (ta, tb) in [(false, false), (true, false), (false, true), (true, true)] {
-        // k = 4160 = 5 slices of 832: the row kernel for m = 1, every tiled kernel the
-        // device has for the others (subgroup ones from 32 columns).
-        let shapes = [(6, 7), (1, 5), (6, 40), (20, 40)].map(|(m, n)| {
-            Matmul::new(m, n, 4160)
-                .batched(3)
-                .transpose_a(ta)
-                .transpose_b(tb)
-        });
-        for (i, mm) in on_every_kernel(&g, on_both_split_plans(shapes))
-            .into_iter()
-            .enumerate()
-        {
-            let x = inputs(&mm, 900 + i as u64);
-            let (a, b) = (upload(&g, "a", &x.a), upload(&g, "b", &x.b));
-            let want = cpu::forward(&mm, &x.a, &x.b);
-            for accumulate in Accumulate::ALL {
-                let c0: Vec<f64> = (0..mm.c_len()).map(|j| 0.25 - j as f64 * 0.01).collect();
-                let c = upload(&g, "c", &c0);
-                let d = mm.forward(&g, &a, &b, &c, accumulate).unwrap();
-                assert_eq!(d.launches(), 2, "{mm:?}");
-                g.run(&[d]).unwrap();
-                let want = onto_start(&want, &c0, accumulate);
-                let what = format!("{mm:?}, accumulate {accumulate:?}");
-                compare_tensor(&g, &what, &c, &want, gpu_tol(4160)).unwrap();
+    // multiple-of-4 divisor of k in [256, 1024] (in [64, 256] when planned for a GPU),
+    // each slice summed by its own invocations and an item's slices added by a second
+    // launch.
+    for g in both_plans() {
+        for (ta, tb) in [(false, false), (true, false), (false, true), (true, true)] {
+            // k = 4160 = 5 slices of 832 (20 of 208 for a GPU): the row kernel for m = 1, every tiled kernel the
+            // device has for the others (subgroup ones from 32 columns).
+            let shapes = [(6, 7), (1, 5), (6, 40), (20, 40)].map(|(m, n)| {
+                Matmul::new(m, n, 4160)
+                    .batched(3)
+                    .transpose_a(ta)
+                    .transpose_b(tb)
+            });
+            for (i, mm) in on_every_kernel(&g, shapes).into_iter().enumerate() {
+                let x = inputs(&mm, 900 + i as u64);
+                let (a, b) = (upload(&g, "a", &x.a), upload(&g, "b", &x.b));
+                let want = cpu::forward(&mm, &x.a, &x.b);
+                for accumulate in Accumulate::ALL {
+                    let c0: Vec<f64> = (0..mm.c_len()).map(|j| 0.25 - j as f64 * 0.01).collect();
+                    let c = upload(&g, "c", &c0);
+                    let d = mm.forward(&g, &a, &b, &c, accumulate).unwrap();
+                    assert_eq!(d.launches(), 2, "{mm:?}");
+                    g.run(&[d]).unwrap();
+                    let want = onto_start(&want, &c0, accumulate);
+                    let what = format!("{mm:?}, accumulate {accumulate:?}");
+                    compare_tensor(&g, &what, &c, &want, gpu_tol(4160)).unwrap();
+                }
             }
-        }
-        // dQ of M = Q·X_t: [2, 14, 14] from dM and X_t over k = 6400 (8 slices of 800).
-        let mix = Matmul::new(14, 6400, 14)
-            .batched(2)
-            .transpose_a(ta)
-            .transpose_b(tb);
-        for mix in on_both_split_plans([mix]) {
+            // dQ of M = Q·X_t: [2, 14, 14] from dM and X_t over k = 6400 (8 slices of 800,
+            // 25 of 256 for a GPU).
+            let mix = Matmul::new(14, 6400, 14)
+                .batched(2)
+                .transpose_a(ta)
+                .transpose_b(tb);
             check_gradient_launches(&g, &mix, true, 2, 910);
         }
+        // No multiple of 4 in either range divides 4099: one launch, as before.
+        check_gradient_launches(&g, &Matmul::new(6, 4099, 7).batched(2), true, 1, 920);
     }
-    // No multiple of 4 in [256, 1024] divides 4099: one launch, as before.
-    check_gradient_launches(&g, &Matmul::new(6, 4099, 7).batched(2), true, 1, 920);
 }
 
 #[test]

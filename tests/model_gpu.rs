@@ -5,6 +5,7 @@
 //! against finite differences in tests/model_reference.rs.)
 
 use common::parameters;
+use iastgcn::gpu::{Gpu, Planning};
 use iastgcn::graph::Graph;
 use iastgcn::model::reference::{self, DropoutStep, Loss};
 use iastgcn::model::{graph_basis, ModelConfig, Network, Pass, Timing, Variant};
@@ -32,7 +33,16 @@ fn scaled(expected: &[f64], rel: f64) -> Tolerance {
 
 #[test]
 fn gradients_match_reference_in_every_variant() {
-    let g = gpu();
+    gradients_match_reference(&gpu());
+}
+
+#[test]
+fn gradients_match_reference_when_planned_for_a_gpu() {
+    // The split reductions' chunks and lanes as a GPU runs them (on any device).
+    gradients_match_reference(&gpu().with_planning(Planning::Gpu));
+}
+
+fn gradients_match_reference(g: &Gpu) {
     let graph = Graph::default_asset();
     let batch = 2;
     for (vi, variant) in Variant::IASTGCN
@@ -45,11 +55,11 @@ fn gradients_match_reference_in_every_variant() {
         let mut r = rng(100 + vi as u64);
         let x = to_f32(&uniform(&mut r, batch * 14 * 3 * 16, -1.0, 1.0));
         let y = to_f32(&uniform(&mut r, batch * 6, -1.0, 1.0));
-        let net = Network::new(&g, &config, &graph, batch, DROPOUT_SEED).unwrap();
-        net.load_parameters(&g, &p).unwrap();
-        net.set_attitude_penalty(&g, PENALTY).unwrap();
+        let net = Network::new(g, &config, &graph, batch, DROPOUT_SEED).unwrap();
+        net.load_parameters(g, &p).unwrap();
+        net.set_attitude_penalty(g, PENALTY).unwrap();
         let step = 5;
-        net.gradients(&g, &x, &y, step).unwrap();
+        net.gradients(g, &x, &y, step).unwrap();
 
         let basis = graph_basis(&graph, &config);
         let params: Vec<Vec<f64>> = p.values.iter().map(|v| f64s(v)).collect();
@@ -107,7 +117,7 @@ fn gradients_match_reference_in_every_variant() {
             Tolerance::new(0.0, 1e-5),
         )
         .unwrap();
-        let got = net.read_gradients(&g).unwrap();
+        let got = net.read_gradients(g).unwrap();
         let mut worst = (0.0, String::new());
         for ((spec, gpu_grad), cpu_grad) in p.specs.iter().zip(&got).zip(&grads) {
             let w = compare(

@@ -40,6 +40,24 @@ pub struct Gpu {
     /// Errors no scope caught and the device's loss, reported by the next
     /// [`Gpu::check`] (wgpu's default handler would panic instead).
     faults: Arc<Faults>,
+    /// Which kind of device the planners shape launches for ([`Gpu::with_planning`]).
+    planning: Planning,
+}
+
+/// Which kind of device the kernels' planners shape their launches for: `ops::matmul`'s
+/// split reductions (how many reduction steps an invocation sums, how many lanes add
+/// each output's partial sums). Results differ only by the order of f32 additions.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Planning {
+    /// The adapter's own kind: [`Planning::Cpu`] on a CPU implementation (lavapipe,
+    /// WARP), else [`Planning::Gpu`].
+    #[default]
+    Adapter,
+    /// As for a CPU adapter: long invocations, one lane adding each output's partial sums.
+    Cpu,
+    /// As for a GPU: short invocations, up to 64 lanes per output (tests run a GPU's
+    /// plan on lavapipe with it).
+    Gpu,
 }
 
 /// What the device reported outside any error scope.
@@ -262,6 +280,7 @@ impl Gpu {
             pipelines: Mutex::new(PipelineCache::default()),
             allocations: Mutex::new(None),
             faults,
+            planning: Planning::Adapter,
         })
     }
 
@@ -317,6 +336,21 @@ impl Gpu {
     /// True when the adapter is a CPU implementation (lavapipe, WARP, ...).
     pub fn is_software(&self) -> bool {
         self.info.device_type == wgpu::DeviceType::Cpu
+    }
+
+    /// The same device with its launches planned for another kind of device (see
+    /// [`Planning`]; [`Planning::Adapter`] when opened).
+    pub fn with_planning(self, planning: Planning) -> Gpu {
+        Gpu { planning, ..self }
+    }
+
+    /// Whether the planners shape launches for a CPU adapter ([`Gpu::with_planning`]).
+    pub fn plans_for_cpu(&self) -> bool {
+        match self.planning {
+            Planning::Adapter => self.is_software(),
+            Planning::Cpu => true,
+            Planning::Gpu => false,
+        }
     }
 
     /// Blocks until all submitted work has finished, then reports what went wrong in

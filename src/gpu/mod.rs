@@ -9,8 +9,8 @@ mod tensor;
 mod timestamps;
 
 pub use device::{
-    choose_adapter, describe, Allocation, Device, Gpu, ADAPTER_ENV, BACKENDS, INSTALL_HINT,
-    NATIVE_NAME, SUBGROUPS_ENV,
+    choose_adapter, describe, Allocation, Device, Gpu, Planning, ADAPTER_ENV, BACKENDS,
+    INSTALL_HINT, NATIVE_NAME, SUBGROUPS_ENV,
 };
 pub use pipeline::{validate_wgsl, Access, Binding, Kernel, PipelineCache, Shader, COMMON_WGSL};
 pub use recorder::{Dispatch, Recorder};

@@ -427,9 +427,14 @@ impl Gemm {
         let flops = 2.0 * (self.batch * self.m * self.n * self.k) as f64;
         let (gemm, swapped) = self.canonical();
         let (lhs, rhs) = if swapped { (rhs, lhs) } else { (lhs, rhs) };
+        let limits = if gpu.plans_for_cpu() {
+            SplitLimits::CPU
+        } else {
+            SplitLimits::GPU
+        };
         let split = gemm
             .k_split()
-            .or_else(|| gemm.item_k_split())
+            .or_else(|| gemm.item_k_split(limits))
             .or_else(|| gemm.shared_k_split());
         if let Some(split) = split.filter(|_| epilogue.is_plain()) {
             return split.dispatch_with(gpu, lhs, rhs, out, accumulate, epilogue);
@@ -480,7 +485,6 @@ impl Gemm {
             b_slice: b_slice as u32,
         };
         let plain = epilogue.is_plain() && gemm.plus == Plus::None;
-        let limits = gemm.split.limits(gpu.is_software());
         if let Some(chunk) = gemm.split_chunk(reduce, limits).filter(|_| plain) {
             return gemm.dispatch_split(gpu, [lhs, rhs, out], params, (chunk, limits), flops);
         }

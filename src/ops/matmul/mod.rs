@@ -16,7 +16,7 @@ mod plan;
 
 pub mod cpu;
 
-pub use plan::{plan, Matmul, SplitProfile, Tiling};
+pub use plan::{plan, Matmul, Tiling};
 
 use crate::gpu::{Binding, Gpu, Kernel, Shader, Tensor};
 

@@ -19,34 +19,6 @@ pub enum Tiling {
     Subgroup,
 }
 
-/// Which device's limits shape a split reduction: the chunk lengths
-/// ([`Gemm::split_chunk`]) and the lanes that add each output's partial sums
-/// ([`Gemm::sum_lanes`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum SplitProfile {
-    /// From the adapter: [`SplitProfile::Cpu`] on a CPU implementation (lavapipe, WARP),
-    /// else [`SplitProfile::Gpu`].
-    #[default]
-    Auto,
-    /// Long invocations, and each output's partial sums added by one lane in order.
-    Cpu,
-    /// Short invocations, and up to 64 lanes per output adding its partial sums (for
-    /// tests and benches that check the GPU's plan on any device).
-    Gpu,
-}
-
-impl SplitProfile {
-    /// The limits this profile gives on `gpu`'s adapter.
-    pub(super) fn limits(self, software: bool) -> SplitLimits {
-        match self {
-            SplitProfile::Cpu => SplitLimits::CPU,
-            SplitProfile::Gpu => SplitLimits::GPU,
-            SplitProfile::Auto if software => SplitLimits::CPU,
-            SplitProfile::Auto => SplitLimits::GPU,
-        }
-    }
-}
-
 /// Operand bytes per chunk of a split reduction (about one core's L2), and the most
 /// scratch its partial results may take (see [`Gemm::split_chunk`]).
 const SPLIT_CHUNK_BYTES: usize = 1 << 20;
@@ -117,9 +89,6 @@ pub struct Matmul {
     /// The kernel for products of more than one row ([`Tiling::Auto`] unless a test or a
     /// benchmark wants one).
     pub tiling: Tiling,
-    /// Which device's limits shape a split reduction ([`SplitProfile::Auto`] unless a
-    /// test or a benchmark wants one).
-    pub split: SplitProfile,
 }
 
 /// A strided 2-D view with a batch stride (0 when shared).
@@ -171,7 +140,6 @@ impl Matmul {
             shared_b: false,
             plus_identity: false,
             tiling: Tiling::Auto,
-            split: SplitProfile::Auto,
         }
     }
 
@@ -213,11 +181,6 @@ impl Matmul {
     /// Sets [`Matmul::tiling`], the kernel for products of more than one row.
     pub fn tiling(self, tiling: Tiling) -> Matmul {
         Matmul { tiling, ..self }
-    }
-
-    /// Sets [`Matmul::split`], which device's limits shape a split reduction.
-    pub fn split_profile(self, split: SplitProfile) -> Matmul {
-        Matmul { split, ..self }
     }
 
     /// `plus_identity` needs a square op(B) of more than one row, and dA per batch item
@@ -279,7 +242,6 @@ impl Matmul {
             batch: self.batch,
             plus: self.identity_on(Plus::Lhs),
             tiling: self.tiling,
-            split: self.split,
             parts: 1,
         }
     }
@@ -309,7 +271,6 @@ impl Matmul {
                 batch: self.batch,
                 plus: self.identity_on(Plus::Rhs),
                 tiling: self.tiling,
-                split: self.split,
                 parts: 1,
             };
             (gemm, true)
@@ -324,7 +285,6 @@ impl Matmul {
                 batch: self.batch,
                 plus: self.identity_on(Plus::Lhs),
                 tiling: self.tiling,
-                split: self.split,
                 parts: 1,
             };
             (gemm, false)
@@ -346,7 +306,6 @@ impl Matmul {
                 batch: self.batch,
                 plus: Plus::None,
                 tiling: self.tiling,
-                split: self.split,
                 parts: 1,
             };
             (gemm, true)
@@ -361,7 +320,6 @@ impl Matmul {
                 batch: self.batch,
                 plus: Plus::None,
                 tiling: self.tiling,
-                split: self.split,
                 parts: 1,
             };
             (gemm, false)
@@ -383,7 +341,6 @@ pub(super) struct Gemm {
     /// An operand added to the product in the epilogue (never with `out_shared`).
     pub(super) plus: Plus,
     pub(super) tiling: Tiling,
-    pub(super) split: SplitProfile,
     /// Slices of length `k` that each batch item's reduction is cut into (1: none),
     /// summed into the same item of C ([`Gemm::item_k_split`]), or with `out_shared` into
     /// the one C with every item's ([`Gemm::shared_k_split`]).
@@ -562,24 +519,27 @@ impl Gemm {
     /// A batched product with few blocks of C and a long reduction per item (the graph
     /// convolution's dQ = dM·X_tᵀ: 14 × 14 outputs per window over k = C·T = 6 400 at the
     /// paper's shape) as the same product over slices of k: k' = a divisor of k in
-    /// [`TILED_CHUNK_STEPS`] / 4 ..= [`TILED_CHUNK_STEPS`] and a multiple of 4, each
-    /// item's `parts` = k / k' slices summed into their own partial results
-    /// by their own invocations, then added in order by a second launch. Unsplit, each
-    /// 8×8 block of C swept the whole of k in one invocation: 256 invocations for that
-    /// product at the paper's shape, 70 GFLOP/s on an NVIDIA H200, 1.9 ms of each block's
-    /// training step. `None` for products with enough blocks of C to fill a device
-    /// ([`ITEM_SPLIT_MAX_BLOCKS`]), a k under 4 · [`TILED_CHUNK_STEPS`], or no such divisor.
-    pub(super) fn item_k_split(&self) -> Option<Gemm> {
+    /// `limits.tiled_steps` / 4 ..= `limits.tiled_steps` (1 024 on a CPU adapter, 256 on
+    /// a GPU) and a multiple of 4, each item's `parts` = k / k' slices summed into their
+    /// own partial results by their own invocations, then added in order by a second
+    /// launch. Unsplit, each 8×8 block of C swept the whole of k in one invocation: 256
+    /// invocations for that product at the paper's shape, 70 GFLOP/s on an NVIDIA H200,
+    /// 1.9 ms of each block's training step; in slices of 800 a GPU still ran 2 048
+    /// invocations of 800 steps each, in slices of 256, 6 400 of 256. `None` for products
+    /// with enough blocks of C to fill a device ([`ITEM_SPLIT_MAX_BLOCKS`]), a k under 4
+    /// slices, or no such divisor.
+    pub(super) fn item_k_split(&self, limits: SplitLimits) -> Option<Gemm> {
         if self.out_shared || self.parts != 1 || self.plus != Plus::None {
             return None;
         }
         let blocks = self.batch * self.m.div_ceil(8) * self.n.div_ceil(8);
-        if self.k < 4 * TILED_CHUNK_STEPS || blocks >= ITEM_SPLIT_MAX_BLOCKS {
+        let steps = limits.tiled_steps;
+        if self.k < 4 * steps || blocks >= ITEM_SPLIT_MAX_BLOCKS {
             return None;
         }
         // A multiple of 4, so that each slice starts where vector loads may (the slice
         // offsets r·k'·stride are not among the strides `loads` checks).
-        let kc = (TILED_CHUNK_STEPS / 4..=TILED_CHUNK_STEPS)
+        let kc = (steps / 4..=steps)
             .rev()
             .find(|d| d % 4 == 0 && self.k.is_multiple_of(*d))?;
         Some(Gemm {
