@@ -65,10 +65,20 @@ struct Row {
     flops: f64,
 }
 
-/// The pass's wall time in one untimed submit (record, submit, wait), best of 3.
-fn wall(gpu: &Gpu, net: &Network, pass: Pass) -> Duration {
+/// One untimed submit of a pass, best of 3 by wall time: the host's time to record its
+/// launches into a command encoder, the submit call itself (where wgpu validates and
+/// tracks every command), and the wall time from the submit until the device is done.
+#[derive(Clone, Copy)]
+struct Wall {
+    record: Duration,
+    submit: Duration,
+    wall: Duration,
+}
+
+fn wall(gpu: &Gpu, net: &Network, pass: Pass) -> Wall {
     (0..3)
         .map(|_| {
+            let t0 = Instant::now();
             let mut rec = Recorder::new(gpu);
             match pass {
                 Pass::Train => {
@@ -77,16 +87,23 @@ fn wall(gpu: &Gpu, net: &Network, pass: Pass) -> Duration {
                 }
                 Pass::Inference => net.record_forward(&mut rec).unwrap(),
             }
-            let t0 = Instant::now();
+            let record = t0.elapsed();
+            let t1 = Instant::now();
             rec.submit().unwrap();
+            let submit = t1.elapsed();
             gpu.wait().unwrap();
-            t0.elapsed()
+            Wall {
+                record,
+                submit,
+                wall: t1.elapsed(),
+            }
         })
-        .min()
+        .min_by_key(|w| w.wall)
         .unwrap()
 }
 
-fn report(title: &str, profile: &Profile, wall: Duration, base: f64, all_rows: bool) {
+fn report(title: &str, profile: &Profile, host: Wall, base: f64, all_rows: bool) {
+    let wall = host.wall;
     let times = &profile.steps;
     let copies = times.iter().filter(|t| t.kernel == "copy").count();
     let total = profile.launches();
@@ -122,6 +139,10 @@ fn report(title: &str, profile: &Profile, wall: Duration, base: f64, all_rows: b
              timed alone ({wall:.3?} wall in one submit)",
         ),
     }
+    eprintln!(
+        "  on the host: {:.3?} to record the pass, {:.3?} in the submit call (within the wall)",
+        host.record, host.submit
+    );
     eprintln!(
         "  contractions {:.1}% of the launches' time at {:.2} GFLOP/s overall \
          ({:.2}× the baseline)",
