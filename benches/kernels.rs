@@ -125,9 +125,11 @@ fn report(title: &str, profile: &Profile, host: Wall, base: f64, all_rows: bool)
     let gemm_time: Duration = times.iter().filter(|t| t.flops > 0.0).map(|t| t.time).sum();
     let flops: f64 = times.iter().map(|t| t.flops).sum();
     let kernels = times.len() - copies;
+    let launched: usize = times.iter().map(|t| t.launches).sum();
     match profile.timing {
         Timing::Timestamps => eprintln!(
-            "\n{title}: {kernels} kernels and {copies} copies in one submit: {wall:.3?} \
+            "\n{title}: {kernels} kernels ({launched} launches) and {copies} copies in one \
+             submit: {wall:.3?} \
              wall, {:.3?} from the first launch's start to the last one's end, {total:.3?} \
              in launches, {:.3?} ({:.1}%) between them (barriers, the copies)",
             profile.span,
@@ -135,7 +137,8 @@ fn report(title: &str, profile: &Profile, host: Wall, base: f64, all_rows: bool)
             100.0 * profile.between_launches().as_secs_f64() / profile.span.as_secs_f64(),
         ),
         Timing::Alone => eprintln!(
-            "\n{title}: {kernels} kernels and {copies} copies, {total:.3?} when each is \
+            "\n{title}: {kernels} kernels ({launched} launches) and {copies} copies, \
+             {total:.3?} when each is \
              timed alone ({wall:.3?} wall in one submit)",
         ),
     }

@@ -102,6 +102,9 @@ pub struct StepTime {
     pub kernel: String,
     /// The tensor the step writes.
     pub target: String,
+    /// Kernel launches of the step: 1, 2 for a split reduction (its partial sums, then
+    /// their sum), 0 for a copy.
+    pub launches: usize,
     /// FLOPs of a contraction, 0 otherwise.
     pub flops: f64,
     /// The fastest of the repeats: with [`Timing::Timestamps`] the device's time of the
@@ -179,12 +182,14 @@ pub fn profile(
             Step::Run(d) => StepTime {
                 kernel: d.label().to_string(),
                 target: d.target().to_string(),
+                launches: d.launches(),
                 flops: d.flops(),
                 time: Duration::MAX,
             },
             Step::CopyRange { src, dst, .. } => StepTime {
                 kernel: "copy".into(),
                 target: format!("{} <- {}", dst.name(), src.name()),
+                launches: 0,
                 flops: 0.0,
                 time: Duration::MAX,
             },
