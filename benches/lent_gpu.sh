@@ -3,7 +3,9 @@
 # NVIDIA GPU"): the engine's GPU measurements and PyTorch CUDA's in the same call, so
 # that their ratio holds although every call may land on another machine.
 #
-# Here, once: the Vulkan loader and glvnd's libraries as Debian packages (the machine's
+# Here: `benches/lent_gpu_bundle.sh [COMMIT...]` does all of the following (compressed,
+# within the 64 MiB a call carries); by hand:
+# Once, the Vulkan loader and glvnd's libraries as Debian packages (the machine's
 # image has the NVIDIA driver but not these), in a folder git ignores:
 #   echo /.gl/ >> .git/info/exclude; mkdir -p .gl /tmp/amd64/partial
 #   o='-oAPT::Architecture=amd64 -oAPT::Architectures=amd64 -oDir::State::Lists=/tmp/amd64'
@@ -30,6 +32,11 @@ BIN=${1:?usage: lent_gpu.sh BINDIR OUTDIR}
 OUTDIR=${2:?usage: lent_gpu.sh BINDIR OUTDIR}
 mkdir -p "$OUTDIR"
 exec > >(tee "$OUTDIR/log.txt") 2>&1
+# The bundle's binaries come gzipped (benches/lent_gpu_bundle.sh).
+for f in "$BIN"/*.gz; do
+    [ -e "$f" ] || continue
+    gunzip -f "$f" && chmod +x "${f%.gz}"
+done
 if [ -d .gl ]; then
     for f in .gl/*.deb; do dpkg -x "$f" /; done
     ldconfig
