@@ -419,10 +419,11 @@ impl Gemm {
 
     /// Reduction items per chunk when a batch-summed product (a weight gradient) is better
     /// split: each chunk's sum goes to its own slice of a scratch buffer, and a second
-    /// launch adds the slices in order. A single launch sweeps all items in every
-    /// invocation, so each item's operands stream from memory again for every block of C
-    /// (the paper's conv weight gradient ran at 0.6 of the best matmul). Chunks whose
-    /// operands fit in one core's L2 let the blocks of C that run together share them:
+    /// launch adds the slices in a fixed order ([`Gemm::sum_lanes`]). A single launch
+    /// sweeps all items in every invocation, so each item's operands stream from memory
+    /// again for every block of C (the paper's conv weight gradient ran at 0.6 of the
+    /// best matmul). Chunks whose operands fit in one core's L2 let the blocks of C that
+    /// run together share them:
     /// 1.8× on that product (7.7 → 14–15.7 GFLOP/s, best with ~1 MiB chunks).
     ///
     /// A single row of C (the gradient of a rank-1 weight such as the attentions' U1, U3
@@ -521,8 +522,8 @@ impl Gemm {
     /// paper's shape) as the same product over slices of k: k' = a divisor of k in
     /// `limits.tiled_steps` / 4 ..= `limits.tiled_steps` (1 024 on a CPU adapter, 256 on
     /// a GPU) and a multiple of 4, each item's `parts` = k / k' slices summed into their
-    /// own partial results by their own invocations, then added in order by a second
-    /// launch. Unsplit, each 8×8 block of C swept the whole of k in one invocation: 256
+    /// own partial results by their own invocations, then added in a fixed order by a
+    /// second launch. Unsplit, each 8×8 block of C swept the whole of k in one invocation: 256
     /// invocations for that product at the paper's shape, 70 GFLOP/s on an NVIDIA H200,
     /// 1.9 ms of each block's training step; in slices of 800 a GPU still ran 2 048
     /// invocations of 800 steps each, in slices of 256, 6 400 of 256. `None` for products
