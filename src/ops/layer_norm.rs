@@ -154,8 +154,8 @@ impl LayerNorm {
     }
 
     /// Slices of the outer axis the parameter gradients are split into, each summed by
-    /// its own workgroup per channel (at least [`SLICE_TERMS`] terms each), and the blocks
-    /// of the outer axis per slice. Each channel's sum runs over all B·N·T rows (89 600 at
+    /// its own workgroup per channel (at least 8 192 terms each, `SLICE_TERMS`), and the
+    /// blocks of the outer axis per slice. Each channel's sum runs over all B·N·T rows (89 600 at
     /// the paper's shape, batch 64), so unsplit a GPU had 64 workgroups, each thread
     /// adding 350 terms in a row; split, 640 workgroups of 35 (the bias gradient's split,
     /// `Bias::grad_slices`, took a GPU's step from 31.8 to 29.4 ms).
