@@ -32,10 +32,18 @@ BIN=${1:?usage: lent_gpu.sh BINDIR OUTDIR}
 OUTDIR=${2:?usage: lent_gpu.sh BINDIR OUTDIR}
 mkdir -p "$OUTDIR"
 exec > >(tee "$OUTDIR/log.txt") 2>&1
-# The bundle's binaries come gzipped (benches/lent_gpu_bundle.sh).
+# The bundle's binaries come gzipped (benches/lent_gpu_bundle.sh); Python's gzip where
+# the machine has no gunzip.
 for f in "$BIN"/*.gz; do
     [ -e "$f" ] || continue
-    gunzip -f "$f" && chmod +x "${f%.gz}"
+    if command -v gunzip > /dev/null; then
+        gunzip -f "$f"
+    else
+        python3 -c 'import gzip, shutil, sys
+with gzip.open(sys.argv[1]) as i, open(sys.argv[1][:-3], "wb") as o:
+    shutil.copyfileobj(i, o)' "$f" && rm "$f"
+    fi
+    chmod +x "${f%.gz}"
 done
 if [ -d .gl ]; then
     for f in .gl/*.deb; do dpkg -x "$f" /; done
