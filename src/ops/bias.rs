@@ -2,7 +2,7 @@
 //! CPU reference.
 
 use crate::gpu::{grid_1d, Binding, DType, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
-use crate::ops::Accumulate;
+use crate::ops::{outer_slices, Accumulate};
 
 /// The WGSL module of this family (`shaders/bias.wgsl`: `bias_add`, `bias_grad`,
 /// `bias_grad_columns`).
@@ -54,10 +54,6 @@ struct Params {
     pad: [u32; 2],
 }
 
-/// Terms of a channel's sum that one workgroup of the gradient takes at least
-/// ([`Bias::grad_slices`]): 128 per invocation.
-const SLICE_TERMS: usize = 8192;
-
 impl Bias {
     /// Number of elements of the biased tensor, `outer · channels · inner`.
     pub fn numel(&self) -> usize {
@@ -77,15 +73,13 @@ impl Bias {
     }
 
     /// Slices of the outer axis the workgroup-per-channel gradient is split into, each
-    /// summed by its own workgroup per channel (at least [`SLICE_TERMS`] terms each), and
-    /// the rows per slice. A convolution bias has few channels with many terms each (the
-    /// gated convolution's at the paper's shape: 128 channels of 89 600 terms over a
-    /// batch of 64), which left a GPU 128 workgroups; split, 1 408.
+    /// summed by its own workgroup per channel (at least 8 192 terms each, 128 per
+    /// invocation: `ops::outer_slices`), and the rows per slice. A convolution bias has
+    /// few channels with many terms each (the gated convolution's at the paper's shape:
+    /// 128 channels of 89 600 terms over a batch of 64), which left a GPU 128
+    /// workgroups; split, 1 408.
     pub fn grad_slices(&self) -> (usize, usize) {
-        let terms = self.outer * self.inner;
-        let wanted = (terms / SLICE_TERMS).clamp(1, self.outer.max(1));
-        let rows = self.outer.div_ceil(wanted).max(1);
-        (self.outer.div_ceil(rows).max(1), rows)
+        outer_slices(self.outer, self.inner)
     }
 
     /// `y += bias` (broadcast), in place.

@@ -4,7 +4,7 @@
 
 use crate::gpu::{grid_1d, Binding, DType, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
 use crate::ops::dropout::Dropout;
-use crate::ops::Accumulate;
+use crate::ops::{outer_slices, Accumulate};
 
 /// The WGSL module of this family (`shaders/layer_norm.wgsl`: forward, input gradient,
 /// parameter gradients).
@@ -99,10 +99,6 @@ struct Params {
     pad: [u32; 2],
 }
 
-/// Terms of a channel's parameter gradient that one workgroup takes at least
-/// ([`LayerNorm::grad_slices`]): 32 per invocation.
-const SLICE_TERMS: usize = 8192;
-
 impl LayerNorm {
     /// docs/model.md: ε = 1e-5.
     pub fn new(outer: usize, channels: usize, steps: usize) -> LayerNorm {
@@ -154,15 +150,14 @@ impl LayerNorm {
     }
 
     /// Slices of the outer axis the parameter gradients are split into, each summed by
-    /// its own workgroup per channel (at least 8 192 terms each, `SLICE_TERMS`), and the
-    /// blocks of the outer axis per slice. Each channel's sum runs over all B·N·T rows (89 600 at
-    /// the paper's shape, batch 64), so unsplit a GPU had 64 workgroups, each thread
-    /// adding 350 terms in a row; split, 640 workgroups of 35 (the bias gradient's split,
-    /// `Bias::grad_slices`, took a GPU's step from 31.8 to 29.4 ms).
+    /// its own workgroup per channel (at least 8 192 terms each, 32 per invocation:
+    /// `ops::outer_slices`), and the blocks of the outer axis per slice. Each channel's
+    /// sum runs over all B·N·T rows (89 600 at the paper's shape, batch 64), so unsplit a
+    /// GPU had 64 workgroups, each thread adding 350 terms in a row; split, 640
+    /// workgroups of 35 (the bias gradient's split, `Bias::grad_slices`, took a GPU's
+    /// step from 31.8 to 29.4 ms).
     pub fn grad_slices(&self) -> (usize, usize) {
-        let wanted = (self.rows() / SLICE_TERMS).clamp(1, self.outer.max(1));
-        let per = self.outer.div_ceil(wanted).max(1);
-        (self.outer.div_ceil(per).max(1), per)
+        outer_slices(self.outer, self.steps)
     }
 
     /// Points a dispatch built by this LayerNorm (with its dropout) at the mask of

@@ -46,6 +46,21 @@ impl Accumulate {
     }
 }
 
+/// Terms of a per-channel sum that one workgroup takes at least when the sum is split
+/// along the outer axis ([`outer_slices`]).
+const SLICE_TERMS: usize = 8192;
+
+/// How a per-channel sum over `outer · inner` terms (a bias's or a LayerNorm's parameter
+/// gradient) is split along the outer axis, one workgroup per channel and slice, each
+/// taking at least [`SLICE_TERMS`] terms: the number of slices and the outer rows per
+/// slice (1 slice of all rows when the sum is short). A GPU has far more workgroups to
+/// fill than a layer has channels.
+pub(crate) fn outer_slices(outer: usize, inner: usize) -> (usize, usize) {
+    let wanted = (outer * inner / SLICE_TERMS).clamp(1, outer.max(1));
+    let per = outer.div_ceil(wanted).max(1);
+    (outer.div_ceil(per).max(1), per)
+}
+
 /// Every op shader, for validation and for the pipeline warm-up.
 pub fn shaders() -> [&'static Shader; 19] {
     [
