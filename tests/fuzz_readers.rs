@@ -1,6 +1,7 @@
 //! Property tests of every reader of user files (issue #23, "Never panic, never lose
 //! work"): recording and calibration-set CSVs, measurement sets, the calibration TOML, run
-//! configs, the robot and graph assets, checkpoints and training states.
+//! configs, the robot and graph assets, a simulated recording's `.run.toml` sidecar,
+//! checkpoints and training states.
 //!
 //! Each reader gets a valid input (an embedded asset, or a file written by the engine's own
 //! writer) damaged in many ways: cut at a random byte, bytes flipped, random bytes, empty,
@@ -27,6 +28,7 @@ use iastgcn::graph::Graph;
 use iastgcn::model::{Checkpoint, ModelConfig, Normalization, Parameters, Variant};
 use iastgcn::robot::{ErrorParams, Geometry};
 use iastgcn::train::{EpochRecord, Progress, RunConfig, Snapshot, Stage, TrainState};
+use iastgcn::twin::{PathKind, PathParams, RunInfo};
 use proptest::prelude::*;
 use proptest::sample::Index;
 use proptest::test_runner::{RngSeed, TestCaseError};
@@ -803,6 +805,30 @@ proptest! {
         let (bytes, expect) = toml_input(iastgcn::graph::DEFAULT_ASSET, &case, &[]);
         let text = String::from_utf8_lossy(&bytes);
         check(Graph::parse(&text, file), file, &expect, graph_sound)?;
+    }
+
+    #[test]
+    fn run_sidecar(case in toml_case()) {
+        // The sidecar a simulated recording carries (read back by `evaluate`, `reproduce`
+        // and `calibrate` for its machine and length), as the engine writes it.
+        let csv = scratch("run.csv");
+        let sidecar = RunInfo::sidecar(&csv);
+        let file = sidecar.display().to_string();
+        let mut info = RunInfo::polishing(PathKind::Hilbert, &PathParams::default(), 90.0, 7);
+        info.session_clock_s = 1800.0;
+        info.screw_rise_k = [0.4, 0.5, 0.3];
+        let (bytes, expect) = toml_input(&info.to_toml().unwrap(), &case, &[]);
+        std::fs::write(&sidecar, &bytes).unwrap();
+        let sound = |i: &RunInfo| {
+            let [a, b, c] = i.screw_rise_k;
+            [i.rotation_deg, i.seconds, i.session_clock_s, a, b, c, i.feed_mm_s, i.force_n,
+                i.ambient_offset_k, i.ambient_phase_shift]
+                .iter()
+                .all(|v| v.is_finite())
+                && i.seconds >= 0.0
+                && i.session_clock_s >= 0.0
+        };
+        check(RunInfo::read(&csv), &file, &expect, sound)?;
     }
 }
 

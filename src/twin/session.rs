@@ -15,6 +15,7 @@ use super::trajectory::{PathKind, PathParams};
 
 /// The provenance of one simulated run.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct RunInfo {
     /// `grid`, `fermat`, `hilbert`, `rosette` or `calibration`.
     pub path: String,
@@ -141,12 +142,51 @@ impl RunInfo {
         toml::to_string(self).map_err(std::io::Error::other)
     }
 
-    /// Reads the sidecar of the recording at `csv`; the error names the file.
+    /// Reads the sidecar of the recording at `csv`; the error names the file (and the
+    /// field, for a number that is not finite or a negative time: TOML spells `nan` and
+    /// `inf`, and a NaN length would pass every comparison a resumed run makes).
     pub fn read(csv: &Path) -> Result<RunInfo, String> {
         let path = Self::sidecar(csv);
         let text =
             std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-        toml::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))
+        let info: RunInfo =
+            toml::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
+        info.check()
+            .map_err(|e| format!("{}: {e}", path.display()))?;
+        Ok(info)
+    }
+
+    /// Every number finite, and the times not negative.
+    fn check(&self) -> Result<(), String> {
+        let [s0, s1, s2] = self.screw_rise_k;
+        let numbers = [
+            ("rotation_deg", self.rotation_deg),
+            ("seconds", self.seconds),
+            ("session_clock_s", self.session_clock_s),
+            ("screw_rise_k", s0),
+            ("screw_rise_k", s1),
+            ("screw_rise_k", s2),
+            ("feed_mm_s", self.feed_mm_s),
+            ("force_n", self.force_n),
+            ("ambient_offset_k", self.ambient_offset_k),
+            ("ambient_phase_shift", self.ambient_phase_shift),
+        ];
+        for (field, value) in numbers {
+            if !value.is_finite() {
+                return Err(format!("`{field}` must be a finite number, got {value}"));
+            }
+        }
+        for (field, value) in [
+            ("seconds", self.seconds),
+            ("session_clock_s", self.session_clock_s),
+        ] {
+            if value < 0.0 {
+                return Err(format!(
+                    "`{field}` is a time and cannot be negative, got {value}"
+                ));
+            }
+        }
+        Ok(())
     }
 }
 

@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 
 use iastgcn::calibrate::{calibrate, file as calibration_file, EkfConfig};
 use iastgcn::data::arm_import::{parse_export, Difference, PoseColumns};
-use iastgcn::data::arm_poses::parse_arm_poses;
+use iastgcn::data::arm_poses::{parse_arm_poses, parse_arm_targets};
 use iastgcn::data::recording::parse_calibration_set;
 use iastgcn::data::{read_measurements, record_calibration_set, record_run, Recording};
 use iastgcn::embed::c_api::*;
@@ -39,6 +39,7 @@ const TARGETS: &[(&str, Target)] = &[
     ("calibration_set", calibration_set),
     ("measurements", measurements),
     ("arm_poses", arm_poses),
+    ("arm_targets", arm_targets),
     ("import", import),
     ("run_config", run_config),
     ("description", description),
@@ -46,6 +47,7 @@ const TARGETS: &[(&str, Target)] = &[
     ("geometry", geometry),
     ("graph", graph),
     ("calibration", calibration),
+    ("sidecar", sidecar),
     ("checkpoint", checkpoint),
     ("state", state),
     ("tensor", tensor),
@@ -137,6 +139,19 @@ fn arm_poses(data: &[u8]) {
     }
 }
 
+/// A serial arm's target list (`evaluate --robot arm.toml --targets`), for models
+/// trained with one channel.
+fn arm_targets(data: &[u8]) {
+    let Some(text) = text(data) else { return };
+    if let Ok(t) = parse_arm_targets(text, "targets.csv", &["temp_c".into()]) {
+        assert!(t.targets.iter().all(|(stamp, p, ch)| finite(
+            std::iter::once(*stamp)
+                .chain(p.coords.iter().copied())
+                .chain(ch.iter().copied())
+        )));
+    }
+}
+
 /// The columns of the real UR5 export (assets/real-arms).
 fn ur5_columns() -> PoseColumns {
     PoseColumns {
@@ -191,6 +206,27 @@ fn graph(data: &[u8]) {
 fn calibration(data: &[u8]) {
     let path = scratch("calibration.toml", data);
     calibration_file::load(&path).ok();
+}
+
+/// A simulated recording's `.run.toml` sidecar, read through the recording's path.
+fn sidecar(data: &[u8]) {
+    let toml = scratch("run.run.toml", data);
+    if let Ok(i) = RunInfo::read(&toml.with_file_name("run.csv")) {
+        let [a, b, c] = i.screw_rise_k;
+        assert!(finite([
+            i.rotation_deg,
+            i.seconds,
+            i.session_clock_s,
+            a,
+            b,
+            c,
+            i.feed_mm_s,
+            i.force_n,
+            i.ambient_offset_k,
+            i.ambient_phase_shift
+        ]));
+        assert!(i.seconds >= 0.0 && i.session_clock_s >= 0.0);
+    }
 }
 
 fn checkpoint(data: &[u8]) {
@@ -386,6 +422,11 @@ fn write_seeds(dir: &Path) {
         "grid.csv",
         &std::fs::read(&run).expect("the run"),
     );
+    put(
+        "sidecar",
+        "grid.run.toml",
+        &std::fs::read(RunInfo::sidecar(&run)).expect("the run's sidecar"),
+    );
     let ck = work.join("model.safetensors");
     demo_checkpoint().save(&ck).expect("a checkpoint");
     let ck_bytes = std::fs::read(&ck).expect("it");
@@ -401,6 +442,11 @@ fn write_seeds(dir: &Path) {
     if let Ok(poses) = parse_export(&head, "export.csv", &ur5_columns()) {
         put("arm_poses", "ur5.csv", poses.to_csv().as_bytes());
     }
+    put(
+        "arm_targets",
+        "targets.csv",
+        b"pose,x,y,z,temp_c\n1,500,0,300,21.5\n2,510.25,-4.5,301,21.75\n3,520,-9,302.5,22\n",
+    );
     let assets: [(&str, &str, &[u8]); 8] = [
         (
             "run_config",
