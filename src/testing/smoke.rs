@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use super::{rng, round_f32, to_f32, uniform, worst, Tolerance, Worst};
 use crate::error::{Error, Result};
-use crate::gpu::{DType, Gpu, Recorder, Tensor};
+use crate::gpu::{DType, Dispatch, Gpu, Recorder, Tensor};
 use crate::ops::elementwise::{self, Binary, Unary};
 use crate::ops::fft::{dft2, Transform2};
 use crate::ops::layer_norm::{self, LayerNorm};
@@ -118,6 +118,19 @@ impl Group<'_> {
     }
 }
 
+/// `values` on the device as a flat f32 tensor.
+fn upload_flat(gpu: &Gpu, name: &str, values: &[f64]) -> Result<Tensor> {
+    Ok(gpu.upload(name, &[values.len()], &to_f32(values))?)
+}
+
+/// Runs `step` once in one submit and waits; the seconds it took, its pipelines'
+/// compilation included.
+fn run_timed(gpu: &Gpu, step: &[Dispatch]) -> Result<f64> {
+    let t0 = Instant::now();
+    gpu.run(step)?;
+    Ok(t0.elapsed().as_secs_f64())
+}
+
 /// A 1×1 convolution as the model runs it: `Y = X · W` with W shared, and its backward.
 fn matmul_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> {
     let (r, c) = (options.rows, options.channels);
@@ -181,7 +194,7 @@ fn reduction_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> {
     };
     let (cx, cw, cdy) = inputs(&conv);
     let (ru, rx, rdy) = inputs(&row);
-    let up = |name: &str, v: &[f64]| gpu.upload(name, &[v.len()], &to_f32(v));
+    let up = |name: &str, v: &[f64]| upload_flat(gpu, name, v);
     let (cxt, cdyt, rxt, rdyt) = (
         up("x", &cx)?,
         up("dy", &cdy)?,
@@ -194,9 +207,7 @@ fn reduction_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> {
         conv.backward_b(gpu, &cxt, &cdyt, &dw, Accumulate::Overwrite)?,
         row.backward_a(gpu, &rxt, &rdyt, &du, Accumulate::Overwrite)?,
     ];
-    let t0 = Instant::now();
-    gpu.run(&step)?;
-    let seconds = t0.elapsed().as_secs_f64();
+    let seconds = run_timed(gpu, &step)?;
     let (_, dw_ref) = matmul::cpu::backward(&conv, &cx, &cw, &cdy);
     let (du_ref, _) = matmul::cpu::backward(&row, &ru, &rx, &rdy);
     let tol = |k: usize| Tolerance::new(1e-6 * (k as f64).sqrt() * 4.0, 1e-4);
@@ -234,7 +245,7 @@ fn layer_norm_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> 
     let gamma = round_f32(&uniform(&mut g, c, 0.5, 1.5));
     let beta = round_f32(&uniform(&mut g, c, -0.5, 0.5));
     let dy = round_f32(&uniform(&mut g, ln.len(), -1.0, 1.0));
-    let up = |name: &str, v: &[f64]| gpu.upload(name, &[v.len()], &to_f32(v));
+    let up = |name: &str, v: &[f64]| upload_flat(gpu, name, v);
     let (xt, gt, bt, dyt) = (
         up("x", &x)?,
         up("gamma", &gamma)?,
@@ -254,9 +265,7 @@ fn layer_norm_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> 
         ln.backward_input(gpu, &xt, &gt, &dyt, &mean, &rstd, &dx, new)?,
         ln.backward_params(gpu, &xt, &dyt, &mean, &rstd, &dg, &db, new)?,
     ];
-    let t0 = Instant::now();
-    gpu.run(&step)?;
-    let seconds = t0.elapsed().as_secs_f64();
+    let seconds = run_timed(gpu, &step)?;
     let y_ref = layer_norm::cpu::forward(&ln, &x, &gamma, &beta);
     let (dx_ref, dg_ref, db_ref) = layer_norm::cpu::backward(&ln, &x, &gamma, &dy);
     // Normalised values are O(1); the parameter gradients sum `rows` such terms.
@@ -285,9 +294,9 @@ fn gated_unit_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> 
     let gg = round_f32(&uniform(&mut g, n, -3.0, 3.0));
     let dh = round_f32(&uniform(&mut g, n, -1.0, 1.0));
     let shape = [n];
-    let ft = gpu.upload("filter", &shape, &to_f32(&f))?;
-    let gt = gpu.upload("gate", &shape, &to_f32(&gg))?;
-    let dht = gpu.upload("dH", &shape, &to_f32(&dh))?;
+    let ft = upload_flat(gpu, "filter", &f)?;
+    let gt = upload_flat(gpu, "gate", &gg)?;
+    let dht = upload_flat(gpu, "dH", &dh)?;
     let z = |name: &str| gpu.zeros(name, &shape, DType::F32);
     let (tf, sg, h, dtf, dsg, df, dg) = (
         z("tanh")?,
@@ -308,9 +317,7 @@ fn gated_unit_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> 
         elementwise::unary_backward(gpu, Unary::Tanh, &tf, &dtf, &df, new)?,
         elementwise::unary_backward(gpu, Unary::Sigmoid, &sg, &dsg, &dg, new)?,
     ];
-    let t0 = Instant::now();
-    gpu.run(&step)?;
-    let seconds = t0.elapsed().as_secs_f64();
+    let seconds = run_timed(gpu, &step)?;
     let tf_ref = elementwise::cpu::unary_forward(Unary::Tanh, &f);
     let sg_ref = elementwise::cpu::unary_forward(Unary::Sigmoid, &gg);
     let h_ref = elementwise::cpu::binary_forward(Binary::Mul, &tf_ref, &sg_ref);
