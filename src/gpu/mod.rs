@@ -7,7 +7,11 @@ mod pipeline;
 mod recorder;
 mod tensor;
 mod timestamps;
+mod uniform;
 
+/// Declares a kernel's uniform block (see [`Uniform`]); defined in `gpu/uniform.rs`, at the
+/// crate's root only because `#[macro_export]` puts it there.
+pub use super::uniform;
 pub use device::{
     choose_adapter, describe, Allocation, Device, Gpu, Planning, ADAPTER_ENV, BACKENDS,
     INSTALL_HINT, NATIVE_NAME, SUBGROUPS_ENV,
@@ -16,6 +20,11 @@ pub use pipeline::{validate_wgsl, Access, Binding, Kernel, PipelineCache, Shader
 pub use recorder::{Dispatch, Recorder};
 pub use tensor::{DType, Readback, Tensor};
 pub use timestamps::{Interval, Timestamps};
+pub use uniform::{
+    check as check_uniform, compare as compare_uniform, reflect as reflect_uniforms,
+    Layout as UniformLayout, Member as UniformMember, Scalar, ScalarType, ShaderUniforms, Uniform,
+    WgslStruct,
+};
 
 use wgpu::util::DeviceExt;
 
@@ -64,6 +73,16 @@ pub enum GpuError {
         expected: String,
         /// The one it has.
         got: String,
+    },
+    /// A Rust uniform block that does not match the WGSL struct it is bound to.
+    #[error("uniform block {rust} does not match {wgsl}: {what}")]
+    Uniform {
+        /// The Rust type.
+        rust: String,
+        /// The shader file, kernel or struct it was compared with.
+        wgsl: String,
+        /// What differs.
+        what: String,
     },
     /// A dispatch larger than the device allows.
     #[error("{kernel}: {count} workgroups along one axis exceed the device limit of {limit}")]
@@ -141,7 +160,7 @@ impl crate::error::StageError for GpuError {}
 impl Gpu {
     /// Binds `tensors` to `kernel`'s storage slots (in [`Kernel::bindings`] order), with
     /// `params` as the uniform block at slot 0, ready to record.
-    pub fn dispatch<P: bytemuck::Pod>(
+    pub fn dispatch<P: Uniform>(
         &self,
         kernel: &Kernel,
         constants: &[(&'static str, f64)],
@@ -165,7 +184,12 @@ impl Gpu {
                 limit,
             });
         }
-        let pipeline = device::lock(&self.pipelines).get(self, kernel, constants)?;
+        let pipeline = {
+            let mut cache = device::lock(&self.pipelines);
+            let pipeline = cache.get(self, kernel, constants)?;
+            cache.check_uniform::<P>(kernel)?;
+            pipeline
+        };
         let (made, error) = self.scoped(wgpu::ErrorFilter::Validation, || {
             self.bind(kernel, &label, &pipeline, params, tensors)
         });
@@ -175,6 +199,7 @@ impl Gpu {
                 pipeline,
                 bind_group: made.1,
                 params: made.0,
+                uniform: P::WGSL,
                 workgroups,
                 label,
                 target: tensors

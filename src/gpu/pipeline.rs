@@ -4,9 +4,10 @@
 //! (indexing, activations) are written once. Errors are reported against the original
 //! file and line, not the concatenation.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::sync::Arc;
 
+use super::uniform::{self, ShaderUniforms, Uniform};
 use super::{Gpu, GpuError};
 
 /// The helpers every op shader may use; prepended by [`Shader::full_source`].
@@ -33,6 +34,12 @@ impl Shader {
 
     /// Parses and validates the shader (with the common prelude and its base) with naga.
     pub fn validate(&self) -> Result<naga::Module, GpuError> {
+        self.reflect().map(|(module, _)| module)
+    }
+
+    /// [`Shader::validate`], with what the validator learned of the module (which globals
+    /// each entry point uses).
+    pub fn reflect(&self) -> Result<(naga::Module, naga::valid::ModuleInfo), GpuError> {
         validate_with_base(
             self.name,
             self.source,
@@ -100,7 +107,7 @@ pub struct Kernel {
 /// assert!(err.to_string().starts_with("shaders/broken.wgsl:1:"));
 /// ```
 pub fn validate_wgsl(name: &str, source: &str) -> Result<naga::Module, GpuError> {
-    validate_with_base(name, source, None)
+    validate_with_base(name, source, None).map(|(module, _)| module)
 }
 
 /// The compiler's text: the common prelude, a base shader's source (or nothing), then
@@ -114,7 +121,7 @@ fn validate_with_base(
     name: &str,
     source: &str,
     base: Option<(&str, &str)>,
-) -> Result<naga::Module, GpuError> {
+) -> Result<(naga::Module, naga::valid::ModuleInfo), GpuError> {
     let (base_name, base_source) = base.unwrap_or(("", ""));
     let full = compose(base_source, source);
     // Each part ends at the separator newline after it: (file, its last line in `full`).
@@ -145,11 +152,11 @@ fn validate_with_base(
         naga::valid::ValidationFlags::all(),
         naga::valid::Capabilities::all(),
     );
-    validator.validate(&module).map_err(|e| GpuError::Shader {
+    let info = validator.validate(&module).map_err(|e| GpuError::Shader {
         location: locate(e.spans().next().map(|(span, _)| *span)),
         message: format!("{}", e.as_inner()),
     })?;
-    Ok(module)
+    Ok((module, info))
 }
 
 /// A compiled pipeline and the bind layout its dispatches use.
@@ -166,9 +173,53 @@ type PipelineKey = (&'static str, &'static str, Vec<(&'static str, u64)>);
 pub struct PipelineCache {
     modules: HashMap<&'static str, wgpu::ShaderModule>,
     pipelines: HashMap<PipelineKey, Arc<Pipeline>>,
+    /// Each compiled shader's uniform structs, as naga reads them.
+    uniforms: HashMap<&'static str, ShaderUniforms>,
+    /// Kernels (shader, entry) whose Rust block has been compared with their WGSL struct.
+    checked: HashSet<(&'static str, &'static str)>,
 }
 
 impl PipelineCache {
+    /// Checks that `P` is the uniform block `kernel` reads, member for member, on the
+    /// kernel's first dispatch (its pipeline compiled by [`PipelineCache::get`]); later
+    /// dispatches compare the struct's name only.
+    pub(crate) fn check_uniform<P: Uniform>(&mut self, kernel: &Kernel) -> Result<(), GpuError> {
+        let label = || format!("{}::{}", kernel.shader.name, kernel.entry);
+        let mismatch = |wgsl: String, what: String| GpuError::Uniform {
+            rust: std::any::type_name::<P>().to_string(),
+            wgsl,
+            what,
+        };
+        let uniforms = self.uniforms.get(kernel.shader.name).ok_or_else(|| {
+            mismatch(
+                label(),
+                "the kernel's shader is not compiled yet".to_string(),
+            )
+        })?;
+        let Some(name) = uniforms.entries.get(kernel.entry) else {
+            return Err(mismatch(
+                label(),
+                "the entry point reads no uniform block".to_string(),
+            ));
+        };
+        let wgsl = format!("{}: struct {name}", label());
+        if name != P::WGSL {
+            return Err(mismatch(wgsl, format!("dispatched with `{}`", P::WGSL)));
+        }
+        if self.checked.insert((kernel.shader.name, kernel.entry)) {
+            let layout = P::layout();
+            let compared = match uniforms.structs.get(name) {
+                Some(wgsl) => uniform::compare(&layout, wgsl),
+                None => Err("the uniform is not a struct".to_string()),
+            };
+            if let Err(what) = compared {
+                self.checked.remove(&(kernel.shader.name, kernel.entry));
+                return Err(mismatch(wgsl, what));
+            }
+        }
+        Ok(())
+    }
+
     /// Number of distinct pipelines compiled so far.
     pub fn len(&self) -> usize {
         self.pipelines.len()
@@ -197,7 +248,8 @@ impl PipelineCache {
         }
         let device = &gpu.device;
         if !self.modules.contains_key(kernel.shader.name) {
-            kernel.shader.validate()?;
+            self.uniforms
+                .insert(kernel.shader.name, uniform::reflect(kernel.shader)?);
             let (module, error) = gpu.scoped(wgpu::ErrorFilter::Validation, || {
                 device.create_shader_module(wgpu::ShaderModuleDescriptor {
                     label: Some(kernel.shader.name),

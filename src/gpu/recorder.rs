@@ -4,7 +4,7 @@ use std::sync::Arc;
 
 use super::pipeline::Pipeline;
 use super::timestamps::Timestamps;
-use super::{Gpu, GpuError, Readback, Tensor};
+use super::{Gpu, GpuError, Readback, Tensor, Uniform};
 
 /// One kernel launch with its buffers bound: built once, recorded any number of times.
 ///
@@ -14,6 +14,8 @@ pub struct Dispatch {
     pub(crate) pipeline: Arc<Pipeline>,
     pub(crate) bind_group: wgpu::BindGroup,
     pub(crate) params: wgpu::Buffer,
+    /// The WGSL struct of the uniform block (what [`Dispatch::write_params`] accepts).
+    pub(crate) uniform: &'static str,
     pub(crate) workgroups: [u32; 3],
     pub(crate) label: String,
     /// Name of the tensor bound last (by convention the one the kernel writes).
@@ -68,7 +70,14 @@ impl Dispatch {
     }
 
     /// Replaces the uniform parameters (same type as at creation), e.g. a learning rate.
-    pub fn write_params<P: bytemuck::Pod>(&self, gpu: &Gpu, params: &P) -> Result<(), GpuError> {
+    pub fn write_params<P: Uniform>(&self, gpu: &Gpu, params: &P) -> Result<(), GpuError> {
+        if P::WGSL != self.uniform {
+            return Err(GpuError::Uniform {
+                rust: std::any::type_name::<P>().to_string(),
+                wgsl: format!("{}: struct {}", self.label, self.uniform),
+                what: format!("written over a block of `{}`", P::WGSL),
+            });
+        }
         let bytes = bytemuck::bytes_of(params);
         if bytes.len() as u64 != self.params.size() {
             return Err(GpuError::Shape {

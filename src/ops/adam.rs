@@ -42,17 +42,17 @@ pub struct Adam {
     pub decay: f64,
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct Params {
-    numel: u32,
-    beta1: f32,
-    beta2: f32,
-    eps: f32,
-    decay: f32,
-    one_minus_beta1: f32,
-    one_minus_beta2: f32,
-    _pad: u32,
+crate::gpu::uniform! {
+    pub(crate) struct Params = AdamParams in SHADER {
+        numel: u32,
+        beta1: f32,
+        beta2: f32,
+        eps: f32,
+        decay: f32,
+        one_minus_beta1: f32,
+        one_minus_beta2: f32,
+        _pad: u32,
+    }
 }
 
 /// The per-step values shared by every tensor's update, in a small storage tensor of 4 f32

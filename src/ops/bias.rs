@@ -42,16 +42,17 @@ pub struct Bias {
     pub inner: usize,
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct Params {
-    outer: u32,
-    channels: u32,
-    inner: u32,
-    accumulate: u32,
-    slice: u32,
-    slices: u32,
-    pad: [u32; 2],
+crate::gpu::uniform! {
+    pub(crate) struct Params = BiasParams in SHADER {
+        outer: u32,
+        channels: u32,
+        inner: u32,
+        accumulate: u32,
+        slice: u32,
+        slices: u32,
+        pad0: u32,
+        pad1: u32,
+    }
 }
 
 impl Bias {
@@ -68,7 +69,8 @@ impl Bias {
             accumulate: accumulate.flag(),
             slice: self.outer as u32,
             slices: 1,
-            pad: [0; 2],
+            pad0: 0,
+            pad1: 0,
         }
     }
 

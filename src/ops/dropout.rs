@@ -18,17 +18,18 @@ static KERNEL: Kernel = Kernel {
     bindings: &[Binding::read(1), Binding::read_write(2)],
 };
 
-#[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
-struct Params {
-    n: u32,
-    seed: u32,
-    step: u32,
-    threshold: u32,
-    scale: f32,
-    accumulate: u32,
-    stride: u32,
-    offset: u32,
+crate::gpu::uniform! {
+    #[derive(Debug, PartialEq)]
+    pub(crate) struct Params = DropParams in SHADER {
+        n: u32,
+        seed: u32,
+        step: u32,
+        threshold: u32,
+        scale: f32,
+        accumulate: u32,
+        stride: u32,
+        offset: u32,
+    }
 }
 
 /// Dropout with probability `p` over `n` elements, seeded. Element `i` draws the mask

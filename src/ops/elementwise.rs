@@ -86,12 +86,13 @@ impl Binary {
     pub const ALL: [Binary; 2] = [Binary::Add, Binary::Mul];
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct Params {
-    n: u32,
-    accumulate: u32,
-    _pad: [u32; 2],
+crate::gpu::uniform! {
+    pub(crate) struct Params = EwParams in SHADER {
+        n: u32,
+        accumulate: u32,
+        _pad0: u32,
+        _pad1: u32,
+    }
 }
 
 fn launch(
@@ -109,7 +110,8 @@ fn launch(
     let params = Params {
         n: n as u32,
         accumulate: accumulate.flag(),
-        _pad: [0; 2],
+        _pad0: 0,
+        _pad1: 0,
     };
     let mut tensors = inputs.to_vec();
     tensors.push(out);

@@ -50,21 +50,22 @@ static STORE: Kernel = Kernel {
     bindings: THREE,
 };
 
-#[repr(C)]
-#[derive(Clone, Copy, Default, bytemuck::Pod, bytemuck::Zeroable)]
-struct Params {
-    m: u32,
-    rows: u32,
-    ns: u32,
-    inverse: u32,
-    n: u32,
-    row_stride: u32,
-    elem_stride: u32,
-    period: u32,
-    count: u32,
-    pad0: u32,
-    scale: f32,
-    pad1: u32,
+crate::gpu::uniform! {
+    #[derive(Default)]
+    pub(crate) struct Params = FftParams in SHADER {
+        m: u32,
+        rows: u32,
+        ns: u32,
+        inverse: u32,
+        n: u32,
+        row_stride: u32,
+        elem_stride: u32,
+        period: u32,
+        count: u32,
+        pad0: u32,
+        scale: f32,
+        pad1: u32,
+    }
 }
 
 /// `values` as the kernels' complex numbers (pairs of f32).

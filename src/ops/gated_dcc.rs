@@ -73,25 +73,26 @@ pub struct Unfold {
 /// What [`Unfold::backward_through_relu`] masks by: the unfolded input, a ReLU's output.
 pub struct ReluOutput<'t>(pub &'t Tensor);
 
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct UnfoldParams {
-    rows: u32,
-    channels: u32,
-    kernel: u32,
-    steps: u32,
-    dilation: u32,
-    accumulate: u32,
-    outputs: u32,
-    relu_input: u32,
+crate::gpu::uniform! {
+    pub(crate) struct UnfoldParams = UnfoldParams in SHADER {
+        rows: u32,
+        channels: u32,
+        kernel: u32,
+        steps: u32,
+        dilation: u32,
+        accumulate: u32,
+        outputs: u32,
+        relu_input: u32,
+    }
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct GateParams {
-    n: u32,
-    block: u32,
-    _pad: [u32; 2],
+crate::gpu::uniform! {
+    pub(crate) struct GateParams = GateParams in SHADER {
+        n: u32,
+        block: u32,
+        _pad1: u32,
+        _pad2: u32,
+    }
 }
 
 impl Unfold {
@@ -220,7 +221,8 @@ fn gate_params(n: usize) -> GateParams {
     GateParams {
         n: n as u32,
         block: 0,
-        _pad: [0; 2],
+        _pad1: 0,
+        _pad2: 0,
     }
 }
 

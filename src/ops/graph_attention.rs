@@ -75,17 +75,17 @@ const WORKGROUP: u32 = 64;
 /// The slope of the LeakyReLU on the scores (as in Veličković et al.'s GAT).
 pub const SLOPE: f32 = 0.2;
 
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct Params {
-    batch: u32,
-    nodes: u32,
-    channels: u32,
-    steps: u32,
-    heads: u32,
-    accumulate: u32,
-    slope: f32,
-    _pad: u32,
+crate::gpu::uniform! {
+    pub(crate) struct Params = GatParams in SHADER {
+        batch: u32,
+        nodes: u32,
+        channels: u32,
+        steps: u32,
+        heads: u32,
+        accumulate: u32,
+        slope: f32,
+        _pad: u32,
+    }
 }
 
 /// The shape of one graph attention.

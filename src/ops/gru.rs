@@ -35,12 +35,13 @@ static BACKWARD: Kernel = Kernel {
     ],
 };
 
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct Params {
-    n: u32,
-    accumulate: u32,
-    _pad: [u32; 2],
+crate::gpu::uniform! {
+    pub(crate) struct Params = GruParams in SHADER {
+        n: u32,
+        accumulate: u32,
+        _pad0: u32,
+        _pad1: u32,
+    }
 }
 
 fn launch(
@@ -56,7 +57,8 @@ fn launch(
     let params = Params {
         n: n as u32,
         accumulate: accumulate.flag(),
-        _pad: [0; 2],
+        _pad0: 0,
+        _pad1: 0,
     };
     let max = gpu.limits().max_compute_workgroups_per_dimension;
     gpu.dispatch(kernel, &[], &params, tensors, grid_1d(n, 256, max))

@@ -32,12 +32,13 @@ pub struct LastStep {
     pub steps: usize,
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct Params {
-    rows: u32,
-    steps: u32,
-    _pad: [u32; 2],
+crate::gpu::uniform! {
+    pub(crate) struct Params = HeadParams in SHADER {
+        rows: u32,
+        steps: u32,
+        _pad0: u32,
+        _pad1: u32,
+    }
 }
 
 impl LastStep {
@@ -45,7 +46,8 @@ impl LastStep {
         Params {
             rows: self.rows as u32,
             steps: self.steps as u32,
-            _pad: [0; 2],
+            _pad0: 0,
+            _pad1: 0,
         }
     }
 

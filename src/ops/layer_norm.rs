@@ -79,24 +79,25 @@ pub struct LayerNorm {
     pub dropout: Option<Dropout>,
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct Params {
-    outer: u32,
-    channels: u32,
-    steps: u32,
-    accumulate: u32,
-    eps: f32,
-    relu_input: u32,
-    drop: u32,
-    drop_key: u32,
-    drop_threshold: u32,
-    drop_scale: f32,
-    drop_stride: u32,
-    drop_offset: u32,
-    slice: u32,
-    slices: u32,
-    pad: [u32; 2],
+crate::gpu::uniform! {
+    pub(crate) struct Params = LnParams in SHADER {
+        outer: u32,
+        channels: u32,
+        steps: u32,
+        accumulate: u32,
+        eps: f32,
+        relu_input: u32,
+        drop: u32,
+        drop_key: u32,
+        drop_threshold: u32,
+        drop_scale: f32,
+        drop_stride: u32,
+        drop_offset: u32,
+        slice: u32,
+        slices: u32,
+        pad0: u32,
+        pad1: u32,
+    }
 }
 
 impl LayerNorm {
@@ -145,7 +146,8 @@ impl LayerNorm {
             drop_offset: d.map_or(0, |d| d.offset as u32),
             slice: per as u32,
             slices: slices as u32,
-            pad: [0; 2],
+            pad0: 0,
+            pad1: 0,
         }
     }
 

@@ -45,13 +45,13 @@ pub struct PoseLoss {
     pub group: usize,
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct Params {
-    batch: u32,
-    outputs: u32,
-    penalty: f32,
-    group: u32,
+crate::gpu::uniform! {
+    pub(crate) struct Params = LossParams in SHADER {
+        batch: u32,
+        outputs: u32,
+        penalty: f32,
+        group: u32,
+    }
 }
 
 impl PoseLoss {

@@ -36,12 +36,13 @@ static BACKWARD: Kernel = Kernel {
     ],
 };
 
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct Params {
-    n: u32,
-    m: u32,
-    _pad: [u32; 2],
+crate::gpu::uniform! {
+    pub(crate) struct Params = LstmParams in SHADER {
+        n: u32,
+        m: u32,
+        _pad0: u32,
+        _pad1: u32,
+    }
 }
 
 /// The shape of one cell update: `batch` windows of `state` elements each.
@@ -64,7 +65,8 @@ impl Lstm {
         let params = Params {
             n: n as u32,
             m: self.state as u32,
-            _pad: [0; 2],
+            _pad0: 0,
+            _pad1: 0,
         };
         let max = gpu.limits().max_compute_workgroups_per_dimension;
         gpu.dispatch(kernel, &[], &params, tensors, grid_1d(n, 256, max))

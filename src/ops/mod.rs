@@ -20,7 +20,7 @@ pub mod softmax;
 pub mod time_step;
 pub mod unfold2d;
 
-use crate::gpu::Shader;
+use crate::gpu::{Shader, Uniform, UniformLayout};
 
 /// What a kernel does with the tensor it writes. Backward kernels add, so that a tensor
 /// read by several ops receives one gradient contribution per dispatch; the first
@@ -83,5 +83,33 @@ pub fn shaders() -> [&'static Shader; 19] {
         &softmax::SHADER,
         &time_step::SHADER,
         &unfold2d::SHADER,
+    ]
+}
+
+/// Every kernel's uniform block on the Rust side, for the test that compares each with
+/// its WGSL struct (`tests/shaders.rs`). A block missing here is still checked on its
+/// kernel's first dispatch ([`crate::gpu::Gpu::dispatch`]); the test fails on a shader
+/// struct without an entry.
+pub fn uniforms() -> Vec<UniformLayout> {
+    vec![
+        adam::Params::layout(),
+        bias::Params::layout(),
+        dropout::Params::layout(),
+        elementwise::Params::layout(),
+        fft::Params::layout(),
+        gated_dcc::UnfoldParams::layout(),
+        gated_dcc::GateParams::layout(),
+        graph_attention::Params::layout(),
+        gru::Params::layout(),
+        head::Params::layout(),
+        layer_norm::Params::layout(),
+        loss::Params::layout(),
+        lstm::Params::layout(),
+        matmul::Params::layout(),
+        outer::Params::layout(),
+        removal::Params::layout(),
+        softmax::Params::layout(),
+        time_step::Params::layout(),
+        unfold2d::Params::layout(),
     ]
 }

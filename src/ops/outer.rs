@@ -37,15 +37,17 @@ static KERNEL: Kernel = Kernel {
 /// Invocations per workgroup (one per output row).
 const WORKGROUP: u32 = 64;
 
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct Params {
-    items: u32,
-    rows: u32,
-    cols: u32,
-    accumulate: u32,
-    nodes: u32,
-    _pad: [u32; 3],
+crate::gpu::uniform! {
+    pub(crate) struct Params = OuterParams in SHADER {
+        items: u32,
+        rows: u32,
+        cols: u32,
+        accumulate: u32,
+        nodes: u32,
+        _pad0: u32,
+        _pad1: u32,
+        _pad2: u32,
+    }
 }
 
 /// The second outer product of each item `z` of `out [items, rows, cols]`.
@@ -108,7 +110,9 @@ impl OuterPair {
             cols: c as u32,
             accumulate: accumulate.flag(),
             nodes: nodes as u32,
-            _pad: [0; 3],
+            _pad0: 0,
+            _pad1: 0,
+            _pad2: 0,
         };
         let flag = |x: bool| f64::from(u8::from(x));
         let node_matrix = matches!(self.second, Second::NodeByMatrix { .. });

@@ -262,17 +262,17 @@ impl Footprint {
     }
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct Params {
-    n: u32,
-    tiles: u32,
-    pitch: f32,
-    radius: f32,
-    orbit: f32,
-    scale: f32,
-    glass: f32,
-    pad: u32,
+crate::gpu::uniform! {
+    pub(crate) struct Params = RemovalParams in SHADER {
+        n: u32,
+        tiles: u32,
+        pitch: f32,
+        radius: f32,
+        orbit: f32,
+        scale: f32,
+        glass: f32,
+        pad0: u32,
+    }
 }
 
 /// Lays control ticks' removal over a map on a GPU: ticks are gathered on the host,
@@ -346,7 +346,7 @@ impl<'g> Accumulator<'g> {
             orbit: footprint.orbit as f32,
             scale: (footprint.preston * footprint.speed * 1e6) as f32,
             glass: footprint.glass.min(f64::from(f32::MAX)) as f32,
-            pad: 0,
+            pad0: 0,
         };
         let dispatch = gpu.dispatch(
             &ACCUMULATE,

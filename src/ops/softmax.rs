@@ -39,13 +39,13 @@ pub struct Softmax {
     pub inner: usize,
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct Params {
-    outer: u32,
-    len: u32,
-    inner: u32,
-    accumulate: u32,
+crate::gpu::uniform! {
+    pub(crate) struct Params = SmParams in SHADER {
+        outer: u32,
+        len: u32,
+        inner: u32,
+        accumulate: u32,
+    }
 }
 
 impl Softmax {

@@ -35,13 +35,13 @@ pub struct TimeStep {
     pub step: usize,
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct Params {
-    rows: u32,
-    steps: u32,
-    step: u32,
-    accumulate: u32,
+crate::gpu::uniform! {
+    pub(crate) struct Params = TimeStepParams in SHADER {
+        rows: u32,
+        steps: u32,
+        step: u32,
+        accumulate: u32,
+    }
 }
 
 impl TimeStep {

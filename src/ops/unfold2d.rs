@@ -25,16 +25,17 @@ static BACKWARD: Kernel = Kernel {
     bindings: &[Binding::read(1), Binding::read_write(2)],
 };
 
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct Params {
-    batch: u32,
-    channels: u32,
-    height: u32,
-    width: u32,
-    kernel: u32,
-    accumulate: u32,
-    _pad: [u32; 2],
+crate::gpu::uniform! {
+    pub(crate) struct Params = Unfold2dParams in SHADER {
+        batch: u32,
+        channels: u32,
+        height: u32,
+        width: u32,
+        kernel: u32,
+        accumulate: u32,
+        _pad0: u32,
+        _pad1: u32,
+    }
 }
 
 /// The shape of one unfolding.
@@ -78,7 +79,8 @@ impl Unfold2d {
             width: self.width as u32,
             kernel: self.kernel as u32,
             accumulate: accumulate.flag(),
-            _pad: [0; 2],
+            _pad0: 0,
+            _pad1: 0,
         })
     }
 

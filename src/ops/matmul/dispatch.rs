@@ -10,29 +10,29 @@ use super::{
 use crate::gpu::{grid_1d, DType, Dispatch, Gpu, GpuError, Kernel, Tensor};
 use crate::ops::Accumulate;
 
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct Params {
-    m: u32,
-    n: u32,
-    k: u32,
-    reduce: u32,
-    a_row: u32,
-    a_col: u32,
-    b_row: u32,
-    b_col: u32,
-    a_batch: u32,
-    b_batch: u32,
-    c_batch: u32,
-    accumulate: u32,
-    a_reduce: u32,
-    b_reduce: u32,
-    alpha: f32,
-    batches: u32,
-    chunk: u32,
-    slices: u32,
-    a_slice: u32,
-    b_slice: u32,
+crate::gpu::uniform! {
+    pub(crate) struct Params = MatmulParams in super::SHADER {
+        m: u32,
+        n: u32,
+        k: u32,
+        reduce: u32,
+        a_row: u32,
+        a_col: u32,
+        b_row: u32,
+        b_col: u32,
+        a_batch: u32,
+        b_batch: u32,
+        c_batch: u32,
+        accumulate: u32,
+        a_reduce: u32,
+        b_reduce: u32,
+        alpha: f32,
+        batches: u32,
+        chunk: u32,
+        slices: u32,
+        a_slice: u32,
+        b_slice: u32,
+    }
 }
 
 impl Matmul {

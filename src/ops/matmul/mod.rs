@@ -18,6 +18,8 @@ pub mod cpu;
 
 pub use plan::{plan, Matmul, Tiling};
 
+pub(crate) use dispatch::Params;
+
 use crate::gpu::{Binding, Gpu, Kernel, Shader, Tensor};
 
 /// The portable WGSL module of this family (`shaders/matmul.wgsl`: the block kernel
