@@ -8,7 +8,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use super::identify::Calibration;
-use crate::robot::{ErrorParams, N_PARAMS};
+use crate::robot::{ErrorParams, Geometry, Robot, N_PARAMS};
 
 /// A calibration file that cannot be written, read or trusted.
 #[derive(Debug, thiserror::Error)]
@@ -68,6 +68,13 @@ pub struct LoadedCalibration {
     /// The twin machine the measurement set came from, when known (absent from files
     /// written before this field, and for sets without a `.run.toml` sidecar).
     pub machine_seed: Option<u64>,
+}
+
+impl LoadedCalibration {
+    /// The calibrated controller's model: `geometry` with these errors (eq. 18).
+    pub fn robot(&self, geometry: Geometry) -> Robot {
+        Robot::new(geometry, self.errors.clone())
+    }
 }
 
 /// Writes `cal` to `path` atomically, with no word on the machine it came from.
@@ -135,6 +142,12 @@ pub fn save_from(
 /// How many prior SDs (`identify::default_prior_sigma`) a loaded error value may be at
 /// most: 300 mm for a length, 2 to 5 rad for an angle.
 pub const PLAUSIBLE_PRIORS: f64 = 1000.0;
+
+/// The calibrated controller's model: `geometry` with the errors of the calibration file
+/// at `path` (eq. 18), through [`LoadedCalibration::robot`], as every stage builds it.
+pub fn calibrated_robot(geometry: Geometry, path: &Path) -> Result<Robot, CalibrationFileError> {
+    Ok(load(path)?.robot(geometry))
+}
 
 /// Reads a calibration file, checking names, sizes and values.
 pub fn load(path: &Path) -> Result<LoadedCalibration, CalibrationFileError> {

@@ -94,7 +94,7 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
     let machine = draw_machine(geometry.clone(), args.machine_seed);
     let (controller, controller_name) = match &args.calibration {
         Some(p) => (
-            Robot::new(geometry, iastgcn::calibrate::file::load(p)?.errors),
+            iastgcn::calibrate::file::calibrated_robot(geometry, p)?,
             p.display().to_string(),
         ),
         None => (Robot::nominal(geometry), "nominal".to_string()),

@@ -118,7 +118,7 @@ impl RunSpec {
         let geometry = Geometry::load_or_default(self.robot.as_deref())?;
         let machine = draw_machine(geometry.clone(), self.machine_seed);
         let nominal = Robot::nominal(geometry.clone());
-        let calibrated = Robot::new(geometry, file::load(&self.calibration)?.errors);
+        let calibrated = file::calibrated_robot(geometry, &self.calibration)?;
         ensure(self.minutes.is_finite() && self.minutes > 0.0, || {
             format!("a run must last a positive time, got {} min", self.minutes)
         })?;

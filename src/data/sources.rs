@@ -96,7 +96,7 @@ impl DataSources {
     /// at least `window` rows each.
     pub fn load(&self, window: usize) -> Result<Inputs> {
         let graph = Graph::load_or_default(self.graph.as_deref())?;
-        let robot = Robot::new(self.geometry()?, file::load(&self.calibration)?.errors);
+        let robot = file::calibrated_robot(self.geometry()?, &self.calibration)?;
         let channels = expected_channels(&graph.nodes);
         let channels: Vec<&str> = channels.iter().map(String::as_str).collect();
         let recordings = self

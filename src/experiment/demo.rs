@@ -437,7 +437,7 @@ fn mirror_section(
     let geometry = Geometry::load_or_default(None)?;
     let machine = draw_machine(geometry.clone(), MACHINE_SEED);
     let nominal = Robot::nominal(geometry.clone());
-    let calibrated = Robot::new(geometry, file::load(&sources.calibration)?.errors);
+    let calibrated = file::calibrated_robot(geometry, &sources.calibration)?;
     let mut polisher = Polisher::new(Setup::new(PathKind::Grid))?;
     polisher.run_on(device)?;
     let result = polish::run(

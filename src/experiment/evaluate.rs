@@ -731,7 +731,7 @@ pub fn held_out_session(
     let machine_seed = sources.machine_seed()?;
     let machine = draw_machine(geometry.clone(), machine_seed);
     let nominal = Robot::nominal(geometry.clone());
-    let calibrated = Robot::new(geometry, cal.errors);
+    let calibrated = cal.robot(geometry);
     // The oracle stands in for a model of the first one's window.
     let window = first.window();
     let ran_on: Vec<String> = models.iter().map(|m| m.runs_on(device)).collect();

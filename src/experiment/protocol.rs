@@ -288,7 +288,7 @@ pub fn record_closed_loop(
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
         let geometry = sources.geometry()?;
         let machine = draw_machine(geometry.clone(), round.machine_seed);
-        let controller = Robot::new(geometry, file::load(&sources.calibration)?.errors);
+        let controller = file::calibrated_robot(geometry, &sources.calibration)?;
         let controller_name = format!(
             "{} with {name} compensating (every {} ticks)",
             sources.calibration.display(),
