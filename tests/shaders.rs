@@ -258,8 +258,25 @@ iastgcn::gpu::uniform! {
     }
 }
 
+static PLANTED_TWIN: Shader = Shader {
+    name: "planted_twin",
+    source: PLANTED.source,
+    base: None,
+};
+
+iastgcn::gpu::uniform! {
+    /// The block of another shader that has a struct of the same name and layout.
+    struct Foreign = PlantedParams in PLANTED_TWIN {
+        n: u32,
+        scale: f32,
+        pad0: u32,
+        pad1: u32,
+    }
+}
+
 #[test]
 fn a_block_declared_with_the_macro_is_checked_through_reflection() {
+    check_uniform(&Foreign::layout()).unwrap();
     check_uniform(&Planted::layout()).unwrap();
     let err = check_uniform(&Swapped::layout()).unwrap_err().to_string();
     assert!(
@@ -300,6 +317,22 @@ fn dispatch_refuses_a_block_that_does_not_match_the_kernel() {
             assert!(what.contains("OtherParams"), "{what}");
         }
         other => panic!("a foreign block was dispatched: {other:?}"),
+    }
+    // A block of another shader whose struct has the same name.
+    let foreign = Foreign {
+        n: 64,
+        scale: 2.0,
+        pad0: 0,
+        pad1: 0,
+    };
+    match gpu.dispatch(&PLANTED_KERNEL, &[], &foreign, &[&out], [1, 1, 1]) {
+        Err(GpuError::Uniform { what, .. }) => {
+            assert!(
+                what.contains("a block of shaders/planted_twin.wgsl"),
+                "{what}"
+            )
+        }
+        other => panic!("another shader's block was dispatched: {other:?}"),
     }
     let good = Planted {
         n: 64,

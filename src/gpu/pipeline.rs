@@ -203,6 +203,15 @@ impl PipelineCache {
             ));
         };
         let wgsl = format!("{}: struct {name}", label());
+        // The block belongs to the kernel's shader (or to the base whose struct it reads):
+        // two shaders may each have a struct of the same name.
+        let owner = |s: &Shader| std::ptr::eq(s, P::SHADER);
+        if !owner(kernel.shader) && !kernel.shader.base.is_some_and(owner) {
+            return Err(mismatch(
+                wgsl,
+                format!("dispatched with a block of shaders/{}.wgsl", P::SHADER.name),
+            ));
+        }
         if name != P::WGSL {
             return Err(mismatch(wgsl, format!("dispatched with `{}`", P::WGSL)));
         }
