@@ -5,6 +5,7 @@
 
 use std::path::Path;
 
+use bytemuck::Zeroable;
 use iastgcn::gpu::{
     check_uniform, reflect_uniforms, validate_wgsl, Binding, DType, GpuError, Kernel, Scalar,
     Shader, Uniform, UniformLayout,
@@ -290,24 +291,15 @@ fn a_block_declared_with_the_macro_is_checked_through_reflection() {
 /// point reads, and refuses a drifted or a foreign one before anything runs.
 #[test]
 fn dispatch_refuses_a_block_that_does_not_match_the_kernel() {
+    // The refused blocks' values do not matter: they are refused by their layout.
     let gpu = gpu();
     let out = gpu.zeros("out", &[64], DType::F32).unwrap();
-    let swapped = Swapped {
-        scale: 2.0,
-        n: 64,
-        pad0: 0,
-        pad1: 0,
-    };
+    let swapped = Swapped::zeroed();
     match gpu.dispatch(&PLANTED_KERNEL, &[], &swapped, &[&out], [1, 1, 1]) {
         Err(GpuError::Uniform { what, .. }) => assert!(what.contains("member 0"), "{what}"),
         other => panic!("a swapped block was dispatched: {other:?}"),
     }
-    let other = Other {
-        n: 64,
-        scale: 2.0,
-        pad0: 0,
-        pad1: 0,
-    };
+    let other = Other::zeroed();
     match gpu.dispatch(&PLANTED_KERNEL, &[], &other, &[&out], [1, 1, 1]) {
         Err(GpuError::Uniform { what, wgsl, .. }) => {
             assert!(
@@ -319,12 +311,7 @@ fn dispatch_refuses_a_block_that_does_not_match_the_kernel() {
         other => panic!("a foreign block was dispatched: {other:?}"),
     }
     // A block of another shader whose struct has the same name.
-    let foreign = Foreign {
-        n: 64,
-        scale: 2.0,
-        pad0: 0,
-        pad1: 0,
-    };
+    let foreign = Foreign::zeroed();
     match gpu.dispatch(&PLANTED_KERNEL, &[], &foreign, &[&out], [1, 1, 1]) {
         Err(GpuError::Uniform { what, .. }) => {
             assert!(

@@ -21,9 +21,8 @@ pub use recorder::{Dispatch, Recorder};
 pub use tensor::{DType, Readback, Tensor};
 pub use timestamps::{Interval, Timestamps};
 pub use uniform::{
-    check as check_uniform, compare as compare_uniform, reflect as reflect_uniforms,
-    Layout as UniformLayout, Member as UniformMember, Scalar, ScalarType, ShaderUniforms, Uniform,
-    WgslStruct,
+    check as check_uniform, reflect as reflect_uniforms, Layout as UniformLayout,
+    Member as UniformMember, Scalar, ScalarType, ShaderUniforms, Uniform, WgslStruct,
 };
 
 use wgpu::util::DeviceExt;
