@@ -1,6 +1,6 @@
 //! The native path's matrix products at the shapes of the paper-shape forward (C 64,
 //! T 100, L 5, one window; docs/performance.md "The native CPU forward"), by the two
-//! engines of `model/native/product.rs`: the `gemm` crate (training's) and the in-place
+//! engines of `model/cpu/product.rs`: the `gemm` crate (training's) and the in-place
 //! kernel that allocates nothing (the predictor's). Each row is one product shape with
 //! its operand layout, `[m, k, n]`, A and B row-major (`r`) or seen transposed (`t`);
 //! criterion's thrpt column is in FLOP/s. `cargo bench --bench products`.

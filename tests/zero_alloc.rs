@@ -5,7 +5,7 @@
 //! `predict_latest` (raw sensor values, what the C ABI and Python run), and the C entry
 //! points `iastgcn_predictor_push` + `iastgcn_predictor_predict_latest` on a handle
 //! loaded from a file. The predictor's forward runs its matrix products on the in-place
-//! kernels of `model/native/product.rs` (the `gemm` crate, which training uses,
+//! kernels of `model/cpu/product.rs` (the `gemm` crate, which training uses,
 //! allocates on every call).
 
 use std::alloc::{GlobalAlloc, Layout, System};

@@ -13,9 +13,9 @@
 //! backward pass runs through time in reverse, recomputing each step's unfoldings. The f64
 //! reference is `model::reference::conv_lstm`.
 
-use super::block::ParamTable;
 use super::config::ModelConfig;
 use super::recurrent::TimeLoop;
+use super::schedule::ParamTable;
 use super::schedule::Steps;
 use crate::gpu::{DType, Gpu, GpuError, Tensor};
 use crate::ops::bias::Bias;

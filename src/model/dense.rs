@@ -5,8 +5,8 @@
 //! the head, a matmul, a bias and an activation; a skip connection is a copy that the
 //! matmul then accumulates onto. The f64 reference is `model::reference::dense`.
 
-use super::block::ParamTable;
 use super::config::{ModelConfig, Variant};
+use super::schedule::ParamTable;
 use super::schedule::Steps;
 use crate::gpu::{DType, Gpu, GpuError, Tensor};
 use crate::graph::Graph;

@@ -8,7 +8,8 @@
 //! in steps, so the slope is an average).
 
 use super::config::ModelConfig;
-use super::network::{ModelError, Network, Pass};
+use super::error::ModelError;
+use super::network::{Network, Pass};
 use crate::gpu::{Allocation, Gpu};
 use crate::graph::Graph;
 

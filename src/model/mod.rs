@@ -3,7 +3,10 @@
 pub mod checkpoint;
 pub mod config;
 pub mod conv_lstm;
+mod cpu;
 pub mod dense;
+pub mod error;
+mod exact;
 pub mod flops;
 pub mod memory;
 pub mod native;
@@ -23,7 +26,9 @@ mod block;
 pub mod network;
 pub mod schedule;
 
-pub use native::{product_for_bench, NativeAdam, NativeForward, NativeStepShape, NativeTraining};
-pub use network::{ModelError, Network, Pass};
+pub use cpu::product_for_bench;
+pub use error::ModelError;
+pub use native::{NativeAdam, NativeForward, NativeStepShape, NativeTraining};
+pub use network::{Network, Pass};
 pub use predictor::{Backend, Features, Predictor, Residual};
 pub use schedule::{Profile, StepTime, Timing};

@@ -2,44 +2,22 @@
 //! forward / backward schedules for one batch size. Nothing is allocated and no
 //! pipeline is created after [`Network::new`]; a training step reads nothing back.
 
-pub use super::block::Pass;
-use super::block::{Block, DropoutSlots, Extent, MaskedStep, ParamTable};
+use super::block::wgsl::{Block, DropoutSlots, Extent, MaskedStep, Table};
 use super::config::Family;
 use super::config::ModelConfig;
 use super::conv_lstm::ConvLstmBody;
 use super::dense::{Architecture, DenseBody};
+use super::error::ModelError;
 use super::params::{check_parameter_count, graph_basis, param_specs, ParamSpec, Parameters};
 use super::recurrent::{RecurrentBody, TimeLoop};
-use super::schedule::{self, Profile, Scratch, Steps, Timing};
+pub use super::schedule::Pass;
+use super::schedule::{self, ParamTable, Profile, Scratch, Steps, Timing};
 use crate::gpu::{DType, Gpu, GpuError, Recorder, Tensor};
 use crate::graph::Graph;
 use crate::ops::bias::Bias;
 use crate::ops::loss::PoseLoss;
 use crate::ops::matmul::Matmul;
 use crate::ops::Accumulate;
-
-/// What can go wrong building or feeding a network.
-#[derive(Debug, thiserror::Error)]
-pub enum ModelError {
-    /// The device failed: allocation, upload, a kernel's shape check or a dispatch.
-    #[error(transparent)]
-    Gpu(#[from] GpuError),
-    /// A model config, graph, batch size, parameter count or input length the network
-    /// cannot use; the message says which and why.
-    #[error("{0}")]
-    Config(String),
-    /// A parameter tensor given to [`Network::load_parameters`] whose name, shape or
-    /// length differs from the network's own at that position.
-    #[error("parameter {name}: {message}")]
-    Parameter {
-        /// The docs/model.md name of the tensor given (e.g. `blocks.0.gwc.W`).
-        name: String,
-        /// The expected and the given name, shape and value count.
-        message: String,
-    },
-}
-
-impl crate::error::StageError for ModelError {}
 
 /// A network (IASTGCN, an ablation or a dense baseline) on one device for a fixed batch
 /// size.
@@ -81,55 +59,6 @@ pub struct Network {
     dropout: Vec<DropoutSlots>,
     /// Indices of the loss forward and backward dispatches in `backward`.
     loss_slots: [usize; 2],
-}
-
-/// Name lookups for the block schedules (also the step tests' table,
-/// `model::native::block::tests`).
-pub(crate) struct Table<'a> {
-    specs: &'a [ParamSpec],
-    params: &'a [Tensor],
-    grads: &'a [Tensor],
-    /// The graph basis (none for the dense baselines, which use no graph).
-    basis: Option<&'a Tensor>,
-}
-
-impl<'a> Table<'a> {
-    /// The table of `params` and `grads`, each in `specs` order, and the graph basis.
-    pub(crate) fn new(
-        specs: &'a [ParamSpec],
-        params: &'a [Tensor],
-        grads: &'a [Tensor],
-        basis: Option<&'a Tensor>,
-    ) -> Table<'a> {
-        Table {
-            specs,
-            params,
-            grads,
-            basis,
-        }
-    }
-
-    fn index(&self, name: &str) -> usize {
-        // invariant: the schedules ask only for names of param_specs(config), from which the table is built.
-        self.specs
-            .iter()
-            .position(|s| s.name == name)
-            .unwrap_or_else(|| panic!("schedule asks for unknown parameter {name}"))
-    }
-}
-
-impl ParamTable for Table<'_> {
-    fn param(&self, name: &str) -> &Tensor {
-        if name == "graph.basis" {
-            // invariant: only ST blocks ask for graph.basis, and their configs have graph terms.
-            return self.basis.expect("the ST blocks have a graph basis");
-        }
-        &self.params[self.index(name)]
-    }
-
-    fn grad(&self, name: &str) -> &Tensor {
-        &self.grads[self.index(name)]
-    }
 }
 
 impl Network {

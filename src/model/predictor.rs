@@ -18,8 +18,9 @@ use std::sync::Arc;
 
 use super::checkpoint::{Checkpoint, Normalization};
 use super::config::ModelConfig;
+use super::error::ModelError;
 use super::native::NativeForward;
-use super::network::{ModelError, Network};
+use super::network::Network;
 use crate::gpu::{Device, Gpu, Readback, Recorder};
 
 /// A residual prediction: dx, dy, dz in µm, rx, ry, rz in mdeg (base frame).

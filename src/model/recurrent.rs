@@ -19,8 +19,8 @@
 //! weight gradients accumulate over the steps, and ∂ℒ/∂h ping-pongs between two tensors.
 //! The f64 reference is `model::reference::recurrent`.
 
-use super::block::ParamTable;
 use super::config::{ModelConfig, Variant};
+use super::schedule::ParamTable;
 use super::schedule::Steps;
 use crate::gpu::{DType, Gpu, GpuError, Tensor};
 use crate::graph::Graph;

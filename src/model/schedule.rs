@@ -290,3 +290,22 @@ impl<'g> Scratch<'g> {
         Ok(t)
     }
 }
+
+/// A pass through the network: which schedules a network is built with
+/// ([`Network::built_for`](crate::model::Network::built_for)), and which one
+/// [`Network::profile`](crate::model::Network::profile) times.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Pass {
+    /// The inference forward.
+    Inference,
+    /// The training forward, the loss and the backward.
+    Train,
+}
+
+/// Device parameters and their gradients, looked up by docs/model.md name.
+pub trait ParamTable {
+    /// The parameter `name` (or `graph.basis`, the graph's basis).
+    fn param(&self, name: &str) -> &Tensor;
+    /// The gradient of parameter `name`.
+    fn grad(&self, name: &str) -> &Tensor;
+}

@@ -13,9 +13,10 @@
 //! Each convolution is an unfolding (`[channels·k², N·F]`, zero outside the grid) and one
 //! `sgemm`; the backward recomputes each step's unfoldings, as the device does.
 
-use super::{flat_head, flat_head_backward, gemm, rows, sigmoid, tanh, transposed};
+use super::{flat_head, flat_head_backward};
 use crate::model::config::ModelConfig;
-use crate::model::network::ModelError;
+use crate::model::cpu::{gemm, rows, sigmoid, tanh, transposed};
+use crate::model::error::ModelError;
 use crate::model::params::ParamSpec;
 
 /// ConvLSTM's shapes and where its tensors are.

@@ -5,11 +5,11 @@
 //! the f64 reference `model::reference::dense`. The layers are a few dozen wide, so the
 //! products are plain loops over contiguous rows.
 
-use super::{sigmoid, tanh};
 use crate::graph::Graph;
 use crate::model::config::ModelConfig;
+use crate::model::cpu::{sigmoid, tanh};
 use crate::model::dense::{Architecture, Layer};
-use crate::model::network::ModelError;
+use crate::model::error::ModelError;
 use crate::model::params::ParamSpec;
 use crate::ops::elementwise::Unary;
 

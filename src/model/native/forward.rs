@@ -3,16 +3,18 @@
 //! `block/` (or `dense.rs`, `recurrent.rs`) without dropout, on a tape that is allocated
 //! once and reused window after window.
 
-use super::block::{forward, Tape};
 use super::conv_lstm::{ConvLstmNet, ConvLstmTape};
 use super::dense::{DenseNet, DenseTape};
-use super::flushing_subnormals;
-use super::product::{with_products, Products};
 use super::recurrent::{RecurrentNet, RecurrentTape};
-use super::slots::Slots;
+use crate::model::block::native::forward;
+use crate::model::block::slots::Slots;
+use crate::model::block::tape::Tape;
+use crate::model::cpu::flushing_subnormals;
+use crate::model::cpu::{with_products, Products};
+
 use crate::graph::Graph;
 use crate::model::config::{Family, ModelConfig};
-use crate::model::network::ModelError;
+use crate::model::error::ModelError;
 use crate::model::params::{graph_basis, param_specs, Parameters};
 
 /// The CPU forward pass of one checkpoint of an IASTGCN variant (`iastgcn`, `iastgcn-a`,

@@ -18,10 +18,11 @@
 //! (T_0 of EAT-GCN's Chebyshev supports) skips its graph mix, as on the device. The models
 //! have no dropout, so training and inference share the forward pass.
 
-use super::{flat_head, flat_head_backward, gemm, rows, sigmoid, softmax_rows, tanh, transposed};
+use super::{flat_head, flat_head_backward};
 use crate::graph::Graph;
 use crate::model::config::ModelConfig;
-use crate::model::network::ModelError;
+use crate::model::cpu::{gemm, rows, sigmoid, softmax_rows, tanh, transposed};
+use crate::model::error::ModelError;
 use crate::model::params::ParamSpec;
 use crate::model::recurrent::{attends_over_time, support_count, supports, weight_name, GATES};
 use multiversion::multiversion;

@@ -5,15 +5,17 @@
 //! update as `shaders/adam.wgsl`); summation orders differ, so the two agree to rounding
 //! (tests/native_train.rs).
 
-use super::block::{backward, forward, Masks, Tape, Work};
 use super::conv_lstm::{ConvLstmNet, ConvLstmTape};
 use super::dense::{DenseNet, DenseTape};
-use super::flushing_subnormals;
 use super::recurrent::{RecurrentNet, RecurrentTape};
-use super::slots::Slots;
+use crate::model::block::native::{backward, forward};
+use crate::model::block::slots::Slots;
+use crate::model::block::tape::{Masks, Tape, Work};
+use crate::model::cpu::flushing_subnormals;
+
 use crate::graph::Graph;
 use crate::model::config::{Family, ModelConfig};
-use crate::model::network::ModelError;
+use crate::model::error::ModelError;
 use crate::model::params::{graph_basis, param_specs, ParamSpec, Parameters};
 use crate::ops::adam::hyper_values;
 use crate::ops::loss::PoseLoss;

@@ -4,7 +4,8 @@
 //! (`ops::unfold2d::cpu`, `ops::lstm::cpu`). The loss is [`super::loss`].
 
 use super::head::{flat_head, flat_head_backward};
-use super::{add_weight_decay, axpy, output_gradient, Grads, Loss, Table};
+use super::{add_weight_decay, output_gradient, Loss};
+use crate::model::exact::{axpy, Grads, Table};
 use crate::model::{ModelConfig, ParamSpec};
 use crate::ops::lstm::{cpu as lstm, Lstm};
 use crate::ops::unfold2d::{cpu as unfold, Unfold2d};

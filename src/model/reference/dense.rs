@@ -2,8 +2,9 @@
 //! the forward pass keeping every activation, and its hand-written backward pass. The
 //! loss is [`super::loss`], the same as IASTGCN's.
 
-use super::{add_weight_decay, axpy, output_gradient, Grads, Loss, Table};
+use super::{add_weight_decay, output_gradient, Loss};
 use crate::model::dense::Architecture;
+use crate::model::exact::{axpy, Grads, Table};
 use crate::model::{ModelConfig, ParamSpec};
 use crate::ops::elementwise::cpu as act;
 

@@ -1,7 +1,8 @@
 //! The head: ŷ from the last time step of the last block's output, its backward, and the
 //! per-output weights of the loss (eq. 39).
 
-use super::{axpy, dot, row, row_mut, Grads, Loss};
+use super::Loss;
+use crate::model::exact::{axpy, dot, row, row_mut, Grads};
 use crate::model::ModelConfig;
 
 /// ŷ[b,o] = head.bias[o] + Σ_{n,c} head.weight[o, n·C + c]·Y_L[b,n,c,T−1].

@@ -7,17 +7,16 @@
 //! `[B, N, C, T]` like the GPU's; loops keep the contiguous T axis innermost (as `axpy` /
 //! `dot` over rows of length T) so that the paper shape runs in seconds at opt-level 1.
 //!
-//! This file holds the tape, the helpers and parameter lookup every step uses, and the
-//! whole network; one file per op family holds the steps: `attention.rs` (steps 1–2),
-//! `graph_conv.rs` (step 3), `gated_dcc.rs` (step 4), `residual_layer_norm.rs` (steps 5–6),
-//! `block.rs` (one ST block, steps 1–7) and `head.rs` (the head and the loss weights).
-//! Where an op has its own f64 reference next to its kernels (`ops::gated_dcc::cpu` for
-//! step 4, `ops::layer_norm::cpu` for step 6), the step here composes that one instead of
-//! computing the same maths a second time, so the WGSL tests and the network reference
-//! check against one implementation.
-//! The dense baselines have their own forward and backward in `dense.rs`, the recurrent
-//! ones in `recurrent.rs` and `conv_lstm.rs`; [`loss`] serves
-//! every model.
+//! This folder holds the whole network: the tape, the loss, the forward and backward
+//! through the blocks and the head (`head.rs`, with the loss weights), and the baselines'
+//! own forward and backward: the dense ones in `dense.rs`, the recurrent ones in
+//! `recurrent.rs` and `conv_lstm.rs`; [`loss`] serves every model. The ST block's steps
+//! are in their folders of `model::block` (each step's `reference.rs`, composed in
+//! `block/reference.rs`), the arithmetic they share in `model::exact`. Where an op has its
+//! own f64 reference next to its kernels (`ops::gated_dcc::cpu` for step 4,
+//! `ops::layer_norm::cpu` for step 6), the step composes that one instead of computing the
+//! same maths a second time, so the WGSL tests and the network reference check against
+//! one implementation.
 
 // The loops index several tensors by the equations' indices at once.
 #![allow(clippy::needless_range_loop)]
@@ -26,41 +25,16 @@ pub mod conv_lstm;
 pub mod dense;
 pub mod recurrent;
 
-pub(crate) mod attention;
-mod block;
-mod gated_dcc;
-pub(crate) mod graph_conv;
 mod head;
-mod residual_layer_norm;
 
+use super::block::exact::{BlockParams, Dims};
+use super::block::reference::{block_backward, block_forward};
+pub use super::block::reference::{BlockTape, DropoutStep};
+pub use super::block::spatial_attention::reference::SpatialAttention;
+pub use super::block::temporal_attention::reference::TemporalAttention;
+use super::exact::{axpy, dot, Grads, Table};
 use super::{ModelConfig, ParamSpec};
-use crate::ops::dropout::Dropout;
-use attention::{SpatialParams, TemporalParams};
-use block::{block_backward, block_forward};
 use head::{head, head_backward, output_weight};
-
-/// The dropout of one training step (docs/model.md step 7). Block `l` draws its mask from
-/// [`DropoutStep::block`]: element `i` (flat index into Y `[B,N,C,T]`) is kept iff
-/// `ops::dropout::keep(&mask, step, i)`, and kept values are scaled by 1/(1−p).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct DropoutStep {
-    /// The masks' base seed (block `l` uses seed + l); in training, the two 32-bit
-    /// halves of `[train] seed` XORed together.
-    pub seed: u32,
-    /// The optimiser step, counted from 0 within the training stage.
-    pub step: u32,
-}
-
-impl DropoutStep {
-    /// The mask generator of block `l`: seed + l, p = `config.dropout`.
-    pub fn block(&self, config: &ModelConfig, batch: usize, l: usize) -> Dropout {
-        Dropout::new(
-            batch * config.nodes * config.channels * config.window,
-            config.dropout,
-            self.seed.wrapping_add(l as u32),
-        )
-    }
-}
 
 /// The weights of the loss (eq. 39).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -95,70 +69,6 @@ pub struct Tape {
     pub output: Vec<f64>,
 }
 
-/// One ST block's intermediates. Its input is the previous block's `output` (or
-/// [`Tape::input`] for block 0).
-#[derive(Clone, Debug)]
-pub struct BlockTape {
-    /// Step 1 (absent in `iastgcn-a`).
-    pub temporal: Option<TemporalAttention>,
-    /// Step 2 (absent in `iastgcn-a`).
-    pub spatial: Option<SpatialAttention>,
-    /// Step 3: Ψ = Σ_k θ_k basis_k `[N,N]` (empty in `st-gat`).
-    pub psi: Vec<f64>,
-    /// Step 3: `Q[b,j,o,t] = Σ_c X_s[b,j,c,t]·W[c,o]` `[B,N,C,T]` (before the node mixing).
-    pub q: Vec<f64>,
-    /// Step 3: Z = ReLU(Ψ·Q) `[B,N,C,T]` (in `st-gat`, ReLU of the graph attention of Q).
-    pub z: Vec<f64>,
-    /// Step 4: G_f `[B,N,C,T]` (in `iastgcn-t` the pre-ReLU plain convolution).
-    pub filter: Vec<f64>,
-    /// Step 4: G_g `[B,N,C,T]` (absent in `iastgcn-t`).
-    pub gate: Option<Vec<f64>>,
-    /// Step 6: ReLU(H + R) `[B,N,C,T]`, the LayerNorm input.
-    pub act: Vec<f64>,
-    /// Step 7: the dropout mask (`None` without dropout).
-    pub mask: Option<Vec<bool>>,
-    /// The block output Y after dropout `[B,N,C,T]`.
-    pub output: Vec<f64>,
-}
-
-/// Step 1 intermediates (eq. 35–37).
-#[derive(Clone, Debug)]
-pub struct TemporalAttention {
-    /// `Σ_n X[b,n,c,t]·U1[n]`, stored `[B,C_in,T]`.
-    pub xu1: Vec<f64>,
-    /// lhs `[B,T,N]`.
-    pub lhs: Vec<f64>,
-    /// rhs `[B,N,T]`.
-    pub rhs: Vec<f64>,
-    /// σ(P + be) `[B,T,T]`.
-    pub sig: Vec<f64>,
-    /// E = Ve·σ(P + be) `[B,T,T]`.
-    pub scores: Vec<f64>,
-    /// E' = softmax of E over its first time index `[B,T,T]`.
-    pub weights: Vec<f64>,
-    /// X_t `[B,N,C_in,T]`.
-    pub output: Vec<f64>,
-}
-
-/// Step 2 intermediates (eq. 32–34).
-#[derive(Clone, Debug)]
-pub struct SpatialAttention {
-    /// `Σ_u X_t[b,n,c,u]·W1[u]` `[B,N,C_in]`.
-    pub xw1: Vec<f64>,
-    /// lhs `[B,N,T]`.
-    pub lhs: Vec<f64>,
-    /// rhs, stored transposed as `[B,N,T]` (`rhs[b,t,m]` of docs/model.md at `[b,m,t]`).
-    pub rhs: Vec<f64>,
-    /// σ(P + bs) `[B,N,N]`.
-    pub sig: Vec<f64>,
-    /// S = Vs·σ(P + bs) `[B,N,N]`.
-    pub scores: Vec<f64>,
-    /// S' = softmax of S over j `[B,N,N]`.
-    pub weights: Vec<f64>,
-    /// X_s `[B,N,C_in,T]`.
-    pub output: Vec<f64>,
-}
-
 impl Tape {
     /// The on/off state of every ReLU of the forward pass (step 3, step 6, and the plain
     /// convolution of `iastgcn-t`). A finite difference whose two evaluations change this
@@ -173,114 +83,6 @@ impl Tape {
             out.extend(b.act.iter().map(|&v| v > 0.0));
         }
         out
-    }
-}
-
-// ---------------------------------------------------------------------------------------
-// Small helpers.
-
-/// y += a·x over the common length.
-#[inline]
-fn axpy(y: &mut [f64], a: f64, x: &[f64]) {
-    for (y, x) in y.iter_mut().zip(x) {
-        *y += a * x;
-    }
-}
-
-#[inline]
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(a, b)| a * b).sum()
-}
-
-#[inline]
-fn sigmoid(x: f64) -> f64 {
-    1.0 / (1.0 + (-x).exp())
-}
-
-/// Row `r` of length `len` of a row-major buffer.
-#[inline]
-fn row(x: &[f64], r: usize, len: usize) -> &[f64] {
-    &x[r * len..(r + 1) * len]
-}
-
-#[inline]
-fn row_mut(x: &mut [f64], r: usize, len: usize) -> &mut [f64] {
-    &mut x[r * len..(r + 1) * len]
-}
-
-/// Shapes of block `l`.
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct Dims {
-    b: usize,
-    n: usize,
-    /// C_in.
-    ci: usize,
-    c: usize,
-    t: usize,
-}
-
-impl Dims {
-    pub(crate) fn new(config: &ModelConfig, batch: usize, l: usize) -> Dims {
-        Dims {
-            b: batch,
-            n: config.nodes,
-            ci: config.block_input(l),
-            c: config.channels,
-            t: config.window,
-        }
-    }
-
-    /// Index of the T-row (b, n, c) of a `[B,N,ch,T]` tensor.
-    #[inline]
-    fn r(&self, ch: usize, b: usize, n: usize, c: usize) -> usize {
-        (b * self.n + n) * ch + c
-    }
-}
-
-/// Parameters looked up by name (docs/model.md names, `param_specs` order).
-pub(crate) struct Table<'a> {
-    specs: &'a [ParamSpec],
-    values: &'a [Vec<f64>],
-}
-
-impl<'a> Table<'a> {
-    pub(crate) fn new(specs: &'a [ParamSpec], values: &'a [Vec<f64>]) -> Table<'a> {
-        assert_eq!(specs.len(), values.len(), "one value tensor per spec");
-        for (s, v) in specs.iter().zip(values) {
-            assert_eq!(
-                v.len(),
-                s.numel(),
-                "parameter {} has the wrong size",
-                s.name
-            );
-        }
-        Table { specs, values }
-    }
-
-    fn get(&self, name: &str) -> &'a [f64] {
-        &self.values[index(self.specs, name)]
-    }
-}
-
-fn index(specs: &[ParamSpec], name: &str) -> usize {
-    // invariant: the f64 reference is a test oracle; it looks up the names of param_specs(config).
-    specs
-        .iter()
-        .position(|s| s.name == name)
-        .unwrap_or_else(|| panic!("no parameter named {name}"))
-}
-
-/// Gradients in spec order, accumulated by name.
-pub(crate) struct Grads<'a> {
-    pub(crate) specs: &'a [ParamSpec],
-    pub(crate) values: Vec<Vec<f64>>,
-}
-
-impl Grads<'_> {
-    fn add(&mut self, name: &str, g: &[f64]) {
-        let slot = &mut self.values[index(self.specs, name)];
-        assert_eq!(slot.len(), g.len(), "gradient of {name} has the wrong size");
-        axpy(slot, 1.0, g);
     }
 }
 
@@ -445,69 +247,5 @@ fn add_weight_decay(specs: &[ParamSpec], params: &[Vec<f64>], grads: &mut [Vec<f
         if s.decay {
             axpy(&mut grads[i], 2.0 * loss.weight_decay, &params[i]);
         }
-    }
-}
-
-/// The parameters of block `l`.
-pub(crate) struct BlockParams<'a> {
-    prefix: String,
-    pub(crate) temporal: Option<TemporalParams<'a>>,
-    pub(crate) spatial: Option<SpatialParams<'a>>,
-    /// θ of the graph convolution (empty in `st-gat`).
-    theta: &'a [f64],
-    /// The channel mix W of step 3 (`gwc.W`, or `gat.W` in `st-gat`).
-    w: &'a [f64],
-    /// (a_src, a_dst) of `st-gat`'s graph attention.
-    attention_vectors: Option<(&'a [f64], &'a [f64])>,
-    filter_weight: &'a [f64],
-    filter_bias: &'a [f64],
-    /// (weight, bias) of the gate; `None` in `iastgcn-t`.
-    gate: Option<(&'a [f64], &'a [f64])>,
-    res_weight: &'a [f64],
-    res_bias: &'a [f64],
-    gamma: &'a [f64],
-    beta: &'a [f64],
-}
-
-impl<'a> BlockParams<'a> {
-    pub(crate) fn new(table: &Table<'a>, config: &ModelConfig, l: usize) -> BlockParams<'a> {
-        let prefix = format!("blocks.{l}");
-        let p = |s: &str| table.get(&format!("{prefix}.{s}"));
-        let attention = config.variant.attention();
-        let gat = config.variant.graph_attention();
-        BlockParams {
-            temporal: attention.then(|| TemporalParams {
-                u1: p("tat.U1"),
-                u2: p("tat.U2"),
-                u3: p("tat.U3"),
-                be: p("tat.be"),
-                ve: p("tat.Ve"),
-            }),
-            spatial: attention.then(|| SpatialParams {
-                w1: p("sat.W1"),
-                w2: p("sat.W2"),
-                w3: p("sat.W3"),
-                bs: p("sat.bs"),
-                vs: p("sat.Vs"),
-            }),
-            theta: if gat { &[] } else { p("gwc.theta") },
-            w: p(if gat { "gat.W" } else { "gwc.W" }),
-            attention_vectors: gat.then(|| (p("gat.a_src"), p("gat.a_dst"))),
-            filter_weight: p("tcn.filter.weight"),
-            filter_bias: p("tcn.filter.bias"),
-            gate: config
-                .variant
-                .gated()
-                .then(|| (p("tcn.gate.weight"), p("tcn.gate.bias"))),
-            res_weight: p("res.weight"),
-            res_bias: p("res.bias"),
-            gamma: p("ln.gamma"),
-            beta: p("ln.beta"),
-            prefix,
-        }
-    }
-
-    fn name(&self, s: &str) -> String {
-        format!("{}.{s}", self.prefix)
     }
 }

@@ -4,7 +4,8 @@
 //! [`super::loss`].
 
 use super::head::{flat_head, flat_head_backward};
-use super::{add_weight_decay, axpy, output_gradient, Grads, Loss, Table};
+use super::{add_weight_decay, output_gradient, Loss};
+use crate::model::exact::{axpy, Grads, Table};
 use crate::model::recurrent::{attends_over_time, support_count, weight_name};
 use crate::model::{ModelConfig, ParamSpec};
 

@@ -1,0 +1,282 @@
+//! What the step tests share (`tests.rs` in each step's folder). Each test puts one
+//! random case through the step's f64 reference, its native f32 implementation and its
+//! WGSL one (the device block run one step at a time, [`Device`]), forward and backward,
+//! so that a wrong step in either implementation is named by the failing assertion
+//! ("gated_dcc iastgcn block 1 (wgsl): d gate.weight: element 3 …"; "(native)" for the
+//! native step).
+//!
+//! Each runs in a block with every output step and in a last block, gated (`iastgcn`)
+//! and not (`iastgcn-t`); `graph_conv` in `iastgcn`, `iastgcn-a` (no attention),
+//! `iastgcn-s` (the Chebyshev basis) and `st-gat` (its graph attention, every step in
+//! both blocks). In the last block the native steps keep steps 4–7 at T − 1 and X_t, M
+//! and Z at the taps; the WGSL block ([`Extent::LastStep`]) computes steps 4–7 at T − 1
+//! and steps 1–3 on all T steps, and is compared there. Each step reads its inputs from
+//! the reference's earlier steps (rounded to f32), not from the implementation's own, so
+//! that a wrong earlier step does not fail it. Both f32 paths are held to the same
+//! tolerance.
+//!
+//! This file holds the random case ([`case`]), the comparisons ([`check`],
+//! [`check_grads`]), the WGSL block run one step at a time ([`Device`]), the kept steps'
+//! layout ([`at_cols`], [`from_cols`]) and the node mixing (I + S')·X_t, which the
+//! reference does in step 2 and both blocks in step 3, backward ([`node_mix_backward`]).
+#![cfg(test)]
+
+use crate::gpu::{DType, Gpu, GpuError, Recorder, Tensor};
+use crate::model::block::slots::Slots;
+use crate::model::block::tape::{Cols, Tape, Work};
+use crate::model::block::wgsl::{Block as Wgsl, Extent, Table};
+use crate::model::config::{ModelConfig, Variant};
+use crate::model::exact::Grads;
+use crate::model::params::{param_specs, ParamSpec, Parameters};
+use crate::model::schedule::{Scratch, Steps};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::sync::OnceLock;
+
+/// f32 steps against f64 sums of a few dozen terms of order 1: |a − e| ≤ ABS + REL·|e|.
+/// (`crate::testing` has the same comparison, but `model` may not import it.)
+pub(super) const ABS: f64 = 2e-5;
+pub(super) const REL: f64 = 2e-4;
+
+/// `n` values uniform in [lo, hi) from a generator seeded with `seed`.
+pub(super) fn uniform(seed: u64, n: usize, lo: f64, hi: f64) -> Vec<f64> {
+    let mut g = ChaCha8Rng::seed_from_u64(seed);
+    (0..n).map(|_| g.random_range(lo..hi)).collect()
+}
+
+/// A small network of `variant` (C 8, T 12, L 2: block 1 is the last) with its
+/// parameters perturbed away from their initial values, and its memory.
+pub(super) struct Case {
+    pub(super) cfg: ModelConfig,
+    pub(super) slots: Slots,
+    pub(super) params: Vec<Vec<f32>>,
+    pub(super) tape: Tape,
+    pub(super) work: Work,
+}
+
+pub(super) fn case(variant: Variant) -> Case {
+    let cfg = ModelConfig {
+        variant,
+        channels: 8,
+        window: 12,
+        blocks: 2,
+        ..ModelConfig::default()
+    };
+    let slots = Slots::new(&cfg, &param_specs(&cfg)).unwrap();
+    let params = Parameters::init(&cfg, 1)
+        .values
+        .into_iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let noise = uniform(100 + i as u64, v.len(), -0.2, 0.2);
+            v.iter().zip(noise).map(|(a, e)| a + e as f32).collect()
+        })
+        .collect();
+    Case {
+        tape: Tape::new(&cfg, &slots),
+        work: Work::new(&cfg),
+        cfg,
+        slots,
+        params,
+    }
+}
+
+pub(super) fn wide(v: &[f32]) -> Vec<f64> {
+    v.iter().map(|&x| x as f64).collect()
+}
+
+/// `n` random values in [lo, hi), already f32.
+pub(super) fn random(seed: u64, n: usize, lo: f64, hi: f64) -> Vec<f32> {
+    uniform(seed, n, lo, hi).iter().map(|&v| v as f32).collect()
+}
+
+/// Panics naming `what` and the worst element unless every element is within tolerance.
+pub(super) fn check(what: &str, actual: &[f64], expected: &[f64]) {
+    assert_eq!(actual.len(), expected.len(), "{what}: lengths");
+    for (i, (a, e)) in actual.iter().zip(expected).enumerate() {
+        assert!(
+            (a - e).abs() <= ABS + REL * e.abs(),
+            "{what}: element {i} is {a}, expected {e}"
+        );
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// The WGSL block (`model::block`), one step at a time.
+
+/// The device every test shares (made as `crate::testing::gpu()` makes one; `model` may
+/// not import `testing`): each test's pipelines are compiled once.
+pub(super) fn gpu() -> &'static Gpu {
+    static GPU: OnceLock<Gpu> = OnceLock::new();
+    // invariant: test support: a test without a device fails with the reason.
+    GPU.get_or_init(|| Gpu::new().unwrap_or_else(|e| panic!("{e}")))
+}
+
+/// Block `l` of the WGSL path on one window (batch 1) of `cfg`, with `params` (in
+/// `param_specs` order), the graph `basis` (`[terms, N, N]`, empty for none) and the
+/// block input `x` `[N, C_in, T]` uploaded: [`Extent::LastStep`] for the last block, as
+/// the network builds it (steps 4–7 at T − 1 only), [`Extent::Window`] otherwise; its
+/// dropout seeded with [`Device::SEED`].
+pub(super) struct Device {
+    pub(super) specs: Vec<ParamSpec>,
+    /// The parameters and their (zeroed) gradients, in `specs` order.
+    pub(super) params: Vec<Tensor>,
+    pub(super) grads: Vec<Tensor>,
+    pub(super) basis: Option<Tensor>,
+    pub(super) block: Wgsl,
+}
+
+impl Device {
+    pub(super) const SEED: u32 = 3;
+
+    pub(super) fn new(
+        cfg: &ModelConfig,
+        l: usize,
+        params: &[Vec<f32>],
+        basis: &[f32],
+        x: &[f32],
+    ) -> Device {
+        let g = gpu();
+        let specs = param_specs(cfg);
+        let (params, grads) = specs
+            .iter()
+            .zip(params)
+            .map(|(spec, v)| {
+                let value = g.upload(&spec.name, &spec.shape, v).unwrap();
+                let grad = g.zeros(&format!("grad {}", spec.name), &spec.shape, DType::F32);
+                (value, grad.unwrap())
+            })
+            .unzip();
+        let basis =
+            (!basis.is_empty()).then(|| g.upload("graph.basis", &[basis.len()], basis).unwrap());
+        let (n, t, ci) = (cfg.nodes, cfg.window, cfg.block_input(l));
+        let input = g.upload("x", &[1, n, ci, t], x).unwrap();
+        let extent = if l + 1 == cfg.blocks {
+            Extent::LastStep
+        } else {
+            Extent::Window
+        };
+        let block = Wgsl::new(g, cfg, l, 1, &input, Device::SEED, extent).unwrap();
+        Device {
+            specs,
+            params,
+            grads,
+            basis,
+            block,
+        }
+    }
+
+    /// The parameters by name, as the network's schedules look them up.
+    pub(super) fn table(&self) -> Table<'_> {
+        Table::new(&self.specs, &self.params, &self.grads, self.basis.as_ref())
+    }
+
+    /// Overwrites the block's buffer of `role` ([`Wgsl::buffer`]).
+    pub(super) fn write(&self, role: &str, data: &[f32]) {
+        gpu().write(self.block.buffer(role), data).unwrap();
+    }
+
+    /// A new device tensor holding `data`.
+    pub(super) fn upload(&self, name: &str, data: &[f32]) -> Tensor {
+        gpu().upload(name, &[data.len()], data).unwrap()
+    }
+
+    pub(super) fn read(&self, t: &Tensor) -> Vec<f64> {
+        let mut v = gpu().read_f32(t).unwrap();
+        v.truncate(t.numel());
+        wide(&v)
+    }
+
+    pub(super) fn read_buffer(&self, role: &str) -> Vec<f64> {
+        self.read(self.block.buffer(role))
+    }
+
+    /// Every parameter's gradient, in `param_specs` order.
+    pub(super) fn grads(&self) -> Vec<Vec<f32>> {
+        self.grads.iter().map(|t| narrow(&self.read(t))).collect()
+    }
+
+    /// Runs the dispatches `f` schedules (one step's methods) and waits for them;
+    /// returns what `f` returned.
+    pub(super) fn run<R>(
+        &self,
+        f: impl FnOnce(&Wgsl, &Table, &mut Scratch, &mut Steps) -> Result<R, GpuError>,
+    ) -> R {
+        let g = gpu();
+        let mut scratch = Scratch::new(g);
+        let mut steps = Steps::default();
+        let r = f(&self.block, &self.table(), &mut scratch, &mut steps).unwrap();
+        let mut rec = Recorder::new(g);
+        steps.record(&mut rec).unwrap();
+        rec.submit().unwrap();
+        g.wait().unwrap();
+        r
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// For steps 1–3, against the steps' f64 references.
+
+pub(super) fn narrow(v: &[f64]) -> Vec<f32> {
+    v.iter().map(|&x| x as f32).collect()
+}
+
+/// Zero gradients of every parameter, for the reference to add to.
+pub(super) fn zero_grads(specs: &[ParamSpec]) -> Grads<'_> {
+    Grads {
+        specs,
+        values: specs.iter().map(|s| vec![0.0; s.numel()]).collect(),
+    }
+}
+
+/// Every parameter's gradient of the native step against the reference's: a step adds to
+/// its own parameters and leaves every other one zero.
+pub(super) fn check_grads(what: &dyn Fn(&str) -> String, native: &[Vec<f32>], reference: &Grads) {
+    for ((spec, a), e) in reference.specs.iter().zip(native).zip(&reference.values) {
+        check(&what(&format!("d {}", spec.name)), &wide(a), e);
+    }
+}
+
+/// Rows of T `[.., T]` at the kept steps, `[.., cols.len]`.
+pub(super) fn at_cols(cols: &Cols, v: &[f64], t: usize) -> Vec<f64> {
+    v.chunks(t)
+        .flat_map(|r| (0..cols.len).map(move |j| r[cols.first + cols.stride * j]))
+        .collect()
+}
+
+/// The adjoint of [`at_cols`]: rows of `cols.len` to rows of T, zero off the kept steps.
+pub(super) fn from_cols(cols: &Cols, v: &[f64], t: usize) -> Vec<f64> {
+    let mut out = vec![0.0; v.len() / cols.len * t];
+    for (r, o) in v.chunks(cols.len).zip(out.chunks_mut(t)) {
+        for (j, &x) in r.iter().enumerate() {
+            o[cols.first + cols.stride * j] = x;
+        }
+    }
+    out
+}
+
+/// The node mixing X_s = (I + S')·X_t (rows of `width` per node) backward from dX_s:
+/// (dS' = dX_s·X_tᵀ, dX_t = (I + S')ᵀ·dX_s). The reference computes it first thing in
+/// `spatial_attention_backward`, not as a function of its own, and the native block in
+/// `graph_conv` (Q = Ψ·(I + S')): written out here, a sum each.
+pub(super) fn node_mix_backward(
+    n: usize,
+    width: usize,
+    s: &[f64],
+    xt: &[f64],
+    dxs: &[f64],
+) -> (Vec<f64>, Vec<f64>) {
+    let mut ds = vec![0.0; n * n];
+    let mut dxt = dxs.to_vec();
+    for i in 0..n {
+        let gi = &dxs[i * width..][..width];
+        for j in 0..n {
+            let xj = &xt[j * width..][..width];
+            ds[i * n + j] = gi.iter().zip(xj).map(|(g, x)| g * x).sum();
+            for (d, g) in dxt[j * width..][..width].iter_mut().zip(gi) {
+                *d += s[i * n + j] * g;
+            }
+        }
+    }
+    (ds, dxt)
+}
