@@ -2,8 +2,10 @@
 //! that holds all of it, its contract in `mod.rs`, its f64 reference (`reference.rs`,
 //! forward and backward), its WGSL schedule (`wgsl.rs`: the launches of its kernels, whose
 //! shaders sit in `shaders/` under the step's name or the shared kernel's), its native
-//! f32 implementation (`native.rs`) and its test (`tests.rs`), which runs one random case
-//! through the three and names the step and the backend that broke.
+//! f32 implementation (`native.rs`) and its test (`tests.rs`), which puts one random case
+//! through the three and names the step and the backend that broke (`every_step.rs`
+//! drives the steps' `testing::StepTest`s, and checks each reference against finite
+//! differences).
 //!
 //! | step | docs/model.md |
 //! |---|---|
@@ -22,11 +24,14 @@
 //! sits in the parameter list) and `reference.rs` (the f64 block, with `exact.rs`, its
 //! shapes and parameters). `testing.rs` holds what the step tests share.
 //!
-//! To add a step: a folder with the four files, its methods called from the three
+//! To add a step: a folder with the five files (its `StepTest` listed in
+//! `every_step.rs`), its methods called from the three
 //! compositions, its saved tensors in `wgsl.rs`'s `Block`, `tape.rs`'s `BlockTape` and
 //! `reference.rs`'s `BlockTape`, and its row in the table above and in
 //! docs/architecture.md.
 
+#[cfg(test)]
+mod every_step;
 pub(crate) mod exact;
 pub(crate) mod native;
 pub(crate) mod reference;

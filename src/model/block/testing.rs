@@ -31,6 +31,7 @@ use crate::model::params::{param_specs, ParamSpec, Parameters};
 use crate::model::schedule::{Scratch, Steps};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use std::collections::BTreeMap;
 use std::sync::OnceLock;
 
 /// f32 steps against f64 sums of a few dozen terms of order 1: |a − e| ≤ ABS + REL·|e|.
@@ -279,4 +280,83 @@ pub(super) fn node_mix_backward(
         }
     }
     (ds, dxt)
+}
+
+// ---------------------------------------------------------------------------------------
+// The generic step test's contract (`every_step.rs`).
+
+/// Named tensors of one window in the reference's layout (`[N, C, T]` and the like; the
+/// outputs of steps 4–7 at the block's output steps only, [`out_steps`]).
+pub(super) type Tensors = BTreeMap<&'static str, Vec<f64>>;
+
+/// Where a step runs: the variant, and the block (of [`case`]'s two; block 1 is the
+/// last).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Where {
+    pub(super) variant: Variant,
+    pub(super) block: usize,
+}
+
+impl std::fmt::Display for Where {
+    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        write!(f, "{} block {}", self.variant.name(), self.block)
+    }
+}
+
+/// What an implementation of a step computed from its inputs and its outputs' gradients.
+pub(super) struct Run {
+    /// What the step hands the next one, by name.
+    pub(super) outputs: Tensors,
+    /// What its backward hands the earlier step, by the name of the input it belongs to.
+    pub(super) d_inputs: Tensors,
+    /// Every parameter's gradient, in `param_specs` order (zero for other steps').
+    pub(super) d_params: Vec<Vec<f64>>,
+}
+
+/// One step as the generic test drives it: its cases, its f64 reference and its two f32
+/// implementations, all with the same inputs, outputs and gradients (the step's contract,
+/// its folder's `mod.rs`).
+pub(super) trait StepTest {
+    /// The step's folder name.
+    fn name(&self) -> &'static str;
+    /// The variants and blocks it runs in.
+    fn cases(&self) -> Vec<Where>;
+    /// Random inputs and output gradients (values an f32 holds exactly).
+    fn case_tensors(&self, case: &Case, at: Where) -> (Tensors, Tensors);
+    /// The reference's outputs from `inputs` and `params` (in `param_specs` order).
+    fn reference_forward(
+        &self,
+        case: &Case,
+        at: Where,
+        params: &[Vec<f64>],
+        inputs: &Tensors,
+    ) -> Tensors;
+    /// The reference's gradients of Σ d_out·out: for every input, and every parameter.
+    fn reference_backward(
+        &self,
+        case: &Case,
+        at: Where,
+        params: &[Vec<f64>],
+        inputs: &Tensors,
+        d_outputs: &Tensors,
+    ) -> (Tensors, Vec<Vec<f64>>);
+    /// What the step's backward hands back from the gradients of its inputs, when that
+    /// is not the gradients themselves (step 4: dG, dZ through step 3's ReLU).
+    fn handed_back(&self, _inputs: &Tensors, d_inputs: Tensors) -> Tensors {
+        d_inputs
+    }
+    /// The native step on `case`'s memory.
+    fn native(&self, case: &mut Case, at: Where, inputs: &Tensors, d_outputs: &Tensors) -> Run;
+    /// The WGSL step on the device, alone.
+    fn wgsl(&self, case: &Case, at: Where, inputs: &Tensors, d_outputs: &Tensors) -> Run;
+}
+
+/// The first output step and how many the block computes steps 4–7 at: (0, T), or
+/// (T − 1, 1) in the last block.
+pub(super) fn out_steps(cfg: &ModelConfig, l: usize) -> (usize, usize) {
+    if l + 1 == cfg.blocks {
+        (cfg.window - 1, 1)
+    } else {
+        (0, cfg.window)
+    }
 }

@@ -1,189 +1,259 @@
-//! Step 4, the gated dilated causal convolution, against `ops::gated_dcc::cpu`: on a
-//! random Z, the native and the WGSL step give the same outputs, H = tanh(G_f) ⊙ σ(G_g)
-//! (ReLU(G_f) in `iastgcn-t`), with what each keeps for its backward (tanh(G_f) and
-//! σ(G_g) on the native tape, G_f and G_g on the device); then back from a random dH the
-//! filter's and the gate's gradients and dG (dZ masked by Z > 0, step 3's ReLU), in both
-//! blocks of `iastgcn` and `iastgcn-t`.
+//! Step 4 in the generic step test (`every_step.rs`): a random Z and dH through the
+//! step's reference, the native step and the WGSL step, in both blocks of `iastgcn` and
+//! `iastgcn-t`. Besides the contract's tensors (H forward; dG, dZ through step 3's ReLU,
+//! and the four parameters' gradients backward) it checks what each implementation keeps
+//! for its backward: tanh(G_f) and σ(G_g) on the native tape, G_f and G_g on the device.
 #![cfg(test)]
 
-use super::native as gated_dcc;
+use super::reference::{gated_dcc_backward, gated_dcc_conv, gated_dcc_output};
+use crate::model::block::exact::{BlockParams, Dims};
 use crate::model::block::native::Block;
-use crate::model::block::testing::{case, check, gpu, narrow, random, wide, Case, Device};
+use crate::model::block::testing::{
+    check, narrow, out_steps, uniform, zero_grads, Case, Device, Run, StepTest, Tensors, Where,
+};
 use crate::model::config::Variant;
+use crate::model::exact::Table;
+use crate::model::params::param_specs;
 use crate::model::schedule::Pass;
-use crate::ops::gated_dcc::{cpu as dcc, Unfold};
 
-/// Step 4 forward and backward in block `l` of `variant`.
-fn gated_dcc_matches_its_reference(variant: Variant, l: usize) {
-    let Case {
-        cfg,
-        slots,
-        params,
-        mut tape,
-        mut work,
-    } = case(variant);
-    let s = &slots.blocks[l];
-    let (n, t, c, k) = (cfg.nodes, cfg.window, cfg.channels, cfg.kernel);
-    let b = Block::new(&cfg, &[], s, 1);
-    let bt = &mut tape.blocks[l];
-    let (cols, steps) = (bt.cols, bt.steps);
-    let what = |part: &str| format!("gated_dcc {} block {l} (native): {part}", variant.name());
-    // Z `[N, C, T]`, in the tape's layout (at the taps `[N, taps, C]`).
-    let z = random(6, n * c * t, -1.0, 1.0);
-    if cols.taps {
-        for i in 0..n {
-            for j in 0..cols.len {
-                for ch in 0..c {
-                    bt.z[(i * cols.len + j) * c + ch] =
-                        z[(i * c + ch) * t + cols.first + cols.stride * j];
-                }
-            }
-        }
-    } else {
-        bt.z.copy_from_slice(&z);
-    }
-    gated_dcc::forward(&b, &params, bt);
-    let u = Unfold {
-        rows: n,
-        channels: c,
-        kernel: k,
-        steps: t,
-        dilation: s.dilation,
-        outputs: steps,
-    };
-    let zf = wide(&z);
-    let conv =
-        |(w, bias): (usize, usize)| dcc::conv(&u, c, &wide(&params[w]), &wide(&params[bias]), &zf);
-    let gf = conv(s.filter);
-    let gg = s.gate.map(conv);
-    // bt.g is `[outs, N·steps]`; the reference `[N, C, steps]`.
-    let per_node = |half: usize| -> Vec<f64> {
-        let mut out = vec![0.0; n * c * steps];
-        for i in 0..n {
-            for o in 0..c {
-                for tau in 0..steps {
-                    out[(i * c + o) * steps + tau] =
-                        bt.g[(half * c + o) * n * steps + i * steps + tau] as f64;
-                }
-            }
-        }
-        out
-    };
-    match &gg {
-        Some(gg) => {
-            let tanh: Vec<f64> = gf.iter().map(|v| v.tanh()).collect();
-            let sigma: Vec<f64> = gg.iter().map(|v| 1.0 / (1.0 + (-v).exp())).collect();
-            check(&what("tanh(G_f)"), &per_node(0), &tanh);
-            check(&what("σ(G_g)"), &per_node(1), &sigma);
-        }
-        None => check(&what("G_f"), &per_node(0), &gf),
-    }
-    // H = tanh(G_f) ⊙ σ(G_g), ReLU(G_f) in `iastgcn-t`: the step's output, `[C, N·steps]`.
-    let h: Vec<f64> = match &gg {
-        Some(gg) => gf
-            .iter()
-            .zip(gg)
-            .map(|(f, g)| f.tanh() / (1.0 + (-g).exp()))
-            .collect(),
-        None => gf.iter().map(|f| f.max(0.0)).collect(),
-    };
-    let native_h: Vec<f64> = {
-        let mut out = vec![0.0; n * c * steps];
-        for i in 0..n {
-            for o in 0..c {
-                for tau in 0..steps {
-                    out[(i * c + o) * steps + tau] =
-                        bt.hidden[o * n * steps + i * steps + tau] as f64;
-                }
-            }
-        }
-        out
-    };
-    check(&what("H"), &native_h, &h);
-    // Backward from dH.
-    let dh = random(7, n * c * steps, -1.0, 1.0);
-    work.da[..dh.len()].copy_from_slice(&dh);
-    let mut grads: Vec<Vec<f32>> = params.iter().map(|p| vec![0.0; p.len()]).collect();
-    gated_dcc::backward(&b, &params, bt, &mut grads, &mut work);
-    let dh = wide(&dh);
-    let (df, dg) = match &gg {
-        Some(gg) => {
-            let (df, dg) = dcc::gate_backward(&gf, gg, &dh);
-            (df, Some(dg))
-        }
-        // `iastgcn-t`: H = ReLU(G_f).
-        None => (
-            dh.iter()
-                .zip(&gf)
-                .map(|(d, f)| if *f > 0.0 { *d } else { 0.0 })
-                .collect(),
-            None,
-        ),
-    };
-    let (mut dz, dwf, dbf) = dcc::conv_backward(&u, c, &wide(&params[s.filter.0]), &zf, &df);
-    check(&what("d filter.weight"), &wide(&grads[s.filter.0]), &dwf);
-    check(&what("d filter.bias"), &wide(&grads[s.filter.1]), &dbf);
-    let gate_grads = s.gate.zip(dg).map(|((w, bias), dg)| {
-        let (dzg, dwg, dbg) = dcc::conv_backward(&u, c, &wide(&params[w]), &zf, &dg);
-        check(&what("d gate.weight"), &wide(&grads[w]), &dwg);
-        check(&what("d gate.bias"), &wide(&grads[bias]), &dbg);
-        for (a, g) in dz.iter_mut().zip(dzg) {
-            *a += g;
-        }
-        (w, bias, dwg, dbg)
-    });
-    // dG = dZ through Z's ReLU (step 3's, whose backward step 4's applies): from the
-    // tape's layout back to `[N, C, T]`.
-    let masked: Vec<f64> = dz
-        .iter()
-        .zip(&z)
-        .map(|(&d, &zv)| if zv > 0.0 { d } else { 0.0 })
-        .collect();
-    let native_dg: Vec<f64> = if cols.taps {
-        let mut out = vec![0.0; n * c * t];
-        for i in 0..n {
-            for j in 0..cols.len {
-                for ch in 0..c {
-                    out[(i * c + ch) * t + cols.first + cols.stride * j] =
-                        work.dz[(i * cols.len + j) * c + ch] as f64;
-                }
-            }
-        }
-        out
-    } else {
-        wide(&work.dz[..n * c * t])
-    };
-    check(&what("dG"), &native_dg, &masked);
+/// Step 4's [`StepTest`].
+pub(crate) struct GatedDcc;
 
-    // The WGSL step on the same Z and parameters, from the same dH: G_f, G_g and H =
-    // tanh(G_f) ⊙ σ(G_g) (ReLU(G_f) in `iastgcn-t`) at the steps the block keeps, and dG
-    // = dZ masked by Z > 0 (step 3's ReLU, which the unfolding's backward applies).
-    let what = |part: &str| format!("gated_dcc {} block {l} (wgsl): {part}", variant.name());
-    let dev = Device::new(&cfg, l, &params, &[], &vec![0.0; n * s.c_in * t]);
-    dev.write("Z", &z);
-    dev.run(|b, p, _, st| b.gated_dcc_forward(gpu(), p, st, Pass::Train));
-    check(&what("G_f"), &dev.read_buffer("G_f"), &gf);
-    if let Some(gg) = &gg {
-        check(&what("G_g"), &dev.read_buffer("G_g"), gg);
-    }
-    check(&what("H"), &dev.read_buffer("H"), &h);
-    let dh = dev.upload("dH", &narrow(&dh));
-    let dg = dev.run(|b, p, sc, st| b.gated_dcc_backward(gpu(), p, sc, st, &dh));
-    let grads = dev.grads();
-    check(&what("d filter.weight"), &wide(&grads[s.filter.0]), &dwf);
-    check(&what("d filter.bias"), &wide(&grads[s.filter.1]), &dbf);
-    if let Some((w, bias, dwg, dbg)) = &gate_grads {
-        check(&what("d gate.weight"), &wide(&grads[*w]), dwg);
-        check(&what("d gate.bias"), &wide(&grads[*bias]), dbg);
-    }
-    check(&what("dG"), &dev.read(&dg), &masked);
+/// G_f and G_g (gated variants) `[N, C, T]` of the reference on Z.
+fn convolutions(
+    case: &Case,
+    l: usize,
+    params: &[Vec<f64>],
+    z: &[f64],
+) -> (Vec<f64>, Option<Vec<f64>>) {
+    let s = &case.slots.blocks[l];
+    let d = Dims::new(&case.cfg, 1, l);
+    let conv = |(w, b): (usize, usize)| gated_dcc_conv(&d, s.dilation, &params[w], &params[b], z);
+    (conv(s.filter), s.gate.map(conv))
 }
 
-#[test]
-fn gated_dcc_native_and_wgsl_every_step_and_in_the_last_block() {
-    for variant in [Variant::Iastgcn, Variant::PlainTemporal] {
-        for l in [0, 1] {
-            gated_dcc_matches_its_reference(variant, l);
+/// Rows of T `[.., T]` at the output steps `[.., steps]`.
+fn at_out(v: &[f64], t: usize, (t0, steps): (usize, usize)) -> Vec<f64> {
+    v.chunks(t)
+        .flat_map(|r| r[t0..t0 + steps].to_vec())
+        .collect()
+}
+
+/// `[C, N·steps]` (the native tape's layout) as `[N, C, steps]`.
+fn per_node(v: &[f32], n: usize, c: usize, steps: usize) -> Vec<f64> {
+    let mut out = vec![0.0; n * c * steps];
+    for i in 0..n {
+        for o in 0..c {
+            for tau in 0..steps {
+                out[(i * c + o) * steps + tau] = v[o * n * steps + i * steps + tau] as f64;
+            }
+        }
+    }
+    out
+}
+
+impl StepTest for GatedDcc {
+    fn name(&self) -> &'static str {
+        "gated_dcc"
+    }
+
+    fn cases(&self) -> Vec<Where> {
+        let variants = [Variant::Iastgcn, Variant::PlainTemporal];
+        let blocks = |variant| [0, 1].map(|block| Where { variant, block });
+        variants.into_iter().flat_map(blocks).collect()
+    }
+
+    fn case_tensors(&self, case: &Case, at: Where) -> (Tensors, Tensors) {
+        let cfg = &case.cfg;
+        let (n, c, t) = (cfg.nodes, cfg.channels, cfg.window);
+        let steps = out_steps(cfg, at.block).1;
+        let f32s = |seed, len| {
+            uniform(seed, len, -1.0, 1.0)
+                .iter()
+                .map(|&v| v as f32 as f64)
+                .collect()
+        };
+        (
+            Tensors::from([("Z", f32s(6, n * c * t))]),
+            Tensors::from([("H", f32s(7, n * c * steps))]),
+        )
+    }
+
+    fn reference_forward(
+        &self,
+        case: &Case,
+        at: Where,
+        params: &[Vec<f64>],
+        inputs: &Tensors,
+    ) -> Tensors {
+        let (f, g) = convolutions(case, at.block, params, &inputs["Z"]);
+        let h = gated_dcc_output(&f, g.as_deref());
+        let out = out_steps(&case.cfg, at.block);
+        Tensors::from([("H", at_out(&h, case.cfg.window, out))])
+    }
+
+    fn reference_backward(
+        &self,
+        case: &Case,
+        at: Where,
+        params: &[Vec<f64>],
+        inputs: &Tensors,
+        d_outputs: &Tensors,
+    ) -> (Tensors, Vec<Vec<f64>>) {
+        let (cfg, l, z) = (&case.cfg, at.block, &inputs["Z"]);
+        let (f, g) = convolutions(case, l, params, z);
+        // dH at the output steps, zero at the others.
+        let (t0, steps) = out_steps(cfg, l);
+        let t = cfg.window;
+        let mut dh = vec![0.0; z.len()];
+        for (row, d) in dh.chunks_mut(t).zip(d_outputs["H"].chunks(steps)) {
+            row[t0..t0 + steps].copy_from_slice(d);
+        }
+        let specs = param_specs(cfg);
+        let table = Table::new(&specs, params);
+        let p = BlockParams::new(&table, cfg, l);
+        let mut grads = zero_grads(&specs);
+        let d = Dims::new(cfg, 1, l);
+        let dil = case.slots.blocks[l].dilation;
+        let dz = gated_dcc_backward(&d, dil, &p, z, &f, g.as_deref(), &dh, &mut grads);
+        (Tensors::from([("Z", dz)]), grads.values)
+    }
+
+    fn handed_back(&self, inputs: &Tensors, mut d_inputs: Tensors) -> Tensors {
+        // dG: dZ through step 3's ReLU, Z = ReLU(G) > 0.
+        // invariant: test support: both tensors exist, the contract's.
+        let dz = d_inputs.get_mut("Z").unwrap();
+        for (g, &z) in dz.iter_mut().zip(&inputs["Z"]) {
+            if z <= 0.0 {
+                *g = 0.0;
+            }
+        }
+        d_inputs
+    }
+
+    fn native(&self, case: &mut Case, at: Where, inputs: &Tensors, d_outputs: &Tensors) -> Run {
+        let l = at.block;
+        let what = |part: &str| format!("gated_dcc {at} (native): {part}");
+        let params: Vec<Vec<f64>> = case
+            .params
+            .iter()
+            .map(|v| v.iter().map(|&x| x as f64).collect())
+            .collect();
+        let (f, g) = convolutions(case, l, &params, &inputs["Z"]);
+        let Case {
+            cfg,
+            slots,
+            params,
+            tape,
+            work,
+        } = case;
+        let s = &slots.blocks[l];
+        let (n, t, c) = (cfg.nodes, cfg.window, cfg.channels);
+        let b = Block::new(cfg, &[], s, 1);
+        let bt = &mut tape.blocks[l];
+        let (cols, steps) = (bt.cols, bt.steps);
+        let out = out_steps(cfg, l);
+        // Z in the tape's layout (at the taps `[N, taps, C]`).
+        let z = narrow(&inputs["Z"]);
+        if cols.taps {
+            for i in 0..n {
+                for j in 0..cols.len {
+                    for ch in 0..c {
+                        bt.z[(i * cols.len + j) * c + ch] =
+                            z[(i * c + ch) * t + cols.first + cols.stride * j];
+                    }
+                }
+            }
+        } else {
+            bt.z.copy_from_slice(&z);
+        }
+        b.gated_dcc_forward(params, bt);
+        // What the tape keeps: tanh(G_f) and σ(G_g) (G_f in `iastgcn-t`), `[outs, N·steps]`.
+        let half = n * c * steps;
+        match &g {
+            Some(g) => {
+                let tanh: Vec<f64> = f.iter().map(|v| v.tanh()).collect();
+                let sigma: Vec<f64> = g.iter().map(|v| 1.0 / (1.0 + (-v).exp())).collect();
+                check(
+                    &what("tanh(G_f)"),
+                    &per_node(&bt.g[..half], n, c, steps),
+                    &at_out(&tanh, t, out),
+                );
+                check(
+                    &what("σ(G_g)"),
+                    &per_node(&bt.g[half..2 * half], n, c, steps),
+                    &at_out(&sigma, t, out),
+                );
+            }
+            None => check(
+                &what("G_f"),
+                &per_node(&bt.g[..half], n, c, steps),
+                &at_out(&f, t, out),
+            ),
+        }
+        let outputs = Tensors::from([("H", per_node(&bt.hidden, n, c, steps))]);
+        work.da[..half].copy_from_slice(&narrow(&d_outputs["H"]));
+        let mut grads: Vec<Vec<f32>> = params.iter().map(|p| vec![0.0; p.len()]).collect();
+        b.gated_dcc_backward(params, bt, &mut grads, work);
+        // dG from the tape's layout back to `[N, C, T]`, zero off the kept steps.
+        let dg: Vec<f64> = if cols.taps {
+            let mut full = vec![0.0; n * c * t];
+            for i in 0..n {
+                for j in 0..cols.len {
+                    for ch in 0..c {
+                        full[(i * c + ch) * t + cols.first + cols.stride * j] =
+                            work.dz[(i * cols.len + j) * c + ch] as f64;
+                    }
+                }
+            }
+            full
+        } else {
+            work.dz[..n * c * t].iter().map(|&v| v as f64).collect()
+        };
+        Run {
+            outputs,
+            d_inputs: Tensors::from([("Z", dg)]),
+            d_params: grads
+                .iter()
+                .map(|v| v.iter().map(|&x| x as f64).collect())
+                .collect(),
+        }
+    }
+
+    fn wgsl(&self, case: &Case, at: Where, inputs: &Tensors, d_outputs: &Tensors) -> Run {
+        let l = at.block;
+        let what = |part: &str| format!("gated_dcc {at} (wgsl): {part}");
+        let cfg = &case.cfg;
+        let (n, t, ci) = (cfg.nodes, cfg.window, cfg.block_input(l));
+        let params: Vec<Vec<f64>> = case
+            .params
+            .iter()
+            .map(|v| v.iter().map(|&x| x as f64).collect())
+            .collect();
+        let (f, g) = convolutions(case, l, &params, &inputs["Z"]);
+        let out = out_steps(cfg, l);
+        let dev = Device::new(cfg, l, &case.params, &[], &vec![0.0; n * ci * t]);
+        dev.write("Z", &narrow(&inputs["Z"]));
+        dev.run(|b, p, _, st| {
+            b.gated_dcc_forward(super::super::testing::gpu(), p, st, Pass::Train)
+        });
+        // What the device keeps: G_f and G_g at the output steps.
+        check(&what("G_f"), &dev.read_buffer("G_f"), &at_out(&f, t, out));
+        if let Some(g) = &g {
+            check(&what("G_g"), &dev.read_buffer("G_g"), &at_out(g, t, out));
+        }
+        let outputs = Tensors::from([("H", dev.read_buffer("H"))]);
+        let dh = dev.upload("dH", &narrow(&d_outputs["H"]));
+        let dg = dev
+            .run(|b, p, sc, st| b.gated_dcc_backward(super::super::testing::gpu(), p, sc, st, &dh));
+        Run {
+            outputs,
+            d_inputs: Tensors::from([("Z", dev.read(&dg))]),
+            d_params: dev
+                .grads()
+                .iter()
+                .map(|v| v.iter().map(|&x| x as f64).collect())
+                .collect(),
         }
     }
 }
