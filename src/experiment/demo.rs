@@ -9,7 +9,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use super::evaluate::{finish, predictors, HeldOutConfig, NamedModel};
+use super::evaluate::{predictors, tables, HeldOutConfig, NamedModel};
 use super::jobs::{training_table, JobRecord};
 use super::polish;
 pub use super::polish::PolishSpec;
@@ -19,7 +19,7 @@ use super::protocol::{
 };
 pub use super::protocol::{CALIBRATION_SEED, TRAINING_SEED};
 use super::report::seeds::seeded_name;
-use super::report::Report;
+use super::report::{self, Report};
 use crate::calibrate::file;
 use crate::compensate::held_out::IDLE_BETWEEN_RUNS;
 use crate::data::DataSources;
@@ -359,7 +359,7 @@ pub fn demo(
             training_table(&names, &records),
         ));
     }
-    let report = Report {
+    let mut report = Report {
         title: "IASTGCN on the digital twin — demo report".into(),
         headline: None,
         adapter: device.name(),
@@ -369,10 +369,16 @@ pub fn demo(
         sections,
         ..Report::default()
     };
-    let mut mirror = |report: &mut Report, reporter: &mut dyn Reporter| -> Result<()> {
-        let Some(spec) = &demo.mirror else {
-            return Ok(());
-        };
+    tables(
+        &device,
+        &mut report,
+        &models,
+        &sources,
+        config,
+        held_out,
+        reporter,
+    )?;
+    if let Some(spec) = &demo.mirror {
         let name = report.recommended.clone();
         reporter.note(&match &name {
             Some(name) => format!(
@@ -392,20 +398,8 @@ pub fn demo(
         report
             .sections
             .push(("The mirror (Table VI)".into(), section));
-        Ok(())
-    };
-    finish(
-        &device,
-        report,
-        &models,
-        &sources,
-        config,
-        held_out,
-        began,
-        out,
-        reporter,
-        &mut mirror,
-    )
+    }
+    report::finish(report, began, out, reporter)
 }
 
 /// The mirror with the model `name` of `models` compensating (none: only the other
@@ -500,7 +494,7 @@ pub fn evaluation_report(
             .collect::<Vec<_>>()
             .join(", ")
     };
-    let report = Report {
+    let mut report = Report {
         title: "IASTGCN evaluation".into(),
         headline: None,
         adapter: device.name(),
@@ -522,16 +516,14 @@ pub fn evaluation_report(
         ],
         ..Report::default()
     };
-    finish(
+    tables(
         &device,
-        report,
+        &mut report,
         &named,
         sources,
         config,
         held_out,
-        began,
-        out,
         reporter,
-        &mut |_, _| Ok(()),
-    )
+    )?;
+    report::finish(report, began, out, reporter)
 }

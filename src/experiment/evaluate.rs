@@ -2,8 +2,6 @@
 //! per trajectory and model) and Table V (pose error of held-out polishing runs: initial,
 //! calibrated, compensated per model).
 
-use std::time::Instant;
-
 use super::recommend::{recommend, validation_session};
 use super::report::{
     table_iii_lines, table_v_lines, Report, TableIIIRow, TableVRow, Timing, Trace,
@@ -873,49 +871,24 @@ fn open_loop_score(
     }))
 }
 
-/// What a caller adds to the report once Tables III and V are in it, before it is
-/// written (the demo's mirror section).
-pub(super) type BeforeWriting<'a> = &'a mut dyn FnMut(&mut Report, &mut dyn Reporter) -> Result<()>;
-
-/// Tables III and V into `report`, then `before_writing`, its wall time since `began`,
-/// and the report folder `out` written; returns the report.
-#[allow(clippy::too_many_arguments)]
-pub(super) fn finish(
+/// Tables III and V of `models` into `report`, with the table of how much each model's
+/// graph convolution mixes the sensors.
+pub(super) fn tables(
     device: &Device,
-    mut report: Report,
+    report: &mut Report,
     models: &[NamedModel],
     sources: &DataSources,
     config: &RunConfig,
     held_out: &HeldOutConfig,
-    began: Instant,
-    out: &std::path::Path,
     reporter: &mut dyn Reporter,
-    before_writing: BeforeWriting<'_>,
-) -> Result<Report> {
-    evaluate(
-        device,
-        &mut report,
-        models,
-        sources,
-        config,
-        held_out,
-        reporter,
-    )?;
+) -> Result<()> {
+    evaluate(device, report, models, sources, config, held_out, reporter)?;
     if let Some(table) = graph_mixing_table(models) {
         report
             .sections
             .push(("Graph convolution after training".into(), table));
     }
-    before_writing(&mut report, reporter)?;
-    report.wall_seconds = began.elapsed().as_secs_f64();
-    let files = super::report::write(out, &report)?;
-    reporter.note(&format!(
-        "report: {} ({} files), {:.0} s in all",
-        out.join("report.md").display(),
-        files.len(),
-        report.wall_seconds
-    ));
-    Ok(report)
+    Ok(())
 }
 
 /// The report's table of how much each model's graph convolution mixes the sensors

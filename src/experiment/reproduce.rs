@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use super::evaluate::{finish, HeldOutConfig, NamedModel};
+use super::evaluate::{tables, HeldOutConfig, NamedModel};
 use super::jobs::{clock, pin_toml, training_table, write_toml, JobRecord, Shard};
 use super::protocol::{
     check_seeds, existing_data, fit_model, record_closed_loop, record_data, train_core,
@@ -18,7 +18,7 @@ use super::protocol::{
 };
 use super::report::curve::CurvePoint;
 use super::report::seeds::{seeded_name, Spread};
-use super::report::Report;
+use super::report::{self, Report};
 use crate::data::Dataset;
 use crate::error::{Error, Result};
 use crate::gpu::Device;
@@ -549,7 +549,7 @@ fn report(
             clock(records.iter().map(|r| r.wall_seconds).sum())
         ),
     ];
-    let report = Report {
+    let mut report = Report {
         title: "IASTGCN on the digital twin — reproduction of the paper's protocol".into(),
         headline: None,
         adapter: device.name(),
@@ -562,18 +562,16 @@ fn report(
         curve: learning_curve(protocol, &records),
         ..Report::default()
     };
-    finish(
+    tables(
         &device,
-        report,
+        &mut report,
         &models,
         sources,
         run,
         held_out,
-        began,
-        out,
         reporter,
-        &mut |_, _| Ok(()),
-    )
+    )?;
+    report::finish(report, began, out, reporter)
 }
 
 /// The learning curve's points: each curve model at each share (and at the full set when

@@ -570,6 +570,25 @@ pub fn write(dir: &Path, r: &Report) -> Result<Vec<PathBuf>> {
     Ok(written)
 }
 
+/// The report's wall time since `began`, then the folder `out` written ([`write`]) and a
+/// line saying where; returns the report.
+pub fn finish(
+    mut report: Report,
+    began: std::time::Instant,
+    out: &Path,
+    reporter: &mut dyn crate::progress::Reporter,
+) -> Result<Report> {
+    report.wall_seconds = began.elapsed().as_secs_f64();
+    let files = write(out, &report)?;
+    reporter.note(&format!(
+        "report: {} ({} files), {:.0} s in all",
+        out.join("report.md").display(),
+        files.len(),
+        report.wall_seconds
+    ));
+    Ok(report)
+}
+
 /// Table III rows as aligned text lines (for a terminal).
 pub fn table_iii_lines(rows: &[TableIIIRow]) -> Vec<String> {
     let w = rows
