@@ -338,3 +338,26 @@ fn simulate_records_a_training_set_in_sessions_deterministically() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn a_held_out_count_out_of_range_names_the_setting() {
+    let config = HeldOutConfig {
+        sessions: 0,
+        ..HeldOutConfig::default()
+    };
+    let err = config.validate().unwrap_err();
+    assert!(
+        matches!(
+            err.root(),
+            iastgcn::error::Error::Setting {
+                setting: "held_out.sessions",
+                ..
+            }
+        ),
+        "{err}"
+    );
+    assert_eq!(
+        err.to_string(),
+        "held_out.sessions: 1 to 16 held-out sessions, got 0"
+    );
+}

@@ -254,9 +254,58 @@ pub fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", message(&e));
             ExitCode::FAILURE
         }
+    }
+}
+
+/// The error as `{:#}` prints it (each cause after the last, joined by ": "), with the
+/// library's settings named by their flags ([`flag_of`]).
+fn message(e: &anyhow::Error) -> String {
+    e.chain()
+        .map(
+            |cause| match cause.downcast_ref::<iastgcn::error::Error>() {
+                Some(lib) => lib.render(&flag_of),
+                None => cause.to_string(),
+            },
+        )
+        .collect::<Vec<_>>()
+        .join(": ")
+}
+
+/// The flag that sets a setting the library names in an `Error::Setting`.
+fn flag_of(setting: &str) -> Option<&'static str> {
+    Some(match setting {
+        "held_out.sessions" => "--held-out-sessions",
+        _ => return None,
+    })
+}
+
+#[cfg(test)]
+mod error_messages {
+    use super::message;
+    use anyhow::Context;
+    use iastgcn::error::Error;
+
+    #[test]
+    fn a_setting_is_named_by_its_flag_under_every_context() {
+        let lib = Error::Setting {
+            setting: "held_out.sessions",
+            message: "1 to 16 held-out sessions, got 0".into(),
+        }
+        .context("evaluation");
+        let e = Err::<(), _>(lib).context("iastgcn evaluate").unwrap_err();
+        assert_eq!(
+            message(&e),
+            "iastgcn evaluate: evaluation: --held-out-sessions: 1 to 16 held-out sessions, got 0"
+        );
+        // A setting with no flag keeps the library's name.
+        let other = anyhow::Error::from(Error::Setting {
+            setting: "model.heads",
+            message: "must divide channels".into(),
+        });
+        assert_eq!(message(&other), "model.heads: must divide channels");
     }
 }
 

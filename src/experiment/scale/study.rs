@@ -195,10 +195,13 @@ impl Study {
             )));
         }
         if !(1..=MAX_HELD_OUT_SESSIONS).contains(&self.held_out_sessions) {
-            return Err(Error::Invalid(format!(
-                "--held-out-sessions: 1 to {MAX_HELD_OUT_SESSIONS} held-out sessions, got {}",
-                self.held_out_sessions
-            )));
+            return Err(Error::Setting {
+                setting: "held_out.sessions",
+                message: format!(
+                    "1 to {MAX_HELD_OUT_SESSIONS} held-out sessions, got {}",
+                    self.held_out_sessions
+                ),
+            });
         }
         if let Some(path) = &self.graph {
             let graph = Graph::load(path)?;

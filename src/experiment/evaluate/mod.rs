@@ -1,0 +1,16 @@
+//! The paper's tables on the twin: Table III (prediction accuracy on the held-out split
+//! per trajectory and model) and Table V (pose error of held-out polishing runs: initial,
+//! calibrated, compensated per model), the held-out sessions they are scored on, and the
+//! models they score.
+
+mod held_out;
+mod models;
+mod paper_tables;
+
+pub use held_out::{
+    held_out_session, table_v, HeldOutConfig, HeldOutResult, HeldOutSession, OpenLoopScore,
+    Session, SessionOptions, MAX_HELD_OUT_SESSIONS,
+};
+pub use models::{ensemble, predictors, runs_on, LoopModel, NamedModel};
+pub(crate) use paper_tables::tables;
+pub use paper_tables::{evaluate, predict_windows, table_iii};
