@@ -88,17 +88,16 @@ pub(super) fn forward(b: &Block, p: &[Vec<f32>], bt: &mut BlockTape) {
         &mut bt.g,
         wide,
     );
-    // The gate's activations, once over the whole of G (kept for the backward), and H.
+    // The gate's activations, once over the whole of G (kept for the backward), and H
+    // in the gate's pass.
     if s.gate.is_some() {
         let (f, q) = bt.g.split_at_mut(c * wide);
         for v in f.iter_mut() {
             *v = tanh(*v);
         }
-        for v in q.iter_mut() {
-            *v = sigmoid(*v);
-        }
-        for ((h, f), q) in bt.hidden.iter_mut().zip(&*f).zip(&*q) {
-            *h = f * q;
+        for ((q, h), f) in q.iter_mut().zip(bt.hidden.iter_mut()).zip(&*f) {
+            *q = sigmoid(*q);
+            *h = f * *q;
         }
     } else {
         for (h, f) in bt.hidden.iter_mut().zip(&bt.g) {
