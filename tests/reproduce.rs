@@ -230,7 +230,7 @@ fn reproduce_shards_resumes_and_reports_over_seeds() {
     );
     let err = cli_fails(&["reproduce", "--closed-loop", "--out", s(&dir.join("y"))]);
     assert!(
-        err.contains("--closed-loop") && err.contains("--sessions 2 or more"),
+        err.contains("--sessions: closed-loop data") && err.contains("2 sessions or more"),
         "{err}"
     );
     let _ = std::fs::remove_dir_all(&dir);

@@ -278,7 +278,7 @@ fn closed_loop_data_are_recorded_with_a_round_zero_model_compensating() {
     one.push("--closed-loop");
     let err = cli_fails(&one);
     assert!(
-        err.contains("--closed-loop") && err.contains("--sessions 2"),
+        err.contains("--sessions: closed-loop data") && err.contains("2 sessions or more"),
         "{err}"
     );
     args.push("--closed-loop");

@@ -304,7 +304,7 @@ fn resume_says_why_nothing_trains_and_patience_continues() {
     let text = train(&["--max-epochs", "300", "--resume", s(&state)]);
     assert!(
         text.contains(&format!("nothing more to train: {why}"))
-            && text.contains("pass --patience above 1")
+            && text.contains("set --patience above 1")
             && !text.contains("training iastgcn on"),
         "{text}"
     );
@@ -343,7 +343,7 @@ fn resume_says_why_nothing_trains_and_patience_continues() {
     ]);
     assert!(
         text.contains(&format!(
-            "nothing more to train: {limit}; to continue, pass --max-epochs above {total}"
+            "nothing more to train: {limit}; to continue, set --max-epochs above {total}"
         )),
         "{text}"
     );
@@ -473,7 +473,8 @@ fn demo_writes_the_report() {
     let why = String::from_utf8_lossy(&refused.stderr);
     assert!(
         !refused.status.success()
-            && why.contains("--sessions 1")
+            && why.contains("--sessions: closed-loop data")
+            && why.contains("got 1")
             && why.contains("--open-loop")
             && !out.exists(),
         "{why}"

@@ -261,9 +261,10 @@ pub fn main() -> ExitCode {
 }
 
 /// The error as `{:#}` prints it (each cause after the last, joined by ": "), with the
-/// library's settings named by their flags ([`flag_of`]).
+/// library's settings named by their flags ([`flag_of`], [`with_flags`]).
 fn message(e: &anyhow::Error) -> String {
-    e.chain()
+    let text = e
+        .chain()
         .map(
             |cause| match cause.downcast_ref::<iastgcn::error::Error>() {
                 Some(lib) => lib.render(&flag_of),
@@ -271,15 +272,35 @@ fn message(e: &anyhow::Error) -> String {
             },
         )
         .collect::<Vec<_>>()
-        .join(": ")
+        .join(": ");
+    with_flags(&text)
 }
 
-/// The flag that sets a setting the library names in an `Error::Setting`.
+/// The settings the library names in its errors (`Error::Setting`) and notes, with the
+/// flag that sets each.
+const SETTING_FLAGS: [(&str, &str); 5] = [
+    ("closed_loop = false", "--open-loop"),
+    ("held_out.sessions", "--held-out-sessions"),
+    ("recipe.sessions", "--sessions"),
+    ("train.max_epochs", "--max-epochs"),
+    ("train.patience", "--patience"),
+];
+
+/// The flag that sets a setting the library names.
 fn flag_of(setting: &str) -> Option<&'static str> {
-    Some(match setting {
-        "held_out.sessions" => "--held-out-sessions",
-        _ => return None,
-    })
+    SETTING_FLAGS
+        .iter()
+        .find(|(name, _)| *name == setting)
+        .map(|(_, flag)| *flag)
+}
+
+/// A library note with every setting it names written as its flag.
+fn with_flags(line: &str) -> String {
+    SETTING_FLAGS
+        .iter()
+        .fold(line.to_string(), |text, (name, flag)| {
+            text.replace(name, flag)
+        })
 }
 
 #[cfg(test)]
@@ -306,6 +327,16 @@ mod error_messages {
             message: "must divide channels".into(),
         });
         assert_eq!(message(&other), "model.heads: must divide channels");
+    }
+
+    #[test]
+    fn notes_name_settings_by_their_flags() {
+        assert_eq!(
+            super::with_flags(
+                "to continue, set train.max_epochs above 72 and train.patience above 1"
+            ),
+            "to continue, set --max-epochs above 72 and --patience above 1"
+        );
     }
 }
 
@@ -349,6 +380,7 @@ impl Reporter for Console {
         }
     }
     fn note(&mut self, line: &str) {
+        let line = with_flags(line);
         match &self.bar {
             Some(bar) => bar.println(line),
             None => println!("{line}"),

@@ -178,7 +178,9 @@ fn training_set(args: &SimulateArgs, recipe: &Recipe) -> anyhow::Result<()> {
         "--minutes must be positive, got {}",
         args.minutes
     );
-    recipe.validate(args.minutes).map_err(anyhow::Error::msg)?;
+    recipe
+        .validate(args.minutes)
+        .map_err(|m| anyhow::anyhow!("--sessions: {m}"))?;
     let sources = iastgcn::experiment::protocol::record_data(
         &args.out,
         args.minutes,

@@ -438,7 +438,9 @@ fn record_data<'py>(
         placement: placement.parse().map_err(raise)?,
         path_order: path_order.parse().map_err(raise)?,
     };
-    recipe.validate(minutes).map_err(raise)?;
+    recipe
+        .validate(minutes)
+        .map_err(|m| raise(format!("sessions: {m}")))?;
     let sources = long_call(py, progress, |r| {
         crate::experiment::protocol::record_data(&out, minutes, machine_seed, &recipe, r)
     })?;

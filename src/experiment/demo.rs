@@ -14,8 +14,8 @@ use super::jobs::{training_table, JobRecord};
 use super::polish;
 pub use super::polish::PolishSpec;
 use super::protocol::{
-    check_seeds, fit_model, record_closed_loop, record_data, ClosedLoopRound, ModelFiles,
-    MACHINE_SEED,
+    check_closed_loop_sessions, check_seeds, fit_model, record_closed_loop, record_data,
+    sessions_setting, ClosedLoopRound, ModelFiles, MACHINE_SEED,
 };
 pub use super::protocol::{CALIBRATION_SEED, TRAINING_SEED};
 use super::report::seeds::seeded_name;
@@ -176,14 +176,12 @@ pub fn demo(
     let config = &demo.run;
     config.validate().map_err(Error::Invalid)?;
     demo.held_out.validate()?;
-    demo.recipe.validate(demo.minutes).map_err(Error::Invalid)?;
+    demo.recipe
+        .validate(demo.minutes)
+        .map_err(sessions_setting)?;
     check_seeds(&demo.seeds)?;
-    if demo.closed_loop && demo.recipe.sessions < 2 {
-        return Err(Error::Invalid(format!(
-            "--sessions {}: closed-loop data record the second half of the sessions with a \
-             model trained on the first, so they need 2 sessions or more (or --open-loop)",
-            demo.recipe.sessions
-        )));
+    if demo.closed_loop {
+        check_closed_loop_sessions(demo.recipe.sessions, " (or closed_loop = false)")?;
     }
     let data_dir = out.join("data");
     let model_dir = out.join("models");

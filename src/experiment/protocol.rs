@@ -100,6 +100,28 @@ pub fn existing_data(
     Ok(Some(sources))
 }
 
+/// The error of a number of training sessions that cannot be used: the setting
+/// `recipe.sessions` and `message`, what it may be.
+pub(super) fn sessions_setting(message: String) -> Error {
+    Error::Setting {
+        setting: "recipe.sessions",
+        message,
+    }
+}
+
+/// Closed-loop data record the second half of the sessions with a model trained on the
+/// first: refuses fewer than two sessions, naming the setting. `alternative` is said after
+/// the range when there is one (the demo's open-loop data).
+pub(super) fn check_closed_loop_sessions(sessions: usize, alternative: &str) -> Result<()> {
+    if sessions < 2 {
+        return Err(sessions_setting(format!(
+            "closed-loop data record the second half of the sessions with a model trained \
+             on the first: 2 sessions or more{alternative}, got {sessions}"
+        )));
+    }
+    Ok(())
+}
+
 /// Records the protocol's data into `dir` (created if missing): the calibration set of a
 /// cold machine at rest, the EKF calibration (scored on held-out poses), then the
 /// training sessions of `recipe` with `minutes` per path in all under the calibrated
@@ -112,7 +134,7 @@ pub fn record_data(
     recipe: &Recipe,
     reporter: &mut dyn Reporter,
 ) -> Result<DataSources> {
-    recipe.validate(minutes).map_err(Error::Invalid)?;
+    recipe.validate(minutes).map_err(sessions_setting)?;
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     reporter.note(&format!(
         "== twin machine {machine_seed}: calibration measurements (a cold machine at rest)"

@@ -13,8 +13,9 @@ use serde::{Deserialize, Serialize};
 use super::evaluate::{tables, HeldOutConfig, NamedModel};
 use super::jobs::{clock, pin_toml, training_table, write_toml, JobRecord, Shard};
 use super::protocol::{
-    check_seeds, existing_data, fit_model, record_closed_loop, record_data, train_core,
-    ClosedLoopRound, ModelFiles, CALIBRATION_SEED, MACHINE_SEED, TRAINING_SEED,
+    check_closed_loop_sessions, check_seeds, existing_data, fit_model, record_closed_loop,
+    record_data, sessions_setting, train_core, ClosedLoopRound, ModelFiles, CALIBRATION_SEED,
+    MACHINE_SEED, TRAINING_SEED,
 };
 use super::report::curve::CurvePoint;
 use super::report::seeds::{seeded_name, Spread};
@@ -132,13 +133,11 @@ impl Protocol {
                 self.minutes
             )));
         }
-        self.recipe.validate(self.minutes).map_err(Error::Invalid)?;
-        if self.closed_loop && self.recipe.sessions < 2 {
-            return Err(Error::Invalid(format!(
-                "--closed-loop records the second half of the sessions with a model trained \
-                 on the first: give --sessions 2 or more, got {}",
-                self.recipe.sessions
-            )));
+        self.recipe
+            .validate(self.minutes)
+            .map_err(sessions_setting)?;
+        if self.closed_loop {
+            check_closed_loop_sessions(self.recipe.sessions, "")?;
         }
         check_seeds(&self.seeds)?;
         if self.models.is_empty() {

@@ -401,7 +401,7 @@ pub fn train(
         ));
         if let Some(why) = trainer.stopped() {
             reporter.note(&format!(
-                "nothing more to train: {why}; to continue, pass {}",
+                "nothing more to train: {why}; to continue, set {}",
                 trainer.to_continue()
             ));
         }

@@ -384,14 +384,14 @@ impl<'a> Trainer<'a> {
     }
 
     /// What a resumed run needs to train further when the stage is over: the limits to
-    /// raise, as `train`'s flags.
+    /// raise, named as the run config names them (`train.max_epochs above 72`).
     pub fn to_continue(&self) -> String {
         let mut raise = Vec::new();
         if self.epoch_limit_reached() {
-            raise.push(format!("--max-epochs above {}", self.progress.epoch));
+            raise.push(format!("train.max_epochs above {}", self.progress.epoch));
         }
         if self.patience_ran_out() {
-            raise.push(format!("--patience above {}", self.progress.bad_epochs));
+            raise.push(format!("train.patience above {}", self.progress.bad_epochs));
         }
         raise.join(" and ")
     }

@@ -421,18 +421,19 @@ impl Recipe {
         )
     }
 
-    /// Refuses what cannot be recorded at `minutes` per path, naming the flag.
+    /// Refuses what cannot be recorded at `minutes` per path: the message says what the
+    /// number of sessions may be (the caller names the setting).
     pub fn validate(&self, minutes: f64) -> Result<(), String> {
         if self.sessions == 0 || self.sessions > Self::MAX_SESSIONS {
             return Err(format!(
-                "--sessions: 1 to {} sessions per training set, got {}",
+                "1 to {} sessions per training set, got {}",
                 Self::MAX_SESSIONS,
                 self.sessions
             ));
         }
         if self.sessions > 1 && minutes / (self.sessions as f64) < Self::MIN_RUN_MINUTES {
             return Err(format!(
-                "--sessions: {} sessions of {minutes} min per path leave {:.3} min per run; \
+                "{} sessions of {minutes} min per path leave {:.3} min per run; \
                  each run needs at least {} min, so at most {} sessions",
                 self.sessions,
                 minutes / self.sessions as f64,

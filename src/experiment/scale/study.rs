@@ -7,7 +7,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::experiment::evaluate::{HeldOutConfig, MAX_HELD_OUT_SESSIONS};
-use crate::experiment::protocol::{check_seeds, ModelFiles, MACHINE_SEED};
+use crate::experiment::protocol::{
+    check_closed_loop_sessions, check_seeds, sessions_setting, ModelFiles, MACHINE_SEED,
+};
 use crate::experiment::recommend::validation_session;
 use crate::experiment::report::seeds::seeded_name;
 use crate::graph::Graph;
@@ -186,13 +188,9 @@ impl Study {
                 )));
             }
         }
-        self.recipe.validate(max).map_err(Error::Invalid)?;
-        if self.closed_loop && self.recipe.sessions < 2 {
-            return Err(Error::Invalid(format!(
-                "--closed-loop records the second half of the sessions with a model trained \
-                 on the first: give --sessions 2 or more, got {}",
-                self.recipe.sessions
-            )));
+        self.recipe.validate(max).map_err(sessions_setting)?;
+        if self.closed_loop {
+            check_closed_loop_sessions(self.recipe.sessions, "")?;
         }
         if !(1..=MAX_HELD_OUT_SESSIONS).contains(&self.held_out_sessions) {
             return Err(Error::Setting {
