@@ -142,7 +142,12 @@ pub fn forward(
         let message = format!("shape {shape:?}: no window to run (B = 0)");
         return Err(TensorFileError::new(input, Some("x"), message).into());
     }
-    ensure(batch > 0, || format!("--batch {batch}: must be at least 1"))?;
+    if batch == 0 {
+        return Err(Error::Setting {
+            setting: "predict.batch",
+            message: "at least 1 window per batch, got 0".into(),
+        });
+    }
     if let Some(i) = x.iter().position(|v| !v.is_finite()) {
         let message = format!("element {i} is {}", x[i]);
         return Err(TensorFileError::new(input, Some("x"), message).into());

@@ -512,7 +512,6 @@ fn f() -> String {
 /// The list only shrinks: a new one fails the test below, and so does a listed one that
 /// is gone but still listed.
 const FLAGS_STILL_BELOW_THE_CLI: &[(&str, &str, usize)] = &[
-    ("data/recording.rs", "--robot", 1),
     ("experiment/demo.rs", "--all-models", 2),
     ("experiment/demo.rs", "--models", 1),
     ("experiment/jobs.rs", "--shard", 1),
@@ -526,9 +525,6 @@ const FLAGS_STILL_BELOW_THE_CLI: &[(&str, &str, usize)] = &[
     ("experiment/scale/run.rs", "--out", 1),
     ("experiment/scale/study.rs", "--config", 1),
     ("experiment/scale/study.rs", "--graph", 1),
-    ("interop.rs", "--batch", 1),
-    ("robot/geometry.rs", "--robot", 1),
-    ("train/predict.rs", "--batch", 2),
 ];
 
 /// Advice at the edge: errors and messages below `cli/` carry facts (what, where, the

@@ -78,3 +78,24 @@ fn predict_recordings_sees_the_datasets_test_windows() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn a_batch_too_large_for_the_adapter_names_the_setting_and_what_fits() {
+    let too_large = iastgcn::gpu::GpuError::TooLarge {
+        tensor: "x".into(),
+        bytes: 4096 * 1000,
+        limit: 600 * 1000,
+        limit_name: "max_buffer_size",
+    };
+    let err = iastgcn::train::batch_error(too_large, 4096);
+    match err.root() {
+        iastgcn::error::Error::Setting {
+            setting: "predict.batch",
+            message,
+        } => assert!(
+            message.starts_with("4096 windows: ") && message.ends_with("; 512 fit"),
+            "{message}"
+        ),
+        other => panic!("{other}"),
+    }
+}

@@ -278,9 +278,10 @@ fn message(e: &anyhow::Error) -> String {
 
 /// The settings the library names in its errors (`Error::Setting`) and notes, with the
 /// flag that sets each.
-const SETTING_FLAGS: [(&str, &str); 5] = [
+const SETTING_FLAGS: [(&str, &str); 6] = [
     ("closed_loop = false", "--open-loop"),
     ("held_out.sessions", "--held-out-sessions"),
+    ("predict.batch", "--batch"),
     ("recipe.sessions", "--sessions"),
     ("train.max_epochs", "--max-epochs"),
     ("train.patience", "--patience"),

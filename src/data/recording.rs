@@ -616,8 +616,8 @@ impl<'a> Table<'a> {
 fn arm_hint(header: &[String]) -> &'static str {
     match header.first().map(String::as_str) {
         Some("pose" | "time") => {
-            "; this looks like a serial arm's pose file: `calibrate` and `evaluate` read one \
-             with the arm's description in --robot (docs/arms.md)"
+            "; this looks like a serial arm's pose file, which is read with the arm's \
+             description (kind = \"serial\", docs/arms.md)"
         }
         _ => "",
     }

@@ -114,7 +114,7 @@ impl Geometry {
     fn check(&self) -> Result<(), String> {
         if let Some(kind) = self.kind.as_deref().filter(|k| *k != "hybrid") {
             return Err(format!(
-                "kind = {kind:?}: this reader takes the hybrid machine (kind = \"hybrid\"); a serial arm is read by `--robot` as kind = \"serial\" (docs/arms.md)"
+                "kind = {kind:?}: this reader takes the hybrid machine (kind = \"hybrid\"); a serial arm's description has kind = \"serial\" and is read as one (docs/arms.md)"
             ));
         }
         let p = &self.parallel;

@@ -269,9 +269,10 @@ pub fn write_predictions(
     Ok(png)
 }
 
-/// `error` from building work of `batch` windows (`--batch` of `predict` and `forward`),
-/// with the fix where the batch is too large for the adapter: "`--batch 4096`: tensor x
-/// needs 9.1 GiB; this adapter allows 2.0 GiB per buffer (…); try --batch 512".
+/// `error` from building work of `batch` windows (`PredictOptions::batch`, the forward's
+/// batch), as the setting `predict.batch` with the batch that fits where it is too large
+/// for the adapter: "predict.batch: 4096 windows: tensor x needs 9.1 GiB; this adapter
+/// allows 2.0 GiB per buffer (…); 512 fit".
 pub fn batch_error(error: impl Into<Error>, batch: usize) -> Error {
     let error = error.into();
     let gpu = error
@@ -281,7 +282,10 @@ pub fn batch_error(error: impl Into<Error>, batch: usize) -> Error {
             _ => None,
         });
     match gpu.and_then(|e| e.fitting_count(batch).map(|n| (e, n))) {
-        Some((e, n)) => Error::Invalid(format!("--batch {batch}: {e}; try --batch {n}")),
+        Some((e, n)) => Error::Setting {
+            setting: "predict.batch",
+            message: format!("{batch} windows: {e}; {n} fit"),
+        },
         None => error,
     }
 }
