@@ -507,33 +507,13 @@ fn f() -> String {
     );
 }
 
-/// The strings below `cli/` that still name a flag, as (file, flag, how many): issue 70
-/// item 5 moves each to the command line (the library says the fact, `cli/` the flag).
-/// The list only shrinks: a new one fails the test below, and so does a listed one that
-/// is gone but still listed.
-const FLAGS_STILL_BELOW_THE_CLI: &[(&str, &str, usize)] = &[
-    ("experiment/demo.rs", "--all-models", 2),
-    ("experiment/demo.rs", "--models", 1),
-    ("experiment/jobs.rs", "--shard", 1),
-    ("experiment/machines.rs", "--merge", 1),
-    ("experiment/protocol.rs", "--machine-seed", 1),
-    ("experiment/protocol.rs", "--minutes", 1),
-    ("experiment/protocol.rs", "--sessions", 1),
-    ("experiment/reproduce.rs", "--out", 1),
-    ("experiment/reproduce.rs", "--shard", 1),
-    ("experiment/scale/run.rs", "--held-out-sessions", 1),
-    ("experiment/scale/run.rs", "--out", 1),
-    ("experiment/scale/study.rs", "--config", 1),
-    ("experiment/scale/study.rs", "--graph", 1),
-];
-
 /// Advice at the edge: errors and messages below `cli/` carry facts (what, where, the
-/// value); the command line turns them into advice (which flag, which command). No
-/// string literal of the library names a command-line flag, but for the ones
-/// [`FLAGS_STILL_BELOW_THE_CLI`] lists.
+/// value) and name settings as the library's configs do (`recipe.sessions`); the command
+/// line turns them into advice under its flags (`cli::SETTING_FLAGS`). No string literal
+/// of the library names a command-line flag.
 #[test]
 fn no_module_below_the_cli_names_a_command_line_flag() {
-    let mut named: BTreeMap<(String, String), Vec<usize>> = BTreeMap::new();
+    let mut wrong = Vec::new();
     for f in rust_files(&src()) {
         if f.starts_with(src().join("cli")) || f == src().join("main.rs") {
             continue;
@@ -541,30 +521,9 @@ fn no_module_below_the_cli_names_a_command_line_flag() {
         let text = fs::read_to_string(&f).unwrap();
         let rel = f.strip_prefix(src()).unwrap().display().to_string();
         for (line, flag) in flags_named(&text) {
-            named.entry((rel.clone(), flag)).or_default().push(line);
-        }
-    }
-    let mut wrong = Vec::new();
-    for ((file, flag), lines) in &named {
-        let listed = FLAGS_STILL_BELOW_THE_CLI
-            .iter()
-            .find(|(f, g, _)| f == file && g == flag)
-            .map_or(0, |k| k.2);
-        if lines.len() > listed {
             wrong.push(format!(
-                "src/{file}:{lines:?} names {flag} ({} times, {listed} listed): say the fact \
-                 and let cli/ name the flag",
-                lines.len()
-            ));
-        }
-    }
-    for (file, flag, count) in FLAGS_STILL_BELOW_THE_CLI {
-        let found = named
-            .get(&(file.to_string(), flag.to_string()))
-            .map_or(0, Vec::len);
-        if found < *count {
-            wrong.push(format!(
-                "src/{file} names {flag} {found} times now, {count} listed: shrink the list"
+                "src/{rel}:{line} names {flag}: say the fact, name the setting as the \
+                 library does, and let cli/ name the flag"
             ));
         }
     }

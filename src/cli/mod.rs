@@ -278,10 +278,14 @@ fn message(e: &anyhow::Error) -> String {
 
 /// The settings the library names in its errors (`Error::Setting`) and notes, with the
 /// flag that sets each.
-const SETTING_FLAGS: [(&str, &str); 6] = [
+const SETTING_FLAGS: [(&str, &str); 10] = [
     ("closed_loop = false", "--open-loop"),
+    ("demo.all_models", "--all-models"),
+    ("evaluate.models", "--models"),
     ("held_out.sessions", "--held-out-sessions"),
     ("predict.batch", "--batch"),
+    ("protocol.machine_seed", "--machine-seed"),
+    ("protocol.minutes", "--minutes"),
     ("recipe.sessions", "--sessions"),
     ("train.max_epochs", "--max-epochs"),
     ("train.patience", "--patience"),

@@ -252,7 +252,7 @@ pub fn demo(
     reporter.note(if demo.all_models {
         "== 5/6 training and refining IASTGCN, its ablations and every baseline (the same treatment for each)"
     } else {
-        "== 5/6 training and refining IASTGCN, its ablations and the dense baselines (the same treatment for each; --all-models adds the spatio-temporal ones)"
+        "== 5/6 training and refining IASTGCN, its ablations and the dense baselines (the same treatment for each; demo.all_models adds the spatio-temporal ones)"
     });
     let mut models: Vec<NamedModel> = Vec::new();
     let mut records = Vec::new();
@@ -344,7 +344,7 @@ pub fn demo(
         if demo.all_models {
             "models: IASTGCN, its ablations and every baseline, all at the same budget".into()
         } else {
-            "models: IASTGCN, its ablations and the dense baselines; the spatio-temporal baselines of Table III (ConvLSTM, T-GCN, EAT-GCN, ST-GAT) are left out to keep the demo within its time (`iastgcn demo --all-models` trains them too)".into()
+            "models: IASTGCN, its ablations and the dense baselines; the spatio-temporal baselines of Table III (ConvLSTM, T-GCN, EAT-GCN, ST-GAT) are left out to keep the demo within its time (demo.all_models trains them too)".into()
         },
         "every model is refined the same way and keeps its core weights unless refinement lowers its per-window validation loss".into(),
     ];
@@ -475,7 +475,7 @@ pub fn evaluation_report(
     for (i, m) in named.iter().enumerate() {
         if let Some(j) = named[..i].iter().position(|o| o.name == m.name) {
             return Err(Error::Invalid(format!(
-                "--models: {} and {} are both the model {}; give each model once (in a demo \
+                "evaluate.models: {} and {} are both the model {}; give each model once (in a demo \
                  folder written before the naming of docs/usage.md \"Checkpoint names\", \
                  <model>.seed<k>.safetensors is the core stage of \
                  <model>.seed<k>-refined.safetensors)",

@@ -24,7 +24,7 @@ pub struct Shard {
 impl std::str::FromStr for Shard {
     type Err = String;
     fn from_str(s: &str) -> std::result::Result<Shard, String> {
-        let bad = || format!("--shard: expected k/n with 1 ≤ k ≤ n (e.g. 2/8), got {s:?}");
+        let bad = || format!("a shard is k/n with 1 ≤ k ≤ n (e.g. 2/8), got {s:?}");
         let (k, n) = s.split_once('/').ok_or_else(bad)?;
         let (index, count): (usize, usize) = (
             k.trim().parse().map_err(|_| bad())?,

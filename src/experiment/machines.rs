@@ -114,7 +114,7 @@ fn read_protocol(folder: &Path) -> Result<Protocol> {
 pub fn summarize_machines(folders: &[PathBuf]) -> Result<MachineSummary> {
     if folders.len() < 2 {
         return Err(Error::Invalid(
-            "--merge: give at least two reproduce folders, one per twin machine".into(),
+            "a merge takes at least two reproduce folders, one per twin machine".into(),
         ));
     }
     let first = read_protocol(&folders[0])?;

@@ -82,7 +82,7 @@ pub fn existing_data(
             return Err(Error::Invalid(format!(
                 "{}: recorded for {} min, but this run asks for {per_run} min per recording \
                  ({minutes} min per path in {} sessions); use another output folder or the \
-                 same --minutes and --sessions",
+                 same protocol.minutes and recipe.sessions",
                 r.display(),
                 info.seconds / 60.0,
                 recipe.sessions
@@ -91,7 +91,7 @@ pub fn existing_data(
         if info.machine_seed != machine_seed {
             return Err(Error::Invalid(format!(
                 "{}: recorded on twin machine {}, but this run asks for machine {machine_seed}; \
-                 use another output folder or the same --machine-seed",
+                 use another output folder or the same protocol.machine_seed",
                 r.display(),
                 info.machine_seed
             )));

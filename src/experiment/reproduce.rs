@@ -260,7 +260,7 @@ fn pin_protocol(protocol: &Protocol, out: &Path) -> Result<()> {
         &out.join("protocol.toml"),
         |a, b| a.comparable() == b.comparable(),
         "this folder holds a run of another protocol (minutes, seeds, models or run config \
-         differ); use another --out, or the same options",
+         differ); use another output folder, or the same options",
     )
 }
 
@@ -419,8 +419,8 @@ pub fn reproduce(
     let finished = done(&jobs);
     if shard.is_some() || finished < jobs.len() {
         reporter.note(&format!(
-            "{finished} of {} jobs done; once every shard has finished, `iastgcn reproduce` \
-             with the same options and no --shard writes the report",
+            "{finished} of {} jobs done; once every shard has finished, a run with the \
+             same options and no shard writes the report",
             jobs.len()
         ));
         return Ok(Outcome::Partial {

@@ -46,9 +46,9 @@ pub fn scale(
         &out.join("study.toml"),
         |a: &Study, b| a.setup() == b.setup(),
         "this folder holds another study (the recordings' length or sessions, the run \
-         config, the machine or the held-out sessions differ); use another --out, or the same \
-         options (a study pinned before there were several held-out sessions has one: \
-         --held-out-sessions 1)",
+         config, the machine or the held-out sessions differ); use another output folder, or \
+         the same options (a study pinned before there were several held-out sessions has \
+         one: held_out.sessions 1)",
     )?;
     let minutes = study.recording_minutes;
     reporter.note(&format!(

@@ -205,8 +205,8 @@ impl Study {
             let graph = Graph::load(path)?;
             if graph.nodes.len() != self.run.model.nodes {
                 return Err(Error::Invalid(format!(
-                    "--graph {}: the graph has {} nodes, but the run config's [model] nodes \
-                     is {}; give a --config with nodes = {}",
+                    "graph {}: the graph has {} nodes, but the run config's [model] nodes \
+                     is {}; a run config with nodes = {} reads it",
                     path.display(),
                     graph.nodes.len(),
                     self.run.model.nodes,
