@@ -289,17 +289,22 @@ pub(super) fn node_mix_backward(
 /// outputs of steps 4–7 at the block's output steps only, [`out_steps`]).
 pub(super) type Tensors = BTreeMap<&'static str, Vec<f64>>;
 
-/// Where a step runs: the variant, and the block (of [`case`]'s two; block 1 is the
-/// last).
+/// Where a step runs: the variant, the block (of [`case`]'s two; block 1 is the last),
+/// and whether with the dropout of a training step (steps 5–7 only).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Where {
     pub(super) variant: Variant,
     pub(super) block: usize,
+    pub(super) dropout: bool,
 }
 
 impl std::fmt::Display for Where {
     fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-        write!(f, "{} block {}", self.variant.name(), self.block)
+        write!(f, "{} block {}", self.variant.name(), self.block)?;
+        if self.dropout {
+            write!(f, " with dropout")?;
+        }
+        Ok(())
     }
 }
 
@@ -307,7 +312,14 @@ impl std::fmt::Display for Where {
 pub(super) struct Run {
     /// What the step hands the next one, by name.
     pub(super) outputs: Tensors,
-    /// What its backward hands the earlier step, by the name of the input it belongs to.
+    /// Its backward (none where the implementation has no backward for the case: the
+    /// WGSL steps 5–7 without dropout are inference's).
+    pub(super) backward: Option<Backward>,
+}
+
+/// What a step's backward computed.
+pub(super) struct Backward {
+    /// What it hands the earlier step, by the name of the input it belongs to.
     pub(super) d_inputs: Tensors,
     /// Every parameter's gradient, in `param_specs` order (zero for other steps').
     pub(super) d_params: Vec<Vec<f64>>,

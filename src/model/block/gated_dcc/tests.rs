@@ -9,7 +9,8 @@ use super::reference::{gated_dcc_backward, gated_dcc_conv, gated_dcc_output};
 use crate::model::block::exact::{BlockParams, Dims};
 use crate::model::block::native::Block;
 use crate::model::block::testing::{
-    check, narrow, out_steps, uniform, zero_grads, Case, Device, Run, StepTest, Tensors, Where,
+    check, gpu, narrow, out_steps, uniform, zero_grads, Backward, Case, Device, Run, StepTest,
+    Tensors, Where,
 };
 use crate::model::config::Variant;
 use crate::model::exact::Table;
@@ -59,7 +60,13 @@ impl StepTest for GatedDcc {
 
     fn cases(&self) -> Vec<Where> {
         let variants = [Variant::Iastgcn, Variant::PlainTemporal];
-        let blocks = |variant| [0, 1].map(|block| Where { variant, block });
+        let blocks = |variant| {
+            [0, 1].map(|block| Where {
+                variant,
+                block,
+                dropout: false,
+            })
+        };
         variants.into_iter().flat_map(blocks).collect()
     }
 
@@ -212,11 +219,13 @@ impl StepTest for GatedDcc {
         };
         Run {
             outputs,
-            d_inputs: Tensors::from([("Z", dg)]),
-            d_params: grads
-                .iter()
-                .map(|v| v.iter().map(|&x| x as f64).collect())
-                .collect(),
+            backward: Some(Backward {
+                d_inputs: Tensors::from([("Z", dg)]),
+                d_params: grads
+                    .iter()
+                    .map(|v| v.iter().map(|&x| x as f64).collect())
+                    .collect(),
+            }),
         }
     }
 
@@ -234,9 +243,7 @@ impl StepTest for GatedDcc {
         let out = out_steps(cfg, l);
         let dev = Device::new(cfg, l, &case.params, &[], &vec![0.0; n * ci * t]);
         dev.write("Z", &narrow(&inputs["Z"]));
-        dev.run(|b, p, _, st| {
-            b.gated_dcc_forward(super::super::testing::gpu(), p, st, Pass::Train)
-        });
+        dev.run(|b, p, _, st| b.gated_dcc_forward(gpu(), p, st, Pass::Train));
         // What the device keeps: G_f and G_g at the output steps.
         check(&what("G_f"), &dev.read_buffer("G_f"), &at_out(&f, t, out));
         if let Some(g) = &g {
@@ -244,16 +251,17 @@ impl StepTest for GatedDcc {
         }
         let outputs = Tensors::from([("H", dev.read_buffer("H"))]);
         let dh = dev.upload("dH", &narrow(&d_outputs["H"]));
-        let dg = dev
-            .run(|b, p, sc, st| b.gated_dcc_backward(super::super::testing::gpu(), p, sc, st, &dh));
+        let dg = dev.run(|b, p, sc, st| b.gated_dcc_backward(gpu(), p, sc, st, &dh));
         Run {
             outputs,
-            d_inputs: Tensors::from([("Z", dev.read(&dg))]),
-            d_params: dev
-                .grads()
-                .iter()
-                .map(|v| v.iter().map(|&x| x as f64).collect())
-                .collect(),
+            backward: Some(Backward {
+                d_inputs: Tensors::from([("Z", dev.read(&dg))]),
+                d_params: dev
+                    .grads()
+                    .iter()
+                    .map(|v| v.iter().map(|&x| x as f64).collect())
+                    .collect(),
+            }),
         }
     }
 }

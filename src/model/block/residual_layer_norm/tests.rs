@@ -1,283 +1,329 @@
-//! Steps 5–7, the residual connection, the LayerNorm and the dropout, against
-//! `ops::layer_norm::cpu` with the residual 1×1 convolution and the ReLUs around it
-//! written out here ([`norm_reference`]): on a random X and step 4's output H, the native
-//! and the WGSL step (each with the dropout fused in its own way) give A = ReLU(H + R + b) and Y, then back from
-//! a random dY dγ, dβ, dA, the residual's gradients and dX, in both blocks of `iastgcn`
-//! and `iastgcn-t`, with the dropout of a training step and without (the WGSL step
-//! without dropout is inference's forward: its training step always has one).
+//! Steps 5–7 in the generic step test (`every_step.rs`): a random H (step 4's output), X
+//! and dY through the step's reference (the residual, the LayerNorm and the dropout of
+//! training step [`STEP`], whose mask both implementations draw from the same hash), the
+//! native step and the WGSL step, in both blocks of `iastgcn` and `iastgcn-t`, with the
+//! dropout and without. Without it the WGSL step is inference's forward (its training
+//! step always has one), so only the forward is compared. Besides the contract's tensors
+//! it checks A = ReLU(H + R + b), which both keep for the backward, and on the native
+//! path the mask of the second window of a batch of two (the window's offset into the
+//! batch's mask).
 #![cfg(test)]
 
-use super::native as residual_layer_norm;
+use super::reference::{layer_norm, layer_norm_backward, residual, residual_backward};
 use crate::gpu::GpuError;
+use crate::model::block::exact::Dims;
 use crate::model::block::native::Block;
 use crate::model::block::tape::Masks;
-use crate::model::block::testing::{case, check, gpu, narrow, random, wide, Case, Device};
+use crate::model::block::testing::{
+    check, gpu, narrow, out_steps, uniform, wide, Backward, Case, Device, Run, StepTest, Tensors,
+    Where,
+};
 use crate::model::block::wgsl::MaskedStep;
-use crate::model::config::Variant;
-use crate::model::schedule::Pass;
-use crate::model::schedule::Steps;
+use crate::model::config::{ModelConfig, Variant};
+use crate::model::schedule::{Pass, Steps};
 use crate::ops::dropout::keep;
-use crate::ops::layer_norm::{cpu as norm, LayerNorm};
 use crate::ops::Accumulate::Overwrite;
 
-/// The f64 reference of steps 5–7 on A `[N, C, steps]`, with dropout where `kept` is
-/// given: Y, then from dY dA (masked by A > 0), dγ, dβ, d res.weight, d res.bias and dX
-/// `[N, C_in, T]` (zero off the steps the block keeps, from `t0`).
-struct NormReference {
-    y: Vec<f64>,
-    da: Vec<f64>,
-    dgamma: Vec<f64>,
-    dbeta: Vec<f64>,
-    dw: Vec<f64>,
-    db: Vec<f64>,
-    dx: Vec<f64>,
+/// Steps 5–7's [`StepTest`].
+pub(crate) struct ResidualLayerNorm;
+
+/// The optimiser step whose dropout mask the case draws.
+const STEP: u32 = 4;
+
+/// The mask of window `item` of a batch of `batch` at block `l`'s output steps `[N, C,
+/// steps]`, and the dropout's scale 1/(1 − p).
+fn kept(cfg: &ModelConfig, l: usize, batch: usize, item: usize) -> (Vec<bool>, f64) {
+    let masks = Masks {
+        seed: Device::SEED,
+        step: STEP,
+        batch,
+        item,
+    };
+    let ((d, offset), step) = (masks.block(cfg, l), masks.step);
+    let (t0, steps) = out_steps(cfg, l);
+    let t = cfg.window;
+    let mask = (0..cfg.nodes * cfg.channels * steps)
+        .map(|e| {
+            let (io, tau) = (e / steps, e % steps);
+            keep(&d, step, offset + io * t + t0 + tau)
+        })
+        .collect();
+    (mask, 1.0 / (1.0 - cfg.dropout))
 }
 
-#[allow(clippy::too_many_arguments)]
-fn norm_reference(
-    (n, c, ci, t, t0, steps): (usize, usize, usize, usize, usize, usize),
-    act: &[f64],
-    (gamma, beta): (&[f64], &[f64]),
-    res_w: &[f64],
-    xf: &[f64],
-    kept: Option<(&[bool], f64)>,
-    dy: &[f32],
-) -> NormReference {
-    let ln = LayerNorm::new(n, c, steps);
-    let mut y = norm::forward(&ln, act, gamma, beta);
-    if let Some((kept, scale)) = kept {
+/// The block's shapes at its output steps (the LayerNorm's rows).
+fn out_dims(cfg: &ModelConfig, l: usize) -> Dims {
+    Dims {
+        t: out_steps(cfg, l).1,
+        ..Dims::new(cfg, 1, l)
+    }
+}
+
+/// A = ReLU(H + R + b) `[N, C, steps]`.
+fn activation(case: &Case, l: usize, params: &[Vec<f64>], inputs: &Tensors) -> Vec<f64> {
+    let (cfg, s) = (&case.cfg, &case.slots.blocks[l]);
+    let r = residual(
+        &Dims::new(cfg, 1, l),
+        &params[s.res.0],
+        &params[s.res.1],
+        &inputs["X"],
+    );
+    let (t0, steps) = out_steps(cfg, l);
+    let r_out = r
+        .chunks(cfg.window)
+        .flat_map(|row| row[t0..t0 + steps].to_vec());
+    inputs["H"]
+        .iter()
+        .zip(r_out)
+        .map(|(h, r)| (h + r).max(0.0))
+        .collect()
+}
+
+/// Y of the reference with the dropout `mask` (none: the evaluation forward).
+fn output(
+    case: &Case,
+    l: usize,
+    params: &[Vec<f64>],
+    inputs: &Tensors,
+    mask: Option<&(Vec<bool>, f64)>,
+) -> Vec<f64> {
+    let (cfg, s) = (&case.cfg, &case.slots.blocks[l]);
+    let a = activation(case, l, params, inputs);
+    let mut y = layer_norm(
+        &out_dims(cfg, l),
+        &a,
+        &params[s.gamma],
+        &params[s.beta],
+        cfg.eps,
+    );
+    if let Some((kept, scale)) = mask {
         for (v, &k) in y.iter_mut().zip(kept) {
             *v = if k { *v * scale } else { 0.0 };
         }
     }
-    let dy: Vec<f64> = match kept {
-        None => wide(dy),
-        Some((kept, scale)) => dy
-            .iter()
-            .zip(kept)
-            .map(|(&g, &k)| if k { g as f64 * scale } else { 0.0 })
-            .collect(),
-    };
-    let (mut da, dgamma, dbeta) = norm::backward(&ln, act, gamma, &dy);
-    for (d, &a) in da.iter_mut().zip(act) {
-        if a <= 0.0 {
-            *d = 0.0;
-        }
-    }
-    let mut dw = vec![0.0; c * ci];
-    let mut db = vec![0.0; c];
-    let mut dx = vec![0.0; n * ci * t];
+    y
+}
+
+/// `[N, C, steps]` as the native tape's `[C, N·steps]`.
+fn tape_layout(v: &[f64], n: usize, c: usize, steps: usize) -> Vec<f32> {
+    let mut out = vec![0f32; n * c * steps];
     for i in 0..n {
         for o in 0..c {
             for tau in 0..steps {
-                let g = da[(i * c + o) * steps + tau];
-                db[o] += g;
-                for ch in 0..ci {
-                    let xi = (i * ci + ch) * t + t0 + tau;
-                    dw[o * ci + ch] += g * xf[xi];
-                    dx[xi] += g * res_w[o * ci + ch];
+                out[o * n * steps + i * steps + tau] = v[(i * c + o) * steps + tau] as f32;
+            }
+        }
+    }
+    out
+}
+
+impl StepTest for ResidualLayerNorm {
+    fn name(&self) -> &'static str {
+        "residual_layer_norm"
+    }
+
+    fn cases(&self) -> Vec<Where> {
+        let mut cases = Vec::new();
+        for variant in [Variant::Iastgcn, Variant::PlainTemporal] {
+            for block in [0, 1] {
+                for dropout in [false, true] {
+                    cases.push(Where {
+                        variant,
+                        block,
+                        dropout,
+                    });
                 }
             }
         }
+        cases
     }
-    NormReference {
-        y,
-        da,
-        dgamma,
-        dbeta,
-        dw,
-        db,
-        dx,
-    }
-}
 
-/// Steps 5–7 forward and backward in block `l` of `variant`, with the dropout of a
-/// training step or without: the native step (its two passes),
-/// and the WGSL `residual_layer_norm` (without dropout, its inference forward alone).
-fn residual_layer_norm_dropout_match_their_reference(variant: Variant, l: usize, drop: bool) {
-    let Case {
-        cfg,
-        slots,
-        params,
-        mut tape,
-        mut work,
-    } = case(variant);
-    let s = &slots.blocks[l];
-    let (n, t, c, ci) = (cfg.nodes, cfg.window, cfg.channels, s.c_in);
-    let x = random(8, n * ci * t, -1.0, 1.0);
-    let b = Block::new(&cfg, &[], s, 1);
-    let bt = &mut tape.blocks[l];
-    let (t0, steps) = (bt.t0, bt.steps);
-    let last = l + 1 == cfg.blocks;
-    // "residual_layer_norm: dA" reads "residual_layer_norm iastgcn block 0 (wgsl): dA".
-    let what = |path: &str, part: &str| {
-        let (step, part) = part.split_once(": ").unwrap_or(("", part));
-        format!(
-            "{step} {} block {l}{} ({path}): {part}",
-            variant.name(),
-            if drop { " with dropout" } else { "" }
+    fn case_tensors(&self, case: &Case, at: Where) -> (Tensors, Tensors) {
+        let cfg = &case.cfg;
+        let (n, c, t, ci) = (
+            cfg.nodes,
+            cfg.channels,
+            cfg.window,
+            cfg.block_input(at.block),
+        );
+        let steps = out_steps(cfg, at.block).1;
+        let f32s = |seed, len| {
+            uniform(seed, len, -1.0, 1.0)
+                .iter()
+                .map(|&v| v as f32 as f64)
+                .collect()
+        };
+        (
+            Tensors::from([("H", f32s(9, n * c * steps)), ("X", f32s(8, n * ci * t))]),
+            Tensors::from([("Y", f32s(11, n * c * steps))]),
         )
-    };
-    // Step 4's output H on the tape `[C, N·steps]`: tanh(G_f) ⊙ σ(G_g) of a random
-    // tanh(G_f) and σ(G_g), or ReLU(G_f).
-    let gated = s.gate.is_some();
-    let half = c * n * steps;
-    let f = random(9, half, -1.0, 1.0);
-    let q = random(10, half, 0.0, 1.0);
-    for ((h, f), q) in bt.hidden.iter_mut().zip(&f).zip(&q) {
-        *h = if gated { f * q } else { f.max(0.0) };
     }
-    let masks = Masks {
-        seed: Device::SEED,
-        step: 4,
-        batch: 2,
-        item: 1,
-    };
-    let mask = drop.then(|| (masks.block(&cfg, l), masks.step));
-    let mut h = vec![0f32; n * c];
-    residual_layer_norm::forward(&b, &params, &x, bt);
-    residual_layer_norm::affine_dropout_forward(&b, &params, bt, mask, last.then_some(&mut h[..]));
-    // The reference, `[N, C, steps]`.
-    let (res_w, res_b) = (wide(&params[s.res.0]), wide(&params[s.res.1]));
-    let xf = wide(&x);
-    let at = |i: usize, o: usize, tau: usize| (i * c + o) * steps + tau;
-    // H `[N, C, steps]` and A = ReLU(H + R + b).
-    let mut hv = vec![0.0; n * c * steps];
-    let mut act = vec![0.0; n * c * steps];
-    for i in 0..n {
-        for o in 0..c {
-            for tau in 0..steps {
-                let r: f64 = (0..ci)
-                    .map(|ch| res_w[o * ci + ch] * xf[(i * ci + ch) * t + t0 + tau])
-                    .sum();
-                let g = o * n * steps + i * steps + tau;
-                hv[at(i, o, tau)] = bt.hidden[g] as f64;
-                act[at(i, o, tau)] = (res_b[o] + r + hv[at(i, o, tau)]).max(0.0);
+
+    fn reference_forward(
+        &self,
+        case: &Case,
+        at: Where,
+        params: &[Vec<f64>],
+        inputs: &Tensors,
+    ) -> Tensors {
+        let mask = at.dropout.then(|| kept(&case.cfg, at.block, 1, 0));
+        let y = output(case, at.block, params, inputs, mask.as_ref());
+        Tensors::from([("Y", y)])
+    }
+
+    fn reference_backward(
+        &self,
+        case: &Case,
+        at: Where,
+        params: &[Vec<f64>],
+        inputs: &Tensors,
+        d_outputs: &Tensors,
+    ) -> (Tensors, Vec<Vec<f64>>) {
+        let (cfg, l) = (&case.cfg, at.block);
+        let s = &case.slots.blocks[l];
+        let a = activation(case, l, params, inputs);
+        let dy: Vec<f64> = match at.dropout.then(|| kept(cfg, l, 1, 0)) {
+            Some((kept, scale)) => d_outputs["Y"]
+                .iter()
+                .zip(&kept)
+                .map(|(&g, &k)| if k { g * scale } else { 0.0 })
+                .collect(),
+            None => d_outputs["Y"].clone(),
+        };
+        let (mut da, dgamma, dbeta) =
+            layer_norm_backward(&out_dims(cfg, l), &a, &params[s.gamma], cfg.eps, &dy);
+        // A's ReLU: dH = dR = dA where A > 0.
+        for (g, &v) in da.iter_mut().zip(&a) {
+            if v <= 0.0 {
+                *g = 0.0;
             }
         }
+        // dR on every step (zero off the output steps), for the residual's backward.
+        let (t0, steps) = out_steps(cfg, l);
+        let x = &inputs["X"];
+        let mut dr = vec![0.0; cfg.nodes * cfg.channels * cfg.window];
+        for (row, d) in dr.chunks_mut(cfg.window).zip(da.chunks(steps)) {
+            row[t0..t0 + steps].copy_from_slice(d);
+        }
+        let mut dx = vec![0.0; x.len()];
+        let (dw, db) = residual_backward(&Dims::new(cfg, 1, l), &params[s.res.0], x, &dr, &mut dx);
+        let mut d_params: Vec<Vec<f64>> = params.iter().map(|p| vec![0.0; p.len()]).collect();
+        d_params[s.gamma] = dgamma;
+        d_params[s.beta] = dbeta;
+        d_params[s.res.0] = dw;
+        d_params[s.res.1] = db;
+        (Tensors::from([("H", da), ("X", dx)]), d_params)
     }
-    check(
-        &what("native", "residual_layer_norm: A"),
-        &wide(&bt.act),
-        &act,
-    );
-    let (gamma, beta) = (wide(&params[s.gamma]), wide(&params[s.beta]));
-    // Step 7: element (i, o, t0 + τ) of the block's whole `[N, C, T]` output keeps its
-    // bit of the mask of the window's item in the batch.
-    let scale = 1.0 / (1.0 - cfg.dropout);
-    let kept_in = |masks: &Masks| -> Vec<bool> {
-        let ((d, offset), step) = (masks.block(&cfg, l), masks.step);
-        (0..n * c * steps)
-            .map(|e| {
-                let (io, tau) = (e / steps, e % steps);
-                keep(&d, step, offset + io * t + t0 + tau)
-            })
-            .collect()
-    };
-    let dims = (n, c, ci, t, t0, steps);
-    let dy = random(11, n * c * steps, -1.0, 1.0);
-    let kept = kept_in(&masks);
-    let e = norm_reference(
-        dims,
-        &act,
-        (&gamma, &beta),
-        &res_w,
-        &xf,
-        drop.then_some((&kept[..], scale)),
-        &dy,
-    );
-    let native_y = if last { wide(&h) } else { wide(&bt.y) };
-    check(&what("native", "affine_dropout: Y"), &native_y, &e.y);
-    // Backward from dY.
-    work.dy[..dy.len()].copy_from_slice(&dy);
-    let mut grads: Vec<Vec<f32>> = params.iter().map(|p| vec![0.0; p.len()]).collect();
-    residual_layer_norm::affine_dropout_backward(&b, bt, drop, &mut grads, &mut work);
-    residual_layer_norm::backward(&b, &params, &x, bt, true, &mut grads, &mut work);
-    let checks = |path: &str, grads: &[Vec<f32>], da: &[f64], dx: &[f64], e: &NormReference| {
-        let w = |part: &str| what(path, part);
-        check(&w("affine_dropout: dγ"), &wide(&grads[s.gamma]), &e.dgamma);
-        check(&w("affine_dropout: dβ"), &wide(&grads[s.beta]), &e.dbeta);
-        check(&w("residual_layer_norm: dA"), da, &e.da);
-        check(
-            &w("residual_layer_norm: d res.weight"),
-            &wide(&grads[s.res.0]),
-            &e.dw,
-        );
-        check(
-            &w("residual_layer_norm: d res.bias"),
-            &wide(&grads[s.res.1]),
-            &e.db,
-        );
-        check(&w("residual_layer_norm: dX"), dx, &e.dx);
-    };
-    let (da, dx) = (wide(&work.da[..e.da.len()]), wide(&work.dx[..e.dx.len()]));
-    checks("native", &grads, &da, &dx, &e);
 
-    // The WGSL steps on the same X, H and parameters, from the same dY; the dropout is
-    // that of a batch of one window (the native mask above is the second window's of
-    // two), and the block's own steps are at T − 1 in the last block as in the native.
-    let dev = Device::new(&cfg, l, &params, &[], &x);
-    dev.write("H", &narrow(&hv));
-    let what_wgsl = |part: &str| what("wgsl", part);
-    let one = Masks {
-        batch: 1,
-        item: 0,
-        ..masks
-    };
-    // Every dispatch that reads the mask, at the step of the batch of one.
-    let at_step = |st: &Steps, m: MaskedStep| -> Result<(), GpuError> {
-        let d = st.dispatch(m.index).expect("a masked step is a dispatch");
-        m.layer_norm.set_step(gpu(), d, one.step, Overwrite)
-    };
-    // Steps 5–7 of a training step, the dropout fused into LayerNorm's kernels; without
-    // dropout the WGSL step is inference's (its training step always has one), and the
-    // check stops after the forward.
-    let pass = if drop { Pass::Train } else { Pass::Inference };
-    dev.run(
-        |b, p, _, st| match b.residual_layer_norm_forward(gpu(), p, st, pass)? {
-            Some(masked) => at_step(st, masked),
-            None => Ok(()),
-        },
-    );
-    check(
-        &what_wgsl("residual_layer_norm: A"),
-        &dev.read_buffer("H"),
-        &act,
-    );
-    let kept = kept_in(&one);
-    let e = norm_reference(
-        dims,
-        &act,
-        (&gamma, &beta),
-        &res_w,
-        &xf,
-        drop.then_some((&kept[..], scale)),
-        &dy,
-    );
-    check(
-        &what_wgsl("residual_layer_norm: Y"),
-        &dev.read_buffer("output"),
-        &e.y,
-    );
-    if drop {
-        let d_out = dev.upload("d output", &dy);
-        let d_in = dev.upload("dX", &vec![0.0; n * ci * t]);
-        let ds = dev.run(|b, p, sc, st| {
-            let (ds, masked) = b.residual_layer_norm_backward(gpu(), p, sc, st, &d_out, &d_in)?;
-            masked.into_iter().try_for_each(|m| at_step(st, m))?;
-            Ok(ds)
+    fn native(&self, case: &mut Case, at: Where, inputs: &Tensors, d_outputs: &Tensors) -> Run {
+        let l = at.block;
+        let what = |part: &str| format!("residual_layer_norm {at} (native): {part}");
+        let params64: Vec<Vec<f64>> = case.params.iter().map(|v| wide(v)).collect();
+        let a = activation(case, l, &params64, inputs);
+        // The second window of a batch of two: its mask starts one window in.
+        let second = at.dropout.then(|| {
+            let mask = kept(&case.cfg, l, 2, 1);
+            output(case, l, &params64, inputs, Some(&mask))
         });
-        checks("wgsl", &dev.grads(), &dev.read(&ds), &dev.read(&d_in), &e);
+        let Case {
+            cfg,
+            slots,
+            params,
+            tape,
+            work,
+        } = case;
+        let s = &slots.blocks[l];
+        let (n, c, t, ci) = (cfg.nodes, cfg.channels, cfg.window, s.c_in);
+        let b = Block::new(cfg, &[], s, 1);
+        let bt = &mut tape.blocks[l];
+        let steps = bt.steps;
+        let last = l + 1 == cfg.blocks;
+        let x = narrow(&inputs["X"]);
+        bt.hidden
+            .copy_from_slice(&tape_layout(&inputs["H"], n, c, steps));
+        let masks = |batch, item| Masks {
+            seed: Device::SEED,
+            step: STEP,
+            batch,
+            item,
+        };
+        let mut h = vec![0f32; n * c];
+        let forward = |bt: &mut _, batch, item, h: &mut [f32]| {
+            let m: Masks = masks(batch, item);
+            let mask = at.dropout.then(|| (m.block(cfg, l), m.step));
+            b.residual_layer_norm_forward(params, &x, bt, mask, last.then_some(h));
+        };
+        if let Some(e) = &second {
+            forward(bt, 2, 1, &mut h);
+            let y = if last { wide(&h) } else { wide(&bt.y) };
+            check(&what("Y of window 2 of 2"), &y, e);
+        }
+        forward(bt, 1, 0, &mut h);
+        check(&what("A"), &wide(&bt.act), &a);
+        let y = if last { wide(&h) } else { wide(&bt.y) };
+        work.dy[..n * c * steps].copy_from_slice(&narrow(&d_outputs["Y"]));
+        let mut grads: Vec<Vec<f32>> = params.iter().map(|p| vec![0.0; p.len()]).collect();
+        b.residual_layer_norm_backward(params, &x, bt, at.dropout, true, &mut grads, work);
+        Run {
+            outputs: Tensors::from([("Y", y)]),
+            backward: Some(Backward {
+                d_inputs: Tensors::from([
+                    ("H", wide(&work.da[..n * c * steps])),
+                    ("X", wide(&work.dx[..n * ci * t])),
+                ]),
+                d_params: grads.iter().map(|v| wide(v)).collect(),
+            }),
+        }
     }
-}
 
-#[test]
-fn residual_layer_norm_and_dropout_native_and_wgsl_every_step_and_in_the_last_block() {
-    for variant in [Variant::Iastgcn, Variant::PlainTemporal] {
-        for l in [0, 1] {
-            for drop in [false, true] {
-                residual_layer_norm_dropout_match_their_reference(variant, l, drop);
-            }
+    fn wgsl(&self, case: &Case, at: Where, inputs: &Tensors, d_outputs: &Tensors) -> Run {
+        let l = at.block;
+        let what = |part: &str| format!("residual_layer_norm {at} (wgsl): {part}");
+        let params64: Vec<Vec<f64>> = case.params.iter().map(|v| wide(v)).collect();
+        let a = activation(case, l, &params64, inputs);
+        let cfg = &case.cfg;
+        let (n, t, ci) = (cfg.nodes, cfg.window, cfg.block_input(l));
+        let dev = Device::new(cfg, l, &case.params, &[], &narrow(&inputs["X"]));
+        dev.write("H", &narrow(&inputs["H"]));
+        // Every dispatch that reads the mask, at the step the case draws.
+        let at_step = |st: &Steps, m: MaskedStep| -> Result<(), GpuError> {
+            // invariant: test support: the block hands back dispatches it scheduled.
+            let d = st.dispatch(m.index).expect("a masked step is a dispatch");
+            m.layer_norm.set_step(gpu(), d, STEP, Overwrite)
+        };
+        let pass = if at.dropout {
+            Pass::Train
+        } else {
+            Pass::Inference
+        };
+        dev.run(
+            |b, p, _, st| match b.residual_layer_norm_forward(gpu(), p, st, pass)? {
+                Some(masked) => at_step(st, masked),
+                None => Ok(()),
+            },
+        );
+        // The residual product accumulates A onto H's buffer.
+        check(&what("A"), &dev.read_buffer("H"), &a);
+        let outputs = Tensors::from([("Y", dev.read_buffer("output"))]);
+        if !at.dropout {
+            return Run {
+                outputs,
+                backward: None,
+            };
+        }
+        let d_out = dev.upload("d output", &narrow(&d_outputs["Y"]));
+        let d_in = dev.upload("dX", &vec![0.0; n * ci * t]);
+        let dh = dev.run(|b, p, sc, st| {
+            let (dh, masked) = b.residual_layer_norm_backward(gpu(), p, sc, st, &d_out, &d_in)?;
+            masked.into_iter().try_for_each(|m| at_step(st, m))?;
+            Ok(dh)
+        });
+        Run {
+            outputs,
+            backward: Some(Backward {
+                d_inputs: Tensors::from([("H", dev.read(&dh)), ("X", dev.read(&d_in))]),
+                d_params: dev.grads().iter().map(|v| wide(v)).collect(),
+            }),
         }
     }
 }
