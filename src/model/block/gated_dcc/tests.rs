@@ -9,7 +9,7 @@ use super::reference::{gated_dcc_backward, gated_dcc_conv, gated_dcc_output};
 use crate::model::block::exact::{BlockParams, Dims};
 use crate::model::block::native::Block;
 use crate::model::block::testing::{
-    check, gpu, narrow, out_steps, uniform, zero_grads, Backward, Case, Device, Run, StepTest,
+    check, gpu, narrow, out_steps, random, wide, zero_grads, Backward, Case, Device, Run, StepTest,
     Tensors, Where,
 };
 use crate::model::config::Variant;
@@ -74,12 +74,8 @@ impl StepTest for GatedDcc {
         let cfg = &case.cfg;
         let (n, c, t) = (cfg.nodes, cfg.channels, cfg.window);
         let steps = out_steps(cfg, at.block).1;
-        let f32s = |seed, len| {
-            uniform(seed, len, -1.0, 1.0)
-                .iter()
-                .map(|&v| v as f32 as f64)
-                .collect()
-        };
+        // Values an f32 holds exactly, so that every implementation starts from the same.
+        let f32s = |seed, len| wide(&random(seed, len, -1.0, 1.0));
         (
             Tensors::from([("Z", f32s(6, n * c * t))]),
             Tensors::from([("H", f32s(7, n * c * steps))]),
@@ -141,11 +137,7 @@ impl StepTest for GatedDcc {
     fn native(&self, case: &mut Case, at: Where, inputs: &Tensors, d_outputs: &Tensors) -> Run {
         let l = at.block;
         let what = |part: &str| format!("gated_dcc {at} (native): {part}");
-        let params: Vec<Vec<f64>> = case
-            .params
-            .iter()
-            .map(|v| v.iter().map(|&x| x as f64).collect())
-            .collect();
+        let params: Vec<Vec<f64>> = case.params.iter().map(|v| wide(v)).collect();
         let (f, g) = convolutions(case, l, &params, &inputs["Z"]);
         let Case {
             cfg,
@@ -221,10 +213,7 @@ impl StepTest for GatedDcc {
             outputs,
             backward: Some(Backward {
                 d_inputs: Tensors::from([("Z", dg)]),
-                d_params: grads
-                    .iter()
-                    .map(|v| v.iter().map(|&x| x as f64).collect())
-                    .collect(),
+                d_params: grads.iter().map(|v| wide(v)).collect(),
             }),
         }
     }
@@ -234,11 +223,7 @@ impl StepTest for GatedDcc {
         let what = |part: &str| format!("gated_dcc {at} (wgsl): {part}");
         let cfg = &case.cfg;
         let (n, t, ci) = (cfg.nodes, cfg.window, cfg.block_input(l));
-        let params: Vec<Vec<f64>> = case
-            .params
-            .iter()
-            .map(|v| v.iter().map(|&x| x as f64).collect())
-            .collect();
+        let params: Vec<Vec<f64>> = case.params.iter().map(|v| wide(v)).collect();
         let (f, g) = convolutions(case, l, &params, &inputs["Z"]);
         let out = out_steps(cfg, l);
         let dev = Device::new(cfg, l, &case.params, &[], &vec![0.0; n * ci * t]);
@@ -256,11 +241,7 @@ impl StepTest for GatedDcc {
             outputs,
             backward: Some(Backward {
                 d_inputs: Tensors::from([("Z", dev.read(&dg))]),
-                d_params: dev
-                    .grads()
-                    .iter()
-                    .map(|v| v.iter().map(|&x| x as f64).collect())
-                    .collect(),
+                d_params: dev.grads().iter().map(|v| wide(v)).collect(),
             }),
         }
     }
