@@ -278,7 +278,7 @@ fn message(e: &anyhow::Error) -> String {
 
 /// The settings the library names in its errors (`Error::Setting`) and notes, with the
 /// flag that sets each.
-const SETTING_FLAGS: [(&str, &str); 10] = [
+const SETTING_FLAGS: [(&str, &str); 12] = [
     ("closed_loop = false", "--open-loop"),
     ("demo.all_models", "--all-models"),
     ("evaluate.models", "--models"),
@@ -287,6 +287,8 @@ const SETTING_FLAGS: [(&str, &str); 10] = [
     ("protocol.machine_seed", "--machine-seed"),
     ("protocol.minutes", "--minutes"),
     ("recipe.sessions", "--sessions"),
+    ("sources.graph", "--graph"),
+    ("sources.robot", "--robot"),
     ("train.max_epochs", "--max-epochs"),
     ("train.patience", "--patience"),
 ];

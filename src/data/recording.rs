@@ -617,7 +617,7 @@ fn arm_hint(header: &[String]) -> &'static str {
     match header.first().map(String::as_str) {
         Some("pose" | "time") => {
             "; this looks like a serial arm's pose file, which is read with the arm's \
-             description (kind = \"serial\", docs/arms.md)"
+             description (sources.robot, kind = \"serial\", docs/arms.md)"
         }
         _ => "",
     }

@@ -205,7 +205,7 @@ impl Study {
             let graph = Graph::load(path)?;
             if graph.nodes.len() != self.run.model.nodes {
                 return Err(Error::Invalid(format!(
-                    "graph {}: the graph has {} nodes, but the run config's [model] nodes \
+                    "sources.graph {}: the graph has {} nodes, but the run config's [model] nodes \
                      is {}; a run config with nodes = {} reads it",
                     path.display(),
                     graph.nodes.len(),
