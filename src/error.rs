@@ -42,8 +42,7 @@ pub enum Error {
     Invalid(String),
     /// A setting outside what the call can use: `setting` names it as the library does
     /// (a config field: `held_out.sessions`), `message` says what it may be and what it
-    /// was. A front end names it its own way ([`Error::render`]: the command line's
-    /// flag).
+    /// was. A front end may name it its own way (the command line: its flag).
     #[error("{setting}: {message}")]
     Setting {
         /// The setting, as the library's configs name it.
@@ -86,28 +85,6 @@ impl Error {
         Error::Context {
             context: context.to_string(),
             inner: Box::new(self),
-        }
-    }
-
-    /// The message, with each [`Error::Setting`] named by `name_of` where it gives a
-    /// name (the command line's flag for the setting), else as the library names it.
-    ///
-    /// ```
-    /// use iastgcn::error::Error;
-    ///
-    /// let e = Error::Setting { setting: "held_out.sessions", message: "1 to 16, got 0".into() }
-    ///     .context("evaluation");
-    /// let flag = |s: &str| (s == "held_out.sessions").then_some("--held-out-sessions");
-    /// assert_eq!(e.render(&flag), "evaluation: --held-out-sessions: 1 to 16, got 0");
-    /// assert_eq!(e.to_string(), "evaluation: held_out.sessions: 1 to 16, got 0");
-    /// ```
-    pub fn render(&self, name_of: &dyn Fn(&str) -> Option<&'static str>) -> String {
-        match self {
-            Error::Setting { setting, message } => {
-                format!("{}: {message}", name_of(setting).unwrap_or(setting))
-            }
-            Error::Context { context, inner } => format!("{context}: {}", inner.render(name_of)),
-            e => e.to_string(),
         }
     }
 

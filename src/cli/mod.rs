@@ -261,19 +261,9 @@ pub fn main() -> ExitCode {
 }
 
 /// The error as `{:#}` prints it (each cause after the last, joined by ": "), with the
-/// library's settings named by their flags ([`flag_of`], [`with_flags`]).
+/// library's settings named by their flags ([`with_flags`]).
 fn message(e: &anyhow::Error) -> String {
-    let text = e
-        .chain()
-        .map(
-            |cause| match cause.downcast_ref::<iastgcn::error::Error>() {
-                Some(lib) => lib.render(&flag_of),
-                None => cause.to_string(),
-            },
-        )
-        .collect::<Vec<_>>()
-        .join(": ");
-    with_flags(&text)
+    with_flags(&format!("{e:#}"))
 }
 
 /// The settings the library names in its errors (`Error::Setting`) and notes, with the
@@ -292,14 +282,6 @@ const SETTING_FLAGS: [(&str, &str); 12] = [
     ("train.max_epochs", "--max-epochs"),
     ("train.patience", "--patience"),
 ];
-
-/// The flag that sets a setting the library names.
-fn flag_of(setting: &str) -> Option<&'static str> {
-    SETTING_FLAGS
-        .iter()
-        .find(|(name, _)| *name == setting)
-        .map(|(_, flag)| *flag)
-}
 
 /// A library note with every setting it names written as its flag.
 fn with_flags(line: &str) -> String {

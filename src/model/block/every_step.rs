@@ -11,7 +11,7 @@
 
 use super::gated_dcc;
 use super::residual_layer_norm;
-use super::testing::{case, check, uniform, Backward, Case, Run, StepTest, Tensors, Where};
+use super::testing::{case, check, uniform, wide, Backward, Case, Run, StepTest, Tensors, Where};
 use crate::model::params::{param_specs, ParamSpec};
 use std::path::Path;
 
@@ -52,11 +52,10 @@ fn check_reference(
     step: &dyn StepTest,
     case: &Case,
     at: Where,
-    inputs: &Tensors,
+    (params, inputs): (&[Vec<f64>], &Tensors),
     d_outputs: &Tensors,
     (d_inputs, d_params): (&Tensors, &[Vec<f64>]),
 ) {
-    let params: Vec<Vec<f64>> = case.params.iter().map(|v| wide(v)).collect();
     let what = |part: &str| {
         format!(
             "{} {at} (reference vs finite differences): {part}",
@@ -87,7 +86,7 @@ fn check_reference(
                     let mut moved = inputs.clone();
                     // invariant: test support: `name` is one of `inputs`.
                     moved.get_mut(name).unwrap()[i] = v;
-                    loss(&params, &moved)
+                    loss(params, &moved)
                 },
                 x[i],
             );
@@ -108,7 +107,7 @@ fn check_reference(
         for i in picks(950 + p as u64, d.len()) {
             let fd = central(
                 &|v| {
-                    let mut moved = params.clone();
+                    let mut moved = params.to_vec();
                     moved[p][i] = v;
                     loss(&moved, inputs)
                 },
@@ -157,10 +156,6 @@ fn check_run(step: &str, at: Where, backend: &str, specs: &[ParamSpec], run: &Ru
     }
 }
 
-fn wide(v: &[f32]) -> Vec<f64> {
-    v.iter().map(|&x| x as f64).collect()
-}
-
 #[test]
 fn every_step_on_every_implementation_matches_its_reference() {
     for step in steps() {
@@ -175,7 +170,7 @@ fn every_step_on_every_implementation_matches_its_reference() {
                 &*step,
                 &case,
                 at,
-                &inputs,
+                (&params, &inputs),
                 &d_outputs,
                 (&d_inputs, &d_params),
             );
