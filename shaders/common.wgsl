@@ -18,7 +18,7 @@ fn sigmoid(x: f32) -> f32 {
 }
 
 // "lowbias32" integer hash (Chris Wellons): good avalanche, a few operations. Dropout's
-// mask (ops/dropout.rs): element i of a training step is kept when
+// mask (model/block/residual_layer_norm/dropout_kernel.rs): element i of a training step is kept when
 // lowbias32(i ^ key) >= threshold, key = lowbias32(seed ^ lowbias32(step)).
 fn lowbias32(v: u32) -> u32 {
     var h = v;

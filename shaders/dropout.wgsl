@@ -1,4 +1,5 @@
-// Inverted dropout with a counter-based RNG (Rust side: src/ops/dropout.rs): element i of
+// Inverted dropout with a counter-based RNG (Rust side:
+// src/model/block/residual_layer_norm/dropout_kernel.rs): element i of
 // training step `step` is kept when hash(i, seed, step) ≥ p·2³², then scaled by 1/(1−p).
 // The mask is never stored: the backward pass recomputes the same bits from the same
 // (seed, step), so forward and backward always agree.

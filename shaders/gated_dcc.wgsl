@@ -1,4 +1,5 @@
-// Gated dilated causal convolution (docs/model.md step 4; Rust side: src/ops/gated_dcc.rs).
+// Gated dilated causal convolution (docs/model.md step 4; Rust side:
+// src/model/block/gated_dcc/kernel.rs).
 //
 // The convolution runs as a GEMM over a causal unfolding of its input:
 //   col[r, c, k, t] = x[r, c, t − d·k]   (0 when t − d·k < 0; r = b·N + n)
@@ -180,7 +181,7 @@ fn gate_grads(i: u32) -> vec2<f32> {
 }
 
 // Written stacked per item: [df; dg] as [2C, T] for each (b, n), so that the filter and
-// gate convolutions' backward run as one product with twice the rows (ops/gated_dcc.rs).
+// gate convolutions' backward run as one product with twice the rows (gated_dcc/kernel.rs).
 @group(0) @binding(4) var<storage, read_write> bdfg: array<f32>;
 
 @compute @workgroup_size(256)

@@ -1,5 +1,5 @@
 // Multi-head graph attention over the nodes of every (window, step) (Rust side:
-// src/ops/graph_attention.rs). q is [B, N, C, T]; head h owns the channels
+// src/model/block/graph_attention/kernel.rs). q is [B, N, C, T]; head h owns the channels
 // h·C/H .. (h+1)·C/H. For node i, its neighbour j (mask[i, j] = 1, self loops included):
 //   e_ij = LeakyReLU(a_src·q_i + a_dst·q_j)      over the head's channels at step t
 //   α_ij = softmax_j(e_ij) over the neighbours   (0 elsewhere), stored [B, T, H, N, N]

@@ -1,5 +1,5 @@
 // LayerNorm over the channel axis of [B, N, C, T] activations (docs/model.md step 6), forward
-// and backward (Rust side: src/ops/layer_norm.rs).
+// and backward (Rust side: src/model/block/residual_layer_norm/layer_norm_kernel.rs).
 //
 // Rows are (b·N + n, t) pairs: `outer` = B·N blocks of C·T elements, channel stride T.
 // Forward saves each row's mean and 1/σ for the backward pass.

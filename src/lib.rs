@@ -51,6 +51,7 @@ pub mod plot;
 pub mod polish;
 pub mod progress;
 pub mod robot;
+pub mod smoke;
 pub mod stats;
 pub mod testing;
 pub mod train;

@@ -20,9 +20,13 @@ const ALLOWED: &[(&str, &[&str])] = &[
     ("robot", &["error"]),
     ("ops", &["gpu"]),
     ("testing", &["gpu", "ops", "error"]),
+    ("smoke", &["gpu", "ops", "model", "testing", "error"]),
     ("twin", &["robot", "atomic"]),
     ("calibrate", &["robot", "atomic", "error"]),
-    ("model", &["gpu", "ops", "graph", "atomic", "error"]),
+    (
+        "model",
+        &["gpu", "ops", "graph", "testing", "atomic", "error"],
+    ),
     (
         "data",
         &[
@@ -279,44 +283,122 @@ fn every_module_imports_only_what_the_architecture_allows() {
     }
 }
 
-/// Edges between sibling files of one folder: `super::x` and `crate::m::x` where `x` is
-/// a file (or folder) next to the importing one.
-fn sibling_edges(dir: &Path, module_path: &str) -> Vec<(String, String)> {
-    let siblings: BTreeSet<String> = fs::read_dir(dir)
-        .into_iter()
-        .flatten()
-        .flatten()
-        .filter_map(|e| {
-            let p = e.path();
-            let stem = p.file_stem()?.to_string_lossy().into_owned();
-            (p.is_dir() || p.extension().is_some_and(|x| x == "rs")).then_some(stem)
-        })
-        .filter(|s| s != "mod")
-        .collect();
-    let mut edges = Vec::new();
-    for s in &siblings {
-        let (file, sub) = (dir.join(format!("{s}.rs")), dir.join(s));
-        let files = if sub.is_dir() {
-            rust_files(&sub)
-        } else {
-            vec![file]
-        };
-        let in_folder = sub.is_dir();
-        for f in files {
-            let text = code(&f);
-            // From a file of a sub-folder, `super::` is that sub-folder, not this one.
-            let direct = f.parent() == Some(dir);
-            let mut targets = if direct && !in_folder {
-                paths_after(&text, "super::")
-            } else {
-                BTreeSet::new()
-            };
-            if !module_path.is_empty() {
-                targets.extend(paths_after(&text, &format!("crate::{module_path}::")));
+/// The paths that follow `prefix` (`super::`, `crate::model::`) in `code`, as segments,
+/// a `{…}` group opened into one path per member (`a::{b, c::d}` is `a::b` and
+/// `a::c::d`).
+fn full_paths_after(code: &str, prefix: &str) -> Vec<Vec<String>> {
+    let mut out = Vec::new();
+    for (i, _) in code.match_indices(prefix) {
+        // A whole path segment: not `xcrate::` or `a::super::`.
+        if code[..i].ends_with(|c: char| c.is_alphanumeric() || c == '_' || c == ':') {
+            continue;
+        }
+        expand(&code[i + prefix.len()..], &[], &mut out);
+    }
+    out
+}
+
+/// The paths written at the start of `text` after `head`, groups opened.
+fn expand(text: &str, head: &[String], out: &mut Vec<Vec<String>>) {
+    let mut path = head.to_vec();
+    let mut rest = text;
+    loop {
+        let word: String = rest
+            .chars()
+            .take_while(|c| c.is_alphanumeric() || *c == '_')
+            .collect();
+        if word.is_empty() {
+            break;
+        }
+        path.push(word.clone());
+        rest = &rest[word.len()..];
+        match rest.strip_prefix("::") {
+            Some(after) => rest = after,
+            None => break,
+        }
+    }
+    if let Some(group) = rest.strip_prefix('{') {
+        // The group's members, split at the commas of its own level.
+        let (mut depth, mut from) = (0usize, 0usize);
+        for (j, c) in group.char_indices() {
+            match c {
+                '{' => depth += 1,
+                '}' if depth == 0 => {
+                    expand(group[from..j].trim_start(), &path, out);
+                    return;
+                }
+                '}' => depth -= 1,
+                ',' if depth == 0 => {
+                    expand(group[from..j].trim_start(), &path, out);
+                    from = j + 1;
+                }
+                _ => {}
             }
-            for t in targets {
-                if &t != s && siblings.contains(&t) {
-                    edges.push((s.clone(), t));
+        }
+    } else if !path.is_empty() {
+        out.push(path);
+    }
+}
+
+/// The file below `dir` that a path below `dir`'s module names, as a node of the folder's
+/// import graph: the deepest file or sub-folder the path reaches (`gated_dcc::kernel` for
+/// `gated_dcc::kernel::Unfold`, `gated_dcc` for an item of `gated_dcc/mod.rs`).
+fn resolve(dir: &Path, segments: &[String]) -> Option<String> {
+    let (mut at, mut node) = (dir.to_path_buf(), Vec::new());
+    for seg in segments {
+        if at.join(format!("{seg}.rs")).is_file() {
+            node.push(seg.as_str());
+            break;
+        } else if at.join(seg).is_dir() {
+            node.push(seg.as_str());
+            at = at.join(seg);
+        } else {
+            break;
+        }
+    }
+    (!node.is_empty()).then(|| node.join("::"))
+}
+
+/// The node of `file` in the import graph of `dir`: its path below `dir` (`native`,
+/// `gated_dcc::kernel`; a sub-folder's `mod.rs` is the sub-folder, `gated_dcc`).
+fn node_of(dir: &Path, file: &Path) -> String {
+    let rel = file.strip_prefix(dir).expect("a file below its folder");
+    let mut parts: Vec<String> = rel
+        .with_extension("")
+        .components()
+        .map(|c| c.as_os_str().to_string_lossy().into_owned())
+        .collect();
+    if parts.len() > 1 && parts.last().is_some_and(|p| p == "mod") {
+        parts.pop();
+    }
+    parts.join("::")
+}
+
+/// Edges between the files of one folder (its sub-folders' files included, each a node
+/// of its own, as the rule reads: no two files import each other around a loop):
+/// `super::x` from a file directly in the folder and `crate::m::x…` from any file below
+/// it, where `x…` names a file (or a sub-folder's `mod.rs`) below the folder.
+fn sibling_edges(dir: &Path, module_path: &str) -> Vec<(String, String)> {
+    let mut edges = Vec::new();
+    for f in rust_files(dir) {
+        if f == dir.join("mod.rs") {
+            continue;
+        }
+        let from = node_of(dir, &f);
+        let text = code(&f);
+        // From a file of a sub-folder, `super::` is that sub-folder, not this one.
+        let mut targets = if f.parent() == Some(dir) {
+            full_paths_after(&text, "super::")
+        } else {
+            Vec::new()
+        };
+        if !module_path.is_empty() {
+            targets.extend(full_paths_after(&text, &format!("crate::{module_path}::")));
+        }
+        for t in targets {
+            if let Some(to) = resolve(dir, &t) {
+                if to != from && !edges.contains(&(from.clone(), to.clone())) {
+                    edges.push((from.clone(), to));
                 }
             }
         }
@@ -417,6 +499,28 @@ fn the_cycle_check_finds_a_cycle_and_none_in_a_chain() {
     let cycle = find_cycle(&[e("simulate", "truth"), e("truth", "simulate")]);
     assert_eq!(cycle.map(|c| c.len()), Some(3));
     assert_eq!(find_cycle(&[e("a", "b"), e("b", "c"), e("a", "c")]), None);
+}
+
+#[test]
+fn grouped_imports_are_read_member_by_member() {
+    let code = "use crate::m::{a::B, c::{d, e::F}};\nuse crate::m::g;\nlet x = xcrate::m::h;";
+    let paths: Vec<String> = full_paths_after(code, "crate::m::")
+        .iter()
+        .map(|p| p.join("::"))
+        .collect();
+    assert_eq!(paths, ["a::B", "c::d", "c::e::F", "g"]);
+    // A path resolves to the deepest file it reaches: a step's kernel file, not its folder.
+    let block = src().join("model").join("block");
+    let words = |p: &str| p.split("::").map(String::from).collect::<Vec<_>>();
+    assert_eq!(
+        resolve(&block, &words("gated_dcc::kernel::Unfold")).as_deref(),
+        Some("gated_dcc::kernel")
+    );
+    assert_eq!(
+        resolve(&block, &words("wgsl::Block")).as_deref(),
+        Some("wgsl")
+    );
+    assert_eq!(resolve(&block, &words("Nothing")), None);
 }
 
 #[test]

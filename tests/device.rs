@@ -8,7 +8,8 @@ use iastgcn::gpu::{
 use iastgcn::ops::elementwise::{self, Unary};
 use iastgcn::ops::matmul;
 use iastgcn::ops::Accumulate;
-use iastgcn::testing::{gpu, smoke, SmokeOptions};
+use iastgcn::smoke::{smoke, SmokeOptions};
+use iastgcn::testing::gpu;
 
 fn info(name: &str, device_type: wgpu::DeviceType) -> wgpu::AdapterInfo {
     wgpu::AdapterInfo {

@@ -5,7 +5,7 @@
 //! helpers at the top, and each file in tests/ is one more test binary to build and link.
 
 use iastgcn::gpu::{DType, Gpu, Planning, Tensor};
-use iastgcn::ops::gated_dcc;
+use iastgcn::model::block::gated_dcc::kernel as gated_dcc;
 use iastgcn::ops::matmul::{cpu, plan, Epilogue, Loads, Matmul, Tiling};
 use iastgcn::ops::Accumulate;
 use iastgcn::testing::{

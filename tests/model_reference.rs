@@ -8,9 +8,9 @@
 //! in tests/ is one more test binary to build and link.
 
 use iastgcn::graph::Graph;
+use iastgcn::model::block::residual_layer_norm::dropout_kernel::keep;
 use iastgcn::model::reference::{backward, forward, loss, DropoutStep, Loss, Tape};
 use iastgcn::model::{graph_basis, Init, ModelConfig, ParamSpec, Parameters, Variant};
-use iastgcn::ops::dropout::keep;
 use iastgcn::testing::{compare, rng, uniform, Tolerance, Worst};
 use nalgebra::{DMatrix, DVector};
 use rand::seq::index::sample;

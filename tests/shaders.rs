@@ -10,8 +10,8 @@ use iastgcn::gpu::{
     check_uniform, reflect_uniforms, validate_wgsl, Binding, DType, GpuError, Kernel, Scalar,
     Shader, Uniform, UniformLayout,
 };
-use iastgcn::ops;
 use iastgcn::testing::gpu;
+use iastgcn::{model, ops};
 
 fn shader_files() -> Vec<(String, String)> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("shaders");
@@ -28,6 +28,21 @@ fn shader_files() -> Vec<(String, String)> {
     files
 }
 
+/// Every shader: the shared ops' and the steps' own kernels'.
+fn all_shaders() -> Vec<&'static Shader> {
+    ops::shaders()
+        .into_iter()
+        .chain(model::block::shaders())
+        .collect()
+}
+
+/// Every uniform block on the Rust side, the shared ops' and the steps' kernels'.
+fn all_uniforms() -> Vec<UniformLayout> {
+    let mut all = ops::uniforms();
+    all.extend(model::block::uniforms());
+    all
+}
+
 #[test]
 fn every_shader_file_validates() {
     let files = shader_files();
@@ -38,7 +53,7 @@ fn every_shader_file_validates() {
     // Through the registry, so that a shader compiled after a base one (the subgroup
     // matmul after matmul.wgsl) is validated with it; the next test ties the registry to
     // the files.
-    let failures: Vec<String> = ops::shaders()
+    let failures: Vec<String> = all_shaders()
         .iter()
         .filter_map(|s| s.validate().err().map(|e| e.to_string()))
         .collect();
@@ -52,13 +67,13 @@ fn every_shader_file_validates() {
 #[test]
 fn every_op_shader_is_registered_and_matches_its_file() {
     let files = shader_files();
-    let registered = ops::shaders();
+    let registered = all_shaders();
     for (name, src) in files.iter().filter(|(n, _)| n != "common") {
         let s = registered
             .iter()
             .find(|s| s.name == name)
-            .unwrap_or_else(|| panic!("shaders/{name}.wgsl is not registered in ops::shaders()"));
-        assert_eq!(&s.source, src, "ops registry holds a stale copy of {name}");
+            .unwrap_or_else(|| panic!("shaders/{name}.wgsl is not registered in ops::shaders() or model::block::shaders()"));
+        assert_eq!(&s.source, src, "the registry holds a stale copy of {name}");
     }
     assert_eq!(registered.len(), files.len() - 1);
 }
@@ -105,7 +120,7 @@ fn helpers_from_common_are_visible() {
 
 #[test]
 fn every_rust_uniform_block_matches_its_wgsl_struct() {
-    let layouts = ops::uniforms();
+    let layouts = all_uniforms();
     assert!(layouts.len() >= 19, "{} blocks", layouts.len());
     let failures: Vec<String> = layouts
         .iter()
@@ -116,8 +131,8 @@ fn every_rust_uniform_block_matches_its_wgsl_struct() {
 
 #[test]
 fn every_wgsl_uniform_struct_has_a_rust_block() {
-    let layouts = ops::uniforms();
-    for shader in ops::shaders() {
+    let layouts = all_uniforms();
+    for shader in all_shaders() {
         let uniforms = reflect_uniforms(shader).unwrap();
         assert!(
             !uniforms.structs.is_empty(),
@@ -138,7 +153,7 @@ fn every_wgsl_uniform_struct_has_a_rust_block() {
                 layouts
                     .iter()
                     .any(|l| l.wgsl == name.as_str() && l.shader.name == owner),
-                "struct {name} of shaders/{owner}.wgsl has no Rust block in ops::uniforms()"
+                "struct {name} of shaders/{owner}.wgsl has no Rust block in ops::uniforms() or model::block::uniforms()"
             );
         }
         // Every entry point reads its block (slot 0 is bound for every kernel).
@@ -160,7 +175,7 @@ fn naga_entries(shader: &Shader) -> Vec<String> {
 /// A copy of a real block's layout with one thing changed must fail, naming what.
 #[test]
 fn a_planted_mismatch_in_a_rust_block_is_caught() {
-    let layer_norm = ops::uniforms()
+    let layer_norm = all_uniforms()
         .into_iter()
         .find(|l| l.wgsl == "LnParams")
         .unwrap();
@@ -170,7 +185,10 @@ fn a_planted_mismatch_in_a_rust_block_is_caught() {
         change(&mut l);
         let err = check_uniform(&l).unwrap_err().to_string();
         assert!(err.contains("shaders/layer_norm.wgsl: struct"), "{err}");
-        assert!(err.contains("ops::layer_norm::Params"), "{err}");
+        assert!(
+            err.contains("residual_layer_norm::layer_norm_kernel::Params"),
+            "{err}"
+        );
         assert!(err.contains(expect), "wanted {expect:?} in: {err}");
     };
     // Two fields declared in the other order: the same size, each at the other's offset.

@@ -1,10 +1,10 @@
-//! `iastgcn smoke`: arguments for the library's device check ([`iastgcn::testing::smoke()`])
+//! `iastgcn smoke`: arguments for the library's device check ([`iastgcn::smoke::smoke()`])
 //! and its printout; fails when a kernel does not match the CPU reference.
 
 use anyhow::bail;
 
 use iastgcn::gpu::Gpu;
-use iastgcn::testing::{smoke, SmokeOptions, SmokeRow};
+use iastgcn::smoke::{smoke, SmokeOptions, SmokeRow};
 
 #[derive(clap::Args)]
 pub struct SmokeArgs {

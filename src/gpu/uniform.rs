@@ -8,7 +8,7 @@
 //! and every member. [`Gpu::dispatch`](crate::gpu::Gpu::dispatch) takes only a
 //! [`Uniform`] and makes the same comparison on the first dispatch of each kernel, against
 //! the struct that kernel's entry point actually binds at slot 0, so a block that drifts
-//! from its shader is an error before anything runs. `ops::uniforms()` lists every block
+//! from its shader is an error before anything runs. `ops::uniforms()` and `model::block::uniforms()` list every block
 //! for the test that checks them all without a device.
 
 use std::collections::HashMap;

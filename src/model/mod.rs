@@ -22,7 +22,7 @@ pub use params::{
     MAX_PARAMETERS,
 };
 
-mod block;
+pub mod block;
 pub mod network;
 pub mod schedule;
 

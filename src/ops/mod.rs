@@ -3,14 +3,10 @@
 
 pub mod adam;
 pub mod bias;
-pub mod dropout;
 pub mod elementwise;
 pub mod fft;
-pub mod gated_dcc;
-pub mod graph_attention;
 pub mod gru;
 pub mod head;
-pub mod layer_norm;
 pub mod loss;
 pub mod lstm;
 pub mod matmul;
@@ -61,19 +57,15 @@ pub(crate) fn outer_slices(outer: usize, inner: usize) -> (usize, usize) {
     (outer.div_ceil(per).max(1), per)
 }
 
-/// Every op shader, for validation and for the pipeline warm-up.
-pub fn shaders() -> [&'static Shader; 19] {
+/// Every shared op's shader, for validation (the steps' own kernels: `model::block::shaders`).
+pub fn shaders() -> [&'static Shader; 15] {
     [
         &adam::SHADER,
         &bias::SHADER,
-        &dropout::SHADER,
         &elementwise::SHADER,
         &fft::SHADER,
-        &gated_dcc::SHADER,
-        &graph_attention::SHADER,
         &gru::SHADER,
         &head::SHADER,
-        &layer_norm::SHADER,
         &loss::SHADER,
         &lstm::SHADER,
         &matmul::SHADER,
@@ -86,23 +78,18 @@ pub fn shaders() -> [&'static Shader; 19] {
     ]
 }
 
-/// Every kernel's uniform block on the Rust side, for the test that compares each with
-/// its WGSL struct (`tests/shaders.rs`). A block missing here is still checked on its
+/// Every shared op's uniform block on the Rust side (the steps' own: `model::block::uniforms`),
+/// for the test that compares each with its WGSL struct (`tests/shaders.rs`). A block missing here is still checked on its
 /// kernel's first dispatch ([`crate::gpu::Gpu::dispatch`]); the test fails on a shader
 /// struct without an entry.
 pub fn uniforms() -> Vec<UniformLayout> {
     vec![
         adam::Params::layout(),
         bias::Params::layout(),
-        dropout::Params::layout(),
         elementwise::Params::layout(),
         fft::Params::layout(),
-        gated_dcc::UnfoldParams::layout(),
-        gated_dcc::GateParams::layout(),
-        graph_attention::Params::layout(),
         gru::Params::layout(),
         head::Params::layout(),
-        layer_norm::Params::layout(),
         loss::Params::layout(),
         lstm::Params::layout(),
         matmul::Params::layout(),

@@ -1,10 +1,6 @@
 //! Kernel test support: seeded random data, central finite differences in f64, and
-//! comparisons that report the worst element. Used by `tests/` and by [`smoke()`], the
-//! device check behind `iastgcn smoke`.
-
-pub mod smoke;
-
-pub use smoke::{smoke, SmokeOptions, SmokeRow};
+//! comparisons that report the worst element. Used by `tests/`, by the unit tests of
+//! `model`, and by [`crate::smoke`], the device check behind `iastgcn smoke`.
 
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -5,7 +5,10 @@
 //! f32 implementation (`native.rs`) and its test (`tests.rs`), which puts one random case
 //! through the three and names the step and the backend that broke (`every_step.rs`
 //! drives the steps' `testing::StepTest`s, and checks each reference against finite
-//! differences).
+//! differences). A kernel that only one step launches is that step's too: its launcher
+//! and the kernel's own f64 reference in `kernel.rs` (`layer_norm_kernel.rs` and
+//! `dropout_kernel.rs` for steps 5–7), its tests on the device in `kernel_tests.rs`;
+//! [`shaders`] and [`uniforms`] list them.
 //!
 //! | step | docs/model.md |
 //! |---|---|
@@ -24,7 +27,7 @@
 //! sits in the parameter list) and `reference.rs` (the f64 block, with `exact.rs`, its
 //! shapes and parameters). `testing.rs` holds what the step tests share.
 //!
-//! To add a step: a folder with the five files (its `StepTest` listed in
+//! To add a step: a folder with the five files (and `kernel.rs` for a kernel of its own) (its `StepTest` listed in
 //! `every_step.rs`), its methods called from the three
 //! compositions, its saved tensors in `wgsl.rs`'s `Block`, `tape.rs`'s `BlockTape` and
 //! `reference.rs`'s `BlockTape`, and its row in the table above and in
@@ -41,9 +44,34 @@ pub(crate) mod tape;
 mod testing;
 pub(crate) mod wgsl;
 
-pub(crate) mod gated_dcc;
-pub(crate) mod graph_attention;
+pub mod gated_dcc;
+pub mod graph_attention;
 pub(crate) mod graph_conv;
-pub(crate) mod residual_layer_norm;
+pub mod residual_layer_norm;
 pub(crate) mod spatial_attention;
 pub(crate) mod temporal_attention;
+
+use crate::gpu::{Shader, Uniform, UniformLayout};
+
+/// The shaders of the steps' own kernels, for validation (the shared ops':
+/// [`crate::ops::shaders`]).
+pub fn shaders() -> [&'static Shader; 4] {
+    [
+        &gated_dcc::kernel::SHADER,
+        &graph_attention::kernel::SHADER,
+        &residual_layer_norm::dropout_kernel::SHADER,
+        &residual_layer_norm::layer_norm_kernel::SHADER,
+    ]
+}
+
+/// The uniform blocks of the steps' own kernels on the Rust side (the shared ops':
+/// [`crate::ops::uniforms`]), for the test that compares each with its WGSL struct.
+pub fn uniforms() -> Vec<UniformLayout> {
+    vec![
+        gated_dcc::kernel::UnfoldParams::layout(),
+        gated_dcc::kernel::GateParams::layout(),
+        graph_attention::kernel::Params::layout(),
+        residual_layer_norm::dropout_kernel::Params::layout(),
+        residual_layer_norm::layer_norm_kernel::Params::layout(),
+    ]
+}

@@ -21,11 +21,11 @@
 
 use rayon::prelude::*;
 
+use crate::model::block::residual_layer_norm::dropout_kernel::Dropout;
 use crate::model::block::slots::{BlockSlots, Slots};
 use crate::model::block::tape::{BlockTape, Masks, Tape, Work};
 use crate::model::config::ModelConfig;
 use crate::model::cpu::{flushing_subnormals, gemm, rows, transposed, PAR_MIN_MACS};
-use crate::ops::dropout::Dropout;
 use multiversion::multiversion;
 
 /// What every step of one block reads besides the tensors: its shapes, its tensor slots

@@ -19,9 +19,9 @@ use super::spatial_attention::reference::{
 use super::temporal_attention::reference::{
     temporal_attention, temporal_attention_backward, TemporalAttention, TemporalParams,
 };
+use crate::model::block::residual_layer_norm::dropout_kernel::{keep, Dropout};
 use crate::model::exact::{axpy, Grads};
 use crate::model::ModelConfig;
-use crate::ops::dropout::{keep, Dropout};
 
 /// One ST block's intermediates. Its input is the previous block's `output` (or
 /// the network input for block 0).
@@ -51,7 +51,7 @@ pub struct BlockTape {
 
 /// The dropout of one training step (docs/model.md step 7). Block `l` draws its mask from
 /// [`DropoutStep::block`]: element `i` (flat index into Y `[B,N,C,T]`) is kept iff
-/// `ops::dropout::keep(&mask, step, i)`, and kept values are scaled by 1/(1−p).
+/// `dropout_kernel::keep(&mask, step, i)`, and kept values are scaled by 1/(1−p).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct DropoutStep {
     /// The masks' base seed (block `l` uses seed + l); in training, the two 32-bit

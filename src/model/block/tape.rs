@@ -3,10 +3,10 @@
 //! [`BlockTape`] per block), the time steps each block computes at ([`Cols`]), the
 //! dropout of a training step ([`Masks`]) and the backward's working memory ([`Work`]).
 
+use crate::model::block::residual_layer_norm::dropout_kernel::Dropout;
 use crate::model::block::slots::{BlockSlots, Slots};
 use crate::model::config::ModelConfig;
 use crate::model::cpu::View;
-use crate::ops::dropout::Dropout;
 
 /// The time steps a block computes X_t, M and Z at: `len` steps from `first`, `stride`
 /// apart. Every step, except in the last block (steps 4–7 at T − 1 only), whose

@@ -29,20 +29,18 @@ use crate::model::config::{ModelConfig, Variant};
 use crate::model::exact::Grads;
 use crate::model::params::{param_specs, ParamSpec, Parameters};
 use crate::model::schedule::{Scratch, Steps};
-use rand::{RngExt, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 use std::collections::BTreeMap;
 use std::sync::OnceLock;
 
+use crate::testing;
+
 /// f32 steps against f64 sums of a few dozen terms of order 1: |a − e| ≤ ABS + REL·|e|.
-/// (`crate::testing` has the same comparison, but `model` may not import it.)
 pub(super) const ABS: f64 = 2e-5;
 pub(super) const REL: f64 = 2e-4;
 
 /// `n` values uniform in [lo, hi) from a generator seeded with `seed`.
 pub(super) fn uniform(seed: u64, n: usize, lo: f64, hi: f64) -> Vec<f64> {
-    let mut g = ChaCha8Rng::seed_from_u64(seed);
-    (0..n).map(|_| g.random_range(lo..hi)).collect()
+    testing::uniform(&mut testing::rng(seed), n, lo, hi)
 }
 
 /// A small network of `variant` (C 8, T 12, L 2: block 1 is the last) with its
@@ -105,12 +103,12 @@ pub(super) fn check(what: &str, actual: &[f64], expected: &[f64]) {
 // ---------------------------------------------------------------------------------------
 // The WGSL block (`model::block`), one step at a time.
 
-/// The device every test shares (made as `crate::testing::gpu()` makes one; `model` may
-/// not import `testing`): each test's pipelines are compiled once.
+/// The device every step test shares, opened once (`crate::testing::gpu()` opens one a
+/// call): each test's pipelines are compiled once.
 pub(super) fn gpu() -> &'static Gpu {
     static GPU: OnceLock<Gpu> = OnceLock::new();
     // invariant: test support: a test without a device fails with the reason.
-    GPU.get_or_init(|| Gpu::new().unwrap_or_else(|e| panic!("{e}")))
+    GPU.get_or_init(testing::gpu)
 }
 
 /// Block `l` of the WGSL path on one window (batch 1) of `cfg`, with `params` (in

@@ -6,15 +6,15 @@
 //! [`Table`], the parameters by name that every device network's schedule reads.
 
 use crate::gpu::{DType, Gpu, GpuError, Tensor};
+use crate::model::block::gated_dcc::kernel::Unfold;
+use crate::model::block::graph_attention::kernel::GraphAttention;
+use crate::model::block::residual_layer_norm::dropout_kernel::Dropout;
+use crate::model::block::residual_layer_norm::layer_norm_kernel::LayerNorm;
 use crate::model::config::ModelConfig;
 use crate::model::params::ParamSpec;
 use crate::model::schedule::{ParamTable, Pass, Scratch, Steps};
 use crate::ops::bias::Bias;
-use crate::ops::dropout::Dropout;
-use crate::ops::gated_dcc::Unfold;
-use crate::ops::graph_attention::GraphAttention;
 use crate::ops::head::LastStep;
-use crate::ops::layer_norm::LayerNorm;
 use crate::ops::matmul::Matmul;
 use crate::ops::outer::{OuterPair, Second};
 use crate::ops::softmax::Softmax;

@@ -13,8 +13,8 @@
 //! `recurrent.rs` and `conv_lstm.rs`; [`loss`] serves every model. The ST block's steps
 //! are in their folders of `model::block` (each step's `reference.rs`, composed in
 //! `block/reference.rs`), the arithmetic they share in `model::exact`. Where an op has its
-//! own f64 reference next to its kernels (`ops::gated_dcc::cpu` for step 4,
-//! `ops::layer_norm::cpu` for step 6), the step composes that one instead of computing the
+//! own f64 reference next to its kernels (`gated_dcc::kernel::cpu` for step 4,
+//! `layer_norm_kernel::cpu` for step 6), the step composes that one instead of computing the
 //! same maths a second time, so the WGSL tests and the network reference check against
 //! one implementation.
 

@@ -15,6 +15,9 @@
 //!   unfolding's backward, the native path applies it to dZ), which step 3's backward
 //!   starts from.
 
+pub mod kernel;
+#[cfg(test)]
+mod kernel_tests;
 pub(crate) mod native;
 pub(crate) mod reference;
 #[cfg(test)]

@@ -1,13 +1,13 @@
 //! Step 4: the gated dilated causal convolution (eq. 30–31), also the plain one of
-//! `iastgcn-t`, on the whole window: the op's f64 reference (`ops::gated_dcc::cpu`) on
+//! `iastgcn-t`, on the whole window: the op's f64 reference (`gated_dcc::kernel::cpu`) on
 //! the block's `[B, N, C, T]` tensors.
 
 // The loops index several tensors by the equations' indices at once.
 #![allow(clippy::needless_range_loop)]
 
 use crate::model::block::exact::{BlockParams, Dims};
+use crate::model::block::gated_dcc::kernel::{cpu, Unfold};
 use crate::model::exact::Grads;
-use crate::ops::gated_dcc::{cpu, Unfold};
 
 /// The unfolding of a block's `[B, N, C, T]` input with dilation `dil` and `kernel` taps,
 /// every step kept.

@@ -4,11 +4,11 @@
 //! the unfolding's backward folds dcol back.
 
 use crate::gpu::{Gpu, GpuError, Tensor};
+use crate::model::block::gated_dcc::kernel::{gate_backward_stacked, gate_forward, ReluOutput};
 use crate::model::block::wgsl::Block;
 use crate::model::schedule::{ParamTable, Pass, Scratch, Steps};
 use crate::ops::bias::Bias;
 use crate::ops::elementwise::{unary_backward, unary_forward, Unary};
-use crate::ops::gated_dcc::{gate_backward_stacked, gate_forward, ReluOutput};
 use crate::ops::matmul::Epilogue;
 use crate::ops::Accumulate::Overwrite;
 

@@ -1,7 +1,7 @@
 //! `st-gat`'s step 3, in place of the graph convolution: Q = Wᵀ·X per node, then on every
 //! head and step a graph attention over the graph's edges, e_ij = a_src·q_i + a_dst·q_j,
 //! α_i = softmax over j of LeakyReLU(e_ij), Z_i = ReLU(Σ_j α_ij·q_j) (the kernel and its
-//! f64 reference: `ops::graph_attention`).
+//! f64 reference: `graph_attention::kernel`).
 //!
 //! The contract, per window, on every backend:
 //!
@@ -15,6 +15,9 @@
 //!
 //! Its test runs in `graph_conv/tests.rs`, with the graph convolution's.
 
+pub mod kernel;
+#[cfg(test)]
+mod kernel_tests;
 pub(crate) mod native;
 pub(crate) mod reference;
 pub(crate) mod wgsl;

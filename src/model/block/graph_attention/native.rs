@@ -1,14 +1,14 @@
 //! `st-gat`'s step 3 on the CPU in f32, forward and backward side by side: in place of Ψ
 //! and the two attentions, Q = Wᵀ·X per node, then on every head and step a graph
 //! attention over the graph's edges, e_ij = a_src·q_i + a_dst·q_j, α_i = softmax over
-//! j of LeakyReLU(e_ij), Z_i = ReLU(Σ_j α_ij·q_j) (`ops::graph_attention`'s CPU reference,
+//! j of LeakyReLU(e_ij), Z_i = ReLU(Σ_j α_ij·q_j) (`graph_attention::kernel`'s CPU reference,
 //! in the block's `[N, C, T]` layout).
 
+use crate::model::block::graph_attention::kernel::SLOPE;
 use crate::model::block::native::Block;
 use crate::model::block::slots::GatShape;
 use crate::model::block::tape::{BlockTape, GatTape, Work};
 use crate::model::cpu::{exp, gemm, rows, transposed};
-use crate::ops::graph_attention::SLOPE;
 
 impl Block<'_> {
     /// `st-gat`'s step 3 forward on this block: Z from the block input, the graph's

@@ -1,13 +1,13 @@
 //! `st-gat`'s step 3 in f64: Q = X_s·W over channels (the graph convolution's channel
-//! mix), then the multi-head graph attention of `ops::graph_attention::cpu` and a ReLU,
+//! mix), then the multi-head graph attention of `graph_attention::kernel::cpu` and a ReLU,
 //! forward and backward.
 
 // The loops index several tensors by the equations' indices at once.
 #![allow(clippy::needless_range_loop)]
 
 use crate::model::block::exact::{channel_mix, channel_mix_backward, BlockParams, Dims};
+use crate::model::block::graph_attention::kernel::{cpu as gat, GraphAttention};
 use crate::model::exact::Grads;
-use crate::ops::graph_attention::{cpu as gat, GraphAttention};
 
 /// The graph attention of `st-gat` on `heads` heads.
 fn attention_shape(d: &Dims, heads: usize) -> GraphAttention {

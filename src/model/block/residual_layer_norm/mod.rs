@@ -1,7 +1,7 @@
 //! Steps 5–7 of docs/model.md: the residual R = W_r·X + b_r and A = ReLU(H + R) (step
 //! 5), the LayerNorm over channels Y = γ·(A − μ)/σ + β (step 6), and in training the
 //! inverted dropout (step 7), whose mask is drawn by the device's hash
-//! (`ops::dropout::keep`) on every backend. In the last block it runs at the last step
+//! (`dropout_kernel::keep`) on every backend. In the last block it runs at the last step
 //! only, and its output is the head's input.
 //!
 //! The contract, per window, on every backend:
@@ -19,6 +19,10 @@
 //! runs two passes, R, A and the statistics per node, then the affine map with the
 //! dropout.
 
+pub mod dropout_kernel;
+#[cfg(test)]
+mod kernel_tests;
+pub mod layer_norm_kernel;
 pub(crate) mod native;
 pub(crate) mod reference;
 #[cfg(test)]

@@ -6,7 +6,7 @@
 //! over tasks at the paper's sizes. The second fuses step 6's affine map with step 7's
 //! dropout: Y = γ·x̂ + β, then in a training pass the inverted dropout, writing each
 //! output element once (into the block output, or the head's input at the last block's
-//! last step). The mask's bits are drawn by the device's hash (`ops::dropout::keep`) and
+//! last step). The mask's bits are drawn by the device's hash (`dropout_kernel::keep`) and
 //! kept on the tape for the backward.
 
 // The LayerNorm loops index several per-channel tensors by the channel.
@@ -15,9 +15,9 @@
 use rayon::prelude::*;
 
 use crate::model::block::native::Block;
+use crate::model::block::residual_layer_norm::dropout_kernel::{keep, Dropout};
 use crate::model::block::tape::{BlockTape, Work};
 use crate::model::cpu::{flushing_subnormals, gemm, lanes_sum, rows, transposed, View};
-use crate::ops::dropout::{keep, Dropout};
 use multiversion::multiversion;
 
 impl Block<'_> {

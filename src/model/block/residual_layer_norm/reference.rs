@@ -5,8 +5,8 @@
 #![allow(clippy::needless_range_loop)]
 
 use crate::model::block::exact::Dims;
+use crate::model::block::residual_layer_norm::layer_norm_kernel::{cpu, LayerNorm};
 use crate::model::exact::{axpy, dot, row, row_mut};
-use crate::ops::layer_norm::{cpu, LayerNorm};
 
 // ---------------------------------------------------------------------------------------
 // Step 5: residual 1×1 convolution.
@@ -69,7 +69,7 @@ pub(crate) fn residual_backward(
 }
 
 // ---------------------------------------------------------------------------------------
-// Step 6: Y = LayerNorm_C(ReLU(H + R)), the op's f64 reference (`ops::layer_norm::cpu`).
+// Step 6: Y = LayerNorm_C(ReLU(H + R)), the op's f64 reference (`layer_norm_kernel::cpu`).
 
 /// The LayerNorm over the channels of a block's `[B, N, C, T]` tensor, with ε held as
 /// an f32 as the device and the native path hold it.

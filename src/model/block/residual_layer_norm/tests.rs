@@ -13,6 +13,7 @@ use super::reference::{layer_norm, layer_norm_backward, residual, residual_backw
 use crate::gpu::GpuError;
 use crate::model::block::exact::Dims;
 use crate::model::block::native::Block;
+use crate::model::block::residual_layer_norm::dropout_kernel::keep;
 use crate::model::block::tape::Masks;
 use crate::model::block::testing::{
     check, gpu, narrow, out_steps, random, wide, Backward, Case, Device, Run, StepTest, Tensors,
@@ -21,7 +22,6 @@ use crate::model::block::testing::{
 use crate::model::block::wgsl::MaskedStep;
 use crate::model::config::{ModelConfig, Variant};
 use crate::model::schedule::{Pass, Steps};
-use crate::ops::dropout::keep;
 use crate::ops::Accumulate::Overwrite;
 
 /// Steps 5–7's [`StepTest`].

@@ -5,9 +5,9 @@
 //! writes the dropped output; the backward reads ∂ℒ/∂output through the same mask).
 
 use crate::gpu::{Gpu, GpuError, Tensor};
+use crate::model::block::residual_layer_norm::layer_norm_kernel::LayerNorm;
 use crate::model::block::wgsl::{Block, MaskedStep};
 use crate::model::schedule::{ParamTable, Pass, Scratch, Steps};
-use crate::ops::layer_norm::LayerNorm;
 use crate::ops::matmul::Epilogue;
 use crate::ops::Accumulate::{Add, Overwrite};
 

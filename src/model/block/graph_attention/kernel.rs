@@ -17,7 +17,7 @@ use crate::ops::Accumulate;
 /// The WGSL module of this family (`shaders/graph_attention.wgsl`).
 pub static SHADER: Shader = Shader {
     name: "graph_attention",
-    source: include_str!("../../shaders/graph_attention.wgsl"),
+    source: include_str!("../../../../shaders/graph_attention.wgsl"),
     base: None,
 };
 

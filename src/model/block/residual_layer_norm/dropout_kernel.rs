@@ -8,7 +8,7 @@ use crate::ops::Accumulate;
 /// The WGSL module of this family (`shaders/dropout.wgsl`, entry `dropout`).
 pub static SHADER: Shader = Shader {
     name: "dropout",
-    source: include_str!("../../shaders/dropout.wgsl"),
+    source: include_str!("../../../../shaders/dropout.wgsl"),
     base: None,
 };
 

@@ -3,11 +3,11 @@
 //! of docs/model.md step 4, and the reference gradients (the unfolding, the gate and the
 //! convolution) vs central differences.
 
-use iastgcn::gpu::DType;
-use iastgcn::ops::gated_dcc::{cpu, gate_backward_stacked, gate_forward, ReluOutput, Unfold};
-use iastgcn::ops::matmul::Matmul;
-use iastgcn::ops::Accumulate;
-use iastgcn::testing::{
+use super::kernel::{cpu, gate_backward_stacked, gate_forward, ReluOutput, Unfold};
+use crate::gpu::DType;
+use crate::ops::matmul::Matmul;
+use crate::ops::Accumulate;
+use crate::testing::{
     check_gradient, compare, compare_tensor, dot, gpu, rng, round_f32, to_f32, uniform, Tolerance,
 };
 

@@ -9,7 +9,7 @@ use crate::ops::Accumulate;
 /// forward and backward).
 pub static SHADER: Shader = Shader {
     name: "gated_dcc",
-    source: include_str!("../../shaders/gated_dcc.wgsl"),
+    source: include_str!("../../../../shaders/gated_dcc.wgsl"),
     base: None,
 };
 

@@ -1,12 +1,12 @@
-//! The multi-head graph attention op (`ops::graph_attention`): GPU forward (α and the
+//! The multi-head graph attention op (`graph_attention::kernel`): GPU forward (α and the
 //! aggregate, both accumulate modes) and backward (∂ℒ/∂q, ∂ℒ/∂a_src, ∂ℒ/∂a_dst) against
 //! the f64 reference, and the reference backward against central differences in f64.
 
-use iastgcn::gpu::{DType, Gpu, Tensor};
-use iastgcn::graph::Graph;
-use iastgcn::ops::graph_attention::{cpu, GraphAttention};
-use iastgcn::ops::Accumulate;
-use iastgcn::testing::{
+use super::kernel::{cpu, GraphAttention};
+use crate::gpu::{DType, Gpu, Tensor};
+use crate::graph::Graph;
+use crate::ops::Accumulate;
+use crate::testing::{
     check_gradient, compare_tensor, dot, gpu, rng, round_f32, to_f32, uniform, Tolerance,
 };
 

@@ -2,15 +2,15 @@
 //! parameter gradients, and the f64 CPU reference. The dropout that follows it in a
 //! training step (step 7) can be fused in ([`LayerNorm::dropout`]).
 
+use super::dropout_kernel::Dropout;
 use crate::gpu::{grid_1d, Binding, DType, Dispatch, Gpu, GpuError, Kernel, Shader, Tensor};
-use crate::ops::dropout::Dropout;
 use crate::ops::{outer_slices, Accumulate};
 
 /// The WGSL module of this family (`shaders/layer_norm.wgsl`: forward, input gradient,
 /// parameter gradients).
 pub static SHADER: Shader = Shader {
     name: "layer_norm",
-    source: include_str!("../../shaders/layer_norm.wgsl"),
+    source: include_str!("../../../../shaders/layer_norm.wgsl"),
     base: None,
 };
 

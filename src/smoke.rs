@@ -6,15 +6,15 @@
 
 use std::time::Instant;
 
-use super::{rng, round_f32, to_f32, uniform, worst, Tolerance, Worst};
 use crate::error::{Error, Result};
 use crate::gpu::{DType, Dispatch, Gpu, Recorder, Tensor};
+use crate::model::block::residual_layer_norm::layer_norm_kernel::{self, LayerNorm};
 use crate::ops::elementwise::{self, Binary, Unary};
 use crate::ops::fft::{dft2, Transform2};
-use crate::ops::layer_norm::{self, LayerNorm};
 use crate::ops::matmul::{self, Matmul};
 use crate::ops::removal::{Accumulator, Footprint, Tick};
 use crate::ops::Accumulate;
+use crate::testing::{rng, round_f32, to_f32, uniform, worst, Tolerance, Worst};
 
 /// The sizes and seed of the smoke check.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -236,7 +236,7 @@ fn reduction_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> {
 
 /// The channel LayerNorm of docs/model.md step 6 over 224 rows of C channels and 100
 /// steps, forward and backward: the parameter gradients sum 22 400 terms per channel,
-/// split over slices of the rows (`ops::layer_norm`).
+/// split over slices of the rows (`layer_norm_kernel`).
 fn layer_norm_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> {
     let c = options.channels;
     let ln = LayerNorm::new(224, c, 100);
@@ -266,8 +266,8 @@ fn layer_norm_check(gpu: &Gpu, options: &SmokeOptions) -> Result<Vec<SmokeRow>> 
         ln.backward_params(gpu, &xt, &dyt, &mean, &rstd, &dg, &db, new)?,
     ];
     let seconds = run_timed(gpu, &step)?;
-    let y_ref = layer_norm::cpu::forward(&ln, &x, &gamma, &beta);
-    let (dx_ref, dg_ref, db_ref) = layer_norm::cpu::backward(&ln, &x, &gamma, &dy);
+    let y_ref = layer_norm_kernel::cpu::forward(&ln, &x, &gamma, &beta);
+    let (dx_ref, dg_ref, db_ref) = layer_norm_kernel::cpu::backward(&ln, &x, &gamma, &dy);
     // Normalised values are O(1); the parameter gradients sum `rows` such terms.
     let tol = Tolerance::new(5e-5, 5e-5);
     let sums = Tolerance::new(8e-6 * (ln.rows() as f64).sqrt(), 1e-4);
