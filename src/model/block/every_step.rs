@@ -10,28 +10,25 @@
 #![cfg(test)]
 
 use super::gated_dcc;
+use super::graph_conv;
 use super::residual_layer_norm;
+use super::spatial_attention;
+use super::temporal_attention;
 use super::testing::{case, check, uniform, wide, Backward, Case, Run, StepTest, Tensors, Where};
 use crate::model::params::{param_specs, ParamSpec};
 use std::path::Path;
 
-/// Every step the test runs (one per folder of `model/block/` but those listed in
-/// [`NOT_YET`]).
+/// Every step the test runs, one per folder of `model/block/`.
 fn steps() -> Vec<Box<dyn StepTest>> {
     vec![
         Box::new(gated_dcc::tests::GatedDcc),
         Box::new(residual_layer_norm::tests::ResidualLayerNorm),
+        Box::new(temporal_attention::tests::TemporalAttention1),
+        Box::new(spatial_attention::tests::SpatialAttention2),
+        Box::new(graph_conv::tests::GraphConv3 { gat: false }),
+        Box::new(graph_conv::tests::GraphConv3 { gat: true }),
     ]
 }
-
-/// Step folders whose test is still a function of its own (`tests.rs` of the folder),
-/// not yet a [`StepTest`]: issue 70 moves them; the list only shrinks.
-const NOT_YET: [&str; 4] = [
-    "temporal_attention",
-    "spatial_attention",
-    "graph_conv",
-    "graph_attention",
-];
 
 /// Σ over outputs of d_out · out: the scalar whose gradient the backward computes.
 fn pairing(outputs: &Tensors, d_outputs: &Tensors) -> f64 {
@@ -183,7 +180,11 @@ fn every_step_on_every_implementation_matches_its_reference() {
                 }),
             };
             let native = step.native(&mut case, at, &inputs, &d_outputs);
-            check_run(step.name(), at, "native", &specs, &native, &expected);
+            let where_computed = Run {
+                outputs: step.native_outputs(&case, at, expected.outputs.clone()),
+                backward: expected.backward.clone(),
+            };
+            check_run(step.name(), at, "native", &specs, &native, &where_computed);
             let wgsl = step.wgsl(&case, at, &inputs, &d_outputs);
             check_run(step.name(), at, "wgsl", &specs, &wgsl, &expected);
         }
@@ -201,10 +202,9 @@ fn every_step_is_tested() {
         .collect();
     folders.sort();
     let mut listed: Vec<String> = steps().iter().map(|s| s.name().to_string()).collect();
-    listed.extend(NOT_YET.iter().map(|s| s.to_string()));
     listed.sort();
     assert_eq!(
         folders, listed,
-        "every step folder of src/model/block has a StepTest in `steps()` (or is in NOT_YET)"
+        "every step folder of src/model/block has a StepTest in `steps()`"
     );
 }

@@ -1,24 +1,22 @@
-//! What the step tests share (`tests.rs` in each step's folder). Each test puts one
-//! random case through the step's f64 reference, its native f32 implementation and its
-//! WGSL one (the device block run one step at a time, [`Device`]), forward and backward,
-//! so that a wrong step in either implementation is named by the failing assertion
-//! ("gated_dcc iastgcn block 1 (wgsl): d gate.weight: element 3 …"; "(native)" for the
-//! native step).
+//! What the step tests share. Each step's `tests.rs` implements [`StepTest`]: its cases,
+//! random inputs and output gradients under its contract's names, its f64 reference
+//! forward and backward at the implementations' boundaries, and one run of each f32
+//! implementation (the native step on a case's memory, and the WGSL step on the device
+//! block run one step at a time, [`Device`]). `every_step.rs` drives them all and names
+//! the step, the case and the implementation that broke ("gated_dcc iastgcn block 1
+//! (wgsl): d blocks.1.tcn.gate.weight: element 3 …").
 //!
-//! Each runs in a block with every output step and in a last block, gated (`iastgcn`)
-//! and not (`iastgcn-t`); `graph_conv` in `iastgcn`, `iastgcn-a` (no attention),
-//! `iastgcn-s` (the Chebyshev basis) and `st-gat` (its graph attention, every step in
-//! both blocks). In the last block the native steps keep steps 4–7 at T − 1 and X_t, M
-//! and Z at the taps; the WGSL block ([`Extent::LastStep`]) computes steps 4–7 at T − 1
-//! and steps 1–3 on all T steps, and is compared there. Each step reads its inputs from
-//! the reference's earlier steps (rounded to f32), not from the implementation's own, so
-//! that a wrong earlier step does not fail it. Both f32 paths are held to the same
-//! tolerance.
+//! Each step runs in a block with every output step and in a last block. In the last
+//! block the native steps keep steps 4–7 at T − 1 and X_t, M and Z at the taps step 4
+//! reads, and are compared where they compute ([`StepTest::native_outputs`]); the WGSL
+//! block ([`Extent::LastStep`]) computes steps 4–7 at T − 1 and steps 1–3 on all T steps,
+//! and is compared there. Every step reads the same random inputs, not an earlier step's
+//! outputs, so that a wrong earlier step does not fail it. Both f32 paths are held to
+//! the same tolerance.
 //!
-//! This file holds the random case ([`case`]), the comparisons ([`check`],
-//! [`check_grads`]), the WGSL block run one step at a time ([`Device`]), the kept steps'
-//! layout ([`at_cols`], [`from_cols`]) and the node mixing (I + S')·X_t, which the
-//! reference does in step 2 and both blocks in step 3, backward ([`node_mix_backward`]).
+//! This file holds the trait and its tensors ([`Tensors`], [`Where`], [`Run`]), the
+//! random case ([`case`]), the comparison ([`check`]), the WGSL block run one step at a
+//! time ([`Device`]) and the kept steps' layout ([`at_cols`], [`from_cols`]).
 #![cfg(test)]
 
 use crate::gpu::{DType, Gpu, GpuError, Recorder, Tensor};
@@ -82,6 +80,16 @@ pub(super) fn case(variant: Variant) -> Case {
 
 pub(super) fn wide(v: &[f32]) -> Vec<f64> {
     v.iter().map(|&x| x as f64).collect()
+}
+
+/// What a test leaves in a gradient buffer that a step's backward adds to (dX, where the
+/// residual's backward wrote first), so that a backward that overwrites it fails;
+/// [`added`] takes it off again.
+pub(super) const LEFT: f32 = 0.5;
+
+/// A buffer's contents less [`LEFT`]: what the backward added.
+pub(super) fn added(v: &[f32]) -> Vec<f64> {
+    v.iter().map(|&x| (x - LEFT) as f64).collect()
 }
 
 /// `n` random values in [lo, hi), already f32.
@@ -228,14 +236,6 @@ pub(super) fn zero_grads(specs: &[ParamSpec]) -> Grads<'_> {
     }
 }
 
-/// Every parameter's gradient of the native step against the reference's: a step adds to
-/// its own parameters and leaves every other one zero.
-pub(super) fn check_grads(what: &dyn Fn(&str) -> String, native: &[Vec<f32>], reference: &Grads) {
-    for ((spec, a), e) in reference.specs.iter().zip(native).zip(&reference.values) {
-        check(&what(&format!("d {}", spec.name)), &wide(a), e);
-    }
-}
-
 /// Rows of T `[.., T]` at the kept steps, `[.., cols.len]`.
 pub(super) fn at_cols(cols: &Cols, v: &[f64], t: usize) -> Vec<f64> {
     v.chunks(t)
@@ -252,32 +252,6 @@ pub(super) fn from_cols(cols: &Cols, v: &[f64], t: usize) -> Vec<f64> {
         }
     }
     out
-}
-
-/// The node mixing X_s = (I + S')·X_t (rows of `width` per node) backward from dX_s:
-/// (dS' = dX_s·X_tᵀ, dX_t = (I + S')ᵀ·dX_s). The reference computes it first thing in
-/// `spatial_attention_backward`, not as a function of its own, and the native block in
-/// `graph_conv` (Q = Ψ·(I + S')): written out here, a sum each.
-pub(super) fn node_mix_backward(
-    n: usize,
-    width: usize,
-    s: &[f64],
-    xt: &[f64],
-    dxs: &[f64],
-) -> (Vec<f64>, Vec<f64>) {
-    let mut ds = vec![0.0; n * n];
-    let mut dxt = dxs.to_vec();
-    for i in 0..n {
-        let gi = &dxs[i * width..][..width];
-        for j in 0..n {
-            let xj = &xt[j * width..][..width];
-            ds[i * n + j] = gi.iter().zip(xj).map(|(g, x)| g * x).sum();
-            for (d, g) in dxt[j * width..][..width].iter_mut().zip(gi) {
-                *d += s[i * n + j] * g;
-            }
-        }
-    }
-    (ds, dxt)
 }
 
 // ---------------------------------------------------------------------------------------
@@ -316,6 +290,7 @@ pub(super) struct Run {
 }
 
 /// What a step's backward computed.
+#[derive(Clone)]
 pub(super) struct Backward {
     /// What it hands the earlier step, by the name of the input it belongs to.
     pub(super) d_inputs: Tensors,
@@ -354,6 +329,12 @@ pub(super) trait StepTest {
     /// is not the gradients themselves (step 4: dG, dZ through step 3's ReLU).
     fn handed_back(&self, _inputs: &Tensors, d_inputs: Tensors) -> Tensors {
         d_inputs
+    }
+    /// The reference's outputs where the native step computes them, in its layout, when
+    /// that is not everywhere (the native last block keeps X_t, M and Z at the taps step
+    /// 4 reads only).
+    fn native_outputs(&self, _case: &Case, _at: Where, outputs: Tensors) -> Tensors {
+        outputs
     }
     /// The native step on `case`'s memory.
     fn native(&self, case: &mut Case, at: Where, inputs: &Tensors, d_outputs: &Tensors) -> Run;

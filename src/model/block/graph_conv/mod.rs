@@ -19,5 +19,5 @@
 pub(crate) mod native;
 pub(crate) mod reference;
 #[cfg(test)]
-mod tests;
+pub(super) mod tests;
 pub(crate) mod wgsl;

@@ -1,9 +1,14 @@
-//! Step 3, the graph convolution, and `st-gat`'s graph attention in its place, against
-//! the step's reference on the reference's steps 1–2 and the graph's basis: Ψ
-//! and Z from the native `graph_conv` (Z in the tape's layout, [`tape_layout`]) and the
-//! WGSL `graph_conv_forward` (`graph_attention_forward` in `st-gat`), then back from a
-//! random dZ (dG = dZ masked by Z > 0 for both) the parameter gradients and dS' and dX_t (dX without attention), in both
-//! blocks of `iastgcn`, `iastgcn-a`, `iastgcn-s` and `st-gat`.
+//! Step 3 in the generic step test (`every_step.rs`), the graph convolution and, in
+//! `st-gat`, the graph attention in its place, on the graph's basis, in both blocks of
+//! `iastgcn`, `iastgcn-a`, `iastgcn-s` and `st-gat`: random inputs (X_t and S' with the
+//! attention, X without) and a random dZ through the step's reference (X_s = (I + S')·X_t
+//! and the reference's convolution or attention; backward, the node mixing's backward,
+//! the reference's `node_mix_backward`, to dS' and dX_t), the native step and the WGSL
+//! step. Both implementations start their backward from dG, dZ masked by their own
+//! Z > 0 (step 4's backward applies Z's ReLU). The native last block keeps X_t and Z at
+//! the taps step 4 reads only (Z in the tape's layout, [`tape_layout`]): compared there,
+//! and dZ is zero off those steps for every implementation. Each implementation's Ψ,
+//! which it keeps for its backward, is checked too.
 #![cfg(test)]
 
 use crate::graph::Graph;
@@ -11,16 +16,21 @@ use crate::model::block::exact::{BlockParams, Dims};
 use crate::model::block::graph_attention::reference as reference_gat;
 use crate::model::block::graph_conv::reference as reference_gc;
 use crate::model::block::native::Block;
-use crate::model::block::spatial_attention::reference::{self as spatial, SpatialParams};
+use crate::model::block::spatial_attention::reference::node_mix_backward;
 use crate::model::block::tape::Cols;
-use crate::model::block::temporal_attention::reference::{self as temporal, TemporalParams};
 use crate::model::block::testing::{
-    at_cols, case, check, check_grads, from_cols, gpu, narrow, node_mix_backward, random, uniform,
-    wide, zero_grads, Case, Device,
+    added, at_cols, check, from_cols, gpu, narrow, random, wide, zero_grads, Backward, Case,
+    Device, Run, StepTest, Tensors, Where, LEFT,
 };
 use crate::model::config::Variant;
 use crate::model::exact::Table;
 use crate::model::params::{graph_basis, param_specs};
+
+/// Step 3's [`StepTest`]: the graph convolution, or with `gat` `st-gat`'s graph attention
+/// (the `graph_attention` folder's step, tested here beside the convolution it replaces).
+pub(crate) struct GraphConv3 {
+    pub(crate) gat: bool,
+}
 
 /// `[N, ch, cols.len]` in the tape's layout of Z: `[N, cols.len, ch]` at the taps.
 fn tape_layout(cols: &Cols, ch: usize, v: &[f64]) -> Vec<f64> {
@@ -39,175 +49,289 @@ fn tape_layout(cols: &Cols, ch: usize, v: &[f64]) -> Vec<f64> {
     out
 }
 
-/// Step 3 forward and backward in block `l` of `variant` on the graph's basis, against
-/// `reference::graph_conv` (`graph_kernel`, `graph_conv` and its backward; `st-gat`:
-/// `graph_attention` and its backward), on the reference's steps 1–2 (X_t at the kept
-/// steps and S' rounded to f32 on the tape, X_s = (I + S')·X_t for the reference; X
-/// without attention). The native step's dS' and dX_t are the node mixing's
-/// ([`node_mix_backward`]) of the reference's dX_s; without attention, dX is dX_s.
-fn graph_conv_matches_its_reference(variant: Variant, l: usize) {
-    let Case {
-        cfg,
-        slots,
-        params,
-        mut tape,
-        mut work,
-    } = case(variant);
-    let s = &slots.blocks[l];
-    let (n, t, c, ci) = (cfg.nodes, cfg.window, cfg.channels, s.c_in);
-    let basis = graph_basis(&Graph::default_asset(), &cfg);
-    let basis32 = narrow(&basis);
-    let b = Block::new(&cfg, &basis32, s, 1);
-    let bt = &mut tape.blocks[l];
-    let cols = bt.cols;
-    let what = |part: &str| format!("graph_conv {} block {l} (native): {part}", variant.name());
-    let x = random(16, n * ci * t, -1.0, 1.0);
-    let specs = param_specs(&cfg);
-    let values: Vec<Vec<f64>> = params.iter().map(|v| wide(v)).collect();
-    let table = Table::new(&specs, &values);
-    let p = BlockParams::new(&table, &cfg, l);
-    let d = Dims::new(&cfg, 1, l);
-    let xf = wide(&x);
-    let attended = cfg
-        .variant
-        .attention()
-        .then(|| (TemporalParams::of(&p), SpatialParams::of(&p)))
-        .map(|(tp, sp)| {
-            let ta = temporal::temporal_attention(&d, &xf, &tp);
-            let sa = spatial::spatial_attention(&d, &ta.output, &sp);
-            (ta, sa)
-        });
-    if let Some((ta, sa)) = &attended {
-        bt.xt
-            .copy_from_slice(&narrow(&at_cols(&cols, &ta.output, t)));
-        bt.s.copy_from_slice(&narrow(&sa.weights));
+/// The inverse of [`tape_layout`].
+fn from_tape_layout(cols: &Cols, ch: usize, v: &[f64]) -> Vec<f64> {
+    if !cols.taps {
+        return v.to_vec();
     }
-    let xs = attended.as_ref().map_or(&xf[..], |(_, sa)| &sa.output[..]);
-    if s.gat.is_some() {
-        b.graph_attention_forward(&params, &x, bt);
-    } else {
-        b.graph_conv_forward(&params, &x, bt);
-    }
-    let psi = s
-        .theta
-        .map(|theta| reference_gc::graph_kernel(n, &basis, &values[theta]))
-        .unwrap_or_default();
-    let (q, z) = if s.theta.is_some() {
-        check(&what("Ψ"), &wide(&bt.psi), &psi);
-        reference_gc::graph_conv(&d, &psi, &values[s.w], xs)
-    } else {
-        reference_gat::graph_attention(&d, cfg.heads, &basis, &p, xs)
-    };
-    check(
-        &what("Z"),
-        &wide(&bt.z),
-        &tape_layout(&cols, c, &at_cols(&cols, &z, t)),
-    );
-    // Backward from dZ at the kept steps (zero off them for the reference), handed to
-    // the native step as step 4's backward does: dG, dZ masked by the tape's Z > 0.
-    let dz = uniform(17, n * c * cols.len, -1.0, 1.0);
-    let dz32 = narrow(&tape_layout(&cols, c, &dz));
-    for ((g, d), &zv) in work.dz.iter_mut().zip(&dz32).zip(&bt.z) {
-        *g = if zv > 0.0 { *d } else { 0.0 };
-    }
-    work.dsp.fill(0.0);
-    work.dxt.fill(0.0);
-    work.dx.fill(0.0);
-    let mut grads: Vec<Vec<f32>> = params.iter().map(|p| vec![0.0; p.len()]).collect();
-    if s.gat.is_some() {
-        b.graph_attention_backward(&params, &x, bt, true, &mut grads, &mut work);
-    } else {
-        b.graph_conv_backward(&params, &x, bt, true, &mut grads, &mut work);
-    }
-    let mut reference = zero_grads(&specs);
-    let dz = from_cols(&cols, &dz, t);
-    let dxs = if s.theta.is_some() {
-        reference_gc::graph_conv_backward(&d, &basis, &p, &psi, &q, &z, xs, &dz, &mut reference)
-    } else {
-        reference_gat::graph_attention_backward(
-            &d,
-            cfg.heads,
-            &basis,
-            &p,
-            &q,
-            &z,
-            xs,
-            &dz,
-            &mut reference,
-        )
-    };
-    check_grads(&what, &grads, &reference);
-    match &attended {
-        Some((ta, sa)) => {
-            let (dsp, dxt) = node_mix_backward(n, ci * t, &sa.weights, &ta.output, &dxs);
-            check(&what("dS'"), &wide(&work.dsp), &dsp);
-            check(
-                &what("dX_t"),
-                &wide(&work.dxt[..n * ci * cols.len]),
-                &at_cols(&cols, &dxt, t),
-            );
+    let size = ch * cols.len;
+    let mut out = vec![0.0; v.len()];
+    for (s, o) in v.chunks(size).zip(out.chunks_mut(size)) {
+        for c in 0..ch {
+            for j in 0..cols.len {
+                o[c * cols.len + j] = s[j * ch + c];
+            }
         }
-        None => check(&what("dX"), &wide(&work.dx[..dxs.len()]), &dxs),
     }
-
-    // The WGSL step (`graph_conv`, or `graph_attention` in `st-gat`) on the same inputs,
-    // on all T steps, from the same dZ masked by Z > 0 (dG: like the native step, its
-    // backward starts past Z's ReLU, which step 4's backward applies); with attention, dX_t is its term Qᵀ·dM,
-    // which the WGSL block adds at the end of the spatial attention's backward.
-    let what = |part: &str| format!("graph_conv {} block {l} (wgsl): {part}", variant.name());
-    let dev = Device::new(&cfg, l, &params, &basis32, &x);
-    if let Some((ta, sa)) = &attended {
-        dev.write("X_t", &narrow(&ta.output));
-        dev.write("S'", &narrow(&sa.weights));
-    }
-    let gat = s.theta.is_none();
-    dev.run(|b, p, _, st| {
-        if gat {
-            b.graph_attention_forward(gpu(), p, st)
-        } else {
-            b.graph_conv_forward(gpu(), p, st)
-        }
-    });
-    if !gat {
-        check(&what("Ψ"), &dev.read_buffer("Psi"), &psi);
-    }
-    check(&what("Z"), &dev.read_buffer("Z"), &z);
-    let dg: Vec<f32> = dz
-        .iter()
-        .zip(&z)
-        .map(|(&d, &zv)| if zv > 0.0 { d as f32 } else { 0.0 })
-        .collect();
-    let dg = dev.upload("dG", &dg);
-    let d_in = dev.upload("dX", &vec![0.0; n * ci * t]);
-    let for_attention = dev.run(|b, p, sc, st| {
-        if gat {
-            b.graph_attention_backward(gpu(), p, sc, st, &dg, &d_in)?;
-            return Ok(None);
-        }
-        b.graph_conv_backward(gpu(), p, sc, st, &dg, &d_in)
-    });
-    check_grads(&what, &dev.grads(), &reference);
-    match (&attended, for_attention) {
-        (Some((ta, sa)), Some(a)) => {
-            let (dsp, dxt_ref) = node_mix_backward(n, ci * t, &sa.weights, &ta.output, &dxs);
-            check(&what("dS'"), &dev.read(&a.dsp), &dsp);
-            check(&what("dX_t"), &dev.read(&a.dxt), &dxt_ref);
-        }
-        (None, None) => check(&what("dX"), &dev.read(&d_in), &dxs),
-        _ => panic!("{}", what("attention gradients only with attention")),
-    }
+    out
 }
 
-#[test]
-fn graph_conv_native_and_wgsl_every_step_and_in_the_last_block() {
-    for variant in [
-        Variant::Iastgcn,
-        Variant::NoAttention,
-        Variant::Chebyshev,
-        Variant::StGat,
-    ] {
-        for l in [0, 1] {
-            graph_conv_matches_its_reference(variant, l);
+/// The node mixing X_s = (I + S')·X_t of one window (rows of `width` per node).
+fn node_mix(n: usize, width: usize, s: &[f64], xt: &[f64]) -> Vec<f64> {
+    let mut xs = xt.to_vec();
+    for i in 0..n {
+        for j in 0..n {
+            let w = s[i * n + j];
+            for k in 0..width {
+                xs[i * width + k] += w * xt[j * width + k];
+            }
+        }
+    }
+    xs
+}
+
+/// The graph's basis `[terms, N, N]` for `case`'s configuration.
+fn basis(case: &Case) -> Vec<f64> {
+    graph_basis(&Graph::default_asset(), &case.cfg)
+}
+
+/// The reference's step 3 of block `l` on `inputs`: (Ψ, (Q, Z), X_s).
+#[allow(clippy::type_complexity)]
+fn reference(
+    case: &Case,
+    l: usize,
+    params: &[Vec<f64>],
+    inputs: &Tensors,
+) -> (Vec<f64>, (Vec<f64>, Vec<f64>), Vec<f64>) {
+    let cfg = &case.cfg;
+    let specs = param_specs(cfg);
+    let table = Table::new(&specs, params);
+    let p = BlockParams::new(&table, cfg, l);
+    let d = Dims::new(cfg, 1, l);
+    let (n, width) = (cfg.nodes, cfg.block_input(l) * cfg.window);
+    let xs = match inputs.get("S'") {
+        Some(s) => node_mix(n, width, s, &inputs["X_t"]),
+        None => inputs["X"].clone(),
+    };
+    let basis = basis(case);
+    if cfg.variant.graph_attention() {
+        let qz = reference_gat::graph_attention(&d, cfg.heads, &basis, &p, &xs);
+        return (Vec::new(), qz, xs);
+    }
+    // invariant: test support: a graph convolution has its θ.
+    let theta = case.slots.blocks[l].theta.expect("the convolution's θ");
+    let psi = reference_gc::graph_kernel(n, &basis, &params[theta]);
+    let qz = reference_gc::graph_conv(&d, &psi, p.w, &xs);
+    (psi, qz, xs)
+}
+
+/// dG: `dz` where `z` > 0, else 0.
+fn past_relu(dz: &[f64], z: &[f64]) -> Vec<f32> {
+    dz.iter()
+        .zip(z)
+        .map(|(&d, &zv)| if zv > 0.0 { d as f32 } else { 0.0 })
+        .collect()
+}
+
+impl StepTest for GraphConv3 {
+    fn name(&self) -> &'static str {
+        if self.gat {
+            "graph_attention"
+        } else {
+            "graph_conv"
+        }
+    }
+
+    fn cases(&self) -> Vec<Where> {
+        let variants = if self.gat {
+            vec![Variant::StGat]
+        } else {
+            vec![Variant::Iastgcn, Variant::NoAttention, Variant::Chebyshev]
+        };
+        let blocks = |variant| {
+            [0, 1].map(|block| Where {
+                variant,
+                block,
+                dropout: false,
+            })
+        };
+        variants.into_iter().flat_map(blocks).collect()
+    }
+
+    fn case_tensors(&self, case: &Case, at: Where) -> (Tensors, Tensors) {
+        let cfg = &case.cfg;
+        let (n, ci, c, t) = (
+            cfg.nodes,
+            cfg.block_input(at.block),
+            cfg.channels,
+            cfg.window,
+        );
+        let cols = case.tape.blocks[at.block].cols;
+        // Values an f32 holds exactly; S' small, as a softmax's rows over N nodes are;
+        // dZ zero off the steps the native block keeps.
+        let f32s = |seed, len, scale: f64| wide(&random(seed, len, -scale, scale));
+        let inputs = if cfg.variant.attention() {
+            Tensors::from([
+                ("X_t", f32s(16, n * ci * t, 1.0)),
+                ("S'", f32s(17, n * n, 0.2)),
+            ])
+        } else {
+            Tensors::from([("X", f32s(16, n * ci * t, 1.0))])
+        };
+        let dz = from_cols(&cols, &f32s(18, n * c * cols.len, 1.0), t);
+        (inputs, Tensors::from([("Z", dz)]))
+    }
+
+    fn reference_forward(
+        &self,
+        case: &Case,
+        at: Where,
+        params: &[Vec<f64>],
+        inputs: &Tensors,
+    ) -> Tensors {
+        let (_, (_, z), _) = reference(case, at.block, params, inputs);
+        Tensors::from([("Z", z)])
+    }
+
+    fn reference_backward(
+        &self,
+        case: &Case,
+        at: Where,
+        params: &[Vec<f64>],
+        inputs: &Tensors,
+        d_outputs: &Tensors,
+    ) -> (Tensors, Vec<Vec<f64>>) {
+        let (cfg, l) = (&case.cfg, at.block);
+        let (psi, (q, z), xs) = reference(case, l, params, inputs);
+        let specs = param_specs(cfg);
+        let table = Table::new(&specs, params);
+        let p = BlockParams::new(&table, cfg, l);
+        let d = Dims::new(cfg, 1, l);
+        let basis = basis(case);
+        let mut grads = zero_grads(&specs);
+        let dz = &d_outputs["Z"];
+        let dxs = if cfg.variant.graph_attention() {
+            let h = cfg.heads;
+            reference_gat::graph_attention_backward(&d, h, &basis, &p, &q, &z, &xs, dz, &mut grads)
+        } else {
+            reference_gc::graph_conv_backward(&d, &basis, &p, &psi, &q, &z, &xs, dz, &mut grads)
+        };
+        let d_inputs = match inputs.get("S'") {
+            Some(s) => {
+                let (dsp, dxt) = node_mix_backward(&d, &inputs["X_t"], s, &dxs);
+                Tensors::from([("S'", dsp), ("X_t", dxt)])
+            }
+            None => Tensors::from([("X", dxs)]),
+        };
+        (d_inputs, grads.values)
+    }
+
+    fn native_outputs(&self, case: &Case, at: Where, mut outputs: Tensors) -> Tensors {
+        let cols = case.tape.blocks[at.block].cols;
+        // invariant: test support: the reference's outputs hold Z.
+        let z = outputs.get_mut("Z").unwrap();
+        *z = at_cols(&cols, z, case.cfg.window);
+        outputs
+    }
+
+    fn native(&self, case: &mut Case, at: Where, inputs: &Tensors, d_outputs: &Tensors) -> Run {
+        let l = at.block;
+        let what = |part: &str| format!("{} {at} (native): {part}", self.name());
+        let params64: Vec<Vec<f64>> = case.params.iter().map(|v| wide(v)).collect();
+        let (psi, _, _) = reference(case, l, &params64, inputs);
+        let basis32 = narrow(&basis(case));
+        let Case {
+            cfg,
+            slots,
+            params,
+            tape,
+            work,
+        } = case;
+        let s = &slots.blocks[l];
+        let (n, t, c, ci) = (cfg.nodes, cfg.window, cfg.channels, s.c_in);
+        let b = Block::new(cfg, &basis32, s, 1);
+        let bt = &mut tape.blocks[l];
+        let cols = bt.cols;
+        let x = match (inputs.get("X_t"), inputs.get("S'")) {
+            (Some(xt), Some(sp)) => {
+                bt.xt.copy_from_slice(&narrow(&at_cols(&cols, xt, t)));
+                bt.s.copy_from_slice(&narrow(sp));
+                narrow(xt)
+            }
+            _ => narrow(&inputs["X"]),
+        };
+        if s.gat.is_some() {
+            b.graph_attention_forward(params, &x, bt);
+        } else {
+            b.graph_conv_forward(params, &x, bt);
+            check(&what("Ψ"), &wide(&bt.psi), &psi);
+        }
+        let z = from_tape_layout(&cols, c, &wide(&bt.z));
+        let dz = tape_layout(&cols, c, &at_cols(&cols, &d_outputs["Z"], t));
+        let dg = past_relu(&dz, &wide(&bt.z));
+        work.dz[..dg.len()].copy_from_slice(&dg);
+        work.dsp.fill(0.0);
+        work.dxt.fill(0.0);
+        work.dx.fill(LEFT);
+        let mut grads: Vec<Vec<f32>> = params.iter().map(|p| vec![0.0; p.len()]).collect();
+        if s.gat.is_some() {
+            b.graph_attention_backward(params, &x, bt, true, &mut grads, work);
+        } else {
+            b.graph_conv_backward(params, &x, bt, true, &mut grads, work);
+        }
+        let d_inputs = if inputs.contains_key("S'") {
+            let dxt = wide(&work.dxt[..n * ci * cols.len]);
+            Tensors::from([
+                ("S'", wide(&work.dsp[..n * n])),
+                ("X_t", from_cols(&cols, &dxt, t)),
+            ])
+        } else {
+            Tensors::from([("X", added(&work.dx[..n * ci * t]))])
+        };
+        Run {
+            outputs: Tensors::from([("Z", z)]),
+            backward: Some(Backward {
+                d_inputs,
+                d_params: grads.iter().map(|v| wide(v)).collect(),
+            }),
+        }
+    }
+
+    fn wgsl(&self, case: &Case, at: Where, inputs: &Tensors, d_outputs: &Tensors) -> Run {
+        let l = at.block;
+        let what = |part: &str| format!("{} {at} (wgsl): {part}", self.name());
+        let cfg = &case.cfg;
+        let (n, t, ci) = (cfg.nodes, cfg.window, cfg.block_input(l));
+        let params64: Vec<Vec<f64>> = case.params.iter().map(|v| wide(v)).collect();
+        let (psi, _, _) = reference(case, l, &params64, inputs);
+        let basis32 = narrow(&basis(case));
+        let x = inputs.get("X").map_or(vec![0.0; n * ci * t], |x| narrow(x));
+        let dev = Device::new(cfg, l, &case.params, &basis32, &x);
+        if let (Some(xt), Some(sp)) = (inputs.get("X_t"), inputs.get("S'")) {
+            dev.write("X_t", &narrow(xt));
+            dev.write("S'", &narrow(sp));
+        }
+        let gat = cfg.variant.graph_attention();
+        dev.run(|b, p, _, st| {
+            if gat {
+                b.graph_attention_forward(gpu(), p, st)
+            } else {
+                b.graph_conv_forward(gpu(), p, st)
+            }
+        });
+        if !gat {
+            check(&what("Ψ"), &dev.read_buffer("Psi"), &psi);
+        }
+        let z = dev.read_buffer("Z");
+        let dg = dev.upload("dG", &past_relu(&d_outputs["Z"], &z));
+        let d_in = dev.upload("dX", &vec![LEFT; n * ci * t]);
+        let for_attention = dev.run(|b, p, sc, st| {
+            if gat {
+                b.graph_attention_backward(gpu(), p, sc, st, &dg, &d_in)?;
+                return Ok(None);
+            }
+            b.graph_conv_backward(gpu(), p, sc, st, &dg, &d_in)
+        });
+        let d_inputs = match for_attention {
+            Some(a) => Tensors::from([("S'", dev.read(&a.dsp)), ("X_t", dev.read(&a.dxt))]),
+            None => Tensors::from([("X", added(&narrow(&dev.read(&d_in))))]),
+        };
+        Run {
+            outputs: Tensors::from([("Z", z)]),
+            backward: Some(Backward {
+                d_inputs,
+                d_params: dev.grads().iter().map(|v| wide(v)).collect(),
+            }),
         }
     }
 }

@@ -11,12 +11,14 @@
 //! - backward: from dS' (step 3's) into the five parameters' gradients, and its two
 //!   rank-1 terms of dX_t *added* to dX_t, which step 3's backward started with Qᵀ·dM.
 //!
-//! The f64 reference cuts steps 2 and 3 one product apart: its step 2 hands on
-//! X_s = (I + S')·X_t and takes dX_s (`tests.rs` converts with the node mixing's
-//! backward, `testing::node_mix_backward`).
+//! The f64 reference block cuts steps 2 and 3 one product apart: its step 2 hands on
+//! X_s = (I + S')·X_t and takes dX_s. Its backward is the node mixing's
+//! (`reference::node_mix_backward`) and then the attention's from dS'
+//! (`reference::weights_backward`), which is step 2 as the implementations cut it and
+//! what `tests.rs` checks them against.
 
 pub(crate) mod native;
 pub(crate) mod reference;
 #[cfg(test)]
-mod tests;
+pub(super) mod tests;
 pub(crate) mod wgsl;

@@ -149,7 +149,9 @@ pub(crate) fn spatial_attention(d: &Dims, xt: &[f64], p: &SpatialParams) -> Spat
     }
 }
 
-/// Backward of step 2: returns dL/dX_t and adds the parameter gradients to `grads`.
+/// Backward of step 2: returns dL/dX_t and adds the parameter gradients to `grads`: the
+/// node mixing's ([`node_mix_backward`]), then the attention's from dS'
+/// ([`weights_backward`]).
 pub(crate) fn spatial_attention_backward(
     d: &Dims,
     xt: &[f64],
@@ -159,6 +161,20 @@ pub(crate) fn spatial_attention_backward(
     grads: &mut Grads,
     prefix: &str,
 ) -> Vec<f64> {
+    let (dw, mut dxt) = node_mix_backward(d, xt, &a.weights, dxs);
+    weights_backward(d, xt, p, a, &dw, &mut dxt, grads, prefix);
+    dxt
+}
+
+/// The node mixing X_s = (S' + I)·X_t backward from dX_s: (dS', dX_t), with
+/// dX_t = (S' + I)ᵀ·dX_s and dS'[b,i,j] = Σ_{c,t} dX_s[i]·X_t[j]. (The implementations do
+/// it in step 3, whose Q = Ψ·(I + S') holds the mixing.)
+pub(crate) fn node_mix_backward(
+    d: &Dims,
+    xt: &[f64],
+    weights: &[f64],
+    dxs: &[f64],
+) -> (Vec<f64>, Vec<f64>) {
     let Dims {
         b: nb,
         n: nn,
@@ -167,7 +183,6 @@ pub(crate) fn spatial_attention_backward(
         ..
     } = *d;
     let cs = ci * nt;
-    // X_s = (S' + I)·X_t: dX_t = (S' + I)ᵀ·dX_s, dS'[b,i,j] = Σ_{c,t} dX_s[i]·X_t[j].
     let mut dxt = dxs.to_vec();
     let mut dw = vec![0.0; nb * nn * nn];
     for b in 0..nb {
@@ -177,13 +192,37 @@ pub(crate) fn spatial_attention_backward(
                 dw[(b * nn + i) * nn + j] = dot(gi, row(xt, b * nn + j, cs));
                 axpy(
                     row_mut(&mut dxt, b * nn + j, cs),
-                    a.weights[(b * nn + i) * nn + j],
+                    weights[(b * nn + i) * nn + j],
                     gi,
                 );
             }
         }
     }
-    let ds = softmax_rows_backward(&a.weights, &dw, nn);
+    (dw, dxt)
+}
+
+/// The attention's backward from dS' (`dw`), step 2 as the implementations cut it: adds
+/// the five parameters' gradients to `grads` and the attention's two terms of dX_t to
+/// `dxt`.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn weights_backward(
+    d: &Dims,
+    xt: &[f64],
+    p: &SpatialParams,
+    a: &SpatialAttention,
+    dw: &[f64],
+    dxt: &mut [f64],
+    grads: &mut Grads,
+    prefix: &str,
+) {
+    let Dims {
+        b: nb,
+        n: nn,
+        ci,
+        t: nt,
+        ..
+    } = *d;
+    let ds = softmax_rows_backward(&a.weights, dw, nn);
     // S = Vs·σ(P + bs).
     let (dvs, dpre, dbs) = score_gate_backward(p.vs, &a.sig, &ds, nb, nn);
     // P[b,n,m] = Σ_t lhs[b,n,t]·rhs[b,m,t] (dpre is now dP).
@@ -220,7 +259,7 @@ pub(crate) fn spatial_attention_backward(
                 axpy(row_mut(&mut dw2, c, nt), a.xw1[(b * nn + n) * ci + c], gl);
                 let g = dot(row(p.w2, c, nt), gl);
                 axpy(&mut dw1, g, xr);
-                let dxr = row_mut(&mut dxt, r, nt);
+                let dxr = row_mut(dxt, r, nt);
                 axpy(dxr, p.w3[c], gr);
                 axpy(dxr, g, p.w1);
             }
@@ -231,5 +270,4 @@ pub(crate) fn spatial_attention_backward(
     grads.add(&format!("{prefix}.sat.W3"), &dw3);
     grads.add(&format!("{prefix}.sat.bs"), &dbs);
     grads.add(&format!("{prefix}.sat.Vs"), &dvs);
-    dxt
 }

@@ -16,5 +16,5 @@
 pub(crate) mod native;
 pub(crate) mod reference;
 #[cfg(test)]
-mod tests;
+pub(super) mod tests;
 pub(crate) mod wgsl;

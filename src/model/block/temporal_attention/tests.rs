@@ -1,102 +1,160 @@
-//! Step 1, the temporal attention, against its reference: on a random X,
-//! E' and X_t from the native `temporal_attention` (X_t at the steps the block keeps)
-//! and the WGSL `temporal_attention_forward` (on all T steps), then back from a random
-//! dX_t the attention's parameter gradients and dX, in both blocks of `iastgcn` and
-//! `iastgcn-t`.
+//! Step 1 in the generic step test (`every_step.rs`): a random X and dX_t through the
+//! step's reference, the native step and the WGSL step, in both blocks of `iastgcn` and
+//! `iastgcn-t`. The native last block keeps X_t at the taps step 4 reads only, so it is
+//! compared there ([`StepTest::native_outputs`]), and dX_t is zero off those steps for
+//! every implementation. No dE' comes from step 2 here (the native last block's step 2,
+//! which reads X and E' at the taps, hands one back: `spatial_attention/tests.rs` checks
+//! it).
 #![cfg(test)]
 
 use super::native as temporal_attention;
+use super::reference::{temporal_attention as reference_forward, TemporalAttention};
+use super::reference::{temporal_attention_backward, TemporalParams};
 use crate::model::block::exact::{BlockParams, Dims};
 use crate::model::block::native::Block;
-use crate::model::block::temporal_attention::reference::{self as temporal, TemporalParams};
+use crate::model::block::tape::Cols;
 use crate::model::block::testing::{
-    at_cols, case, check, check_grads, from_cols, gpu, narrow, random, wide, zero_grads, Case,
-    Device,
+    added, at_cols, from_cols, gpu, narrow, random, wide, zero_grads, Backward, Case, Device, Run,
+    StepTest, Tensors, Where, LEFT,
 };
 use crate::model::config::Variant;
 use crate::model::exact::Table;
 use crate::model::params::param_specs;
 
-/// Step 1 forward and backward in block `l` of `variant`, against
-/// `temporal_attention` and its backward (the reference's dX_t zero
-/// off the steps the block keeps, and no dE' from step 2: `w.de` zero).
-fn temporal_attention_matches_its_reference(variant: Variant, l: usize) {
-    let Case {
-        cfg,
-        slots,
-        params,
-        mut tape,
-        mut work,
-    } = case(variant);
-    let s = &slots.blocks[l];
-    let (n, t, ci) = (cfg.nodes, cfg.window, s.c_in);
-    let b = Block::new(&cfg, &[], s, 1);
-    let bt = &mut tape.blocks[l];
-    let cols = bt.cols;
-    let what = |part: &str| {
-        format!(
-            "temporal_attention {} block {l} (native): {part}",
-            variant.name()
-        )
-    };
-    let x = random(12, n * ci * t, -1.0, 1.0);
-    temporal_attention::forward(&b, &params, &x, bt);
-    let specs = param_specs(&cfg);
-    let values: Vec<Vec<f64>> = params.iter().map(|v| wide(v)).collect();
-    let table = Table::new(&specs, &values);
-    let p = BlockParams::new(&table, &cfg, l);
-    let tp = TemporalParams::of(&p);
-    let d = Dims::new(&cfg, 1, l);
-    let xf = wide(&x);
-    let ta = temporal::temporal_attention(&d, &xf, &tp);
-    check(&what("E'"), &wide(&bt.e), &ta.weights);
-    check(&what("X_t"), &wide(&bt.xt), &at_cols(&cols, &ta.output, t));
-    // Backward from dX_t at the kept steps.
-    let dxt = random(13, n * ci * cols.len, -1.0, 1.0);
-    work.dxt[..dxt.len()].copy_from_slice(&dxt);
-    work.de.fill(0.0);
-    work.dx.fill(0.0);
-    let mut grads: Vec<Vec<f32>> = params.iter().map(|p| vec![0.0; p.len()]).collect();
-    temporal_attention::backward(&b, &params, &x, bt, true, &mut grads, &mut work);
-    let mut reference = zero_grads(&specs);
-    let mut dx = vec![0.0; xf.len()];
-    temporal::temporal_attention_backward(
-        &d,
-        &xf,
-        &tp,
-        &ta,
-        &from_cols(&cols, &wide(&dxt), t),
-        &mut dx,
-        &mut reference,
-        &format!("blocks.{l}"),
-    );
-    check_grads(&what, &grads, &reference);
-    check(&what("dX"), &wide(&work.dx[..dx.len()]), &dx);
+/// Step 1's [`StepTest`].
+pub(crate) struct TemporalAttention1;
 
-    // The WGSL step on the same X, from the same dX_t (zero off the kept steps): E', and
-    // X_t on all T steps.
-    let what = |part: &str| {
-        format!(
-            "temporal_attention {} block {l} (wgsl): {part}",
-            variant.name()
-        )
-    };
-    let dev = Device::new(&cfg, l, &params, &[], &x);
-    dev.run(|b, p, _, st| b.temporal_attention_forward(gpu(), p, st));
-    check(&what("E'"), &dev.read_buffer("E'"), &ta.weights);
-    check(&what("X_t"), &dev.read_buffer("X_t"), &ta.output);
-    let dxt = dev.upload("dX_t", &narrow(&from_cols(&cols, &wide(&dxt), t)));
-    let d_in = dev.upload("dX", &vec![0.0; n * ci * t]);
-    dev.run(|b, p, sc, st| b.temporal_attention_backward(gpu(), p, sc, st, &dxt, &d_in));
-    check_grads(&what, &dev.grads(), &reference);
-    check(&what("dX"), &dev.read(&d_in), &dx);
+/// The steps block `l` of `case` keeps X_t at natively (all T but in the last block).
+fn kept(case: &Case, l: usize) -> Cols {
+    case.tape.blocks[l].cols
 }
 
-#[test]
-fn temporal_attention_native_and_wgsl_every_step_and_in_the_last_block() {
-    for variant in [Variant::Iastgcn, Variant::PlainTemporal] {
-        for l in [0, 1] {
-            temporal_attention_matches_its_reference(variant, l);
+/// The reference's step 1 of block `l` on X.
+fn reference(case: &Case, l: usize, params: &[Vec<f64>], x: &[f64]) -> TemporalAttention {
+    let specs = param_specs(&case.cfg);
+    let table = Table::new(&specs, params);
+    let p = BlockParams::new(&table, &case.cfg, l);
+    reference_forward(&Dims::new(&case.cfg, 1, l), x, &TemporalParams::of(&p))
+}
+
+impl StepTest for TemporalAttention1 {
+    fn name(&self) -> &'static str {
+        "temporal_attention"
+    }
+
+    fn cases(&self) -> Vec<Where> {
+        let variants = [Variant::Iastgcn, Variant::PlainTemporal];
+        let blocks = |variant| {
+            [0, 1].map(|block| Where {
+                variant,
+                block,
+                dropout: false,
+            })
+        };
+        variants.into_iter().flat_map(blocks).collect()
+    }
+
+    fn case_tensors(&self, case: &Case, at: Where) -> (Tensors, Tensors) {
+        let cfg = &case.cfg;
+        let (n, ci, t) = (cfg.nodes, cfg.block_input(at.block), cfg.window);
+        let cols = kept(case, at.block);
+        // Values an f32 holds exactly; dX_t zero off the kept steps.
+        let x = wide(&random(12, n * ci * t, -1.0, 1.0));
+        let dxt = wide(&random(13, n * ci * cols.len, -1.0, 1.0));
+        (
+            Tensors::from([("X", x)]),
+            Tensors::from([("X_t", from_cols(&cols, &dxt, t))]),
+        )
+    }
+
+    fn reference_forward(
+        &self,
+        case: &Case,
+        at: Where,
+        params: &[Vec<f64>],
+        inputs: &Tensors,
+    ) -> Tensors {
+        let ta = reference(case, at.block, params, &inputs["X"]);
+        Tensors::from([("E'", ta.weights), ("X_t", ta.output)])
+    }
+
+    fn reference_backward(
+        &self,
+        case: &Case,
+        at: Where,
+        params: &[Vec<f64>],
+        inputs: &Tensors,
+        d_outputs: &Tensors,
+    ) -> (Tensors, Vec<Vec<f64>>) {
+        let (cfg, l, x) = (&case.cfg, at.block, &inputs["X"]);
+        let specs = param_specs(cfg);
+        let table = Table::new(&specs, params);
+        let p = BlockParams::new(&table, cfg, l);
+        let (d, tp) = (Dims::new(cfg, 1, l), TemporalParams::of(&p));
+        let ta = reference_forward(&d, x, &tp);
+        let mut grads = zero_grads(&specs);
+        let mut dx = vec![0.0; x.len()];
+        let prefix = format!("blocks.{l}");
+        let dxt = &d_outputs["X_t"];
+        temporal_attention_backward(&d, x, &tp, &ta, dxt, &mut dx, &mut grads, &prefix);
+        (Tensors::from([("X", dx)]), grads.values)
+    }
+
+    fn native_outputs(&self, case: &Case, at: Where, mut outputs: Tensors) -> Tensors {
+        let cols = kept(case, at.block);
+        // invariant: test support: the reference's outputs hold X_t.
+        let xt = outputs.get_mut("X_t").unwrap();
+        *xt = at_cols(&cols, xt, case.cfg.window);
+        outputs
+    }
+
+    fn native(&self, case: &mut Case, at: Where, inputs: &Tensors, d_outputs: &Tensors) -> Run {
+        let l = at.block;
+        let Case {
+            cfg,
+            slots,
+            params,
+            tape,
+            work,
+        } = case;
+        let t = cfg.window;
+        let b = Block::new(cfg, &[], &slots.blocks[l], 1);
+        let bt = &mut tape.blocks[l];
+        let x = narrow(&inputs["X"]);
+        temporal_attention::forward(&b, params, &x, bt);
+        let outputs = Tensors::from([("E'", wide(&bt.e)), ("X_t", wide(&bt.xt))]);
+        let dxt = narrow(&at_cols(&bt.cols, &d_outputs["X_t"], t));
+        work.dxt[..dxt.len()].copy_from_slice(&dxt);
+        work.de.fill(0.0);
+        work.dx.fill(LEFT);
+        let mut grads: Vec<Vec<f32>> = params.iter().map(|p| vec![0.0; p.len()]).collect();
+        temporal_attention::backward(&b, params, &x, bt, true, &mut grads, work);
+        Run {
+            outputs,
+            backward: Some(Backward {
+                d_inputs: Tensors::from([("X", added(&work.dx[..x.len()]))]),
+                d_params: grads.iter().map(|v| wide(v)).collect(),
+            }),
+        }
+    }
+
+    fn wgsl(&self, case: &Case, at: Where, inputs: &Tensors, d_outputs: &Tensors) -> Run {
+        let x = narrow(&inputs["X"]);
+        let dev = Device::new(&case.cfg, at.block, &case.params, &[], &x);
+        dev.run(|b, p, _, st| b.temporal_attention_forward(gpu(), p, st));
+        let outputs = Tensors::from([
+            ("E'", dev.read_buffer("E'")),
+            ("X_t", dev.read_buffer("X_t")),
+        ]);
+        let dxt = dev.upload("dX_t", &narrow(&d_outputs["X_t"]));
+        let d_in = dev.upload("dX", &vec![LEFT; x.len()]);
+        dev.run(|b, p, sc, st| b.temporal_attention_backward(gpu(), p, sc, st, &dxt, &d_in));
+        Run {
+            outputs,
+            backward: Some(Backward {
+                d_inputs: Tensors::from([("X", added(&narrow(&dev.read(&d_in))))]),
+                d_params: dev.grads().iter().map(|v| wide(v)).collect(),
+            }),
         }
     }
 }
