@@ -6,7 +6,8 @@
 mod common;
 
 use iastgcn::graph::Graph;
-use iastgcn::model::reference::{conv_lstm, loss, Loss};
+use iastgcn::model::conv_lstm::reference as conv_lstm;
+use iastgcn::model::reference::{loss, Loss};
 use iastgcn::model::{param_specs, ModelConfig, Network, Parameters, Variant};
 use iastgcn::testing::{gpu, rng, to_f32, uniform};
 

@@ -5,8 +5,9 @@
 //! a joint input.
 
 use iastgcn::graph::Graph;
+use iastgcn::model::dense::reference as dense;
 use iastgcn::model::dense::Architecture;
-use iastgcn::model::reference::{dense, loss, Loss};
+use iastgcn::model::reference::{loss, Loss};
 use iastgcn::model::{param_specs, ModelConfig, Network, Parameters, Variant};
 use iastgcn::testing::{compare, gpu, rng, to_f32, uniform, Tolerance};
 

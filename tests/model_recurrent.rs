@@ -7,8 +7,9 @@
 mod common;
 
 use iastgcn::graph::Graph;
+use iastgcn::model::recurrent::reference as recurrent;
 use iastgcn::model::recurrent::supports;
-use iastgcn::model::reference::{loss, recurrent, Loss};
+use iastgcn::model::reference::{loss, Loss};
 use iastgcn::model::{param_specs, ModelConfig, Network, Parameters, Variant};
 use iastgcn::testing::{gpu, rng, to_f32, uniform};
 

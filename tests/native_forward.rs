@@ -256,7 +256,7 @@ fn check_baseline(
 }
 
 /// The dense baselines (14-node graph, F = 3, T = 5, H = 6): native against the WGSL
-/// forward and the f64 reference of `model::reference::dense`.
+/// forward and the f64 reference of `model::dense::reference`.
 #[test]
 fn dense_baselines_match_the_wgsl_forward_and_the_reference() {
     use iastgcn::model::dense::Architecture;
@@ -273,14 +273,15 @@ fn dense_baselines_match_the_wgsl_forward_and_the_reference() {
             .input_indices(&graph, config.features)
             .unwrap();
         check_baseline(variant.name(), &config, 60 + i as u64, |p, params, x, b| {
-            reference::dense::forward(&config, &inputs, &p.specs, params, x, b).output
+            iastgcn::model::dense::reference::forward(&config, &inputs, &p.specs, params, x, b)
+                .output
         });
     }
 }
 
 /// The recurrent baselines (14-node graph, F = 3, T = 5, H = 6; EAT-GCN with its
 /// Chebyshev supports, T_0 = I among them): native against the WGSL forward and the f64
-/// reference of `model::reference::recurrent`.
+/// reference of `model::recurrent::reference`.
 #[test]
 fn recurrent_baselines_match_the_wgsl_forward_and_the_reference() {
     use iastgcn::model::recurrent::supports;
@@ -294,13 +295,14 @@ fn recurrent_baselines_match_the_wgsl_forward_and_the_reference() {
         };
         let s = supports(&graph, &config);
         check_baseline(variant.name(), &config, 80 + i as u64, |p, params, x, b| {
-            reference::recurrent::forward(&config, &s, &p.specs, params, x, b).output
+            iastgcn::model::recurrent::reference::forward(&config, &s, &p.specs, params, x, b)
+                .output
         });
     }
 }
 
 /// ConvLSTM (the 14 × 3 grid, T = 5, C = 3 state channels, 3×3 and 5×5 kernels): native
-/// against the WGSL forward and the f64 reference of `model::reference::conv_lstm`.
+/// against the WGSL forward and the f64 reference of `model::conv_lstm::reference`.
 #[test]
 fn conv_lstm_matches_the_wgsl_forward_and_the_reference() {
     for (i, kernel) in [3, 5].into_iter().enumerate() {
@@ -313,7 +315,7 @@ fn conv_lstm_matches_the_wgsl_forward_and_the_reference() {
         };
         let name = format!("convlstm k = {kernel}");
         check_baseline(&name, &config, 85 + i as u64, |p, params, x, b| {
-            reference::conv_lstm::forward(&config, &p.specs, params, x, b).output
+            iastgcn::model::conv_lstm::reference::forward(&config, &p.specs, params, x, b).output
         });
     }
 }

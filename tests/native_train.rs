@@ -169,10 +169,18 @@ fn dense_baselines_match_the_reference_and_the_device() {
             .input_indices(&graph, config.features)
             .unwrap();
         let params: Vec<Vec<f64>> = p.values.iter().map(|v| f64s(v)).collect();
-        let tape = reference::dense::forward(&config, &inputs, &p.specs, &params, &f64s(&x), b);
+        let tape = iastgcn::model::dense::reference::forward(
+            &config,
+            &inputs,
+            &p.specs,
+            &params,
+            &f64s(&x),
+            b,
+        );
         let y64 = f64s(&y);
-        let (expected, _) =
-            reference::dense::backward(&config, &inputs, &p.specs, &params, &tape, &y64, b, &LOSS);
+        let (expected, _) = iastgcn::model::dense::reference::backward(
+            &config, &inputs, &p.specs, &params, &tape, &y64, b, &LOSS,
+        );
         let expected_loss =
             reference::loss(&config, &p.specs, &params, &tape.output, &y64, b, &LOSS);
         let name = variant.to_string();
@@ -204,9 +212,16 @@ fn recurrent_baselines_match_the_reference_and_the_device() {
         let against_reference = |name: &str, b: usize, threads: usize, seed: u64| {
             let (x, y) = batch(&config, b, seed);
             let (loss, grads) = native(&config, &p, shape(b, 1, threads), &x, &y);
-            let tape = reference::recurrent::forward(&config, &s, &p.specs, &params, &f64s(&x), b);
+            let tape = iastgcn::model::recurrent::reference::forward(
+                &config,
+                &s,
+                &p.specs,
+                &params,
+                &f64s(&x),
+                b,
+            );
             let y64 = f64s(&y);
-            let (expected, _) = reference::recurrent::backward(
+            let (expected, _) = iastgcn::model::recurrent::reference::backward(
                 &config, &s, &p.specs, &params, &tape, &y64, b, &LOSS,
             );
             let expected_loss =
@@ -249,10 +264,12 @@ fn conv_lstm_matches_the_reference_and_the_device() {
     let (x, y) = batch(&config, b, 165);
     let (loss, grads) = native(&config, &p, shape(b, 1, 2), &x, &y);
     let params: Vec<Vec<f64>> = p.values.iter().map(|v| f64s(v)).collect();
-    let tape = reference::conv_lstm::forward(&config, &p.specs, &params, &f64s(&x), b);
+    let tape =
+        iastgcn::model::conv_lstm::reference::forward(&config, &p.specs, &params, &f64s(&x), b);
     let y64 = f64s(&y);
-    let (expected, _) =
-        reference::conv_lstm::backward(&config, &p.specs, &params, &tape, &y64, b, &LOSS);
+    let (expected, _) = iastgcn::model::conv_lstm::reference::backward(
+        &config, &p.specs, &params, &tape, &y64, b, &LOSS,
+    );
     let expected_loss = reference::loss(&config, &p.specs, &params, &tape.output, &y64, b, &LOSS);
     check_step(
         "convlstm",

@@ -5,11 +5,12 @@
 use super::block::wgsl::{Block, DropoutSlots, Extent, MaskedStep, Table};
 use super::config::Family;
 use super::config::ModelConfig;
-use super::conv_lstm::ConvLstmBody;
-use super::dense::{Architecture, DenseBody};
+use super::conv_lstm::wgsl::ConvLstmBody;
+use super::dense::wgsl::DenseBody;
+use super::dense::Architecture;
 use super::error::ModelError;
 use super::params::{check_parameter_count, graph_basis, param_specs, ParamSpec, Parameters};
-use super::recurrent::{RecurrentBody, TimeLoop};
+use super::recurrent::wgsl::{RecurrentBody, TimeLoop};
 pub use super::schedule::Pass;
 use super::schedule::{self, ParamTable, Profile, Scratch, Steps, Timing};
 use crate::gpu::{DType, Gpu, GpuError, Recorder, Tensor};

@@ -3,14 +3,14 @@
 //! `block/` (or `dense.rs`, `recurrent.rs`) without dropout, on a tape that is allocated
 //! once and reused window after window.
 
-use super::conv_lstm::{ConvLstmNet, ConvLstmTape};
-use super::dense::{DenseNet, DenseTape};
-use super::recurrent::{RecurrentNet, RecurrentTape};
 use crate::model::block::native::forward;
 use crate::model::block::slots::Slots;
 use crate::model::block::tape::Tape;
+use crate::model::conv_lstm::native::{ConvLstmNet, ConvLstmTape};
 use crate::model::cpu::flushing_subnormals;
 use crate::model::cpu::{with_products, Products};
+use crate::model::dense::native::{DenseNet, DenseTape};
+use crate::model::recurrent::native::{RecurrentNet, RecurrentTape};
 
 use crate::graph::Graph;
 use crate::model::config::{Family, ModelConfig};

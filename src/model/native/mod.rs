@@ -8,15 +8,13 @@
 //! The ST blocks' steps are `model::block`'s (each step's `native.rs`, composed in
 //! `block/native.rs`); the arithmetic is `model::cpu`'s. Files here: `forward.rs`
 //! ([`NativeForward`]), `step.rs` ([`NativeTraining`]: a batch over threads, the loss,
-//! Adam), and the baselines' forward and backward side by side: `dense.rs` (the dense
-//! layers), `recurrent.rs` (T-GCN and EAT-GCN's time loop) and `conv_lstm.rs`
-//! (ConvLSTM's). Tested against the WGSL path and the f64 reference in
+//! Adam), and the flat head the baselines share. Each baseline's forward and backward
+//! side by side are in its folder (`model::dense::native`: the dense layers,
+//! `model::recurrent::native`: T-GCN and EAT-GCN's time loop, `model::conv_lstm::native`:
+//! ConvLSTM's). Tested against the WGSL path and the f64 reference in
 //! tests/native_forward.rs and tests/native_train.rs.
 
-mod conv_lstm;
-mod dense;
 mod forward;
-mod recurrent;
 mod step;
 
 use crate::model::cpu::{gemm, rows};
@@ -25,7 +23,7 @@ pub use step::{NativeAdam, NativeStepShape, NativeTraining};
 
 /// The flat head of the baselines that end in a state vector: ŷ[o] = b[o] + W[o]·h, with
 /// `head` the (W `[O, |h|]`, b) slots in `params`.
-fn flat_head(params: &[Vec<f32>], head: (usize, usize), h: &[f32], out: &mut [f32]) {
+pub(crate) fn flat_head(params: &[Vec<f32>], head: (usize, usize), h: &[f32], out: &mut [f32]) {
     let (w, b) = (&params[head.0], &params[head.1]);
     for ((o, row), b) in out.iter_mut().zip(w.chunks_exact(h.len())).zip(b) {
         *o = b + row.iter().zip(h).map(|(w, v)| w * v).sum::<f32>();
@@ -34,7 +32,7 @@ fn flat_head(params: &[Vec<f32>], head: (usize, usize), h: &[f32], out: &mut [f3
 
 /// The backward of [`flat_head`] from ∂ℒ/∂ŷ `dout`: adds ∂ℒ/∂W and ∂ℒ/∂b to `grads`
 /// and writes ∂ℒ/∂h = Wᵀ·dout into `dh`.
-fn flat_head_backward(
+pub(crate) fn flat_head_backward(
     params: &[Vec<f32>],
     head: (usize, usize),
     h: &[f32],

@@ -5,13 +5,13 @@
 //! update as `shaders/adam.wgsl`); summation orders differ, so the two agree to rounding
 //! (tests/native_train.rs).
 
-use super::conv_lstm::{ConvLstmNet, ConvLstmTape};
-use super::dense::{DenseNet, DenseTape};
-use super::recurrent::{RecurrentNet, RecurrentTape};
 use crate::model::block::native::{backward, forward};
 use crate::model::block::slots::Slots;
 use crate::model::block::tape::{Masks, Tape, Work};
+use crate::model::conv_lstm::native::{ConvLstmNet, ConvLstmTape};
 use crate::model::cpu::flushing_subnormals;
+use crate::model::dense::native::{DenseNet, DenseTape};
+use crate::model::recurrent::native::{RecurrentNet, RecurrentTape};
 
 use crate::graph::Graph;
 use crate::model::config::{Family, ModelConfig};

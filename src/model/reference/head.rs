@@ -58,7 +58,7 @@ pub(super) fn head_backward(
 
 /// The head of the recurrent baselines on a flat input `h` `[B, width]` (their last state or
 /// context): ŷ[b,o] = bias[o] + Σ_k w[o, k]·h[b, k].
-pub(super) fn flat_head(w: &[f64], bias: &[f64], h: &[f64], batch: usize) -> Vec<f64> {
+pub(crate) fn flat_head(w: &[f64], bias: &[f64], h: &[f64], batch: usize) -> Vec<f64> {
     let (no, width) = (bias.len(), h.len() / batch);
     (0..batch * no)
         .map(|i| {
@@ -69,7 +69,7 @@ pub(super) fn flat_head(w: &[f64], bias: &[f64], h: &[f64], batch: usize) -> Vec
 }
 
 /// Backward of [`flat_head`] from dL/dŷ `[B,O]`: returns dL/dh, adds the head's gradients.
-pub(super) fn flat_head_backward(
+pub(crate) fn flat_head_backward(
     w: &[f64],
     h: &[f64],
     dout: &[f64],

@@ -8,9 +8,10 @@
 //! `dot` over rows of length T) so that the paper shape runs in seconds at opt-level 1.
 //!
 //! This folder holds the whole network: the tape, the loss, the forward and backward
-//! through the blocks and the head (`head.rs`, with the loss weights), and the baselines'
-//! own forward and backward: the dense ones in `dense.rs`, the recurrent ones in
-//! `recurrent.rs` and `conv_lstm.rs`; [`loss`] serves every model. The ST block's steps
+//! through the blocks and the head (`head.rs`, with the loss weights); [`loss`] serves
+//! every model. The baselines' own forward and backward are in their folders
+//! (`model::dense::reference`, `model::recurrent::reference`,
+//! `model::conv_lstm::reference`). The ST block's steps
 //! are in their folders of `model::block` (each step's `reference.rs`, composed in
 //! `block/reference.rs`), the arithmetic they share in `model::exact`. Where an op has its
 //! own f64 reference next to its kernels (`gated_dcc::kernel::cpu` for step 4,
@@ -21,11 +22,7 @@
 // The loops index several tensors by the equations' indices at once.
 #![allow(clippy::needless_range_loop)]
 
-pub mod conv_lstm;
-pub mod dense;
-pub mod recurrent;
-
-mod head;
+pub(crate) mod head;
 
 use super::block::exact::{BlockParams, Dims};
 use super::block::reference::{block_backward, block_forward};
@@ -106,7 +103,7 @@ pub fn forward(
     config.validate().unwrap_or_else(|e| panic!("{e}"));
     assert!(
         config.variant.family() == super::Family::StBlocks,
-        "{} is a baseline: use reference::dense, reference::recurrent or reference::conv_lstm",
+        "{} is a baseline: use dense::reference, recurrent::reference or conv_lstm::reference",
         config.variant
     );
     let table = Table::new(specs, params);
@@ -226,7 +223,7 @@ pub fn backward(
 }
 
 /// Eq. 39's data term differentiated by ŷ `[B, O]`: every model's backward starts here.
-fn output_gradient(
+pub(crate) fn output_gradient(
     output: &[f64],
     y: &[f64],
     outputs: usize,
@@ -242,7 +239,12 @@ fn output_gradient(
 }
 
 /// Eq. 39's weight-decay term: adds 2λW to the gradient of every parameter with `decay`.
-fn add_weight_decay(specs: &[ParamSpec], params: &[Vec<f64>], grads: &mut [Vec<f64>], loss: &Loss) {
+pub(crate) fn add_weight_decay(
+    specs: &[ParamSpec],
+    params: &[Vec<f64>],
+    grads: &mut [Vec<f64>],
+    loss: &Loss,
+) {
     for (i, s) in specs.iter().enumerate() {
         if s.decay {
             axpy(&mut grads[i], 2.0 * loss.weight_decay, &params[i]);

@@ -2,7 +2,7 @@
 //! f32, one window at a time: an LSTM whose gates are k×k "same" convolutions over the
 //! node × feature grid of every step, the head on the last state, and backpropagation
 //! through time by hand — the arithmetic of the f64 reference
-//! `model::reference::conv_lstm`. Per step t, with x_t the grid `[1, N, F]` and h, c
+//! `model::conv_lstm::reference`. Per step t, with x_t the grid `[1, N, F]` and h, c
 //! `[C, N, F]` (zero before step 0):
 //!
 //! ```text
@@ -13,14 +13,14 @@
 //! Each convolution is an unfolding (`[channels·k², N·F]`, zero outside the grid) and one
 //! `sgemm`; the backward recomputes each step's unfoldings, as the device does.
 
-use super::{flat_head, flat_head_backward};
 use crate::model::config::ModelConfig;
 use crate::model::cpu::{gemm, rows, sigmoid, tanh, transposed};
 use crate::model::error::ModelError;
+use crate::model::native::{flat_head, flat_head_backward};
 use crate::model::params::ParamSpec;
 
 /// ConvLSTM's shapes and where its tensors are.
-pub(super) struct ConvLstmNet {
+pub(crate) struct ConvLstmNet {
     /// N (grid rows), F (grid columns), C, k, T, O.
     n: usize,
     f: usize,
@@ -36,7 +36,7 @@ pub(super) struct ConvLstmNet {
 }
 
 /// One window's forward values and the backward pass's working memory.
-pub(super) struct ConvLstmTape {
+pub(crate) struct ConvLstmTape {
     /// x_t of every step `[T, N·F]`.
     x: Vec<f32>,
     /// The gates' pre-activations of every step `[T, 4C, N·F]`.

@@ -2,7 +2,7 @@
 //! docs/model.md "Baselines") on the CPU in f32, one window at a time: the last step's
 //! selected features, then every fully connected layer (activation, then the skip
 //! connection's addition), and the hand-written backward pass of the same arithmetic as
-//! the f64 reference `model::reference::dense`. The layers are a few dozen wide, so the
+//! the f64 reference `model::dense::reference`. The layers are a few dozen wide, so the
 //! products are plain loops over contiguous rows.
 
 use crate::graph::Graph;
@@ -14,7 +14,7 @@ use crate::model::params::ParamSpec;
 use crate::ops::elementwise::Unary;
 
 /// A dense baseline's layers and where their tensors and inputs are.
-pub(super) struct DenseNet {
+pub(crate) struct DenseNet {
     layers: Vec<Layer>,
     /// Each layer's (weight `[outputs, inputs]`, bias) index in the parameter list.
     slots: Vec<(usize, usize)>,
@@ -23,7 +23,7 @@ pub(super) struct DenseNet {
 }
 
 /// One window's activations and the backward pass's working memory.
-pub(super) struct DenseTape {
+pub(crate) struct DenseTape {
     /// 0 = the selected inputs, i + 1 = layer i's output (the last is ŷ).
     acts: Vec<Vec<f32>>,
     /// Each layer's value before its activation and skip.

@@ -1,12 +1,12 @@
 //! The f64 reference of the recurrent baselines T-GCN and EAT-GCN (`model::recurrent`,
 //! docs/model.md "Baselines"): the time loop keeping every step's gates and state, EAT-GCN's
 //! attention over time, and backpropagation through time by hand. The loss is
-//! [`super::loss`].
+//! [`crate::model::reference::loss`].
 
-use super::head::{flat_head, flat_head_backward};
-use super::{add_weight_decay, output_gradient, Loss};
 use crate::model::exact::{axpy, Grads, Table};
 use crate::model::recurrent::{attends_over_time, support_count, weight_name};
+use crate::model::reference::head::{flat_head, flat_head_backward};
+use crate::model::reference::{add_weight_decay, output_gradient, Loss};
 use crate::model::{ModelConfig, ParamSpec};
 
 /// One step's values, each `[B, N, ·]` row-major.
@@ -356,7 +356,7 @@ fn attention_backward(
     dh
 }
 
-/// The gradient of [`super::loss`]`(forward(..))` with respect to every parameter (in
+/// The gradient of [`crate::model::reference::loss`]`(forward(..))` with respect to every parameter (in
 /// spec order) and to x, from the tape of [`forward`].
 #[allow(clippy::too_many_arguments)]
 pub fn backward(

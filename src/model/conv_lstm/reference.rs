@@ -1,11 +1,11 @@
 //! The f64 reference of the ConvLSTM baseline (`model::conv_lstm`, docs/model.md
 //! "Baselines"): the time loop keeping every step's gates, cell and state, and
 //! backpropagation through time by hand, on the ops' own references
-//! (`ops::unfold2d::cpu`, `ops::lstm::cpu`). The loss is [`super::loss`].
+//! (`ops::unfold2d::cpu`, `ops::lstm::cpu`). The loss is [`crate::model::reference::loss`].
 
-use super::head::{flat_head, flat_head_backward};
-use super::{add_weight_decay, output_gradient, Loss};
 use crate::model::exact::{axpy, Grads, Table};
+use crate::model::reference::head::{flat_head, flat_head_backward};
+use crate::model::reference::{add_weight_decay, output_gradient, Loss};
 use crate::model::{ModelConfig, ParamSpec};
 use crate::ops::lstm::{cpu as lstm, Lstm};
 use crate::ops::unfold2d::{cpu as unfold, Unfold2d};
@@ -150,7 +150,7 @@ pub fn forward(
     }
 }
 
-/// The gradient of [`super::loss`]`(forward(..))` with respect to every parameter (in
+/// The gradient of [`crate::model::reference::loss`]`(forward(..))` with respect to every parameter (in
 /// spec order) and to x, from the tape of [`forward`].
 pub fn backward(
     config: &ModelConfig,

@@ -2,7 +2,7 @@
 //! "Baselines") on the CPU in f32, for B windows at a time (one in inference, up to 32
 //! of a training step's): the GRU whose gates are graph convolutions, run over the
 //! windows' T steps, EAT-GCN's attention over time, the head, and backpropagation through
-//! time by hand — the arithmetic of the f64 reference `model::reference::recurrent`. Per
+//! time by hand — the arithmetic of the f64 reference `model::recurrent::reference`. Per
 //! step t, with x_t `[N, F]` of each window:
 //!
 //! ```text
@@ -11,18 +11,18 @@
 //! h' = u ⊙ h + (1 − u) ⊙ c
 //! ```
 //!
-//! Every contraction is a `gemm` product (`super::gemm`) on row-major slices, for all B
+//! Every contraction is a `gemm` product (`model::cpu::gemm`) on row-major slices, for all B
 //! windows at once: the per-step arrays are laid out `[N, B, ·]`, so that x_t·Wx and
 //! h·Wh are products of N·B rows and S_k·P one `[N, N]·[N, B·H]` product (one window's
 //! N = 14 rows leave the products too thin to pay for their calls and packing). S_k = I
 //! (T_0 of EAT-GCN's Chebyshev supports) skips its graph mix, as on the device. The models
 //! have no dropout, so training and inference share the forward pass.
 
-use super::{flat_head, flat_head_backward};
 use crate::graph::Graph;
 use crate::model::config::ModelConfig;
 use crate::model::cpu::{gemm, rows, sigmoid, softmax_rows, tanh, transposed};
 use crate::model::error::ModelError;
+use crate::model::native::{flat_head, flat_head_backward};
 use crate::model::params::ParamSpec;
 use crate::model::recurrent::{attends_over_time, support_count, supports, weight_name, GATES};
 use multiversion::multiversion;
@@ -41,7 +41,7 @@ struct AttentionSlots {
 }
 
 /// A recurrent baseline's graph supports and where its tensors are.
-pub(super) struct RecurrentNet {
+pub(crate) struct RecurrentNet {
     n: usize,
     f: usize,
     h: usize,
@@ -74,7 +74,7 @@ struct AttentionTape {
 /// windows, run together: every per-step array is laid out node-major `[N, B, ·]` for
 /// the B windows of the last forward pass, so that x_t·Wx and h·Wh are one product of
 /// N·B rows and the graph mix S_k·(…) one product `[N, N]·[N, B·H]`, for all windows.
-pub(super) struct RecurrentTape {
+pub(crate) struct RecurrentTape {
     capacity: usize,
     /// Windows of the last forward pass.
     windows: usize,

@@ -1,23 +1,11 @@
-//! The ConvLSTM baseline of Table III (Shi et al. [25]; docs/model.md "Baselines"): an LSTM
-//! whose gates are 2-D convolutions over the node × feature grid of every step, run over
-//! the window's T steps, then the head on the last hidden state. With x_t the grid
-//! `[B, 1, N, F]` and the state h, c `[B, C, N, F]` (C = `channels`, zero before step 0):
-//!
-//! ```text
-//! z = Wx ∗ x_t + Wh ∗ h + b          (k×k "same" convolutions, 4C output channels: i f o g)
-//! c' = σ(z_f) ⊙ c + σ(z_i) ⊙ tanh(z_g)        h' = σ(z_o) ⊙ tanh(c')
-//! ```
-//!
-//! Each convolution is `ops::unfold2d` then one batched product; the cell is `ops::lstm`.
-//! The time loop is one dispatch chain per step, every step's state on the device; the
-//! backward pass runs through time in reverse, recomputing each step's unfoldings. The f64
-//! reference is `model::reference::conv_lstm`.
+//! ConvLSTM on the device: its tensors and its time loop's launches for one batch size,
+//! part of a [`crate::model::Network`].
 
-use super::config::ModelConfig;
-use super::recurrent::TimeLoop;
-use super::schedule::ParamTable;
-use super::schedule::Steps;
 use crate::gpu::{DType, Gpu, GpuError, Tensor};
+use crate::model::config::ModelConfig;
+use crate::model::recurrent::wgsl::TimeLoop;
+use crate::model::schedule::ParamTable;
+use crate::model::schedule::Steps;
 use crate::ops::bias::Bias;
 use crate::ops::lstm::Lstm;
 use crate::ops::matmul::Matmul;
@@ -37,8 +25,8 @@ struct Step {
     h: Tensor,
 }
 
-/// ConvLSTM's tensors and ops for one batch size (part of a [`super::Network`]).
-pub(super) struct ConvLstmBody {
+/// ConvLSTM's tensors and ops for one batch size (part of a [`crate::model::Network`]).
+pub(crate) struct ConvLstmBody {
     /// h and c before step 0, and ∂ℒ/∂c after the last step: zeros, never written.
     zeros: Tensor,
     steps: Vec<Step>,
@@ -55,7 +43,7 @@ pub(super) struct ConvLstmBody {
 
 impl ConvLstmBody {
     /// Allocates the per-step state for `batch` windows.
-    pub(super) fn new(
+    pub(crate) fn new(
         gpu: &Gpu,
         config: &ModelConfig,
         batch: usize,
@@ -252,19 +240,4 @@ impl TimeLoop for ConvLstmBody {
     fn output(&self) -> &Tensor {
         &self.steps[self.window - 1].h
     }
-}
-
-/// Forward FLOPs of ConvLSTM for `batch` windows: per step the two convolution products
-/// (the input's from step 0, the state's from step 1), then the head.
-pub fn forward_flops(config: &ModelConfig, batch: usize) -> f64 {
-    let f = |x: usize| x as f64;
-    let (b, c, kk) = (
-        f(batch),
-        f(config.channels),
-        f(config.kernel * config.kernel),
-    );
-    let grid = f(config.nodes * config.features);
-    let per_input = 2.0 * b * 4.0 * c * grid * kk;
-    let t = f(config.window);
-    t * per_input + (t - 1.0) * per_input * c + 2.0 * b * f(config.outputs) * c * grid
 }

@@ -1,10 +1,10 @@
 //! The f64 reference of the dense baselines (`model::dense`, docs/model.md "Baselines"):
 //! the forward pass keeping every activation, and its hand-written backward pass. The
-//! loss is [`super::loss`], the same as IASTGCN's.
+//! loss is [`crate::model::reference::loss`], the same as IASTGCN's.
 
-use super::{add_weight_decay, output_gradient, Loss};
 use crate::model::dense::Architecture;
 use crate::model::exact::{axpy, Grads, Table};
+use crate::model::reference::{add_weight_decay, output_gradient, Loss};
 use crate::model::{ModelConfig, ParamSpec};
 use crate::ops::elementwise::cpu as act;
 
@@ -88,7 +88,7 @@ pub fn forward(
     }
 }
 
-/// The gradient of [`super::loss`]`(forward(..))` with respect to every parameter (in
+/// The gradient of [`crate::model::reference::loss`]`(forward(..))` with respect to every parameter (in
 /// spec order) and to x, from the tape of [`forward`].
 #[allow(clippy::too_many_arguments)]
 pub fn backward(
