@@ -8,6 +8,7 @@ pub mod dense;
 pub mod error;
 mod exact;
 pub mod flops;
+mod head;
 pub mod memory;
 pub mod native;
 pub mod params;

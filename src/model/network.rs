@@ -9,15 +9,14 @@ use super::conv_lstm::wgsl::ConvLstmBody;
 use super::dense::wgsl::DenseBody;
 use super::dense::Architecture;
 use super::error::ModelError;
+use super::head::wgsl::Head;
 use super::params::{check_parameter_count, graph_basis, param_specs, ParamSpec, Parameters};
 use super::recurrent::wgsl::{RecurrentBody, TimeLoop};
 pub use super::schedule::Pass;
-use super::schedule::{self, ParamTable, Profile, Scratch, Steps, Timing};
+use super::schedule::{self, Profile, Scratch, Steps, Timing};
 use crate::gpu::{DType, Gpu, GpuError, Recorder, Tensor};
 use crate::graph::Graph;
-use crate::ops::bias::Bias;
 use crate::ops::loss::PoseLoss;
-use crate::ops::matmul::Matmul;
 use crate::ops::Accumulate;
 
 /// A network (IASTGCN, an ablation or a dense baseline) on one device for a fixed batch
@@ -217,29 +216,10 @@ impl Network {
     ) -> Result<[usize; 2], ModelError> {
         let batch = input_grad.shape()[0];
         let (n, t, c) = (config.nodes, config.window, config.channels);
-        let (head, head_bias) = head_ops(config, batch, config.nodes * config.channels);
+        let head = Head::new(config, batch, n * c);
         let (loss_slots, doutput) = loss_steps(gpu, config, group, output, target, loss, backward)?;
-        backward.run(head_bias.backward(
-            gpu,
-            &doutput,
-            table.grad("head.bias"),
-            Accumulate::Overwrite,
-        ))?;
-        backward.run(head.backward_b(
-            gpu,
-            h,
-            &doutput,
-            table.grad("head.weight"),
-            Accumulate::Overwrite,
-        ))?;
         let dh = gpu.zeros("head.dh", &[batch, n * c], DType::F32)?;
-        backward.run(head.backward_a(
-            gpu,
-            table.param("head.weight"),
-            &doutput,
-            &dh,
-            Accumulate::Overwrite,
-        ))?;
+        head.backward(gpu, table, h, &doutput, &dh, backward)?;
         let hidden = [batch, n, c, t];
         let ping = [
             gpu.zeros("d block output (even)", &hidden, DType::F32)?,
@@ -543,7 +523,7 @@ fn block_schedules(
     // The trimmed last block's output [B, N, C, 1] is the head's input h [B, N·C].
     // invariant: ModelConfig::validate requires blocks >= 1.
     let h = blocks.last().expect("at least one block").output.clone();
-    let (head, head_bias) = head_ops(config, batch, config.nodes * config.channels);
+    let head = Head::new(config, batch, config.nodes * config.channels);
     let mut fwd_slots = Vec::new();
     for block in &blocks {
         block.forward(gpu, table, &mut s.infer, Pass::Inference)?;
@@ -557,14 +537,7 @@ fn block_schedules(
         vec![&mut s.infer]
     };
     for steps in head_steps {
-        steps.run(head.forward(
-            gpu,
-            &h,
-            table.param("head.weight"),
-            io.output,
-            Accumulate::Overwrite,
-        ))?;
-        steps.run(head_bias.forward(gpu, table.param("head.bias"), io.output))?;
+        head.forward(gpu, table, &h, io.output, steps)?;
     }
     if training {
         s.loss_slots = Network::build_backward(
@@ -601,7 +574,7 @@ fn recurrent_schedules(
 ) -> Result<Schedules, ModelError> {
     let batch = io.input.shape()[0];
     let last = body.output();
-    let (head, head_bias) = head_ops(config, batch, last.numel() / batch);
+    let head = Head::new(config, batch, last.numel() / batch);
     let mut s = Schedules::default();
     let passes = if training {
         vec![&mut s.infer, &mut s.train]
@@ -610,40 +583,14 @@ fn recurrent_schedules(
     };
     for steps in passes {
         body.forward(gpu, table, io.input, steps)?;
-        steps.run(head.forward(
-            gpu,
-            last,
-            table.param("head.weight"),
-            io.output,
-            Accumulate::Overwrite,
-        ))?;
-        steps.run(head_bias.forward(gpu, table.param("head.bias"), io.output))?;
+        head.forward(gpu, table, last, io.output, steps)?;
     }
     if training {
         let b = &mut s.backward;
         let (slots, doutput) = loss_steps(gpu, config, group, io.output, io.target, io.loss, b)?;
         s.loss_slots = slots;
-        b.run(head_bias.backward(
-            gpu,
-            &doutput,
-            table.grad("head.bias"),
-            Accumulate::Overwrite,
-        ))?;
-        b.run(head.backward_b(
-            gpu,
-            last,
-            &doutput,
-            table.grad("head.weight"),
-            Accumulate::Overwrite,
-        ))?;
         let d_last = gpu.zeros("d head input", last.shape(), DType::F32)?;
-        b.run(head.backward_a(
-            gpu,
-            table.param("head.weight"),
-            &doutput,
-            &d_last,
-            Accumulate::Overwrite,
-        ))?;
+        head.backward(gpu, table, last, &doutput, &d_last, b)?;
         body.backward(gpu, table, &d_last, io.input_grad, b)?;
     }
     s.body = Body::Recurrent;
@@ -674,17 +621,4 @@ fn loss_steps(
         backward.run(pose.backward(gpu, output, target, &doutput))?,
     ];
     Ok((slots, doutput))
-}
-
-/// The head's ops for `batch` windows: `h · head.weightᵀ` and its bias, h `[B, width]` (the
-/// trimmed last block's last step, N·C, or T-GCN's last state, N·H).
-fn head_ops(config: &ModelConfig, batch: usize, width: usize) -> (Matmul, Bias) {
-    let o = config.outputs;
-    let head = Matmul::new(batch, o, width).transpose_b(true);
-    let bias = Bias {
-        outer: batch,
-        channels: o,
-        inner: 1,
-    };
-    (head, bias)
 }

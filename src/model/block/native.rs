@@ -26,6 +26,7 @@ use crate::model::block::slots::{BlockSlots, Slots};
 use crate::model::block::tape::{BlockTape, Masks, Tape, Work};
 use crate::model::config::ModelConfig;
 use crate::model::cpu::{flushing_subnormals, gemm, rows, transposed, PAR_MIN_MACS};
+use crate::model::head;
 use multiversion::multiversion;
 
 /// What every step of one block reads besides the tensors: its shapes, its tensor slots
@@ -107,18 +108,8 @@ pub(crate) fn forward(
         let b = Block::new(cfg, basis, &slots.blocks[l], threads);
         forward_block(&b, params, input, &mut rest[0], mask, h);
     }
-    let nc = cfg.nodes * cfg.channels;
-    tape.out.copy_from_slice(&params[slots.head_bias]);
-    gemm(
-        cfg.outputs,
-        nc,
-        1,
-        rows(&params[slots.head_weight], nc),
-        rows(&tape.h, 1),
-        1.0,
-        &mut tape.out,
-        1,
-    );
+    let head = (slots.head_weight, slots.head_bias);
+    head::native::forward(params, head, &tape.h, &mut tape.out);
 }
 
 /// Adds dL/dθ of one window to `grads` (in `param_specs` order) from `dout` = dL/dŷ
@@ -136,32 +127,9 @@ pub(crate) fn backward(
     grads: &mut [Vec<f32>],
     w: &mut Work,
 ) {
-    let (n, c, o) = (cfg.nodes, cfg.channels, cfg.outputs);
-    let nc = n * c;
-    // The head: ŷ = W_h·h + b.
-    gemm(
-        o,
-        1,
-        nc,
-        rows(dout, 1),
-        rows(&tape.h, nc),
-        1.0,
-        &mut grads[slots.head_weight],
-        nc,
-    );
-    for (g, d) in grads[slots.head_bias].iter_mut().zip(dout) {
-        *g += d;
-    }
-    gemm(
-        nc,
-        o,
-        1,
-        transposed(&p[slots.head_weight], nc),
-        rows(dout, 1),
-        0.0,
-        &mut w.dy[..nc],
-        1,
-    );
+    let nc = cfg.nodes * cfg.channels;
+    let head = (slots.head_weight, slots.head_bias);
+    head::native::backward(p, head, &tape.h, dout, grads, &mut w.dy[..nc]);
     for l in (0..slots.blocks.len()).rev() {
         let input = if l == 0 { x } else { &tape.blocks[l - 1].y[..] };
         let b = Block::new(cfg, basis, &slots.blocks[l], 1);

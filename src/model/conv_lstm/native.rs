@@ -16,7 +16,7 @@
 use crate::model::config::ModelConfig;
 use crate::model::cpu::{gemm, rows, sigmoid, tanh, transposed};
 use crate::model::error::ModelError;
-use crate::model::native::{flat_head, flat_head_backward};
+use crate::model::head::native::{backward_rows, forward_rows};
 use crate::model::params::ParamSpec;
 
 /// ConvLSTM's shapes and where its tensors are.
@@ -195,7 +195,7 @@ impl ConvLstmNet {
             }
         }
         let last = &tape.h[(t - 1) * m..];
-        flat_head(params, self.head, last, &mut tape.out);
+        forward_rows(params, self.head, last, &mut tape.out);
     }
 
     /// Adds ∂L/∂ every parameter to `grads` (`param_specs` order) for the upstream
@@ -210,7 +210,7 @@ impl ConvLstmNet {
         let (g, c, t) = (self.grid(), self.c, self.t);
         let (kk, m) = (self.k * self.k, c * g);
         let last = &tape.h[(t - 1) * m..];
-        flat_head_backward(params, self.head, last, dout, grads, &mut tape.dh);
+        backward_rows(params, self.head, last, dout, grads, &mut tape.dh);
         tape.dc.fill(0.0);
         for step in (0..t).rev() {
             let (h_prev, c_prev): (&[f32], &[f32]) = if step == 0 {

@@ -4,7 +4,7 @@
 //! (`ops::unfold2d::cpu`, `ops::lstm::cpu`). The loss is [`crate::model::reference::loss`].
 
 use crate::model::exact::{axpy, Grads, Table};
-use crate::model::reference::head::{flat_head, flat_head_backward};
+use crate::model::head::reference::{flat_head, flat_head_backward};
 use crate::model::reference::{add_weight_decay, output_gradient, Loss};
 use crate::model::{ModelConfig, ParamSpec};
 use crate::ops::lstm::{cpu as lstm, Lstm};

@@ -22,7 +22,7 @@ use crate::graph::Graph;
 use crate::model::config::ModelConfig;
 use crate::model::cpu::{gemm, rows, sigmoid, softmax_rows, tanh, transposed};
 use crate::model::error::ModelError;
-use crate::model::native::{flat_head, flat_head_backward};
+use crate::model::head::native::{backward_rows, forward_rows};
 use crate::model::params::ParamSpec;
 use crate::model::recurrent::{attends_over_time, support_count, supports, weight_name, GATES};
 use multiversion::multiversion;
@@ -381,7 +381,7 @@ impl RecurrentNet {
                 _ => gather(&tape.states[(t - 1) * nbh..], w, head_input),
             }
             let out = &mut tape.out[w * self.o..][..self.o];
-            flat_head(params, self.head, head_input, out);
+            forward_rows(params, self.head, head_input, out);
         }
     }
 
@@ -509,7 +509,7 @@ impl RecurrentNet {
         for w in 0..b {
             let head_input = &tape.head_input[w * nh..][..nh];
             let dout = &dout[w * self.o..][..self.o];
-            flat_head_backward(params, self.head, head_input, dout, grads, &mut tape.d_head);
+            backward_rows(params, self.head, head_input, dout, grads, &mut tape.d_head);
             match (&self.attention, tape.attention.get_mut(w)) {
                 (Some(slots), Some(a)) => {
                     self.attention_backward(params, grads, slots, a, &tape.d_head)

@@ -4,8 +4,8 @@
 //! [`crate::model::reference::loss`].
 
 use crate::model::exact::{axpy, Grads, Table};
+use crate::model::head::reference::{flat_head, flat_head_backward};
 use crate::model::recurrent::{attends_over_time, support_count, weight_name};
-use crate::model::reference::head::{flat_head, flat_head_backward};
 use crate::model::reference::{add_weight_decay, output_gradient, Loss};
 use crate::model::{ModelConfig, ParamSpec};
 

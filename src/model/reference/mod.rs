@@ -22,8 +22,6 @@
 // The loops index several tensors by the equations' indices at once.
 #![allow(clippy::needless_range_loop)]
 
-pub(crate) mod head;
-
 use super::block::exact::{BlockParams, Dims};
 use super::block::reference::{block_backward, block_forward};
 pub use super::block::reference::{BlockTape, DropoutStep};
@@ -31,7 +29,7 @@ pub use super::block::spatial_attention::reference::SpatialAttention;
 pub use super::block::temporal_attention::reference::TemporalAttention;
 use super::exact::{axpy, dot, Grads, Table};
 use super::{ModelConfig, ParamSpec};
-use head::{head, head_backward, output_weight};
+use crate::model::head::reference::{head, head_backward};
 
 /// The weights of the loss (eq. 39).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -249,5 +247,14 @@ pub(crate) fn add_weight_decay(
         if s.decay {
             axpy(&mut grads[i], 2.0 * loss.weight_decay, &params[i]);
         }
+    }
+}
+
+/// The weight of output `m` in eq. 39: 1 for position (m < 3), P for attitude.
+fn output_weight(m: usize, loss: &Loss) -> f64 {
+    if m < 3 {
+        1.0
+    } else {
+        loss.attitude_penalty
     }
 }

@@ -1,12 +1,12 @@
-//! The head: ŷ from the last time step of the last block's output, its backward, and the
-//! per-output weights of the loss (eq. 39).
+//! The head in f64: ŷ from the last time step of the last block's output ([`head`]), or
+//! from a flat input, the recurrent baselines' last state or context ([`flat_head`]), and
+//! their backward.
 
-use super::Loss;
 use crate::model::exact::{axpy, dot, row, row_mut, Grads};
 use crate::model::ModelConfig;
 
 /// ŷ[b,o] = head.bias[o] + Σ_{n,c} head.weight[o, n·C + c]·Y_L[b,n,c,T−1].
-pub(super) fn head(
+pub(crate) fn head(
     config: &ModelConfig,
     batch: usize,
     w: &[f64],
@@ -28,7 +28,7 @@ pub(super) fn head(
 }
 
 /// Backward of [`head`] from dL/dŷ `[B,O]`: returns dL/dY_L, adds the head's gradients.
-pub(super) fn head_backward(
+pub(crate) fn head_backward(
     config: &ModelConfig,
     batch: usize,
     w: &[f64],
@@ -90,13 +90,4 @@ pub(crate) fn flat_head_backward(
     grads.add("head.weight", &dw);
     grads.add("head.bias", &db);
     dh
-}
-
-/// The weight of output `m` in eq. 39: 1 for position (m < 3), P for attitude.
-pub(super) fn output_weight(m: usize, loss: &Loss) -> f64 {
-    if m < 3 {
-        1.0
-    } else {
-        loss.attitude_penalty
-    }
 }
