@@ -8,8 +8,8 @@
 //! `dot` over rows of length T) so that the paper shape runs in seconds at opt-level 1.
 //!
 //! This folder holds the whole network: the tape, the loss, the forward and backward
-//! through the blocks and the head (`head.rs`, with the loss weights); [`loss`] serves
-//! every model. The baselines' own forward and backward are in their folders
+//! through the blocks and the head (`model::head::reference`); [`loss`], with its
+//! per-output weights, serves every model. The baselines' own forward and backward are in their folders
 //! (`model::dense::reference`, `model::recurrent::reference`,
 //! `model::conv_lstm::reference`). The ST block's steps
 //! are in their folders of `model::block` (each step's `reference.rs`, composed in
