@@ -4,7 +4,7 @@
 CARGO ?= cargo
 export NODEVICE_SELECT ?= 1
 
-.PHONY: vulkan test demo paper bench bench-compare bench-polish bench-embed lint python header fuzz
+.PHONY: vulkan test demo paper bench bench-compare bench-polish bench-embed lint python header cli-reference fuzz
 
 vulkan:
 	@.ci/ensure-vulkan
@@ -57,6 +57,11 @@ fuzz:
 ## Regenerates the C header include/iastgcn.h from src/embed/c_api.rs (cbindgen).
 header:
 	IASTGCN_WRITE_HEADER=1 $(CARGO) test --test c_abi checked_in_header
+
+## Regenerates the command-line reference docs/cli.md from the CLI's definitions
+## (clap-markdown); `make test` fails while it differs.
+cli-reference:
+	IASTGCN_WRITE_CLI_REFERENCE=1 $(CARGO) test --bin iastgcn checked_in_cli_reference
 
 DEMO_DIR ?= report
 

@@ -123,6 +123,8 @@ pub struct Panel {
     /// The x axis on a log scale (ticks labelled with the values); points with x ≤ 0
     /// are left out.
     pub log_x: bool,
+    /// The x axis counts whole things (iterations): ticks only at integers.
+    pub integer_x: bool,
 }
 
 impl Panel {
@@ -137,6 +139,15 @@ impl Panel {
             }
         }
         p
+    }
+}
+
+/// A tick label of an axis of whole numbers: the integer, or nothing between two.
+fn integer_tick(v: &f64) -> String {
+    if (v - v.round()).abs() < 1e-9 {
+        format!("{}", v.round())
+    } else {
+        String::new()
     }
 }
 
@@ -219,8 +230,15 @@ pub fn draw(
             if panel.log_x {
                 mesh.x_label_formatter(&log_tick);
             }
+            if panel.integer_x && !panel.log_x {
+                // One tick per whole number in range (at most 20), none between.
+                let whole = (x1.floor() - x0.ceil()).max(0.0) as usize + 1;
+                mesh.x_labels(whole.min(20))
+                    .x_label_formatter(&integer_tick);
+            }
             if categorical {
-                mesh.x_labels(bars.len() + 1)
+                // A label at every whole x in range, so that every bar gets its name.
+                mesh.x_labels((x1 - x0).ceil() as usize + 2)
                     .x_label_formatter(&bar_label)
                     .disable_x_mesh();
             }
@@ -321,13 +339,17 @@ fn render(
 /// bottom; `NaN` pixels (off the part) are left white.
 #[derive(Clone, Debug)]
 pub struct HeatMap {
-    /// The panel's title.
+    /// The panel's title: up to [`HEAT_TITLE_LINES`] lines (split at `\n`), each drawn
+    /// within its panel.
     pub title: String,
     /// Pixels per side.
     pub n: usize,
     /// The values, row-major.
     pub values: Vec<f64>,
 }
+
+/// Lines of a [`HeatMap`]'s title that have room above its map.
+pub const HEAT_TITLE_LINES: usize = 2;
 
 /// Blue (low) through white to red (high), for `t` in [0, 1].
 fn diverging(t: f64) -> RGBColor {
@@ -358,7 +380,8 @@ pub fn heat_maps(
     let cols = cols.max(1);
     let rows = maps.len().div_ceil(cols).max(1);
     let cell = 320u32;
-    let size = (cols as u32 * cell, rows as u32 * (cell + 30) + 40);
+    let title_px = 18 * HEAT_TITLE_LINES as u32 + 8;
+    let size = (cols as u32 * cell, rows as u32 * (cell + title_px) + 40);
     render(path, size, |root, err| {
         let (legend, body) = root.split_vertically(40);
         legend
@@ -373,10 +396,16 @@ pub fn heat_maps(
             .map_err(|e| err(&e))?;
         let span = (range.1 - range.0).max(1e-12);
         for (map, area) in maps.iter().zip(body.split_evenly((rows, cols)).iter()) {
-            let (title, plot) = area.split_vertically(30);
-            title
-                .draw(&Text::new(map.title.clone(), (8, 8), ("sans-serif", 14)))
-                .map_err(|e| err(&e))?;
+            let (title, plot) = area.split_vertically(title_px);
+            for (k, line) in map.title.lines().take(HEAT_TITLE_LINES).enumerate() {
+                title
+                    .draw(&Text::new(
+                        line.to_string(),
+                        (8, 6 + 18 * k as i32),
+                        ("sans-serif", 14),
+                    ))
+                    .map_err(|e| err(&e))?;
+            }
             let (w, h) = plot.dim_in_pixel();
             let side = w.min(h) as usize;
             let n = map.n.max(1);

@@ -12,6 +12,7 @@ mod import;
 mod info;
 mod model;
 mod polish;
+mod reference;
 mod reproduce;
 mod scale;
 mod simulate;

@@ -227,6 +227,7 @@ fn plot_run(
             )],
             equal_aspect: true,
             log_x: false,
+            integer_x: false,
         },
         Panel {
             title: "driving errors E1-E4".into(),
@@ -237,6 +238,7 @@ fn plot_run(
                 .collect(),
             equal_aspect: false,
             log_x: false,
+            integer_x: false,
         },
         Panel {
             title: "true pad position error (hidden)".into(),
@@ -248,6 +250,7 @@ fn plot_run(
             )],
             equal_aspect: false,
             log_x: false,
+            integer_x: false,
         },
         Panel {
             title: "true pad attitude error (hidden)".into(),
@@ -259,6 +262,7 @@ fn plot_run(
             )],
             equal_aspect: false,
             log_x: false,
+            integer_x: false,
         },
     ];
     Ok(plot::draw(path, &panels, 2, 2, (1400, 1000))?)

@@ -523,6 +523,7 @@ pub fn write(
             x_label: "iteration".into(),
             y_label: "RMS (nm)".into(),
             series: names.iter().map(|n| curve(n, &|r| r.rms_nm)).collect(),
+            integer_x: true,
             ..Panel::default()
         },
         Panel {
@@ -530,6 +531,7 @@ pub fn write(
             x_label: "iteration".into(),
             y_label: "PV (nm)".into(),
             series: names.iter().map(|n| curve(n, &|r| r.pv_nm)).collect(),
+            integer_x: true,
             ..Panel::default()
         },
     ];
@@ -549,7 +551,7 @@ pub fn write(
             .map(|(name, m)| {
                 let f = m.figure(&polisher.clear);
                 HeatMap {
-                    title: format!("{name}: PV {:.0} nm, RMS {:.1} nm", f.pv, f.rms),
+                    title: format!("{name}\nPV {:.0} nm, RMS {:.1} nm", f.pv, f.rms),
                     n: m.grid.n,
                     values: m.values.clone(),
                 }

@@ -138,6 +138,7 @@ pub fn plot_losses(path: &Path, histories: &[(String, Vec<EpochRecord>)]) -> Res
                 series,
                 equal_aspect: false,
                 log_x: false,
+                integer_x: false,
             }
         })
         .collect();
@@ -212,6 +213,7 @@ pub fn plot_accumulated(
         ],
         equal_aspect: false,
         log_x: false,
+        integer_x: false,
     };
     plot::draw(
         path,

@@ -252,6 +252,7 @@ pub fn write_predictions(
                 ],
                 equal_aspect: false,
                 log_x: false,
+                integer_x: false,
             });
         }
     }

@@ -116,6 +116,7 @@ pub fn plot(path: &Path, points: &[CurvePoint]) -> Result<(), PlotError> {
             series,
             equal_aspect: false,
             log_x: false,
+            integer_x: false,
         }
     };
     let panels = [

@@ -171,9 +171,10 @@ fn plan(r: &Report) -> Vec<Entry> {
         out.push(entry(
             "compensated.png",
             "The result at a glance: mean position (µm) and attitude (mdeg) error against the \
-             hidden truth on each held-out path of the first held-out session, after \
-             calibration alone, with each model's compensation, and with the oracle (the \
-             uncompensated initial error is left out: it would dwarf the rest)."
+             hidden truth on each held-out path, after calibration alone, with the oracle, \
+             and with each model's compensation, each the mean over the held-out sessions \
+             and the model's seeds (the uncompensated initial error is left out: it would \
+             dwarf the rest)."
                 .into(),
             Kind::Compensated,
         ));
@@ -412,6 +413,7 @@ fn plot_fig11(path: &Path, trajectory: &str, traces: &[&Trace]) -> Result<(), pl
             series: cloud,
             equal_aspect: true,
             log_x: false,
+            integer_x: false,
         },
         Panel {
             title: format!("{trajectory}: |e_xy| over time"),
@@ -420,33 +422,67 @@ fn plot_fig11(path: &Path, trajectory: &str, traces: &[&Trace]) -> Result<(), pl
             series: magnitude,
             equal_aspect: false,
             log_x: false,
+            integer_x: false,
         },
     ];
     plot::draw(path, &panels, 1, 2, (1300, 600))
 }
 
-/// Two panels per trajectory (position, attitude): one bar per Table V row but the
-/// initial one, against the hidden truth.
+/// Two panels per trajectory (position, attitude), against the hidden truth: a bar for
+/// the calibrated controller, the oracle and each model (its `<model>.seed<k>` runs
+/// together), each the mean over the held-out sessions and the model's seeds (the
+/// uncompensated initial error is left out: it would dwarf the rest).
 fn plot_compensated(path: &Path, rows: &[TableVRow]) -> Result<(), plot::PlotError> {
-    // The first held-out session's runs (its traces are Fig. 11's).
-    let first: Vec<TableVRow> = rows.iter().filter(|r| r.session == 0).cloned().collect();
-    let rows = &first[..];
     let trajectories = distinct(rows.iter().map(|r| r.trajectory.as_str()));
+    let shown: Vec<&TableVRow> = rows.iter().filter(|r| r.stage != "initial").collect();
+    let label = |r: &TableVRow| -> String {
+        match r.stage.as_str() {
+            "compensated" => seeds::split_name(&r.model).0.to_string(),
+            stage => stage.to_string(),
+        }
+    };
+    let mut labels: Vec<String> = Vec::new();
+    for r in &shown {
+        let l = label(r);
+        if !labels.contains(&l) {
+            labels.push(l);
+        }
+    }
+    let sessions = distinct(rows.iter().map(|r| r.trajectory.as_str()))
+        .first()
+        .map_or(0, |t| {
+            let mut s: Vec<usize> = rows
+                .iter()
+                .filter(|r| r.trajectory == *t)
+                .map(|r| r.session)
+                .collect();
+            s.sort_unstable();
+            s.dedup();
+            s.len()
+        });
+    let seeded = shown
+        .iter()
+        .any(|r| seeds::split_name(&r.model).1.is_some());
+    let over = match (sessions, seeded) {
+        (1, false) => String::new(),
+        (n, false) => format!(", mean of {n} held-out sessions"),
+        (n, true) => format!(", mean of {n} held-out sessions × the seeds"),
+    };
     let mut panels = Vec::new();
     for trajectory in &trajectories {
-        let shown: Vec<&TableVRow> = rows
-            .iter()
-            .filter(|r| &r.trajectory == trajectory && r.stage != "initial")
-            .collect();
-        let label = |r: &TableVRow| match r.stage.as_str() {
-            "compensated" => r.model.clone(),
-            stage => stage.to_string(),
+        let mean_of = |l: &str, pick: fn(&TableVRow) -> f64| -> f64 {
+            let v: Vec<f64> = shown
+                .iter()
+                .filter(|r| &r.trajectory == trajectory && label(r) == l)
+                .map(|r| pick(r))
+                .collect();
+            v.iter().sum::<f64>() / v.len().max(1) as f64
         };
         let bars = |pick: fn(&TableVRow) -> f64| -> Vec<Series> {
-            shown
+            labels
                 .iter()
                 .enumerate()
-                .map(|(i, r)| Series::bars(label(r), vec![(i as f64, pick(r))]))
+                .map(|(i, l)| Series::bars(l.clone(), vec![(i as f64, mean_of(l, pick))]))
                 .collect()
         };
         for (what, unit, pick) in [
@@ -458,18 +494,14 @@ fn plot_compensated(path: &Path, rows: &[TableVRow]) -> Result<(), plot::PlotErr
             ("attitude", "mdeg", |r: &TableVRow| r.truth.attitude.mean),
         ] {
             panels.push(Panel {
-                title: format!("{trajectory}: mean {what} error vs truth"),
-                x_label: String::new(),
+                title: format!("{trajectory}: mean {what} error vs truth{over}"),
                 y_label: format!("{what} ({unit})"),
                 series: bars(pick),
-                equal_aspect: false,
-                log_x: false,
+                ..Panel::default()
             });
         }
     }
-    let rows_shown =
-        rows.iter().filter(|r| r.stage != "initial").count() / trajectories.len().max(1);
-    let width = (260 + 90 * rows_shown as u32).clamp(600, 1300);
+    let width = (260 + 90 * labels.len() as u32).clamp(600, 1300);
     plot::draw(
         path,
         &panels,
@@ -497,6 +529,7 @@ fn plot_fig10(path: &Path, timings: &[Timing]) -> Result<(), plot::PlotError> {
             series: bars(|t| t.epoch_seconds),
             equal_aspect: false,
             log_x: false,
+            integer_x: false,
         },
         Panel {
             title: format!("inference time per window ({inference})"),
@@ -505,6 +538,7 @@ fn plot_fig10(path: &Path, timings: &[Timing]) -> Result<(), plot::PlotError> {
             series: bars(|t| t.infer_ms),
             equal_aspect: false,
             log_x: false,
+            integer_x: false,
         },
     ];
     let width = (260 + 110 * timings.len() as u32).clamp(520, 900);
