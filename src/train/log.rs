@@ -138,7 +138,7 @@ pub fn plot_losses(path: &Path, histories: &[(String, Vec<EpochRecord>)]) -> Res
                 series,
                 equal_aspect: false,
                 log_x: false,
-                integer_x: false,
+                integer_x: true,
             }
         })
         .collect();
@@ -203,8 +203,14 @@ pub fn plot_accumulated(
     let series = |v: &[(usize, f64, f64)], pick: Pick, name: &str| {
         Series::new(name, v.iter().map(|r| (r.0 as f64, pick(r))).collect())
     };
+    // Refinement that kept the incoming weights draws one curve over the other: say so.
+    let same = before == after;
     let panel = |title: &str, unit: &str, pick: Pick| Panel {
-        title: title.into(),
+        title: if same {
+            format!("{title} (refinement kept the weights: one curve)")
+        } else {
+            title.into()
+        },
         x_label: "consecutive windows k".into(),
         y_label: format!("mean |Σ(ŷ−y)| ({unit})"),
         series: vec![
@@ -213,7 +219,7 @@ pub fn plot_accumulated(
         ],
         equal_aspect: false,
         log_x: false,
-        integer_x: false,
+        integer_x: true,
     };
     plot::draw(
         path,

@@ -511,19 +511,34 @@ fn plot_compensated(path: &Path, rows: &[TableVRow]) -> Result<(), plot::PlotErr
     )
 }
 
+/// Fig. 10: a bar per model (its `<model>.seed<k>` runs as their mean) for the training
+/// time per epoch and the online inference time per window.
 fn plot_fig10(path: &Path, timings: &[Timing]) -> Result<(), plot::PlotError> {
     let adapters = distinct(timings.iter().map(|t| t.trained_on.as_str())).join(", ");
     let inference = distinct(timings.iter().map(|t| t.inference_on.as_str())).join(", ");
+    let models = distinct(timings.iter().map(|t| seeds::split_name(&t.model).0));
+    let seeded = timings
+        .iter()
+        .any(|t| seeds::split_name(&t.model).1.is_some());
+    let over = if seeded { ", mean over seeds" } else { "" };
     let bars = |pick: fn(&Timing) -> f64| -> Vec<Series> {
-        timings
+        models
             .iter()
             .enumerate()
-            .map(|(i, t)| Series::bars(&t.model, vec![(i as f64, pick(t))]))
+            .map(|(i, m)| {
+                let v: Vec<f64> = timings
+                    .iter()
+                    .filter(|t| seeds::split_name(&t.model).0 == *m)
+                    .map(pick)
+                    .collect();
+                let mean = v.iter().sum::<f64>() / v.len().max(1) as f64;
+                Series::bars(*m, vec![(i as f64, mean)])
+            })
             .collect()
     };
     let panels = [
         Panel {
-            title: format!("training time per epoch ({adapters})"),
+            title: format!("training time per epoch ({adapters}{over})"),
             x_label: "model".into(),
             y_label: "s / epoch".into(),
             series: bars(|t| t.epoch_seconds),
@@ -532,7 +547,7 @@ fn plot_fig10(path: &Path, timings: &[Timing]) -> Result<(), plot::PlotError> {
             integer_x: false,
         },
         Panel {
-            title: format!("inference time per window ({inference})"),
+            title: format!("inference time per window ({inference}{over})"),
             x_label: "model".into(),
             y_label: "ms / window".into(),
             series: bars(|t| t.infer_ms),
@@ -541,7 +556,7 @@ fn plot_fig10(path: &Path, timings: &[Timing]) -> Result<(), plot::PlotError> {
             integer_x: false,
         },
     ];
-    let width = (260 + 110 * timings.len() as u32).clamp(520, 900);
+    let width = (260 + 110 * models.len() as u32).clamp(520, 1100);
     plot::draw(path, &panels, 1, 2, (2 * width, 440))
 }
 
