@@ -289,6 +289,38 @@ pub(super) struct Run {
     pub(super) backward: Option<Backward>,
 }
 
+impl Run {
+    /// An f32 implementation's run: its outputs, the gradients its backward handed back and
+    /// every parameter's gradient (in `param_specs` order).
+    pub(super) fn computed(outputs: Tensors, d_inputs: Tensors, d_params: &[Vec<f32>]) -> Run {
+        Run {
+            outputs,
+            backward: Some(Backward {
+                d_inputs,
+                d_params: d_params.iter().map(|v| wide(v)).collect(),
+            }),
+        }
+    }
+}
+
+/// Blocks 0 and 1 (the last, of the test's two) of each of `variants`, with or without
+/// dropout as `dropout` lists.
+pub(super) fn in_both_blocks(variants: &[Variant], dropout: &[bool]) -> Vec<Where> {
+    let mut cases = Vec::new();
+    for &variant in variants {
+        for block in [0, 1] {
+            for &dropout in dropout {
+                cases.push(Where {
+                    variant,
+                    block,
+                    dropout,
+                });
+            }
+        }
+    }
+    cases
+}
+
 /// What a step's backward computed.
 #[derive(Clone)]
 pub(super) struct Backward {

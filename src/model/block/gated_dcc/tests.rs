@@ -8,9 +8,10 @@
 use super::reference::{gated_dcc_backward, gated_dcc_conv, gated_dcc_output};
 use crate::model::block::exact::{BlockParams, Dims};
 use crate::model::block::native::Block;
+use crate::model::block::testing::in_both_blocks;
 use crate::model::block::testing::{
-    check, gpu, narrow, out_steps, random, wide, zero_grads, Backward, Case, Device, Run, StepTest,
-    Tensors, Where,
+    check, gpu, narrow, out_steps, random, wide, zero_grads, Case, Device, Run, StepTest, Tensors,
+    Where,
 };
 use crate::model::config::Variant;
 use crate::model::exact::Table;
@@ -59,15 +60,7 @@ impl StepTest for GatedDcc {
     }
 
     fn cases(&self) -> Vec<Where> {
-        let variants = [Variant::Iastgcn, Variant::PlainTemporal];
-        let blocks = |variant| {
-            [0, 1].map(|block| Where {
-                variant,
-                block,
-                dropout: false,
-            })
-        };
-        variants.into_iter().flat_map(blocks).collect()
+        in_both_blocks(&[Variant::Iastgcn, Variant::PlainTemporal], &[false])
     }
 
     fn case_tensors(&self, case: &Case, at: Where) -> (Tensors, Tensors) {
@@ -209,13 +202,7 @@ impl StepTest for GatedDcc {
         } else {
             work.dz[..n * c * t].iter().map(|&v| v as f64).collect()
         };
-        Run {
-            outputs,
-            backward: Some(Backward {
-                d_inputs: Tensors::from([("Z", dg)]),
-                d_params: grads.iter().map(|v| wide(v)).collect(),
-            }),
-        }
+        Run::computed(outputs, Tensors::from([("Z", dg)]), &grads)
     }
 
     fn wgsl(&self, case: &Case, at: Where, inputs: &Tensors, d_outputs: &Tensors) -> Run {
@@ -237,12 +224,6 @@ impl StepTest for GatedDcc {
         let outputs = Tensors::from([("H", dev.read_buffer("H"))]);
         let dh = dev.upload("dH", &narrow(&d_outputs["H"]));
         let dg = dev.run(|b, p, sc, st| b.gated_dcc_backward(gpu(), p, sc, st, &dh));
-        Run {
-            outputs,
-            backward: Some(Backward {
-                d_inputs: Tensors::from([("Z", dev.read(&dg))]),
-                d_params: dev.grads().iter().map(|v| wide(v)).collect(),
-            }),
-        }
+        Run::computed(outputs, Tensors::from([("Z", dev.read(&dg))]), &dev.grads())
     }
 }

@@ -18,9 +18,10 @@ use crate::model::block::graph_conv::reference as reference_gc;
 use crate::model::block::native::Block;
 use crate::model::block::spatial_attention::reference::node_mix_backward;
 use crate::model::block::tape::Cols;
+use crate::model::block::testing::in_both_blocks;
 use crate::model::block::testing::{
-    added, at_cols, check, from_cols, gpu, narrow, random, wide, zero_grads, Backward, Case,
-    Device, Run, StepTest, Tensors, Where, LEFT,
+    added, at_cols, check, from_cols, gpu, narrow, random, wide, zero_grads, Case, Device, Run,
+    StepTest, Tensors, Where, LEFT,
 };
 use crate::model::config::Variant;
 use crate::model::exact::Table;
@@ -32,38 +33,35 @@ pub(crate) struct GraphConv3 {
     pub(crate) gat: bool,
 }
 
-/// `[N, ch, cols.len]` in the tape's layout of Z: `[N, cols.len, ch]` at the taps.
-fn tape_layout(cols: &Cols, ch: usize, v: &[f64]) -> Vec<f64> {
-    if !cols.taps {
-        return v.to_vec();
-    }
-    let size = ch * cols.len;
+/// Each block of `a · b` values of `v`, `[a, b]`, as `[b, a]`.
+fn transposed_blocks(v: &[f64], a: usize, b: usize) -> Vec<f64> {
     let mut out = vec![0.0; v.len()];
-    for (s, o) in v.chunks(size).zip(out.chunks_mut(size)) {
-        for c in 0..ch {
-            for j in 0..cols.len {
-                o[j * ch + c] = s[c * cols.len + j];
+    for (s, o) in v.chunks(a * b).zip(out.chunks_mut(a * b)) {
+        for i in 0..a {
+            for j in 0..b {
+                o[j * a + i] = s[i * b + j];
             }
         }
     }
     out
 }
 
+/// `[N, ch, cols.len]` in the tape's layout of Z: `[N, cols.len, ch]` at the taps.
+fn tape_layout(cols: &Cols, ch: usize, v: &[f64]) -> Vec<f64> {
+    if cols.taps {
+        transposed_blocks(v, ch, cols.len)
+    } else {
+        v.to_vec()
+    }
+}
+
 /// The inverse of [`tape_layout`].
 fn from_tape_layout(cols: &Cols, ch: usize, v: &[f64]) -> Vec<f64> {
-    if !cols.taps {
-        return v.to_vec();
+    if cols.taps {
+        transposed_blocks(v, cols.len, ch)
+    } else {
+        v.to_vec()
     }
-    let size = ch * cols.len;
-    let mut out = vec![0.0; v.len()];
-    for (s, o) in v.chunks(size).zip(out.chunks_mut(size)) {
-        for c in 0..ch {
-            for j in 0..cols.len {
-                o[c * cols.len + j] = s[j * ch + c];
-            }
-        }
-    }
-    out
 }
 
 /// The node mixing X_s = (I + S')·X_t of one window (rows of `width` per node).
@@ -138,14 +136,7 @@ impl StepTest for GraphConv3 {
         } else {
             vec![Variant::Iastgcn, Variant::NoAttention, Variant::Chebyshev]
         };
-        let blocks = |variant| {
-            [0, 1].map(|block| Where {
-                variant,
-                block,
-                dropout: false,
-            })
-        };
-        variants.into_iter().flat_map(blocks).collect()
+        in_both_blocks(&variants, &[false])
     }
 
     fn case_tensors(&self, case: &Case, at: Where) -> (Tensors, Tensors) {
@@ -278,13 +269,7 @@ impl StepTest for GraphConv3 {
         } else {
             Tensors::from([("X", added(&work.dx[..n * ci * t]))])
         };
-        Run {
-            outputs: Tensors::from([("Z", z)]),
-            backward: Some(Backward {
-                d_inputs,
-                d_params: grads.iter().map(|v| wide(v)).collect(),
-            }),
-        }
+        Run::computed(Tensors::from([("Z", z)]), d_inputs, &grads)
     }
 
     fn wgsl(&self, case: &Case, at: Where, inputs: &Tensors, d_outputs: &Tensors) -> Run {
@@ -326,12 +311,6 @@ impl StepTest for GraphConv3 {
             Some(a) => Tensors::from([("S'", dev.read(&a.dsp)), ("X_t", dev.read(&a.dxt))]),
             None => Tensors::from([("X", added(&narrow(&dev.read(&d_in))))]),
         };
-        Run {
-            outputs: Tensors::from([("Z", z)]),
-            backward: Some(Backward {
-                d_inputs,
-                d_params: dev.grads().iter().map(|v| wide(v)).collect(),
-            }),
-        }
+        Run::computed(Tensors::from([("Z", z)]), d_inputs, &dev.grads())
     }
 }

@@ -15,9 +15,9 @@ use crate::model::block::exact::Dims;
 use crate::model::block::native::Block;
 use crate::model::block::residual_layer_norm::dropout_kernel::keep;
 use crate::model::block::tape::Masks;
+use crate::model::block::testing::in_both_blocks;
 use crate::model::block::testing::{
-    check, gpu, narrow, out_steps, random, wide, Backward, Case, Device, Run, StepTest, Tensors,
-    Where,
+    check, gpu, narrow, out_steps, random, wide, Case, Device, Run, StepTest, Tensors, Where,
 };
 use crate::model::block::wgsl::MaskedStep;
 use crate::model::config::{ModelConfig, Variant};
@@ -123,19 +123,7 @@ impl StepTest for ResidualLayerNorm {
     }
 
     fn cases(&self) -> Vec<Where> {
-        let mut cases = Vec::new();
-        for variant in [Variant::Iastgcn, Variant::PlainTemporal] {
-            for block in [0, 1] {
-                for dropout in [false, true] {
-                    cases.push(Where {
-                        variant,
-                        block,
-                        dropout,
-                    });
-                }
-            }
-        }
-        cases
+        in_both_blocks(&[Variant::Iastgcn, Variant::PlainTemporal], &[false, true])
     }
 
     fn case_tensors(&self, case: &Case, at: Where) -> (Tensors, Tensors) {
@@ -260,16 +248,14 @@ impl StepTest for ResidualLayerNorm {
         work.dy[..n * c * steps].copy_from_slice(&narrow(&d_outputs["Y"]));
         let mut grads: Vec<Vec<f32>> = params.iter().map(|p| vec![0.0; p.len()]).collect();
         b.residual_layer_norm_backward(params, &x, bt, at.dropout, true, &mut grads, work);
-        Run {
-            outputs: Tensors::from([("Y", y)]),
-            backward: Some(Backward {
-                d_inputs: Tensors::from([
-                    ("H", wide(&work.da[..n * c * steps])),
-                    ("X", wide(&work.dx[..n * ci * t])),
-                ]),
-                d_params: grads.iter().map(|v| wide(v)).collect(),
-            }),
-        }
+        Run::computed(
+            Tensors::from([("Y", y)]),
+            Tensors::from([
+                ("H", wide(&work.da[..n * c * steps])),
+                ("X", wide(&work.dx[..n * ci * t])),
+            ]),
+            &grads,
+        )
     }
 
     fn wgsl(&self, case: &Case, at: Where, inputs: &Tensors, d_outputs: &Tensors) -> Run {
@@ -314,12 +300,10 @@ impl StepTest for ResidualLayerNorm {
             masked.into_iter().try_for_each(|m| at_step(st, m))?;
             Ok(dh)
         });
-        Run {
+        Run::computed(
             outputs,
-            backward: Some(Backward {
-                d_inputs: Tensors::from([("H", dev.read(&dh)), ("X", dev.read(&d_in))]),
-                d_params: dev.grads().iter().map(|v| wide(v)).collect(),
-            }),
-        }
+            Tensors::from([("H", dev.read(&dh)), ("X", dev.read(&d_in))]),
+            &dev.grads(),
+        )
     }
 }

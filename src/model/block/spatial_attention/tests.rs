@@ -12,8 +12,9 @@ use super::native as spatial_attention;
 use super::reference::{spatial_attention as reference_forward, weights_backward, SpatialParams};
 use crate::model::block::exact::{BlockParams, Dims};
 use crate::model::block::native::Block;
+use crate::model::block::testing::in_both_blocks;
 use crate::model::block::testing::{
-    gpu, narrow, random, wide, zero_grads, Backward, Case, Device, Run, StepTest, Tensors, Where,
+    gpu, narrow, random, wide, zero_grads, Case, Device, Run, StepTest, Tensors, Where,
 };
 use crate::model::config::Variant;
 use crate::model::exact::Table;
@@ -56,15 +57,7 @@ impl StepTest for SpatialAttention2 {
     }
 
     fn cases(&self) -> Vec<Where> {
-        let variants = [Variant::Iastgcn, Variant::PlainTemporal];
-        let blocks = |variant| {
-            [0, 1].map(|block| Where {
-                variant,
-                block,
-                dropout: false,
-            })
-        };
-        variants.into_iter().flat_map(blocks).collect()
+        in_both_blocks(&[Variant::Iastgcn, Variant::PlainTemporal], &[false])
     }
 
     fn case_tensors(&self, case: &Case, at: Where) -> (Tensors, Tensors) {
@@ -166,13 +159,7 @@ impl StepTest for SpatialAttention2 {
         } else {
             time_mix_backward(t, e, x, &wide(&work.dxt[..x.len()]))
         };
-        Run {
-            outputs,
-            backward: Some(Backward {
-                d_inputs,
-                d_params: grads.iter().map(|v| wide(v)).collect(),
-            }),
-        }
+        Run::computed(outputs, d_inputs, &grads)
     }
 
     fn wgsl(&self, case: &Case, at: Where, inputs: &Tensors, d_outputs: &Tensors) -> Run {
@@ -186,12 +173,10 @@ impl StepTest for SpatialAttention2 {
         let dsp = dev.upload("dS'", &narrow(&d_outputs["S'"]));
         let dxt = dev.upload("dX_t", &vec![0.0; x.len()]);
         dev.run(|b, p, sc, st| b.spatial_attention_backward(gpu(), p, sc, st, &dsp, &dxt));
-        Run {
+        Run::computed(
             outputs,
-            backward: Some(Backward {
-                d_inputs: time_mix_backward(t, e, x, &dev.read(&dxt)),
-                d_params: dev.grads().iter().map(|v| wide(v)).collect(),
-            }),
-        }
+            time_mix_backward(t, e, x, &dev.read(&dxt)),
+            &dev.grads(),
+        )
     }
 }

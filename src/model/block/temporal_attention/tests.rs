@@ -13,9 +13,10 @@ use super::reference::{temporal_attention_backward, TemporalParams};
 use crate::model::block::exact::{BlockParams, Dims};
 use crate::model::block::native::Block;
 use crate::model::block::tape::Cols;
+use crate::model::block::testing::in_both_blocks;
 use crate::model::block::testing::{
-    added, at_cols, from_cols, gpu, narrow, random, wide, zero_grads, Backward, Case, Device, Run,
-    StepTest, Tensors, Where, LEFT,
+    added, at_cols, from_cols, gpu, narrow, random, wide, zero_grads, Case, Device, Run, StepTest,
+    Tensors, Where, LEFT,
 };
 use crate::model::config::Variant;
 use crate::model::exact::Table;
@@ -43,15 +44,7 @@ impl StepTest for TemporalAttention1 {
     }
 
     fn cases(&self) -> Vec<Where> {
-        let variants = [Variant::Iastgcn, Variant::PlainTemporal];
-        let blocks = |variant| {
-            [0, 1].map(|block| Where {
-                variant,
-                block,
-                dropout: false,
-            })
-        };
-        variants.into_iter().flat_map(blocks).collect()
+        in_both_blocks(&[Variant::Iastgcn, Variant::PlainTemporal], &[false])
     }
 
     fn case_tensors(&self, case: &Case, at: Where) -> (Tensors, Tensors) {
@@ -129,13 +122,11 @@ impl StepTest for TemporalAttention1 {
         work.dx.fill(LEFT);
         let mut grads: Vec<Vec<f32>> = params.iter().map(|p| vec![0.0; p.len()]).collect();
         temporal_attention::backward(&b, params, &x, bt, true, &mut grads, work);
-        Run {
+        Run::computed(
             outputs,
-            backward: Some(Backward {
-                d_inputs: Tensors::from([("X", added(&work.dx[..x.len()]))]),
-                d_params: grads.iter().map(|v| wide(v)).collect(),
-            }),
-        }
+            Tensors::from([("X", added(&work.dx[..x.len()]))]),
+            &grads,
+        )
     }
 
     fn wgsl(&self, case: &Case, at: Where, inputs: &Tensors, d_outputs: &Tensors) -> Run {
@@ -149,12 +140,10 @@ impl StepTest for TemporalAttention1 {
         let dxt = dev.upload("dX_t", &narrow(&d_outputs["X_t"]));
         let d_in = dev.upload("dX", &vec![LEFT; x.len()]);
         dev.run(|b, p, sc, st| b.temporal_attention_backward(gpu(), p, sc, st, &dxt, &d_in));
-        Run {
+        Run::computed(
             outputs,
-            backward: Some(Backward {
-                d_inputs: Tensors::from([("X", added(&narrow(&dev.read(&d_in))))]),
-                d_params: dev.grads().iter().map(|v| wide(v)).collect(),
-            }),
-        }
+            Tensors::from([("X", added(&narrow(&dev.read(&d_in))))]),
+            &dev.grads(),
+        )
     }
 }
