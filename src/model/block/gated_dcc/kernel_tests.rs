@@ -2,6 +2,7 @@
 //! reference (forward and backward), the unfolding+GEMM path vs the direct convolution
 //! of docs/model.md step 4, and the reference gradients (the unfolding, the gate and the
 //! convolution) vs central differences.
+#![cfg(test)]
 
 use super::kernel::{cpu, gate_backward_stacked, gate_forward, ReluOutput, Unfold};
 use crate::gpu::DType;

@@ -1,6 +1,7 @@
 //! The multi-head graph attention op (`graph_attention::kernel`): GPU forward (α and the
 //! aggregate, both accumulate modes) and backward (∂ℒ/∂q, ∂ℒ/∂a_src, ∂ℒ/∂a_dst) against
 //! the f64 reference, and the reference backward against central differences in f64.
+#![cfg(test)]
 
 use super::kernel::{cpu, GraphAttention};
 use crate::gpu::{DType, Gpu, Tensor};

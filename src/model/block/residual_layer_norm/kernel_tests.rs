@@ -3,6 +3,7 @@
 //! differences, on ragged shapes. Dropout: the GPU mask equals the CPU hash bit for bit,
 //! forward and backward use the same mask, the kept fraction is 1 − p, and steps and
 //! seeds change the mask.
+#![cfg(test)]
 
 use super::dropout_kernel::{keep, Dropout};
 use super::layer_norm_kernel::{cpu, LayerNorm};
