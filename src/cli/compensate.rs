@@ -9,7 +9,7 @@ use anyhow::Context;
 use super::Console;
 use iastgcn::compensate::held_out::{Prepared, RunSpec};
 use iastgcn::compensate::online::Online;
-use iastgcn::experiment::evaluate::{predictors, table_v, HeldOutResult};
+use iastgcn::experiment::evaluate::{predictors, runs_at_a_time, table_v, HeldOutResult};
 use iastgcn::experiment::report::table_v_lines;
 use iastgcn::gpu::Device;
 use iastgcn::model::Checkpoint;
@@ -138,6 +138,7 @@ pub fn run(device: Device, args: &CompensateArgs) -> anyhow::Result<()> {
     let mut models = predictors(&device, &checkpoints)?;
     // Where each model predicts: the native CPU forward on a CPU adapter, else the adapter.
     let ran_on: Vec<String> = models.iter().map(|m| m.runs_on(&device)).collect();
+    let sharing = runs_at_a_time(&models);
     let ticks = run.config().steps() * (3 + models.len());
     let mut console = Console::default();
     console.begin(
@@ -178,6 +179,9 @@ pub fn run(device: Device, args: &CompensateArgs) -> anyhow::Result<()> {
     }
     for ((m, ms), on) in latency.iter().zip(&ran_on) {
         println!("{m}: {ms:.2} ms per online prediction on {on}");
+    }
+    if sharing > 1 {
+        println!("(the runs went {sharing} at a time, one per core: each time was taken beside another run)");
     }
     Ok(())
 }

@@ -13,6 +13,7 @@ pub mod demo;
 pub mod evaluate;
 pub mod jobs;
 pub mod machines;
+mod parallel;
 pub mod polish;
 pub mod protocol;
 pub mod recommend;

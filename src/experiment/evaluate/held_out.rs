@@ -10,8 +10,10 @@ use crate::compensate::online::RunResult;
 use crate::compensate::online::{self, ErrorStats, Feedback, Online};
 use crate::data::DataSources;
 use crate::error::{ensure, Error, Result};
+use crate::experiment::parallel;
 use crate::experiment::report::{table_v_lines, TableVRow, Trace};
 use crate::gpu::Device;
+use crate::model::Backend;
 use crate::progress::Reporter;
 use crate::robot::Robot;
 use crate::twin::MachineState;
@@ -260,7 +262,15 @@ pub fn held_out_session(
     let calibrated = cal.robot(geometry);
     // The oracle stands in for a model of the first one's window.
     let window = first.window();
-    let ran_on: Vec<String> = models.iter().map(|m| m.runs_on(device)).collect();
+    // Where each model predicted, and beside how many other runs its times were taken.
+    let sharing = runs_at_a_time(models);
+    let ran_on: Vec<String> = models
+        .iter()
+        .map(|m| match sharing {
+            1 => m.runs_on(device),
+            n => format!("{} ({n} runs at a time)", m.runs_on(device)),
+        })
+        .collect();
     let mut latency = vec![(0.0, 0usize); models.len()];
     let mut session = Session {
         rows: Vec::new(),
@@ -416,10 +426,22 @@ pub struct HeldOutResult {
     pub end: MachineState,
 }
 
+/// How many of a held-out path's runs ([`table_v`]) run at a time: one per core when every
+/// model predicts on the native CPU path, else one (the device's queue stays with one
+/// thread). The models' online prediction times are measured so, beside the other runs.
+pub fn runs_at_a_time(models: &[LoopModel]) -> usize {
+    let all_native = models
+        .iter()
+        .all(|m| m.members.iter().all(|p| p.backend() == Backend::Native));
+    parallel::workers(all_native).min(3 + models.len())
+}
+
 /// Table V rows and Fig. 11 traces of one held-out run, every stage starting from the
 /// same machine state: the nominal controller (initial), the calibrated one
 /// (calibrated), the calibrated one fed the true residual with a `window`-step model's
 /// latency and rate (oracle), and the calibrated one compensating online with each model.
+/// The runs go [`runs_at_a_time`] at a time; the rows come in this order whichever ran
+/// first, and `on_tick` is called once per tick of every run, on the calling thread.
 #[allow(clippy::too_many_arguments)]
 pub fn table_v(
     machine: &Machine,
@@ -441,61 +463,63 @@ pub fn table_v(
         truth: r.truth,
         tracker: r.tracker,
     };
-    let mut rows = Vec::new();
-    let mut traces = Vec::new();
+    // Every run starts from the same state and none reads another's: they run on every
+    // core when every model predicts on the native CPU path.
+    enum Job<'m> {
+        Initial,
+        Calibrated,
+        Oracle,
+        Model(&'m mut LoopModel),
+    }
+    let names: Vec<String> = models.iter().map(|m| m.name.clone()).collect();
+    let workers = runs_at_a_time(models);
+    let mut jobs = vec![Job::Initial, Job::Calibrated, Job::Oracle];
+    jobs.extend(models.iter_mut().map(Job::Model));
+    let results = parallel::run_all(
+        jobs,
+        workers,
+        |job, tick| {
+            let (controller, feedback) = match job {
+                Job::Initial => (nominal, Feedback::None),
+                Job::Calibrated => (calibrated, Feedback::None),
+                Job::Oracle => (calibrated, Feedback::Oracle { window, settings }),
+                Job::Model(LoopModel { members, graph, .. }) => {
+                    (calibrated, Feedback::Model(members, graph, settings))
+                }
+            };
+            online::run(
+                machine,
+                controller,
+                run.config(),
+                run.start.clone(),
+                feedback,
+                |_| tick(),
+            )
+        },
+        || on_tick(0),
+    )?;
+    let mut results = results.into_iter();
+    // invariant: one result per job, three controllers and then the models.
+    let mut next = || results.next().expect("one result per job");
+    let (initial, plain, oracle) = (next(), next(), next());
+    let mut rows = vec![
+        row("initial", "-", &initial),
+        row("calibrated", "-", &plain),
+        row("oracle", "true residual", &oracle),
+    ];
+    let mut traces = vec![online::trace(run.path, "calibrated", &plain)];
     let mut latency = Vec::new();
     let mut refused = Vec::new();
-    let start = || run.start.clone();
-    let initial = online::run(
-        machine,
-        nominal,
-        run.config(),
-        start(),
-        Feedback::None,
-        &mut on_tick,
-    )?;
-    rows.push(row("initial", "-", &initial));
-    let plain = online::run(
-        machine,
-        calibrated,
-        run.config(),
-        start(),
-        Feedback::None,
-        &mut on_tick,
-    )?;
-    rows.push(row("calibrated", "-", &plain));
-    traces.push(online::trace(run.path, "calibrated", &plain));
-    let oracle = online::run(
-        machine,
-        calibrated,
-        run.config(),
-        start(),
-        Feedback::Oracle { window, settings },
-        &mut on_tick,
-    )?;
-    rows.push(row("oracle", "true residual", &oracle));
-    for LoopModel {
-        name: model,
-        members,
-        graph,
-    } in models.iter_mut()
-    {
-        let r = online::run(
-            machine,
-            calibrated,
-            run.config(),
-            start(),
-            Feedback::Model(members, graph, settings),
-            &mut on_tick,
-        )?;
-        rows.push(row("compensated", model, &r));
+    for model in names {
+        let r = next();
+        rows.push(row("compensated", &model, &r));
         traces.push(online::trace(
             run.path,
             &format!("compensated ({model})"),
             &r,
         ));
         latency.push((model.clone(), r.predict_ms));
-        refused.push((model.clone(), r.refused, r.predictions, r.unreachable));
+        refused.push((model, r.refused, r.predictions, r.unreachable));
     }
     Ok(HeldOutResult {
         rows,

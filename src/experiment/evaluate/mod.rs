@@ -8,8 +8,8 @@ mod models;
 mod paper_tables;
 
 pub use held_out::{
-    held_out_session, table_v, HeldOutConfig, HeldOutResult, HeldOutSession, OpenLoopScore,
-    Session, SessionOptions, MAX_HELD_OUT_SESSIONS,
+    held_out_session, runs_at_a_time, table_v, HeldOutConfig, HeldOutResult, HeldOutSession,
+    OpenLoopScore, Session, SessionOptions, MAX_HELD_OUT_SESSIONS,
 };
 pub use models::{ensemble, predictors, runs_on, LoopModel, NamedModel};
 pub(crate) use paper_tables::tables;

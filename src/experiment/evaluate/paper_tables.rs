@@ -6,6 +6,7 @@ use super::held_out::{held_out_session, HeldOutConfig, SessionOptions};
 use super::models::{predictors, NamedModel};
 use crate::data::{DataSources, Dataset};
 use crate::error::{Error, Result};
+use crate::experiment::parallel;
 use crate::experiment::recommend::{recommend, validation_session};
 use crate::experiment::report::{table_iii_lines, Report, TableIIIRow, Timing};
 use crate::gpu::Device;
@@ -97,26 +98,38 @@ pub fn evaluate(
     held.validate()?;
     reporter.note("== Table III: prediction accuracy on the held-out split");
     let windowed = Graph::load_or_default(sources.graph.as_deref())?;
-    let mut rows: Vec<TableIIIRow> = Vec::new();
-    for (i, m) in models.iter().enumerate() {
-        let mut c = config.clone();
-        c.model = m.checkpoint.config.clone();
-        let fixed =
-            data_normalization(&m.checkpoint.normalization).map_err(|e| e.context(&m.name))?;
-        // The test windows are read with the sources' graph: a model that reads other
-        // sensors would be scored on the wrong channels.
-        if windowed.nodes != m.checkpoint.graph.nodes {
-            return Err(Error::Invalid(format!(
-                "{}: the model reads the sensors [{}], but the recordings are windowed with \
-                 the graph [{}]; a model is scored on recordings windowed with its own graph",
-                m.name,
-                m.checkpoint.graph.nodes.join(", "),
-                windowed.nodes.join(", ")
-            )));
-        }
-        let (_, data) = build_dataset(sources, &c, Some(&fixed))?;
-        rows.extend(table_iii(device, &m.name, &m.checkpoint, &data, i == 0)?);
-    }
+    // Each model windows the recordings with its own statistics and predicts alone: on
+    // every core where the predictions run on the native CPU path.
+    let native = match device {
+        Device::Native => true,
+        Device::Adapter(gpu) => gpu.is_software(),
+    };
+    let per_model = parallel::run_all(
+        models.iter().enumerate().collect(),
+        parallel::workers(native),
+        |(i, m), _| -> Result<Vec<TableIIIRow>> {
+            let mut c = config.clone();
+            c.model = m.checkpoint.config.clone();
+            let fixed =
+                data_normalization(&m.checkpoint.normalization).map_err(|e| e.context(&m.name))?;
+            // The test windows are read with the sources' graph: a model that reads other
+            // sensors would be scored on the wrong channels.
+            if windowed.nodes != m.checkpoint.graph.nodes {
+                return Err(Error::Invalid(format!(
+                    "{}: the model reads the sensors [{}], but the recordings are windowed \
+                     with the graph [{}]; a model is scored on recordings windowed with its \
+                     own graph",
+                    m.name,
+                    m.checkpoint.graph.nodes.join(", "),
+                    windowed.nodes.join(", ")
+                )));
+            }
+            let (_, data) = build_dataset(sources, &c, Some(&fixed))?;
+            Ok(table_iii(device, &m.name, &m.checkpoint, &data, i == 0)?)
+        },
+        || {},
+    )?;
+    let rows: Vec<TableIIIRow> = per_model.into_iter().flatten().collect();
     for line in table_iii_lines(&rows) {
         reporter.note(&line);
     }
