@@ -5,7 +5,8 @@
 //! folders of several twin machines (`machines`), what their jobs share (shards, pinned
 //! setups, job records, TOML files: `jobs`), the scaling study of error against
 //! training data (`scale`), the model recommended on a validation session
-//! (`recommend`), and a serial arm's residual models on held-out poses (`arm`).
+//! (`recommend`), a serial arm's residual models on held-out poses (`arm`), and the
+//! independent runs of an evaluation on every core (`parallel`).
 
 pub mod arm;
 pub mod calibration;
