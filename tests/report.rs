@@ -396,6 +396,13 @@ fn writes_every_file_of_the_report_folder() {
     assert!(md.starts_with(
         "# Synthetic evaluation\n\n**a, the recommended model, removes 50.0 ± 1.0 % of it**\n"
     ));
+    // The key figure right under the headline, before the setup; the run's notes at the
+    // end, after the tables.
+    let figure = md.find("](compensated.png)\n").expect("the key figure");
+    let setup = md.find("- config: runs/test.toml").expect("the setup");
+    assert!(figure < setup, "the figure comes before the setup");
+    let notes = md.find("## Notes").expect("the notes");
+    assert!(notes > md.find("## Table V analog").unwrap(), "the notes after the tables");
     assert!(md.contains("- config: runs/test.toml"));
     assert!(md.contains("Adapter: Test GPU (Vulkan)"));
     assert!(md.contains("1 h 02 min 05 s"), "wall time");

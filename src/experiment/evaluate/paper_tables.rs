@@ -181,7 +181,7 @@ pub fn evaluate(
             reporter,
         )?;
         report.table_v.extend(other.rows);
-        report.setup.extend(other.refusals);
+        report.notes.extend(other.refusals);
     }
 
     reporter.note(
@@ -219,7 +219,7 @@ pub fn evaluate(
         session.machine_seed
     ));
     report.setup.extend(session.calibration_warning);
-    report.setup.extend(session.refusals);
+    report.notes.extend(session.refusals);
     // Fig. 11 shows before/after: calibration only, and the main model.
     let main = models
         .iter()

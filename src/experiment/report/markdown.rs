@@ -263,6 +263,14 @@ pub fn markdown(r: &Report) -> String {
     if let Some(headline) = &r.headline {
         let _ = writeln!(out, "**{headline}**\n");
     }
+    // The key figure under the headline, before the setup and the tables.
+    if r.table_v.iter().any(|row| row.stage != "initial") {
+        let _ = writeln!(
+            out,
+            "![each held-out path's mean error after calibration, with the oracle and with \
+             each model compensating](compensated.png)\n"
+        );
+    }
     for line in &r.setup {
         let _ = writeln!(out, "- {line}");
     }
@@ -288,6 +296,8 @@ pub fn markdown(r: &Report) -> String {
     }
     markdown_timings(&mut out, &r.timings);
     if !r.notes.is_empty() {
+        // The run's log: each model's refinement verdict, the corrections the controller
+        // refused, findings.
         out.push_str("## Notes\n\n");
         for n in &r.notes {
             let _ = writeln!(out, "- {n}");
