@@ -402,7 +402,10 @@ fn writes_every_file_of_the_report_folder() {
     let setup = md.find("- config: runs/test.toml").expect("the setup");
     assert!(figure < setup, "the figure comes before the setup");
     let notes = md.find("## Notes").expect("the notes");
-    assert!(notes > md.find("## Table V analog").unwrap(), "the notes after the tables");
+    assert!(
+        notes > md.find("## Table V analog").unwrap(),
+        "the notes after the tables"
+    );
     assert!(md.contains("- config: runs/test.toml"));
     assert!(md.contains("Adapter: Test GPU (Vulkan)"));
     assert!(md.contains("1 h 02 min 05 s"), "wall time");
