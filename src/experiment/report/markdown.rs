@@ -251,6 +251,9 @@ fn markdown_timings(out: &mut String, timings: &[Timing]) {
     out.push('\n');
 }
 
+/// The figure shown under the headline.
+const KEY_FIGURE: &str = "compensated.png";
+
 /// The Markdown text of the report.
 pub fn markdown(r: &Report) -> String {
     let mut out = String::new();
@@ -263,13 +266,12 @@ pub fn markdown(r: &Report) -> String {
     if let Some(headline) = &r.headline {
         let _ = writeln!(out, "**{headline}**\n");
     }
-    // The key figure under the headline, before the setup and the tables.
-    if r.table_v.iter().any(|row| row.stage != "initial") {
-        let _ = writeln!(
-            out,
-            "![each held-out path's mean error after calibration, with the oracle and with \
-             each model compensating](compensated.png)\n"
-        );
+    // The key figure under the headline, before the setup and the tables (the file list
+    // at the end names it without showing it again).
+    let files = plan(r);
+    let key = files.iter().find(|e| e.name == KEY_FIGURE);
+    if let Some(e) = key {
+        let _ = writeln!(out, "![{}]({})\n", e.name, e.name);
     }
     for line in &r.setup {
         let _ = writeln!(out, "- {line}");
@@ -305,9 +307,9 @@ pub fn markdown(r: &Report) -> String {
         out.push('\n');
     }
     out.push_str("## Files\n\n");
-    for e in plan(r) {
+    for e in &files {
         let _ = writeln!(out, "- `{}`: {}", e.name, e.what);
-        if e.name.ends_with(".png") {
+        if e.name.ends_with(".png") && e.name != KEY_FIGURE {
             let _ = writeln!(out, "\n  ![{}]({})\n", e.name, e.name);
         }
     }

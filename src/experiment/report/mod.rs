@@ -441,25 +441,12 @@ fn plot_compensated(path: &Path, rows: &[TableVRow]) -> Result<(), plot::PlotErr
             stage => stage.to_string(),
         }
     };
-    let mut labels: Vec<String> = Vec::new();
-    for r in &shown {
-        let l = label(r);
-        if !labels.contains(&l) {
-            labels.push(l);
-        }
-    }
-    let sessions = distinct(rows.iter().map(|r| r.trajectory.as_str()))
-        .first()
-        .map_or(0, |t| {
-            let mut s: Vec<usize> = rows
-                .iter()
-                .filter(|r| r.trajectory == *t)
-                .map(|r| r.session)
-                .collect();
-            s.sort_unstable();
-            s.dedup();
-            s.len()
-        });
+    let named: Vec<String> = shown.iter().map(|r| label(r)).collect();
+    let labels = distinct(named.iter().map(String::as_str));
+    let mut sessions: Vec<usize> = rows.iter().map(|r| r.session).collect();
+    sessions.sort_unstable();
+    sessions.dedup();
+    let sessions = sessions.len();
     let seeded = shown
         .iter()
         .any(|r| seeds::split_name(&r.model).1.is_some());
@@ -482,7 +469,7 @@ fn plot_compensated(path: &Path, rows: &[TableVRow]) -> Result<(), plot::PlotErr
             labels
                 .iter()
                 .enumerate()
-                .map(|(i, l)| Series::bars(l.clone(), vec![(i as f64, mean_of(l, pick))]))
+                .map(|(i, l)| Series::bars(*l, vec![(i as f64, mean_of(l, pick))]))
                 .collect()
         };
         for (what, unit, pick) in [
