@@ -4,7 +4,7 @@
 CARGO ?= cargo
 export NODEVICE_SELECT ?= 1
 
-.PHONY: vulkan test demo paper bench bench-compare bench-polish bench-embed lint python header cli-reference fuzz
+.PHONY: vulkan test demo paper bench bench-compare bench-polish bench-embed lint python c-library header cli-reference fuzz
 
 vulkan:
 	@.ci/ensure-vulkan
@@ -54,6 +54,11 @@ fuzz:
 	@crashes=$$(ls $(FUZZ_DIR)/out/*/default/crashes 2>/dev/null | grep -c '^id:'); \
 	  echo "crashes found: $$crashes"; test "$$crashes" -eq 0
 
+## The C ABI's libraries (docs/embedding.md "C"): target/release/libiastgcn.so and
+## target/release/libiastgcn.a. The crate's own builds make only the Rust library.
+c-library:
+	$(CARGO) rustc --release --lib --crate-type cdylib,staticlib
+
 ## Regenerates the C header include/iastgcn.h from src/embed/c_api.rs (cbindgen).
 header:
 	IASTGCN_WRITE_HEADER=1 $(CARGO) test --test c_abi checked_in_header
@@ -69,15 +74,15 @@ DEMO_DIR ?= report
 ## (twin recordings, EKF calibration, dataset, IASTGCN, its three ablations and the dense
 ## baselines trained with assets/demo.toml for training seeds 1–3, refinement, Table III
 ## on the held-out split, online compensation of held-out runs for Table V, both as
-## mean ± SD over the seeds with paired comparisons, the report folder), and the Predictor
-## example on seed 1's refined IASTGCN. Outputs land in $(DEMO_DIR)/ (report.md is the
-## entry point).
+## mean ± SD over the seeds with paired comparisons, the mirror, the report folder).
+## Outputs land in $(DEMO_DIR)/ (report.md is the entry point). Only the binary is built:
+## the Predictor example (docs/embedding.md) would compile the test tools with it.
 demo: vulkan
-	$(CARGO) build --release --bin iastgcn --example predict
+	$(CARGO) build --release --bin iastgcn
 	./target/release/iastgcn info
 	./target/release/iastgcn smoke
 	./target/release/iastgcn demo --out $(DEMO_DIR)
-	$(CARGO) run --release --example predict -- $(DEMO_DIR)/models/iastgcn.seed1.safetensors
+	@echo "the forward pass embedded in Rust on these weights: cargo run --release --example predict -- $(DEMO_DIR)/models/iastgcn.seed1.safetensors (docs/embedding.md)"
 
 PAPER_DIR ?= paper
 PAPER_ARGS ?=
@@ -123,7 +128,7 @@ bench-polish:
 ## docs/embedding.md "Latency"): the mean tick per language, then 10^6 ticks per language
 ## each timed alone (p50, p99, p99.9, max, resident memory, page faults); tables in
 ## target/bench-embed/latency.md.
-bench-embed: python
+bench-embed: python c-library
 	$(CARGO) bench --bench embed
 
 lint:

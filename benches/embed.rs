@@ -5,7 +5,7 @@
 //! L 5), with freshly initialised weights.
 //!
 //! Each round times a run of ticks in each language in turn: Rust in this process
-//! (`compensate::SensorPredictor`), C through the cdylib this bench was built with
+//! (`compensate::SensorPredictor`), C through the shared library `make c-library` built beside this bench's profile
 //! (benches/embed/latency.c, compiled here), Python through the installed package
 //! (benches/embed/latency.py, in `IASTGCN_PYTHON`, default target/python-venv/bin/python;
 //! skipped with a note when it cannot import iastgcn: `make python` builds it). The
@@ -203,15 +203,20 @@ fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// Compiles the C timing program against the cdylib built with this bench.
+/// Compiles the C timing program against the shared library in this bench's profile
+/// folder (`target/release`, where `make c-library` builds it).
 fn compile_c(out: &Path) -> Result<PathBuf, String> {
     let deps = std::env::current_exe()
         .map_err(|e| e.to_string())?
         .parent()
-        .ok_or("no folder")?
+        .and_then(Path::parent)
+        .ok_or("no profile folder")?
         .to_path_buf();
     if !deps.join("libiastgcn.so").exists() {
-        return Err(format!("{} has no libiastgcn.so", deps.display()));
+        return Err(format!(
+            "{} has no libiastgcn.so: `make c-library` builds it",
+            deps.display()
+        ));
     }
     let exe = out.join("latency");
     let cc = std::env::var("CC").unwrap_or_else(|_| "cc".into());

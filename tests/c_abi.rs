@@ -19,11 +19,49 @@ fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// The profile folder this test was built into (`target/debug`): `cargo test` builds
-/// the cdylib into its `deps/` and the examples into its `examples/`.
+/// The profile folder this test was built into (`target/debug`): `cargo test` builds the
+/// examples into its `examples/`.
 fn profile_dir() -> PathBuf {
     let exe = std::env::current_exe().unwrap();
     exe.parent().and_then(Path::parent).unwrap().to_path_buf()
+}
+
+/// The folder holding the C ABI's libraries (`libiastgcn.so`, `libiastgcn.a`) of this
+/// source, built now in this test's profile as `make c-library` builds them (the crate's
+/// own builds make only the Rust library).
+fn c_libraries() -> PathBuf {
+    let dir = profile_dir();
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let mut build = Command::new(&cargo);
+    build.current_dir(root()).args([
+        "rustc",
+        "--quiet",
+        "--lib",
+        "--crate-type",
+        "cdylib,staticlib",
+    ]);
+    match dir.file_name().and_then(|n| n.to_str()) {
+        Some("debug") => {}
+        Some("release") => {
+            build.arg("--release");
+        }
+        Some(other) => {
+            build.args(["--profile", other]);
+        }
+        None => panic!("no profile folder above {}", dir.display()),
+    }
+    if let Some(target) = dir.parent() {
+        build.env("CARGO_TARGET_DIR", target);
+    }
+    let out = build
+        .output()
+        .unwrap_or_else(|e| panic!("running {cargo}: {e}"));
+    assert!(
+        out.status.success(),
+        "`cargo rustc --lib --crate-type cdylib,staticlib` failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    dir
 }
 
 fn scratch(name: &str) -> PathBuf {
@@ -96,15 +134,14 @@ fn checked_in_header_is_what_cbindgen_generates() {
 fn c_controller_example_prints_the_rust_examples_residuals() {
     let dir = scratch("example");
     let model = checkpoint(&dir);
-    // The cdylib built with this test binary (uplifted copies in the profile folder may
-    // be older).
-    let lib_dir = profile_dir().join("deps");
-    let library = lib_dir.join("libiastgcn.so");
-    assert!(
-        library.exists(),
-        "{} is missing: `cargo test` builds the cdylib beside the test binaries",
-        library.display()
-    );
+    let lib_dir = c_libraries();
+    for library in ["libiastgcn.so", "libiastgcn.a"] {
+        assert!(
+            lib_dir.join(library).exists(),
+            "{library} is missing from {} after `cargo rustc --crate-type cdylib,staticlib`",
+            lib_dir.display()
+        );
+    }
     let rust_example = profile_dir().join("examples/controller");
     assert!(
         rust_example.exists(),

@@ -3,8 +3,9 @@
 //! Table VI is computed from the rows as the paper defines it.
 
 use iastgcn::compensate::online::Feedback;
-use iastgcn::experiment::polish::{paired_against, table_vi, PolishRow};
+use iastgcn::experiment::polish::{self, paired_against, table_vi, PolishRow, PolishSpec};
 use iastgcn::polish::{draw_surface, HeightMap, Polisher, PoseSource, Setup, StartingPoint};
+use iastgcn::progress::Notes;
 use iastgcn::robot::{Geometry, Robot};
 use iastgcn::twin::{draw_machine, PathKind};
 
@@ -77,6 +78,104 @@ fn polishing_removes_glass_at_the_true_pose_deterministically() {
         .map(|(a, b)| (a - b).abs())
         .fold(0.0f64, f64::max);
     assert!(differs > 0.1, "the pose error left no mark: {differs} nm");
+}
+
+/// A fork plans the same dwell bit for bit as the polisher it came from, after that one
+/// has planned another surface (the scratch a solver keeps does not leak into its next
+/// plan): the study's controllers plan on threads of their own.
+#[test]
+fn a_fork_plans_what_its_original_plans() {
+    let mut polisher = quick();
+    let surface = |seed| {
+        draw_surface(
+            polisher.grid,
+            polisher.mirror.radius(),
+            &polisher.clear,
+            &StartingPoint::default(),
+            seed,
+        )
+    };
+    let (a, b) = (surface(3), surface(4));
+    let (a, b) = (polisher.measure(&a, 11), polisher.measure(&b, 12));
+    polisher.plan(&a).unwrap();
+    let mut fork = polisher.fork().unwrap();
+    let by_fork = fork.plan(&b).unwrap();
+    let by_original = polisher.plan(&b).unwrap();
+    let by_fresh = quick().plan(&b).unwrap();
+    for other in [&by_original, &by_fresh] {
+        assert_eq!(by_fork.seconds, other.seconds);
+        assert_eq!(by_fork.removal, other.removal);
+        assert_eq!(by_fork.force, other.force);
+    }
+}
+
+/// The study's rows come surface by surface, each in the controllers' order, whichever
+/// thread polished which controller; a surface's rows are the same when it is polished
+/// alone.
+#[test]
+fn the_study_keeps_its_order_and_its_bits_on_every_core() {
+    let geometry = Geometry::load_or_default(None).unwrap();
+    let machine = draw_machine(geometry.clone(), 1);
+    let nominal = Robot::nominal(geometry);
+    let spec = |seeds: Vec<u64>| PolishSpec {
+        iterations: 1,
+        surface_seeds: seeds,
+        seed: 5,
+        warm_up_minutes: 0.0,
+        every: 5,
+        start: StartingPoint::default(),
+        split_nominal: false,
+    };
+    let study = |seeds: Vec<u64>| {
+        let mut notes = Notes::default();
+        let result = polish::run(
+            &mut quick(),
+            &spec(seeds),
+            &machine,
+            &nominal,
+            &nominal,
+            &mut [],
+            48,
+            &mut notes,
+        )
+        .unwrap();
+        (result, notes.0)
+    };
+    let (both, notes) = study(vec![3, 4]);
+    let controllers = ["nominal", "calibrated", "oracle", "perfect machine"];
+    let expected: Vec<(u64, &str, usize)> = [3, 4]
+        .into_iter()
+        .flat_map(|s| {
+            controllers
+                .iter()
+                .flat_map(move |&c| [(s, c, 0), (s, c, 1)])
+        })
+        .collect();
+    let order: Vec<(u64, &str, usize)> = both
+        .rows
+        .iter()
+        .map(|r| (r.surface_seed, r.controller.as_str(), r.iteration))
+        .collect();
+    assert_eq!(order, expected);
+    let names: Vec<&str> = both.maps.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "start",
+            "nominal",
+            "calibrated",
+            "oracle",
+            "perfect machine"
+        ]
+    );
+    assert_eq!(notes.len(), 8, "{notes:?}");
+    assert!(notes[4].starts_with("surface 4, nominal: RMS"), "{notes:?}");
+    let (alone, _) = study(vec![4]);
+    let key = |r: &PolishRow| format!("{r:?}");
+    assert_eq!(
+        alone.rows.iter().map(key).collect::<Vec<_>>(),
+        both.rows[8..].iter().map(key).collect::<Vec<_>>()
+    );
 }
 
 /// A set-up the removal's model does not hold for is refused before any work, naming the

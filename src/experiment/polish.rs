@@ -6,11 +6,14 @@
 
 use std::fmt::Write as _;
 use std::path::Path;
+use std::sync::Mutex;
 
 use crate::compensate::held_out::warm_up;
 use crate::compensate::online::{Feedback, Online};
 use crate::error::{Error, Result};
 use crate::experiment::evaluate::LoopModel;
+use crate::experiment::parallel;
+use crate::model::Backend;
 use crate::plot::{self, HeatMap, Panel, Series};
 use crate::polish::{draw_surface, Figure, HeightMap, Polisher, PoseSource, StartingPoint};
 use crate::progress::Reporter;
@@ -120,6 +123,11 @@ fn controllers(rows: &[PolishRow]) -> Vec<&str> {
 /// target), `calibrated`, each of
 /// `models` (compensating from the calibrated controller), the oracle (a `window`-tick
 /// model's latency) and a perfect machine (the pad at the path's target pose).
+///
+/// No controller reads another's surface: where the polisher and every model run on
+/// the native CPU path, the controllers go one per core (each worker plans with a
+/// polisher of its own, [`Polisher::fork`]); the rows come in the same order, and the
+/// same bits, whichever ran first.
 #[allow(clippy::too_many_arguments)]
 pub fn run(
     polisher: &mut Polisher,
@@ -136,150 +144,239 @@ pub fn run(
             "the mirror study needs at least one iteration and one surface seed".into(),
         ));
     }
+    let initial: Vec<HeightMap> = spec
+        .surface_seeds
+        .iter()
+        .map(|&seed| {
+            draw_surface(
+                polisher.grid,
+                polisher.mirror.radius(),
+                &polisher.clear,
+                &spec.start,
+                seed,
+            )
+        })
+        .collect();
+    let all_native = polisher.all_native()
+        && models
+            .iter()
+            .all(|m| m.members.iter().all(|p| p.backend() == Backend::Native));
+    let mut controllers: Vec<Controller> =
+        vec![Controller::Plain("nominal", nominal, PoseSource::True)];
+    if spec.split_nominal {
+        controllers.push(Controller::Plain(
+            "nominal, position error only",
+            nominal,
+            PoseSource::PositionOnly,
+        ));
+        controllers.push(Controller::Plain(
+            "nominal, attitude error only",
+            nominal,
+            PoseSource::AttitudeOnly,
+        ));
+    }
+    controllers.push(Controller::Plain(
+        "calibrated",
+        calibrated,
+        PoseSource::True,
+    ));
+    controllers.extend(models.iter_mut().map(Controller::Model));
+    controllers.push(Controller::Oracle(window));
+    controllers.push(Controller::Plain(
+        "perfect machine",
+        calibrated,
+        PoseSource::Target,
+    ));
+    let count = controllers.len();
+    let workers = parallel::workers(all_native).min(count);
+    // One polisher per worker: the dwell solver keeps its scratch between plans.
+    let mut forks = (1..workers)
+        .map(|_| polisher.fork())
+        .collect::<Result<Vec<_>>>()?;
+    let pool: Mutex<Vec<&mut Polisher>> = Mutex::new(
+        std::iter::once(&mut *polisher)
+            .chain(forks.iter_mut())
+            .collect(),
+    );
+    let iterations = (spec.surface_seeds.len() * spec.iterations) as u64;
+    progress.begin(
+        &format!(
+            "the mirror: {count} controllers × {} surface(s) × {} iterations ({workers} at a time)",
+            spec.surface_seeds.len(),
+            spec.iterations
+        ),
+        count as u64 * iterations * PER_ITERATION,
+    );
+    let mut done = 0;
+    let per_controller = parallel::run_all(
+        controllers,
+        workers,
+        |controller, tick| {
+            // invariant: no thread panics while holding the pool's lock, and each of the
+            // `workers` threads holds at most one polisher at a time.
+            let polisher = pool
+                .lock()
+                .expect("the polishers")
+                .pop()
+                .expect("a polisher per worker");
+            let out = polish_with(
+                &mut *polisher,
+                controller,
+                spec,
+                &initial,
+                machine,
+                calibrated,
+                tick,
+            );
+            pool.lock().expect("the polishers").push(polisher);
+            out
+        },
+        || {
+            done += 1;
+            progress.update(done, "");
+        },
+    );
+    progress.end();
+    let per_controller = per_controller?;
+    drop(pool);
+    let polisher = &*polisher;
     let mut rows = Vec::new();
     let mut maps = Vec::new();
-    let settings = Online { every: spec.every };
-    for (k, &surface_seed) in spec.surface_seeds.iter().enumerate() {
-        let initial = draw_surface(
-            polisher.grid,
-            polisher.mirror.radius(),
-            &polisher.clear,
-            &spec.start,
-            surface_seed,
-        );
-        let start_rms = judged(polisher, &initial).1.rms;
+    for (k, (&surface_seed, initial)) in spec.surface_seeds.iter().zip(&initial).enumerate() {
+        let start_rms = judged(polisher, initial).1.rms;
         if k == 0 {
-            maps.push(("start".to_string(), shown(polisher, &initial)));
+            maps.push(("start".to_string(), shown(polisher, initial)));
         }
-        let mut controllers: Vec<Controller> =
-            vec![Controller::Plain("nominal", nominal, PoseSource::True)];
-        if spec.split_nominal {
-            controllers.push(Controller::Plain(
-                "nominal, position error only",
-                nominal,
-                PoseSource::PositionOnly,
-            ));
-            controllers.push(Controller::Plain(
-                "nominal, attitude error only",
-                nominal,
-                PoseSource::AttitudeOnly,
-            ));
-        }
-        controllers.push(Controller::Plain(
-            "calibrated",
-            calibrated,
-            PoseSource::True,
-        ));
-        controllers.extend(models.iter_mut().map(Controller::Model));
-        controllers.push(Controller::Oracle(window));
-        controllers.push(Controller::Plain(
-            "perfect machine",
-            calibrated,
-            PoseSource::Target,
-        ));
-        for mut controller in controllers {
-            let name = match &controller {
-                Controller::Plain(name, ..) => name.to_string(),
-                Controller::Model(m) => format!("compensated ({})", m.name),
-                Controller::Oracle(_) => "oracle".to_string(),
-            };
-            let robot = match &controller {
-                Controller::Plain(_, robot, _) => *robot,
-                _ => calibrated,
-            };
-            let mut surface = initial.clone();
-            for it in 0..=spec.iterations {
-                let (_, figure) = judged(polisher, &surface);
-                let measured =
-                    polisher.measure(&surface, spec.seed ^ (surface_seed << 20) ^ it as u64);
-                let mut row = PolishRow {
-                    surface_seed,
-                    controller: name.clone(),
-                    iteration: it,
-                    pv_nm: figure.pv,
-                    rms_nm: figure.rms,
-                    measured_rms_nm: measured.figure(&polisher.clear).rms,
-                    planned_rms_nm: f64::NAN,
-                    minutes: f64::NAN,
-                    force_n: f64::NAN,
-                    position_um: f64::NAN,
-                    attitude_mdeg: f64::NAN,
-                };
-                if it == spec.iterations {
-                    rows.push(row);
-                    break;
-                }
-                let dwell = polisher.plan(&measured)?;
-                let plan = polisher.feed(&dwell)?;
-                let seconds = plan.duration(polisher.path_length());
-                let run_seed = spec.seed.wrapping_add(1000 * it as u64 + surface_seed);
-                let start = warm_up(
-                    machine,
-                    robot,
-                    spec.warm_up_minutes * 60.0,
-                    run_seed ^ 0x5741,
-                )?;
-                let ticks = (seconds / 0.02).round() as u64;
-                progress.begin(
-                    &format!("surface {surface_seed}, {name}, iteration {}", it + 1),
-                    ticks,
-                );
-                let mut on_tick = |t: usize| {
-                    if t.is_multiple_of(500) {
-                        progress.update(t as u64, "");
-                    }
-                };
-                let (pose, feedback) = match &mut controller {
-                    Controller::Plain(_, _, pose) => (*pose, Feedback::None),
-                    Controller::Model(m) => (
-                        PoseSource::True,
-                        Feedback::Model(&mut m.members, &m.graph, settings),
-                    ),
-                    Controller::Oracle(window) => (
-                        PoseSource::True,
-                        Feedback::Oracle {
-                            window: *window,
-                            settings,
-                        },
-                    ),
-                };
-                let r = polisher.polish(
-                    machine,
-                    robot,
-                    start,
-                    feedback,
-                    plan,
-                    run_seed,
-                    pose,
-                    &mut surface,
-                    &mut on_tick,
-                )?;
-                progress.end();
-                row.planned_rms_nm = dwell.planned.rms;
-                row.force_n = dwell.force;
-                // The walk's own time: the feed follows the force.
-                row.minutes = r.truth.position.count as f64 * 0.02 / 60.0;
-                // The pose error the glass sees: the perfect machine's pad is at its
-                // target, the split rows keep one part of the error.
-                let (position, attitude) = (r.truth.position.mean, r.truth.attitude.mean);
-                (row.position_um, row.attitude_mdeg) = match pose {
-                    PoseSource::True => (position, attitude),
-                    PoseSource::Target => (0.0, 0.0),
-                    PoseSource::PositionOnly => (position, 0.0),
-                    PoseSource::AttitudeOnly => (0.0, attitude),
-                };
-                rows.push(row);
-            }
-            let last = rows.last().map_or(f64::NAN, |r| r.rms_nm);
+        for (name, runs) in &per_controller {
+            let (surface_rows, surface) = &runs[k];
+            rows.extend_from_slice(surface_rows);
+            let last = surface_rows.last().map_or(f64::NAN, |r| r.rms_nm);
             progress.note(&format!(
                 "surface {surface_seed}, {name}: RMS {start_rms:.2} → {last:.2} nm"
             ));
             if k == 0 {
-                maps.push((name, shown(polisher, &surface)));
+                maps.push((name.clone(), shown(polisher, surface)));
             }
         }
     }
     Ok(PolishResult { rows, maps })
+}
+
+/// Progress units per polishing iteration.
+const PER_ITERATION: u64 = 100;
+
+/// One controller's name and, per starting surface of `initial` (the seeds of
+/// `spec.surface_seeds`), its rows and its last surface; `tick` is called
+/// [`PER_ITERATION`] times per iteration, as the walk goes.
+fn polish_with(
+    polisher: &mut Polisher,
+    mut controller: Controller,
+    spec: &PolishSpec,
+    initial: &[HeightMap],
+    machine: &Machine,
+    calibrated: &Robot,
+    tick: &dyn Fn(),
+) -> Result<(String, Vec<(Vec<PolishRow>, HeightMap)>)> {
+    let settings = Online { every: spec.every };
+    let name = match &controller {
+        Controller::Plain(name, ..) => name.to_string(),
+        Controller::Model(m) => format!("compensated ({})", m.name),
+        Controller::Oracle(_) => "oracle".to_string(),
+    };
+    let robot = match &controller {
+        Controller::Plain(_, robot, _) => *robot,
+        _ => calibrated,
+    };
+    let mut out = Vec::with_capacity(initial.len());
+    for (&surface_seed, initial) in spec.surface_seeds.iter().zip(initial) {
+        let mut rows = Vec::with_capacity(spec.iterations + 1);
+        let mut surface = initial.clone();
+        for it in 0..=spec.iterations {
+            let (_, figure) = judged(polisher, &surface);
+            let measured = polisher.measure(&surface, spec.seed ^ (surface_seed << 20) ^ it as u64);
+            let mut row = PolishRow {
+                surface_seed,
+                controller: name.clone(),
+                iteration: it,
+                pv_nm: figure.pv,
+                rms_nm: figure.rms,
+                measured_rms_nm: measured.figure(&polisher.clear).rms,
+                planned_rms_nm: f64::NAN,
+                minutes: f64::NAN,
+                force_n: f64::NAN,
+                position_um: f64::NAN,
+                attitude_mdeg: f64::NAN,
+            };
+            if it == spec.iterations {
+                rows.push(row);
+                break;
+            }
+            let dwell = polisher.plan(&measured)?;
+            let plan = polisher.feed(&dwell)?;
+            let seconds = plan.duration(polisher.path_length());
+            let run_seed = spec.seed.wrapping_add(1000 * it as u64 + surface_seed);
+            let start = warm_up(
+                machine,
+                robot,
+                spec.warm_up_minutes * 60.0,
+                run_seed ^ 0x5741,
+            )?;
+            // The walk's share of its planned ticks, in progress units.
+            let planned = ((seconds / 0.02).round() as u64).max(1);
+            let mut reported = 0;
+            let mut on_tick = |t: usize| {
+                let due = (t as u64 * PER_ITERATION / planned).min(PER_ITERATION - 1);
+                while reported < due {
+                    tick();
+                    reported += 1;
+                }
+            };
+            let (pose, feedback) = match &mut controller {
+                Controller::Plain(_, _, pose) => (*pose, Feedback::None),
+                Controller::Model(m) => (
+                    PoseSource::True,
+                    Feedback::Model(&mut m.members, &m.graph, settings),
+                ),
+                Controller::Oracle(window) => (
+                    PoseSource::True,
+                    Feedback::Oracle {
+                        window: *window,
+                        settings,
+                    },
+                ),
+            };
+            let r = polisher.polish(
+                machine,
+                robot,
+                start,
+                feedback,
+                plan,
+                run_seed,
+                pose,
+                &mut surface,
+                &mut on_tick,
+            )?;
+            for _ in reported..PER_ITERATION {
+                tick();
+            }
+            row.planned_rms_nm = dwell.planned.rms;
+            row.force_n = dwell.force;
+            // The walk's own time: the feed follows the force.
+            row.minutes = r.truth.position.count as f64 * 0.02 / 60.0;
+            // The pose error the glass sees: the perfect machine's pad is at its
+            // target, the split rows keep one part of the error.
+            let (position, attitude) = (r.truth.position.mean, r.truth.attitude.mean);
+            (row.position_um, row.attitude_mdeg) = match pose {
+                PoseSource::True => (position, attitude),
+                PoseSource::Target => (0.0, 0.0),
+                PoseSource::PositionOnly => (position, 0.0),
+                PoseSource::AttitudeOnly => (0.0, attitude),
+            };
+            rows.push(row);
+        }
+        out.push((rows, surface));
+    }
+    Ok((name, out))
 }
 
 /// Table VI's figures for one controller over the surface seeds.

@@ -342,6 +342,11 @@ impl Convolution {
         &self.gpu
     }
 
+    /// The adapter, shared (for another convolution on it).
+    pub fn shared_gpu(&self) -> Arc<Gpu> {
+        self.gpu.clone()
+    }
+
     /// `out = map ∗ kernel`, both `n × n`.
     pub fn convolve(&mut self, map: &[f64], out: &mut [f64]) -> Result<(), GpuError> {
         if !self.holds_spectrum {

@@ -30,6 +30,7 @@ use crate::error::{ensure, Result};
 /// Where each segment of a path lies on the map: segment `i` (from vertex `i` to `i + 1`)
 /// walked in steps of at most half a pixel, each step's share of the segment's time laid
 /// bilinearly onto the four pixels around it.
+#[derive(Clone)]
 pub struct PathRaster {
     n: usize,
     pitch: f64,
@@ -332,6 +333,21 @@ impl DwellSolver {
         let mut out = vec![0.0; u.len()];
         self.conv.convolve(&u, &mut out)?;
         Ok(out)
+    }
+
+    /// A solver of its own for the same problem on the same adapter, for another thread.
+    pub fn fork(&self) -> Result<DwellSolver> {
+        Ok(DwellSolver {
+            conv: self.conv.fork()?,
+            glass: self.glass.clone(),
+            clear: self.clear.clone(),
+            gain: self.gain.clone(),
+            cutoff: self.cutoff,
+            iterations: self.iterations,
+            force: self.force,
+            kernel: self.kernel.clone(),
+            reach: self.reach,
+        })
     }
 
     /// The adapter its convolutions run on, or `None` on the CPU.

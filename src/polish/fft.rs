@@ -18,6 +18,7 @@ use crate::ops::fft::Convolution;
 const BLOCK: usize = 16;
 
 /// Forward and inverse 2-D transforms of a `size × size` complex array, row-major.
+#[derive(Clone)]
 pub struct Fft2 {
     size: usize,
     forward: Arc<dyn Fft<f64>>,
@@ -146,6 +147,20 @@ impl Convolver {
             None => None,
         };
         Ok(())
+    }
+
+    /// A convolver of its own with the same kernel on the same adapter (the plans are
+    /// shared, the scratch is not), for another thread.
+    pub fn fork(&self) -> Result<Convolver, GpuError> {
+        let mut fork = Convolver {
+            n: self.n,
+            fft: self.fft.clone(),
+            spectrum: self.spectrum.clone(),
+            work: vec![Complex64::default(); self.work.len()],
+            gpu: None,
+        };
+        fork.run_on(self.gpu.as_ref().map(|g| g.shared_gpu()))?;
+        Ok(fork)
     }
 
     /// The kernel's spectrum on the padded square (for inverse filters).

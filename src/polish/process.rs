@@ -269,6 +269,30 @@ impl Polisher {
         })
     }
 
+    /// A polisher of its own for the same set-up on the same adapters (the dwell solver's
+    /// scratch is its own), so that another thread can plan while this one does.
+    pub fn fork(&self) -> Result<Polisher> {
+        Ok(Polisher {
+            setup: self.setup.clone(),
+            mirror: self.mirror,
+            grid: self.grid,
+            glass: self.glass.clone(),
+            clear: self.clear.clone(),
+            path: self.path.clone(),
+            arc: self.arc.clone(),
+            raster: self.raster.clone(),
+            bounds: self.bounds.clone(),
+            area: self.area.clone(),
+            solver: self.solver.fork()?,
+            removal_gpu: self.removal_gpu.clone(),
+        })
+    }
+
+    /// Whether every heavy part runs on the native CPU path (none on an adapter).
+    pub fn all_native(&self) -> bool {
+        self.removal_gpu.is_none() && self.solver.gpu().is_none()
+    }
+
     /// Runs the heavy parts where `device` does them best: the removal of every tick
     /// (`ops::removal`) and the dwell solve's FFTs (`ops::fft`) as WGSL kernels, in f32,
     /// on a GPU; on the native f64 path on a CPU adapter or without one (the default, bit
