@@ -559,3 +559,47 @@ fn terminal_tables_stay_aligned_with_long_model_names() {
     let lines = report::table_iii_lines(&iii);
     assert_eq!(width(&lines[0]), width(&lines[1]), "{lines:#?}");
 }
+
+/// Under the headline, the report at a glance: per held-out path the calibrated error and
+/// the share of it the recommended model (grouped over its seeds) and the oracle remove,
+/// before the key figure and the setup.
+#[test]
+fn the_report_opens_with_the_recommended_model_beside_the_oracle() {
+    let mut r = synthetic();
+    r.recommended = Some("iastgcn.seed2".into());
+    r.table_v.push(v_row(
+        "hilbert",
+        "oracle",
+        "true residual",
+        stats((1.0, 0.5, 2.0), (0.5, 0.2, 1.0)),
+    ));
+    r.table_v.push(v_row(
+        "hilbert",
+        "compensated",
+        "iastgcn.seed2",
+        stats((4.0, 1.0, 6.0), (2.0, 0.5, 3.0)),
+    ));
+    let md = report::markdown(&r);
+    let glance = md.find("| Held-out path |").expect("the table at a glance");
+    assert!(glance < md.find("](compensated.png)").unwrap(), "{md}");
+    assert!(
+        md.contains("| Held-out path | Calibrated: position (µm) / attitude (mdeg) | iastgcn removes (%) | the oracle removes (%) |"),
+        "{md}"
+    );
+    // Hilbert: 8 µm / 4 mdeg calibrated; iastgcn (its two rows, seeds grouped) leaves 2
+    // and 4 µm, 1 and 2 mdeg: 75 and 50 %; the oracle leaves 1 µm / 0.5 mdeg.
+    assert!(
+        md.contains(
+            "| hilbert | 8.0 / 4.00 | 62.5 ± 17.7 / 62.5 ± 17.7 | 87.5 ± 0.0 / 87.5 ± 0.0 |"
+        ),
+        "{md}"
+    );
+    // The raster has no oracle row: said, not invented.
+    assert!(
+        md.contains("| raster | 10.0 / 5.00 | 66.7 ± 0.0 / 70.0 ± 0.0 | n/a / n/a |"),
+        "{md}"
+    );
+    // Without a recommended model there is no such table.
+    r.recommended = None;
+    assert!(!report::markdown(&r).contains("| Held-out path |"));
+}

@@ -672,6 +672,17 @@ fn demo_over_seeds_reports_the_spread() {
     let a = args("1,2");
     let text = cli(&a.iter().map(String::as_str).collect::<Vec<_>>());
     assert!(text.contains("demo finished"), "{text}");
+    // Before any work, the plan and its forecast; after the first seed, its result, while
+    // the second trains.
+    let at = |needle: &str| {
+        text.find(needle)
+            .unwrap_or_else(|| panic!("{needle}: {text}"))
+    };
+    assert!(at("== the plan") < at("== 1/6"));
+    // Its own config: no forecast (that is for the default demo), and it says so.
+    assert!(at("time: no forecast for these settings") < at("== 1/6"));
+    assert!(at("== training seed 1") < at("first result, after"));
+    assert!(at("first result, after") < at("== training seed 2"));
     let models: Vec<&str> = iastgcn::model::Variant::IASTGCN
         .into_iter()
         .chain(iastgcn::model::Variant::DENSE)
@@ -806,7 +817,7 @@ fn demo_over_seeds_reports_the_spread() {
                 "0.1",
                 "--warm-up-minutes",
                 "0",
-                "--held-out-sessions",
+                "--every",
                 "1",
                 "--out",
             ]
@@ -849,12 +860,16 @@ fn demo_over_seeds_reports_the_spread() {
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{stderr}");
     assert_eq!(stderr.matches(common::NATIVE_NOTE).count(), 1, "{stderr}");
-    let table_v = std::fs::read_to_string(evaluated.join("table_v.csv")).unwrap();
-    // One held-out session asked for: session 0's rows only.
-    assert!(
-        table_v.contains("hilbert,0,compensated,mlp.seed2,") && !table_v.contains("hilbert,1,"),
-        "{table_v}"
-    );
+    // The demo evaluated each seed's models as they were trained (the second seed's on
+    // the first seed's runs, [`more_models`]); `evaluate` runs these four together on
+    // the same held-out sessions: every row the same, bit for bit.
+    let evaluated_v = std::fs::read_to_string(evaluated.join("table_v.csv")).unwrap();
+    let rows: Vec<&str> = evaluated_v.lines().skip(1).collect();
+    assert_eq!(rows.len(), 3 * 4 * (3 + 4), "{evaluated_v}");
+    for row in rows {
+        assert!(table_v.lines().any(|l| l == row), "{row} is not the demo's");
+    }
+    assert!(evaluated_v.contains("hilbert,2,compensated,mlp.seed2,"));
     for f in ["table_v_seeds.csv", "table_iii_seeds.csv", "paired.csv"] {
         assert!(evaluated.join(f).exists(), "{f}");
     }

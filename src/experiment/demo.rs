@@ -9,7 +9,11 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use super::evaluate::{predictors, tables, HeldOutConfig, NamedModel};
+use super::evaluate::{
+    add_graph_mixing, evaluate_models, predictors, report_evaluation, tables, Evaluated,
+    HeldOutConfig, NamedModel,
+};
+use super::forecast;
 use super::jobs::{training_table, JobRecord};
 use super::polish;
 pub use super::polish::PolishSpec;
@@ -18,8 +22,9 @@ use super::protocol::{
     sessions_setting, ClosedLoopRound, ModelFiles, MACHINE_SEED,
 };
 pub use super::protocol::{CALIBRATION_SEED, TRAINING_SEED};
+use super::recommend::recommend;
 use super::report::seeds::seeded_name;
-use super::report::{self, Report};
+use super::report::{self, Report, TableVRow};
 use crate::calibrate::file;
 use crate::compensate::held_out::IDLE_BETWEEN_RUNS;
 use crate::data::DataSources;
@@ -38,7 +43,7 @@ use crate::twin::{draw_machine, PathKind, PathOrder, Placement, Recipe};
 pub const DEMO_MINUTES: f64 = 8.0;
 
 /// What the demo runs.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct DemoConfig {
     /// The run config of every model (the embedded assets/demo.toml by default).
     pub run: RunConfig,
@@ -164,6 +169,86 @@ fn sensor_table() -> String {
     out
 }
 
+/// What the demo will do, stage by stage, and about how long it will take here
+/// ([`forecast`]: on the native CPU path only, where training takes most of the time).
+fn plan(demo: &DemoConfig, device: &Device, out: &std::path::Path) -> Result<Vec<String>> {
+    let models = Variant::IASTGCN.len()
+        + Variant::DENSE.len()
+        + if demo.all_models {
+            Variant::SPATIO_TEMPORAL.len()
+        } else {
+            0
+        };
+    let seeds = demo.seeds.len();
+    let mut lines = vec![
+        "== the plan".to_string(),
+        format!(
+            "1. the twin: a calibration set on a cold machine and its EKF calibration; training recordings, {}",
+            demo.recipe.describe(demo.minutes, TRAINING_SEED)
+        ),
+        if demo.closed_loop {
+            "2. closed-loop recordings: a round-0 IASTGCN compensates the second half of the sessions as they are recorded again".into()
+        } else {
+            "2. (no closed-loop recordings: open-loop data only)".into()
+        },
+        format!(
+            "3. the dataset (T = {}, stride {}, contiguous 70/20/10 blocks per recording)",
+            demo.run.model.window, demo.run.data.stride
+        ),
+        format!(
+            "4. for each of {seeds} training seed(s): {models} models trained and refined, then evaluated (Table III, Table V on {} held-out session(s), a validation session that picks the model to use){}",
+            demo.held_out.sessions,
+            if seeds > 1 {
+                "; the first seed's result is on screen and in report.md as soon as it is ready"
+            } else {
+                ""
+            }
+        ),
+        format!("5. the report: {}", out.join("report.md").display()),
+    ];
+    if let Some(mirror) = &demo.mirror {
+        lines.push(format!(
+            "6. the mirror: the recommended model polishing against the other controllers, {} iteration(s) on {} surface(s)",
+            mirror.iterations,
+            mirror.surface_seeds.len()
+        ));
+    }
+    // The reference ran the default demo: the forecast holds for its settings (any
+    // seeds) on the native CPU path.
+    let defaults = DemoConfig {
+        seeds: demo.seeds.clone(),
+        run_source: demo.run_source.clone(),
+        ..DemoConfig::default()
+    };
+    lines.push(if !device.prefers_native() {
+        format!(
+            "time: no forecast on {} (it is scaled from the native CPU path)",
+            device.name()
+        )
+    } else if *demo != defaults {
+        "time: no forecast for these settings (it is scaled from a run of the default demo)"
+            .into()
+    } else {
+        let step_ms = forecast::probe(&demo.run.model, demo.run.train.batch)?;
+        let (first, all) = forecast::forecast(step_ms);
+        // The reference ran three seeds: the rest scales with them.
+        let all = first + (all - first) * seeds as f64 / 3.0;
+        format!(
+            "time: {} here{}, if nothing else runs beside it (an IASTGCN training step takes {step_ms:.1} ms here, {:.1} ms on the reference machine, where the demo took {:.0} s: {})",
+            forecast::minutes(all),
+            if seeds > 1 {
+                format!(", the first result in {}", forecast::minutes(first))
+            } else {
+                String::new()
+            },
+            forecast::REFERENCE.step_ms,
+            forecast::REFERENCE.demo_s,
+            forecast::REFERENCE.measured
+        )
+    });
+    Ok(lines)
+}
+
 /// Runs the demo into the folder `out` (`data/`, `models/` and the report files; the
 /// report's entry point is `report.md`). Returns the report as written.
 pub fn demo(
@@ -189,6 +274,9 @@ pub fn demo(
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     }
     reporter.note(&format!("demo on {} → {}", device.name(), out.display()));
+    for line in plan(demo, &device, out)? {
+        reporter.note(&line);
+    }
 
     reporter.note("== 1/6 … 3/6 twin data: calibration set, EKF calibration, training sessions");
     let mut sources = record_data(
@@ -264,6 +352,11 @@ pub fn demo(
         .chain(Variant::DENSE)
         .chain(spatio_temporal.iter().copied())
         .collect();
+    // Each seed's models are evaluated as soon as they are trained (the later seeds'
+    // from the states the first seed's runs started from: nothing runs twice), so the
+    // first seed's result is on screen and in report.md while the others train.
+    let held_out = &demo.held_out;
+    let mut evaluated: Vec<Evaluated> = Vec::new();
     for (s, &seed) in demo.seeds.iter().enumerate() {
         if seeded {
             reporter.note(&format!(
@@ -272,6 +365,7 @@ pub fn demo(
                 demo.seeds.len()
             ));
         }
+        let mut trained = Vec::new();
         for &variant in &variants {
             let mut c = config.clone();
             c.model.variant = variant;
@@ -299,12 +393,34 @@ pub fn demo(
                 histories.push((name.clone(), fitted.core));
                 histories.push((format!("{name}-refined"), fitted.refinement));
             }
-            models.push(fitted.model);
+            trained.push(fitted.model);
         }
+        reporter.note(&format!(
+            "== 6/6 evaluation{}: Table III, Table V on {} held-out session(s), the validation session",
+            if seeded {
+                format!(" of seed {seed}'s models")
+            } else {
+                String::new()
+            },
+            held_out.sessions
+        ));
+        let e = evaluate_models(
+            &device,
+            &trained,
+            &sources,
+            config,
+            held_out,
+            evaluated.first(),
+            reporter,
+        )?;
+        if s == 0 && demo.seeds.len() > 1 {
+            first_result(&e, seed, demo.seeds.len(), began, out, reporter)?;
+        }
+        evaluated.push(e);
+        models.extend(trained);
     }
 
-    reporter.note("== 6/6 evaluation: Tables III and V, report");
-    let held_out = &demo.held_out;
+    reporter.note("== report");
     let setup = vec![
         format!(
             "config: {} (T = {}, C = {}, L = {}, at most {} epochs, patience {}); training \
@@ -368,15 +484,14 @@ pub fn demo(
         notes: refinement,
         ..Report::default()
     };
-    tables(
-        &device,
+    report_evaluation(
         &mut report,
         &models,
-        &sources,
-        config,
+        Evaluated::merge(evaluated)?,
         held_out,
         reporter,
     )?;
+    add_graph_mixing(&mut report, &models);
     if let Some(spec) = &demo.mirror {
         let name = report.recommended.clone();
         reporter.note(&match &name {
@@ -399,6 +514,38 @@ pub fn demo(
             .push(("The mirror (Table VI)".into(), section));
     }
     report::finish(report, began, out, reporter)
+}
+
+/// The first seed's result, while the other seeds train: its recommendation and
+/// headline on screen, and `out/report.md` saying so, marked as partial (the full report
+/// replaces it).
+fn first_result(
+    e: &Evaluated,
+    seed: u64,
+    seeds: usize,
+    began: Instant,
+    out: &std::path::Path,
+    reporter: &mut dyn Reporter,
+) -> Result<()> {
+    let rows: Vec<TableVRow> = e.sessions.iter().flat_map(|s| s.rows.clone()).collect();
+    let recommendation = recommend(&e.validation.rows);
+    let headline = recommendation.headline(&rows).unwrap_or_else(|| {
+        "No model removed error on the validation session: none is recommended.".into()
+    });
+    let minutes = began.elapsed().as_secs_f64() / 60.0;
+    reporter.note(&format!(
+        "first result, after {minutes:.1} min (training seed {seed} only; {} more seed(s) to come): {headline}",
+        seeds - 1
+    ));
+    let text = format!(
+        "# IASTGCN on the digital twin — demo report (partial)\n\n\
+         **Partial: only training seed {seed}'s models are trained and evaluated so far \
+         ({minutes:.1} min into the demo). The demo is still running; this file is replaced \
+         by the full report, over all {seeds} seeds, when it ends.**\n\n\
+         {headline}\n\n{}\n",
+        recommendation.sentence()
+    );
+    crate::error::write_file(&out.join("report.md"), text.as_bytes())
 }
 
 /// The mirror with the model `name` of `models` compensating (none: only the other

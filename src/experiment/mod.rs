@@ -6,12 +6,14 @@
 //! setups, job records, TOML files: `jobs`), the scaling study of error against
 //! training data (`scale`), the model recommended on a validation session
 //! (`recommend`), a serial arm's residual models on held-out poses (`arm`), and the
-//! independent runs of an evaluation on every core (`parallel`).
+//! independent runs of an evaluation on every core (`parallel`), and how long the demo
+//! will take on this machine (`forecast`).
 
 pub mod arm;
 pub mod calibration;
 pub mod demo;
 pub mod evaluate;
+pub mod forecast;
 pub mod jobs;
 pub mod machines;
 mod parallel;

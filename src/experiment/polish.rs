@@ -22,7 +22,7 @@ use crate::stats::Summary;
 use crate::twin::Machine;
 
 /// What the study runs.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct PolishSpec {
     /// Polishing iterations (measure, plan, polish) per surface and controller.
     pub iterations: usize,
@@ -262,6 +262,9 @@ pub fn run(
     Ok(PolishResult { rows, maps })
 }
 
+/// One controller on one starting surface: its rows, then its last surface.
+type SurfaceRun = (Vec<PolishRow>, HeightMap);
+
 /// Progress units per polishing iteration.
 const PER_ITERATION: u64 = 100;
 
@@ -276,7 +279,7 @@ fn polish_with(
     machine: &Machine,
     calibrated: &Robot,
     tick: &dyn Fn(),
-) -> Result<(String, Vec<(Vec<PolishRow>, HeightMap)>)> {
+) -> Result<(String, Vec<SurfaceRun>)> {
     let settings = Online { every: spec.every };
     let name = match &controller {
         Controller::Plain(name, ..) => name.to_string(),

@@ -170,6 +170,11 @@ impl Default for HeldOutConfig {
 
 /// What one held-out session gave ([`held_out_session`]).
 pub struct Session {
+    /// The session's index ([`HeldOutConfig::session`]).
+    pub index: usize,
+    /// The machine's state at the start of each path's runs, in the order of
+    /// [`PathKind::ALL`] (for more models on the same runs: [`more_models`]).
+    pub starts: Vec<MachineState>,
     /// Table V rows of every path: initial, calibrated, oracle, then each model.
     pub rows: Vec<TableVRow>,
     /// Every run's tracker trace (Fig. 11), path by path.
@@ -188,6 +193,56 @@ pub struct Session {
     pub budget: Option<String>,
     /// When asked for: per path and model, the open-loop diagnosis ([`OpenLoopScore`]).
     pub open_loop: Vec<OpenLoopScore>,
+}
+
+impl Session {
+    /// One session of every model from `parts` (the same session's runs: the first from
+    /// [`held_out_session`], the others from [`more_models`] after it), as if all the
+    /// models had run together: each path's rows, traces and refusals in turn, the
+    /// stages and then the models in the parts' order; the first part's budget, machine
+    /// and warning.
+    pub fn merge(parts: Vec<Session>) -> Result<Session> {
+        let mut parts = parts.into_iter();
+        let Some(mut first) = parts.next() else {
+            return Err(Error::Invalid("no session to merge".into()));
+        };
+        let rest: Vec<Session> = parts.collect();
+        if let Some(other) = rest.iter().find(|s| s.index != first.index) {
+            return Err(Error::Invalid(format!(
+                "held-out sessions {} and {} cannot be merged: they are different sessions",
+                first.index + 1,
+                other.index + 1
+            )));
+        }
+        let paths: Vec<&str> = PathKind::ALL.iter().map(|p| p.name()).collect();
+        let mut rows = Vec::new();
+        let mut traces = Vec::new();
+        let mut refusals = Vec::new();
+        let mut open_loop = Vec::new();
+        for path in &paths {
+            let on = |trajectory: &str| trajectory == *path;
+            for part in std::iter::once(&first).chain(&rest) {
+                rows.extend(part.rows.iter().filter(|r| on(&r.trajectory)).cloned());
+                traces.extend(part.traces.iter().filter(|t| on(&t.trajectory)).cloned());
+                refusals.extend(
+                    part.refusals
+                        .iter()
+                        .filter(|l| l.split(": ").next() == Some(*path))
+                        .cloned(),
+                );
+                open_loop.extend(part.open_loop.iter().filter(|o| on(&o.path)).cloned());
+            }
+        }
+        first.rows = rows;
+        first.traces = traces;
+        first.refusals = refusals;
+        first.open_loop = open_loop;
+        for part in rest {
+            first.latency_ms.extend(part.latency_ms);
+            first.ran_on.extend(part.ran_on);
+        }
+        Ok(first)
+    }
 }
 
 /// The open-loop diagnosis of one model on one held-out run (docs/shift/README.md
@@ -248,6 +303,44 @@ pub fn held_out_session(
     options: SessionOptions,
     reporter: &mut dyn Reporter,
 ) -> Result<Session> {
+    session_runs(device, models, sources, held, options, None, reporter)
+}
+
+/// More models on the runs of `after` (a session [`held_out_session`] ran, Table V's rows
+/// only): each path's runs start from the state `after`'s did, so its rows are the ones
+/// these models would have had beside `after`'s; the initial, calibrated and oracle
+/// stages, which do not depend on the models, are not run again. [`Session::merge`]
+/// puts the two together as one session of all the models.
+pub fn more_models(
+    device: &Device,
+    models: &mut [LoopModel],
+    sources: &DataSources,
+    held: &HeldOutConfig,
+    after: &Session,
+    reporter: &mut dyn Reporter,
+) -> Result<Session> {
+    let options = SessionOptions::rows(after.index);
+    session_runs(
+        device,
+        models,
+        sources,
+        held,
+        options,
+        Some(after),
+        reporter,
+    )
+}
+
+/// [`held_out_session`], or [`more_models`] with `after`.
+fn session_runs(
+    device: &Device,
+    models: &mut [LoopModel],
+    sources: &DataSources,
+    held: &HeldOutConfig,
+    options: SessionOptions,
+    after: Option<&Session>,
+    reporter: &mut dyn Reporter,
+) -> Result<Session> {
     let k = options.index;
     let Some(first) = models.first() else {
         return Err(Error::Invalid("no model to compensate with".into()));
@@ -273,6 +366,8 @@ pub fn held_out_session(
         .collect();
     let mut latency = vec![(0.0, 0usize); models.len()];
     let mut session = Session {
+        index: k,
+        starts: Vec::new(),
         rows: Vec::new(),
         traces: Vec::new(),
         latency_ms: Vec::new(),
@@ -283,7 +378,10 @@ pub fn held_out_session(
         budget: None,
         open_loop: Vec::new(),
     };
-    if let Some(m) = cal.machine_seed.filter(|&m| m != machine_seed) {
+    if let Some(m) = cal
+        .machine_seed
+        .filter(|&m| m != machine_seed && after.is_none())
+    {
         let warning = format!(
             "warning: the calibration {} was measured on twin machine {m}, but the recordings \
              and this held-out session are on machine {machine_seed}: the calibrated rows \
@@ -294,20 +392,36 @@ pub fn held_out_session(
         session.calibration_warning = Some(warning);
     }
     let plan = held.session(k);
-    let mut state = warm_up_on(
-        &machine,
-        &calibrated,
-        plan.warm_up_minutes * 60.0,
-        plan.seed.wrapping_add(1000),
-        &plan.conditions,
-    )?;
+    let mut state = match after {
+        Some(_) => None,
+        None => Some(warm_up_on(
+            &machine,
+            &calibrated,
+            plan.warm_up_minutes * 60.0,
+            plan.seed.wrapping_add(1000),
+            &plan.conditions,
+        )?),
+    };
     for (i, path) in PathKind::ALL.into_iter().enumerate() {
+        let start = match (&state, after) {
+            (Some(state), _) => state.clone(),
+            (None, Some(after)) => after.starts.get(i).cloned().ok_or_else(|| {
+                Error::Invalid(format!(
+                    "held-out session {} has no start for {}",
+                    k + 1,
+                    path.name()
+                ))
+            })?,
+            // invariant: `state` is set exactly when there is no `after`.
+            (None, None) => unreachable!("a session starts from its warm-up or from another"),
+        };
+        session.starts.push(start.clone());
         let run = HeldOut {
             path,
             params: PathParams::held_out_in(path, k),
             seconds: held.minutes * 60.0,
             seed: plan.seed + i as u64,
-            start: state.clone(),
+            start,
             conditions: plan.conditions,
         };
         // One budget (the Hilbert run's) keeps the demo in its time; `iastgcn budget`
@@ -316,7 +430,8 @@ pub fn held_out_session(
             let b = error_budget(&machine, &calibrated, &run.config(), &run.start)?;
             session.budget = Some(budget_markdown(&b));
         }
-        let stages = 3 + models.len() * if options.open_loop { 3 } else { 1 };
+        let stages = if after.is_some() { 0 } else { 3 }
+            + models.len() * if options.open_loop { 3 } else { 1 };
         let ticks = run.config().steps() * stages;
         reporter.begin(&format!("compensating {}", path.name()), ticks as u64);
         let mut done = 0u64;
@@ -327,7 +442,7 @@ pub fn held_out_session(
             }
         };
         let settings = Online { every: held.every };
-        let mut result = table_v(
+        let mut result = runs(
             &machine,
             &nominal,
             &calibrated,
@@ -335,6 +450,7 @@ pub fn held_out_session(
             models,
             &run,
             settings,
+            after.is_none(),
             &mut tick,
         )?;
         if options.open_loop {
@@ -360,8 +476,10 @@ pub fn held_out_session(
             reporter.note(&line);
             session.refusals.push(line);
         }
-        state = result.end;
-        state.idle(IDLE_BETWEEN_RUNS);
+        if let Some(mut end) = result.end {
+            end.idle(IDLE_BETWEEN_RUNS);
+            state = Some(end);
+        }
         session.traces.extend(result.traces);
         for (slot, (_, ms)) in latency.iter_mut().zip(result.latency) {
             slot.0 += ms;
@@ -422,8 +540,9 @@ pub struct HeldOutResult {
     /// Each model's name, its refused corrections (`online::MAX_CORRECTION`), its
     /// predictions, and the ticks whose corrected target was unreachable.
     pub refused: Vec<(String, usize, usize, usize)>,
-    /// The machine's state after the calibrated run.
-    pub end: MachineState,
+    /// The machine's state after the calibrated run (none where the stages were not
+    /// run: [`more_models`]).
+    pub end: Option<MachineState>,
 }
 
 /// How many of a held-out path's runs ([`table_v`]) run at a time: one per core when every
@@ -451,6 +570,25 @@ pub fn table_v(
     models: &mut [LoopModel],
     run: &HeldOut,
     settings: Online,
+    on_tick: impl FnMut(usize),
+) -> Result<HeldOutResult> {
+    runs(
+        machine, nominal, calibrated, window, models, run, settings, true, on_tick,
+    )
+}
+
+/// [`table_v`]; without `stages`, only the models' runs (their rows and traces, no
+/// `end`).
+#[allow(clippy::too_many_arguments)]
+fn runs(
+    machine: &Machine,
+    nominal: &Robot,
+    calibrated: &Robot,
+    window: usize,
+    models: &mut [LoopModel],
+    run: &HeldOut,
+    settings: Online,
+    stages: bool,
     mut on_tick: impl FnMut(usize),
 ) -> Result<HeldOutResult> {
     let name = run.path.name().to_string();
@@ -473,7 +611,11 @@ pub fn table_v(
     }
     let names: Vec<String> = models.iter().map(|m| m.name.clone()).collect();
     let workers = runs_at_a_time(models);
-    let mut jobs = vec![Job::Initial, Job::Calibrated, Job::Oracle];
+    let mut jobs = if stages {
+        vec![Job::Initial, Job::Calibrated, Job::Oracle]
+    } else {
+        Vec::new()
+    };
     jobs.extend(models.iter_mut().map(Job::Model));
     let results = parallel::run_all(
         jobs,
@@ -499,15 +641,22 @@ pub fn table_v(
         || on_tick(0),
     )?;
     let mut results = results.into_iter();
-    // invariant: one result per job, three controllers and then the models.
+    // invariant: one result per job, the three controllers (with `stages`) and then the
+    // models.
     let mut next = || results.next().expect("one result per job");
-    let (initial, plain, oracle) = (next(), next(), next());
-    let mut rows = vec![
-        row("initial", "-", &initial),
-        row("calibrated", "-", &plain),
-        row("oracle", "true residual", &oracle),
-    ];
-    let mut traces = vec![online::trace(run.path, "calibrated", &plain)];
+    let mut rows = Vec::new();
+    let mut traces = Vec::new();
+    let mut end = None;
+    if stages {
+        let (initial, plain, oracle) = (next(), next(), next());
+        rows.extend([
+            row("initial", "-", &initial),
+            row("calibrated", "-", &plain),
+            row("oracle", "true residual", &oracle),
+        ]);
+        traces.push(online::trace(run.path, "calibrated", &plain));
+        end = Some(plain.end);
+    }
     let mut latency = Vec::new();
     let mut refused = Vec::new();
     for model in names {
@@ -526,6 +675,6 @@ pub fn table_v(
         traces,
         latency,
         refused,
-        end: plain.end,
+        end,
     })
 }

@@ -8,9 +8,11 @@ mod models;
 mod paper_tables;
 
 pub use held_out::{
-    held_out_session, runs_at_a_time, table_v, HeldOutConfig, HeldOutResult, HeldOutSession,
-    OpenLoopScore, Session, SessionOptions, MAX_HELD_OUT_SESSIONS,
+    held_out_session, more_models, runs_at_a_time, table_v, HeldOutConfig, HeldOutResult,
+    HeldOutSession, OpenLoopScore, Session, SessionOptions, MAX_HELD_OUT_SESSIONS,
 };
 pub use models::{ensemble, predictors, runs_on, LoopModel, NamedModel};
-pub(crate) use paper_tables::tables;
-pub use paper_tables::{evaluate, predict_windows, table_iii};
+pub(crate) use paper_tables::{add_graph_mixing, tables};
+pub use paper_tables::{
+    evaluate, evaluate_models, predict_windows, report_evaluation, table_iii, Evaluated,
+};

@@ -2,7 +2,7 @@
 //! Table V (pose error of held-out polishing runs: initial, calibrated, compensated per
 //! model) into a report, with the graph-mixing table.
 
-use super::held_out::{held_out_session, HeldOutConfig, SessionOptions};
+use super::held_out::{held_out_session, more_models, HeldOutConfig, Session, SessionOptions};
 use super::models::{predictors, NamedModel};
 use crate::data::{DataSources, Dataset};
 use crate::error::{Error, Result};
@@ -77,24 +77,70 @@ pub fn table_iii(
     Ok(rows)
 }
 
+/// What [`evaluate_models`] measured of a group of models: their Table III rows, every
+/// held-out session of Table V, and the validation session the recommendation is chosen
+/// on.
+pub struct Evaluated {
+    /// Table III rows, model by model.
+    pub table_iii: Vec<TableIIIRow>,
+    /// Table V's held-out sessions, in order.
+    pub sessions: Vec<Session>,
+    /// The validation session ([`validation_session`]), not scored in Table V.
+    pub validation: Session,
+}
+
+impl Evaluated {
+    /// The evaluation of every model of `groups` (the first from [`evaluate_models`]
+    /// alone, the others after it), as one evaluation of all of them in the groups'
+    /// order would give it.
+    pub fn merge(groups: Vec<Evaluated>) -> Result<Evaluated> {
+        let sessions = groups.first().map_or(0, |g| g.sessions.len());
+        let mut table_iii = Vec::new();
+        let mut per_session: Vec<Vec<Session>> = (0..sessions).map(|_| Vec::new()).collect();
+        let mut validation = Vec::new();
+        for g in groups {
+            if g.sessions.len() != sessions {
+                return Err(Error::Invalid(
+                    "evaluations of different held-out sessions cannot be merged".into(),
+                ));
+            }
+            table_iii.extend(g.table_iii);
+            for (all, s) in per_session.iter_mut().zip(g.sessions) {
+                all.push(s);
+            }
+            validation.push(g.validation);
+        }
+        Ok(Evaluated {
+            table_iii,
+            sessions: per_session
+                .into_iter()
+                .map(Session::merge)
+                .collect::<Result<_>>()?,
+            validation: Session::merge(validation)?,
+        })
+    }
+}
+
 /// Table III (each model on the test split of `sources`, windowed as `config` says and
-/// standardised with the model's own statistics) and Table V (every path of one held-out
-/// session in the twin, compensated by each model), with the Hilbert run's error budget,
-/// Fig. 11 traces and Fig. 10 timings, added to `report`. Each model reads the sensors of
-/// its own checkpoint's graph online; the oracle runs at the first model's window; Fig.
-/// 11 shows the first model named `iastgcn` or `iastgcn.seed<k>` (or the first).
-pub fn evaluate(
+/// standardised with the model's own statistics), Table V (every path of each held-out
+/// session in the twin, compensated by each model, with the first session's Hilbert
+/// error budget) and the validation session. Each model reads the sensors of its own
+/// checkpoint's graph online; the oracle runs at the first model's window. With `after`
+/// (an evaluation of other models), only these models run: Table III without the
+/// training mean's rows, and each held-out run from the state `after`'s started from
+/// ([`more_models`]), for [`Evaluated::merge`].
+pub fn evaluate_models(
     device: &Device,
-    report: &mut Report,
     models: &[NamedModel],
     sources: &DataSources,
     config: &RunConfig,
     held: &HeldOutConfig,
+    after: Option<&Evaluated>,
     reporter: &mut dyn Reporter,
-) -> Result<()> {
-    let Some(first) = models.first() else {
+) -> Result<Evaluated> {
+    if models.is_empty() {
         return Err(Error::Invalid("no model to evaluate".into()));
-    };
+    }
     held.validate()?;
     reporter.note("== Table III: prediction accuracy on the held-out split");
     let windowed = Graph::load_or_default(sources.graph.as_deref())?;
@@ -104,6 +150,7 @@ pub fn evaluate(
         Device::Native => true,
         Device::Adapter(gpu) => gpu.is_software(),
     };
+    let baseline = after.is_none();
     let per_model = parallel::run_all(
         models.iter().enumerate().collect(),
         parallel::workers(native),
@@ -125,15 +172,20 @@ pub fn evaluate(
                 )));
             }
             let (_, data) = build_dataset(sources, &c, Some(&fixed))?;
-            Ok(table_iii(device, &m.name, &m.checkpoint, &data, i == 0)?)
+            Ok(table_iii(
+                device,
+                &m.name,
+                &m.checkpoint,
+                &data,
+                baseline && i == 0,
+            )?)
         },
         || {},
     )?;
-    let rows: Vec<TableIIIRow> = per_model.into_iter().flatten().collect();
-    for line in table_iii_lines(&rows) {
+    let table_iii_rows: Vec<TableIIIRow> = per_model.into_iter().flatten().collect();
+    for line in table_iii_lines(&table_iii_rows) {
         reporter.note(&line);
     }
-    report.table_iii = rows;
 
     reporter.note("== Table V: compensation of held-out runs in the twin");
     let checkpoints: Vec<(String, Checkpoint)> = models
@@ -141,28 +193,30 @@ pub fn evaluate(
         .map(|m| (m.name.clone(), m.checkpoint.clone()))
         .collect();
     let mut in_loop = predictors(device, &checkpoints)?;
-    let table_v_session = SessionOptions {
-        budget: true,
-        ..SessionOptions::rows(0)
-    };
-    let session = held_out_session(
-        device,
-        &mut in_loop,
-        sources,
-        held,
-        table_v_session,
+    let mut session =
+        |index: usize, options: SessionOptions, reporter: &mut dyn Reporter| -> Result<Session> {
+            match after {
+                None => held_out_session(device, &mut in_loop, sources, held, options, reporter),
+                Some(after) => {
+                    let earlier = if index == validation_session(held.sessions) {
+                        &after.validation
+                    } else {
+                        after.sessions.get(index).ok_or_else(|| {
+                            Error::Invalid(format!("no held-out session {} to follow", index + 1))
+                        })?
+                    };
+                    more_models(device, &mut in_loop, sources, held, earlier, reporter)
+                }
+            }
+        };
+    let mut sessions = vec![session(
+        0,
+        SessionOptions {
+            budget: true,
+            ..SessionOptions::rows(0)
+        },
         reporter,
-    )?;
-    if let Some(budget) = session.budget {
-        report.sections.push((
-            format!("Error budget: {} (held-out run)", PathKind::Hilbert.name()),
-            format!(
-                "The hidden tool-pose error of this run split by source (RMS over every tick, \
-                 against the path target; `iastgcn budget` gives it for any run):\n\n{budget}"
-            ),
-        ));
-    }
-    report.table_v.extend(session.rows);
+    )?];
     // The other held-out sessions: Table V's rows only (its traces, budget and timings
     // are the first session's).
     for k in 1..held.sessions {
@@ -172,30 +226,62 @@ pub fn evaluate(
             held.sessions,
             held.session(k).describe()
         ));
-        let other = held_out_session(
-            device,
-            &mut in_loop,
-            sources,
-            held,
-            SessionOptions::rows(k),
-            reporter,
-        )?;
-        report.table_v.extend(other.rows);
-        report.notes.extend(other.refusals);
+        sessions.push(session(k, SessionOptions::rows(k), reporter)?);
     }
-
     reporter.note(
         "== recommended model: every model in the loop on a validation session (not in Table V)",
     );
     let validation_index = validation_session(held.sessions);
-    let validation = held_out_session(
-        device,
-        &mut in_loop,
-        sources,
-        held,
+    let validation = session(
+        validation_index,
         SessionOptions::rows(validation_index),
         reporter,
     )?;
+    Ok(Evaluated {
+        table_iii: table_iii_rows,
+        sessions,
+        validation,
+    })
+}
+
+/// What [`evaluate_models`] measured of `models` (in their order), into `report`: Table
+/// III, Table V with the first session's Hilbert error budget, Fig. 11 traces (the first
+/// model named `iastgcn` or `iastgcn.seed<k>`, or the first), Fig. 10 timings, the
+/// recommendation and its headline.
+pub fn report_evaluation(
+    report: &mut Report,
+    models: &[NamedModel],
+    evaluated: Evaluated,
+    held: &HeldOutConfig,
+    reporter: &mut dyn Reporter,
+) -> Result<()> {
+    let Some(first) = models.first() else {
+        return Err(Error::Invalid("no model to evaluate".into()));
+    };
+    let Evaluated {
+        table_iii,
+        sessions,
+        validation,
+    } = evaluated;
+    report.table_iii = table_iii;
+    let mut sessions = sessions.into_iter();
+    let Some(session) = sessions.next() else {
+        return Err(Error::Invalid("no held-out session was run".into()));
+    };
+    if let Some(budget) = &session.budget {
+        report.sections.push((
+            format!("Error budget: {} (held-out run)", PathKind::Hilbert.name()),
+            format!(
+                "The hidden tool-pose error of this run split by source (RMS over every tick, \
+                 against the path target; `iastgcn budget` gives it for any run):\n\n{budget}"
+            ),
+        ));
+    }
+    report.table_v.extend(session.rows.iter().cloned());
+    for other in sessions {
+        report.table_v.extend(other.rows);
+        report.notes.extend(other.refusals);
+    }
     let recommendation = recommend(&validation.rows);
     reporter.note(&recommendation.sentence());
     report.headline = recommendation.headline(&report.table_v);
@@ -203,6 +289,7 @@ pub fn evaluate(
         .best
         .map(|i| recommendation.scores[i].best_seed.clone());
     report.setup.push(recommendation.sentence());
+    let validation_index = validation.index;
     report.sections.push((
         "Recommended model".into(),
         recommendation.markdown(
@@ -234,6 +321,13 @@ pub fn evaluate(
             .into_iter()
             .filter(|t| t.label == "calibrated" || t.label == keep),
     );
+    if session.latency_ms.len() != models.len() {
+        return Err(Error::Invalid(format!(
+            "{} models, but the held-out session timed {}",
+            models.len(),
+            session.latency_ms.len()
+        )));
+    }
     report.timings = models
         .iter()
         .zip(session.latency_ms)
@@ -249,6 +343,21 @@ pub fn evaluate(
     Ok(())
 }
 
+/// Table III and Table V of `models` on `sources` into `report` ([`evaluate_models`]
+/// then [`report_evaluation`]).
+pub fn evaluate(
+    device: &Device,
+    report: &mut Report,
+    models: &[NamedModel],
+    sources: &DataSources,
+    config: &RunConfig,
+    held: &HeldOutConfig,
+    reporter: &mut dyn Reporter,
+) -> Result<()> {
+    let evaluated = evaluate_models(device, models, sources, config, held, None, reporter)?;
+    report_evaluation(report, models, evaluated, held, reporter)
+}
+
 /// Tables III and V of `models` into `report`, with the table of how much each model's
 /// graph convolution mixes the sensors.
 pub(crate) fn tables(
@@ -261,12 +370,18 @@ pub(crate) fn tables(
     reporter: &mut dyn Reporter,
 ) -> Result<()> {
     evaluate(device, report, models, sources, config, held_out, reporter)?;
+    add_graph_mixing(report, models);
+    Ok(())
+}
+
+/// The table of how much each model's graph convolution mixes the sensors, as a section
+/// of `report` (none when no model has one).
+pub(crate) fn add_graph_mixing(report: &mut Report, models: &[NamedModel]) {
     if let Some(table) = graph_mixing_table(models) {
         report
             .sections
             .push(("Graph convolution after training".into(), table));
     }
-    Ok(())
 }
 
 /// The report's table of how much each model's graph convolution mixes the sensors

@@ -4,6 +4,7 @@
 
 use std::fmt::Write as _;
 
+use super::seeds::{split_name, Spread};
 use super::{plan, Report, TableIIIRow, TableVRow, Timing};
 use crate::train::log::distinct;
 use crate::train::Metrics;
@@ -251,6 +252,79 @@ fn markdown_timings(out: &mut String, timings: &[Timing]) {
     out.push('\n');
 }
 
+/// The report at a glance, under its headline: per held-out path, the calibrated
+/// controller's mean true error, and the share of it the recommended model (over its
+/// seeds) and the oracle remove, mean ± SD over the held-out sessions (and seeds). None
+/// without a recommended model or its Table V rows.
+pub(super) fn at_a_glance(r: &Report) -> Option<String> {
+    let (model, _) = split_name(r.recommended.as_deref()?);
+    let rows = &r.table_v;
+    let calibrated = |row: &TableVRow| {
+        rows.iter().find(|c| {
+            c.stage == "calibrated" && c.trajectory == row.trajectory && c.session == row.session
+        })
+    };
+    let removed = |c: &TableVRow, by: &TableVRow| {
+        [
+            100.0 * (c.truth.position.mean - by.truth.position.mean) / c.truth.position.mean,
+            100.0 * (c.truth.attitude.mean - by.truth.attitude.mean) / c.truth.attitude.mean,
+        ]
+    };
+    let shares = |path: &str, of: &dyn Fn(&TableVRow) -> bool| -> String {
+        let s: Vec<[f64; 2]> = rows
+            .iter()
+            .filter(|row| row.trajectory == path && of(row))
+            .filter_map(|row| Some(removed(calibrated(row)?, row)))
+            .collect();
+        let spread = |i: usize| Spread::of(&s.iter().map(|v| v[i]).collect::<Vec<_>>());
+        format!("{} / {}", spread(0).text(1), spread(1).text(1))
+    };
+    let mut paths: Vec<&str> = Vec::new();
+    for row in rows {
+        if !paths.contains(&row.trajectory.as_str()) {
+            paths.push(&row.trajectory);
+        }
+    }
+    let mut out = format!(
+        "| Held-out path | Calibrated: position (µm) / attitude (mdeg) | {model} removes (%) | the oracle removes (%) |\n|---|---:|---:|---:|\n"
+    );
+    let mut any = false;
+    for path in paths {
+        let cal: Vec<&TableVRow> = rows
+            .iter()
+            .filter(|row| row.trajectory == path && row.stage == "calibrated")
+            .collect();
+        if cal.is_empty() {
+            continue;
+        }
+        let mean = |f: &dyn Fn(&TableVRow) -> f64| {
+            Spread::of(&cal.iter().map(|row| f(row)).collect::<Vec<_>>()).mean
+        };
+        let by_model =
+            |row: &TableVRow| row.stage == "compensated" && split_name(&row.model).0 == model;
+        any |= rows
+            .iter()
+            .any(|row| row.trajectory == path && by_model(row));
+        let _ = writeln!(
+            out,
+            "| {} | {} / {} | {} | {} |",
+            md(path),
+            num(mean(&|row| row.truth.position.mean), 1),
+            num(mean(&|row| row.truth.attitude.mean), 2),
+            shares(path, &by_model),
+            shares(path, &|row| row.stage == "oracle"),
+        );
+    }
+    any.then(|| {
+        format!(
+            "{out}\nAgainst the twin's hidden truth; each share is the mean ± SD over the \
+             held-out sessions (and the model's seeds) of the calibrated error removed, \
+             position / attitude. The oracle feeds the true residual back at a model's \
+             latency: about what online compensation can remove at all.\n"
+        )
+    })
+}
+
 /// The figure shown under the headline.
 const KEY_FIGURE: &str = "compensated.png";
 
@@ -265,6 +339,9 @@ pub fn markdown(r: &Report) -> String {
     let _ = writeln!(out, "# {title}\n");
     if let Some(headline) = &r.headline {
         let _ = writeln!(out, "**{headline}**\n");
+    }
+    if let Some(glance) = at_a_glance(r) {
+        let _ = writeln!(out, "{glance}");
     }
     // The key figure under the headline, before the setup and the tables (the file list
     // at the end names it without showing it again).
