@@ -31,7 +31,7 @@ pub struct DemoArgs {
     #[arg(long, value_delimiter = ',', default_value = "1,2,3")]
     pub seeds: Vec<u64>,
     /// Also train and evaluate the spatio-temporal baselines of Table III (ConvLSTM, T-GCN,
-    /// EAT-GCN, ST-GAT) at the same budget (beyond the demo's 15 minutes on 2 CPU cores).
+    /// EAT-GCN, ST-GAT) at the same budget (beyond the demo's 10 minutes on 2 CPU cores).
     #[arg(long)]
     pub all_models: bool,
     #[command(flatten)]

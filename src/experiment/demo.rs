@@ -38,8 +38,9 @@ use crate::train::{build_dataset, RunConfig};
 use crate::twin::{draw_machine, PathKind, PathOrder, Placement, Recipe};
 
 /// Length of each of the demo's training recordings, minutes: the most data with which
-/// three seeds of its eight models fit `make demo`'s 15 minutes on 2 CPU cores with a
-/// margin (docs/results.md "Why 8 minutes per path and L = 2").
+/// three seeds of its eight models fitted `make demo`'s time on 2 CPU cores when it was
+/// chosen (docs/results.md "Why 8 minutes per path and L = 2"; the demo's times now:
+/// "How long it takes").
 pub const DEMO_MINUTES: f64 = 8.0;
 
 /// What the demo runs.
@@ -58,7 +59,7 @@ pub struct DemoConfig {
     /// the models keep their plain names; with more they are `<model>.seed<k>`.
     pub seeds: Vec<u64>,
     /// Also train and evaluate the spatio-temporal baselines of Table III (ConvLSTM, T-GCN,
-    /// EAT-GCN, ST-GAT) at the same budget; they take longer than the demo's 15 minutes on
+    /// EAT-GCN, ST-GAT) at the same budget; they take longer than the demo's 10 minutes on
     /// 2 CPU cores (docs/usage.md "demo", `--all-models`), so they are off by default.
     pub all_models: bool,
     /// How the training set is recorded (docs/twin.md "Sessions").
@@ -329,7 +330,7 @@ pub fn demo(
     }
 
     // The spatio-temporal baselines (Variant::SPATIO_TEMPORAL) run only with
-    // `all_models`: the demo already takes most of its 15 minutes on 2 cores, and they cost
+    // `all_models`: the demo already takes most of its 10 minutes on 2 cores, and they cost
     // 2–4 IASTGCN epochs each per epoch (the baselines run of 2026-11-25, indexed in
     // docs/runs/README.md).
     let spatio_temporal: &[Variant] = if demo.all_models {

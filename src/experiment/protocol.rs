@@ -16,10 +16,11 @@ use crate::data::{
     Dataset, RecordedRun,
 };
 use crate::error::{Error, Result};
+use crate::experiment::parallel;
 use crate::gpu::Device;
 use crate::graph::Graph;
 use crate::model::{Checkpoint, Predictor};
-use crate::progress::Reporter;
+use crate::progress::{Notes, Reporter};
 use crate::robot::{Geometry, Robot};
 use crate::train::refine::AccumulatedCurve;
 use crate::train::{self, refine, sibling, EpochRecord, RunConfig, TestMetrics, Trained};
@@ -178,10 +179,14 @@ pub fn record_data(
         mean(&after.1)
     ));
 
+    // Each session is a day of its own from a cold start: they are recorded one per core,
+    // their notes given in order once all are written.
     let plan = recipe.plan(minutes, TRAINING_SEED, machine_seed);
-    for (s, session) in plan.into_iter().enumerate() {
+    let controller_name = calibration.display().to_string();
+    let sessions: Vec<(usize, PlannedSession)> = plan.into_iter().enumerate().collect();
+    sessions_at_once(sessions, true, reporter, |(s, session), notes| {
         let c = session.conditions;
-        reporter.note(&format!(
+        notes.note(&format!(
             "== training session {} of {}: three recordings under the calibrated controller, \
              starting cold (ambient {:+.2} K from the calibration day's, feed {:.1} mm/s, \
              force {:.1} N)",
@@ -192,11 +197,52 @@ pub fn record_data(
             c.force_n
         ));
         let to = |kind| dir.join(recipe.file_name(kind, s + 1));
-        let controller_name = calibration.display().to_string();
         let target = (&controller, controller_name.as_str());
-        record_session(&machine, target, session, &to, None, reporter)?;
-    }
+        record_session(&machine, target, session, &to, None, notes)
+    })?;
     Ok(sources)
+}
+
+/// Records `sessions` with `record` (which notes what it did into the [`Notes`] it is
+/// given), one per core where `native` (nothing of theirs on a GPU's queue), else one
+/// after another; shows one bar over the sessions on `reporter`, then their notes in the
+/// sessions' order. Returns each session's runs, in order.
+fn sessions_at_once<J: Send>(
+    sessions: Vec<J>,
+    native: bool,
+    reporter: &mut dyn Reporter,
+    record: impl Fn(J, &mut Notes) -> Result<Vec<RecordedRun>> + Sync,
+) -> Result<Vec<Vec<RecordedRun>>> {
+    let count = sessions.len();
+    let workers = parallel::workers(native).min(count);
+    reporter.begin(
+        &format!("recording {count} session(s), {workers} at a time"),
+        count as u64,
+    );
+    let mut done = 0;
+    let recorded = parallel::run_all(
+        sessions,
+        workers,
+        |session, tick| {
+            let mut notes = Notes::default();
+            let runs = record(session, &mut notes);
+            tick();
+            runs.map(|r| (r, notes.0))
+        },
+        || {
+            done += 1;
+            reporter.update(done, "");
+        },
+    );
+    reporter.end();
+    let mut runs = Vec::with_capacity(count);
+    for (r, notes) in recorded? {
+        for line in notes {
+            reporter.note(&line);
+        }
+        runs.push(r);
+    }
+    Ok(runs)
 }
 
 /// Records one training session (`session`, from [`Recipe::plan`]) on `machine` under
@@ -316,35 +362,37 @@ pub fn record_closed_loop(
             sources.calibration.display(),
             round.every
         );
-        let mut members = vec![Predictor::on(device, &round0, 1)?];
         let dt = SimConfig::new(PathKind::Grid, 1.0, 0).dt;
         let settings = Online { every: round.every };
-        let mut model = ModelInLoop::new(&mut members, &round0.graph, settings, dt)?;
-        let mut correct = |tick: usize, channels: &[Option<f64>]| -> Result<Option<Correction>> {
-            if tick == 0 {
-                model.reset();
-            }
-            Ok(model.tick(tick, channels)?.filter(within_limit))
-        };
         let plan = recipe.plan(round.minutes, TRAINING_SEED, round.machine_seed);
-        let mut runs = Vec::new();
-        for (s, session) in plan.into_iter().enumerate().skip(half) {
-            reporter.note(&format!(
-                "== {name}: training session {} of {} recorded with it compensating",
-                s + 1,
-                recipe.sessions
-            ));
-            let to = |kind: PathKind| to(kind, s + 1);
-            let target = (&controller, controller_name.as_str());
-            runs.extend(record_session(
-                &machine,
-                target,
-                session,
-                &to,
-                Some(&mut correct),
-                reporter,
-            )?);
-        }
+        let sessions: Vec<(usize, PlannedSession)> =
+            plan.into_iter().enumerate().skip(half).collect();
+        // A predictor per session: each run starts its model afresh anyway.
+        let per_session = sessions_at_once(
+            sessions,
+            device.prefers_native(),
+            reporter,
+            |(s, session), notes| {
+                notes.note(&format!(
+                    "== {name}: training session {} of {} recorded with it compensating",
+                    s + 1,
+                    recipe.sessions
+                ));
+                let mut members = vec![Predictor::on(device, &round0, 1)?];
+                let mut model = ModelInLoop::new(&mut members, &round0.graph, settings, dt)?;
+                let mut correct =
+                    |tick: usize, channels: &[Option<f64>]| -> Result<Option<Correction>> {
+                        if tick == 0 {
+                            model.reset();
+                        }
+                        Ok(model.tick(tick, channels)?.filter(within_limit))
+                    };
+                let to = |kind: PathKind| to(kind, s + 1);
+                let target = (&controller, controller_name.as_str());
+                record_session(&machine, target, session, &to, Some(&mut correct), notes)
+            },
+        )?;
+        let runs: Vec<RecordedRun> = per_session.into_iter().flatten().collect();
         let n = runs.len().max(1) as f64;
         error = (
             runs.iter().map(|r| r.mean_target_error[0]).sum::<f64>() / n,
