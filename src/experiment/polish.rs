@@ -228,6 +228,7 @@ pub fn run(
                 calibrated,
                 tick,
             );
+            // invariant: as above, no thread panics while holding the pool's lock.
             pool.lock().expect("the polishers").push(polisher);
             out
         },
