@@ -26,6 +26,18 @@ fn profile_dir() -> PathBuf {
     exe.parent().and_then(Path::parent).unwrap().to_path_buf()
 }
 
+/// Runs `command` (`what` it does, for the message), which must succeed.
+fn succeeded(command: &mut Command, what: &str) {
+    let out = command
+        .output()
+        .unwrap_or_else(|e| panic!("{what}: {e} (is the program installed?)"));
+    assert!(
+        out.status.success(),
+        "{what} failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 /// The folder holding the C ABI's libraries (`libiastgcn.so`, `libiastgcn.a`) of this
 /// source, built now in this test's profile as `make c-library` builds them (the crate's
 /// own builds make only the Rust library).
@@ -53,13 +65,9 @@ fn c_libraries() -> PathBuf {
     if let Some(target) = dir.parent() {
         build.env("CARGO_TARGET_DIR", target);
     }
-    let out = build
-        .output()
-        .unwrap_or_else(|e| panic!("running {cargo}: {e}"));
-    assert!(
-        out.status.success(),
-        "`cargo rustc --lib --crate-type cdylib,staticlib` failed:\n{}",
-        String::from_utf8_lossy(&out.stderr)
+    succeeded(
+        &mut build,
+        "`cargo rustc --lib --crate-type cdylib,staticlib`",
     );
     dir
 }
@@ -154,7 +162,8 @@ fn c_controller_example_prints_the_rust_examples_residuals() {
     let exe_static = dir.join("controller-static");
     let cc = std::env::var("CC").unwrap_or_else(|_| "cc".into());
     let compile = |out: &Path, link: &[String]| {
-        let compiled = Command::new(&cc)
+        let mut compiled = Command::new(&cc);
+        compiled
             .args([
                 "-std=c99",
                 "-Wall",
@@ -167,13 +176,10 @@ fn c_controller_example_prints_the_rust_examples_residuals() {
             .arg(root().join("examples/c/controller.c"))
             .args(link)
             .arg("-o")
-            .arg(out)
-            .output()
-            .unwrap_or_else(|e| panic!("running {cc}: {e} (a C compiler is needed here)"));
-        assert!(
-            compiled.status.success(),
-            "compiling examples/c/controller.c with {link:?}:\n{}",
-            String::from_utf8_lossy(&compiled.stderr)
+            .arg(out);
+        succeeded(
+            &mut compiled,
+            &format!("compiling examples/c/controller.c with {cc} and {link:?}"),
         );
     };
     compile(

@@ -155,6 +155,7 @@ pub fn run(device: Device, args: &CompensateArgs) -> anyhow::Result<()> {
         &mut models,
         &run,
         Online { every: args.every },
+        true,
         |_| {
             done += 1;
             if done.is_multiple_of(50) {

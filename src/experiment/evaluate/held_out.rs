@@ -442,7 +442,7 @@ fn session_runs(
             }
         };
         let settings = Online { every: held.every };
-        let mut result = runs(
+        let mut result = table_v(
             &machine,
             &nominal,
             &calibrated,
@@ -556,31 +556,14 @@ pub fn runs_at_a_time(models: &[LoopModel]) -> usize {
 }
 
 /// Table V rows and Fig. 11 traces of one held-out run, every stage starting from the
-/// same machine state: the nominal controller (initial), the calibrated one
-/// (calibrated), the calibrated one fed the true residual with a `window`-step model's
-/// latency and rate (oracle), and the calibrated one compensating online with each model.
-/// The runs go [`runs_at_a_time`] at a time; the rows come in this order whichever ran
-/// first, and `on_tick` is called once per tick of every run, on the calling thread.
+/// same machine state: with `stages`, the nominal controller (initial), the calibrated one
+/// (calibrated) and the calibrated one fed the true residual with a `window`-step model's
+/// latency and rate (oracle); then the calibrated one compensating online with each model
+/// (without `stages` only these, and no `end`: [`more_models`]). The runs go
+/// [`runs_at_a_time`] at a time; the rows come in this order whichever ran first, and
+/// `on_tick` is called once per tick of every run, on the calling thread.
 #[allow(clippy::too_many_arguments)]
 pub fn table_v(
-    machine: &Machine,
-    nominal: &Robot,
-    calibrated: &Robot,
-    window: usize,
-    models: &mut [LoopModel],
-    run: &HeldOut,
-    settings: Online,
-    on_tick: impl FnMut(usize),
-) -> Result<HeldOutResult> {
-    runs(
-        machine, nominal, calibrated, window, models, run, settings, true, on_tick,
-    )
-}
-
-/// [`table_v`]; without `stages`, only the models' runs (their rows and traces, no
-/// `end`).
-#[allow(clippy::too_many_arguments)]
-fn runs(
     machine: &Machine,
     nominal: &Robot,
     calibrated: &Robot,
