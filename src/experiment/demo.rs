@@ -230,7 +230,7 @@ fn plan(demo: &DemoConfig, device: &Device, out: &std::path::Path) -> Result<Vec
         "time: no forecast for these settings (it is scaled from a run of the default demo)"
             .into()
     } else {
-        let step_ms = forecast::probe(&demo.run.model, demo.run.train.batch)?;
+        let step_ms = forecast::probe(&demo.run)?;
         let (first, all) = forecast::forecast(step_ms);
         // The reference ran three seeds: the rest scales with them.
         let all = first + (all - first) * seeds as f64 / 3.0;

@@ -7,7 +7,8 @@ use std::time::{Duration, Instant};
 
 use crate::error::Result;
 use crate::graph::Graph;
-use crate::model::{ModelConfig, NativeAdam, NativeStepShape, NativeTraining, Parameters};
+use crate::model::{NativeAdam, NativeStepShape, NativeTraining, Parameters};
+use crate::train::RunConfig;
 
 /// The machine the forecast is scaled from: the 2-core development machine (lavapipe,
 /// nothing beside it) running `iastgcn demo` with its defaults (docs/results.md "How long
@@ -35,22 +36,24 @@ pub const REFERENCE: Reference = Reference {
 const PROBE_TIME: Duration = Duration::from_millis(800);
 
 /// Milliseconds per native training step (forward, loss and every gradient, no update)
-/// of a freshly initialised `model` on `batch` random windows, on every core as training
-/// runs: the mean over the steps that fit in under a second, after one warm-up step.
-pub fn probe(model: &ModelConfig, batch: usize) -> Result<f64> {
+/// of a freshly initialised model of `config` on a batch of its size of made-up windows,
+/// on the threads training uses: the mean over the steps that fit in under a second,
+/// after one warm-up step.
+pub fn probe(config: &RunConfig) -> Result<f64> {
+    let (model, t, batch) = (&config.model, &config.train, config.train.batch);
     let graph = Graph::default_asset();
     let shape = NativeStepShape {
         batch,
         group: 1,
         seed: 1,
-        penalty: 1.0,
-        threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        penalty: t.attitude_penalty,
+        threads: t.native_threads(),
     };
     let adam = NativeAdam {
-        beta1: 0.9,
-        beta2: 0.999,
-        eps: 1e-8,
-        weight_decay: 1e-4,
+        beta1: t.beta1,
+        beta2: t.beta2,
+        eps: t.adam_eps,
+        weight_decay: t.weight_decay,
     };
     let mut train = NativeTraining::new(model, &graph, shape, adam)?;
     train.load_parameters(&Parameters::init(model, 1))?;
@@ -104,8 +107,9 @@ mod tests {
 
     #[test]
     fn a_probe_times_real_steps_of_the_demos_network() {
-        let config = crate::train::RunConfig::demo();
-        let ms = probe(&config.model, 8).unwrap();
+        let mut config = RunConfig::demo();
+        config.train.batch = 8;
+        let ms = probe(&config).unwrap();
         assert!(ms.is_finite() && ms > 0.0, "{ms} ms per step");
     }
 }

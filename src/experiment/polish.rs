@@ -13,7 +13,6 @@ use crate::compensate::online::{Feedback, Online};
 use crate::error::{Error, Result};
 use crate::experiment::evaluate::LoopModel;
 use crate::experiment::parallel;
-use crate::model::Backend;
 use crate::plot::{self, HeatMap, Panel, Series};
 use crate::polish::{draw_surface, Figure, HeightMap, Polisher, PoseSource, StartingPoint};
 use crate::progress::Reporter;
@@ -157,10 +156,7 @@ pub fn run(
             )
         })
         .collect();
-    let all_native = polisher.all_native()
-        && models
-            .iter()
-            .all(|m| m.members.iter().all(|p| p.backend() == Backend::Native));
+    let all_native = polisher.all_native() && models.iter().all(LoopModel::predicts_natively);
     let mut controllers: Vec<Controller> =
         vec![Controller::Plain("nominal", nominal, PoseSource::True)];
     if spec.split_nominal {

@@ -49,15 +49,6 @@ pub struct Recommendation {
     pub best: Option<usize>,
 }
 
-/// Share of the calibrated error `by` removes, position and attitude, %.
-fn removed(calibrated: &TableVRow, by: &TableVRow) -> [f64; 2] {
-    let (c, b) = (&calibrated.truth, &by.truth);
-    [
-        100.0 * (c.position.mean - b.position.mean) / c.position.mean,
-        100.0 * (c.attitude.mean - b.attitude.mean) / c.attitude.mean,
-    ]
-}
-
 /// One trained run on the validation session: the model it is a seed of (its seeds are
 /// grouped under this name), its own name, and the share of the calibrated error its
 /// compensation removed on each path, position and attitude, %.
@@ -76,12 +67,9 @@ pub struct ValidationRun {
 pub fn recommend(rows: &[TableVRow]) -> Recommendation {
     let mut runs: Vec<ValidationRun> = Vec::new();
     for r in rows.iter().filter(|r| r.stage == "compensated") {
-        let Some(cal) = rows.iter().find(|c| {
-            c.trajectory == r.trajectory && c.session == r.session && c.stage == "calibrated"
-        }) else {
+        let Some(share) = r.removed_in(rows) else {
             continue;
         };
-        let share = removed(cal, r);
         match runs.iter_mut().find(|v| v.run == r.model) {
             Some(v) => v.shares.push(share),
             None => runs.push(ValidationRun {
@@ -155,14 +143,7 @@ impl Recommendation {
                     && r.stage == "compensated"
                     && split_name(&r.model).0 == model.model
             })
-            .filter_map(|r| {
-                let cal = table_v.iter().find(|c| {
-                    c.trajectory == r.trajectory
-                        && c.session == r.session
-                        && c.stage == "calibrated"
-                })?;
-                Some(removed(cal, r))
-            })
+            .filter_map(|r| r.removed_in(table_v))
             .collect();
         if shares.is_empty() {
             return None;

@@ -78,6 +78,16 @@ pub struct TrainConfig {
     pub threads: usize,
 }
 
+impl TrainConfig {
+    /// The native path's threads: `threads`, or every core for 0.
+    pub fn native_threads(&self) -> usize {
+        match self.threads {
+            0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
+            n => n,
+        }
+    }
+}
+
 impl Default for TrainConfig {
     fn default() -> TrainConfig {
         TrainConfig {

@@ -82,10 +82,7 @@ impl Engine {
                 group,
                 seed: seed32,
                 penalty: config.attitude_penalty,
-                threads: match config.threads {
-                    0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
-                    n => n,
-                },
+                threads: config.native_threads(),
             };
             let adam = NativeAdam {
                 beta1: config.beta1,

@@ -13,7 +13,6 @@ use crate::error::{ensure, Error, Result};
 use crate::experiment::parallel;
 use crate::experiment::report::{table_v_lines, TableVRow, Trace};
 use crate::gpu::Device;
-use crate::model::Backend;
 use crate::progress::Reporter;
 use crate::robot::Robot;
 use crate::twin::MachineState;
@@ -403,17 +402,19 @@ fn session_runs(
         )?),
     };
     for (i, path) in PathKind::ALL.into_iter().enumerate() {
-        let start = match (&state, after) {
-            (Some(state), _) => state.clone(),
-            (None, Some(after)) => after.starts.get(i).cloned().ok_or_else(|| {
-                Error::Invalid(format!(
-                    "held-out session {} has no start for {}",
-                    k + 1,
-                    path.name()
-                ))
-            })?,
-            // invariant: `state` is set exactly when there is no `after`.
-            (None, None) => unreachable!("a session starts from its warm-up or from another"),
+        // The warm-up's chain of states, or the one `after`'s runs started from.
+        let start = match &state {
+            Some(state) => state.clone(),
+            None => after
+                .and_then(|after| after.starts.get(i))
+                .cloned()
+                .ok_or_else(|| {
+                    Error::Invalid(format!(
+                        "held-out session {} has no start for {}",
+                        k + 1,
+                        path.name()
+                    ))
+                })?,
         };
         session.starts.push(start.clone());
         let run = HeldOut {
@@ -549,9 +550,7 @@ pub struct HeldOutResult {
 /// model predicts on the native CPU path, else one (the device's queue stays with one
 /// thread). The models' online prediction times are measured so, beside the other runs.
 pub fn runs_at_a_time(models: &[LoopModel]) -> usize {
-    let all_native = models
-        .iter()
-        .all(|m| m.members.iter().all(|p| p.backend() == Backend::Native));
+    let all_native = models.iter().all(LoopModel::predicts_natively);
     parallel::workers(all_native).min(3 + models.len())
 }
 

@@ -64,6 +64,12 @@ pub struct LoopModel {
 }
 
 impl LoopModel {
+    /// Whether every member predicts on the native CPU path (none on an adapter's queue,
+    /// so that its runs may go on several threads).
+    pub fn predicts_natively(&self) -> bool {
+        self.members.iter().all(|p| p.backend() == Backend::Native)
+    }
+
     /// Where it predicts: the native CPU forward on a CPU adapter, else the adapter.
     pub fn runs_on(&self, device: &Device) -> String {
         self.members

@@ -265,7 +265,7 @@ pub fn report_evaluation(
     } = evaluated;
     report.table_iii = table_iii;
     let mut sessions = sessions.into_iter();
-    let Some(session) = sessions.next() else {
+    let Some(mut session) = sessions.next() else {
         return Err(Error::Invalid("no held-out session was run".into()));
     };
     if let Some(budget) = &session.budget {
@@ -277,7 +277,7 @@ pub fn report_evaluation(
             ),
         ));
     }
-    report.table_v.extend(session.rows.iter().cloned());
+    report.table_v.append(&mut session.rows);
     for other in sessions {
         report.table_v.extend(other.rows);
         report.notes.extend(other.refusals);

@@ -259,37 +259,20 @@ fn markdown_timings(out: &mut String, timings: &[Timing]) {
 pub(super) fn at_a_glance(r: &Report) -> Option<String> {
     let (model, _) = split_name(r.recommended.as_deref()?);
     let rows = &r.table_v;
-    let calibrated = |row: &TableVRow| {
-        rows.iter().find(|c| {
-            c.stage == "calibrated" && c.trajectory == row.trajectory && c.session == row.session
-        })
-    };
-    let removed = |c: &TableVRow, by: &TableVRow| {
-        [
-            100.0 * (c.truth.position.mean - by.truth.position.mean) / c.truth.position.mean,
-            100.0 * (c.truth.attitude.mean - by.truth.attitude.mean) / c.truth.attitude.mean,
-        ]
-    };
     let shares = |path: &str, of: &dyn Fn(&TableVRow) -> bool| -> String {
         let s: Vec<[f64; 2]> = rows
             .iter()
             .filter(|row| row.trajectory == path && of(row))
-            .filter_map(|row| Some(removed(calibrated(row)?, row)))
+            .filter_map(|row| row.removed_in(rows))
             .collect();
         let spread = |i: usize| Spread::of(&s.iter().map(|v| v[i]).collect::<Vec<_>>());
         format!("{} / {}", spread(0).text(1), spread(1).text(1))
     };
-    let mut paths: Vec<&str> = Vec::new();
-    for row in rows {
-        if !paths.contains(&row.trajectory.as_str()) {
-            paths.push(&row.trajectory);
-        }
-    }
     let mut out = format!(
         "| Held-out path | Calibrated: position (µm) / attitude (mdeg) | {model} removes (%) | the oracle removes (%) |\n|---|---:|---:|---:|\n"
     );
     let mut any = false;
-    for path in paths {
+    for path in distinct(rows.iter().map(|row| row.trajectory.as_str())) {
         let cal: Vec<&TableVRow> = rows
             .iter()
             .filter(|row| row.trajectory == path && row.stage == "calibrated")

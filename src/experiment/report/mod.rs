@@ -35,6 +35,31 @@ pub struct TableVRow {
     pub tracker: ErrorStats,
 }
 
+impl TableVRow {
+    /// The calibrated run of this row's path and held-out session in `rows` (the error a
+    /// compensated run is measured against).
+    pub fn calibrated_in<'a>(&self, rows: &'a [TableVRow]) -> Option<&'a TableVRow> {
+        rows.iter().find(|c| {
+            c.stage == "calibrated" && c.trajectory == self.trajectory && c.session == self.session
+        })
+    }
+
+    /// The share of `calibrated`'s mean true error this run removes, position and
+    /// attitude, %.
+    pub fn removed_from(&self, calibrated: &TableVRow) -> [f64; 2] {
+        let (c, b) = (&calibrated.truth, &self.truth);
+        [
+            100.0 * (c.position.mean - b.position.mean) / c.position.mean,
+            100.0 * (c.attitude.mean - b.attitude.mean) / c.attitude.mean,
+        ]
+    }
+
+    /// [`TableVRow::removed_from`] the calibrated run of its path and session in `rows`.
+    pub fn removed_in(&self, rows: &[TableVRow]) -> Option<[f64; 2]> {
+        Some(self.removed_from(self.calibrated_in(rows)?))
+    }
+}
+
 /// One row of the Table III analog (test-split prediction accuracy).
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct TableIIIRow {
