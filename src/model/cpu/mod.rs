@@ -1,13 +1,13 @@
 //! The native CPU path's arithmetic in f32, shared by the ST block's steps
 //! (`model::block`) and the native networks (`model::native`): the matrix products
-//! (`product.rs`: a strided [`gemm`] and its split over threads), and the element-wise
+//! (`product/`: a strided [`gemm`] and its split over threads), and the element-wise
 //! functions that must vectorise and give the same bits at every SIMD width (a libm-free
 //! [`exp`], [`sigmoid`], [`tanh`], the softmaxes, [`lanes_dot`] and [`lanes_sum`]'s fixed
 //! partial sums), and [`flushing_subnormals`], which every pass runs under.
 //!
 //! Every contraction is a [`gemm`] on a strided view of the row-major tensors (no copies,
 //! no transposes): in training the `gemm` crate's, in the predictor's forward an in-place
-//! kernel that allocates nothing (`product.rs`). f32 arithmetic is never reassociated or
+//! kernel that allocates nothing (`product/in_place.rs`). f32 arithmetic is never reassociated or
 //! contracted, and the sums that must vectorise use [`lanes_sum`]'s fixed partial sums,
 //! so every SIMD width gives the same bits. Every pass runs with subnormal f32 values
 //! flushed to zero: trained weights and attention scores drift into the subnormal range,
