@@ -38,4 +38,16 @@ impl Summary {
             count: values.len(),
         })
     }
+
+    /// The root mean square of the values summarised: √(mean² + SD²).
+    ///
+    /// ```
+    /// use iastgcn::stats::Summary;
+    ///
+    /// let s = Summary::of(&[3.0, 4.0]).unwrap();
+    /// assert!((s.rms() - 12.5f64.sqrt()).abs() < 1e-12);
+    /// ```
+    pub fn rms(&self) -> f64 {
+        self.mean.hypot(self.sd)
+    }
 }

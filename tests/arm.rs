@@ -1105,6 +1105,7 @@ fn import_maps_a_tracker_export_by_column_names() {
         joint_scale: 1.0,
         length_scale: 1.0,
         channels: vec!["temp".into()],
+        ..PoseColumns::default()
     };
     let poses = parse_export(export, "export.csv", &columns).unwrap();
     assert_eq!(poses.poses.len(), 2);
@@ -1195,6 +1196,7 @@ fn the_real_arms_calibrate_to_the_level_measured() {
             joint_scale: 1.0,
             length_scale: 1.0,
             channels: vec![],
+            ..PoseColumns::default()
         };
         let poses = import_arm_poses(&dir.join(file), &columns).unwrap().poses;
         let (fit, held) = hold_out(&poses, 5);

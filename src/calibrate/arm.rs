@@ -141,6 +141,18 @@ impl ArmCalibration {
     }
 }
 
+/// Orientation errors (degrees) of `arm`'s prediction at each pose with a measured
+/// orientation: the angle of the rotation between predicted and measured.
+pub fn arm_orientation_errors(arm: &Arm, poses: &[ArmPose]) -> Vec<f64> {
+    poses
+        .iter()
+        .filter_map(|p| {
+            p.orientation
+                .map(|q| arm.measured_pose(p).rotation.angle_to(&q).to_degrees())
+        })
+        .collect()
+}
+
 /// Position errors (mm) of `arm`'s prediction at each pose.
 pub fn arm_position_errors(arm: &Arm, poses: &[ArmPose]) -> Vec<f64> {
     poses
@@ -175,8 +187,46 @@ fn check_poses(arm: &Arm, poses: &[ArmPose]) -> Result<(), ArmCalibrationError> 
 }
 
 /// `arm` with the base transform that best maps its tool points onto the measured
-/// ones (Kabsch: least squares over rotation and translation).
+/// ones (Kabsch: least squares over rotation and translation), and, where every pose
+/// has a measured orientation and the tool's rotation may be identified, the tool's
+/// rotation that best maps the predicted orientations onto the measured ones (the
+/// chordal mean of the offsets): a probe mounted at any angle, even half a turn from the
+/// description's, starts the fit within reach.
 pub fn register(arm: &Arm, poses: &[ArmPose]) -> Arm {
+    let based = register_base(arm, poses);
+    let names = arm.names();
+    let o = 5 * arm.joints() + 6;
+    let tool_free = (o + 3..o + 6).all(|i| arm.may_identify(&names[i]));
+    if !tool_free || poses.is_empty() || poses.iter().any(|p| p.orientation.is_none()) {
+        return based;
+    }
+    // The offset of each measured orientation from the predicted one, in the tool's
+    // frame; their chordal mean (the rotation nearest their sum) turns the tool.
+    let mut sum = Matrix3::zeros();
+    for p in poses {
+        if let Some(q) = p.orientation {
+            let offset = based.measured_pose(p).rotation.inverse() * q;
+            sum += offset.to_rotation_matrix().into_inner();
+        }
+    }
+    let svd = sum.svd(true, true);
+    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
+        return based;
+    };
+    let mut d = Matrix3::identity();
+    if (u * v_t).determinant() < 0.0 {
+        d[(2, 2)] = -1.0;
+    }
+    let mean = nalgebra::UnitQuaternion::from_matrix(&(u * d * v_t));
+    let turned = based.tool().rotation * mean;
+    let (roll, pitch, yaw) = turned.euler_angles();
+    let mut values = based.values.clone();
+    values[o + 3..o + 6].copy_from_slice(&[roll, pitch, yaw]);
+    based.with_values(values)
+}
+
+/// The base transform of [`register`].
+fn register_base(arm: &Arm, poses: &[ArmPose]) -> Arm {
     let o = 5 * arm.joints();
     let mut local = arm.values.clone();
     local[o..o + 6].copy_from_slice(&[0.0; 6]);
@@ -209,7 +259,9 @@ pub fn register(arm: &Arm, poses: &[ArmPose]) -> Arm {
     arm.with_values(local)
 }
 
-/// Weighted residuals (measured − predicted) of every pose under `values`.
+/// Weighted residuals (measured − predicted) of every pose under `values`: each
+/// reading's own standard deviations where it has them (`ArmPose::reading_sd`), else
+/// the configuration's.
 fn residuals(
     arm: &Arm,
     values: &[f64],
@@ -220,10 +272,17 @@ fn residuals(
     let mut r = DVector::zeros(per * poses.len());
     for (i, p) in poses.iter().enumerate() {
         let pose = arm.tool_pose_from(&p.joints, &p.approach, values);
-        let e = (p.position.coords - pose.translation.vector) / c.position_sd_mm;
+        let sd = p
+            .reading_sd
+            .map_or([c.position_sd_mm; 3], |s| s.position_mm);
+        let e = (p.position.coords - pose.translation.vector).component_div(&Vector3::from(sd));
         r.fixed_rows_mut::<3>(per * i).copy_from(&e);
         if let Some(q) = p.orientation {
-            let w = (pose.rotation.inverse() * q).scaled_axis() / c.attitude_sd_rad;
+            let sd = p
+                .reading_sd
+                .and_then(|s| s.orientation_rad())
+                .unwrap_or(c.attitude_sd_rad);
+            let w = (pose.rotation.inverse() * q).scaled_axis() / sd;
             r.fixed_rows_mut::<3>(per * i + 3).copy_from(&w);
         }
     }

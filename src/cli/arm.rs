@@ -89,15 +89,23 @@ pub fn simulate(
     Ok(())
 }
 
-fn row(r: &ErrorRow) -> String {
+fn row(r: &ErrorRow, oriented: bool) -> String {
     let (label, stage) = (&r.label, &r.stage);
-    match &r.position {
-        Some(s) => format!(
-            "{label:<22} {stage:<34} {:>9.1} {:>9.1} {:>9.1}",
-            s.mean, s.sd, s.max
-        ),
-        None => format!("{label:<22} {stage:<34} (no poses)"),
+    let Some(s) = &r.position else {
+        return format!("{label:<22} {stage:<34} (no poses)");
+    };
+    let mut line = format!(
+        "{label:<22} {stage:<34} {:>9.1} {:>9.1} {:>9.1}",
+        s.mean,
+        s.rms(),
+        s.max
+    );
+    if oriented {
+        if let Some(a) = &r.attitude {
+            line.push_str(&format!(" {:>10.1} {:>10.1}", a.mean, a.max));
+        }
     }
+    line
 }
 
 /// `calibrate --robot ARM.toml --data POSES.csv`: registration, identifiability and
@@ -134,12 +142,22 @@ pub fn calibrate(nominal: &Arm, data: &Path, scoring: &Scoring, out: &Path) -> a
     for k in &cal.kept {
         println!("  {:<20} {}", k.name, k.reason);
     }
+    let oriented = done.rows.iter().any(|r| r.attitude.is_some());
     println!(
-        "\n{:<22} {:<34} {:>9} {:>9} {:>9}",
-        "poses", "model", "mean µm", "SD µm", "max µm"
+        "\n{:<22} {:<34} {:>9} {:>9} {:>9}{}",
+        "poses",
+        "model",
+        "mean µm",
+        "RMS µm",
+        "max µm",
+        if oriented {
+            format!(" {:>10} {:>10}", "mean mdeg", "max mdeg")
+        } else {
+            String::new()
+        }
     );
     for r in &done.rows {
-        println!("{}", row(r));
+        println!("{}", row(r, oriented));
     }
     Ok(())
 }

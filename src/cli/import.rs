@@ -5,8 +5,45 @@ use std::path::PathBuf;
 
 use clap::{Args, ValueEnum};
 
-use iastgcn::data::arm_import::{import_arm_poses, Difference, PoseColumns};
+use iastgcn::data::arm_import::orientation::{read_transform, EulerFrame, EulerOrder};
+use iastgcn::data::arm_import::{
+    import_arm_poses, Difference, OrientationColumns, PoseColumns, RowOrder, SdColumns, TimeColumn,
+    TimeFormat,
+};
 use iastgcn::robot::arm::Arm;
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum Delimiter {
+    /// From the header line.
+    Auto,
+    Comma,
+    Semicolon,
+    Tab,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum DecimalMark {
+    /// From the cells: a comma-separated file has points; otherwise what the numbers show.
+    Auto,
+    Point,
+    Comma,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum Frame {
+    /// Each turn about the axis as already turned: R = R1·R2·R3.
+    Intrinsic,
+    /// Each turn about the fixed frame's axis: R = R3·R2·R1.
+    Extrinsic,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum Order {
+    /// The export's order.
+    File,
+    /// Sorted by the --time column.
+    Time,
+}
 
 #[derive(Clone, Copy, ValueEnum)]
 pub enum AngleUnit {
@@ -51,6 +88,52 @@ pub struct ImportArgs {
     /// Unit of the position and difference columns.
     #[arg(long, value_enum, default_value = "mm")]
     pub length_unit: LengthUnit,
+    /// The measured orientation as three Euler angles, columns in the order of
+    /// --euler-order's axes.
+    #[arg(long, value_delimiter = ',', requires_all = ["euler_order", "euler_frame"], conflicts_with = "quaternion")]
+    pub euler: Vec<String>,
+    /// The axes of the --euler columns' turns, e.g. xyz, zyx or zyz.
+    #[arg(long)]
+    pub euler_order: Option<String>,
+    /// Whether the Euler turns are about the turned axes (intrinsic) or the fixed ones.
+    #[arg(long, value_enum)]
+    pub euler_frame: Option<Frame>,
+    /// The measured orientation as a unit quaternion, columns named x,y,z,w.
+    #[arg(long, value_delimiter = ',')]
+    pub quaternion: Vec<String>,
+    /// Unit of the Euler angle columns and of the orientation SDs.
+    #[arg(long, value_enum, default_value = "deg")]
+    pub angle_unit: AngleUnit,
+    /// The reading's standard deviations: x,y,z (length unit), then with the orientation
+    /// optionally its three angles' (angle unit).
+    #[arg(long, value_delimiter = ',')]
+    pub sd: Vec<String>,
+    /// A 4×4 transform (mm, one row a line) from the measured frame to the tool point to
+    /// write: the pose written is the measured pose times it. Needs the orientation.
+    #[arg(long)]
+    pub tool: Option<PathBuf>,
+    /// Use the inverse of the --tool file's transform (a file that gives the measured
+    /// frame in the tool point's).
+    #[arg(long, requires = "tool")]
+    pub invert_tool: bool,
+    /// A time column; the pose file's first column becomes `time` (s).
+    #[arg(long, conflicts_with = "pose")]
+    pub time: Option<String>,
+    /// How --time is written: `seconds`; a date and time as `yyyymmddhhmmss` or `iso`
+    /// (2020-07-14T16:39:04), or a pattern in the time crate's format description such
+    /// as "[day].[month].[year] [hour]:[minute]:[second]" (then the seconds since the
+    /// earliest row).
+    #[arg(long, default_value = "seconds", requires = "time")]
+    pub time_format: String,
+    /// The order of the rows written: the export's, or sorted by --time.
+    #[arg(long, value_enum, default_value = "file")]
+    pub order: Order,
+    /// The separator between cells.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub delimiter: Delimiter,
+    /// The decimal mark of the numbers.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub decimal: DecimalMark,
     /// Further columns to keep as sensor channels, comma-separated.
     #[arg(long, value_delimiter = ',')]
     pub channels: Vec<String>,
@@ -87,8 +170,57 @@ pub fn run(args: &ImportArgs) -> anyhow::Result<()> {
             args.joints.len()
         );
     }
+    let orientation = match (args.euler.is_empty(), args.quaternion.is_empty()) {
+        (false, _) => Some(OrientationColumns::Euler {
+            columns: three("--euler", &args.euler)?,
+            order: EulerOrder::parse(args.euler_order.as_deref().unwrap_or_default())
+                .map_err(|e| anyhow::anyhow!("--euler-order: {e}"))?,
+            frame: match args.euler_frame {
+                Some(Frame::Extrinsic) => EulerFrame::Extrinsic,
+                _ => EulerFrame::Intrinsic,
+            },
+        }),
+        (_, false) => Some(OrientationColumns::Quaternion {
+            columns: <[String; 4]>::try_from(args.quaternion.clone()).map_err(|_| {
+                anyhow::anyhow!(
+                    "--quaternion: expected four columns x,y,z,w, got {}: {}",
+                    args.quaternion.len(),
+                    args.quaternion.join(",")
+                )
+            })?,
+        }),
+        _ => None,
+    };
+    let sd = match args.sd.len() {
+        0 => None,
+        3 | 6 => Some(SdColumns {
+            position: three("--sd", &args.sd[..3])?,
+            orientation: (args.sd.len() == 6)
+                .then(|| three("--sd", &args.sd[3..]))
+                .transpose()?,
+        }),
+        n => anyhow::bail!(
+            "--sd: expected x,y,z or x,y,z,rx,ry,rz columns, got {n}: {}",
+            args.sd.join(",")
+        ),
+    };
+    let tool = match &args.tool {
+        Some(path) => {
+            let t = read_transform(path)?;
+            Some(if args.invert_tool { t.inverse() } else { t })
+        }
+        None => None,
+    };
     let columns = PoseColumns {
         stamp: args.pose.clone(),
+        time: args.time.as_ref().map(|column| TimeColumn {
+            column: column.clone(),
+            format: TimeFormat::parse(&args.time_format),
+        }),
+        order: match args.order {
+            Order::File => RowOrder::File,
+            Order::Time => RowOrder::Time,
+        },
         joints: args.joints.clone(),
         position: three("--position", &args.position)?,
         difference,
@@ -101,15 +233,40 @@ pub fn run(args: &ImportArgs) -> anyhow::Result<()> {
             LengthUnit::Mm => 1.0,
             LengthUnit::M => 1000.0,
         },
+        orientation,
+        angle_scale: match args.angle_unit {
+            AngleUnit::Deg => std::f64::consts::PI / 180.0,
+            AngleUnit::Rad => 1.0,
+        },
+        sd,
+        tool,
+        delimiter: match args.delimiter {
+            Delimiter::Auto => None,
+            Delimiter::Comma => Some(b','),
+            Delimiter::Semicolon => Some(b';'),
+            Delimiter::Tab => Some(b'\t'),
+        },
+        decimal_comma: match args.decimal {
+            DecimalMark::Auto => None,
+            DecimalMark::Point => Some(false),
+            DecimalMark::Comma => Some(true),
+        },
         channels: args.channels.clone(),
     };
     let poses = import_arm_poses(&args.from, &columns)?;
     poses.write(&args.out)?;
+    let (position_sd, orientation_sd) = poses.reading_sd_columns();
     println!(
-        "wrote {} ({} poses, {} joints{}) from {}",
+        "wrote {} ({} poses, {} joints{}{}{}) from {}",
         args.out.display(),
         poses.poses.len(),
         args.joints.len(),
+        if poses.oriented { ", orientation" } else { "" },
+        match (position_sd, orientation_sd) {
+            (true, true) => ", position and orientation SDs",
+            (true, false) => ", position SDs",
+            _ => "",
+        },
         if poses.channels.is_empty() {
             String::new()
         } else {

@@ -1,14 +1,16 @@
 //! The pose CSV of a serial arm (docs/arms.md "The pose file"): one measured pose a line.
 //!
 //! ```text
-//! pose,q1,q2,…,qn,x,y,z[,rx,ry,rz][,channel,…]
+//! pose,q1,q2,…,qn,x,y,z[,rx,ry,rz][,sd_x,sd_y,sd_z[,sd_rx,sd_ry,sd_rz]][,channel,…]
 //! ```
 //!
 //! `pose` (a number) or `time` (s) first, increasing; the joint values `q1…qn` in
 //! degrees (revolute) or mm (prismatic), as many as the description has joints; the
 //! measured tool position `x,y,z` in mm in the tracker's frame; optionally its
-//! orientation `rx,ry,rz` (roll, pitch, yaw in degrees, R = Rz·Ry·Rx); then any number of
-//! further sensor channels, named freely. Every cell is a finite number.
+//! orientation `rx,ry,rz` (roll, pitch, yaw in degrees, R = Rz·Ry·Rx); optionally the
+//! reading's standard deviations (`ReadingSd`: mm per axis, then degrees per angle where
+//! the orientation is measured), each positive; then any number of further sensor
+//! channels, named freely. Every cell is a finite number.
 
 use std::path::Path;
 
@@ -16,7 +18,12 @@ use nalgebra::{Point3, UnitQuaternion};
 
 use super::recording::{file_err, DataError, Table};
 use crate::atomic;
-use crate::robot::arm::{set_approach, ArmPose};
+use crate::robot::arm::{set_approach, ArmPose, ReadingSd};
+
+/// The position SD columns of a pose file.
+pub const POSITION_SD_COLUMNS: [&str; 3] = ["sd_x", "sd_y", "sd_z"];
+/// The orientation SD columns.
+pub const ORIENTATION_SD_COLUMNS: [&str; 3] = ["sd_rx", "sd_ry", "sd_rz"];
 
 /// A pose file: its extra channels' names and its poses.
 #[derive(Clone, Debug, PartialEq)]
@@ -56,7 +63,7 @@ pub fn parse_arm_poses(text: &str, file: &str, joints: usize) -> Result<ArmPoses
     let table = Table::parse(text, file)?;
     let header = &table.header;
     let rule = format!(
-        "the header must start pose (or time),q1,…,q{joints},x,y,z, then optionally rx,ry,rz and further channels"
+        "the header must start pose (or time),q1,…,q{joints},x,y,z, then optionally rx,ry,rz, sd_x,sd_y,sd_z (and sd_rx,sd_ry,sd_rz with the orientation) and further channels"
     );
     table.check_unique(0)?;
     let mut expected: Vec<String> = vec!["pose".into()];
@@ -119,12 +126,61 @@ pub fn parse_arm_poses(text: &str, file: &str, joints: usize) -> Result<ArmPoses
         }
         next += 3;
     }
+    let group = |at: usize, names: [&str; 3]| -> Result<bool, DataError> {
+        if header.get(at).map(String::as_str) != Some(names[0]) {
+            return Ok(false);
+        }
+        for (k, want) in names.iter().enumerate() {
+            if header.get(at + k).map(String::as_str) != Some(want) {
+                return Err(table.at(
+                    1,
+                    at + k,
+                    format!("the columns {} go together; {rule}", names.join(",")),
+                ));
+            }
+        }
+        Ok(true)
+    };
+    let position_sd = group(next, POSITION_SD_COLUMNS)?.then_some(next);
+    if position_sd.is_some() {
+        next += 3;
+    }
+    let orientation_sd = group(next, ORIENTATION_SD_COLUMNS)?.then_some(next);
+    if let Some(at) = orientation_sd {
+        if position_sd.is_none() || !oriented {
+            return Err(table.at(
+                1,
+                at,
+                format!(
+                    "sd_rx,sd_ry,sd_rz need the orientation and sd_x,sd_y,sd_z before them; {rule}"
+                ),
+            ));
+        }
+        next += 3;
+    }
     let channels: Vec<String> = header[next..].to_vec();
     if let Some(i) = channels.iter().position(|c| c.is_empty()) {
         return Err(table.at(1, next + i, "a channel column without a name"));
     }
     let mut poses = Vec::with_capacity(table.rows.len());
-    for v in stamped_rows(&table)? {
+    for (line, v) in table.rows.iter().map(|r| r.0).zip(stamped_rows(&table)?) {
+        let sd = |at: usize| -> Result<[f64; 3], DataError> {
+            if let Some(k) = (at..at + 3).find(|&k| v[k] <= 0.0) {
+                return Err(table.at(
+                    line,
+                    k,
+                    format!("a standard deviation must be positive, got {}", v[k]),
+                ));
+            }
+            Ok([v[at], v[at + 1], v[at + 2]])
+        };
+        let reading_sd = match position_sd {
+            Some(at) => Some(ReadingSd {
+                position_mm: sd(at)?,
+                orientation_deg: orientation_sd.map(sd).transpose()?,
+            }),
+            None => None,
+        };
         let p = 1 + joints;
         let orientation = oriented.then(|| {
             let [r, pi, y] = [v[p + 3], v[p + 4], v[p + 5]].map(f64::to_radians);
@@ -136,6 +192,7 @@ pub fn parse_arm_poses(text: &str, file: &str, joints: usize) -> Result<ArmPoses
             position: Point3::new(v[p], v[p + 1], v[p + 2]),
             orientation,
             channels: v[next..].to_vec(),
+            reading_sd,
             approach: Vec::new(),
         });
     }
@@ -195,6 +252,13 @@ impl ArmPoses {
         if self.oriented {
             header.extend(["rx", "ry", "rz"].map(String::from));
         }
+        let (position_sd, orientation_sd) = self.reading_sd_columns();
+        if position_sd {
+            header.extend(POSITION_SD_COLUMNS.map(String::from));
+        }
+        if orientation_sd {
+            header.extend(ORIENTATION_SD_COLUMNS.map(String::from));
+        }
         header.extend(self.channels.iter().cloned());
         let mut out = header.join(",");
         out.push('\n');
@@ -209,11 +273,34 @@ impl ArmPoses {
                     .euler_angles();
                 cells.extend([r, pi, y].map(|a| a.to_degrees().to_string()));
             }
+            if let Some(sd) = p.reading_sd.filter(|_| position_sd) {
+                cells.extend(sd.position_mm.map(|v| v.to_string()));
+                if let Some(a) = sd.orientation_deg.filter(|_| orientation_sd) {
+                    cells.extend(a.map(|v| v.to_string()));
+                }
+            }
             cells.extend(p.channels.iter().map(f64::to_string));
             out.push_str(&cells.join(","));
             out.push('\n');
         }
         out
+    }
+
+    /// Whether the file has the position SD columns (every pose has its reading's SD)
+    /// and the orientation SD columns (every pose has them too, and the orientation).
+    pub fn reading_sd_columns(&self) -> (bool, bool) {
+        let all = |f: &dyn Fn(&ReadingSd) -> bool| {
+            !self.poses.is_empty()
+                && self
+                    .poses
+                    .iter()
+                    .all(|p| p.reading_sd.as_ref().is_some_and(f))
+        };
+        let position = all(&|_| true);
+        (
+            position,
+            position && self.oriented && all(&|s| s.orientation_deg.is_some()),
+        )
     }
 
     /// Writes the file atomically.

@@ -470,12 +470,26 @@ pub(super) struct Table<'a> {
 
 impl<'a> Table<'a> {
     pub(super) fn parse(text: &str, file: &'a str) -> Result<Table<'a>, DataError> {
+        Table::parse_delimited(text, file, b',', true)
+    }
+
+    /// [`Table::parse`] with cells separated by `delimiter` (`;` or a tab in exports
+    /// written for a locale whose decimal mark is the comma). Another program's export
+    /// may end without a newline (`final_newline` false): its last line is then read as
+    /// it is, a missing cell still refused.
+    pub(super) fn parse_delimited(
+        text: &str,
+        file: &'a str,
+        delimiter: u8,
+        final_newline: bool,
+    ) -> Result<Table<'a>, DataError> {
         let mut reader = csv::ReaderBuilder::new()
             .has_headers(true)
+            .delimiter(delimiter)
             .from_reader(text.as_bytes());
         // Our writers end every line with a newline, so a file that stops inside its last
         // line was cut short (a copy or a write that did not finish).
-        if !text.is_empty() && !text.ends_with('\n') {
+        if final_newline && !text.is_empty() && !text.ends_with('\n') {
             return Err(DataError::Line {
                 file: file.to_string(),
                 line: text.matches('\n').count() as u64 + 1,

@@ -550,6 +550,7 @@ fn target_poses(calibrated: &Arm, targets: &ArmTargets) -> Result<Vec<ArmPose>> 
             position: *point,
             orientation: None,
             channels: channels.clone(),
+            reading_sd: None,
             approach,
         });
     }

@@ -6,7 +6,8 @@
 use std::path::{Path, PathBuf};
 
 use crate::calibrate::arm::{
-    arm_position_errors, calibrate_arm, ArmCalibration, ArmCalibrationConfig,
+    arm_orientation_errors, arm_position_errors, calibrate_arm, ArmCalibration,
+    ArmCalibrationConfig,
 };
 use crate::calibrate::{self, file, hold_out, pose_errors, Calibration, EkfConfig};
 use crate::data::arm_poses::read_arm_poses;
@@ -221,6 +222,10 @@ pub fn calibrate_serial(
                 .iter()
                 .map(|e| e * 1e3)
                 .collect();
+            let mdeg: Vec<f64> = arm_orientation_errors(arm, poses)
+                .iter()
+                .map(|e| e * 1e3)
+                .collect();
             rows.push(ErrorRow {
                 label: if stage == "calibrated" {
                     String::new()
@@ -229,7 +234,7 @@ pub fn calibrate_serial(
                 },
                 stage: stage.into(),
                 position: Summary::of(&um),
-                attitude: None,
+                attitude: Summary::of(&mdeg),
             });
         }
     }

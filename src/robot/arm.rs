@@ -233,10 +233,35 @@ pub struct ArmPose {
     pub orientation: Option<UnitQuaternion<f64>>,
     /// Further sensor channels (names in the file's header).
     pub channels: Vec<f64>,
+    /// The instrument's standard deviation of this reading, where the file gives it.
+    pub reading_sd: Option<ReadingSd>,
     /// The direction each joint last moved before this pose (+1, −1; 0 where unknown:
     /// the file's first pose, a joint that has not moved yet), from the file's order
     /// ([`set_approach`]).
     pub approach: Vec<f64>,
+}
+
+/// The standard deviation an instrument gives with one reading (a laser tracker's spread
+/// over the samples it averaged): per axis of the measured position (mm, measurement
+/// frame) and, where the orientation is measured, of its three angles as exported
+/// (degrees). The calibration weights the reading by them (docs/arms.md "Calibration").
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ReadingSd {
+    /// x, y, z, mm.
+    pub position_mm: [f64; 3],
+    /// The three orientation angles, degrees.
+    pub orientation_deg: Option<[f64; 3]>,
+}
+
+impl ReadingSd {
+    /// One SD for the orientation as a whole (rad): the RMS of its three angles'.
+    pub fn orientation_rad(&self) -> Option<f64> {
+        self.orientation_deg.map(|a| {
+            (a.iter().map(|v| v * v).sum::<f64>() / 3.0)
+                .sqrt()
+                .to_radians()
+        })
+    }
 }
 
 /// Sets each pose's [`ArmPose::approach`] from the order of `poses` (measurement order):

@@ -234,6 +234,7 @@ impl ArmTwin {
                 position: p + noise,
                 orientation,
                 channels: vec![temp],
+                reading_sd: None,
                 approach: Vec::new(),
             });
             truth.push(p);

@@ -163,6 +163,7 @@ fn ur5_columns() -> PoseColumns {
         joint_scale: 1.0,
         length_scale: 1.0,
         channels: Vec::new(),
+        ..PoseColumns::default()
     }
 }
 
