@@ -330,6 +330,39 @@ fn distinct_poses(poses: &[ArmPose]) -> usize {
     keys.len()
 }
 
+/// What a new campaign fits again: where the tracker stands (`base.*`) and where the
+/// tool sits on the flange (`tool.*`).
+pub const PLACEMENT: [&str; 2] = ["base.*", "tool.*"];
+
+/// Re-registers `calibrated` for a new campaign from a few of its `poses`: only the
+/// tracker's and the tool's placement ([`PLACEMENT`]) are fitted, by the same
+/// registration, identifiability analysis and Levenberg–Marquardt as
+/// [`calibrate_arm`]; the kinematics, compliances and lost motions stay as calibrated.
+/// The result's arm keeps `calibrated`'s own `identify` list (for a later full
+/// calibration); its `kept` lists the placement parameters left alone, and why.
+pub fn reregister(
+    calibrated: &Arm,
+    poses: &[ArmPose],
+    c: &ArmCalibrationConfig,
+) -> Result<ArmCalibration, ArmCalibrationError> {
+    let mut spec = calibrated.spec.clone();
+    spec.identify = Some(PLACEMENT.map(String::from).to_vec());
+    let placement = Arm {
+        spec,
+        values: calibrated.values.clone(),
+    };
+    let mut fit = calibrate_arm(&placement, poses, c)?;
+    for arm in [&mut fit.arm, &mut fit.registered] {
+        arm.spec.identify.clone_from(&calibrated.spec.identify);
+    }
+    fit.kept.retain(|k| {
+        PLACEMENT
+            .iter()
+            .any(|p| p.strip_suffix('*').is_some_and(|p| k.name.starts_with(p)))
+    });
+    Ok(fit)
+}
+
 /// Calibrates `nominal` from `poses`: registration, identifiability, Levenberg–Marquardt.
 pub fn calibrate_arm(
     nominal: &Arm,

@@ -13,6 +13,7 @@ mod info;
 mod model;
 mod polish;
 mod reference;
+mod register;
 mod reproduce;
 mod scale;
 mod simulate;
@@ -53,6 +54,8 @@ enum Command {
     Import(import::ImportArgs),
     /// Identify the geometric errors (graded EKF) from a calibration measurement set.
     Calibrate(calibrate::CalibrateArgs),
+    /// Re-register a calibrated serial arm for a new campaign: tracker and tool fitted on a few poses.
+    Register(register::RegisterArgs),
     /// Build the dataset (features, labels, splits) from recordings and print its summary.
     Dataset(dataset::DatasetArgs),
     /// Write a freshly initialised model checkpoint (safetensors).
@@ -220,6 +223,7 @@ pub fn main() -> ExitCode {
             Command::Simulate(args) => simulate::run(&args),
             Command::Calibrate(args) => calibrate::run(&args),
             Command::Import(args) => import::run(&args),
+            Command::Register(args) => register::run(&args),
             Command::Dataset(args) => dataset::run(&args),
             Command::Init(args) => model::init(&args),
             Command::Forward(args) => open_gpu(

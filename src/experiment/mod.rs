@@ -11,6 +11,7 @@
 
 pub mod arm;
 pub mod calibration;
+pub mod campaign;
 pub mod demo;
 pub mod evaluate;
 pub mod forecast;
