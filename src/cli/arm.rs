@@ -6,6 +6,7 @@ use std::path::Path;
 use anyhow::Context;
 
 use iastgcn::atomic::Batch;
+use iastgcn::calibrate::arm::ArmCalibration;
 use iastgcn::data::arm_poses::{read_arm_poses, read_arm_targets, ArmPoses};
 use iastgcn::experiment::arm::{
     arm_run_config, calibrated_targets, corrected_targets, evaluate_arm, targets_csv,
@@ -108,6 +109,26 @@ fn row(r: &ErrorRow, oriented: bool) -> String {
     line
 }
 
+/// The identified parameters of `cal`: name, the value at `start`, the fitted value and
+/// its SD, each in its display unit; `heads` names the two value columns.
+pub(super) fn print_fitted(cal: &ArmCalibration, start: &[f64], heads: [&str; 2]) {
+    let names = cal.arm.names();
+    println!(
+        "\n{:<22} {:>14} {:>14} {:>12}",
+        "parameter", heads[0], heads[1], "± SD"
+    );
+    for (k, &i) in cal.identified.iter().enumerate() {
+        let (unit, f) = cal.arm.param_kind(i).display();
+        println!(
+            "{:<22} {:>14.5} {:>14.5} {:>12.5} {unit}",
+            names[i],
+            start[i] * f,
+            cal.arm.values[i] * f,
+            cal.sd[k] * f
+        );
+    }
+}
+
 /// `calibrate --robot ARM.toml --data POSES.csv`: registration, identifiability and
 /// Levenberg–Marquardt; writes the calibrated description to `out`.
 pub fn calibrate(nominal: &Arm, data: &Path, scoring: &Scoring, out: &Path) -> anyhow::Result<()> {
@@ -124,20 +145,7 @@ pub fn calibrate(nominal: &Arm, data: &Path, scoring: &Scoring, out: &Path) -> a
         cal.iterations,
         out.display()
     );
-    println!(
-        "\n{:<22} {:>14} {:>14} {:>12}",
-        "parameter", "start", "calibrated", "± SD"
-    );
-    for (k, &i) in cal.identified.iter().enumerate() {
-        let (unit, f) = nominal.param_kind(i).display();
-        println!(
-            "{:<22} {:>14.5} {:>14.5} {:>12.5} {unit}",
-            names[i],
-            cal.registered.values[i] * f,
-            cal.arm.values[i] * f,
-            cal.sd[k] * f
-        );
-    }
+    print_fitted(cal, &cal.registered.values, ["start", "calibrated"]);
     println!("\nleft at their nominal values:");
     for k in &cal.kept {
         println!("  {:<20} {}", k.name, k.reason);

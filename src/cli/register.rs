@@ -7,12 +7,11 @@ use std::path::PathBuf;
 use anyhow::Context;
 
 use iastgcn::calibrate::arm::{
-    arm_orientation_errors, arm_position_errors, reregister, ArmCalibration, ArmCalibrationConfig,
+    arm_error_summaries, reregister, ArmCalibration, ArmCalibrationConfig,
 };
 use iastgcn::data::arm_poses::read_arm_poses;
 use iastgcn::experiment::campaign::campaign_study;
 use iastgcn::robot::arm::{Arm, ArmPose};
-use iastgcn::stats::Summary;
 
 #[derive(clap::Args)]
 pub struct RegisterArgs {
@@ -42,18 +41,10 @@ pub struct RegisterArgs {
 }
 
 fn scores(label: &str, arm: &Arm, poses: &[ArmPose]) {
-    let um: Vec<f64> = arm_position_errors(arm, poses)
-        .iter()
-        .map(|e| e * 1e3)
-        .collect();
-    let mdeg: Vec<f64> = arm_orientation_errors(arm, poses)
-        .iter()
-        .map(|e| e * 1e3)
-        .collect();
-    let Some(p) = Summary::of(&um) else {
+    let (Some(p), turned) = arm_error_summaries(arm, poses) else {
         return;
     };
-    let turned = Summary::of(&mdeg)
+    let turned = turned
         .map(|a| format!(" {:>10.1} {:>10.1}", a.mean, a.max))
         .unwrap_or_default();
     println!(
@@ -109,7 +100,6 @@ pub fn run(args: &RegisterArgs) -> anyhow::Result<()> {
         args.robot.display()
     );
     save(&done, header, &args.out)?;
-    let names = calibrated.names();
     println!(
         "re-registered on {} poses ({} parameters: tracker and tool; {} Levenberg–Marquardt iterations); wrote {}",
         fit.len(),
@@ -117,20 +107,7 @@ pub fn run(args: &RegisterArgs) -> anyhow::Result<()> {
         done.iterations,
         args.out.display()
     );
-    println!(
-        "\n{:<22} {:>14} {:>14} {:>12}",
-        "parameter", "before", "fitted", "± SD"
-    );
-    for (k, &i) in done.identified.iter().enumerate() {
-        let (unit, f) = calibrated.param_kind(i).display();
-        println!(
-            "{:<22} {:>14.5} {:>14.5} {:>12.5} {unit}",
-            names[i],
-            calibrated.values[i] * f,
-            done.arm.values[i] * f,
-            done.sd[k] * f
-        );
-    }
+    super::arm::print_fitted(&done, &calibrated.values, ["before", "fitted"]);
     for k in &done.kept {
         println!("  {:<20} {}", k.name, k.reason);
     }

@@ -6,8 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use crate::calibrate::arm::{
-    arm_orientation_errors, arm_position_errors, calibrate_arm, ArmCalibration,
-    ArmCalibrationConfig,
+    arm_error_summaries, calibrate_arm, ArmCalibration, ArmCalibrationConfig,
 };
 use crate::calibrate::{self, file, hold_out, pose_errors, Calibration, EkfConfig};
 use crate::data::arm_poses::read_arm_poses;
@@ -218,14 +217,7 @@ pub fn calibrate_serial(
             ("initial (nominal, registered)", &cal.registered),
             ("calibrated", &cal.arm),
         ] {
-            let um: Vec<f64> = arm_position_errors(arm, poses)
-                .iter()
-                .map(|e| e * 1e3)
-                .collect();
-            let mdeg: Vec<f64> = arm_orientation_errors(arm, poses)
-                .iter()
-                .map(|e| e * 1e3)
-                .collect();
+            let (position, attitude) = arm_error_summaries(arm, poses);
             rows.push(ErrorRow {
                 label: if stage == "calibrated" {
                     String::new()
@@ -233,8 +225,8 @@ pub fn calibrate_serial(
                     label.clone()
                 },
                 stage: stage.into(),
-                position: Summary::of(&um),
-                attitude: Summary::of(&mdeg),
+                position,
+                attitude,
             });
         }
     }
