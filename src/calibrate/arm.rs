@@ -9,7 +9,6 @@ use nalgebra::{DMatrix, DVector, Matrix3, Point3, Vector3};
 
 use super::identify::identifiable;
 use crate::robot::arm::{Arm, ArmPose, CalibrationRecord, JointKind, ParamKind};
-use crate::stats::Summary;
 
 /// How the arm calibration scales, selects and stops.
 #[derive(Clone, Debug, PartialEq)]
@@ -152,20 +151,6 @@ pub fn arm_orientation_errors(arm: &Arm, poses: &[ArmPose]) -> Vec<f64> {
                 .map(|q| arm.measured_pose(p).rotation.angle_to(&q).to_degrees())
         })
         .collect()
-}
-
-/// The position error (µm) and, where the poses have orientation, the orientation error
-/// (mdeg) of `arm`'s prediction over `poses`; `None` without poses.
-pub fn arm_error_summaries(arm: &Arm, poses: &[ArmPose]) -> (Option<Summary>, Option<Summary>) {
-    let um: Vec<f64> = arm_position_errors(arm, poses)
-        .iter()
-        .map(|e| e * 1e3)
-        .collect();
-    let mdeg: Vec<f64> = arm_orientation_errors(arm, poses)
-        .iter()
-        .map(|e| e * 1e3)
-        .collect();
-    (Summary::of(&um), Summary::of(&mdeg))
 }
 
 /// Position errors (mm) of `arm`'s prediction at each pose.

@@ -6,10 +6,9 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 
-use iastgcn::calibrate::arm::{
-    arm_error_summaries, reregister, ArmCalibration, ArmCalibrationConfig,
-};
+use iastgcn::calibrate::arm::{reregister, ArmCalibration, ArmCalibrationConfig};
 use iastgcn::data::arm_poses::read_arm_poses;
+use iastgcn::experiment::calibration::arm_error_summaries;
 use iastgcn::experiment::campaign::campaign_study;
 use iastgcn::robot::arm::{Arm, ArmPose};
 

@@ -6,7 +6,8 @@
 use std::path::{Path, PathBuf};
 
 use crate::calibrate::arm::{
-    arm_error_summaries, calibrate_arm, ArmCalibration, ArmCalibrationConfig,
+    arm_orientation_errors, arm_position_errors, calibrate_arm, ArmCalibration,
+    ArmCalibrationConfig,
 };
 use crate::calibrate::{self, file, hold_out, pose_errors, Calibration, EkfConfig};
 use crate::data::arm_poses::read_arm_poses;
@@ -138,6 +139,23 @@ pub fn calibrate_hybrid(
         machine_seed,
         rows,
     })
+}
+
+/// The position error (µm) and, where the poses have orientation, the orientation error
+/// (mdeg) of `arm`'s prediction over `poses`; `None` without poses.
+pub fn arm_error_summaries(
+    arm: &Arm,
+    poses: &[crate::robot::arm::ArmPose],
+) -> (Option<Summary>, Option<Summary>) {
+    let um: Vec<f64> = arm_position_errors(arm, poses)
+        .iter()
+        .map(|e| e * 1e3)
+        .collect();
+    let mdeg: Vec<f64> = arm_orientation_errors(arm, poses)
+        .iter()
+        .map(|e| e * 1e3)
+        .collect();
+    (Summary::of(&um), Summary::of(&mdeg))
 }
 
 /// A serial arm's calibration and its scores.
