@@ -442,7 +442,6 @@ fn the_real_ur10_calibrates_in_6d_to_the_level_measured() {
     assert_eq!(file.reading_sd_columns(), (true, true));
     let (fit, held) = hold_out(&file.poses, 5);
     let cal = calibrate_arm(&ur10(), &fit, &ArmCalibrationConfig::default()).unwrap();
-    let mean = |v: Vec<f64>| v.iter().sum::<f64>() / v.len() as f64;
     let before = mean(arm_position_errors(&cal.registered, &held)) * 1e3;
     let after = mean(arm_position_errors(&cal.arm, &held)) * 1e3;
     let turned = mean(arm_orientation_errors(&cal.arm, &held)) * 1e3;

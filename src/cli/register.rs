@@ -65,32 +65,44 @@ fn save(fit: &ArmCalibration, header: String, out: &std::path::Path) -> anyhow::
 
 pub fn run(args: &RegisterArgs) -> anyhow::Result<()> {
     let calibrated = Arm::load(&args.robot)?;
-    let poses = read_arm_poses(&args.data, calibrated.joints())?.poses;
+    let all = read_arm_poses(&args.data, calibrated.joints())?.poses;
     let nominal = args.compare.as_ref().map(|p| Arm::load(p)).transpose()?;
     let (fit, held): (Vec<ArmPose>, Vec<ArmPose>) = match (args.fit, &args.test) {
         (Some(n), _) => {
             anyhow::ensure!(
-                n >= 1 && n * args.blocks < poses.len(),
+                n >= 1 && n * args.blocks < all.len(),
                 "--fit {n} --blocks {}: {} poses in {}, and some must be left to score",
                 args.blocks,
-                poses.len(),
+                all.len(),
                 args.data.display()
             );
-            (poses[..n].to_vec(), poses[n..].to_vec())
+            (all[..n].to_vec(), all[n..].to_vec())
         }
-        (None, Some(test)) => (poses, read_arm_poses(test, calibrated.joints())?.poses),
-        (None, None) => (poses, Vec::new()),
+        (None, Some(test)) => (
+            all.clone(),
+            read_arm_poses(test, calibrated.joints())?.poses,
+        ),
+        (None, None) => (all.clone(), Vec::new()),
     };
-    let c = ArmCalibrationConfig::default();
-    let done = reregister(&calibrated, &fit, &c)
-        .map_err(anyhow::Error::from)
-        .with_context(|| {
-            format!(
-                "re-registering {} on {}",
-                args.robot.display(),
-                args.data.display()
-            )
-        })?;
+    // With --compare the study's first block is this fit: it is done once.
+    let study = match (args.fit, &nominal) {
+        (Some(n), Some(nominal)) => {
+            Some(campaign_study(&calibrated, nominal, &all, n, args.blocks)?)
+        }
+        _ => None,
+    };
+    let done = match &study {
+        Some(s) => s.first.clone(),
+        None => reregister(&calibrated, &fit, &ArmCalibrationConfig::default())
+            .map_err(anyhow::Error::from)
+            .with_context(|| {
+                format!(
+                    "re-registering {} on {}",
+                    args.robot.display(),
+                    args.data.display()
+                )
+            })?,
+    };
     let header = format!(
         "# {} re-registered by iastgcn for a new campaign: tracker and tool fitted on {} poses of {}, the kinematics kept from {}.\n",
         calibrated.spec.name,
@@ -118,9 +130,7 @@ pub fn run(args: &RegisterArgs) -> anyhow::Result<()> {
     if !held.is_empty() {
         scores(&format!("scored ({})", held.len()), &done.arm, &held);
     }
-    if let (Some(n), Some(nominal)) = (args.fit, &nominal) {
-        let all = read_arm_poses(&args.data, calibrated.joints())?.poses;
-        let study = campaign_study(&calibrated, nominal, &all, n, args.blocks)?;
+    if let Some(study) = &study {
         println!("\n{}", study.markdown());
     }
     Ok(())

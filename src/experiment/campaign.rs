@@ -4,6 +4,7 @@
 //! kinematics, against a full calibration on the same few poses and against registering
 //! the nominal kinematics on them?
 
+use super::report::seeds::Spread;
 use crate::calibrate::arm::{
     arm_orientation_errors, arm_position_errors, calibrate_arm, reregister, ArmCalibration,
     ArmCalibrationConfig, ArmCalibrationError,
@@ -88,7 +89,8 @@ pub fn campaign_study(
             refused: None,
         })
         .collect();
-    let mut first = None;
+    // The first block's re-registration is what the caller writes: refused, the study is.
+    let first = reregister(calibrated, &poses[..fit.min(poses.len())], &c)?;
     for k in 0..blocks {
         let block = k * fit..((k + 1) * fit).min(poses.len());
         let fitted = &poses[block.clone()];
@@ -100,6 +102,7 @@ pub fn campaign_study(
             .collect();
         for row in &mut rows {
             let result = match row.method {
+                CampaignMethod::Reregistered if k == 0 => Ok(first.clone()),
                 CampaignMethod::Reregistered => reregister(calibrated, fitted, &c),
                 CampaignMethod::FullCalibration => calibrate_arm(nominal, fitted, &c),
                 CampaignMethod::NominalRegistered => reregister(nominal, fitted, &c),
@@ -111,12 +114,7 @@ pub fn campaign_study(
                         .push(mean(arm_position_errors(&cal.arm, &scored)));
                     row.orientation_mdeg
                         .push(mean(arm_orientation_errors(&cal.arm, &scored)));
-                    if k == 0 && row.method == CampaignMethod::Reregistered {
-                        first = Some(cal);
-                    }
                 }
-                // The first block's re-registration is the one the caller needs.
-                Err(e) if k == 0 && row.method == CampaignMethod::Reregistered => return Err(e),
                 Err(e) => {
                     row.position_um.push(None);
                     row.orientation_mdeg.push(None);
@@ -125,7 +123,6 @@ pub fn campaign_study(
             }
         }
     }
-    let first = first.ok_or(ArmCalibrationError::NothingToIdentify)?;
     Ok(CampaignStudy {
         fit,
         scored: poses.len() - fit.min(poses.len()),
@@ -140,21 +137,12 @@ impl CampaignStudy {
     pub fn markdown(&self) -> String {
         let cell = |v: &[Option<f64>]| {
             let got: Vec<f64> = v.iter().flatten().copied().collect();
+            let missing = v.len() - got.len();
             match got.len() {
                 0 => "refused".to_string(),
                 1 => format!("{:.1}", got[0]),
-                n => {
-                    let mean = got.iter().sum::<f64>() / n as f64;
-                    let sd = (got.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64)
-                        .sqrt();
-                    let missing = v.len() - n;
-                    let note = if missing > 0 {
-                        format!(" ({missing} refused)")
-                    } else {
-                        String::new()
-                    };
-                    format!("{mean:.1} ± {sd:.1}{note}")
-                }
+                _ if missing > 0 => format!("{} ({missing} refused)", Spread::of(&got).text(1)),
+                _ => Spread::of(&got).text(1),
             }
         };
         let blocks = self.rows.first().map_or(0, |r| r.position_um.len());
