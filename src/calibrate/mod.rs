@@ -14,4 +14,4 @@ pub use identify::{
     StageReport,
 };
 pub use residual::residual;
-pub use scoring::{hold_out, pose_errors};
+pub use scoring::{hold_out, hold_out_block, hold_out_random, pose_errors, random_positions};

@@ -19,6 +19,44 @@ pub fn hold_out<T: Clone>(all: &[T], every: usize) -> (Vec<T>, Vec<T>) {
     )
 }
 
+/// `(fit, held out)`: the measurements at positions `block` of the file's order are held
+/// out (a stretch of time, a slab of a grid); the others are fitted, in order.
+pub fn hold_out_block<T: Clone>(all: &[T], block: std::ops::Range<usize>) -> (Vec<T>, Vec<T>) {
+    let (fit, held): (Vec<_>, Vec<_>) = all
+        .iter()
+        .enumerate()
+        .partition(|(i, _)| !block.contains(i));
+    (
+        fit.into_iter().map(|(_, m)| m.clone()).collect(),
+        held.into_iter().map(|(_, m)| m.clone()).collect(),
+    )
+}
+
+/// The positions of `all.len()` measurements drawn at random (`count` of them, seeded),
+/// in ascending order: the same seed draws the same positions.
+pub fn random_positions(len: usize, count: usize, seed: u64) -> Vec<usize> {
+    use rand::seq::index::sample;
+    use rand::SeedableRng;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut picked = sample(&mut rng, len, count.min(len)).into_vec();
+    picked.sort_unstable();
+    picked
+}
+
+/// `(fit, held out)`: `count` measurements drawn at random (seeded) are held out; both
+/// sides keep the file's order.
+pub fn hold_out_random<T: Clone>(all: &[T], count: usize, seed: u64) -> (Vec<T>, Vec<T>) {
+    let mut held_at = vec![false; all.len()];
+    for i in random_positions(all.len(), count, seed) {
+        held_at[i] = true;
+    }
+    let (fit, held): (Vec<_>, Vec<_>) = all.iter().zip(&held_at).partition(|(_, &h)| !h);
+    (
+        fit.into_iter().map(|(m, _)| m.clone()).collect(),
+        held.into_iter().map(|(m, _)| m.clone()).collect(),
+    )
+}
+
 /// Position (µm) and attitude (mdeg) error of `model`'s prediction of each measured
 /// pose, in the tracker's frame through the model's registration.
 pub fn pose_errors(model: &Robot, ms: &[Measurement]) -> Result<(Vec<f64>, Vec<f64>), RobotError> {

@@ -11,7 +11,9 @@ use iastgcn::data::arm_poses::{read_arm_poses, read_arm_targets, ArmPoses};
 use iastgcn::experiment::arm::{
     arm_run_config, calibrated_targets, corrected_targets, evaluate_arm, targets_csv,
 };
-use iastgcn::experiment::calibration::{calibrate_serial, ErrorRow, Scoring};
+use iastgcn::experiment::block_study::{block_study, BlockStudy, BlockStudyConfig};
+use iastgcn::experiment::calibration::{calibrate_serial, ErrorRow, HoldOut, Scoring};
+use iastgcn::experiment::report::seeds::Spread;
 use iastgcn::model::Variant;
 use iastgcn::robot::arm::Arm;
 use iastgcn::stats::Summary;
@@ -90,13 +92,14 @@ pub fn simulate(
     Ok(())
 }
 
-fn row(r: &ErrorRow, oriented: bool) -> String {
+/// One row of the table, its label `width` characters wide.
+fn row(r: &ErrorRow, oriented: bool, width: usize) -> String {
     let (label, stage) = (&r.label, &r.stage);
     let Some(s) = &r.position else {
-        return format!("{label:<22} {stage:<34} (no poses)");
+        return format!("{label:<width$} {stage:<34} (no poses)");
     };
     let mut line = format!(
-        "{label:<22} {stage:<34} {:>9.1} {:>9.1} {:>9.1}",
+        "{label:<width$} {stage:<34} {:>9.1} {:>9.1} {:>9.1}",
         s.mean,
         s.rms(),
         s.max
@@ -131,7 +134,13 @@ pub(super) fn print_fitted(cal: &ArmCalibration, start: &[f64], heads: [&str; 2]
 
 /// `calibrate --robot ARM.toml --data POSES.csv`: registration, identifiability and
 /// Levenberg–Marquardt; writes the calibrated description to `out`.
-pub fn calibrate(nominal: &Arm, data: &Path, scoring: &Scoring, out: &Path) -> anyhow::Result<()> {
+pub fn calibrate(
+    nominal: &Arm,
+    data: &Path,
+    scoring: &Scoring,
+    study: Option<&BlockStudyConfig>,
+    out: &Path,
+) -> anyhow::Result<()> {
     let done = calibrate_serial(nominal, data, scoring)?;
     done.save(out)?;
     let cal = &done.calibration;
@@ -151,8 +160,15 @@ pub fn calibrate(nominal: &Arm, data: &Path, scoring: &Scoring, out: &Path) -> a
         println!("  {:<20} {}", k.name, k.reason);
     }
     let oriented = done.rows.iter().any(|r| r.attitude.is_some());
+    let width = done
+        .rows
+        .iter()
+        .map(|r| r.label.chars().count())
+        .max()
+        .unwrap_or(0)
+        .max(22);
     println!(
-        "\n{:<22} {:<34} {:>9} {:>9} {:>9}{}",
+        "\n{:<width$} {:<34} {:>9} {:>9} {:>9}{}",
         "poses",
         "model",
         "mean µm",
@@ -165,9 +181,123 @@ pub fn calibrate(nominal: &Arm, data: &Path, scoring: &Scoring, out: &Path) -> a
         }
     );
     for r in &done.rows {
-        println!("{}", row(r, oriented));
+        println!("{}", row(r, oriented, width));
+    }
+    if let (
+        Some(config),
+        Scoring::HoldOut(HoldOut::Block {
+            from_percent,
+            to_percent,
+        }),
+    ) = (study, scoring)
+    {
+        let block = HoldOut::block_range(done.file.poses.len(), *from_percent, *to_percent);
+        let spinner = indicatif::ProgressBar::new_spinner().with_message(format!(
+            "{} random hold-outs of {} poses",
+            config.random_splits,
+            block.len()
+        ));
+        spinner.enable_steady_tick(std::time::Duration::from_millis(200));
+        let result = block_study(nominal, &done.file.poses, block, cal, config);
+        spinner.finish_and_clear();
+        print_block_study(&result?, &done.file.stamp);
     }
     Ok(())
+}
+
+/// `calibrate --hold-out-block … --compare-random K --reregister N`: the block against
+/// random hold-outs on the same poses, re-registered, and along the block.
+fn print_block_study(study: &BlockStudy, stamp: &str) {
+    let hours = stamp == "time";
+    let show = |v: f64| {
+        if hours {
+            format!("{:.1} h", v / 3600.0)
+        } else {
+            format!("{v:.0}")
+        }
+    };
+    let cell = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.1}"));
+    let (Some(first), Some(last)) = (study.parts.first(), study.parts.last()) else {
+        return;
+    };
+    println!(
+        "\nthe block: poses {}–{} of the file ({} poses, {} {} to {})",
+        study.block.start + 1,
+        study.block.end,
+        study.block.len(),
+        stamp,
+        show(first.stamps.0),
+        show(last.stamps.1)
+    );
+    if let Some(p) = &study.block_errors.0 {
+        println!(
+            "  calibrated on the other poses: {:.1} µm mean, {:.1} RMS, {:.1} max{}",
+            p.mean,
+            p.rms(),
+            p.max,
+            study
+                .block_errors
+                .1
+                .as_ref()
+                .map_or(String::new(), |a| format!("; {:.1} mdeg mean", a.mean))
+        );
+    }
+    if !study.random.is_empty() {
+        let spread = |v: Vec<f64>| Spread::of(&v).text(1);
+        let inside: Vec<f64> = study.random.iter().filter_map(|r| r.block_um).collect();
+        let inside_mdeg: Vec<f64> = study.random.iter().filter_map(|r| r.block_mdeg).collect();
+        let all: Vec<f64> = study.random.iter().map(|r| r.all_um).collect();
+        let counts: Vec<String> = study
+            .random
+            .iter()
+            .map(|r| r.block_poses.to_string())
+            .collect();
+        println!(
+            "  random hold-outs of as many poses (seeds 1–{}), on the block's poses they held out ({}): {} µm mean{}",
+            study.random.len(),
+            counts.join(", "),
+            spread(inside),
+            if inside_mdeg.is_empty() {
+                String::new()
+            } else {
+                format!(", {} mdeg", spread(inside_mdeg))
+            }
+        );
+        println!(
+            "  the same random hold-outs on every pose they held out: {} µm mean (mean ± SD over seeds)",
+            spread(all)
+        );
+    }
+    if let Some(r) = &study.reregistered {
+        let mdeg = |a: &Option<Summary>| {
+            a.as_ref()
+                .map_or(String::new(), |a| format!(", {:.1} mdeg", a.mean))
+        };
+        println!(
+            "  re-registered on {} poses spread over the block, on its other {}: {:.1} µm{} before, {:.1} µm{} after",
+            r.fitted,
+            r.after.0.count,
+            r.before.0.mean,
+            mdeg(&r.before.1),
+            r.after.0.mean,
+            mdeg(&r.after.1)
+        );
+    }
+    println!(
+        "\n{:<6} {:>13} {:>22} {:>12} {:>12} {:>14}",
+        "part", "poses", stamp, "block µm", "random µm", "re-reg. µm"
+    );
+    for (k, p) in study.parts.iter().enumerate() {
+        println!(
+            "{:<6} {:>13} {:>22} {:>12.1} {:>12} {:>14}",
+            k + 1,
+            format!("{}–{}", p.poses.start + 1, p.poses.end),
+            format!("{}–{}", show(p.stamps.0), show(p.stamps.1)),
+            p.block_um,
+            cell(p.random_um),
+            cell(p.reregistered_um)
+        );
+    }
 }
 
 /// `evaluate --robot ARM.toml --data POSES.csv…`: calibration on the training blocks,

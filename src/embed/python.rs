@@ -18,7 +18,9 @@ use serde::Serialize;
 
 use super::{panic_message, Loaded};
 use crate::data::DataSources;
-use crate::experiment::calibration::{calibrate_hybrid, calibrate_serial, ErrorRow, Scoring};
+use crate::experiment::calibration::{
+    calibrate_hybrid, calibrate_serial, ErrorRow, HoldOut, Scoring,
+};
 use crate::experiment::evaluate::HeldOutConfig;
 use crate::gpu::Device;
 use crate::model::{Backend, Checkpoint, Features, Residual};
@@ -405,7 +407,7 @@ fn long_call<T: Send>(
 fn scoring(hold_out_every: usize, test: Option<PathBuf>) -> Scoring {
     match test {
         Some(t) => Scoring::TestFile(t),
-        None => Scoring::HoldOutEvery(hold_out_every),
+        None => Scoring::HoldOut(HoldOut::Every(hold_out_every)),
     }
 }
 

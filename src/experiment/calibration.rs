@@ -3,13 +3,16 @@
 //! Levenberg–Marquardt. `iastgcn calibrate` prints what these return; the Python
 //! package returns it as dictionaries.
 
+use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use crate::calibrate::arm::{
     arm_orientation_errors, arm_position_errors, calibrate_arm, ArmCalibration,
     ArmCalibrationConfig,
 };
-use crate::calibrate::{self, file, hold_out, pose_errors, Calibration, EkfConfig};
+use crate::calibrate::{
+    self, file, hold_out, hold_out_block, hold_out_random, pose_errors, Calibration, EkfConfig,
+};
 use crate::data::arm_poses::read_arm_poses;
 use crate::data::{read_measurements, recording_measurements};
 use crate::error::{Error, Result};
@@ -21,11 +24,90 @@ use crate::twin::RunInfo;
 /// How the poses of a measurement file are scored.
 #[derive(Clone, Debug)]
 pub enum Scoring {
-    /// Every how many poses one is held out of the fit (0: none; the fitted poses are
-    /// then scored, an optimistic figure).
-    HoldOutEvery(usize),
+    /// Some poses of the file are held out of the fit and scored.
+    HoldOut(HoldOut),
     /// Every pose is fitted; the poses of this separate file are scored.
     TestFile(PathBuf),
+}
+
+/// Which poses of a measurement file are held out of the fit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum HoldOut {
+    /// Every how many poses one is held out (0: none; the fitted poses are then scored,
+    /// an optimistic figure).
+    Every(usize),
+    /// The poses from `from_percent` to `to_percent` of the file's order: a stretch of
+    /// time (the last 30 %: 70 to 100), or a slab of a grid swept in slabs.
+    Block {
+        /// Where the block starts, per cent of the poses.
+        from_percent: f64,
+        /// Where it ends.
+        to_percent: f64,
+    },
+    /// `percent` per cent of the poses, drawn at random with `seed`.
+    Random {
+        /// How many, per cent of the poses.
+        percent: f64,
+        /// The draw's seed: the same seed holds out the same poses.
+        seed: u64,
+    },
+}
+
+impl HoldOut {
+    /// The positions, in the file's order, of a block from `from_percent` to `to_percent`
+    /// of `len` poses (rounded to the nearest pose).
+    pub fn block_range(len: usize, from_percent: f64, to_percent: f64) -> Range<usize> {
+        let at = |p: f64| ((p / 100.0 * len as f64).round() as usize).min(len);
+        at(from_percent)..at(to_percent)
+    }
+
+    /// `(fit, held out)` of `all`, each in the file's order. A block outside 0–100 % or
+    /// a random share outside 0–100 % is refused.
+    pub fn split<T: Clone>(&self, all: &[T]) -> Result<(Vec<T>, Vec<T>)> {
+        match *self {
+            HoldOut::Every(every) => Ok(hold_out(all, every)),
+            HoldOut::Block {
+                from_percent,
+                to_percent,
+            } => {
+                let stretch = (0.0..100.0).contains(&from_percent)
+                    && from_percent < to_percent
+                    && to_percent <= 100.0;
+                if !stretch {
+                    return Err(Error::Invalid(format!(
+                        "the held-out block runs from {from_percent} to {to_percent} % of the poses: \
+                         it must be a stretch within 0 to 100 %"
+                    )));
+                }
+                let block = Self::block_range(all.len(), from_percent, to_percent);
+                Ok(hold_out_block(all, block))
+            }
+            HoldOut::Random { percent, seed } => {
+                if !(percent > 0.0 && percent < 100.0) {
+                    return Err(Error::Invalid(format!(
+                        "{percent} % of the poses held out at random: it must be above 0 and below 100"
+                    )));
+                }
+                let count = (percent / 100.0 * all.len() as f64).round() as usize;
+                Ok(hold_out_random(all, count, seed))
+            }
+        }
+    }
+
+    /// What a table calls the held-out poses: "held out", "held out, 70–100 % of the
+    /// order", "held out at random (30 %, seed 1)".
+    pub fn label(&self) -> String {
+        match *self {
+            HoldOut::Every(_) => "held out".into(),
+            HoldOut::Block {
+                from_percent,
+                to_percent,
+            } => format!("held out, {from_percent}–{to_percent} % of the order"),
+            HoldOut::Random { percent, seed } => {
+                format!("held out at random ({percent} %, seed {seed})")
+            }
+        }
+    }
 }
 
 /// One row of the before/after table: a set of poses under one model.
@@ -94,7 +176,7 @@ pub fn calibrate_hybrid(
     let all = read_measurements(measurements)?;
     let (fit, held) = match scoring {
         Scoring::TestFile(test) => (all, read_measurements(test)?),
-        Scoring::HoldOutEvery(every) => hold_out(&all, *every),
+        Scoring::HoldOut(h) => h.split(&all)?,
     };
     let cal = calibrate::calibrate(&nominal, &fit, &EkfConfig::default()).map_err(|e| {
         Error::from(e).context(format!("calibrating from {}", measurements.display()))
@@ -125,7 +207,10 @@ pub fn calibrate_hybrid(
         // Nothing held out: the fitted poses (the filter saw them) rather than no table.
         _ if held.is_empty() => both(format!("fitted poses ({})", fit.len()), &fit)?,
         Scoring::TestFile(t) => both(format!("test file ({}){}", held.len(), test_name(t)), &held)?,
-        Scoring::HoldOutEvery(_) => both(format!("held-out poses ({})", held.len()), &held)?,
+        Scoring::HoldOut(HoldOut::Every(_)) => {
+            both(format!("held-out poses ({})", held.len()), &held)?
+        }
+        Scoring::HoldOut(h) => both(format!("{} ({})", h.label(), held.len()), &held)?,
     }
     for (path, poses) in &recordings {
         let label = path
@@ -169,6 +254,8 @@ pub struct SerialCalibration {
     pub rows: Vec<ErrorRow>,
     /// The first line of the calibrated description file: what was fitted from where.
     pub header: String,
+    /// The data file, every pose in its order (fitted and held out).
+    pub file: crate::data::arm_poses::ArmPoses,
 }
 
 impl SerialCalibration {
@@ -195,14 +282,14 @@ pub fn calibrate_serial(
 ) -> Result<SerialCalibration> {
     let file = read_arm_poses(data, nominal.joints())?;
     let (fit, held) = match scoring {
-        Scoring::HoldOutEvery(every) => hold_out(&file.poses, *every),
+        Scoring::HoldOut(h) => h.split(&file.poses)?,
         Scoring::TestFile(test) => (
             file.poses.clone(),
             read_arm_poses(test, nominal.joints())?.poses,
         ),
     };
     let held_label = match scoring {
-        Scoring::HoldOutEvery(_) => format!("held out ({})", held.len()),
+        Scoring::HoldOut(h) => format!("{} ({})", h.label(), held.len()),
         Scoring::TestFile(test) => format!("test ({}){}", held.len(), test_name(test)),
     };
     let cal = calibrate_arm(nominal, &fit, &ArmCalibrationConfig::default()).map_err(|e| {
@@ -219,7 +306,7 @@ pub fn calibrate_serial(
         fit.len(),
         held.len(),
         match scoring {
-            Scoring::HoldOutEvery(_) => "held out".to_string(),
+            Scoring::HoldOut(h) => h.label(),
             Scoring::TestFile(t) => format!("scored from {}", t.display()),
         }
     );
@@ -253,5 +340,6 @@ pub fn calibrate_serial(
         scored: held.len(),
         rows,
         header,
+        file,
     })
 }

@@ -5,11 +5,13 @@
 //! folders of several twin machines (`machines`), what their jobs share (shards, pinned
 //! setups, job records, TOML files: `jobs`), the scaling study of error against
 //! training data (`scale`), the model recommended on a validation session
-//! (`recommend`), a serial arm's residual models on held-out poses (`arm`), and the
+//! (`recommend`), a serial arm's residual models on held-out poses (`arm`), how a
+//! calibration holds on a held-out stretch of a pose file (`block_study`), and the
 //! independent runs of an evaluation on every core (`parallel`), and how long the demo
 //! will take on this machine (`forecast`).
 
 pub mod arm;
+pub mod block_study;
 pub mod calibration;
 pub mod campaign;
 pub mod demo;
