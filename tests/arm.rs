@@ -927,6 +927,7 @@ fn residual_models_learn_what_calibration_leaves_on_held_out_poses() {
             rows.push(ArmRow {
                 model: relabel(&r.model, seed),
                 errors_mm,
+                orientation_mdeg: r.orientation_mdeg.clone(),
             });
         }
     }
@@ -965,6 +966,37 @@ fn residual_models_learn_what_calibration_leaves_on_held_out_poses() {
             .filter(|l| l.starts_with("iastgcn,2,"))
             .count(),
         1
+    );
+    // A position-only file: no orientation columns in the table, empty ones in the CSV.
+    assert!(!table.contains("mdeg"), "{table}");
+    assert!(seeded.csv().lines().skip(1).all(|l| l.ends_with(",,")));
+    // With orientation, each row's mean (± SD over seeds) and max, in both.
+    let mut angled = seeded.clone();
+    for (k, r) in angled.rows.iter_mut().enumerate() {
+        r.orientation_mdeg = vec![10.0 * (k + 1) as f64, 30.0 * (k + 1) as f64];
+    }
+    let table = angled.markdown();
+    assert!(
+        table.contains("| mean mdeg (± SD over 2 seeds) | max mdeg |"),
+        "{table}"
+    );
+    let iastgcn_row = table
+        .lines()
+        .find(|l| l.starts_with("| iastgcn |"))
+        .unwrap();
+    // (iastgcn's seeds are rows 4 and 5: 40 and 50 mdeg mean, 120 and 150 max.)
+    assert!(
+        iastgcn_row.ends_with("| 90.0 ± 14.1 | 150.0 |"),
+        "{iastgcn_row}"
+    );
+    assert!(
+        angled.csv().contains("\ninitial,,")
+            && angled
+                .csv()
+                .lines()
+                .nth(1)
+                .unwrap()
+                .ends_with(",20.000,30.000")
     );
     assert!(
         result.test_poses.iter().all(|&(_, p)| p >= 900),
@@ -1090,6 +1122,39 @@ fn residual_models_learn_what_calibration_leaves_on_held_out_poses() {
 /// commanded minus measured, joints in degrees) becomes a pose file by column names;
 /// units convert, channels carry over, and a missing column or a stamp that does not
 /// increase names the export.
+#[test]
+fn the_orientation_left_is_the_angle_between_measured_and_corrected() {
+    use iastgcn::experiment::arm::rotation_left_mdeg;
+    let about = |axis: usize, mdeg: f64| {
+        let mut v = [0.0; 6];
+        v[3 + axis] = mdeg;
+        v
+    };
+    let none = [0.0; 6];
+    let close = |a: f64, b: f64| (a - b).abs() < 1e-9;
+    // No prediction leaves the label's angle; the label itself leaves nothing.
+    assert!(close(rotation_left_mdeg(&about(2, 100.0), &none), 100.0));
+    assert!(close(
+        rotation_left_mdeg(&about(2, 100.0), &about(2, 100.0)),
+        0.0
+    ));
+    assert!(close(
+        rotation_left_mdeg(&about(2, 100.0), &about(2, 60.0)),
+        40.0
+    ));
+    assert!(close(
+        rotation_left_mdeg(&about(2, 100.0), &about(2, -100.0)),
+        200.0
+    ));
+    // About perpendicular axes the angles add in quadrature (to second order).
+    let left = rotation_left_mdeg(&about(2, 100.0), &about(0, 100.0));
+    assert!((left - 100.0 * 2f64.sqrt()).abs() < 1e-3, "{left}");
+    // The position entries play no part.
+    let mut shifted = about(1, 50.0);
+    shifted[0] = 1e4;
+    assert!(close(rotation_left_mdeg(&shifted, &about(1, 50.0)), 0.0));
+}
+
 #[test]
 fn import_maps_a_tracker_export_by_column_names() {
     use iastgcn::data::arm_import::{parse_export, Difference, PoseColumns};

@@ -12,7 +12,8 @@ use super::evaluate::predict_windows;
 use super::protocol::{fit_model, ModelFiles};
 use super::report::seeds::{split_name, Spread};
 use crate::calibrate::arm::{
-    arm_position_errors, calibrate_arm, ArmCalibration, ArmCalibrationConfig,
+    arm_orientation_errors, arm_position_errors, calibrate_arm, ArmCalibration,
+    ArmCalibrationConfig,
 };
 use crate::data::arm_dataset::{arm_dataset, prepare_arm};
 use crate::data::arm_poses::{ArmPoses, ArmTargets};
@@ -57,6 +58,9 @@ pub struct ArmRow {
     pub model: String,
     /// Position error at each test pose, mm.
     pub errors_mm: Vec<f64>,
+    /// Orientation error at each test pose, mdeg; empty where the pose files have no
+    /// orientation.
+    pub orientation_mdeg: Vec<f64>,
 }
 
 /// What an arm evaluation found.
@@ -168,58 +172,94 @@ impl ArmEvaluation {
         labels().count().max(1) / models
     }
 
-    /// Each row's name, number of test poses and summary in µm.
-    fn summaries(&self) -> impl Iterator<Item = (&str, usize, Summary)> {
+    /// Each row's name, number of test poses, summary in µm and, where the poses have
+    /// orientation, in mdeg.
+    fn summaries(&self) -> impl Iterator<Item = (&str, usize, Summary, Option<Summary>)> {
         self.rows.iter().filter_map(|r| {
             let um: Vec<f64> = r.errors_mm.iter().map(|e| e * 1e3).collect();
-            Summary::of(&um).map(|s| (r.model.as_str(), um.len(), s))
+            let mdeg = Summary::of(&r.orientation_mdeg);
+            Summary::of(&um).map(|s| (r.model.as_str(), um.len(), s, mdeg))
         })
     }
 
-    /// The table as Markdown: mean, SD and max position error (µm) on the test poses. A
+    /// Whether the table has orientation columns.
+    fn oriented(&self) -> bool {
+        self.rows.iter().any(|r| !r.orientation_mdeg.is_empty())
+    }
+
+    /// The table as Markdown: mean, SD and max position error (µm) on the test poses,
+    /// and where the poses have orientation, mean and max orientation error (mdeg). A
     /// model trained with several seeds has one row: the mean over seeds of its mean
     /// error ± their SD, the mean of its SDs over the poses, and the largest error of any
     /// seed.
     pub fn markdown(&self) -> String {
         let seeds = self.seeds();
-        let mut out = if seeds > 1 {
-            format!(
-                "| model | mean µm (± SD over {seeds} seeds) | SD µm | max µm |\n|---|---|---|---|\n"
-            )
+        let over = if seeds > 1 {
+            format!(" (± SD over {seeds} seeds)")
         } else {
-            String::from("| model | mean µm | SD µm | max µm |\n|---|---|---|---|\n")
+            String::new()
         };
-        let mut groups: Vec<(&str, Vec<Summary>)> = Vec::new();
-        for (label, _, s) in self.summaries() {
+        let oriented = self.oriented();
+        let mut out = format!("| model | mean µm{over} | SD µm | max µm |");
+        if oriented {
+            out.push_str(&format!(" mean mdeg{over} | max mdeg |"));
+        }
+        out.push_str(if oriented {
+            "\n|---|---|---|---|---|---|\n"
+        } else {
+            "\n|---|---|---|---|\n"
+        });
+        type Runs = Vec<(Summary, Option<Summary>)>;
+        let mut groups: Vec<(&str, Runs)> = Vec::new();
+        for (label, _, s, a) in self.summaries() {
             let model = split_name(label).0;
             match groups.iter_mut().find(|(m, _)| *m == model) {
-                Some((_, v)) => v.push(s),
-                None => groups.push((model, vec![s])),
+                Some((_, v)) => v.push((s, a)),
+                None => groups.push((model, vec![(s, a)])),
             }
         }
-        for (model, runs) in groups {
-            let means = Spread::of(&runs.iter().map(|s| s.mean).collect::<Vec<_>>());
-            let sd = runs.iter().map(|s| s.sd).sum::<f64>() / runs.len() as f64;
-            let max = runs.iter().map(|s| s.max).fold(f64::MIN, f64::max);
-            let cell = if runs.len() > 1 {
-                means.text(1)
+        let mean_cell = |means: &[f64]| {
+            let spread = Spread::of(means);
+            if means.len() > 1 {
+                spread.text(1)
             } else {
-                format!("{:.1}", means.mean)
-            };
-            out.push_str(&format!("| {model} | {cell} | {sd:.1} | {max:.1} |\n"));
+                format!("{:.1}", spread.mean)
+            }
+        };
+        for (model, runs) in groups {
+            let means: Vec<f64> = runs.iter().map(|(s, _)| s.mean).collect();
+            let sd = runs.iter().map(|(s, _)| s.sd).sum::<f64>() / runs.len() as f64;
+            let max = runs.iter().map(|(s, _)| s.max).fold(f64::MIN, f64::max);
+            out.push_str(&format!(
+                "| {model} | {} | {sd:.1} | {max:.1} |",
+                mean_cell(&means)
+            ));
+            if oriented {
+                let angles: Vec<&Summary> = runs.iter().filter_map(|(_, a)| a.as_ref()).collect();
+                if angles.is_empty() {
+                    out.push_str(" – | – |");
+                } else {
+                    let means: Vec<f64> = angles.iter().map(|a| a.mean).collect();
+                    let max = angles.iter().map(|a| a.max).fold(f64::MIN, f64::max);
+                    out.push_str(&format!(" {} | {max:.1} |", mean_cell(&means)));
+                }
+            }
+            out.push('\n');
         }
         out
     }
 
-    /// The table as CSV (`model,seed,mean_um,sd_um,max_um,poses`), one row per model and
-    /// seed (`seed` empty for the stages without training).
+    /// The table as CSV (`model,seed,mean_um,sd_um,max_um,poses,mean_mdeg,max_mdeg`), one
+    /// row per model and seed (`seed` empty for the stages without training, the
+    /// orientation empty where the poses have none).
     pub fn csv(&self) -> String {
-        let mut out = String::from("model,seed,mean_um,sd_um,max_um,poses\n");
-        for (label, n, s) in self.summaries() {
+        let mut out = String::from("model,seed,mean_um,sd_um,max_um,poses,mean_mdeg,max_mdeg\n");
+        for (label, n, s, a) in self.summaries() {
             let (model, seed) = split_name(label);
             let seed = seed.map_or(String::new(), |k| k.to_string());
+            let angle = a.map_or(",".to_string(), |a| format!("{:.3},{:.3}", a.mean, a.max));
             out.push_str(&format!(
-                "{model},{seed},{:.3},{:.3},{:.3},{n}\n",
+                "{model},{seed},{:.3},{:.3},{:.3},{n},{angle}\n",
                 s.mean, s.sd, s.max
             ));
         }
@@ -401,19 +441,32 @@ pub fn evaluate_arm(
             .map(|um| um * 1e-3)
             .collect()
     };
+    // Orientation error left (mdeg), where every test pose has an orientation.
+    let oriented = measured.iter().all(|p| p.orientation.is_some());
+    let angle_left = |predicted: &dyn Fn(usize) -> [f64; 6]| -> Vec<f64> {
+        if oriented {
+            orientation_left_mdeg(scored, &positions, predicted)
+        } else {
+            Vec::new()
+        }
+    };
+    let mdeg = |v: Vec<f64>| v.iter().map(|e| e * 1e3).collect::<Vec<_>>();
     let mean = data.normalization.label_mean;
     let mut rows = vec![
         ArmRow {
             model: "initial".into(),
             errors_mm: arm_position_errors(&calibration.registered, &measured),
+            orientation_mdeg: mdeg(arm_orientation_errors(&calibration.registered, &measured)),
         },
         ArmRow {
             model: "calibrated".into(),
             errors_mm: arm_position_errors(&calibration.arm, &measured),
+            orientation_mdeg: mdeg(arm_orientation_errors(&calibration.arm, &measured)),
         },
         ArmRow {
             model: "training mean".into(),
             errors_mm: left(&|_| mean),
+            orientation_mdeg: angle_left(&|_| mean),
         },
     ];
     let model_dir = out.join("models");
@@ -452,6 +505,7 @@ pub fn evaluate_arm(
             rows.push(ArmRow {
                 model: name.clone(),
                 errors_mm: left(&|k| predicted[k]),
+                orientation_mdeg: angle_left(&|k| predicted[k]),
             });
             validation.push((name.clone(), fitted.best_val, fitted.best_epoch));
             let on_validation =
@@ -493,6 +547,32 @@ fn position_left_um(
             let (l, p) = (data.labels[i], predicted(k));
             ((l[0] - p[0]).powi(2) + (l[1] - p[1]).powi(2) + (l[2] - p[2]).powi(2)).sqrt()
         })
+        .collect()
+}
+
+/// The orientation error (mdeg) left when a predicted residual's rotation is applied to
+/// the calibrated model's: `label` and `predicted` carry rotation vectors (mdeg) in
+/// their last three entries, as the labels do (`arm_residual`), and what is left is the
+/// angle of exp(label)·exp(predicted)⁻¹.
+pub fn rotation_left_mdeg(label: &[f64; 6], predicted: &[f64; 6]) -> f64 {
+    let rotation = |v: &[f64]| {
+        let rad = Vector3::new(v[0], v[1], v[2]).map(|a| (a * 1e-3).to_radians());
+        nalgebra::UnitQuaternion::from_scaled_axis(rad)
+    };
+    let left = rotation(&label[3..6]) * rotation(&predicted[3..6]).inverse();
+    left.angle().to_degrees() * 1e3
+}
+
+/// [`rotation_left_mdeg`] at each window of `positions`.
+fn orientation_left_mdeg(
+    data: &Dataset,
+    positions: &[usize],
+    predicted: &dyn Fn(usize) -> [f64; 6],
+) -> Vec<f64> {
+    positions
+        .iter()
+        .enumerate()
+        .map(|(k, &i)| rotation_left_mdeg(&data.labels[i], &predicted(k)))
         .collect()
 }
 
