@@ -646,6 +646,10 @@ fn evaluate_refuses_bad_input_before_training() {
             on_hybrid(&["--seeds", "1,2"]),
             vec!["--seeds is for a serial arm", "--robot"],
         ),
+        (
+            on_hybrid(&["--without-channel-time"]),
+            vec!["--without-channel-time is for a serial arm", "--robot"],
+        ),
         (on_arm(&["--seeds", "1,1"]), vec!["seed 1 is listed twice"]),
     ] {
         let began = std::time::Instant::now();
@@ -1084,7 +1088,14 @@ fn residual_models_learn_what_calibration_leaves_on_held_out_poses() {
         .iter()
         .find(|(name, _)| name == "iastgcn")
         .unwrap();
-    let corrected = corrected_targets(&device, ck, &result.calibration.arm, &targets).unwrap();
+    let corrected = corrected_targets(
+        &device,
+        ck,
+        &result.calibration.arm,
+        &targets,
+        config.data.channel_time,
+    )
+    .unwrap();
     let drive = |commands: Vec<&Vec<f64>>| -> f64 {
         let mut previous: Vec<f64> = arm.spec.joint.iter().map(|j| j.min).collect();
         let mut side = vec![1.0; arm.joints()];
@@ -1122,6 +1133,35 @@ fn residual_models_learn_what_calibration_leaves_on_held_out_poses() {
 /// commanded minus measured, joints in degrees) becomes a pose file by column names;
 /// units convert, channels carry over, and a missing column or a stamp that does not
 /// increase names the export.
+#[test]
+fn a_channels_time_feature_can_be_left_out() {
+    use iastgcn::data::arm_dataset::prepare_arm;
+    let arm = wam4();
+    let twin = ArmTwin::draw(&arm, 3, ArmTwinConfig::default());
+    let run = twin.measure(20, 1);
+    let file = ArmPoses {
+        stamp: "time".into(),
+        oriented: false,
+        channels: vec!["temp_c".into()],
+        poses: run.poses.clone(),
+    };
+    let with = prepare_arm(&arm, &file, true);
+    let without = prepare_arm(&arm, &file, false);
+    // One node per joint, then the channel: its value, its change, then the time since
+    // the file's first pose, or 0.
+    let channel = arm.joints();
+    assert_eq!(with.features.len(), channel + 1);
+    let t0 = run.poses[0].stamp;
+    let times: Vec<f64> = run.poses.iter().map(|p| p.stamp - t0).collect();
+    assert!(times.iter().any(|&t| t > 0.0));
+    assert_eq!(with.features[channel][2], times);
+    assert!(without.features[channel][2].iter().all(|&t| t == 0.0));
+    // Nothing else changes.
+    assert_eq!(with.features[channel][..2], without.features[channel][..2]);
+    assert_eq!(with.features[..channel], without.features[..channel]);
+    assert_eq!(with.labels, without.labels);
+}
+
 #[test]
 fn the_orientation_left_is_the_angle_between_measured_and_corrected() {
     use iastgcn::experiment::arm::rotation_left_mdeg;

@@ -320,10 +320,13 @@ pub fn evaluate(
     };
     let files = read(&args.data)?;
     let tests = read(&args.test)?;
-    let config = match &args.config {
+    let mut config = match &args.config {
         Some(p) => iastgcn::train::RunConfig::load(p)?,
         None => arm_run_config(),
     };
+    if args.without_channel_time {
+        config.data.channel_time = false;
+    }
     let variants = args
         .train_models
         .split(',')
@@ -359,7 +362,13 @@ pub fn evaluate(
     // where no model beats it there.
     let targets = match (&targets, result.recommended()) {
         (Some(list), Some((name, ck))) => {
-            let corrected = corrected_targets(&device, ck, &result.calibration.arm, list)?;
+            let corrected = corrected_targets(
+                &device,
+                ck,
+                &result.calibration.arm,
+                list,
+                config.data.channel_time,
+            )?;
             Some((
                 format!("{name} (recommended on validation)"),
                 targets_csv(&list.stamp, &corrected),

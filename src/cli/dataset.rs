@@ -54,6 +54,7 @@ pub fn run(args: &DatasetArgs) -> anyhow::Result<()> {
             split_seed: args.seed,
             train_fraction: args.train_fraction,
             validation_fraction: args.validation_fraction,
+            ..DataConfig::default()
         },
         ..RunConfig::default()
     };

@@ -85,6 +85,10 @@ pub fn evaluate(device: Device, args: &EvaluateArgs) -> anyhow::Result<()> {
         "--seeds is for a serial arm's residual models, trained here: give its description in --robot (the hybrid machine's evaluation scores the checkpoints of --models; `demo` and `reproduce` train over seeds)"
     );
     anyhow::ensure!(
+        !args.without_channel_time,
+        "--without-channel-time is for a serial arm's sensor channels: give its description in --robot"
+    );
+    anyhow::ensure!(
         args.test.is_empty(),
         "--test is for a serial arm's separate test poses: give its description in --robot (the hybrid machine's Table V scores held-out runs in the twin)"
     );

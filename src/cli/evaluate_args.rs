@@ -91,6 +91,12 @@ pub struct EvaluateArgs {
     /// alone).
     #[arg(long, value_delimiter = ',')]
     pub seeds: Option<Vec<u64>>,
+    /// A serial arm's sensor channels without the time since the file's first pose
+    /// (`[data] channel_time = false`): for a file longer than its warm-up, whose test
+    /// poses lie at times the training never saw (docs/arms.md "The residual models on
+    /// the time block").
+    #[arg(long)]
+    pub without_channel_time: bool,
     /// The models to train on a serial arm's residuals, comma-separated.
     #[arg(long, default_value_t = iastgcn::experiment::arm::ARM_MODELS.map(iastgcn::model::Variant::name).join(","))]
     pub train_models: String,

@@ -43,8 +43,9 @@ pub fn arm_residual(arm: &Arm, p: &ArmPose) -> ([f64; 6], [f64; 3]) {
     ([d.x, d.y, d.z, r.x, r.y, r.z], [axis.x, axis.y, axis.z])
 }
 
-/// Raw features and labels of one pose file under the calibrated `arm`.
-pub fn prepare_arm(arm: &Arm, file: &ArmPoses) -> Prepared {
+/// Raw features and labels of one pose file under the calibrated `arm`; a channel's
+/// third feature is the time since the file's first pose where `channel_time`, else 0.
+pub fn prepare_arm(arm: &Arm, file: &ArmPoses, channel_time: bool) -> Prepared {
     let poses = &file.poses;
     let t0 = poses.first().map_or(0.0, |p| p.stamp);
     let mut features: Vec<[Vec<f64>; FEATURES]> = Vec::new();
@@ -65,7 +66,10 @@ pub fn prepare_arm(arm: &Arm, file: &ArmPoses) -> Prepared {
     }
     for c in 0..file.channels.len() {
         let v: Vec<f64> = poses.iter().map(|p| p.channels[c]).collect();
-        let t = poses.iter().map(|p| p.stamp - t0).collect();
+        let t = poses
+            .iter()
+            .map(|p| if channel_time { p.stamp - t0 } else { 0.0 })
+            .collect();
         features.push([v.clone(), change(&v), t]);
     }
     let (labels, axes) = poses
@@ -92,13 +96,14 @@ fn change(v: &[f64]) -> Vec<f64> {
 /// The graph and dataset of pose files (each with its name) under the calibrated
 /// `arm`, windowed and split as `window` and `mode` say; standardised with `fixed`
 /// statistics where given, else with the training split's. Every file must carry the
-/// same channels and fit the arm.
+/// same channels and fit the arm. `channel_time`: as [`prepare_arm`].
 pub fn arm_dataset(
     arm: &Arm,
     files: &[(String, ArmPoses)],
     window: &WindowConfig,
     mode: SplitMode,
     fixed: Option<&Normalization>,
+    channel_time: bool,
 ) -> Result<(Graph, Dataset), DatasetError> {
     let err = |file: &str, message: String| DatasetError {
         file: file.to_string(),
@@ -128,7 +133,7 @@ pub fn arm_dataset(
                 ),
             ));
         }
-        prepared.push((name.clone(), prepare_arm(arm, f)));
+        prepared.push((name.clone(), prepare_arm(arm, f, channel_time)));
     }
     let graph = arm_graph(arm, &first.channels);
     let data = Dataset::from_prepared(&prepared, &graph.nodes, window, mode, fixed)?;

@@ -400,6 +400,7 @@ pub fn evaluate_arm(
         &window,
         SplitMode::Contiguous,
         None,
+        config.data.channel_time,
     )?;
     for line in data.summary().lines() {
         reporter.note(line);
@@ -415,6 +416,7 @@ pub fn evaluate_arm(
             &scored_window,
             SplitMode::Contiguous,
             Some(&data.normalization),
+            config.data.channel_time,
         )?;
         Some(t)
     };
@@ -641,12 +643,14 @@ fn target_poses(calibrated: &Arm, targets: &ArmTargets) -> Result<Vec<ArmPose>> 
 /// the calibrated model (from the previous target's solution, the first from the middle
 /// of every joint's range), the residual `checkpoint` predicts over the window of the
 /// targets so far (the first target's features stand in for the poses before it), and
-/// inverse kinematics of the point minus that residual.
+/// inverse kinematics of the point minus that residual. `channel_time`: the
+/// `data.channel_time` the checkpoint was trained with.
 pub fn corrected_targets(
     device: &Device,
     checkpoint: &Checkpoint,
     calibrated: &Arm,
     targets: &ArmTargets,
+    channel_time: bool,
 ) -> Result<Vec<CorrectedTarget>> {
     let poses = target_poses(calibrated, targets)?;
     let channels = poses.first().map_or(0, |p| p.channels.len());
@@ -656,7 +660,7 @@ pub fn corrected_targets(
         channels: (0..channels).map(|c| format!("c{c}")).collect(),
         poses,
     };
-    let features = prepare_arm(calibrated, &file).features;
+    let features = prepare_arm(calibrated, &file, channel_time).features;
     let mut predictor = Predictor::on(device, checkpoint, 1)?;
     let step = |k: usize| -> Vec<f32> {
         features

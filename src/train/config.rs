@@ -30,6 +30,11 @@ pub struct DataConfig {
     /// scaling study (`iastgcn scale`) sets both shares to what a shorter session would
     /// have had, so that early stopping sees what it would have seen.
     pub validation_fraction: f64,
+    /// Serial arms (docs/arms.md "Residual models"): a sensor channel's node carries the
+    /// time since the pose file's first pose as its third feature (`true`, what a warm-up
+    /// depends on), or 0 (`false`: for a file longer than its warm-up, whose later poses
+    /// lie at times the training never saw).
+    pub channel_time: bool,
 }
 
 impl Default for DataConfig {
@@ -40,6 +45,7 @@ impl Default for DataConfig {
             split_seed: 7,
             train_fraction: 1.0,
             validation_fraction: 1.0,
+            channel_time: true,
         }
     }
 }
