@@ -438,7 +438,7 @@ pub fn evaluate_arm(
         .collect();
     // Position error left after subtracting a predicted residual (µm) from the label.
     let left = |predicted: &dyn Fn(usize) -> [f64; 6]| -> Vec<f64> {
-        position_left_um(scored, &positions, predicted)
+        left_at(scored, &positions, predicted, position_left_um)
             .iter()
             .map(|um| um * 1e-3)
             .collect()
@@ -447,7 +447,7 @@ pub fn evaluate_arm(
     let oriented = measured.iter().all(|p| p.orientation.is_some());
     let angle_left = |predicted: &dyn Fn(usize) -> [f64; 6]| -> Vec<f64> {
         if oriented {
-            orientation_left_mdeg(scored, &positions, predicted)
+            left_at(scored, &positions, predicted, rotation_left_mdeg)
         } else {
             Vec::new()
         }
@@ -480,7 +480,7 @@ pub fn evaluate_arm(
     let [_, val_range, _] = data.split_ranges();
     let val_positions: Vec<usize> = val_range.collect();
     let left_on_validation = |predicted: &dyn Fn(usize) -> [f64; 6]| -> f64 {
-        let left = position_left_um(&data, &val_positions, predicted);
+        let left = left_at(&data, &val_positions, predicted, position_left_um);
         left.iter().sum::<f64>() / left.len().max(1) as f64
     };
     let mut validation_um = vec![("calibrated".to_string(), left_on_validation(&|_| [0.0; 6]))];
@@ -535,21 +535,29 @@ pub fn evaluate_arm(
     })
 }
 
-/// The position error (µm) left at each window of `data` at `positions` when the
-/// residual `predicted(k)` (µm, mdeg) of the k-th is subtracted from its label.
-fn position_left_um(
+/// What is left at each window of `data` at `positions` when the residual
+/// `predicted(k)` (µm, mdeg) of the k-th is applied to its label, as `error` measures it
+/// ([`position_left_um`], [`rotation_left_mdeg`]).
+fn left_at(
     data: &Dataset,
     positions: &[usize],
     predicted: &dyn Fn(usize) -> [f64; 6],
+    error: fn(&[f64; 6], &[f64; 6]) -> f64,
 ) -> Vec<f64> {
     positions
         .iter()
         .enumerate()
-        .map(|(k, &i)| {
-            let (l, p) = (data.labels[i], predicted(k));
-            ((l[0] - p[0]).powi(2) + (l[1] - p[1]).powi(2) + (l[2] - p[2]).powi(2)).sqrt()
-        })
+        .map(|(k, &i)| error(&data.labels[i], &predicted(k)))
         .collect()
+}
+
+/// The position error (µm) left when the predicted residual is subtracted from the
+/// label.
+fn position_left_um(label: &[f64; 6], predicted: &[f64; 6]) -> f64 {
+    (0..3)
+        .map(|a| (label[a] - predicted[a]).powi(2))
+        .sum::<f64>()
+        .sqrt()
 }
 
 /// The orientation error (mdeg) left when a predicted residual's rotation is applied to
@@ -563,19 +571,6 @@ pub fn rotation_left_mdeg(label: &[f64; 6], predicted: &[f64; 6]) -> f64 {
     };
     let left = rotation(&label[3..6]) * rotation(&predicted[3..6]).inverse();
     left.angle().to_degrees() * 1e3
-}
-
-/// [`rotation_left_mdeg`] at each window of `positions`.
-fn orientation_left_mdeg(
-    data: &Dataset,
-    positions: &[usize],
-    predicted: &dyn Fn(usize) -> [f64; 6],
-) -> Vec<f64> {
-    positions
-        .iter()
-        .enumerate()
-        .map(|(k, &i)| rotation_left_mdeg(&data.labels[i], &predicted(k)))
-        .collect()
 }
 
 /// One desired tool point and the joint targets that reach it.
