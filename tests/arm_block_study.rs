@@ -3,7 +3,7 @@
 //! `--hold-out-random` make, and `experiment::block_study` on the serial twin, with a
 //! tracker that stays and one that is moved in the middle of the file.
 
-use std::path::Path;
+mod common;
 
 use iastgcn::calibrate::arm::{calibrate_arm, ArmCalibrationConfig};
 use iastgcn::experiment::block_study::{block_study, BlockStudyConfig};
@@ -69,16 +69,7 @@ fn hold_outs_take_the_poses_they_say() {
 /// The serial twin of the UR5 with geometric errors only and 15 µm, 0.002° of tracker
 /// noise; `registration` places its tracker.
 fn twin(registration: Option<[f64; 6]>) -> ArmTwin {
-    let nominal = nominal();
-    let config = ArmTwinConfig {
-        compliance_rad_per_nm: 0.0,
-        backlash: 0.0,
-        expansion_per_k: 0.0,
-        tracker_sd_mm: 0.015,
-        orientation_sd_deg: Some(0.002),
-        thermometer_sd_k: 0.0,
-        ..ArmTwinConfig::default()
-    };
+    let config = common::geometric_twin_config();
     let config = match registration {
         Some(registration) => ArmTwinConfig {
             registration,
@@ -86,11 +77,11 @@ fn twin(registration: Option<[f64; 6]>) -> ArmTwin {
         },
         None => config,
     };
-    ArmTwin::draw(&nominal, 7, config)
+    ArmTwin::draw(&nominal(), 7, config)
 }
 
 fn nominal() -> Arm {
-    Arm::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/arms/ur5.toml")).unwrap()
+    common::ur5()
 }
 
 /// Calibrates on the poses outside the last 30 % and studies that block.

@@ -5,6 +5,8 @@
 
 use std::path::{Path, PathBuf};
 
+mod common;
+
 use iastgcn::calibrate::arm::{
     arm_orientation_errors, arm_position_errors, calibrate_arm, register, ArmCalibrationConfig,
 };
@@ -461,17 +463,8 @@ fn the_real_ur10_calibrates_in_6d_to_the_level_measured() {
 fn reregistration_finds_a_moved_tracker_within_its_noise() {
     use iastgcn::calibrate::arm::reregister;
     use iastgcn::twin::arm::{ArmTwin, ArmTwinConfig};
-    let nominal =
-        Arm::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/arms/ur5.toml")).unwrap();
-    let config = ArmTwinConfig {
-        compliance_rad_per_nm: 0.0,
-        backlash: 0.0,
-        expansion_per_k: 0.0,
-        tracker_sd_mm: 0.015,
-        orientation_sd_deg: Some(0.002),
-        thermometer_sd_k: 0.0,
-        ..ArmTwinConfig::default()
-    };
+    let nominal = common::ur5();
+    let config = common::geometric_twin_config();
     let first = ArmTwin::draw(&nominal, 7, config.clone());
     let moved = ArmTwin::draw(
         &nominal,

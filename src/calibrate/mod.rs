@@ -14,4 +14,6 @@ pub use identify::{
     StageReport,
 };
 pub use residual::residual;
-pub use scoring::{hold_out, hold_out_block, hold_out_random, pose_errors, random_positions};
+pub use scoring::{
+    hold_out, hold_out_block, hold_out_random, pose_errors, random_positions, split_where,
+};

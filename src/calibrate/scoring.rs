@@ -7,29 +7,23 @@ use super::identify::Measurement;
 use super::jacobian::twist;
 use crate::robot::{Robot, RobotError};
 
+/// `(kept, taken)`: the items of `all` at the positions `take` says, and the others,
+/// each side in `all`'s order. Every hold-out below is one of these.
+pub fn split_where<T: Clone>(all: &[T], take: impl Fn(usize) -> bool) -> (Vec<T>, Vec<T>) {
+    let (taken, kept): (Vec<_>, Vec<_>) = all.iter().enumerate().partition(|(i, _)| take(*i));
+    let clone = |v: Vec<(usize, &T)>| v.into_iter().map(|(_, m)| m.clone()).collect();
+    (clone(kept), clone(taken))
+}
+
 /// `(fit, held out)`: every `every`-th measurement (or arm pose) is held out (none when `every` is 0).
 pub fn hold_out<T: Clone>(all: &[T], every: usize) -> (Vec<T>, Vec<T>) {
-    let (fit, held): (Vec<_>, Vec<_>) = all
-        .iter()
-        .enumerate()
-        .partition(|(i, _)| every == 0 || (i + 1) % every != 0);
-    (
-        fit.into_iter().map(|(_, m)| m.clone()).collect(),
-        held.into_iter().map(|(_, m)| m.clone()).collect(),
-    )
+    split_where(all, |i| every != 0 && (i + 1) % every == 0)
 }
 
 /// `(fit, held out)`: the measurements at positions `block` of the file's order are held
 /// out (a stretch of time, a slab of a grid); the others are fitted, in order.
 pub fn hold_out_block<T: Clone>(all: &[T], block: std::ops::Range<usize>) -> (Vec<T>, Vec<T>) {
-    let (fit, held): (Vec<_>, Vec<_>) = all
-        .iter()
-        .enumerate()
-        .partition(|(i, _)| !block.contains(i));
-    (
-        fit.into_iter().map(|(_, m)| m.clone()).collect(),
-        held.into_iter().map(|(_, m)| m.clone()).collect(),
-    )
+    split_where(all, |i| block.contains(&i))
 }
 
 /// The positions of `all.len()` measurements drawn at random (`count` of them, seeded),
@@ -46,15 +40,8 @@ pub fn random_positions(len: usize, count: usize, seed: u64) -> Vec<usize> {
 /// `(fit, held out)`: `count` measurements drawn at random (seeded) are held out; both
 /// sides keep the file's order.
 pub fn hold_out_random<T: Clone>(all: &[T], count: usize, seed: u64) -> (Vec<T>, Vec<T>) {
-    let mut held_at = vec![false; all.len()];
-    for i in random_positions(all.len(), count, seed) {
-        held_at[i] = true;
-    }
-    let (fit, held): (Vec<_>, Vec<_>) = all.iter().zip(&held_at).partition(|(_, &h)| !h);
-    (
-        fit.into_iter().map(|(m, _)| m.clone()).collect(),
-        held.into_iter().map(|(m, _)| m.clone()).collect(),
-    )
+    let held = random_positions(all.len(), count, seed);
+    split_where(all, |i| held.binary_search(&i).is_ok())
 }
 
 /// Position (µm) and attitude (mdeg) error of `model`'s prediction of each measured

@@ -14,7 +14,7 @@ use crate::calibrate::arm::{
     arm_orientation_errors, arm_position_errors, calibrate_arm, reregister, ArmCalibration,
     ArmCalibrationConfig, ArmCalibrationError,
 };
-use crate::calibrate::random_positions;
+use crate::calibrate::{random_positions, split_where};
 use crate::robot::arm::{Arm, ArmPose};
 use crate::stats::Summary;
 
@@ -125,15 +125,10 @@ pub fn block_study(
         seeds,
         workers,
         |seed, _tick: &dyn Fn()| {
+            // The same draw as `calibrate --hold-out-random` of as many poses.
             let held = random_positions(poses.len(), block.len(), seed);
-            let mut is_held = vec![false; poses.len()];
-            held.iter().for_each(|&i| is_held[i] = true);
-            let fit: Vec<ArmPose> = (0..poses.len())
-                .filter(|&i| !is_held[i])
-                .map(|i| poses[i].clone())
-                .collect();
+            let (fit, held_poses) = split_where(poses, |i| held.binary_search(&i).is_ok());
             let cal = calibrate_arm(nominal, &fit, &c)?;
-            let held_poses: Vec<ArmPose> = held.iter().map(|&i| poses[i].clone()).collect();
             let (um, mdeg) = errors(&cal.arm, &held_poses);
             Ok::<_, ArmCalibrationError>((seed, held, um, mdeg))
         },
@@ -171,10 +166,7 @@ pub fn block_study(
             .collect()
     };
     let moved = if fitted > 0 {
-        let on: Vec<ArmPose> = (0..in_block.len())
-            .filter(|&k| refit[k])
-            .map(|k| in_block[k].clone())
-            .collect();
+        let (_, on) = split_where(in_block, |k| refit[k]);
         Some(reregister(&calibrated.arm, &on, &c)?)
     } else {
         None
@@ -182,14 +174,13 @@ pub fn block_study(
     // Errors at every pose of the block; the refitted ones are left out of every mean.
     let reregistered_errors = moved.as_ref().map(|m| errors(&m.arm, in_block));
     let reregistered = reregistered_errors.as_ref().and_then(|(um, mdeg)| {
-        let after = Summary::of(&kept(um))?;
         Some(BlockReregistration {
             fitted,
             before: (
-                Summary::of(&kept(&block_um)).unwrap_or(after),
+                Summary::of(&kept(&block_um))?,
                 Summary::of(&kept(&block_mdeg)),
             ),
-            after: (after, Summary::of(&kept(mdeg))),
+            after: (Summary::of(&kept(um))?, Summary::of(&kept(mdeg))),
         })
     });
     // As many parts as asked, at most one per pose (none for an empty block).

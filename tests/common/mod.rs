@@ -214,3 +214,25 @@ pub fn parameters(config: &iastgcn::model::ModelConfig, seed: u64) -> iastgcn::m
     }
     p
 }
+
+/// The UR5 of `assets/arms/ur5.toml`.
+pub fn ur5() -> iastgcn::robot::arm::Arm {
+    iastgcn::robot::arm::Arm::load(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/arms/ur5.toml"),
+    )
+    .unwrap()
+}
+
+/// A serial twin with geometric errors only (no compliance, backlash or expansion) and a
+/// 6-D tracker of 15 µm and 0.002° noise: what a placement fit should recover to the noise.
+pub fn geometric_twin_config() -> iastgcn::twin::arm::ArmTwinConfig {
+    iastgcn::twin::arm::ArmTwinConfig {
+        compliance_rad_per_nm: 0.0,
+        backlash: 0.0,
+        expansion_per_k: 0.0,
+        tracker_sd_mm: 0.015,
+        orientation_sd_deg: Some(0.002),
+        thermometer_sd_k: 0.0,
+        ..iastgcn::twin::arm::ArmTwinConfig::default()
+    }
+}
