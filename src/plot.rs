@@ -294,9 +294,10 @@ pub fn draw(
 }
 
 /// Draws into a white PNG of `size` pixels at `path`, written atomically: `body` draws
-/// on the root area (its errors made with `err`), then the image goes to a temporary
-/// file beside `path` and is renamed over it; the temporary file goes on every error (a
-/// full disk fails inside the encoder).
+/// on the root area (its errors made with `err`) of an RGB buffer, which is encoded as a
+/// PNG (the `png` crate: plotters' own encoder would compile a whole image library) and
+/// written with [`crate::atomic::write`] (a full disk fails it and leaves `path` as it
+/// was).
 fn render(
     path: &Path,
     size: (u32, u32),
@@ -311,28 +312,24 @@ fn render(
         file: file.clone(),
         message: e.to_string(),
     };
-    let dir = path
-        .parent()
-        .filter(|d| !d.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let tmp = dir.join(format!(
-        ".{}.tmp{}.png",
-        path.file_name()
-            .map_or("plot".into(), |n| n.to_string_lossy()),
-        std::process::id()
-    ));
-    let drawn = (|| {
-        let root = BitMapBackend::new(&tmp, size).into_drawing_area();
+    let mut pixels = vec![0u8; size.0 as usize * size.1 as usize * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut pixels, size).into_drawing_area();
         root.fill(&WHITE).map_err(|e| err(&e))?;
         body(&root, &err)?;
         root.present().map_err(|e| err(&e))?;
-        drop(root);
-        std::fs::rename(&tmp, path).map_err(|e| err(&e))
-    })();
-    if drawn.is_err() {
-        let _ = std::fs::remove_file(&tmp);
     }
-    drawn
+    let mut encoded = Vec::new();
+    {
+        let mut encoder = png::Encoder::new(&mut encoded, size.0, size.1);
+        encoder.set_color(png::ColorType::Rgb);
+        encoder.set_depth(png::BitDepth::Eight);
+        encoder.set_adaptive_filter(png::AdaptiveFilterType::Adaptive);
+        let mut writer = encoder.write_header().map_err(|e| err(&e))?;
+        writer.write_image_data(&pixels).map_err(|e| err(&e))?;
+        writer.finish().map_err(|e| err(&e))?;
+    }
+    crate::atomic::write(path, &encoded).map_err(|e| err(&e))
 }
 
 /// One square map for [`heat_maps`]: a title and `n × n` values, row-major, row 0 at the

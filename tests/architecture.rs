@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 const ALLOWED: &[(&str, &[&str])] = &[
     ("atomic", &[]),
     ("stats", &[]),
-    ("plot", &["error"]),
+    ("plot", &["atomic", "error"]),
     ("progress", &[]),
     ("gpu", &["error"]),
     ("graph", &["error"]),

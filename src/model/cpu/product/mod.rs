@@ -85,30 +85,42 @@ pub(crate) fn gemm(
         unsafe { in_place(Isa::detected(), m, k, n, a, b, beta, Out::rows(c, ldc)) };
         return;
     }
+    // gemm's own entry (`gemm::gemm`) turns a row-major C into the column-major C its
+    // kernels prefer by swapping A and B, then calls the f32 kernel; the same is done
+    // here, so that only the f32 kernels (`gemm-f32`) are compiled, not the crate's
+    // complex, f64 and f16 ones. Every stride here is non-negative, so gemm's
+    // negative-stride normalisation never applies.
+    let (a_ptr, b_ptr) = (a.data.as_ptr(), b.data.as_ptr());
+    #[rustfmt::skip]
+    let (m, n, dst_cs, dst_rs, lhs, lhs_cs, lhs_rs, rhs, rhs_cs, rhs_rs) = if 1 < ldc {
+        (n, m, ldc, 1, b_ptr, b.rs, b.cs, a_ptr, a.rs, a.cs)
+    } else {
+        (m, n, 1, ldc, a_ptr, a.cs, a.rs, b_ptr, b.cs, b.rs)
+    };
     // SAFETY: the checks above keep every element the product reads or writes inside
     // the three slices; C does not alias A or B (it is borrowed mutably).
     unsafe {
         // gemm's convention: C := alpha·C + beta·(A·B), C read only when `read_dst`.
-        gemm::gemm(
+        gemm_f32::gemm::f32::get_gemm_fn()(
             m,
             n,
             k,
             c.as_mut_ptr(),
-            1,
-            ldc as isize,
+            dst_cs as isize,
+            dst_rs as isize,
             beta != 0.0,
-            a.data.as_ptr(),
-            a.cs as isize,
-            a.rs as isize,
-            b.data.as_ptr(),
-            b.cs as isize,
-            b.rs as isize,
+            lhs,
+            lhs_cs as isize,
+            lhs_rs as isize,
+            rhs,
+            rhs_cs as isize,
+            rhs_rs as isize,
             beta,
             1.0,
             false,
             false,
             false,
-            gemm::Parallelism::None,
+            gemm_common::Parallelism::None,
         );
     }
 }
