@@ -57,26 +57,63 @@ pub fn platform_frame(p: &PlatformPose) -> Isometry3<f64> {
     Isometry3::from_parts(Translation3::from(p.w * (r * e())), r.into())
 }
 
-/// Angles of a two-axis Hooke joint `Rx(φ1) · err · Ry(φ2)` that point `e` along the unit
-/// vector `v`, where `err` is the attitude error between the axes. Exact and closed form:
-/// `Rx` keeps the x component, so `[err · Ry(φ2) e]_x = v_x` is `r · sin(φ2 + ψ) = v_x`
-/// with `(r cos ψ, r sin ψ) = (err₀₀, err₀₂)`; φ1 is then the signed angle from
-/// `err · Ry(φ2) e` to `v` about x. Of the two solutions it takes the one near zero (the
-/// joint's working range, |φ2 + ψ| < 90°), which for `err = I` is `φ2 = asin v_x`,
-/// `φ1 = atan2(−v_y, v_z)`. (It replaced Gauss–Newton steps with a finite-difference
-/// Jacobian that made the twin spend nine tenths of its time here; the test below checks
-/// the equation and agreement with those steps.)
+/// [`HookeJoint::angles`] of `v` for the joint error `between`.
+#[cfg(test)]
 fn hooke_angles(v: &Vector3<f64>, between: &Rotation3<f64>) -> (f64, f64) {
-    let m = between.matrix();
-    let (c0, c2) = (m[(0, 0)], m[(0, 2)]);
-    let r = c0.hypot(c2);
-    let psi = c2.atan2(c0);
-    let phi2 = (v.x / r).clamp(-1.0, 1.0).asin() - psi;
-    let (s, c) = phi2.sin_cos();
-    // w = err · Ry(φ2) e = s · err[:, 0] + c · err[:, 2]; only its y and z matter now.
-    let (wy, wz) = (s * m[(1, 0)] + c * m[(1, 2)], s * m[(2, 0)] + c * m[(2, 2)]);
-    let phi1 = (wy * v.z - wz * v.y).atan2(wy * v.y + wz * v.z);
-    (phi1, phi2)
+    HookeJoint::new(between).angles(v)
+}
+
+/// A Hooke joint's attitude error `err` and what its angles need of it alone (`r`,
+/// `ψ`): made once per [`Limb::length`], not at each of its passes.
+struct HookeJoint {
+    m: Matrix3<f64>,
+    r: f64,
+    psi: f64,
+}
+
+impl HookeJoint {
+    fn new(between: &Rotation3<f64>) -> HookeJoint {
+        let m = *between.matrix();
+        let (c0, c2) = (m[(0, 0)], m[(0, 2)]);
+        HookeJoint {
+            m,
+            r: c0.hypot(c2),
+            psi: c2.atan2(c0),
+        }
+    }
+
+    /// Angles of a two-axis Hooke joint `Rx(φ1) · err · Ry(φ2)` that point `e` along the unit
+    /// vector `v`, where `err` is the attitude error between the axes. Exact and closed form:
+    /// `Rx` keeps the x component, so `[err · Ry(φ2) e]_x = v_x` is `r · sin(φ2 + ψ) = v_x`
+    /// with `(r cos ψ, r sin ψ) = (err₀₀, err₀₂)`; φ1 is then the signed angle from
+    /// `err · Ry(φ2) e` to `v` about x. Of the two solutions it takes the one near zero (the
+    /// joint's working range, |φ2 + ψ| < 90°), which for `err = I` is `φ2 = asin v_x`,
+    /// `φ1 = atan2(−v_y, v_z)`. (It replaced Gauss–Newton steps with a finite-difference
+    /// Jacobian that made the twin spend nine tenths of its time here; the test below checks
+    /// the equation and agreement with those steps.)
+    fn angles(&self, v: &Vector3<f64>) -> (f64, f64) {
+        let m = &self.m;
+        let phi2 = (v.x / self.r).clamp(-1.0, 1.0).asin() - self.psi;
+        let (s, c) = phi2.sin_cos();
+        // w = err · Ry(φ2) e = s · err[:, 0] + c · err[:, 2]; only its y and z matter now.
+        let (wy, wz) = (s * m[(1, 0)] + c * m[(1, 2)], s * m[(2, 0)] + c * m[(2, 2)]);
+        let phi1 = (wy * v.z - wz * v.y).atan2(wy * v.y + wz * v.z);
+        (phi1, phi2)
+    }
+}
+
+/// What [`Limb::ends`] needs of the limb's joint errors and of the platform frame's
+/// rotation, which stay the same over the passes of one [`Limb::length`].
+struct Fixed {
+    rb: Rotation3<f64>,
+    rb_inv: Rotation3<f64>,
+    base_joint: HookeJoint,
+    ra: Rotation3<f64>,
+    ra_inv: Rotation3<f64>,
+    rta: Rotation3<f64>,
+    rta_inv: Rotation3<f64>,
+    rm: Rotation3<f64>,
+    platform_joint: HookeJoint,
 }
 
 /// One UPS limb with its errors: base joint centre `b`, platform joint centre `a0`
@@ -102,24 +139,46 @@ impl Limb {
     /// with `exp(θ_A) Rx(ψ1) exp(θ_M) Ry(ψ2) e = R_Aᵀ u`. θ_N and θ_M only redistribute the
     /// free joint angles, so their effect on the pose is second order (and the calibration
     /// finds them unidentifiable).
-    fn ends(&self, frame: &Isometry3<f64>, u: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+    fn ends(
+        &self,
+        frame: &Isometry3<f64>,
+        fixed: &Fixed,
+        u: &Vector3<f64>,
+    ) -> (Vector3<f64>, Vector3<f64>) {
         let er = &self.err;
-        let rb = rot(&er.theta_b);
-        let (p1, _) = hooke_angles(&(rb.inverse() * u), &rot(&er.theta_n));
+        let f = fixed;
+        let (p1, _) = f.base_joint.angles(&(f.rb_inv * u));
         let bottom =
-            self.b + er.db + rb * Rotation3::from_axis_angle(&Vector3::x_axis(), p1) * er.dn;
-        let ra = frame.rotation.to_rotation_matrix();
-        let rta = rot(&er.theta_a);
-        let rm = rot(&er.theta_m);
-        let local = rta.inverse() * (ra.inverse() * u);
-        let (q1, q2) = hooke_angles(&local, &rm);
-        let shaft = rm
+            self.b + er.db + f.rb * Rotation3::from_axis_angle(&Vector3::x_axis(), p1) * er.dn;
+        let local = f.rta_inv * (f.ra_inv * u);
+        let (q1, q2) = f.platform_joint.angles(&local);
+        let shaft = f.rm
             * Rotation3::from_axis_angle(&Vector3::y_axis(), q2)
             * (-(self.delta + er.d_shaft) * e() + er.ds);
         let top = frame.translation.vector
-            + ra * (self.a0 + er.da)
-            + ra * rta * Rotation3::from_axis_angle(&Vector3::x_axis(), q1) * (er.dm + shaft);
+            + f.ra * (self.a0 + er.da)
+            + f.ra * f.rta * Rotation3::from_axis_angle(&Vector3::x_axis(), q1) * (er.dm + shaft);
         (bottom, top)
+    }
+
+    /// [`Limb::ends`]' constants for `frame`.
+    fn fixed(&self, frame: &Isometry3<f64>) -> Fixed {
+        let er = &self.err;
+        let rb = rot(&er.theta_b);
+        let ra = frame.rotation.to_rotation_matrix();
+        let rta = rot(&er.theta_a);
+        let rm = rot(&er.theta_m);
+        Fixed {
+            rb,
+            rb_inv: rb.inverse(),
+            base_joint: HookeJoint::new(&rot(&er.theta_n)),
+            ra,
+            ra_inv: ra.inverse(),
+            rta,
+            rta_inv: rta.inverse(),
+            rm,
+            platform_joint: HookeJoint::new(&rm),
+        }
     }
 
     /// The actuator reading `l` that realises the platform `frame`: the axis length minus
@@ -130,8 +189,9 @@ impl Limb {
         // The ends move with u only through offsets of a fraction of a millimetre on a
         // limb of most of a metre: each pass shrinks the error by ~1e-3, five are exact.
         let mut axis = Vector3::zeros();
+        let fixed = self.fixed(frame);
         for _ in 0..5 {
-            let (bottom, top) = self.ends(frame, &u);
+            let (bottom, top) = self.ends(frame, &fixed, &u);
             axis = top - bottom;
             u = axis.normalize();
         }
