@@ -112,9 +112,8 @@ impl Drop for Batch {
     }
 }
 
-/// The temporary path beside `path` that [`write()`] uses, for writers that need a path of
-/// their own (image encoders).
-pub fn temporary(path: &Path) -> PathBuf {
+/// The temporary path beside `path` that [`write()`] and [`Batch`] use.
+fn temporary(path: &Path) -> PathBuf {
     let dir = path
         .parent()
         .filter(|d| !d.as_os_str().is_empty())

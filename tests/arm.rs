@@ -41,6 +41,16 @@ fn geometric_only() -> ArmTwinConfig {
     }
 }
 
+/// A twin run as a position-only pose file with its temperature channel.
+fn temperature_file(run: &ArmRun) -> ArmPoses {
+    ArmPoses {
+        stamp: "time".into(),
+        oriented: false,
+        channels: vec!["temp_c".into()],
+        poses: run.poses.clone(),
+    }
+}
+
 fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len() as f64
 }
@@ -264,12 +274,7 @@ fn pose_files_round_trip_and_bad_ones_name_line_and_column() {
     let arm = wam4();
     let twin = ArmTwin::draw(&arm, 1, ArmTwinConfig::default());
     let run = twin.measure(5, 1);
-    let file = ArmPoses {
-        stamp: "time".into(),
-        oriented: false,
-        channels: vec!["temp_c".into()],
-        poses: run.poses.clone(),
-    };
+    let file = temperature_file(&run);
     let text = file.to_csv();
     assert_eq!(parse_arm_poses(&text, "p.csv", 4).unwrap(), file);
     let lines: Vec<&str> = text.lines().collect();
@@ -866,12 +871,7 @@ fn residual_models_learn_what_calibration_leaves_on_held_out_poses() {
         },
     );
     let run = twin.measure(1000, 8);
-    let file = ArmPoses {
-        stamp: "time".into(),
-        oriented: false,
-        channels: vec!["temp_c".into()],
-        poses: run.poses.clone(),
-    };
+    let file = temperature_file(&run);
     let config = arm_run_config();
     let dir = std::env::temp_dir().join(format!("iastgcn-arm-eval-{}", std::process::id()));
     let device = iastgcn::gpu::Device::from(iastgcn::testing::gpu());
@@ -1129,22 +1129,13 @@ fn residual_models_learn_what_calibration_leaves_on_held_out_poses() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// A tracker export in another layout (the public real-arm files': commanded point,
-/// commanded minus measured, joints in degrees) becomes a pose file by column names;
-/// units convert, channels carry over, and a missing column or a stamp that does not
-/// increase names the export.
 #[test]
 fn a_channels_time_feature_can_be_left_out() {
     use iastgcn::data::arm_dataset::prepare_arm;
     let arm = wam4();
     let twin = ArmTwin::draw(&arm, 3, ArmTwinConfig::default());
     let run = twin.measure(20, 1);
-    let file = ArmPoses {
-        stamp: "time".into(),
-        oriented: false,
-        channels: vec!["temp_c".into()],
-        poses: run.poses.clone(),
-    };
+    let file = temperature_file(&run);
     let with = prepare_arm(&arm, &file, true);
     let without = prepare_arm(&arm, &file, false);
     // One node per joint, then the channel: its value, its change, then the time since
@@ -1195,6 +1186,10 @@ fn the_orientation_left_is_the_angle_between_measured_and_corrected() {
     assert!(close(rotation_left_mdeg(&shifted, &about(1, 50.0)), 0.0));
 }
 
+/// A tracker export in another layout (the public real-arm files': commanded point,
+/// commanded minus measured, joints in degrees) becomes a pose file by column names;
+/// units convert, channels carry over, and a missing column or a stamp that does not
+/// increase names the export.
 #[test]
 fn import_maps_a_tracker_export_by_column_names() {
     use iastgcn::data::arm_import::{parse_export, Difference, PoseColumns};
