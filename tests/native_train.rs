@@ -1,7 +1,8 @@
 //! Native CPU training (`model::NativeTraining`) against the f64 reference and the WGSL
 //! training step: the loss and every parameter gradient with dropout in all four IASTGCN
 //! variants and ST-GAT at a small shape, the dense and recurrent baselines and ConvLSTM, the ensemble loss of refinement, a deeper shape with
-//! dilations beyond the window, the threads' split, the Adam update, and refusals.
+//! dilations beyond the window, the threads' split, the same bits on fewer threads than
+//! shares, the Adam update, and refusals.
 //! (The reference's own backward is checked against finite differences in
 //! tests/model_reference.rs.)
 
@@ -9,6 +10,7 @@ mod common;
 
 use common::parameters;
 use iastgcn::graph::Graph;
+use iastgcn::model::native::cores::{with_cores, Cores};
 use iastgcn::model::reference::{self, DropoutStep, Loss};
 use iastgcn::model::{
     graph_basis, ModelConfig, NativeAdam, NativeForward, NativeStepShape, NativeTraining, Network,
@@ -374,6 +376,37 @@ fn threads_change_only_the_summation_order() {
     .unwrap();
     let g1: Vec<Vec<f64>> = g1.iter().map(|v| f64s(v)).collect();
     compare_grads("1 vs 2 threads", &p, &g2, &g1, 1e-5);
+}
+
+/// A training step's shares run on as many threads as a [`Cores`] budget allows (the
+/// demo trains two models side by side): fewer threads, the same bits.
+#[test]
+fn shares_give_the_same_bits_on_fewer_threads() {
+    for variant in [Variant::Iastgcn, Variant::Mlp] {
+        let config = ModelConfig::gradient_check(variant);
+        let p = parameters(&config, 43);
+        let (x, y) = batch(&config, 9, 44);
+        // Three shares, two steps with their updates: the weights after them.
+        let train = || {
+            let mut t =
+                NativeTraining::new(&config, &Graph::default_asset(), shape(9, 1, 3), adam())
+                    .unwrap();
+            t.load_parameters(&p).unwrap();
+            let losses = [
+                t.step(&x, &y, 0, 1e-2).unwrap().to_bits(),
+                t.step(&x, &y, 1, 1e-2).unwrap().to_bits(),
+            ];
+            (losses, t.parameters().values)
+        };
+        let alone = train();
+        for spare in [0, 1] {
+            // `spare` cores beside this thread's own: 1 and 2 threads for 3 shares.
+            let cores = Cores::new(spare);
+            let shared = with_cores(&cores, train);
+            assert_eq!(shared, alone, "{variant:?} with {spare} spare core(s)");
+            assert_eq!(cores.spare(), spare, "every borrowed core given back");
+        }
+    }
 }
 
 #[test]

@@ -375,9 +375,10 @@ impl Reporter for Console {
     }
     fn note(&mut self, line: &str) {
         let line = with_flags(line);
+        // A hidden bar (output not to a terminal) drops what it is asked to print.
         match &self.bar {
-            Some(bar) => bar.println(line),
-            None => println!("{line}"),
+            Some(bar) if !bar.is_hidden() => bar.println(line),
+            _ => println!("{line}"),
         }
     }
 }

@@ -18,13 +18,14 @@ use super::jobs::{training_table, JobRecord};
 use super::polish;
 pub use super::polish::PolishSpec;
 use super::protocol::{
-    check_closed_loop_sessions, check_seeds, fit_model, record_closed_loop, record_data,
-    sessions_setting, ClosedLoopRound, ModelFiles, MACHINE_SEED,
+    check_closed_loop_sessions, check_seeds, record_closed_loop, record_data, sessions_setting,
+    ClosedLoopRound, ModelFiles, MACHINE_SEED,
 };
 pub use super::protocol::{CALIBRATION_SEED, TRAINING_SEED};
 use super::recommend::recommend;
 use super::report::seeds::seeded_name;
 use super::report::{self, Report, TableVRow};
+use super::side_by_side::{fit_side_by_side, FitJob};
 use crate::calibrate::file;
 use crate::compensate::held_out::IDLE_BETWEEN_RUNS;
 use crate::data::DataSources;
@@ -366,18 +367,36 @@ pub fn demo(
                 demo.seeds.len()
             ));
         }
+        let jobs: Vec<FitJob> = variants
+            .iter()
+            .map(|&variant| {
+                let mut c = config.clone();
+                c.model.variant = variant;
+                c.train.seed = seed;
+                let name = if seeded {
+                    seeded_name(variant.name(), seed)
+                } else {
+                    variant.name().to_string()
+                };
+                let files = ModelFiles::named(&model_dir, &name, false);
+                FitJob {
+                    config: c,
+                    name,
+                    files,
+                }
+            })
+            .collect();
+        let all = fit_side_by_side(
+            &device,
+            &data,
+            &graph,
+            jobs,
+            &format!("training seed {seed}"),
+            reporter,
+        )?;
         let mut trained = Vec::new();
-        for &variant in &variants {
-            let mut c = config.clone();
-            c.model.variant = variant;
-            c.train.seed = seed;
-            let name = if seeded {
-                seeded_name(variant.name(), seed)
-            } else {
-                variant.name().to_string()
-            };
-            let files = ModelFiles::named(&model_dir, &name, false);
-            let fitted = fit_model(&device, &data, &graph, &c, &name, &files, reporter)?;
+        for (&variant, fitted) in variants.iter().zip(all) {
+            let name = fitted.model.name.clone();
             refinement.push(format!("{name}: {}", fitted.verdict));
             records.push(JobRecord::of_fitted(
                 &name,

@@ -7,7 +7,8 @@
 //! training data (`scale`), the model recommended on a validation session
 //! (`recommend`), a serial arm's residual models on held-out poses (`arm`), how a
 //! calibration holds on a held-out stretch of a pose file (`block_study`), and the
-//! independent runs of an evaluation on every core (`parallel`), and how long the demo
+//! independent runs of an evaluation on every core (`parallel`), models fitted one per
+//! core with the bits of fitting them in turn (`side_by_side`), and how long the demo
 //! will take on this machine (`forecast`).
 
 pub mod arm;
@@ -26,3 +27,4 @@ pub mod recommend;
 pub mod report;
 pub mod reproduce;
 pub mod scale;
+pub mod side_by_side;

@@ -18,7 +18,7 @@ use crate::polish::{draw_surface, Figure, HeightMap, Polisher, PoseSource, Start
 use crate::progress::Reporter;
 use crate::robot::Robot;
 use crate::stats::Summary;
-use crate::twin::Machine;
+use crate::twin::{Machine, MachineState};
 
 /// What the study runs.
 #[derive(Clone, Debug, PartialEq)]
@@ -185,6 +185,41 @@ pub fn run(
     ));
     let count = controllers.len();
     let workers = parallel::workers(all_native).min(count);
+    // Every controller driving the same robot warms the machine up from the same state
+    // for an iteration: each distinct warm-up is run once, here, before the walks.
+    let mut robots: Vec<&Robot> = Vec::new();
+    for c in &controllers {
+        let robot = c.robot(calibrated);
+        if !robots.iter().any(|r| std::ptr::eq(*r, robot)) {
+            robots.push(robot);
+        }
+    }
+    let warm_ups: Vec<(usize, u64)> = (0..robots.len())
+        .flat_map(|r| {
+            spec.surface_seeds.iter().flat_map(move |&surface_seed| {
+                (0..spec.iterations).map(move |it| (r, run_seed(spec, it, surface_seed)))
+            })
+        })
+        .collect();
+    let states = parallel::run_all(
+        warm_ups.clone(),
+        parallel::workers(true).min(warm_ups.len()),
+        |(r, seed), _| {
+            warm_up(
+                machine,
+                robots[r],
+                spec.warm_up_minutes * 60.0,
+                seed ^ 0x5741,
+            )
+        },
+        || {},
+    )?;
+    let walks = Walks {
+        machine,
+        calibrated,
+        robots,
+        runs: warm_ups.into_iter().zip(states).collect(),
+    };
     // One polisher per worker: the dwell solver keeps its scratch between plans.
     let mut forks = (1..workers)
         .map(|_| polisher.fork())
@@ -204,10 +239,16 @@ pub fn run(
         count as u64 * iterations * PER_ITERATION,
     );
     let mut done = 0;
-    let per_controller = parallel::run_all(
+    // The walks that predict at every tick first, so that the last to end is a short one.
+    let per_controller = parallel::run_all_costliest_first(
         controllers,
+        |c| match c {
+            Controller::Model(_) => 2.0,
+            Controller::Oracle(_) => 1.0,
+            Controller::Plain(..) => 0.0,
+        },
         workers,
-        |controller, tick| {
+        |_, controller, tick| {
             // invariant: no thread panics while holding the pool's lock, and each of the
             // `workers` threads holds at most one polisher at a time.
             let polisher = pool
@@ -215,15 +256,7 @@ pub fn run(
                 .expect("the polishers")
                 .pop()
                 .expect("a polisher per worker");
-            let out = polish_with(
-                &mut *polisher,
-                controller,
-                spec,
-                &initial,
-                machine,
-                calibrated,
-                tick,
-            );
+            let out = polish_with(&mut *polisher, controller, spec, &initial, &walks, tick);
             // invariant: as above, no thread panics while holding the pool's lock.
             pool.lock().expect("the polishers").push(polisher);
             out
@@ -259,6 +292,45 @@ pub fn run(
     Ok(PolishResult { rows, maps })
 }
 
+impl<'m> Controller<'m> {
+    /// The robot model the controller drives.
+    fn robot<'r>(&self, calibrated: &'r Robot) -> &'r Robot
+    where
+        'm: 'r,
+    {
+        match self {
+            Controller::Plain(_, robot, _) => robot,
+            _ => calibrated,
+        }
+    }
+}
+
+/// The seed of iteration `it`'s walk on surface `surface_seed`.
+fn run_seed(spec: &PolishSpec, it: usize, surface_seed: u64) -> u64 {
+    spec.seed.wrapping_add(1000 * it as u64 + surface_seed)
+}
+
+/// The machine, the calibrated robot, and the states the walks start from: per robot a
+/// controller drives and walk seed, the state after the spec's warm-up.
+struct Walks<'r> {
+    machine: &'r Machine,
+    calibrated: &'r Robot,
+    robots: Vec<&'r Robot>,
+    runs: Vec<((usize, u64), MachineState)>,
+}
+
+impl Walks<'_> {
+    /// The warmed-up state for `robot`'s walk of seed `run_seed`.
+    fn start(&self, robot: &Robot, run_seed: u64) -> Result<MachineState> {
+        let r = self.robots.iter().position(|r| std::ptr::eq(*r, robot));
+        self.runs
+            .iter()
+            .find(|((i, seed), _)| Some(*i) == r && *seed == run_seed)
+            .map(|(_, state)| state.clone())
+            .ok_or_else(|| Error::Invalid(format!("no warm-up for the walk of seed {run_seed}")))
+    }
+}
+
 /// One controller on one starting surface: its rows, then its last surface.
 type SurfaceRun = (Vec<PolishRow>, HeightMap);
 
@@ -273,8 +345,7 @@ fn polish_with(
     mut controller: Controller,
     spec: &PolishSpec,
     initial: &[HeightMap],
-    machine: &Machine,
-    calibrated: &Robot,
+    walks: &Walks,
     tick: &dyn Fn(),
 ) -> Result<(String, Vec<SurfaceRun>)> {
     let settings = Online { every: spec.every };
@@ -283,10 +354,7 @@ fn polish_with(
         Controller::Model(m) => format!("compensated ({})", m.name),
         Controller::Oracle(_) => "oracle".to_string(),
     };
-    let robot = match &controller {
-        Controller::Plain(_, robot, _) => *robot,
-        _ => calibrated,
-    };
+    let robot = controller.robot(walks.calibrated);
     let mut out = Vec::with_capacity(initial.len());
     for (&surface_seed, initial) in spec.surface_seeds.iter().zip(initial) {
         let mut rows = Vec::with_capacity(spec.iterations + 1);
@@ -314,13 +382,8 @@ fn polish_with(
             let dwell = polisher.plan(&measured)?;
             let plan = polisher.feed(&dwell)?;
             let seconds = plan.duration(polisher.path_length());
-            let run_seed = spec.seed.wrapping_add(1000 * it as u64 + surface_seed);
-            let start = warm_up(
-                machine,
-                robot,
-                spec.warm_up_minutes * 60.0,
-                run_seed ^ 0x5741,
-            )?;
+            let run_seed = run_seed(spec, it, surface_seed);
+            let start = walks.start(robot, run_seed)?;
             // The walk's share of its planned ticks, in progress units.
             let planned = ((seconds / 0.02).round() as u64).max(1);
             let mut reported = 0;
@@ -346,7 +409,7 @@ fn polish_with(
                 ),
             };
             let r = polisher.polish(
-                machine,
+                walks.machine,
                 robot,
                 start,
                 feedback,

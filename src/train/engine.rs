@@ -11,6 +11,7 @@ use super::optimizer::{Moments, Optimizer};
 use crate::data::Dataset;
 use crate::gpu::{DType, Device, Gpu, Readback, Recorder, Tensor};
 use crate::graph::Graph;
+use crate::model::native::cores;
 use crate::model::{
     ModelConfig, NativeAdam, NativeForward, NativeStepShape, NativeTraining, Network, Parameters,
 };
@@ -129,9 +130,10 @@ impl Engine {
     pub fn label(&self) -> String {
         match self {
             Engine::Device(d) => d.gpu.info().name.clone(),
-            Engine::Native(n) => match n.train.shape().threads {
-                1 => "native CPU (1 thread)".into(),
-                t => format!("native CPU ({t} threads)"),
+            Engine::Native(n) => match (n.train.shape().threads, cores::shared()) {
+                (1, false) => "native CPU (1 thread)".into(),
+                (t, false) => format!("native CPU ({t} threads)"),
+                (t, true) => format!("native CPU ({t} shares on the cores other runs leave)"),
             },
         }
     }
@@ -310,18 +312,26 @@ fn native_predict(
     };
     let len = data.window_len();
     let mut out = vec![0f32; positions.len() * o];
-    let share = positions.len().div_ceil(forwards.len().max(1)).max(1);
     let run = |native: &mut NativeForward, positions: &[usize], out: &mut [f32]| {
         for (&p, row) in positions.iter().zip(out.chunks_mut(o)) {
             native.forward(&data.x[p * len..][..len], row)?;
         }
         Ok::<(), TrainError>(())
     };
+    // A window's prediction is the same on any forward and thread; the threads are
+    // those the jobs beside this one leave (`cores`).
+    let lease = cores::lease(forwards.len());
+    let used = lease.threads().min(forwards.len());
+    if used == 1 {
+        run(&mut forwards[0], positions, &mut out)?;
+        return Ok(out);
+    }
+    let share = positions.len().div_ceil(used).max(1);
     std::thread::scope(|scope| {
         let jobs: Vec<_> = positions
             .chunks(share)
             .zip(out.chunks_mut(share * o))
-            .zip(forwards.iter_mut())
+            .zip(forwards[..used].iter_mut())
             .map(|((p, out), native)| scope.spawn(move || run(native, p, out)))
             .collect();
         jobs.into_iter().try_for_each(|j| match j.join() {

@@ -8,12 +8,14 @@
 //! The ST blocks' steps are `model::block`'s (each step's `native.rs`, composed in
 //! `block/native.rs`); the arithmetic is `model::cpu`'s. Files here: `forward.rs`
 //! ([`NativeForward`]), `step.rs` ([`NativeTraining`]: a batch over threads, the loss,
-//! Adam). Each baseline's forward and backward
+//! Adam), `cores.rs` (how many threads a pass may use when jobs share the machine).
+//! Each baseline's forward and backward
 //! side by side are in its folder (`model::dense::native`: the dense layers,
 //! `model::recurrent::native`: T-GCN and EAT-GCN's time loop, `model::conv_lstm::native`:
 //! ConvLSTM's). Tested against the WGSL path and the f64 reference in
 //! tests/native_forward.rs and tests/native_train.rs.
 
+pub mod cores;
 mod forward;
 mod step;
 

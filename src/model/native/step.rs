@@ -9,9 +9,11 @@ use crate::model::block::native::{backward, forward};
 use crate::model::block::slots::Slots;
 use crate::model::block::tape::{Masks, Tape, Work};
 use crate::model::conv_lstm::native::{ConvLstmNet, ConvLstmTape};
-use crate::model::cpu::flushing_subnormals;
+use crate::model::cpu::{flushing_subnormals, with_products, Products};
 use crate::model::dense::native::{DenseNet, DenseTape};
 use crate::model::recurrent::native::{RecurrentNet, RecurrentTape};
+
+use super::cores;
 
 use crate::graph::Graph;
 use crate::model::config::{Family, ModelConfig};
@@ -45,8 +47,10 @@ pub struct NativeStepShape {
     pub seed: u32,
     /// The attitude penalty P of eq. 39.
     pub penalty: f64,
-    /// Threads the batch's ensembles are split over (at least 1). The gradient sums in
-    /// a fixed order for a given count, so a run is reproducible with the same count.
+    /// Shares the batch's ensembles are split over (at least 1), one thread each unless
+    /// a [`super::cores::Cores`] budget allows fewer. The gradient sums in a fixed order
+    /// for a given count, so a run is reproducible with the same count, whatever the
+    /// threads that ran it.
     pub threads: usize,
 }
 
@@ -250,16 +254,33 @@ impl NativeTraining {
             groups,
         };
         let share = |w: usize| (w * groups / threads)..((w + 1) * groups / threads);
-        if threads == 1 {
-            flushing_subnormals(|| ctx.run(share(0), &mut self.workers[0]));
+        // Each worker's share on some thread (a run of consecutive workers per thread
+        // the budget allows, see `cores`): the sums below, in worker order, are the
+        // same whichever thread ran which share.
+        let run = |first: usize, workers: &mut [Worker]| {
+            with_products(Products::Packed, || {
+                flushing_subnormals(|| {
+                    for (i, worker) in workers.iter_mut().enumerate() {
+                        ctx.run(share(first + i), worker);
+                    }
+                })
+            })
+        };
+        let lease = cores::lease(threads);
+        if lease.threads() == 1 {
+            run(0, &mut self.workers);
         } else {
             std::thread::scope(|scope| {
-                for (w, worker) in self.workers.iter_mut().enumerate() {
-                    let ctx = &ctx;
-                    scope.spawn(move || flushing_subnormals(|| ctx.run(share(w), worker)));
+                let mut rest = &mut self.workers[..];
+                for part in cores::runs(threads, lease.threads()) {
+                    let (mine, tail) = std::mem::take(&mut rest).split_at_mut(part.len());
+                    rest = tail;
+                    let run = &run;
+                    scope.spawn(move || run(part.start, mine));
                 }
             });
         }
+        drop(lease);
         let mut loss = 0.0;
         for (w, worker) in self.workers.iter().enumerate() {
             for (total, part) in self.grads.iter_mut().zip(&worker.grads) {
