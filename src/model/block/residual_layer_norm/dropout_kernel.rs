@@ -163,3 +163,21 @@ pub fn keep(d: &Dropout, step: u32, i: usize) -> bool {
     let index = (i * d.stride + d.offset) as u32;
     lowbias32(index ^ d.key(step)) >= d.threshold()
 }
+
+/// [`keep`] of the elements `first`, `first + 1`, … into `kept`, with the key and the
+/// threshold made once and the index in wrapping u32 arithmetic (the same bits as the
+/// usize arithmetic cut to 32 bits), so that the loop vectorises in the caller's
+/// instruction set.
+#[inline(always)]
+pub(crate) fn keep_run(d: &Dropout, step: u32, first: usize, kept: &mut [bool]) {
+    let (key, threshold) = (d.key(step), d.threshold());
+    let (stride, offset) = (d.stride as u32, d.offset as u32);
+    let first = first as u32;
+    for (tau, k) in kept.iter_mut().enumerate() {
+        let index = first
+            .wrapping_add(tau as u32)
+            .wrapping_mul(stride)
+            .wrapping_add(offset);
+        *k = lowbias32(index ^ key) >= threshold;
+    }
+}

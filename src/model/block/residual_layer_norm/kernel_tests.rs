@@ -5,7 +5,7 @@
 //! seeds change the mask.
 #![cfg(test)]
 
-use super::dropout_kernel::{keep, Dropout};
+use super::dropout_kernel::{keep, keep_run, Dropout};
 use super::layer_norm_kernel::{cpu, LayerNorm};
 use crate::gpu::{DType, Gpu, Tensor};
 use crate::ops::Accumulate;
@@ -413,4 +413,31 @@ fn a_strided_subset_gets_the_bits_of_the_whole_tensor() {
         dropped += usize::from(yl[r] == 0.0);
     }
     assert!(dropped > 0 && dropped < rows, "{dropped} of {rows} dropped");
+}
+
+/// The native forward's run of the mask is [`keep`] element by element, also where the
+/// index passes 2³² (the hash reads it cut to 32 bits).
+#[test]
+fn a_run_of_the_mask_is_keep_element_by_element() {
+    let whole = Dropout::new(5000, 0.3, 17);
+    let strided = Dropout::new(1 << 20, 0.5, 9).strided(300, 48, 47);
+    for (d, first) in [
+        (whole, 0),
+        (whole, 1234),
+        (strided, 7),
+        (strided, (1usize << 32) - 100),
+    ] {
+        for step in [0, 1, 77] {
+            let mut kept = vec![false; 250];
+            keep_run(&d, step, first, &mut kept);
+            for (tau, &k) in kept.iter().enumerate() {
+                assert_eq!(
+                    k,
+                    keep(&d, step, first + tau),
+                    "step {step}, element {}",
+                    first + tau
+                );
+            }
+        }
+    }
 }

@@ -15,7 +15,7 @@
 use rayon::prelude::*;
 
 use crate::model::block::native::Block;
-use crate::model::block::residual_layer_norm::dropout_kernel::{keep, Dropout};
+use crate::model::block::residual_layer_norm::dropout_kernel::{keep_run, Dropout};
 use crate::model::block::tape::{BlockTape, Work};
 use crate::model::cpu::{flushing_subnormals, gemm, lanes_sum, rows, transposed, View};
 use multiversion::multiversion;
@@ -313,9 +313,7 @@ pub(super) fn affine_dropout_forward(
             }
             if let Some(((drop, offset), step)) = &mask {
                 let kept = &mut bt.kept[(i * c + o) * steps..][..steps];
-                for (tau, k) in kept.iter_mut().enumerate() {
-                    *k = keep(drop, *step, offset + full + tau);
-                }
+                keep_run(drop, *step, offset + full, kept);
                 for (d, &k) in dst.iter_mut().zip(kept.iter()) {
                     *d = if k { *d * scale } else { 0.0 };
                 }
