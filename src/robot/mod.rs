@@ -17,7 +17,7 @@ mod serial;
 pub use description::{Description, KINDS};
 pub use errors::{ErrorParams, LimbErrors, MdhErrors, LIMB_PARAMS, LIMB_VECTORS, N_PARAMS};
 pub use geometry::{Geometry, MdhJoint, DEFAULT_ASSET};
-pub use parallel::{platform_frame, tilt, Limb, PlatformPose};
+pub use parallel::{platform_frame, tilt, Limb, LimbConstants, PlatformPose};
 pub use serial::mdh;
 
 use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
@@ -111,6 +111,8 @@ pub struct Robot {
     /// The geometric errors δX applied on top of it (Table I; docs/twin.md "Calibration file").
     pub errors: ErrorParams,
     limbs: [Limb; 3],
+    /// Each limb's [`Limb::constants`], made with it.
+    joints: [LimbConstants; 3],
 }
 
 impl Robot {
@@ -137,6 +139,7 @@ impl Robot {
         Robot {
             geometry,
             errors,
+            joints: limbs.map(|l| l.constants()),
             limbs,
         }
     }
@@ -175,7 +178,7 @@ impl Robot {
     /// lengths that put the platform at `p`.
     pub fn limb_lengths(&self, p: &PlatformPose) -> [f64; 3] {
         let frame = self.platform_frame(p);
-        self.limbs.map(|l| l.length(&frame))
+        [0, 1, 2].map(|i| self.limbs[i].length_with(&frame, &self.joints[i]))
     }
 
     /// Fails when `p` leaves the UP joint's tilt range or the slide's extension range.

@@ -64,7 +64,8 @@ fn hooke_angles(v: &Vector3<f64>, between: &Rotation3<f64>) -> (f64, f64) {
 }
 
 /// A Hooke joint's attitude error `err` and what its angles need of it alone (`r`,
-/// `ψ`): made once per [`Limb::length`], not at each of its passes.
+/// `ψ`): made once per limb of a robot ([`LimbConstants`]), not at each length.
+#[derive(Clone, Copy, Debug)]
 struct HookeJoint {
     m: Matrix3<f64>,
     r: f64,
@@ -104,12 +105,20 @@ impl HookeJoint {
 
 /// What [`Limb::ends`] needs of the limb's joint errors and of the platform frame's
 /// rotation, which stay the same over the passes of one [`Limb::length`].
-struct Fixed {
+struct Fixed<'c> {
+    joints: &'c LimbConstants,
+    ra: Rotation3<f64>,
+    ra_inv: Rotation3<f64>,
+}
+
+/// What a limb's length needs of its joint errors alone (their rotations and the Hooke
+/// joints' constants): the same for every pose, so [`super::Robot`] makes them once per
+/// limb ([`Limb::constants`]) and [`Limb::length_with`] reads them.
+#[derive(Clone, Copy, Debug)]
+pub struct LimbConstants {
     rb: Rotation3<f64>,
     rb_inv: Rotation3<f64>,
     base_joint: HookeJoint,
-    ra: Rotation3<f64>,
-    ra_inv: Rotation3<f64>,
     rta: Rotation3<f64>,
     rta_inv: Rotation3<f64>,
     rm: Rotation3<f64>,
@@ -146,34 +155,32 @@ impl Limb {
         u: &Vector3<f64>,
     ) -> (Vector3<f64>, Vector3<f64>) {
         let er = &self.err;
-        let f = fixed;
+        let f = fixed.joints;
+        let (ra, ra_inv) = (&fixed.ra, &fixed.ra_inv);
         let (p1, _) = f.base_joint.angles(&(f.rb_inv * u));
         let bottom =
             self.b + er.db + f.rb * Rotation3::from_axis_angle(&Vector3::x_axis(), p1) * er.dn;
-        let local = f.rta_inv * (f.ra_inv * u);
+        let local = f.rta_inv * (ra_inv * u);
         let (q1, q2) = f.platform_joint.angles(&local);
         let shaft = f.rm
             * Rotation3::from_axis_angle(&Vector3::y_axis(), q2)
             * (-(self.delta + er.d_shaft) * e() + er.ds);
         let top = frame.translation.vector
-            + f.ra * (self.a0 + er.da)
-            + f.ra * f.rta * Rotation3::from_axis_angle(&Vector3::x_axis(), q1) * (er.dm + shaft);
+            + ra * (self.a0 + er.da)
+            + ra * f.rta * Rotation3::from_axis_angle(&Vector3::x_axis(), q1) * (er.dm + shaft);
         (bottom, top)
     }
 
-    /// [`Limb::ends`]' constants for `frame`.
-    fn fixed(&self, frame: &Isometry3<f64>) -> Fixed {
+    /// The rotations and Hooke constants of the limb's joint errors.
+    pub fn constants(&self) -> LimbConstants {
         let er = &self.err;
         let rb = rot(&er.theta_b);
-        let ra = frame.rotation.to_rotation_matrix();
         let rta = rot(&er.theta_a);
         let rm = rot(&er.theta_m);
-        Fixed {
+        LimbConstants {
             rb,
             rb_inv: rb.inverse(),
             base_joint: HookeJoint::new(&rot(&er.theta_n)),
-            ra,
-            ra_inv: ra.inverse(),
             rta,
             rta_inv: rta.inverse(),
             rm,
@@ -184,12 +191,23 @@ impl Limb {
     /// The actuator reading `l` that realises the platform `frame`: the axis length minus
     /// the drive's zero error Δl (the true rod is `l + Δl`).
     pub fn length(&self, frame: &Isometry3<f64>) -> f64 {
+        self.length_with(frame, &self.constants())
+    }
+
+    /// [`Limb::length`] with the limb's [`Limb::constants`] made beforehand: the same
+    /// bits.
+    pub fn length_with(&self, frame: &Isometry3<f64>, joints: &LimbConstants) -> f64 {
         let a_nominal = frame.translation.vector + frame.rotation * self.a0;
         let mut u = (a_nominal - self.b).normalize();
         // The ends move with u only through offsets of a fraction of a millimetre on a
         // limb of most of a metre: each pass shrinks the error by ~1e-3, five are exact.
         let mut axis = Vector3::zeros();
-        let fixed = self.fixed(frame);
+        let ra = frame.rotation.to_rotation_matrix();
+        let fixed = Fixed {
+            joints,
+            ra,
+            ra_inv: ra.inverse(),
+        };
         for _ in 0..5 {
             let (bottom, top) = self.ends(frame, &fixed, &u);
             axis = top - bottom;
