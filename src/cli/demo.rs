@@ -16,7 +16,8 @@ use iastgcn::robot::Description;
 
 #[derive(Args)]
 pub struct DemoArgs {
-    /// Report folder.
+    /// Report folder. A demo interrupted in it continues where it stopped when run again
+    /// with the same settings; a finished one starts afresh (docs/usage.md "Run the demo").
     #[arg(long, default_value = "report")]
     pub out: PathBuf,
     /// Run config; the embedded assets/demo.toml when absent (assets/paper.toml runs the
@@ -106,7 +107,7 @@ pub fn evaluate(device: Device, args: &EvaluateArgs) -> anyhow::Result<()> {
         graph: args.graph.clone(),
         robot: args.robot.clone(),
     };
-    let report = demo::evaluation_report(
+    let report = iastgcn::experiment::evaluate::evaluation_report(
         device,
         &args.models,
         &sources,

@@ -787,7 +787,7 @@ fn evaluate_models<'py>(
         let config = RunConfig::read(config.as_deref(), None)?;
         std::fs::create_dir_all(&out).map_err(|e| crate::error::Error::io(&out, e))?;
         let device = open_device()?;
-        let report = crate::experiment::demo::evaluation_report(
+        let report = crate::experiment::evaluate::evaluation_report(
             device, &models, &sources, &config, &held, &out, r,
         )?;
         Ok(Result {

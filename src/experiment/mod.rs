@@ -2,7 +2,8 @@
 //! data and the fitting of one model (`protocol`), Tables III and V and the report folder
 //! they go into (`evaluate`, `report/`), the demo over training seeds (`demo`), the
 //! protocol over seeds in resumable, shardable jobs (`reproduce`), the merge of reproduce
-//! folders of several twin machines (`machines`), what their jobs share (shards, pinned
+//! folders of several twin machines (`machines`), the one runner of the resumable jobs of
+//! `reproduce`, `scale` and `demo` (`runner`), what their jobs share (shards, pinned
 //! setups, job records, TOML files: `jobs`), the scaling study of error against
 //! training data (`scale`), the model recommended on a validation session
 //! (`recommend`), a serial arm's residual models on held-out poses (`arm`), how a
@@ -26,5 +27,6 @@ pub mod protocol;
 pub mod recommend;
 pub mod report;
 pub mod reproduce;
+pub mod runner;
 pub mod scale;
 pub mod side_by_side;

@@ -503,6 +503,10 @@ impl ModelFiles {
     }
 }
 
+/// The report's line on training data recorded without a closed-loop round.
+pub const OPEN_LOOP_DATA: &str =
+    "open-loop data: every training session recorded under the calibrated controller alone";
+
 /// What the core stage's checkpoint adds to the model's name in its file name.
 pub const CORE_SUFFIX: &str = ".core";
 

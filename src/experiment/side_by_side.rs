@@ -6,6 +6,7 @@
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
+use std::time::Instant;
 
 use super::parallel;
 use super::protocol::{fit_model, Fitted, ModelFiles};
@@ -31,7 +32,8 @@ pub struct FitJob {
 /// Progress units per model of the shared bar.
 const PER_MODEL: u64 = 1000;
 
-/// Fits every job as [`fit_model`] does, the results in the jobs' order. On the native
+/// Fits every job as [`fit_model`] does, the results (each with its wall time, s) in
+/// the jobs' order. On the native
 /// CPU path the models run one per core (`what` names the bar that follows them);
 /// elsewhere one after another, with their own progress. Side by side, an error is
 /// returned after every job has ended, with every model's notes shown.
@@ -42,7 +44,7 @@ pub fn fit_side_by_side(
     jobs: Vec<FitJob>,
     what: &str,
     reporter: &mut dyn Reporter,
-) -> Result<Vec<Fitted>> {
+) -> Result<Vec<(Fitted, f64)>> {
     let native = match jobs.first() {
         Some(j) => runs_native(&j.config.train.backend, device)?,
         None => return Ok(Vec::new()),
@@ -51,7 +53,12 @@ pub fn fit_side_by_side(
     if workers <= 1 {
         return jobs
             .iter()
-            .map(|j| fit_model(device, data, graph, &j.config, &j.name, &j.files, reporter))
+            .map(|j| {
+                let started = Instant::now();
+                let fitted =
+                    fit_model(device, data, graph, &j.config, &j.name, &j.files, reporter)?;
+                Ok((fitted, started.elapsed().as_secs_f64()))
+            })
             .collect();
     }
     let count = jobs.len();
@@ -87,6 +94,7 @@ pub fn fit_side_by_side(
                 len: 0,
             };
             held.progress.fetch_max(1, Ordering::Relaxed);
+            let started = Instant::now();
             let out = fit_model(
                 device,
                 data,
@@ -95,7 +103,8 @@ pub fn fit_side_by_side(
                 &job.name,
                 &job.files,
                 &mut held,
-            );
+            )
+            .map(|fitted| (fitted, started.elapsed().as_secs_f64()));
             held.progress.store(PER_MODEL, Ordering::Relaxed);
             // invariant: no thread panics while holding the notes' lock.
             notes.lock().expect("the held notes")[i] = Some(held.notes);

@@ -193,6 +193,33 @@ pub fn accumulated_csv(before: &[(usize, f64, f64)], after: &[(usize, f64, f64)]
     )
 }
 
+/// Fig. 9b's curves before and after refinement, read back from a file
+/// [`accumulated_csv`] wrote (the 4 decimals it keeps); the error names the file and line.
+#[allow(clippy::type_complexity)]
+pub fn read_accumulated(path: &Path) -> Result<(Vec<(usize, f64, f64)>, Vec<(usize, f64, f64)>)> {
+    #[derive(serde::Deserialize)]
+    struct Row {
+        horizon: usize,
+        pos_before_um: Option<f64>,
+        att_before_mdeg: Option<f64>,
+        pos_after_um: Option<f64>,
+        att_after_mdeg: Option<f64>,
+    }
+    let rows: Vec<Row> = read_rows(path)?;
+    let pairs = |pick: fn(&Row) -> (Option<f64>, Option<f64>)| -> Vec<(usize, f64, f64)> {
+        rows.iter()
+            .filter_map(|r| match pick(r) {
+                (Some(p), Some(a)) => Some((r.horizon, p, a)),
+                _ => None,
+            })
+            .collect()
+    };
+    Ok((
+        pairs(|r| (r.pos_before_um, r.att_before_mdeg)),
+        pairs(|r| (r.pos_after_um, r.att_after_mdeg)),
+    ))
+}
+
 /// The Fig. 9b chart: accumulated position and attitude error before and after refinement.
 pub fn plot_accumulated(
     path: &Path,

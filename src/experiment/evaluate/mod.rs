@@ -1,11 +1,12 @@
 //! The paper's tables on the twin: Table III (prediction accuracy on the held-out split
 //! per trajectory and model) and Table V (pose error of held-out polishing runs: initial,
 //! calibrated, compensated per model), the held-out sessions they are scored on, and the
-//! models they score.
+//! models they score, and the report of `iastgcn evaluate`.
 
 mod held_out;
 mod models;
 mod paper_tables;
+mod report;
 
 pub use held_out::{
     held_out_session, more_models, runs_at_a_time, table_v, HeldOutConfig, HeldOutResult,
@@ -16,3 +17,4 @@ pub(crate) use paper_tables::{add_graph_mixing, tables};
 pub use paper_tables::{
     evaluate, evaluate_models, predict_windows, report_evaluation, table_iii, Evaluated,
 };
+pub use report::evaluation_report;

@@ -21,7 +21,8 @@ mod run;
 mod study;
 mod summary;
 
-pub use records::{PathScore, Progress, ScaleRecord};
+pub use crate::experiment::runner::Progress;
+pub use records::{PathScore, ScaleRecord};
 pub use run::scale;
 pub use study::{ScaleJob, Study, PAPER_HILBERT_REMOVED};
 pub use summary::write_summary;

@@ -94,15 +94,6 @@ impl ScaleRecord {
     }
 }
 
-/// How far a call got: jobs with a record, of all.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Progress {
-    /// Jobs with a record.
-    pub done: usize,
-    /// Jobs in the study.
-    pub total: usize,
-}
-
 /// The records of every job finished in the folder (by this study or an earlier call
 /// with other sizes, seeds or models), by size, seed and name.
 pub(super) fn records(out: &Path) -> Result<Vec<ScaleRecord>> {

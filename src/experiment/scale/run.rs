@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use super::records::{unmeasured, PathScore, Progress, ScaleRecord};
+use super::records::{unmeasured, PathScore, ScaleRecord};
 use super::study::{ScaleJob, Study};
 use super::summary::write_summary;
 use crate::data::{DataSources, Dataset};
@@ -13,12 +13,14 @@ use crate::error::{Error, Result};
 use crate::experiment::evaluate::{
     ensemble, held_out_session, predictors, table_iii, LoopModel, SessionOptions,
 };
-use crate::experiment::jobs::{clock, pin_toml, write_toml, Shard};
+use crate::experiment::jobs::{pin_toml, write_toml, Shard};
 use crate::experiment::protocol::{
     epoch_seconds, existing_data, record_closed_loop, record_data, train_core, ClosedLoopRound,
     ModelFiles,
 };
 use crate::experiment::report::TableVRow;
+use crate::experiment::runner::Progress;
+use crate::experiment::runner::{Cached, Runner};
 use crate::gpu::Device;
 use crate::graph::Graph;
 use crate::model::{Checkpoint, Variant};
@@ -74,94 +76,82 @@ pub fn scale(
         )?,
     };
     sources.graph = study.graph.clone();
-    let done = |jobs: &[ScaleJob]| jobs.iter().filter(|j| j.record_path(out).exists()).count();
+    let runner = Runner::new(&jobs, shard, out, began);
     if data_only {
-        return Ok(Progress {
-            done: done(&jobs),
-            total: jobs.len(),
-        });
+        return Ok(runner.progress());
     }
-    let todo: Vec<(usize, ScaleJob)> = jobs
-        .iter()
-        .copied()
-        .enumerate()
-        .filter(|(i, j)| shard.is_none_or(|s| s.owns(*i)) && !j.record_path(out).exists())
-        .collect();
-    let mut current: Option<(f64, Graph, Dataset)> = None;
-    let mut spent = Vec::new();
-    for (n, (i, job)) in todo.iter().enumerate() {
-        let eta = match spent.len() {
-            0 => "unknown until a job finishes".to_string(),
-            k => clock(spent.iter().sum::<f64>() / k as f64 * (todo.len() - n) as f64),
-        };
-        reporter.note(&format!(
-            "== job {}/{} ({} of this run): {} seed {} on {} min per path; elapsed {}, ETA {eta}",
-            i + 1,
-            jobs.len(),
-            n + 1,
-            job.variant,
-            job.seed,
-            job.minutes,
-            clock(began.elapsed().as_secs_f64())
-        ));
-        let started = Instant::now();
-        let mut config = study.run.clone();
-        config.model.variant = job.variant;
-        config.train.seed = job.seed;
-        config.data.train_fraction = job.minutes / minutes;
-        config.data.validation_fraction = job.minutes / minutes;
-        // A closed-loop job trains on data of its own (and leaves no dataset cached).
-        let closed = if study.closed_loop {
-            Some(closed_loop_sources(
-                &device, study, &config, job, &sources, out, reporter,
-            )?)
-        } else {
-            None
-        };
-        let job_sources = closed.as_ref().map_or(&sources, |c| &c.0);
-        let size = match current.take() {
-            Some(c) if c.0 == job.minutes => c,
-            old => {
-                drop(old); // free the previous size's dataset first
+    let nothing_to_do = runner.pending().is_empty();
+    let mut current: Cached<f64, (Graph, Dataset)> = Cached::default();
+    runner.run_each(
+        reporter,
+        |job, reporter| {
+            let mut config = study.run.clone();
+            config.model.variant = job.variant;
+            config.train.seed = job.seed;
+            config.data.train_fraction = job.minutes / minutes;
+            config.data.validation_fraction = job.minutes / minutes;
+            // A closed-loop job trains on data of its own (and leaves no dataset cached).
+            let closed = if study.closed_loop {
+                Some(closed_loop_sources(
+                    &device, study, &config, job, &sources, out, reporter,
+                )?)
+            } else {
+                None
+            };
+            let job_sources = closed.as_ref().map_or(&sources, |c| &c.0);
+            let (graph, data) = current.get(job.minutes, || {
                 let (graph, data) = build_dataset(job_sources, &config, None)?;
                 for line in data.summary().lines() {
                     reporter.note(line);
                 }
-                (job.minutes, graph, data)
+                Ok((graph, data))
+            })?;
+            let mut record = run_job(
+                &device,
+                study,
+                &config,
+                job,
+                (graph, data),
+                &sources,
+                out,
+                reporter,
+            )?;
+            if let Some((_, how)) = closed {
+                record.closed_loop = how;
+                current.clear();
             }
-        };
-        let (_, graph, data) = current.insert(size);
-        let mut record = run_job(
-            &device,
-            study,
-            &config,
-            job,
-            (graph, data),
-            &sources,
-            out,
-            reporter,
-        )?;
-        record.wall_seconds = started.elapsed().as_secs_f64();
-        if let Some((_, how)) = closed {
-            record.closed_loop = how;
-            current = None;
-        }
-        write_toml(&record, &job.record_path(out))?;
-        spent.push(record.wall_seconds);
-        write_summary(study, out, reporter)?;
-    }
+            Ok(record)
+        },
+        |reporter| write_summary(study, out, reporter),
+    )?;
     // A shard scores no ensemble: its seeds may be another shard's, still training.
     if study.ensemble && shard.is_none() {
         score_ensembles(&device, study, &sources, out, reporter)?;
     }
     // Once more with nothing to do: a finished folder gets this build's summary.
-    if todo.is_empty() {
+    if nothing_to_do {
         write_summary(study, out, reporter)?;
     }
-    Ok(Progress {
-        done: done(&jobs),
-        total: jobs.len(),
-    })
+    Ok(runner.progress())
+}
+
+impl crate::experiment::runner::Job for ScaleJob {
+    type Record = ScaleRecord;
+
+    fn record_path(&self, out: &Path) -> PathBuf {
+        ScaleJob::record_path(self, out)
+    }
+
+    fn describe(&self) -> String {
+        format!(
+            "{} seed {} on {} min per path",
+            self.variant, self.seed, self.minutes
+        )
+    }
+
+    fn set_wall_seconds(record: &mut ScaleRecord, seconds: f64) {
+        record.wall_seconds = seconds;
+    }
 }
 
 /// The core stage of one job, then its scores: the test split per path from the best
