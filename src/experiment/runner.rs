@@ -10,7 +10,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::jobs::{clock, write_toml, Shard};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::progress::Reporter;
 
 /// One job of a list: where its record goes, and what it is in words.
@@ -120,30 +120,45 @@ impl<'a, J: Job> Runner<'a, J> {
     }
 
     /// Runs `batch` (jobs of this list, without a record) together with `work`, which
-    /// returns one record per job in the batch's order (each with the wall time `work`
-    /// gave it), and writes the records. For jobs that run side by side.
+    /// hands each job's record (with the wall time it gave it) to its second argument as
+    /// the job ends, with the job's place in the batch: the record is written at once, so
+    /// that a batch cut short keeps the jobs it finished. For jobs that run side by side.
+    /// A job left without a record is an error.
     pub fn run_batch(
         &self,
         batch: &[&J],
-        work: impl FnOnce(&[&J]) -> Result<Vec<J::Record>>,
-    ) -> Result<()> {
+        work: impl FnOnce(&[&J], &RecordFn<'_, J::Record>) -> Result<()>,
+    ) -> Result<()>
+    where
+        J: Sync,
+    {
         if batch.is_empty() {
             return Ok(());
         }
-        let records = work(batch)?;
-        if records.len() != batch.len() {
-            return Err(crate::error::Error::Invalid(format!(
-                "a batch of {} jobs returned {} records",
-                batch.len(),
-                records.len()
-            )));
+        let out = self.out;
+        let record = |i: usize, record: J::Record| -> Result<()> {
+            let job = batch.get(i).ok_or_else(|| {
+                Error::Invalid(format!(
+                    "a record for job {i} of a batch of {}",
+                    batch.len()
+                ))
+            })?;
+            write_toml(&record, &job.record_path(out))
+        };
+        work(batch, &record)?;
+        match batch.iter().find(|j| !self.is_done(j)) {
+            Some(job) => Err(Error::Invalid(format!(
+                "{} ended without a record",
+                job.describe()
+            ))),
+            None => Ok(()),
         }
-        for (job, record) in batch.iter().zip(&records) {
-            write_toml(record, &job.record_path(self.out))?;
-        }
-        Ok(())
     }
 }
+
+/// What a batch's work hands each finished job's record to: its place in the batch and
+/// the record.
+pub type RecordFn<'a, R> = dyn Fn(usize, R) -> Result<()> + Sync + 'a;
 
 /// The last value built, kept while the next jobs ask for the same key: the dataset of
 /// a share or size of the training data, which consecutive jobs of a list share.
@@ -323,34 +338,60 @@ mod tests {
     }
 
     #[test]
-    fn a_batch_writes_a_record_per_job_or_none() {
+    fn a_batch_writes_each_record_as_its_job_ends() {
         let out = folder("batch");
-        let jobs: Vec<Count> = (0..3).map(Count).collect();
+        let jobs: Vec<Count> = (0..4).map(Count).collect();
         let runner = Runner::new(&jobs, None, &out, Instant::now());
         let batch: Vec<&Count> = jobs.iter().skip(1).collect();
-        let short = runner.run_batch(&batch, |b| {
-            Ok(vec![Record {
-                n: b[0].0,
-                wall: 0.0,
-            }])
+        // Cut short after its first job: that one keeps its record.
+        let cut = runner.run_batch(&batch, |b, record| {
+            record(
+                0,
+                Record {
+                    n: b[0].0,
+                    wall: 1.5,
+                },
+            )?;
+            Err(Error::Invalid("interrupted".into()))
+        });
+        assert!(cut.is_err());
+        let pending: Vec<usize> = runner.pending().iter().map(|(i, _)| *i).collect();
+        assert_eq!(pending, [0, 2, 3]);
+        let record = std::fs::read_to_string(out.join("1.job.toml")).unwrap();
+        assert!(
+            record.contains("n = 1") && record.contains("wall = 1.5"),
+            "{record}"
+        );
+        // A job the work leaves without a record, or a record for no job: errors.
+        let batch: Vec<&Count> = jobs.iter().skip(2).collect();
+        let short = runner.run_batch(&batch, |b, record| {
+            record(
+                0,
+                Record {
+                    n: b[0].0,
+                    wall: 0.0,
+                },
+            )
         });
         assert!(short
             .unwrap_err()
             .to_string()
-            .contains("2 jobs returned 1 records"));
-        assert_eq!(runner.progress().done, 0);
+            .contains("count 3 ended without a record"));
+        let beyond = runner.run_batch(&batch, |_, record| record(2, Record { n: 9, wall: 0.0 }));
+        assert!(beyond.is_err());
         runner
-            .run_batch(&batch, |b| {
-                Ok(b.iter().map(|j| Record { n: j.0, wall: 1.5 }).collect())
+            .run_batch(&[&jobs[3]], |b, record| {
+                record(
+                    0,
+                    Record {
+                        n: b[0].0,
+                        wall: 0.0,
+                    },
+                )
             })
             .unwrap();
         let pending: Vec<usize> = runner.pending().iter().map(|(i, _)| *i).collect();
         assert_eq!(pending, [0]);
-        let record = std::fs::read_to_string(out.join("2.job.toml")).unwrap();
-        assert!(
-            record.contains("n = 2") && record.contains("wall = 1.5"),
-            "{record}"
-        );
         std::fs::remove_dir_all(&out).unwrap();
     }
 

@@ -32,8 +32,9 @@ pub struct FitJob {
 /// Progress units per model of the shared bar.
 const PER_MODEL: u64 = 1000;
 
-/// Fits every job as [`fit_model`] does, the results (each with its wall time, s) in
-/// the jobs' order. On the native
+/// Fits every job as [`fit_model`] does, the results in the jobs' order; `fitted` is
+/// called with each job's place, result and wall time (s) as soon as it ends, on the
+/// thread that fitted it (an error from it is the job's). On the native
 /// CPU path the models run one per core (`what` names the bar that follows them);
 /// elsewhere one after another, with their own progress. Side by side, an error is
 /// returned after every job has ended, with every model's notes shown.
@@ -43,8 +44,9 @@ pub fn fit_side_by_side(
     graph: &Graph,
     jobs: Vec<FitJob>,
     what: &str,
+    fitted: &(dyn Fn(usize, &Fitted, f64) -> Result<()> + Sync),
     reporter: &mut dyn Reporter,
-) -> Result<Vec<(Fitted, f64)>> {
+) -> Result<Vec<Fitted>> {
     let native = match jobs.first() {
         Some(j) => runs_native(&j.config.train.backend, device)?,
         None => return Ok(Vec::new()),
@@ -53,11 +55,12 @@ pub fn fit_side_by_side(
     if workers <= 1 {
         return jobs
             .iter()
-            .map(|j| {
+            .enumerate()
+            .map(|(i, j)| {
                 let started = Instant::now();
-                let fitted =
-                    fit_model(device, data, graph, &j.config, &j.name, &j.files, reporter)?;
-                Ok((fitted, started.elapsed().as_secs_f64()))
+                let f = fit_model(device, data, graph, &j.config, &j.name, &j.files, reporter)?;
+                fitted(i, &f, started.elapsed().as_secs_f64())?;
+                Ok(f)
             })
             .collect();
     }
@@ -82,7 +85,7 @@ pub fn fit_side_by_side(
     };
     // The costliest first (training FLOPs per batch), so that the last to end is a
     // small one.
-    let fitted = parallel::run_all_costliest_first(
+    let all = parallel::run_all_costliest_first(
         jobs,
         |j| training_flops(&j.config.model, j.config.train.batch),
         workers,
@@ -104,7 +107,10 @@ pub fn fit_side_by_side(
                 &job.files,
                 &mut held,
             )
-            .map(|fitted| (fitted, started.elapsed().as_secs_f64()));
+            .and_then(|f| {
+                fitted(i, &f, started.elapsed().as_secs_f64())?;
+                Ok(f)
+            });
             held.progress.store(PER_MODEL, Ordering::Relaxed);
             // invariant: no thread panics while holding the notes' lock.
             notes.lock().expect("the held notes")[i] = Some(held.notes);
@@ -125,7 +131,7 @@ pub fn fit_side_by_side(
     );
     reporter.end();
     show(reporter);
-    fitted
+    all
 }
 
 /// A model's reporter while it fits beside others: its notes are held, its progress is

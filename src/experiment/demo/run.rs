@@ -15,7 +15,7 @@ use crate::experiment::evaluate::{
 use crate::experiment::jobs::{training_table, JobRecord};
 use crate::experiment::protocol::{
     check_closed_loop_sessions, check_seeds, existing_data, record_closed_loop, record_data,
-    sessions_setting, ClosedLoopRound, ModelFiles, MACHINE_SEED,
+    sessions_setting, ClosedLoopRound, Fitted, ModelFiles, MACHINE_SEED,
 };
 use crate::experiment::report::seeds::seeded_name;
 use crate::experiment::report::{self, Report};
@@ -183,7 +183,7 @@ pub fn demo(
                 of_seed.len()
             ));
         }
-        runner.run_batch(&pending, |batch| {
+        runner.run_batch(&pending, |batch, record| {
             let fits: Vec<FitJob> = batch
                 .iter()
                 .map(|job| {
@@ -197,29 +197,27 @@ pub fn demo(
                     }
                 })
                 .collect();
-            let fitted = fit_side_by_side(
+            let windows = data.splits.train.len();
+            // Each model's record as soon as it is fitted: a demo cut short keeps it.
+            let fitted = |i: usize, fitted: &Fitted, seconds: f64| {
+                let job = batch.get(i).ok_or_else(|| {
+                    Error::Invalid(format!("no model {i} in seed {seed}'s batch"))
+                })?;
+                let mut r =
+                    JobRecord::of_fitted(&job.name, job.variant.name(), seed, windows, fitted);
+                DemoJob::set_wall_seconds(&mut r, seconds);
+                record(i, r)
+            };
+            fit_side_by_side(
                 &device,
                 &data,
                 &graph,
                 fits,
                 &format!("training seed {seed}"),
+                &fitted,
                 reporter,
-            )?;
-            Ok(batch
-                .iter()
-                .zip(fitted)
-                .map(|(job, (fitted, seconds))| {
-                    let mut record = JobRecord::of_fitted(
-                        &job.name,
-                        job.variant.name(),
-                        seed,
-                        data.splits.train.len(),
-                        &fitted,
-                    );
-                    DemoJob::set_wall_seconds(&mut record, seconds);
-                    record
-                })
-                .collect())
+            )
+            .map(drop)
         })?;
         // Every model of the seed as its job record and files have it, whichever run
         // trained it.
