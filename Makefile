@@ -88,6 +88,8 @@ PAPER_DIR ?= paper
 PAPER_ARGS ?=
 ## The paper's protocol at the paper's sizes (docs/usage.md "reproduce"): every model ×
 ## seeds 1–3 on ~42k windows, in resumable jobs; run it again after an interruption.
+## The data as the default recipe records them (docs/usage.md "Recipes"; PAPER_ARGS=
+## "--recipe paper" for the paper's own single session).
 ## Days on lavapipe (docs/results.md "Reproduce"); meant for a real GPU or a cluster
 ## (PAPER_ARGS="--shard k/n" per machine, then once without).
 paper: vulkan

@@ -32,6 +32,8 @@ fn reproduce_shards_resumes_and_reports_over_seeds() {
             "reproduce",
             "--config",
             s(&config),
+            "--recipe",
+            "paper",
             "--minutes",
             "0.5",
             "--seeds",
@@ -117,6 +119,11 @@ fn reproduce_shards_resumes_and_reports_over_seeds() {
     assert!(report.contains("## Spread over training seeds"));
     assert!(report.contains("## Core training over seeds"));
     assert!(report.contains("| iastgcn | 2 |"), "{report}");
+    // The report names the recipe it ran.
+    assert!(
+        report.contains("recipe: paper (the paper's single session at the training placement, open loop, a prediction every 5 ticks)"),
+        "{report}"
+    );
     assert!(report.contains("## Learning curve"), "{report}");
     // The learning curve: iastgcn at 50 % and 100 % of the training windows, 2 seeds.
     let curve = std::fs::read_to_string(out.join("learning_curve.csv")).unwrap();
@@ -146,6 +153,8 @@ fn reproduce_shards_resumes_and_reports_over_seeds() {
     // Another protocol in the same folder is refused, naming the file.
     let mut args = vec!["reproduce", "--config", s(&config), "--minutes", "0.5"];
     args.extend([
+        "--recipe",
+        "paper",
         "--seeds",
         "1,3",
         "--models",
@@ -171,7 +180,8 @@ fn reproduce_shards_resumes_and_reports_over_seeds() {
     // folder refuses it, and recordings of two machines do not mix.
     let out2 = dir.join("out2");
     let mut args = vec!["reproduce", "--config", s(&config), "--minutes", "0.5"];
-    args.extend(["--machine-seed", "2", "--data-only", "--out", s(&out2)]);
+    args.extend(["--recipe", "paper", "--machine-seed", "2"]);
+    args.extend(["--data-only", "--out", s(&out2)]);
     let text = cli(&args);
     assert!(text.contains("0 of"), "{text}");
     let data = |o: &Path| {
@@ -202,7 +212,15 @@ fn reproduce_shards_resumes_and_reports_over_seeds() {
     let out3 = dir.join("out3");
     let closed = || {
         let mut args = vec!["reproduce", "--config", s(&config), "--minutes", "1"];
-        args.extend(["--sessions", "2", "--closed-loop", "--every", "1"]);
+        args.extend([
+            "--recipe",
+            "paper",
+            "--sessions",
+            "2",
+            "--closed-loop",
+            "--every",
+            "1",
+        ]);
         args.extend(["--data-only", "--out", s(&out3)]);
         cli(&args)
     };
@@ -228,7 +246,14 @@ fn reproduce_shards_resumes_and_reports_over_seeds() {
         written,
         "the closed-loop recordings were made again"
     );
-    let err = cli_fails(&["reproduce", "--closed-loop", "--out", s(&dir.join("y"))]);
+    let err = cli_fails(&[
+        "reproduce",
+        "--recipe",
+        "paper",
+        "--closed-loop",
+        "--out",
+        s(&dir.join("y")),
+    ]);
     assert!(
         err.contains("--sessions: closed-loop data") && err.contains("2 sessions or more"),
         "{err}"

@@ -36,6 +36,7 @@ fn scale_shards_scores_every_size_alike_and_resumes() {
     let out = dir.join("out");
     let run = |extra: &[&str]| {
         let mut args = vec!["scale", "--config", s(&config), "--sizes", "0.25,0.5"];
+        args.extend(["--recipe", "paper"]);
         args.extend(["--seeds", "1,2", "--models", "tgcn,mlp"]);
         args.extend(["--held-out-minutes", "0.1", "--warm-up-minutes", "0.2"]);
         args.extend(["--held-out-sessions", "1", "--validation-session"]);
@@ -116,6 +117,11 @@ fn scale_shards_scores_every_size_alike_and_resumes() {
         }
     }
 
+    let md = std::fs::read_to_string(out.join("scale.md")).unwrap();
+    assert!(
+        md.contains("- recipe: paper (the paper's single session"),
+        "{md}"
+    );
     let summary = std::fs::read_to_string(out.join("scale_summary.csv")).unwrap();
     // 2 models × 2 sizes × 4 paths, each over 2 seeds and the one test session: the
     // validation session is in no table.
@@ -230,6 +236,7 @@ fn scale_shards_scores_every_size_alike_and_resumes() {
 
     // The study may grow by seeds (or sizes, models): seed 1's jobs are done already.
     let mut args = vec!["scale", "--config", s(&config), "--sizes", "0.25,0.5"];
+    args.extend(["--recipe", "paper"]);
     args.extend(["--seeds", "1,3", "--models", "tgcn,mlp", "--data-only"]);
     args.extend(["--held-out-minutes", "0.1", "--warm-up-minutes", "0.2"]);
     args.extend(["--held-out-sessions", "1", "--validation-session"]);
@@ -239,7 +246,7 @@ fn scale_shards_scores_every_size_alike_and_resumes() {
     // Another setup in the same folder (here: recordings of another length), and sizes
     // out of order, are refused.
     let mut args = vec!["scale", "--config", s(&config), "--sizes", "0.25,0.75"];
-    args.extend(["--out", s(&out)]);
+    args.extend(["--recipe", "paper", "--out", s(&out)]);
     let err = cli_fails(&args);
     assert!(
         err.contains("study.toml") && err.contains("another study"),
@@ -263,6 +270,8 @@ fn closed_loop_data_are_recorded_with_a_round_zero_model_compensating() {
         "scale",
         "--config",
         s(&config),
+        "--recipe",
+        "paper",
         "--sizes",
         "0.5",
         "--seeds",

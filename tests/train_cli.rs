@@ -732,6 +732,10 @@ fn demo_over_seeds_reports_the_spread() {
         );
     }
     assert!(report.contains("training seeds 1, 2"));
+    assert!(
+        report.contains("recipe: use-like, the default (4 cold sessions at spread placements"),
+        "{report}"
+    );
     // The mirror: one surface polished under each controller (the tiny models remove no
     // error on validation, so none is recommended and none compensates).
     assert!(

@@ -52,8 +52,10 @@ def record_data(
     out: _Path,
     minutes: float = 2.0,
     machine_seed: int = 1,
-    sessions: int = 1,
-    placement: str = "fixed",
+    recipe: str = "use-like",
+    sessions: Optional[int] = None,
+    placement: Optional[str] = None,
+    path_order: Optional[str] = None,
     progress: _Progress = None,
 ) -> dict[str, Any]: ...
 def calibrate(

@@ -44,10 +44,11 @@ def test_serial_arm_calibration_matches_the_command(profile_dir: Path, tmp_path:
 
 @pytest.fixture(scope="module")
 def twin_data(tmp_path_factory) -> dict:
-    """The demo's data at half a minute per path, with every progress event."""
+    """The paper recipe's data at half a minute per path, with every progress event."""
     events = []
     out = tmp_path_factory.mktemp("twin")
-    data = iastgcn.record_data(out, minutes=0.5, progress=lambda *e: events.append(e))
+    data = iastgcn.record_data(out, minutes=0.5, recipe="paper",
+                               progress=lambda *e: events.append(e))
     data["events"] = events
     return data
 
@@ -69,11 +70,16 @@ def test_record_data_in_sessions_and_its_refusals(tmp_path: Path):
     assert all(Path(f).exists() for f in data["recordings"])
     with pytest.raises(iastgcn.Error, match="sessions"):
         iastgcn.record_data(tmp_path / "x", minutes=0.5, sessions=3)
+    # The default recipe's 4 sessions need a minute per path or more.
+    with pytest.raises(iastgcn.Error, match="sessions"):
+        iastgcn.record_data(tmp_path / "w", minutes=0.5)
+    with pytest.raises(iastgcn.Error, match="recipe"):
+        iastgcn.record_data(tmp_path / "v", minutes=0.5, recipe="single")
     with pytest.raises(iastgcn.Error, match="placement"):
         iastgcn.record_data(tmp_path / "y", minutes=0.5, sessions=2, placement="diagonal")
     with pytest.raises(iastgcn.Error, match="path order"):
         iastgcn.record_data(tmp_path / "z", minutes=0.5, sessions=2, path_order="sideways")
-    assert not any((tmp_path / d).exists() for d in ("x", "y", "z"))
+    assert not any((tmp_path / d).exists() for d in ("v", "w", "x", "y", "z"))
 
 
 def test_hybrid_calibration_matches_the_command(profile_dir: Path, twin_data: dict,

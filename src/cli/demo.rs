@@ -39,10 +39,6 @@ pub struct DemoArgs {
     pub recipe: super::RecipeArgs,
     #[command(flatten)]
     pub held_out: HeldOutArgs,
-    /// Record every training session open loop (under the calibrated controller alone),
-    /// instead of recording the second half again with a round-0 IASTGCN compensating.
-    #[arg(long)]
-    pub open_loop: bool,
     /// Polishing iterations of the mirror section (the recommended model polishing one
     /// surface against the other controllers, docs/polishing.md); 0 leaves it out.
     #[arg(long, default_value_t = 2, value_parser = super::count(0..=20))]
@@ -123,19 +119,19 @@ pub fn evaluate(device: Device, args: &EvaluateArgs) -> anyhow::Result<()> {
 }
 
 pub fn demo(device: Device, args: &DemoArgs) -> anyhow::Result<()> {
-    let held_out = args.held_out.config_or(demo::DEMO_HELD_OUT);
+    let held_out = args.recipe.held_out(&args.held_out, demo::DEMO_HELD_OUT);
     let mut config = DemoConfig {
         minutes: args.minutes,
         held_out,
         all_models: args.all_models,
         seeds: args.seeds.clone(),
-        recipe: args.recipe.recipe_or(demo::DEMO_RECIPE)?,
+        recipe: args.recipe.sessions()?,
         mirror: (args.mirror_iterations > 0).then(|| demo::PolishSpec {
             iterations: args.mirror_iterations,
             every: held_out.every,
             ..demo::demo_mirror()
         }),
-        closed_loop: !args.open_loop,
+        closed_loop: args.recipe.closed_loop(),
         ..DemoConfig::default()
     };
     if let Some(p) = &args.config {

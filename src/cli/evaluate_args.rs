@@ -22,8 +22,9 @@ pub struct HeldOutArgs {
     /// scored run (0: it starts cold).
     #[arg(long, default_value_t = 2.0)]
     pub warm_up_minutes: f64,
-    /// Predict every this many control ticks during compensation (default 5; 1 for
-    /// `demo`, whose models train on closed-loop data recorded at that rate).
+    /// Predict every this many control ticks during compensation (default: the recipe's,
+    /// 1 for `use-like`, whose models train on closed-loop data recorded at that rate, 5
+    /// for `paper`; 5 for `evaluate`).
     #[arg(long, value_parser = super::count(1..=10_000))]
     pub every: Option<usize>,
     /// Held-out sessions scored (Table V; in `scale` every job): the first as

@@ -97,22 +97,29 @@ fn count(range: impl std::ops::RangeBounds<u64>) -> clap::builder::RangedU64Valu
     clap::builder::RangedU64ValueParser::<usize>::new().range(range)
 }
 
-/// How a training set is recorded (docs/twin.md "Sessions"), for `demo`, `reproduce`,
-/// `scale` and `simulate --trajectory training`. Each command has its own default
-/// ([`RecipeArgs::recipe_or`]): the demo's is the recipe the evidence chose (docs/results.md
-/// "Training on what use looks like"), the others' the paper's single session.
+/// How a training set is recorded (docs/twin.md "Sessions") and how often the models
+/// predict in the loop, for `demo`, `reproduce`, `scale` and `simulate --trajectory
+/// training`: a named recipe (`experiment::recipe`), each of whose settings a flag may
+/// change.
 #[derive(clap::Args, Clone)]
 pub struct RecipeArgs {
+    /// The recipe the other flags start from: `use-like` (the default, the best measured:
+    /// 4 cold sessions at spread placements, the second half recorded again with a round-0
+    /// model compensating, a prediction every tick) or `paper` (the paper's single session
+    /// at the training placement, open loop, a prediction every 5 ticks); docs/usage.md
+    /// "Recipes".
+    #[arg(long, value_parser = ["use-like", "paper"])]
+    pub recipe: Option<String>,
     /// Split each path's minutes over this many sessions, each a day of its own that
     /// starts cold (its ambient, feed and force drawn; docs/twin.md "Days"); 1 is a
     /// single session on the calibration day. Each run lasts at least 0.25 minutes.
-    /// Default: 4 for `demo`, 1 elsewhere.
+    /// Default: the recipe's (4; 1 for `paper`).
     #[arg(long, value_parser = count(1..=64))]
     pub sessions: Option<usize>,
     /// Where the sessions' runs lie on the part: `fixed` (the default placement),
     /// `varied` (quarter turns and reversals) or `spread` (turns spread over every angle,
     /// so the strokes run every way, and reversals); none retraces a held-out placement.
-    /// Default: `spread` for `demo`, `fixed` elsewhere.
+    /// Default: the recipe's (`spread`; `fixed` for `paper`).
     #[arg(long, value_parser = ["fixed", "varied", "spread"])]
     pub placement: Option<String>,
     /// In which order each session runs its paths: `fixed` (grid, fermat, hilbert) or
@@ -120,15 +127,34 @@ pub struct RecipeArgs {
     /// starts a day cold in one session of three). Default: `fixed`.
     #[arg(long, value_parser = ["fixed", "rotated"])]
     pub path_order: Option<String>,
+    /// Record every training session open loop, under the calibrated controller alone
+    /// (the `paper` recipe's way).
+    #[arg(long, conflicts_with = "closed_loop")]
+    pub open_loop: bool,
+    /// Closed-loop data (the `use-like` recipe's way): a round-0 IASTGCN trained on the
+    /// first half of the sessions records the others again with it compensating (every
+    /// --every ticks), and the models train on both (the same minutes; needs --sessions 2
+    /// or more). A `reproduce` or `scale` folder keeps this choice. Not for `simulate`,
+    /// which records open loop.
+    #[arg(long)]
+    pub closed_loop: bool,
 }
 
 impl RecipeArgs {
-    /// The recipe these flags ask for, `default`'s sessions, placement and path order
+    /// The named recipe the flags start from.
+    pub fn named(&self) -> iastgcn::experiment::recipe::NamedRecipe {
+        use iastgcn::experiment::recipe::{NamedRecipe, DEFAULT};
+        // clap has checked the name against the recipes' names.
+        self.recipe
+            .as_deref()
+            .and_then(NamedRecipe::parse)
+            .unwrap_or(DEFAULT)
+    }
+
+    /// The sessions these flags ask for: the recipe's sessions, placement and path order
     /// where a flag is absent.
-    pub fn recipe_or(
-        &self,
-        default: iastgcn::twin::Recipe,
-    ) -> anyhow::Result<iastgcn::twin::Recipe> {
+    pub fn sessions(&self) -> anyhow::Result<iastgcn::twin::Recipe> {
+        let default = self.named().sessions;
         Ok(iastgcn::twin::Recipe {
             sessions: self.sessions.unwrap_or(default.sessions),
             placement: match &self.placement {
@@ -142,9 +168,33 @@ impl RecipeArgs {
         })
     }
 
-    /// Whether any of the flags was given.
+    /// Whether the second half of the sessions is recorded again closed loop: as
+    /// `--open-loop` or `--closed-loop` says, else as the recipe does.
+    pub fn closed_loop(&self) -> bool {
+        !self.open_loop && (self.closed_loop || self.named().closed_loop)
+    }
+
+    /// The held-out sessions of `held_out`'s flags, `default`'s where a flag is absent
+    /// and the recipe's prediction rate where `--every` is.
+    pub fn held_out(
+        &self,
+        held_out: &evaluate_args::HeldOutArgs,
+        default: iastgcn::experiment::evaluate::HeldOutConfig,
+    ) -> iastgcn::experiment::evaluate::HeldOutConfig {
+        held_out.config_or(iastgcn::experiment::evaluate::HeldOutConfig {
+            every: self.named().every,
+            ..default
+        })
+    }
+
+    /// Whether any of the training set's flags was given.
     pub fn given(&self) -> bool {
-        self.sessions.is_some() || self.placement.is_some() || self.path_order.is_some()
+        self.recipe.is_some()
+            || self.sessions.is_some()
+            || self.placement.is_some()
+            || self.path_order.is_some()
+            || self.open_loop
+            || self.closed_loop
     }
 }
 

@@ -7,6 +7,7 @@ use clap::Args;
 use super::evaluate_args::HeldOutArgs;
 use super::train::read_run_config;
 use super::Console;
+use iastgcn::experiment::evaluate::HeldOutConfig;
 use iastgcn::experiment::jobs::Shard;
 use iastgcn::experiment::reproduce::{self, Outcome, Protocol};
 use iastgcn::gpu::Device;
@@ -56,12 +57,6 @@ pub struct ReproduceArgs {
     pub merge: Vec<PathBuf>,
     #[command(flatten)]
     pub recipe: super::RecipeArgs,
-    /// Closed-loop data: in the data stage a round-0 IASTGCN (the first seed, core stage)
-    /// trained on the first half of the sessions records the others again with it
-    /// compensating (every --every ticks), and every job trains on both (the same
-    /// minutes; needs --sessions 2 or more). A folder keeps this choice.
-    #[arg(long)]
-    pub closed_loop: bool,
     #[command(flatten)]
     pub held_out: HeldOutArgs,
 }
@@ -88,8 +83,8 @@ pub fn run(device: Device, args: &ReproduceArgs) -> anyhow::Result<()> {
         protocol.run = read_run_config(Some(p), None)?;
     }
     protocol.minutes = args.minutes;
-    protocol.recipe = args.recipe.recipe_or(iastgcn::twin::Recipe::SINGLE)?;
-    protocol.closed_loop = args.closed_loop;
+    protocol.recipe = args.recipe.sessions()?;
+    protocol.closed_loop = args.recipe.closed_loop();
     protocol.seeds = args.seeds.clone();
     if !args.models.is_empty() {
         protocol.models = args.models.clone();
@@ -107,7 +102,9 @@ pub fn run(device: Device, args: &ReproduceArgs) -> anyhow::Result<()> {
     let outcome = reproduce::reproduce(
         device,
         &protocol,
-        &args.held_out.config(),
+        &args
+            .recipe
+            .held_out(&args.held_out, HeldOutConfig::default()),
         args.shard,
         args.data_only,
         &args.out,

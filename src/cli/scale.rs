@@ -66,11 +66,6 @@ pub struct ScaleArgs {
     /// not in a --shard call).
     #[arg(long)]
     pub ensemble: bool,
-    /// Closed-loop data: each job trains a round-0 model on the first half of the
-    /// sessions, records the others again with it compensating, and trains on both
-    /// (the same minutes; needs --sessions 2 or more). A folder keeps this choice.
-    #[arg(long)]
-    pub closed_loop: bool,
     /// Also score every job on a validation session (the one after the held-out
     /// sessions, never in the tables) and name the model recommended at each size there,
     /// as `evaluate` does (scale.md "Recommended model", scale_validation.csv). A folder
@@ -93,17 +88,20 @@ pub fn run(device: Device, args: &ScaleArgs) -> anyhow::Result<()> {
     study.seeds = args.seeds.clone();
     study.models = args.models.clone();
     study.machine_seed = args.machine_seed;
-    study.recipe = args.recipe.recipe_or(iastgcn::twin::Recipe::SINGLE)?;
+    study.recipe = args.recipe.sessions()?;
     study.held_out_sessions = args.held_out.held_out_sessions;
     study.refine = args.refine;
     study.ensemble = args.ensemble;
-    study.closed_loop = args.closed_loop;
+    study.closed_loop = args.recipe.closed_loop();
     study.validation = args.validation_session;
     study.graph = args.graph.clone();
-    let held = args.held_out.config_or(HeldOutConfig {
-        minutes: study.held_out_minutes,
-        ..HeldOutConfig::default()
-    });
+    let held = args.recipe.held_out(
+        &args.held_out,
+        HeldOutConfig {
+            minutes: study.held_out_minutes,
+            ..HeldOutConfig::default()
+        },
+    );
     study.held_out_minutes = held.minutes;
     study.held_out_seed = held.seed;
     study.warm_up_minutes = held.warm_up_minutes;

@@ -13,7 +13,7 @@ pub struct SimulateArgs {
     /// Path to polish (grid, fermat, hilbert, rosette), `calibration` for static
     /// measurement poses, or `training` for a whole training set into the folder --out
     /// (calibration set, its calibration, and --minutes per path of grid, fermat and
-    /// hilbert in --sessions sessions, as `demo` and `reproduce` record it).
+    /// hilbert in the recipe's sessions, as `demo` and `reproduce` record it, open loop).
     /// Required for the hybrid machine; a serial arm's twin measures static poses.
     #[arg(long, value_parser = ["grid", "fermat", "hilbert", "rosette", "calibration", "training"])]
     pub trajectory: Option<String>,
@@ -82,14 +82,20 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
         ),
         (Description::Hybrid(geometry), Some(t)) => (geometry, t),
     };
-    let recipe = args.recipe.recipe_or(Recipe::SINGLE)?;
+    anyhow::ensure!(
+        !args.recipe.closed_loop,
+        "--closed-loop: simulate records open loop (closed-loop data need a model in the \
+         loop: demo, reproduce and scale record them)"
+    );
+    let recipe = args.recipe.sessions()?;
     if trajectory == "training" {
         return training_set(args, &recipe);
     }
     anyhow::ensure!(
         !args.recipe.given(),
-        "--sessions, --placement and --path-order describe a training set: give --trajectory training, or \
-         leave them out for a single run (--rotation and --reverse place it)"
+        "--recipe, --sessions, --placement, --path-order and --open-loop describe a training \
+         set: give --trajectory training, or leave them out for a single run (--rotation and \
+         --reverse place it)"
     );
     let machine = draw_machine(geometry.clone(), args.machine_seed);
     let (controller, controller_name) = match &args.calibration {

@@ -411,34 +411,49 @@ fn scoring(hold_out_every: usize, test: Option<PathBuf>) -> Scoring {
     }
 }
 
-/// record_data(out, minutes=2.0, machine_seed=1, sessions=1, placement="fixed", path_order="fixed", progress=None) -> dict
+/// record_data(out, minutes=2.0, machine_seed=1, recipe="use-like", sessions=None, placement=None, path_order=None, progress=None) -> dict
 ///
 /// The demo's data on the twin, into the folder `out`: a calibration set of a cold
 /// machine, its EKF calibration, and `minutes` of training recordings per path (grid,
-/// fermat, hilbert), in one session or split over `sessions` (each a day of its own
-/// starting cold; `placement` "fixed", "varied" or "spread", `path_order` "fixed" or
-/// "rotated", docs/twin.md "Sessions"). Returns the
-/// files: {"recordings": [...], "calibration": ...}.
+/// fermat, hilbert), in the sessions of the named `recipe` ("use-like", the default: 4
+/// sessions at spread placements; "paper": one session at the training placement;
+/// docs/usage.md "Recipes"), open loop; `sessions`, `placement` ("fixed", "varied" or
+/// "spread") and `path_order` ("fixed" or "rotated") change them (docs/twin.md
+/// "Sessions"). Returns the files: {"recordings": [...], "calibration": ...}.
 #[pyfunction]
-#[pyo3(signature = (out, minutes=2.0, machine_seed=1, sessions=1, placement="fixed", path_order="fixed", progress=None))]
+#[pyo3(signature = (out, minutes=2.0, machine_seed=1, recipe="use-like", sessions=None, placement=None, path_order=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn record_data<'py>(
     py: Python<'py>,
     out: PathBuf,
     minutes: f64,
     machine_seed: u64,
-    sessions: usize,
-    placement: &str,
-    path_order: &str,
+    recipe: &str,
+    sessions: Option<usize>,
+    placement: Option<&str>,
+    path_order: Option<&str>,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Bound<'py, PyAny>> {
     if !(minutes.is_finite() && minutes > 0.0) {
         return Err(raise(format!("minutes must be positive, got {minutes}")));
     }
+    use crate::experiment::recipe::NamedRecipe;
+    let named = NamedRecipe::parse(recipe).ok_or_else(|| {
+        raise(format!(
+            "recipe: {recipe:?} is not one of {}",
+            NamedRecipe::names()
+        ))
+    })?;
     let recipe = crate::twin::Recipe {
-        sessions,
-        placement: placement.parse().map_err(raise)?,
-        path_order: path_order.parse().map_err(raise)?,
+        sessions: sessions.unwrap_or(named.sessions.sessions),
+        placement: match placement {
+            Some(p) => p.parse().map_err(raise)?,
+            None => named.sessions.placement,
+        },
+        path_order: match path_order {
+            Some(o) => o.parse().map_err(raise)?,
+            None => named.sessions.path_order,
+        },
     };
     recipe
         .validate(minutes)

@@ -6,7 +6,7 @@
 //! `reproduce`, `scale` and `demo` (`runner`), what their jobs share (shards, pinned
 //! setups, job records, TOML files: `jobs`), the scaling study of error against
 //! training data (`scale`), the model recommended on a validation session
-//! (`recommend`), a serial arm's residual models on held-out poses (`arm`), how a
+//! (`recommend`), the named recipes of the training data and the loop (`recipe`), a serial arm's residual models on held-out poses (`arm`), how a
 //! calibration holds on a held-out stretch of a pose file (`block_study`), and the
 //! independent runs of an evaluation on every core (`parallel`), models fitted one per
 //! core with the bits of fitting them in turn (`side_by_side`), and how long the demo
@@ -24,6 +24,7 @@ pub mod machines;
 mod parallel;
 pub mod polish;
 pub mod protocol;
+pub mod recipe;
 pub mod recommend;
 pub mod report;
 pub mod reproduce;

@@ -14,9 +14,10 @@ mod run;
 use super::evaluate::HeldOutConfig;
 pub use super::polish::PolishSpec;
 pub use super::protocol::{CALIBRATION_SEED, TRAINING_SEED};
+use super::recipe;
 use crate::polish::StartingPoint;
 use crate::train::RunConfig;
-use crate::twin::{PathOrder, Placement, Recipe};
+use crate::twin::Recipe;
 pub use run::demo;
 
 /// Length of each of the demo's training recordings, minutes: the most data with which
@@ -71,29 +72,18 @@ pub fn demo_mirror() -> PolishSpec {
     }
 }
 
-/// How the demo records its training set: each path's minutes in 4 sessions on days of
-/// their own, at spread placements. Chosen on the evidence of docs/results.md "Training
-/// on what use looks like": at the demo's 8 minutes, 4 sessions beat 1 in 4 of 8
-/// closed-loop cells and lost none; at 32 minutes in 5 of 8, and 16 sessions gained
-/// nothing over 4; spread placements beat the quarter turns on Hilbert at 8 and 32
-/// minutes (+3.8 / +3.4 and +3.9 / +4.7 points) and lost no cell; rotating the paths'
-/// order changed nothing.
-pub const DEMO_RECIPE: Recipe = Recipe {
-    sessions: 4,
-    placement: Placement::Spread,
-    path_order: PathOrder::Fixed,
-};
+/// How the demo records its training set: the default recipe's sessions
+/// ([`recipe::DEFAULT`], the best measured).
+pub const DEMO_RECIPE: Recipe = recipe::DEFAULT.sessions;
 
 /// The demo's held-out sessions: three, of 0.5 min runs from seed 301, the first after
-/// 2 min of warm-up, and **a prediction every tick**: with closed-loop training data
-/// recorded at that rate the models use the faster loop (docs/results.md "Training on
-/// what use looks like": +4.5 points on Hilbert at 32 minutes per path against every 5
-/// ticks, which open-loop-trained models do not gain).
+/// 2 min of warm-up, a prediction at the default recipe's rate (every tick: with
+/// closed-loop training data recorded at that rate the models use the faster loop).
 pub const DEMO_HELD_OUT: HeldOutConfig = HeldOutConfig {
     minutes: 0.5,
     seed: 301,
     warm_up_minutes: 2.0,
-    every: 1,
+    every: recipe::DEFAULT.every,
     sessions: 3,
 };
 
@@ -108,7 +98,7 @@ impl Default for DemoConfig {
             all_models: false,
             recipe: DEMO_RECIPE,
             mirror: Some(demo_mirror()),
-            closed_loop: true,
+            closed_loop: recipe::DEFAULT.closed_loop,
         }
     }
 }

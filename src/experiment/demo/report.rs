@@ -11,6 +11,7 @@ use crate::error::{Error, Result};
 use crate::experiment::evaluate::{predictors, Evaluated, NamedModel};
 use crate::experiment::polish::{self, PolishSpec};
 use crate::experiment::protocol::{CALIBRATION_SEED, MACHINE_SEED, OPEN_LOOP_DATA, TRAINING_SEED};
+use crate::experiment::recipe::NamedRecipe;
 use crate::experiment::recommend::recommend;
 use crate::experiment::report::TableVRow;
 use crate::gpu::Device;
@@ -165,6 +166,7 @@ pub(super) fn setup_lines(demo: &DemoConfig, closed_loop: Option<String>) -> Vec
                 .collect::<Vec<_>>()
                 .join(", ")
         ),
+        NamedRecipe::line_for(&demo.recipe, demo.closed_loop, demo.held_out.every),
         format!(
             "protocol: machine 1; calibration set at rest on a cold machine (seed \
              {CALIBRATION_SEED}); training recordings under the calibrated controller: {}, \

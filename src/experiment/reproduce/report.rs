@@ -10,6 +10,7 @@ use crate::error::Result;
 use crate::experiment::evaluate::{tables, HeldOutConfig, NamedModel};
 use crate::experiment::jobs::{clock, training_table, JobRecord};
 use crate::experiment::protocol::{CALIBRATION_SEED, OPEN_LOOP_DATA, TRAINING_SEED};
+use crate::experiment::recipe::NamedRecipe;
 use crate::experiment::report::curve::CurvePoint;
 use crate::experiment::report::seeds::Spread;
 use crate::experiment::report::{self, Report};
@@ -69,6 +70,7 @@ pub(super) fn report(
             protocol.models.join(", "),
             seeds.join(", ")
         ),
+        NamedRecipe::line_for(&protocol.recipe, protocol.closed_loop, held_out.every),
         format!(
             "data: twin machine {}; calibration set at rest on a cold machine (seed \
              {CALIBRATION_SEED}); training recordings under the calibrated controller: {}; \

@@ -4,6 +4,7 @@
 use super::points::Point;
 use super::records::{PathScore, ScaleRecord};
 use super::study::{Study, PAPER_HILBERT_REMOVED};
+use crate::experiment::recipe::NamedRecipe;
 use crate::experiment::recommend::Recommendation;
 use crate::twin::PathKind;
 
@@ -55,7 +56,7 @@ pub(super) fn markdown(
         })
         .collect();
     let mut s = format!(
-        "# Scaling study\n\n- {recorded}; a size of m minutes \
+        "# Scaling study\n\n- {}\n- {recorded}; a size of m minutes \
          trains on the first m/{minutes} of each recording's training block and stops early \
          on the first m/{minutes} of its validation block; every size is scored on the same \
          test blocks, those of the {minutes}-minute recordings\n- {stage}\n- Held-out sessions: {}, \
@@ -68,6 +69,7 @@ pub(super) fn markdown(
          correction; docs/shift/README.md \"Where the error goes\"). Test MAE: the model's on \
          the path's test block (µm / mdeg), over seeds. The paper's Table V (Hilbert): {} % / \
          {} %.\n",
+        NamedRecipe::line_for(&study.recipe, study.closed_loop, study.every),
         study.held_out_sessions,
         study.held_out_minutes,
         study.every,

@@ -10,6 +10,7 @@ use crate::experiment::evaluate::{HeldOutConfig, MAX_HELD_OUT_SESSIONS};
 use crate::experiment::protocol::{
     check_closed_loop_sessions, check_seeds, sessions_setting, ModelFiles, MACHINE_SEED,
 };
+use crate::experiment::recipe;
 use crate::experiment::recommend::validation_session;
 use crate::experiment::report::seeds::seeded_name;
 use crate::graph::Graph;
@@ -93,7 +94,8 @@ pub(super) fn one_session() -> usize {
 impl Study {
     /// The study of issue 39 at the demo's model and training settings: 2, 8, 32 and 128
     /// minutes per path, IASTGCN, its Chebyshev ablation, T-GCN and the MLP, seeds 1–3,
-    /// a held-out session of 2-minute runs.
+    /// a held-out session of 2-minute runs; the data and the loop as the default recipe
+    /// says ([`recipe::DEFAULT`]).
     pub fn demo_shape() -> Study {
         let held = HeldOutConfig::default();
         Study {
@@ -108,13 +110,13 @@ impl Study {
             held_out_minutes: 2.0,
             held_out_seed: held.seed,
             warm_up_minutes: held.warm_up_minutes,
-            every: held.every,
-            recipe: Recipe::SINGLE,
+            every: recipe::DEFAULT.every,
+            recipe: recipe::DEFAULT.sessions,
             held_out_sessions: 3,
             refine: false,
             graph: None,
             ensemble: false,
-            closed_loop: false,
+            closed_loop: recipe::DEFAULT.closed_loop,
             validation: false,
         }
     }
@@ -190,7 +192,7 @@ impl Study {
         }
         self.recipe.validate(max).map_err(sessions_setting)?;
         if self.closed_loop {
-            check_closed_loop_sessions(self.recipe.sessions, "")?;
+            check_closed_loop_sessions(self.recipe.sessions, " (or closed_loop = false)")?;
         }
         if !(1..=MAX_HELD_OUT_SESSIONS).contains(&self.held_out_sessions) {
             return Err(Error::Setting {
