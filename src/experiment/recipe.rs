@@ -66,13 +66,7 @@ impl NamedRecipe {
     /// recipe it is, or the nearest one (fewest settings apart; the default on a tie) and
     /// what the run changed.
     pub fn line_for(sessions: &Recipe, closed_loop: bool, every: usize) -> String {
-        let apart = |r: &NamedRecipe| {
-            usize::from(r.sessions.sessions != sessions.sessions)
-                + usize::from(r.sessions.placement != sessions.placement)
-                + usize::from(r.sessions.path_order != sessions.path_order)
-                + usize::from(r.closed_loop != closed_loop)
-                + usize::from(r.every != every)
-        };
+        let apart = |r: &NamedRecipe| r.changes(sessions, closed_loop, every).len();
         let mut nearest = DEFAULT;
         for r in RECIPES {
             if apart(&r) < apart(&nearest) {
@@ -92,10 +86,9 @@ impl NamedRecipe {
         RECIPES.map(|r| r.name).join(", ")
     }
 
-    /// A report's line for a run that started from this recipe and ran `sessions`,
-    /// `closed_loop` and `every`: the recipe's name and summary, and what the run
-    /// changed, if anything.
-    pub fn line(&self, sessions: &Recipe, closed_loop: bool, every: usize) -> String {
+    /// The settings of a run of `sessions`, `closed_loop` and `every` that differ from
+    /// this recipe's, in words.
+    fn changes(&self, sessions: &Recipe, closed_loop: bool, every: usize) -> Vec<String> {
         let mut changed = Vec::new();
         if sessions.sessions != self.sessions.sessions {
             changed.push(format!("{} session(s)", sessions.sessions));
@@ -119,6 +112,14 @@ impl NamedRecipe {
         if every != self.every {
             changed.push(format!("a prediction every {every} ticks"));
         }
+        changed
+    }
+
+    /// A report's line for a run that started from this recipe and ran `sessions`,
+    /// `closed_loop` and `every`: the recipe's name and summary, and what the run
+    /// changed, if anything.
+    pub fn line(&self, sessions: &Recipe, closed_loop: bool, every: usize) -> String {
+        let changed = self.changes(sessions, closed_loop, every);
         let default = if *self == DEFAULT {
             ", the default"
         } else {

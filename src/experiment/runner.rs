@@ -120,10 +120,10 @@ impl<'a, J: Job> Runner<'a, J> {
     }
 
     /// Runs `batch` (jobs of this list, without a record) together with `work`, which
-    /// hands each job's record (with the wall time it gave it) to its second argument as
-    /// the job ends, with the job's place in the batch: the record is written at once, so
-    /// that a batch cut short keeps the jobs it finished. For jobs that run side by side.
-    /// A job left without a record is an error.
+    /// hands each job's record to its second argument as the job ends, with the job's
+    /// place in the batch and its wall time: the record is written at once (the wall time
+    /// set on it), so that a batch cut short keeps the jobs it finished. For jobs that run
+    /// side by side. A job left without a record is an error.
     pub fn run_batch(
         &self,
         batch: &[&J],
@@ -136,7 +136,8 @@ impl<'a, J: Job> Runner<'a, J> {
             return Ok(());
         }
         let out = self.out;
-        let record = |i: usize, record: J::Record| -> Result<()> {
+        let record = |i: usize, mut record: J::Record, wall: f64| -> Result<()> {
+            J::set_wall_seconds(&mut record, wall);
             let job = batch.get(i).ok_or_else(|| {
                 Error::Invalid(format!(
                     "a record for job {i} of a batch of {}",
@@ -156,9 +157,9 @@ impl<'a, J: Job> Runner<'a, J> {
     }
 }
 
-/// What a batch's work hands each finished job's record to: its place in the batch and
-/// the record.
-pub type RecordFn<'a, R> = dyn Fn(usize, R) -> Result<()> + Sync + 'a;
+/// What a batch's work hands each finished job's record to: its place in the batch, the
+/// record and the job's wall time (s).
+pub type RecordFn<'a, R> = dyn Fn(usize, R, f64) -> Result<()> + Sync + 'a;
 
 /// The last value built, kept while the next jobs ask for the same key: the dataset of
 /// a share or size of the training data, which consecutive jobs of a list share.
@@ -345,12 +346,14 @@ mod tests {
         let batch: Vec<&Count> = jobs.iter().skip(1).collect();
         // Cut short after its first job: that one keeps its record.
         let cut = runner.run_batch(&batch, |b, record| {
+            // The runner sets the wall time it is given.
             record(
                 0,
                 Record {
                     n: b[0].0,
-                    wall: 1.5,
+                    wall: -1.0,
                 },
+                1.5,
             )?;
             Err(Error::Invalid("interrupted".into()))
         });
@@ -371,13 +374,16 @@ mod tests {
                     n: b[0].0,
                     wall: 0.0,
                 },
+                0.0,
             )
         });
         assert!(short
             .unwrap_err()
             .to_string()
             .contains("count 3 ended without a record"));
-        let beyond = runner.run_batch(&batch, |_, record| record(2, Record { n: 9, wall: 0.0 }));
+        let beyond = runner.run_batch(&batch, |_, record| {
+            record(2, Record { n: 9, wall: 0.0 }, 0.0)
+        });
         assert!(beyond.is_err());
         runner
             .run_batch(&[&jobs[3]], |b, record| {
@@ -387,6 +393,7 @@ mod tests {
                         n: b[0].0,
                         wall: 0.0,
                     },
+                    0.0,
                 )
             })
             .unwrap();

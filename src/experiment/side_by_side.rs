@@ -32,9 +32,9 @@ pub struct FitJob {
 /// Progress units per model of the shared bar.
 const PER_MODEL: u64 = 1000;
 
-/// Fits every job as [`fit_model`] does, the results in the jobs' order; `fitted` is
-/// called with each job's place, result and wall time (s) as soon as it ends, on the
-/// thread that fitted it (an error from it is the job's). On the native
+/// Fits every job as [`fit_model`] does; `fitted` is called with each job's place,
+/// result and wall time (s) as soon as it ends, on the thread that fitted it (an error
+/// from it is the job's). On the native
 /// CPU path the models run one per core (`what` names the bar that follows them);
 /// elsewhere one after another, with their own progress. Side by side, an error is
 /// returned after every job has ended, with every model's notes shown.
@@ -46,23 +46,18 @@ pub fn fit_side_by_side(
     what: &str,
     fitted: &(dyn Fn(usize, &Fitted, f64) -> Result<()> + Sync),
     reporter: &mut dyn Reporter,
-) -> Result<Vec<Fitted>> {
+) -> Result<()> {
     let native = match jobs.first() {
         Some(j) => runs_native(&j.config.train.backend, device)?,
-        None => return Ok(Vec::new()),
+        None => return Ok(()),
     };
     let workers = parallel::workers(native).min(jobs.len());
     if workers <= 1 {
-        return jobs
-            .iter()
-            .enumerate()
-            .map(|(i, j)| {
-                let started = Instant::now();
-                let f = fit_model(device, data, graph, &j.config, &j.name, &j.files, reporter)?;
-                fitted(i, &f, started.elapsed().as_secs_f64())?;
-                Ok(f)
-            })
-            .collect();
+        return jobs.iter().enumerate().try_for_each(|(i, j)| {
+            let started = Instant::now();
+            let f = fit_model(device, data, graph, &j.config, &j.name, &j.files, reporter)?;
+            fitted(i, &f, started.elapsed().as_secs_f64())
+        });
     }
     let count = jobs.len();
     let progress: Vec<AtomicU64> = (0..count).map(|_| AtomicU64::new(0)).collect();
@@ -107,10 +102,7 @@ pub fn fit_side_by_side(
                 &job.files,
                 &mut held,
             )
-            .and_then(|f| {
-                fitted(i, &f, started.elapsed().as_secs_f64())?;
-                Ok(f)
-            });
+            .and_then(|f| fitted(i, &f, started.elapsed().as_secs_f64()));
             held.progress.store(PER_MODEL, Ordering::Relaxed);
             // invariant: no thread panics while holding the notes' lock.
             notes.lock().expect("the held notes")[i] = Some(held.notes);
@@ -131,7 +123,7 @@ pub fn fit_side_by_side(
     );
     reporter.end();
     show(reporter);
-    all
+    all.map(drop)
 }
 
 /// A model's reporter while it fits beside others: its notes are held, its progress is

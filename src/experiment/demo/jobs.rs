@@ -14,6 +14,7 @@ use crate::experiment::jobs::{read_toml, write_toml, JobRecord};
 use crate::experiment::protocol::{ModelFiles, CORE_SUFFIX};
 use crate::experiment::report::seeds::seeded_name;
 use crate::model::{Checkpoint, Variant};
+use crate::train::refine::AccumulatedCurve;
 use crate::train::{log, sibling, EpochRecord, RunConfig};
 use crate::twin::Recipe;
 
@@ -74,11 +75,7 @@ impl DemoJob {
     }
 
     /// Fig. 9b's curves before and after its refinement, from their file in `dir`.
-    #[allow(clippy::type_complexity)]
-    pub fn accumulated(
-        &self,
-        dir: &Path,
-    ) -> Result<(Vec<(usize, f64, f64)>, Vec<(usize, f64, f64)>)> {
+    pub fn accumulated(&self, dir: &Path) -> Result<(AccumulatedCurve, AccumulatedCurve)> {
         log::read_accumulated(&sibling(&self.files(dir).refined, ".accumulated.csv"))
     }
 }

@@ -203,10 +203,8 @@ pub fn demo(
                 let job = batch.get(i).ok_or_else(|| {
                     Error::Invalid(format!("no model {i} in seed {seed}'s batch"))
                 })?;
-                let mut r =
-                    JobRecord::of_fitted(&job.name, job.variant.name(), seed, windows, fitted);
-                DemoJob::set_wall_seconds(&mut r, seconds);
-                record(i, r)
+                let r = JobRecord::of_fitted(&job.name, job.variant.name(), seed, windows, fitted);
+                record(i, r, seconds)
             };
             fit_side_by_side(
                 &device,
@@ -217,7 +215,6 @@ pub fn demo(
                 &fitted,
                 reporter,
             )
-            .map(drop)
         })?;
         // Every model of the seed as its job record and files have it, whichever run
         // trained it.
