@@ -72,7 +72,7 @@ DEMO_DIR ?= report
 
 ## The main job: the adapter and its kernels checked against the CPU, then `iastgcn demo`
 ## (twin recordings, EKF calibration, dataset, IASTGCN, its three ablations and the dense
-## baselines trained with assets/demo.toml for training seeds 1–3, refinement, Table III
+## baselines trained with assets/demo.toml for training seeds 1–2, refinement, Table III
 ## on the held-out split, online compensation of held-out runs for Table V, both as
 ## mean ± SD over the seeds with paired comparisons, the mirror, the report folder).
 ## Outputs land in $(DEMO_DIR)/ (report.md is the entry point). Only the binary is built:

@@ -74,8 +74,8 @@ pub(super) fn plan(
     } else {
         let step_ms = forecast::probe(&demo.run)?;
         let (first, all) = forecast::forecast(step_ms);
-        // The reference ran three seeds: the rest scales with them.
-        let all = first + (all - first) * seeds as f64 / 3.0;
+        // The rest scales with the seeds over the reference's.
+        let all = first + (all - first) * seeds as f64 / forecast::REFERENCE.seeds as f64;
         format!(
             "time: {} here{}, if nothing else runs beside it (an IASTGCN training step takes {step_ms:.1} ms here, {:.1} ms on the reference machine, where the demo took {:.0} s: {})",
             forecast::minutes(all),
