@@ -6,6 +6,7 @@ use std::path::Path;
 use std::sync::Once;
 
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 static FONT: &[u8] = include_bytes!("../assets/fonts/DejaVuSans.ttf");
 static REGISTER: Once = Once::new();
@@ -416,6 +417,191 @@ pub fn heat_maps(
                             .map_err(|e| err(&e))?;
                     }
                 }
+            }
+        }
+        Ok(())
+    })
+}
+
+/// One panel of [`cell_maps`]: a title and one value per cell, row-major, row 0 at the
+/// bottom (`NaN`: no value).
+#[derive(Clone, Debug)]
+pub struct CellMap {
+    /// The panel's title.
+    pub title: String,
+    /// `rows × cols` values.
+    pub values: Vec<f64>,
+}
+
+/// The axes every panel of [`cell_maps`] shares: a label per column and per row, and
+/// marks drawn as vertical lines at fractional column positions (0 at the first
+/// column's centre), each with a letter, named in the figure's caption.
+#[derive(Clone, Debug)]
+pub struct CellAxes {
+    /// The columns' labels, left to right.
+    pub columns: Vec<String>,
+    /// The rows' labels, bottom to top.
+    pub rows: Vec<String>,
+    /// What the columns are.
+    pub x_title: String,
+    /// What the rows are.
+    pub y_title: String,
+    /// `(column position, name)`.
+    pub marks: Vec<(f64, String)>,
+}
+
+/// White (at `range.0` and below) to red (at `range.1`) on a log scale, for the value `v`.
+fn sequential_log(v: f64, range: (f64, f64)) -> RGBColor {
+    if v.is_nan() || v <= range.0 {
+        return diverging(0.5);
+    }
+    let (lo, hi) = (range.0.log10(), range.1.log10());
+    diverging(0.5 + 0.5 * (v.log10() - lo) / (hi - lo).max(1e-12))
+}
+
+/// Draws `maps` on a grid of `cols` panels per row into a PNG of cells, each coloured by
+/// its value on a log scale from `range.0` (white; that and below) to `range.1` (red),
+/// labelled with it (`unit` names it) and outlined where it is at least `outline`, the
+/// marks of `axes` over every panel; written atomically.
+pub fn cell_maps(
+    path: &Path,
+    maps: &[CellMap],
+    cols: usize,
+    axes: &CellAxes,
+    range: (f64, f64),
+    outline: f64,
+    unit: &str,
+) -> Result<(), PlotError> {
+    let cols = cols.max(1);
+    let rows = maps.len().div_ceil(cols).max(1);
+    let (nx, ny) = (axes.columns.len().max(1), axes.rows.len().max(1));
+    let letter = |k: usize| char::from(b'a' + (k % 26) as u8);
+    let caption = 24 * (1 + axes.marks.len().div_ceil(2)) as u32;
+    let size = (cols as u32 * 520, rows as u32 * 400 + caption);
+    render(path, size, |root, err| {
+        let (legend, body) = root.split_vertically(caption);
+        let mut lines = vec![format!(
+            "each cell: {unit}; colour from {} (white, and below) to {:.1} (red) on a log scale; outlined: {outline} or more",
+            range.0, range.1
+        )];
+        for pair in axes.marks.chunks(2).enumerate() {
+            let (k, chunk) = pair;
+            lines.push(
+                chunk
+                    .iter()
+                    .enumerate()
+                    .map(|(j, (_, name))| format!("{}: {name}", letter(2 * k + j)))
+                    .collect::<Vec<_>>()
+                    .join("    "),
+            );
+        }
+        for (k, line) in lines.iter().enumerate() {
+            legend
+                .draw(&Text::new(
+                    line.clone(),
+                    (10, 6 + 22 * k as i32),
+                    ("sans-serif", 15),
+                ))
+                .map_err(|e| err(&e))?;
+        }
+        let column = |v: &f64| -> String {
+            let i = v.round();
+            if (v - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < nx {
+                axes.columns[i as usize].clone()
+            } else {
+                String::new()
+            }
+        };
+        let row = |v: &f64| -> String {
+            let i = v.round();
+            if (v - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < ny {
+                axes.rows[i as usize].clone()
+            } else {
+                String::new()
+            }
+        };
+        for (map, area) in maps.iter().zip(body.split_evenly((rows, cols)).iter()) {
+            let mut chart = ChartBuilder::on(area)
+                .caption(&map.title, ("sans-serif", 16))
+                .margin(10)
+                .x_label_area_size(40)
+                .y_label_area_size(55)
+                .build_cartesian_2d(-0.5..nx as f64 - 0.5, -0.5..ny as f64 - 0.5)
+                .map_err(|e| err(&e))?;
+            chart
+                .configure_mesh()
+                .disable_mesh()
+                .x_labels(nx)
+                .y_labels(ny)
+                .x_label_formatter(&column)
+                .y_label_formatter(&row)
+                .x_desc(&axes.x_title)
+                .y_desc(&axes.y_title)
+                .label_style(("sans-serif", 12))
+                .draw()
+                .map_err(|e| err(&e))?;
+            let cells = (0..ny).flat_map(|r| (0..nx).map(move |c| (r, c)));
+            chart
+                .draw_series(cells.clone().map(|(r, c)| {
+                    let v = map.values.get(r * nx + c).copied().unwrap_or(f64::NAN);
+                    let (x, y) = (c as f64, r as f64);
+                    Rectangle::new(
+                        [(x - 0.5, y - 0.5), (x + 0.5, y + 0.5)],
+                        sequential_log(v, range).filled(),
+                    )
+                }))
+                .map_err(|e| err(&e))?;
+            chart
+                .draw_series(
+                    (0..ny)
+                        .flat_map(|r| (0..nx).map(move |c| (r, c)))
+                        .filter(|&(r, c)| map.values.get(r * nx + c).is_some_and(|v| *v >= outline))
+                        .map(|(r, c)| {
+                            let (x, y) = (c as f64, r as f64);
+                            Rectangle::new(
+                                [(x - 0.47, y - 0.47), (x + 0.47, y + 0.47)],
+                                BLACK.stroke_width(2),
+                            )
+                        }),
+                )
+                .map_err(|e| err(&e))?;
+            let style = TextStyle::from(("sans-serif", 12).into_font())
+                .pos(Pos::new(HPos::Center, VPos::Center));
+            // White figures on the darker reds.
+            let dark = range.1.log10() - 0.4 * (range.1.log10() - range.0.log10());
+            chart
+                .draw_series(cells.map(|(r, c)| {
+                    let v = map.values.get(r * nx + c).copied().unwrap_or(f64::NAN);
+                    let text = if v.is_finite() {
+                        format!("{v:.2}")
+                    } else {
+                        String::new()
+                    };
+                    let style = if v > 0.0 && v.log10() > dark {
+                        style.color(&WHITE)
+                    } else {
+                        style.clone()
+                    };
+                    Text::new(text, (c as f64, r as f64), style)
+                }))
+                .map_err(|e| err(&e))?;
+            for (k, (x, _)) in axes.marks.iter().enumerate() {
+                chart
+                    .draw_series(DashedLineSeries::new(
+                        [(*x, -0.5), (*x, ny as f64 - 0.5)],
+                        6,
+                        4,
+                        BLUE.stroke_width(1),
+                    ))
+                    .map_err(|e| err(&e))?;
+                let top = ny as f64 - 0.5 - 0.3 * (1 + k % 3) as f64;
+                chart
+                    .draw_series(std::iter::once(Text::new(
+                        letter(k).to_string(),
+                        (*x + 0.06, top),
+                        ("sans-serif", 15).into_font().color(&BLUE),
+                    )))
+                    .map_err(|e| err(&e))?;
             }
         }
         Ok(())

@@ -249,3 +249,84 @@ fn table_vi_follows_the_paper() {
     assert_eq!((paired[0].1.count, paired[0].1.mean), (1, 0.0));
     assert_eq!(paired[0].2.mean, -75.0);
 }
+
+/// `iastgcn polish-sweep` on a coarse grid: every cell of the sweep in the CSV, the cost
+/// tables and the map written, a `polish` run's pose errors marked; bad kinds, floats and
+/// mark files refused by name.
+#[test]
+fn the_sweep_writes_its_map_and_refuses_bad_input() {
+    let dir = std::env::temp_dir().join(format!("iastgcn-sweep-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let marks = dir.join("polish.csv");
+    std::fs::write(
+        &marks,
+        "surface_seed,controller,iteration,pv_nm,rms_nm,measured_rms_nm,planned_rms_nm,minutes,force_n,position_um,attitude_mdeg\n\
+         1,calibrated,0,250,13,13,7,12,150,120,60\n\
+         1,calibrated,1,120,9,9,8,9,44,140,62\n\
+         1,perfect machine,0,250,13,13,7,12,150,0,0\n",
+    )
+    .unwrap();
+    let out = dir.join("sweep");
+    let bin = env!("CARGO_BIN_EXE_iastgcn");
+    let common = [
+        "polish-sweep",
+        "--footprints",
+        "42,84",
+        "--sizes",
+        "0.1,1",
+        "--pixels-across",
+        "7",
+        "--max-pixel-mm",
+        "12",
+        "--seeds",
+        "1",
+    ];
+    let run = |extra: &[&str]| {
+        std::process::Command::new(bin)
+            .args(common)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let o = run(&[
+        "--kinds",
+        "slow,white",
+        "--marks-from",
+        marks.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let csv = std::fs::read_to_string(out.join("sweep.csv")).unwrap();
+    // 2 footprints × 2 kinds × 2 floats × 2 sizes.
+    assert_eq!(csv.lines().count(), 1 + 16, "{csv}");
+    let md = std::fs::read_to_string(out.join("sweep.md")).unwrap();
+    assert!(md.contains("## slow, ideal float"), "{md}");
+    assert!(md.contains("## white, float 4 N/mm, seal 3 N"), "{md}");
+    assert!(md.contains("the twin, calibrated (130 µm)"), "{md}");
+    assert!(!md.contains("perfect machine"), "{md}");
+    assert!(std::fs::metadata(out.join("map.png")).unwrap().len() > 1000);
+    for (extra, says) in [
+        (
+            vec!["--kinds", "sideways"],
+            "unknown pose error kind \"sideways\"",
+        ),
+        (vec!["--floats", "rigid"], "unknown float \"rigid\""),
+        (
+            vec!["--marks-from", "/nonexistent/polish.csv"],
+            "--marks-from",
+        ),
+        (vec!["--sizes", "0.1,-1"], "sizes"),
+    ] {
+        let mut args = extra.clone();
+        args.extend(["--out", out.to_str().unwrap()]);
+        let o = run(&args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success() && err.contains(says),
+            "{extra:?}: {err}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -750,9 +750,24 @@ fn demo_over_seeds_reports_the_spread() {
             "{controller}: {polish}"
         );
     }
-    for f in ["polish/convergence.png", "polish/maps.png"] {
+    for f in [
+        "polish/convergence.png",
+        "polish/maps.png",
+        "polish/sweep/map.png",
+        "polish/sweep/sweep.csv",
+    ] {
         assert!(out.join(f).exists(), "{f}");
     }
+    // When compensation pays on the demo's pad: every kind under both floats, this run's
+    // calibrated controller marked (the nominal's too; no model compensated).
+    assert!(
+        report.contains("### When compensation pays on this pad")
+            && report.contains("| slow, ideal float |")
+            && report.contains("| white, float 4 N/mm, seal 3 N |")
+            && report.contains("This run's controllers showed the glass: nominal (")
+            && report.contains(", calibrated ("),
+        "{report}"
+    );
     // Closed-loop data (the default): a round-0 IASTGCN trained on sessions 1-2 recorded
     // sessions 3-4 again at every tick, and those recordings, not the open-loop ones of
     // the same sessions, trained every model.

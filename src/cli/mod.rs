@@ -12,6 +12,7 @@ mod import;
 mod info;
 mod model;
 mod polish;
+mod polish_sweep;
 mod reference;
 mod register;
 mod reproduce;
@@ -89,6 +90,10 @@ enum Command {
     /// calibrated controllers, each model compensating online, the oracle and a perfect
     /// machine.
     Polish(polish::PolishArgs),
+    /// When compensation matters on the glass: one polishing iteration walked with pose
+    /// errors of each kind and size, for pads of several footprints and two pneumatic
+    /// floats; a map of the cost in final RMS.
+    PolishSweep(polish_sweep::PolishSweepArgs),
 }
 
 /// A count in `range` (e.g. `1..`); clap names the argument and the range when the
@@ -302,6 +307,7 @@ pub fn main() -> ExitCode {
                 open_device(cli.adapter.as_deref()).and_then(|device| reproduce::run(device, &args))
             }
             Command::Polish(args) => polish::run(cli.adapter.as_deref(), &args),
+            Command::PolishSweep(args) => polish_sweep::run(&args),
             Command::Scale(args) => {
                 open_device(cli.adapter.as_deref()).and_then(|device| scale::run(device, &args))
             }

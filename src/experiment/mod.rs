@@ -23,6 +23,7 @@ pub mod jobs;
 pub mod machines;
 mod parallel;
 pub mod polish;
+pub mod polish_sweep;
 pub mod protocol;
 pub mod recipe;
 pub mod recommend;

@@ -430,6 +430,11 @@ impl Polisher {
         self.path.length()
     }
 
+    /// The path the pad walks.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
     /// Walks the path once along `plan` on `machine` from `start`, driven by `controller`
     /// corrected by `feedback`, with the run's seed `seed`; removes glass from `surface`
     /// at every tick at the pad's pose (`pose`) with the tick's contact force. `on_tick`
@@ -520,66 +525,5 @@ impl Polisher {
         let across = axis - normal * axis.dot(&normal);
         let contact = self.setup.pad.contact([across.x, across.y], s.hidden.force);
         self.setup.pad.tick([centre.x, centre.y], &contact, dt)
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::polish::surface::{draw, StartingPoint};
-
-    /// Walking the planned feed along each path with the pad square to the glass at the
-    /// nominal force removes what the plan said (the feed realises the dwell); on the
-    /// raster the plan removes most of the error.
-    #[test]
-    fn the_feed_realises_the_plan() {
-        for kind in PathKind::ALL {
-            let mut setup = Setup::new(kind);
-            setup.pitch = 4.0;
-            let mut polisher = Polisher::new(setup).unwrap();
-            let surface = draw(
-                polisher.grid,
-                polisher.mirror.radius(),
-                &polisher.clear,
-                &StartingPoint::default(),
-                1,
-            );
-            let dwell = polisher.plan(&surface).unwrap();
-            let plan = polisher.feed(&dwell).unwrap();
-            let total = plan.duration(polisher.path_length());
-            let (dt, pad) = (0.02, polisher.setup.pad);
-            let mut walked = HeightMap::zeros(polisher.grid);
-            let (mut arc, mut t) = (0.0, 0.0);
-            while t < total {
-                let [x, y] = polisher.path.at(arc);
-                let contact = pad.contact([0.0, 0.0], dwell.force);
-                let glass = polisher.mirror.radius();
-                pad.remove(&mut walked, &polisher.glass, glass, [x, y], &contact, dt);
-                arc += plan.feed_at(arc) * dt;
-                t += dt;
-            }
-            let miss = HeightMap {
-                grid: polisher.grid,
-                values: walked
-                    .values
-                    .iter()
-                    .zip(&dwell.removal.values)
-                    .map(|(w, p)| -w - p)
-                    .collect(),
-            }
-            .figure(&polisher.clear);
-            assert!(
-                miss.rms < 2.5,
-                "{kind:?}: walked less planned removal {miss:?}"
-            );
-            if kind == PathKind::Grid {
-                let start = surface.figure(&polisher.clear);
-                assert!(
-                    dwell.planned.rms < 0.5 * start.rms,
-                    "{start:?} → {:?}",
-                    dwell.planned
-                );
-            }
-        }
     }
 }
