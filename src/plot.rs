@@ -477,7 +477,9 @@ pub fn cell_maps(
     let (nx, ny) = (axes.columns.len().max(1), axes.rows.len().max(1));
     let letter = |k: usize| char::from(b'a' + (k % 26) as u8);
     let caption = 24 * (1 + axes.marks.len().div_ceil(2)) as u32;
-    let size = (cols as u32 * 520, rows as u32 * 400 + caption);
+    // A panel's height follows its rows: 45 px each beside the title and the axes.
+    let panel = (140 + 45 * ny as u32).min(400);
+    let size = (cols as u32 * 520, rows as u32 * panel + caption);
     render(path, size, |root, err| {
         let (legend, body) = root.split_vertically(caption);
         let mut lines = vec![format!(

@@ -28,9 +28,9 @@ pub struct Reference {
 
 /// The reference run ([`Reference`]).
 pub const REFERENCE: Reference = Reference {
-    step_ms: 7.8,
-    first_result_s: 126.0,
-    demo_s: 251.0,
+    step_ms: 8.7,
+    first_result_s: 150.0,
+    demo_s: 322.0,
     seeds: 2,
     measured: "2026-11-30, the 2-core development machine",
 };
