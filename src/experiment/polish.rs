@@ -88,7 +88,7 @@ enum Controller<'m> {
 
 /// The true surface as the figures judge it: piston and tilt removed over the clear
 /// aperture.
-fn judged(polisher: &Polisher, surface: &HeightMap) -> (HeightMap, Figure) {
+pub(crate) fn judged(polisher: &Polisher, surface: &HeightMap) -> (HeightMap, Figure) {
     let mut m = surface.clone();
     m.remove_plane(&polisher.clear);
     let f = m.figure(&polisher.clear);
@@ -631,6 +631,17 @@ pub fn paired_against(rows: &[PolishRow], base: &str) -> Vec<(String, Summary, S
         .collect()
 }
 
+/// `rows` as the bytes of a CSV file with a header (`file` names it in an error).
+pub(crate) fn csv_bytes<T: serde::Serialize>(rows: &[T], file: &str) -> Result<Vec<u8>> {
+    let mut csv = csv::Writer::from_writer(Vec::new());
+    for r in rows {
+        csv.serialize(r)
+            .map_err(|e| Error::Invalid(format!("{file}: {e}")))?;
+    }
+    csv.into_inner()
+        .map_err(|e| Error::Invalid(format!("{file}: {e}")))
+}
+
 /// Writes `polish.csv`, `polish.md`, `convergence.png` (Fig. 13) and `maps.png` (Fig. 14)
 /// into `dir`.
 pub fn write(
@@ -640,14 +651,7 @@ pub fn write(
     result: &PolishResult,
 ) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let mut csv = csv::Writer::from_writer(Vec::new());
-    for r in &result.rows {
-        csv.serialize(r)
-            .map_err(|e| Error::Invalid(format!("polish.csv: {e}")))?;
-    }
-    let bytes = csv
-        .into_inner()
-        .map_err(|e| Error::Invalid(format!("polish.csv: {e}")))?;
+    let bytes = csv_bytes(&result.rows, "polish.csv")?;
     let mut batch = crate::atomic::Batch::new();
     let add = |batch: &mut crate::atomic::Batch, name: &str, b: &[u8]| {
         let path = dir.join(name);

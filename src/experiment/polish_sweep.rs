@@ -9,11 +9,12 @@ use std::path::Path;
 
 use crate::error::{ensure, Error, Result};
 use crate::experiment::parallel;
+use crate::experiment::polish::{csv_bytes, judged};
 use crate::experiment::report::seeds::Spread;
 use crate::plot::{self, CellAxes, CellMap};
 use crate::polish::{
-    draw_surface, walk, ErrorKind, Figure, Float, HeightMap, Pad, Polisher, PoseError, Setup,
-    StartingPoint, SLOW_CORRELATION_S,
+    draw_surface, walk, ErrorKind, Figure, Float, Pad, Polisher, PoseError, Setup, StartingPoint,
+    SLOW_CORRELATION_S,
 };
 use crate::progress::Reporter;
 use crate::twin::{PathKind, PathParams};
@@ -278,14 +279,6 @@ pub struct SweepResult {
     pub footprints: Vec<FootprintRow>,
     /// One per footprint × kind × float × size × seed, in that order.
     pub rows: Vec<SweepRow>,
-}
-
-/// `map` as judged: piston and tilt removed over the clear aperture.
-fn judged(polisher: &Polisher, map: &HeightMap) -> (HeightMap, Figure) {
-    let mut m = map.clone();
-    m.remove_plane(&polisher.clear);
-    let f = m.figure(&polisher.clear);
-    (m, f)
 }
 
 /// Runs the sweep: per footprint, the surface drawn, measured and planned once, walked
@@ -556,14 +549,7 @@ fn column_of(sizes: &[f64], size: f64) -> f64 {
 /// against size, each cell its cost) into `dir`, atomically.
 pub fn write(dir: &Path, spec: &SweepSpec, result: &SweepResult) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let mut csv = csv::Writer::from_writer(Vec::new());
-    for r in &result.rows {
-        csv.serialize(r)
-            .map_err(|e| Error::Invalid(format!("sweep.csv: {e}")))?;
-    }
-    let bytes = csv
-        .into_inner()
-        .map_err(|e| Error::Invalid(format!("sweep.csv: {e}")))?;
+    let bytes = csv_bytes(&result.rows, "sweep.csv")?;
     let mut batch = crate::atomic::Batch::new();
     for (name, b) in [
         ("sweep.csv", bytes),

@@ -198,7 +198,11 @@ mod tests {
         let _ = std::fs::remove_dir_all(&out);
         let models = out.join("models");
         std::fs::create_dir_all(&models).unwrap();
-        let demo = DemoConfig::default();
+        // Three seeds, whatever the default's count.
+        let demo = DemoConfig {
+            seeds: vec![1, 2, 3],
+            ..DemoConfig::default()
+        };
         let jobs = DemoJob::all(&[Variant::Iastgcn, Variant::Mlp], &demo.seeds);
         assert_eq!(jobs.len(), 6);
         assert_eq!(jobs[3].name, "mlp.seed2");
