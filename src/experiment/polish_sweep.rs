@@ -14,7 +14,7 @@ use crate::experiment::report::seeds::Spread;
 use crate::plot::{self, CellAxes, CellMap};
 use crate::polish::{
     draw_surface, walk, ErrorKind, Figure, Float, Pad, Polisher, PoseError, Setup, StartingPoint,
-    SLOW_CORRELATION_S,
+    SLOW_CORRELATION_S, SLOW_SMOOTHING_S,
 };
 use crate::progress::Reporter;
 use crate::twin::{PathKind, PathParams};
@@ -441,8 +441,13 @@ pub fn report(spec: &SweepSpec, result: &SweepResult) -> String {
     let mut s = String::from("# When compensation matters on the glass\n\n");
     let _ = writeln!(
         s,
-        "One polishing iteration on the raster (docs/polishing.md \"When compensation pays\"): surface {} drawn, measured and planned once per pad; the plan walked at its feed without a pose error and again with one of each kind, size and float (error seeds {:?}); the cost is the final RMS over the clear aperture less the error-free walk's, in nm (negative: the error happened to help). Pads: the default one (30 mm, 6 mm orbit: a 42 mm footprint) scaled, the pass spacing with it (15 mm at 42 mm); the force, the feeds and Preston's constant as at 42 mm, so a pass removes the same depth at every footprint. Kinds: slow (a drift, correlation time {SLOW_CORRELATION_S} s), pass-to-pass (backlash: each axis off with the sign of its travel, jumping at the raster's turns) and white (per tick). A size is the RMS of the position error's length (each axis a third of its square); the pad stays square to the glass. A cost of {MATTERS_NM} nm or more (the interferometer's noise per pixel) is taken to matter.\n",
-        spec.surface_seed, spec.seeds
+        "One polishing iteration on the raster (docs/polishing.md \"When compensation pays\"): surface {} drawn, measured and planned once per pad; the plan walked at its feed without a pose error and again with one of each kind, size and float (error seeds {}); the cost is the final RMS over the clear aperture less the error-free walk's, in nm (negative: the error happened to help). Pads: the default one (30 mm, 6 mm orbit: a 42 mm footprint) scaled, the pass spacing with it (15 mm at 42 mm); the force, the feeds and Preston's constant as at 42 mm, so a pass removes the same depth at every footprint. Kinds: slow (a drift, correlation time {SLOW_CORRELATION_S} s, smoothed over {SLOW_SMOOTHING_S} s), pass-to-pass (backlash: each axis off with the sign of its travel, jumping at the raster's turns) and white (per tick). A size is the RMS of the position error's length (each axis a third of its square); the pad stays square to the glass. A cost of {MATTERS_NM} nm or more (the interferometer's noise per pixel) is taken to matter.\n",
+        spec.surface_seed,
+        spec.seeds
+            .iter()
+            .map(u64::to_string)
+            .collect::<Vec<_>>()
+            .join(", ")
     );
     let _ = writeln!(s, "| footprint (mm) | pitch (mm) | start RMS (nm) | planned (nm) | error-free walk RMS / PV (nm) | force (N) | polishing (min) |\n|---:|---:|---:|---:|---|---:|---:|");
     for f in &result.footprints {

@@ -16,7 +16,9 @@ mod tif;
 pub use dwell::{gaussian_average, Dwell, DwellSolver, PathRaster, GAMMAS};
 pub use fft::{Convolver, Fft2};
 pub use map::{Figure, Grid, HeightMap};
-pub use pose_error::{walk, ErrorKind, Float, PoseError, Walked, SLOW_CORRELATION_S, TICK_S};
+pub use pose_error::{
+    walk, ErrorKind, Float, PoseError, Walked, SLOW_CORRELATION_S, SLOW_SMOOTHING_S, TICK_S,
+};
 pub use process::{Polisher, PoseSource, Setup, CLEAR_APERTURE, FORCE_RANGE};
 pub use surface::{draw as draw_surface, StartingPoint};
 pub use tif::{Contact, Pad};

@@ -81,7 +81,7 @@ pub fn demo_mirror() -> PolishSpec {
 
 /// The demo's look at when compensation pays (docs/polishing.md "When compensation
 /// pays"): its own pad only, four sizes around the controllers' errors, every kind and
-/// both floats, one error seed (some 15 s on 2 cores; `iastgcn polish-sweep` draws the
+/// both floats, one error seed (about 25 s on 2 cores; `iastgcn polish-sweep` draws the
 /// whole map); `marks` beside the paper's.
 pub fn demo_sweep(marks: Vec<Mark>) -> SweepSpec {
     SweepSpec {

@@ -172,7 +172,7 @@ fn pays_section(
     let swept = polish_sweep::run(&spec, reporter)?;
     polish_sweep::write(&dir.join("sweep"), &spec, &swept)?;
     Ok(format!(
-        "\n### When compensation pays on this pad\n\nThe mirror's first iteration on this pad ({} mm footprint), walked at its plan's feed with a pose error of each kind and size instead of a controller (error seed {}; `iastgcn polish-sweep`): the cost in final RMS over the clear aperture, nm, against the walk without error. A stiff float (4 N/mm, 3 N of seal friction) turns a height error into a force error; the ideal one does not. docs/polishing.md \"When compensation pays\" has the map over pads of 14–84 mm and three seeds.\n\n{}\nThis run's controllers showed the glass: {}. Files: `polish/sweep/` (`map.png`, `sweep.md`, `sweep.csv`).\n",
+        "\n### When compensation pays on this pad\n\nThe mirror's starting surface on this pad ({} mm footprint), measured and planned once and walked at the plan's feed with a pose error of each kind and size instead of a controller, the force at the plan's (error seed {}; `iastgcn polish-sweep`): the cost in final RMS over the clear aperture, nm, against the same walk without error. A stiff float (4 N/mm, 3 N of seal friction) turns a height error into a force error; the ideal one does not. docs/polishing.md \"When compensation pays\" has the map over pads of 14–84 mm and three seeds.\n\n{}\nThis run's controllers showed the glass: {}. Files: `polish/sweep/` (`map.png`, `sweep.md`, `sweep.csv`).\n",
         polish_sweep::DEFAULT_FOOTPRINT,
         spec.seeds.iter().map(u64::to_string).collect::<Vec<_>>().join(", "),
         polish_sweep::pad_table(&spec, &swept, polish_sweep::DEFAULT_FOOTPRINT),
