@@ -486,8 +486,7 @@ pub fn cell_maps(
             "each cell: {unit}; colour from {} (white, and below) to {:.1} (red) on a log scale; outlined: {outline} or more",
             range.0, range.1
         )];
-        for pair in axes.marks.chunks(2).enumerate() {
-            let (k, chunk) = pair;
+        for (k, chunk) in axes.marks.chunks(2).enumerate() {
             lines.push(
                 chunk
                     .iter()
@@ -506,22 +505,16 @@ pub fn cell_maps(
                 ))
                 .map_err(|e| err(&e))?;
         }
-        let column = |v: &f64| -> String {
+        // The label of the column or row whose centre is at `v`, none between.
+        let label = |labels: &[String], v: f64| -> String {
             let i = v.round();
-            if (v - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < nx {
-                axes.columns[i as usize].clone()
-            } else {
-                String::new()
+            match labels.get(i as usize) {
+                Some(l) if (v - i).abs() < 1e-6 && i >= 0.0 => l.clone(),
+                _ => String::new(),
             }
         };
-        let row = |v: &f64| -> String {
-            let i = v.round();
-            if (v - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < ny {
-                axes.rows[i as usize].clone()
-            } else {
-                String::new()
-            }
-        };
+        let column = |v: &f64| label(&axes.columns, *v);
+        let row = |v: &f64| label(&axes.rows, *v);
         for (map, area) in maps.iter().zip(body.split_evenly((rows, cols)).iter()) {
             let mut chart = ChartBuilder::on(area)
                 .caption(&map.title, ("sans-serif", 16))
@@ -542,11 +535,15 @@ pub fn cell_maps(
                 .label_style(("sans-serif", 12))
                 .draw()
                 .map_err(|e| err(&e))?;
-            let cells = (0..ny).flat_map(|r| (0..nx).map(move |c| (r, c)));
-            chart
-                .draw_series(cells.clone().map(|(r, c)| {
+            // Every cell's centre and value (NaN where the map has none).
+            let cells = (0..ny).flat_map(|r| {
+                (0..nx).map(move |c| {
                     let v = map.values.get(r * nx + c).copied().unwrap_or(f64::NAN);
-                    let (x, y) = (c as f64, r as f64);
+                    (c as f64, r as f64, v)
+                })
+            });
+            chart
+                .draw_series(cells.clone().map(|(x, y, v)| {
                     Rectangle::new(
                         [(x - 0.5, y - 0.5), (x + 0.5, y + 0.5)],
                         sequential_log(v, range).filled(),
@@ -554,26 +551,19 @@ pub fn cell_maps(
                 }))
                 .map_err(|e| err(&e))?;
             chart
-                .draw_series(
-                    (0..ny)
-                        .flat_map(|r| (0..nx).map(move |c| (r, c)))
-                        .filter(|&(r, c)| map.values.get(r * nx + c).is_some_and(|v| *v >= outline))
-                        .map(|(r, c)| {
-                            let (x, y) = (c as f64, r as f64);
-                            Rectangle::new(
-                                [(x - 0.47, y - 0.47), (x + 0.47, y + 0.47)],
-                                BLACK.stroke_width(2),
-                            )
-                        }),
-                )
+                .draw_series(cells.clone().filter(|c| c.2 >= outline).map(|(x, y, _)| {
+                    Rectangle::new(
+                        [(x - 0.47, y - 0.47), (x + 0.47, y + 0.47)],
+                        BLACK.stroke_width(2),
+                    )
+                }))
                 .map_err(|e| err(&e))?;
             let style = TextStyle::from(("sans-serif", 12).into_font())
                 .pos(Pos::new(HPos::Center, VPos::Center));
             // White figures on the darker reds.
             let dark = range.1.log10() - 0.4 * (range.1.log10() - range.0.log10());
             chart
-                .draw_series(cells.map(|(r, c)| {
-                    let v = map.values.get(r * nx + c).copied().unwrap_or(f64::NAN);
+                .draw_series(cells.map(|(x, y, v)| {
                     let text = if v.is_finite() {
                         format!("{v:.2}")
                     } else {
@@ -584,7 +574,7 @@ pub fn cell_maps(
                     } else {
                         style.clone()
                     };
-                    Text::new(text, (c as f64, r as f64), style)
+                    Text::new(text, (x, y), style)
                 }))
                 .map_err(|e| err(&e))?;
             for (k, (x, _)) in axes.marks.iter().enumerate() {

@@ -14,7 +14,7 @@ use crate::experiment::report::seeds::Spread;
 use crate::plot::{self, CellAxes, CellMap};
 use crate::polish::{
     draw_surface, walk, ErrorKind, Figure, Float, Pad, Polisher, PoseError, Setup, StartingPoint,
-    SLOW_CORRELATION_S, SLOW_SMOOTHING_S,
+    SLOW_CORRELATION_S, SLOW_SMOOTHING_S, TICK_S,
 };
 use crate::progress::Reporter;
 use crate::twin::{PathKind, PathParams};
@@ -316,7 +316,7 @@ pub fn run(spec: &SweepSpec, reporter: &mut dyn Reporter) -> Result<SweepResult>
             planned: dwell.planned,
             reference: reference_fig,
             force_n: dwell.force,
-            minutes: reference.ticks as f64 * crate::polish::TICK_S / 60.0,
+            minutes: reference.ticks as f64 * TICK_S / 60.0,
         });
         let mut jobs = Vec::with_capacity(per_footprint);
         for &kind in &spec.kinds {

@@ -158,6 +158,8 @@ struct Draws {
     sd: f64,
     /// The OU step's decay.
     decay: f64,
+    /// The SD of the OU step's draw, mm.
+    kick: f64,
     /// The force the float's seal and the pad's backing hold, N.
     held: f64,
     /// The pad backing's stiffness, N/mm.
@@ -177,29 +179,30 @@ impl Draws {
             ErrorKind::PassToPass => [sd; 3],
             ErrorKind::White => [0.0; 3],
         };
+        let decay = (-TICK_S / SLOW_CORRELATION_S).exp();
         Draws {
             error,
             rng,
             now,
             drift,
             sd,
-            decay: (-TICK_S / SLOW_CORRELATION_S).exp(),
+            decay,
+            kick: (1.0 - decay * decay).sqrt() * drift_sd,
             held: 0.0,
             backing,
         }
     }
 
-    /// The error at a tick whose path goes in direction `along` (unit, in the plane)
-    /// with the sag's slope `rise` along it; and the force error it makes, N.
-    fn next(&mut self, along: [f64; 2], rise: f64) -> ([f64; 3], f64) {
+    /// The error at a tick and the force error it makes, N; `heading` gives the path's
+    /// direction there (unit, in the plane) and the sag's slope along it, which only
+    /// backlash needs.
+    fn next(&mut self, heading: impl FnOnce() -> ([f64; 2], f64)) -> ([f64; 3], f64) {
         let before = self.now[2];
         match self.error.kind {
             ErrorKind::Slow => {
-                let drift_sd = self.sd * (1.0 + SLOW_SMOOTHING_S / SLOW_CORRELATION_S).sqrt();
-                let kick = (1.0 - self.decay * self.decay).sqrt() * drift_sd;
                 let follow = TICK_S / SLOW_SMOOTHING_S;
                 for (v, d) in self.now.iter_mut().zip(&mut self.drift) {
-                    *d = self.decay * *d + gaussian(&mut self.rng, kick);
+                    *d = self.decay * *d + gaussian(&mut self.rng, self.kick);
                     *v += follow * (*d - *v);
                 }
             }
@@ -209,6 +212,7 @@ impl Draws {
                 }
             }
             ErrorKind::PassToPass => {
+                let (along, rise) = heading();
                 // An axis takes up its backlash once it clearly moves one way: a pass
                 // nearly along one axis leaves the other where it was.
                 for (axis, d) in [along[0], along[1]].into_iter().enumerate() {
@@ -253,21 +257,20 @@ pub fn walk(
     let (mut squared, mut force_squared) = (0.0, 0.0);
     while arc < length {
         let [x, y] = path.at(arc);
-        let [ax, ay] = path.at((arc + 1.0).min(length));
-        let step = (ax - x).hypot(ay - y);
-        let along = if step > 0.0 {
-            [(ax - x) / step, (ay - y) / step]
-        } else {
-            [0.0, 0.0]
-        };
-        let sag = |x: f64, y: f64| polisher.mirror.target(x, y).position.z;
-        let rise = if step > 0.0 {
-            (sag(ax, ay) - sag(x, y)) / step
-        } else {
-            0.0
+        // The path's direction over the next millimetre and the sag's slope along it.
+        let heading = || {
+            let [ax, ay] = path.at((arc + 1.0).min(length));
+            let step = (ax - x).hypot(ay - y);
+            if step > 0.0 {
+                let sag = |x: f64, y: f64| polisher.mirror.target(x, y).position.z;
+                let rise = (sag(ax, ay) - sag(x, y)) / step;
+                ([(ax - x) / step, (ay - y) / step], rise)
+            } else {
+                ([0.0, 0.0], 0.0)
+            }
         };
         let (e, force_error) = if error.size > 0.0 {
-            draws.next(along, rise)
+            draws.next(heading)
         } else {
             ([0.0; 3], 0.0)
         };
