@@ -1,6 +1,7 @@
 //! Command line: clap commands that parse, call the library and print; progress bars;
 //! every error turned into one readable message. No pipeline logic lives here.
 
+mod adapt;
 mod arm;
 mod budget;
 mod calibrate;
@@ -67,6 +68,12 @@ enum Command {
     Train(train::TrainArgs),
     /// Refine a trained model on ensembles of consecutive windows (Algorithm 2).
     Refine(train::RefineArgs),
+    /// Adapt a trained model to the day from a short morning recording (an output offset or
+    /// a fine-tune, kept only when it lowers the loss on the recording's last part).
+    Adapt(adapt::AdaptArgs),
+    /// The morning minute measured: each held-out session starts with a short recording,
+    /// the models adapted to it compensate the session's runs beside the trained ones.
+    Morning(adapt::MorningArgs),
     /// Predict residuals per window end of recordings; metrics where labels exist.
     Predict(train::PredictArgs),
     /// Run a held-out path in the twin: nominal, calibrated, and compensated online by each model.
@@ -292,6 +299,11 @@ pub fn main() -> ExitCode {
             Command::Refine(args) => {
                 open_device(cli.adapter.as_deref()).and_then(|device| train::refine(&device, &args))
             }
+            Command::Adapt(args) => {
+                open_device(cli.adapter.as_deref()).and_then(|device| adapt::adapt(&device, &args))
+            }
+            Command::Morning(args) => open_device(cli.adapter.as_deref())
+                .and_then(|device| adapt::morning(&device, &args)),
             Command::Predict(args) => open_device(cli.adapter.as_deref())
                 .and_then(|device| train::predict(&device, &args)),
             Command::Compensate(args) => open_device(cli.adapter.as_deref())

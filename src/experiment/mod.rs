@@ -9,8 +9,9 @@
 //! (`recommend`), the named recipes of the training data and the loop (`recipe`), a serial arm's residual models on held-out poses (`arm`), how a
 //! calibration holds on a held-out stretch of a pose file (`block_study`), and the
 //! independent runs of an evaluation on every core (`parallel`), models fitted one per
-//! core with the bits of fitting them in turn (`side_by_side`), and how long the demo
-//! will take on this machine (`forecast`).
+//! core with the bits of fitting them in turn (`side_by_side`), how long the demo
+//! will take on this machine (`forecast`), and the morning minute's adaptation measured on
+//! held-out sessions (`morning`).
 
 pub mod arm;
 pub mod block_study;
@@ -21,6 +22,7 @@ pub mod evaluate;
 pub mod forecast;
 pub mod jobs;
 pub mod machines;
+pub mod morning;
 mod parallel;
 pub mod polish;
 pub mod polish_sweep;

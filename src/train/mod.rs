@@ -1,7 +1,8 @@
 //! Training (docs/model.md "Loss", "Optimiser and schedule", "Refinement"): the run config,
 //! Adam on the device, the stage loop with early stopping and the divergence guard,
-//! resumable states, metrics, logs and plots.
+//! resumable states, metrics, logs and plots; the morning minute's adaptation to a day.
 
+pub mod adapt;
 pub mod config;
 pub mod engine;
 pub mod error;
@@ -15,6 +16,7 @@ pub mod refine;
 pub mod state;
 pub mod trainer;
 
+pub use adapt::{adapt, AdaptConfig, Adapted, Method as Adaptation};
 pub use config::{ConfigError, DataConfig, RefineConfig, RunConfig, TrainConfig};
 pub use fit::{
     build_dataset, by_path, initial_parameters, recording_path, recording_stem, run_stage, sibling,

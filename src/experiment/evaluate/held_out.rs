@@ -302,7 +302,72 @@ pub fn held_out_session(
     options: SessionOptions,
     reporter: &mut dyn Reporter,
 ) -> Result<Session> {
-    session_runs(device, models, sources, held, options, None, reporter)
+    session_runs(
+        device,
+        models,
+        sources,
+        held,
+        options,
+        Start::WarmUp,
+        reporter,
+    )
+}
+
+/// [`held_out_session`] from `start` instead of the state after the session's warm-up:
+/// the state after something done first (the morning minute,
+/// [`crate::experiment::morning`], recorded from [`session_start`]).
+pub fn held_out_session_from(
+    device: &Device,
+    models: &mut [LoopModel],
+    sources: &DataSources,
+    held: &HeldOutConfig,
+    options: SessionOptions,
+    start: MachineState,
+    reporter: &mut dyn Reporter,
+) -> Result<Session> {
+    session_runs(
+        device,
+        models,
+        sources,
+        held,
+        options,
+        Start::Given(Box::new(start)),
+        reporter,
+    )
+}
+
+/// The twin machine of the recordings of `sources`, its controller under their
+/// calibration, and the state held-out session `k` of `held` starts from (after its
+/// warm-up), as [`held_out_session`] runs it.
+pub fn session_start(
+    sources: &DataSources,
+    held: &HeldOutConfig,
+    k: usize,
+) -> Result<(Machine, Robot, MachineState)> {
+    held.validate()?;
+    let geometry = sources.geometry()?;
+    let cal = file::load(&sources.calibration)?;
+    let machine = draw_machine(geometry.clone(), sources.machine_seed()?);
+    let calibrated = cal.robot(geometry);
+    let plan = held.session(k);
+    let start = warm_up_on(
+        &machine,
+        &calibrated,
+        plan.warm_up_minutes * 60.0,
+        plan.seed.wrapping_add(1000),
+        &plan.conditions,
+    )?;
+    Ok((machine, calibrated, start))
+}
+
+/// Where a session's first run starts.
+enum Start<'s> {
+    /// After the session's warm-up.
+    WarmUp,
+    /// From this state.
+    Given(Box<MachineState>),
+    /// From the states another session's runs started from ([`more_models`]).
+    After(&'s Session),
 }
 
 /// More models on the runs of `after` (a session [`held_out_session`] ran, Table V's rows
@@ -325,22 +390,26 @@ pub fn more_models(
         sources,
         held,
         options,
-        Some(after),
+        Start::After(after),
         reporter,
     )
 }
 
-/// [`held_out_session`], or [`more_models`] with `after`.
+/// [`held_out_session`] from `start`, or [`more_models`] with [`Start::After`].
 fn session_runs(
     device: &Device,
     models: &mut [LoopModel],
     sources: &DataSources,
     held: &HeldOutConfig,
     options: SessionOptions,
-    after: Option<&Session>,
+    start: Start<'_>,
     reporter: &mut dyn Reporter,
 ) -> Result<Session> {
     let k = options.index;
+    let after = match start {
+        Start::After(after) => Some(after),
+        _ => None,
+    };
     let Some(first) = models.first() else {
         return Err(Error::Invalid("no model to compensate with".into()));
     };
@@ -391,9 +460,10 @@ fn session_runs(
         session.calibration_warning = Some(warning);
     }
     let plan = held.session(k);
-    let mut state = match after {
-        Some(_) => None,
-        None => Some(warm_up_on(
+    let mut state = match start {
+        Start::After(_) => None,
+        Start::Given(ref state) => Some((**state).clone()),
+        Start::WarmUp => Some(warm_up_on(
             &machine,
             &calibrated,
             plan.warm_up_minutes * 60.0,

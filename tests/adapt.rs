@@ -1,0 +1,311 @@
+//! The morning minute (docs/model.md "The morning minute"): an offset moves the output
+//! bias alone and removes the mean miss on the adapting windows; a fine-tune repeats bit
+//! for bit with its seed; the judge keeps the trained weights when adapting makes the
+//! judging windows worse; a recording too short is refused; and the CLI's `adapt` and
+//! `morning` run end to end, refusing a bad method by name.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use iastgcn::data::{DataSources, SplitMode, WindowConfig};
+use iastgcn::gpu::Device;
+use iastgcn::model::{Checkpoint, ModelConfig, Parameters, Variant};
+use iastgcn::progress::Silent;
+use iastgcn::testing::gpu;
+use iastgcn::train::{self, AdaptConfig, Adaptation, RunConfig, Stage, Trainer};
+
+fn model() -> ModelConfig {
+    ModelConfig {
+        variant: Variant::Iastgcn,
+        window: 16,
+        channels: 6,
+        blocks: 2,
+        ..ModelConfig::default()
+    }
+}
+
+/// A twin session (grid: the training, fermat: the morning) and a model trained two
+/// epochs on the grid, once per test binary.
+struct Fixture {
+    dir: PathBuf,
+    calibration: PathBuf,
+    grid: PathBuf,
+    fermat: PathBuf,
+    trained: Checkpoint,
+}
+
+fn fixture() -> &'static Fixture {
+    static F: OnceLock<Fixture> = OnceLock::new();
+    F.get_or_init(|| {
+        let dir = std::env::temp_dir().join(format!("iastgcn-adapt-{}", std::process::id()));
+        let (calibration, paths) = common::twin_session(&dir, &["grid", "fermat"], 40.0);
+        let sources = DataSources {
+            recordings: vec![paths[0].clone()],
+            calibration: calibration.clone(),
+            graph: None,
+            robot: None,
+        };
+        let window = WindowConfig {
+            length: 16,
+            stride: 5,
+            ..WindowConfig::default()
+        };
+        let (graph, data) = sources
+            .dataset(&window, SplitMode::Contiguous, None)
+            .unwrap();
+        let config = run_config();
+        let stage = Stage {
+            max_epochs: 2,
+            ..train::core_stage(&config)
+        };
+        let device = Device::from(gpu());
+        let mut t = Trainer::new(
+            &device,
+            &data,
+            &graph,
+            &config.model,
+            &config.train,
+            stage,
+            &Parameters::init(&config.model, 1),
+        )
+        .unwrap();
+        while !t.finished() {
+            t.run_epoch().unwrap();
+        }
+        let trained = train::checkpoint(&config.model, &graph, &t.best, &data.normalization);
+        Fixture {
+            dir,
+            calibration,
+            grid: paths[0].clone(),
+            fermat: paths[1].clone(),
+            trained,
+        }
+    })
+}
+
+fn run_config() -> RunConfig {
+    let mut config = RunConfig {
+        model: model(),
+        ..RunConfig::default()
+    };
+    config.train.batch = 32;
+    config.train.lr = 3e-3;
+    config
+}
+
+fn morning(f: &Fixture) -> DataSources {
+    DataSources {
+        recordings: vec![f.fermat.clone()],
+        calibration: f.calibration.clone(),
+        graph: None,
+        robot: None,
+    }
+}
+
+fn adapt(method: Adaptation) -> train::Adapted {
+    let f = fixture();
+    let device = Device::from(gpu());
+    let how = AdaptConfig::new(method, &run_config());
+    train::adapt(&device, &morning(f), &f.trained, &how, &mut Silent).unwrap()
+}
+
+#[test]
+fn an_offset_moves_the_output_bias_alone_and_removes_the_mean_miss() {
+    let f = fixture();
+    let a = adapt(Adaptation::Offset);
+    eprintln!("{}", a.verdict());
+    let specs = &f.trained.parameters.specs;
+    let bias = f.trained.parameters.index("head.bias").unwrap();
+    let shifted = a.candidate.clone();
+    for (i, spec) in specs.iter().enumerate() {
+        let (before, after) = (&f.trained.parameters.values[i], &shifted.values[i]);
+        if i == bias {
+            assert_ne!(before, after, "the offset moves head.bias");
+        } else {
+            assert_eq!(before, after, "{} is left as trained", spec.name);
+        }
+    }
+    // The shift in physical units is the mean miss on the adapting windows: after it,
+    // the shifted model's mean miss there is zero (to f32 rounding).
+    let miss = train::adapt::mean_miss(
+        &Device::from(gpu()),
+        &morning(f),
+        &Checkpoint {
+            parameters: shifted,
+            ..f.trained.clone()
+        },
+        &AdaptConfig::new(Adaptation::Offset, &run_config()),
+    )
+    .unwrap();
+    for (k, m) in miss.iter().enumerate() {
+        assert!(m.abs() < 1e-3, "output {k}: mean miss {m} after the offset");
+    }
+    let before = train::adapt::mean_miss(
+        &Device::from(gpu()),
+        &morning(f),
+        &f.trained,
+        &AdaptConfig::new(Adaptation::Offset, &run_config()),
+    )
+    .unwrap();
+    assert_eq!(
+        before, a.offset,
+        "the offset is the trained model's mean miss"
+    );
+    assert!(a.offset.iter().any(|o| o.abs() > 0.1), "{:?}", a.offset);
+    assert_eq!(
+        a.kept_trained,
+        a.loss_after >= a.loss_before,
+        "the judge keeps the adapted weights only when they lower its loss"
+    );
+}
+
+#[test]
+fn a_fine_tune_repeats_with_its_seed_and_the_judge_refuses_a_harmful_one() {
+    let f = fixture();
+    let method = Adaptation::FineTune {
+        epochs: 3,
+        lr: 1e-3,
+    };
+    let (a, b) = (adapt(method), adapt(method));
+    eprintln!("{}", a.verdict());
+    assert_eq!(a.params, b.params, "the same seed gives the same weights");
+    assert_eq!(a.loss_after.to_bits(), b.loss_after.to_bits());
+    assert!(!a.kept_trained, "{}", a.verdict());
+    assert!(a.loss_after < a.loss_before);
+    assert_ne!(a.params, f.trained.parameters);
+    // Steps of size 1 throw the weights far: no epoch is better on the judging windows,
+    // so the trained weights are kept.
+    let wild = adapt(Adaptation::FineTune { epochs: 2, lr: 1.0 });
+    eprintln!("{}", wild.verdict());
+    assert!(wild.kept_trained, "{}", wild.verdict());
+    assert!(wild.loss_after >= wild.loss_before);
+    assert_eq!(wild.params, f.trained.parameters);
+}
+
+#[test]
+fn a_recording_too_short_or_a_bad_setting_is_refused() {
+    let f = fixture();
+    let device = Device::from(gpu());
+    let mut how = AdaptConfig::new(Adaptation::Offset, &run_config());
+    how.stride = 400;
+    let e = train::adapt(&device, &morning(f), &f.trained, &how, &mut Silent)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("record longer"), "{e}");
+    how.stride = 5;
+    how.judge = 0.9;
+    let e = train::adapt(&device, &morning(f), &f.trained, &how, &mut Silent)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("adapt.judge"), "{e}");
+    for bad in [
+        "sideways",
+        "fine-tune:0:1e-3",
+        "fine-tune:3:-1",
+        "fine-tune:3",
+    ] {
+        let e = bad.parse::<Adaptation>().unwrap_err();
+        assert!(e.contains(bad), "{e}");
+    }
+    for good in [Adaptation::Offset, Adaptation::FINE_TUNE] {
+        assert_eq!(good.to_string().parse::<Adaptation>().unwrap(), good);
+    }
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn the_cli_adapts_a_checkpoint_and_measures_the_morning_minute() {
+    let f = fixture();
+    let dir = f.dir.join("cli");
+    std::fs::create_dir_all(&dir).unwrap();
+    let trained = dir.join("tiny.seed1.safetensors");
+    f.trained.save(&trained).unwrap();
+    let adapted = dir.join("adapted.safetensors");
+    let text = common::cli(&[
+        "adapt",
+        "--data",
+        s(&f.fermat),
+        "--calibration",
+        s(&f.calibration),
+        "--model",
+        s(&trained),
+        "--method",
+        "offset",
+        "--out",
+        s(&adapted),
+    ]);
+    assert!(text.contains("offset") && text.contains("judged"), "{text}");
+    Checkpoint::load(&adapted).unwrap();
+    let e = common::cli_fails(&[
+        "adapt",
+        "--data",
+        s(&f.fermat),
+        "--calibration",
+        s(&f.calibration),
+        "--model",
+        s(&trained),
+        "--method",
+        "sideways",
+        "--out",
+        s(&adapted),
+    ]);
+    assert!(e.contains("sideways"), "{e}");
+
+    // The study on one scored session and its validation session, short runs.
+    let out = dir.join("morning");
+    let args = [
+        "morning",
+        "--data",
+        s(&f.grid),
+        "--calibration",
+        s(&f.calibration),
+        "--models",
+        s(&trained),
+        "--sessions",
+        "1",
+        "--minutes",
+        "0.25",
+        "--held-out-minutes",
+        "0.1",
+        "--warm-up-minutes",
+        "0",
+        "--methods",
+        "offset,fine-tune:2:1e-3",
+        "--out",
+        s(&out),
+    ];
+    let text = common::cli(&args);
+    assert!(text.contains("The validation session favours"), "{text}");
+    let md = std::fs::read_to_string(out.join("morning.md")).unwrap();
+    for row in [
+        "| tiny | none (as trained) |",
+        "| tiny | offset |",
+        "| tiny | fine-tune:2:1e-3 |",
+    ] {
+        assert!(md.contains(row), "{row} in\n{md}");
+    }
+    let adaptations = std::fs::read_to_string(out.join("adaptations.csv")).unwrap();
+    // Two sessions (the scored one and the validation one) × two methods.
+    assert_eq!(adaptations.lines().count(), 1 + 4, "{adaptations}");
+    for k in [1, 2] {
+        assert!(out.join(format!("morning.s{k}.csv")).exists());
+    }
+    let rows = std::fs::read_to_string(out.join("morning_table_v.csv")).unwrap();
+    // Per session and path: initial, calibrated, oracle and three models.
+    assert_eq!(rows.lines().count(), 1 + 2 * 4 * 6, "{rows}");
+    // The same study again gives the same rows (the twin and the adaptation are seeded).
+    let again = dir.join("again");
+    let mut args2 = args.to_vec();
+    let at = args2.len() - 1;
+    args2[at] = s(&again);
+    common::cli(&args2);
+    assert_eq!(
+        rows,
+        std::fs::read_to_string(again.join("morning_table_v.csv")).unwrap()
+    );
+}
