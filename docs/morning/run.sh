@@ -3,7 +3,7 @@
 # models on seeds 1-3 (`iastgcn demo --seeds 1,2,3`, about 6 min on 2 cores), then on each
 # of its three held-out sessions and the validation session records a morning run first
 # and compares the trained IASTGCN and iastgcn-a with the ways of adapting them to it:
-# a minute of the Fermat spiral (the default), two minutes of it, and a minute of the
+# a minute of the Fermat spiral, two minutes of it (the default), and a minute of the
 # raster. About 12 minutes in all; WORK (default target/morning) keeps the demo's folder.
 set -eu
 cd "$(dirname "$0")/../.."

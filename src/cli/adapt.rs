@@ -80,8 +80,9 @@ pub struct MorningArgs {
     /// part.
     #[arg(long, default_value = "fermat")]
     pub path: String,
-    /// Length of each session's morning recording, minutes.
-    #[arg(long, default_value_t = 1.0)]
+    /// Length of each session's morning recording, minutes (2: long enough for the
+    /// judge to refuse an offset that the rest of the day would not bear out).
+    #[arg(long, default_value_t = 2.0)]
     pub minutes: f64,
     /// Ways of adapting to compare with none, comma-separated: offset, fine-tune,
     /// fine-tune:EPOCHS:LR.
