@@ -2,7 +2,10 @@
 //! bias alone and removes the mean miss on the adapting windows; a fine-tune repeats bit
 //! for bit with its seed; the judge keeps the trained weights when adapting makes the
 //! judging windows worse; a recording too short is refused; and the CLI's `adapt` and
-//! `morning` run end to end, refusing a bad method by name.
+//! `morning` run end to end, refusing a bad method by name. Confidence (docs/results.md
+//! "Confidence"), on the same twin session and two seeds: `confidence` calibrates its
+//! intervals on the validation session, where they cover at least their level, and
+//! refuses a model of one seed.
 
 mod common;
 
@@ -27,13 +30,14 @@ fn model() -> ModelConfig {
 }
 
 /// A twin session (grid: the training, fermat: the morning) and a model trained two
-/// epochs on the grid, once per test binary.
+/// epochs on the grid with seed 1 (and one with seed 2), once per test binary.
 struct Fixture {
     dir: PathBuf,
     calibration: PathBuf,
     grid: PathBuf,
     fermat: PathBuf,
     trained: Checkpoint,
+    seed2: Checkpoint,
 }
 
 fn fixture() -> &'static Fixture {
@@ -55,32 +59,37 @@ fn fixture() -> &'static Fixture {
         let (graph, data) = sources
             .dataset(&window, SplitMode::Contiguous, None)
             .unwrap();
-        let config = run_config();
-        let stage = Stage {
-            max_epochs: 2,
-            ..train::core_stage(&config)
-        };
         let device = Device::from(gpu());
-        let mut t = Trainer::new(
-            &device,
-            &data,
-            &graph,
-            &config.model,
-            &config.train,
-            stage,
-            &Parameters::init(&config.model, 1),
-        )
-        .unwrap();
-        while !t.finished() {
-            t.run_epoch().unwrap();
-        }
-        let trained = train::checkpoint(&config.model, &graph, &t.best, &data.normalization);
+        let fit = |seed: u64| {
+            let mut config = run_config();
+            config.train.seed = seed;
+            let stage = Stage {
+                max_epochs: 2,
+                ..train::core_stage(&config)
+            };
+            let mut t = Trainer::new(
+                &device,
+                &data,
+                &graph,
+                &config.model,
+                &config.train,
+                stage,
+                &Parameters::init(&config.model, seed),
+            )
+            .unwrap();
+            while !t.finished() {
+                t.run_epoch().unwrap();
+            }
+            train::checkpoint(&config.model, &graph, &t.best, &data.normalization)
+        };
+        let (trained, seed2) = (fit(1), fit(2));
         Fixture {
             dir,
             calibration,
             grid: paths[0].clone(),
             fermat: paths[1].clone(),
             trained,
+            seed2,
         }
     })
 }
@@ -308,4 +317,77 @@ fn the_cli_adapts_a_checkpoint_and_measures_the_morning_minute() {
         rows,
         std::fs::read_to_string(again.join("morning_table_v.csv")).unwrap()
     );
+}
+
+#[test]
+fn confidence_calibrates_on_the_validation_session_and_needs_two_seeds() {
+    let f = fixture();
+    let dir = f.dir.join("confidence");
+    std::fs::create_dir_all(&dir).unwrap();
+    let (one, two) = (
+        dir.join("tiny.seed1.safetensors"),
+        dir.join("tiny.seed2.safetensors"),
+    );
+    f.trained.save(&one).unwrap();
+    f.seed2.save(&two).unwrap();
+    let out = dir.join("out");
+    let mut args = vec![
+        "confidence",
+        "--data",
+        s(&f.grid),
+        "--calibration",
+        s(&f.calibration),
+        "--sessions",
+        "1",
+        "--held-out-minutes",
+        "0.1",
+        "--warm-up-minutes",
+        "0",
+        "--out",
+        s(&out),
+        "--models",
+        s(&one),
+    ];
+    let e = common::cli_fails(&args);
+    assert!(e.contains("one seed"), "{e}");
+    args.push(s(&two));
+    let text = common::cli(&args);
+    assert!(text.contains("## tiny"), "{text}");
+    let md = std::fs::read_to_string(out.join("confidence.md")).unwrap();
+    for path in ["grid", "fermat", "hilbert", "rosette"] {
+        assert!(md.contains(&format!("| {path} |")), "{md}");
+    }
+    // The gates in the loop: the model in full and at three limits.
+    for gate in ["none", "q50", "q75", "q90"] {
+        assert!(md.contains(&format!("| tiny | {gate} |")), "{md}");
+    }
+    // Every prediction of both sessions, with its miss and spread; on the validation
+    // session (the second), each calibrated interval covers at least 90 % by construction.
+    let csv = std::fs::read_to_string(out.join("ticks.csv")).unwrap();
+    let rows: Vec<Vec<f64>> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').skip(3).map(|v| v.parse().unwrap()).collect())
+        .collect();
+    assert!(rows.len() > 4 * 2 * 100, "{} predictions", rows.len());
+    let validation: Vec<&Vec<f64>> = csv
+        .lines()
+        .skip(1)
+        .zip(&rows)
+        .filter(|(l, _)| l.split(',').nth(1) == Some("2"))
+        .map(|(_, r)| r)
+        .collect();
+    assert!(validation.iter().all(|r| r[2] >= 0.0 && r[3] >= 0.0));
+    assert!(validation.iter().any(|r| r[2] > 0.0), "two seeds spread");
+    for q in 0..2 {
+        let pairs: Vec<(f64, f64)> = validation.iter().map(|r| (r[q], r[2 + q])).collect();
+        for interval in [
+            iastgcn::experiment::confidence::Interval::spread_scaled(&pairs, 0.9).unwrap(),
+            iastgcn::experiment::confidence::Interval::constant(&pairs, 0.9).unwrap(),
+        ] {
+            let c = interval.coverage(&pairs);
+            // The CSV rounds to 3 decimals: a tie at the quantile may fall either side.
+            assert!(c >= 0.89, "quantity {q}: {interval:?} covers {c}");
+        }
+    }
 }

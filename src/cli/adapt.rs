@@ -115,7 +115,7 @@ pub struct MorningArgs {
 
 /// `models/iastgcn-a.seed2.safetensors` is `iastgcn-a` seed 2; a name without `.seed<k>`
 /// is seed 0.
-fn name_and_seed(path: &Path) -> (String, u64) {
+pub(super) fn name_and_seed(path: &Path) -> (String, u64) {
     let stem = path
         .file_stem()
         .map_or("model".into(), |s| s.to_string_lossy().into_owned());

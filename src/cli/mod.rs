@@ -6,6 +6,7 @@ mod arm;
 mod budget;
 mod calibrate;
 mod compensate;
+mod confidence;
 mod dataset;
 mod demo;
 mod evaluate_args;
@@ -74,6 +75,9 @@ enum Command {
     /// The morning minute measured: each held-out session starts with a short recording,
     /// the models adapted to it compensate the session's runs beside the trained ones.
     Morning(adapt::MorningArgs),
+    /// How far to trust a prediction: seed ensembles' spread beside their miss on the
+    /// twin's held-out runs, 90 % intervals calibrated on the validation session.
+    Confidence(confidence::ConfidenceArgs),
     /// Predict residuals per window end of recordings; metrics where labels exist.
     Predict(train::PredictArgs),
     /// Run a held-out path in the twin: nominal, calibrated, and compensated online by each model.
@@ -304,6 +308,8 @@ pub fn main() -> ExitCode {
             }
             Command::Morning(args) => open_device(cli.adapter.as_deref())
                 .and_then(|device| adapt::morning(&device, &args)),
+            Command::Confidence(args) => open_device(cli.adapter.as_deref())
+                .and_then(|device| confidence::run(&device, &args)),
             Command::Predict(args) => open_device(cli.adapter.as_deref())
                 .and_then(|device| train::predict(&device, &args)),
             Command::Compensate(args) => open_device(cli.adapter.as_deref())

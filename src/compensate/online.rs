@@ -51,6 +51,56 @@ pub struct RunResult {
     /// With [`Feedback::OpenLoop`]: the corrections the model would have set, by tick
     /// (those within [`MAX_CORRECTION`]), for [`Feedback::Replay`].
     pub predicted: Vec<(usize, Correction)>,
+    /// With [`Feedback::OpenLoop`]: each prediction's miss and its members' spread.
+    pub open_loop_ticks: Vec<OpenLoopTick>,
+    /// The true pad error every tick (what `truth` summarises): position µm, attitude
+    /// mdeg.
+    pub truth_per_tick: [Vec<f64>; 2],
+    /// With [`Feedback::Gated`]: the predictions the gate shrank.
+    pub shrunk: usize,
+}
+
+/// One open-loop prediction: how far it was from the tick's true residual and how far
+/// its members were from their mean, position µm and attitude across the tool axis mdeg
+/// (as [`RunResult::open_loop`] measures the miss).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OpenLoopTick {
+    /// The control tick.
+    pub tick: usize,
+    /// The miss: position µm, attitude mdeg.
+    pub miss: [f64; 2],
+    /// The members' root-mean-square distance from their mean (0 for one predictor):
+    /// position µm, attitude mdeg.
+    pub spread: [f64; 2],
+}
+
+/// What the loop does with a prediction whose interval is wide ([`Feedback::Gated`],
+/// docs/results.md "Confidence"): the interval's radius is `scale` times the members'
+/// spread; beyond `limit` the correction is shrunk towards none by limit / radius (the
+/// smaller of the position's and the attitude's factors).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Gate {
+    /// Radius per unit of spread: position, attitude (a calibrated interval's scale).
+    pub scale: [f64; 2],
+    /// The widest radius applied in full: position µm, attitude mdeg.
+    pub limit: [f64; 2],
+}
+
+impl Gate {
+    /// The share of a prediction with members' `spread` that is applied, in [0, 1].
+    pub fn factor(&self, spread: [f64; 2]) -> f64 {
+        (0..2)
+            .map(|q| {
+                let radius = self.scale[q] * spread[q];
+                if radius > self.limit[q] {
+                    self.limit[q] / radius
+                } else {
+                    1.0
+                }
+            })
+            .fold(1.0, f64::min)
+            .max(0.0)
+    }
 }
 
 /// Online compensation settings.
@@ -79,6 +129,9 @@ pub enum Feedback<'p> {
     /// (the open-loop prediction error on held-out runs of docs/shift/README.md "Where the
     /// error goes").
     OpenLoop(&'p mut [Predictor], &'p Graph, Online),
+    /// An ensemble as [`Feedback::Model`], each correction shrunk by the [`Gate`] when its
+    /// members disagree more than it allows.
+    Gated(&'p mut [Predictor], &'p Graph, Online, Gate),
     /// Corrections recorded by an open-loop run ([`RunResult::predicted`]), each set after
     /// its tick as the model would have set it: the model's predictions fed forward
     /// without their feedback on its own inputs.
@@ -130,6 +183,8 @@ pub struct ModelInLoop<'p> {
     nodes: Vec<usize>,
     values: Vec<Option<f64>>,
     settings: Online,
+    /// Each member's last prediction (µm, mdeg), for [`ModelInLoop::spread`].
+    last: Vec<[f64; 6]>,
 }
 
 impl<'p> ModelInLoop<'p> {
@@ -157,6 +212,7 @@ impl<'p> ModelInLoop<'p> {
             sensors.push(SensorPredictor::new(member, dt)?);
         }
         Ok(ModelInLoop {
+            last: vec![[0.0; 6]; sensors.len()],
             members: sensors,
             values: vec![None; nodes.len()],
             nodes,
@@ -190,16 +246,36 @@ impl<'p> ModelInLoop<'p> {
         // is its members' mean.
         let mut r = [0.0; 6];
         let share = 1.0 / self.members.len() as f64;
-        for member in self.members.iter_mut() {
+        for (member, last) in self.members.iter_mut().zip(self.last.iter_mut()) {
             let one = member.predict_latest()?.unwrap_or_default();
-            for (sum, v) in r.iter_mut().zip(one) {
+            for ((sum, v), l) in r.iter_mut().zip(one).zip(last.iter_mut()) {
                 *sum += share * v;
+                *l = v;
             }
         }
         Ok(Some(Correction {
             dp: nalgebra::Vector3::new(r[0], r[1], r[2]) * 1e-3,
             dr: nalgebra::Vector3::new(r[3], r[4], r[5]).map(|v| (v * 1e-3).to_radians()),
         }))
+    }
+}
+
+impl ModelInLoop<'_> {
+    /// How far the members' last predictions were from their mean: the root mean square
+    /// of their position distances, µm, and of their rotation differences across the
+    /// unit tool `axis`, mdeg (the roll about it is free, as the miss is measured).
+    pub fn spread(&self, axis: &nalgebra::Vector3<f64>) -> [f64; 2] {
+        let n = self.last.len() as f64;
+        let mean: [f64; 6] =
+            std::array::from_fn(|k| self.last.iter().map(|p| p[k]).sum::<f64>() / n);
+        let (mut pos, mut att) = (0.0, 0.0);
+        for p in &self.last {
+            let dp = nalgebra::Vector3::new(p[0] - mean[0], p[1] - mean[1], p[2] - mean[2]);
+            let dr = nalgebra::Vector3::new(p[3] - mean[3], p[4] - mean[4], p[5] - mean[5]);
+            pos += dp.norm_squared() / n;
+            att += (dr - axis * dr.dot(axis)).norm_squared() / n;
+        }
+        [pos.sqrt(), att.sqrt()]
     }
 }
 
@@ -235,6 +311,7 @@ pub fn run_observed(
     let every = match &feedback {
         Feedback::Model(_, _, settings)
         | Feedback::OpenLoop(_, _, settings)
+        | Feedback::Gated(_, _, settings, _)
         | Feedback::Oracle { settings, .. } => settings.every,
         Feedback::None | Feedback::Replay(_) => 1,
     };
@@ -248,6 +325,8 @@ pub fn run_observed(
     let mut oracle = None;
     let apply = !matches!(feedback, Feedback::OpenLoop(..));
     let mut replay: &[(usize, Correction)] = &[];
+    let mut gate = None;
+    let mut shrunk = 0usize;
     match feedback {
         Feedback::None => {}
         Feedback::Replay(corrections) => replay = corrections,
@@ -255,10 +334,15 @@ pub fn run_observed(
         | Feedback::OpenLoop(members, graph, settings) => {
             model = Some(ModelInLoop::new(members, graph, settings, dt)?);
         }
+        Feedback::Gated(members, graph, settings, g) => {
+            model = Some(ModelInLoop::new(members, graph, settings, dt)?);
+            gate = Some(g);
+        }
         Feedback::Oracle { window, settings } => oracle = Some((window, settings)),
     }
     let (mut miss_pos, mut miss_att) = (Vec::new(), Vec::new());
     let mut predicted = Vec::new();
+    let mut open_loop_ticks = Vec::new();
     let (mut pos, mut att, mut trace) = (Vec::new(), Vec::new(), Vec::new());
     let (mut true_pos, mut true_att) = (Vec::new(), Vec::new());
     let (mut predictions, mut predict_time, mut refused) = (0usize, 0f64, 0usize);
@@ -281,7 +365,15 @@ pub fn run_observed(
         }
         if let Some(model) = model.as_mut() {
             let began = Instant::now();
-            if let Some(c) = model.tick(tick, &s.channels)? {
+            if let Some(mut c) = model.tick(tick, &s.channels)? {
+                if let Some(g) = &gate {
+                    let f = g.factor(model.spread(&s.hidden.target.axis.normalize()));
+                    if f < 1.0 {
+                        shrunk += 1;
+                        c.dp *= f;
+                        c.dr *= f;
+                    }
+                }
                 predict_time += began.elapsed().as_secs_f64();
                 predictions += 1;
                 let within = within_limit(&c);
@@ -289,6 +381,11 @@ pub fn run_observed(
                     let (p, a) = prediction_miss(&s, &actual, c.dp, c.dr);
                     miss_pos.push(p);
                     miss_att.push(a);
+                    open_loop_ticks.push(OpenLoopTick {
+                        tick,
+                        miss: [p, a],
+                        spread: model.spread(&s.hidden.target.axis.normalize()),
+                    });
                     if within {
                         predicted.push((tick, c));
                     }
@@ -329,6 +426,7 @@ pub fn run_observed(
             position: summary(&true_pos)?,
             attitude: summary(&true_att)?,
         },
+        shrunk,
         tracker: ErrorStats {
             position: summary(&pos)?,
             attitude: summary(&att)?,
@@ -344,6 +442,8 @@ pub fn run_observed(
             0.0
         },
         predicted,
+        open_loop_ticks,
+        truth_per_tick: [true_pos, true_att],
         open_loop: if apply {
             None
         } else {

@@ -10,13 +10,15 @@
 //! calibration holds on a held-out stretch of a pose file (`block_study`), and the
 //! independent runs of an evaluation on every core (`parallel`), models fitted one per
 //! core with the bits of fitting them in turn (`side_by_side`), how long the demo
-//! will take on this machine (`forecast`), and the morning minute's adaptation measured on
-//! held-out sessions (`morning`).
+//! will take on this machine (`forecast`), the morning minute's adaptation measured on
+//! held-out sessions (`morning`), and how far a seed ensemble's spread tells how far to
+//! trust its prediction (`confidence`).
 
 pub mod arm;
 pub mod block_study;
 pub mod calibration;
 pub mod campaign;
+pub mod confidence;
 pub mod demo;
 pub mod evaluate;
 pub mod forecast;

@@ -1,0 +1,109 @@
+//! `iastgcn confidence`: how far to trust a prediction (docs/usage.md "Confidence"):
+//! seed ensembles predicting along the twin's held-out runs, their spread set beside
+//! their miss, 90 % intervals calibrated on the validation session and their coverage.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+
+use super::adapt::name_and_seed;
+use super::train::DataArgs;
+use super::Console;
+use iastgcn::experiment::confidence;
+use iastgcn::experiment::evaluate::{ensemble, HeldOutConfig};
+use iastgcn::gpu::Device;
+use iastgcn::model::Checkpoint;
+use iastgcn::progress::Reporter;
+
+#[derive(clap::Args)]
+pub struct ConfidenceArgs {
+    /// The models' training data (their recordings and calibration): the held-out
+    /// sessions run on the twin machine they were recorded on, under that calibration.
+    #[command(flatten)]
+    pub data: DataArgs,
+    /// Trained checkpoints named `<model>.seed<k>.safetensors` (as `demo` writes them):
+    /// the seeds of one model make one ensemble, whose spread is its uncertainty.
+    #[arg(long, num_args = 1.., required = true)]
+    pub models: Vec<PathBuf>,
+    /// The interval's level: the share of the validation session's predictions it covers.
+    #[arg(long, default_value_t = 0.9)]
+    pub level: f64,
+    /// Held-out sessions scored (the validation session is the one after them).
+    #[arg(long, default_value_t = 3, value_parser = super::count(1..=16))]
+    pub sessions: usize,
+    /// Length of each held-out run, minutes.
+    #[arg(long, default_value_t = 0.5)]
+    pub held_out_minutes: f64,
+    /// Seed of the first held-out run.
+    #[arg(long, default_value_t = 301)]
+    pub held_out_seed: u64,
+    /// Minutes of warm-up before the first session's runs.
+    #[arg(long, default_value_t = 2.0)]
+    pub warm_up_minutes: f64,
+    /// The models predict every this many control ticks.
+    #[arg(long, default_value_t = 1, value_parser = super::count(1..=10_000))]
+    pub every: usize,
+    /// Measure the intervals only, not the gates that shrink wide corrections in the loop.
+    #[arg(long)]
+    pub no_gates: bool,
+    /// Output folder: confidence.md and ticks.csv (every prediction's miss and spread).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+pub fn run(device: &Device, args: &ConfidenceArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        args.level > 0.5 && args.level < 1.0,
+        "--level {}: an interval covers more than half and less than all (0.5 to 1)",
+        args.level
+    );
+    let mut groups: Vec<(String, Vec<Checkpoint>)> = Vec::new();
+    for path in &args.models {
+        let (name, _) = name_and_seed(path);
+        let ck = Checkpoint::load(path).with_context(|| format!("--models {}", path.display()))?;
+        match groups.iter_mut().find(|(n, _)| *n == name) {
+            Some((_, members)) => members.push(ck),
+            None => groups.push((name, vec![ck])),
+        }
+    }
+    if let Some((name, _)) = groups.iter().find(|(_, m)| m.len() < 2) {
+        anyhow::bail!(
+            "--models: {name} has one seed; its uncertainty is the spread of its seeds, so \
+             give two or more (<model>.seed<k>.safetensors)"
+        );
+    }
+    let mut models = groups
+        .iter()
+        .map(|(name, members)| ensemble(device, name, members))
+        .collect::<Result<Vec<_>, _>>()?;
+    let held = HeldOutConfig {
+        minutes: args.held_out_minutes,
+        seed: args.held_out_seed,
+        warm_up_minutes: args.warm_up_minutes,
+        every: args.every,
+        sessions: args.sessions,
+    };
+    held.validate()?;
+    super::make_output_folder("--out", &args.out)?;
+    let mut console = Console::default();
+    let runs = confidence::record(&mut models, &args.data.sources(), &held, &mut console)?;
+    console.end();
+    let calibrated = confidence::calibrate(&runs, held.sessions, args.level)?;
+    let mut md = confidence::markdown(&calibrated, &held, args.level);
+    if !args.no_gates {
+        let gated = confidence::gate_study(
+            &mut models,
+            &calibrated,
+            &runs,
+            &args.data.sources(),
+            &held,
+            &mut console,
+        )?;
+        console.end();
+        md.push_str(&confidence::gate_markdown(&gated, held.sessions));
+    }
+    confidence::write(&args.out, &md, &runs)?;
+    println!("{md}");
+    println!("written to {}", args.out.display());
+    Ok(())
+}

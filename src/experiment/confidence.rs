@@ -1,0 +1,680 @@
+//! How far to trust a prediction (docs/results.md "Confidence"): each model, a seed
+//! ensemble, predicts along every held-out path's uncompensated run; each prediction's
+//! miss against the true residual is set beside its members' spread. A 90 % interval is
+//! calibrated on the validation session (the one after the scored ones) in two ways, a
+//! radius proportional to the spread and a constant radius, and its coverage is measured
+//! on the scored sessions, path by path: a calibrated interval covers 85–95 % of them.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use super::evaluate::{session_start, HeldOutConfig, LoopModel};
+use crate::compensate::held_out::{HeldOut, IDLE_BETWEEN_RUNS};
+use crate::compensate::online::{self, Feedback, Gate, Online, OpenLoopTick};
+use crate::data::DataSources;
+use crate::error::{Error, Result};
+use crate::progress::Reporter;
+use crate::stats::Summary;
+use crate::twin::{PathKind, PathParams};
+
+/// The open-loop predictions of one model on one held-out run.
+#[derive(Clone, Debug)]
+pub struct RunTicks {
+    /// The model (an ensemble's name).
+    pub model: String,
+    /// The held-out session, from 0 (the validation session is the last).
+    pub session: usize,
+    /// The path.
+    pub path: PathKind,
+    /// Every prediction's miss and spread.
+    pub ticks: Vec<OpenLoopTick>,
+}
+
+/// Records every model's open-loop predictions on the held-out sessions of `held` and
+/// its validation session, on the machine and calibration of `sources`: each session
+/// warms up as Table V's does, then its paths run in turn uncompensated (the machine
+/// idle between them), every model predicting along each from the same start.
+pub fn record(
+    models: &mut [LoopModel],
+    sources: &DataSources,
+    held: &HeldOutConfig,
+    reporter: &mut dyn Reporter,
+) -> Result<Vec<RunTicks>> {
+    if models.is_empty() {
+        return Err(Error::Invalid("no model to measure".into()));
+    }
+    let settings = Online { every: held.every };
+    let mut out = Vec::new();
+    for k in 0..=held.sessions {
+        let plan = held.session(k);
+        let (machine, calibrated, mut state) = session_start(sources, held, k)?;
+        for (i, path) in PathKind::ALL.into_iter().enumerate() {
+            let run = HeldOut {
+                path,
+                params: PathParams::held_out_in(path, k),
+                seconds: held.minutes * 60.0,
+                seed: plan.seed + i as u64,
+                start: state.clone(),
+                conditions: plan.conditions,
+            };
+            reporter.begin(
+                &format!("session {} {}", k + 1, path.name()),
+                (run.config().steps() * models.len()) as u64,
+            );
+            let mut done = 0u64;
+            let mut end = None;
+            for m in models.iter_mut() {
+                let result = online::run(
+                    &machine,
+                    &calibrated,
+                    run.config(),
+                    run.start.clone(),
+                    Feedback::OpenLoop(&mut m.members, &m.graph, settings),
+                    |_| {
+                        done += 1;
+                        if done.is_multiple_of(200) {
+                            reporter.update(done, "");
+                        }
+                    },
+                )?;
+                out.push(RunTicks {
+                    model: m.name.clone(),
+                    session: k,
+                    path,
+                    ticks: result.open_loop_ticks,
+                });
+                end = Some(result.end);
+            }
+            reporter.end();
+            // Uncompensated, every model's run ends in the same state.
+            if let Some(mut end) = end {
+                end.idle(IDLE_BETWEEN_RUNS);
+                state = end;
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// The `level` quantile of `values` (the smallest value at least that share of them
+/// reaches), `None` when there are none.
+pub fn quantile(values: &[f64], level: f64) -> Option<f64> {
+    let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let at = ((level * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1;
+    Some(v[at])
+}
+
+/// A calibrated interval of one model for one quantity (position or attitude): the radius
+/// of a prediction is `scale · spread + constant`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Interval {
+    /// Multiplies the members' spread.
+    pub scale: f64,
+    /// Added to it, in the quantity's unit.
+    pub constant: f64,
+}
+
+impl Interval {
+    /// The radius of a prediction with `spread`.
+    pub fn radius(&self, spread: f64) -> f64 {
+        self.scale * spread + self.constant
+    }
+
+    /// The share of `pairs` (miss, spread) whose miss is within the radius.
+    pub fn coverage(&self, pairs: &[(f64, f64)]) -> f64 {
+        let inside = pairs
+            .iter()
+            .filter(|(miss, spread)| *miss <= self.radius(*spread))
+            .count();
+        inside as f64 / pairs.len().max(1) as f64
+    }
+
+    /// The interval proportional to the spread covering `level` of `pairs` (the `level`
+    /// quantile of miss / spread, over the pairs with a spread).
+    pub fn spread_scaled(pairs: &[(f64, f64)], level: f64) -> Option<Interval> {
+        let ratios: Vec<f64> = pairs
+            .iter()
+            .filter(|(_, s)| *s > 0.0)
+            .map(|(m, s)| m / s)
+            .collect();
+        Some(Interval {
+            scale: quantile(&ratios, level)?,
+            constant: 0.0,
+        })
+    }
+
+    /// The constant interval covering `level` of `pairs` (the `level` quantile of the miss).
+    pub fn constant(pairs: &[(f64, f64)], level: f64) -> Option<Interval> {
+        let misses: Vec<f64> = pairs.iter().map(|(m, _)| *m).collect();
+        Some(Interval {
+            scale: 0.0,
+            constant: quantile(&misses, level)?,
+        })
+    }
+}
+
+/// The (miss, spread) pairs of quantity `q` (0 position, 1 attitude) of `model`'s runs
+/// that `keep` selects.
+fn pairs(
+    runs: &[RunTicks],
+    model: &str,
+    q: usize,
+    keep: impl Fn(&RunTicks) -> bool,
+) -> Vec<(f64, f64)> {
+    runs.iter()
+        .filter(|r| r.model == model && keep(r))
+        .flat_map(|r| r.ticks.iter().map(move |t| (t.miss[q], t.spread[q])))
+        .collect()
+}
+
+/// One model's calibrated intervals and their coverage.
+#[derive(Clone, Debug)]
+pub struct Calibrated {
+    /// The model.
+    pub model: String,
+    /// Position, then attitude: the spread-scaled and the constant interval.
+    pub intervals: [[Interval; 2]; 2],
+    /// Per path (in [`PathKind::ALL`] order), per quantity and interval: the coverage on
+    /// each scored session.
+    pub coverage: Vec<[[Vec<f64>; 2]; 2]>,
+    /// Per quantity and interval: the mean radius on the scored sessions.
+    pub mean_radius: [[f64; 2]; 2],
+    /// Per quantity: the mean miss of the predictions whose spread is in the widest tenth,
+    /// and of the others, on the scored sessions.
+    pub widest_tenth: [[f64; 2]; 2],
+}
+
+/// Calibrates each model's intervals at `level` on the validation session (the last of
+/// `runs`) and measures them on the scored sessions `0..scored`.
+pub fn calibrate(runs: &[RunTicks], scored: usize, level: f64) -> Result<Vec<Calibrated>> {
+    let mut names: Vec<String> = Vec::new();
+    for r in runs {
+        if !names.contains(&r.model) {
+            names.push(r.model.clone());
+        }
+    }
+    let mut out = Vec::new();
+    for model in names {
+        let mut intervals = [[Interval {
+            scale: 0.0,
+            constant: 0.0,
+        }; 2]; 2];
+        let mut mean_radius = [[0.0; 2]; 2];
+        let mut widest_tenth = [[0.0; 2]; 2];
+        for q in 0..2 {
+            let validation = pairs(runs, &model, q, |r| r.session == scored);
+            let short = || {
+                Error::Invalid(format!(
+                    "{model}: no prediction with a spread on the validation session (an \
+                     ensemble of at least two seeds is needed)"
+                ))
+            };
+            intervals[q] = [
+                Interval::spread_scaled(&validation, level).ok_or_else(short)?,
+                Interval::constant(&validation, level).ok_or_else(short)?,
+            ];
+            let test = pairs(runs, &model, q, |r| r.session < scored);
+            for (w, interval) in intervals[q].iter().enumerate() {
+                let radii: Vec<f64> = test.iter().map(|(_, s)| interval.radius(*s)).collect();
+                mean_radius[q][w] = Summary::of(&radii).map_or(f64::NAN, |s| s.mean);
+            }
+            let spreads: Vec<f64> = test.iter().map(|(_, s)| *s).collect();
+            let cut = quantile(&spreads, 0.9).unwrap_or(f64::INFINITY);
+            let mean_of = |wide: bool| {
+                let m: Vec<f64> = test
+                    .iter()
+                    .filter(|(_, s)| (*s > cut) == wide)
+                    .map(|(m, _)| *m)
+                    .collect();
+                Summary::of(&m).map_or(f64::NAN, |s| s.mean)
+            };
+            widest_tenth[q] = [mean_of(true), mean_of(false)];
+        }
+        let coverage = PathKind::ALL
+            .iter()
+            .map(|&path| {
+                std::array::from_fn(|q| {
+                    std::array::from_fn(|w| {
+                        (0..scored)
+                            .map(|k| {
+                                let p =
+                                    pairs(runs, &model, q, |r| r.session == k && r.path == path);
+                                intervals[q][w].coverage(&p)
+                            })
+                            .collect()
+                    })
+                })
+            })
+            .collect();
+        out.push(Calibrated {
+            model,
+            intervals,
+            coverage,
+            mean_radius,
+            widest_tenth,
+        });
+    }
+    Ok(out)
+}
+
+/// The radius quantiles on the validation session that the gate's candidate limits take.
+pub const GATE_QUANTILES: [f64; 3] = [0.5, 0.75, 0.9];
+
+/// One compensated run of the gate study.
+#[derive(Clone, Debug)]
+pub struct GatedRun {
+    /// The model.
+    pub model: String,
+    /// `none` (every correction in full) or `q<NN>` (the gate at that radius quantile).
+    pub gate: String,
+    /// The session, from 0 (the validation session is the last).
+    pub session: usize,
+    /// The path.
+    pub path: PathKind,
+    /// Share of the calibrated error removed against truth: position, attitude, %.
+    pub removed: [f64; 2],
+    /// Share of the ticks whose true position error is larger than the calibrated run's
+    /// at the same tick.
+    pub worse_ticks: f64,
+    /// The 99th percentile of the tick's true position error minus the calibrated run's,
+    /// µm (how bad the worst ticks get).
+    pub worst_excess_um: f64,
+    /// Share of the predictions the gate shrank.
+    pub shrunk: f64,
+}
+
+/// The gates a model's calibration gives: its spread-scaled interval, the limits at the
+/// [`GATE_QUANTILES`] of its radii on the validation session, named `q50` …
+pub fn gates(c: &Calibrated, runs: &[RunTicks], validation: usize) -> Vec<(String, Gate)> {
+    let scale = [c.intervals[0][0].scale, c.intervals[1][0].scale];
+    let radii: [Vec<f64>; 2] = std::array::from_fn(|q| {
+        pairs(runs, &c.model, q, |r| r.session == validation)
+            .iter()
+            .map(|(_, s)| scale[q] * s)
+            .collect()
+    });
+    GATE_QUANTILES
+        .iter()
+        .filter_map(|&level| {
+            let limit = [quantile(&radii[0], level)?, quantile(&radii[1], level)?];
+            Some((format!("q{:.0}", 100.0 * level), Gate { scale, limit }))
+        })
+        .collect()
+}
+
+/// Compensates every held-out session of `held` and its validation session with each
+/// model in full and through each of its gates ([`gates`]), every run of a path from the
+/// same start, and scores them against the calibrated run.
+pub fn gate_study(
+    models: &mut [LoopModel],
+    calibrated: &[Calibrated],
+    runs: &[RunTicks],
+    sources: &DataSources,
+    held: &HeldOutConfig,
+    reporter: &mut dyn Reporter,
+) -> Result<Vec<GatedRun>> {
+    let settings = Online { every: held.every };
+    let mut out = Vec::new();
+    for k in 0..=held.sessions {
+        let plan = held.session(k);
+        let (machine, controller, mut state) = session_start(sources, held, k)?;
+        for (i, path) in PathKind::ALL.into_iter().enumerate() {
+            let run = HeldOut {
+                path,
+                params: PathParams::held_out_in(path, k),
+                seconds: held.minutes * 60.0,
+                seed: plan.seed + i as u64,
+                start: state.clone(),
+                conditions: plan.conditions,
+            };
+            let plain = online::run(
+                &machine,
+                &controller,
+                run.config(),
+                run.start.clone(),
+                Feedback::None,
+                |_| {},
+            )?;
+            reporter.begin(
+                &format!("gates: session {} {}", k + 1, path.name()),
+                (models.len() * (1 + GATE_QUANTILES.len())) as u64,
+            );
+            let mut done = 0;
+            for m in models.iter_mut() {
+                let Some(c) = calibrated.iter().find(|c| c.model == m.name) else {
+                    continue;
+                };
+                let mut ways: Vec<(String, Option<Gate>)> = vec![("none".into(), None)];
+                ways.extend(
+                    gates(c, runs, held.sessions)
+                        .into_iter()
+                        .map(|(n, g)| (n, Some(g))),
+                );
+                for (name, gate) in ways {
+                    let feedback = match gate {
+                        None => Feedback::Model(&mut m.members, &m.graph, settings),
+                        Some(g) => Feedback::Gated(&mut m.members, &m.graph, settings, g),
+                    };
+                    let r = online::run(
+                        &machine,
+                        &controller,
+                        run.config(),
+                        run.start.clone(),
+                        feedback,
+                        |_| {},
+                    )?;
+                    out.push(score(&m.name, &name, k, path, &plain, &r));
+                    done += 1;
+                    reporter.update(done, "");
+                }
+            }
+            reporter.end();
+            let mut end = plain.end;
+            end.idle(IDLE_BETWEEN_RUNS);
+            state = end;
+        }
+    }
+    Ok(out)
+}
+
+/// A compensated run `r` against the calibrated run `plain` of the same path and start.
+fn score(
+    model: &str,
+    gate: &str,
+    session: usize,
+    path: PathKind,
+    plain: &online::RunResult,
+    r: &online::RunResult,
+) -> GatedRun {
+    let share = |c: f64, b: f64| 100.0 * (c - b) / c;
+    let excess: Vec<f64> = r.truth_per_tick[0]
+        .iter()
+        .zip(&plain.truth_per_tick[0])
+        .map(|(b, c)| b - c)
+        .collect();
+    let worse = excess.iter().filter(|e| **e > 0.0).count();
+    GatedRun {
+        model: model.into(),
+        gate: gate.into(),
+        session,
+        path,
+        removed: [
+            share(plain.truth.position.mean, r.truth.position.mean),
+            share(plain.truth.attitude.mean, r.truth.attitude.mean),
+        ],
+        worse_ticks: worse as f64 / excess.len().max(1) as f64,
+        worst_excess_um: quantile(&excess, 0.99).unwrap_or(f64::NAN),
+        shrunk: r.shrunk as f64 / r.predictions.max(1) as f64,
+    }
+}
+
+/// Per model and gate: the validation session's mean share removed (position, over the
+/// paths), and over the scored sessions the share removed (position, attitude, mean over
+/// paths), Hilbert's position share, the worse ticks, the worst excess and the shrunk
+/// predictions, each a list over sessions.
+#[allow(clippy::type_complexity)]
+fn gate_table(gated: &[GatedRun], scored: usize) -> Vec<(String, String, f64, [Vec<f64>; 6])> {
+    let mut keys: Vec<(String, String)> = Vec::new();
+    for g in gated {
+        let key = (g.model.clone(), g.gate.clone());
+        if !keys.contains(&key) {
+            keys.push(key);
+        }
+    }
+    keys.into_iter()
+        .map(|(model, gate)| {
+            let of = |k: usize| -> Vec<&GatedRun> {
+                gated
+                    .iter()
+                    .filter(|g| g.model == model && g.gate == gate && g.session == k)
+                    .collect()
+            };
+            let mean = |v: &[&GatedRun], f: &dyn Fn(&GatedRun) -> f64| {
+                v.iter().map(|g| f(g)).sum::<f64>() / v.len().max(1) as f64
+            };
+            let validation = mean(&of(scored), &|g| g.removed[0]);
+            let mut cols: [Vec<f64>; 6] = Default::default();
+            for k in 0..scored {
+                let runs = of(k);
+                cols[0].push(mean(&runs, &|g| g.removed[0]));
+                cols[1].push(mean(&runs, &|g| g.removed[1]));
+                let hilbert: Vec<&GatedRun> = runs
+                    .iter()
+                    .copied()
+                    .filter(|g| g.path == PathKind::Hilbert)
+                    .collect();
+                cols[2].push(mean(&hilbert, &|g| g.removed[0]));
+                cols[3].push(mean(&runs, &|g| 100.0 * g.worse_ticks));
+                cols[4].push(mean(&runs, &|g| g.worst_excess_um));
+                cols[5].push(mean(&runs, &|g| 100.0 * g.shrunk));
+            }
+            (model, gate, validation, cols)
+        })
+        .collect()
+}
+
+/// The gate study's Markdown section.
+pub fn gate_markdown(gated: &[GatedRun], scored: usize) -> String {
+    let mut md = String::new();
+    let _ = writeln!(
+        md,
+        "## Shrinking the corrections where the interval is wide
+"
+    );
+    let _ = writeln!(
+        md,
+        "Each model compensates in full (`none`) and through a gate that shrinks a \
+         correction by limit / radius where its spread-scaled radius exceeds a limit, the \
+         limit at the 50th, 75th or 90th percentile of the radii on the validation \
+         session (`q50`, `q75`, `q90`). Over the scored sessions, mean ± SD over sessions \
+         of the mean over paths: the share of the calibrated error removed against truth \
+         (%), a worse tick is one whose true position error exceeds the calibrated run's \
+         at the same tick, the worst excess the 99th percentile of that difference (µm).\n"
+    );
+    let _ = writeln!(
+        md,
+        "| model | gate | validation, position | position | attitude | Hilbert position | worse ticks % | worst excess µm | shrunk % |"
+    );
+    let _ = writeln!(md, "|---|---|---|---|---|---|---|---|---|");
+    let one =
+        |v: &[f64]| Summary::of(v).map_or("-".into(), |s| format!("{:.1} ± {:.1}", s.mean, s.sd));
+    for (model, gate, validation, cols) in gate_table(gated, scored) {
+        let _ = write!(md, "| {model} | {gate} | {validation:.1} |");
+        for c in &cols {
+            let _ = write!(md, " {} |", one(c));
+        }
+        let _ = writeln!(md);
+    }
+    let _ = writeln!(md);
+    md
+}
+
+/// `mean ± SD` of shares as percentages.
+fn pct(values: &[f64]) -> String {
+    Summary::of(values).map_or("-".into(), |s| {
+        format!("{:.1} ± {:.1}", 100.0 * s.mean, 100.0 * s.sd)
+    })
+}
+
+/// The study's Markdown.
+pub fn markdown(calibrated: &[Calibrated], held: &HeldOutConfig, level: f64) -> String {
+    let mut md = String::new();
+    let _ = writeln!(md, "# Confidence\n");
+    let _ = writeln!(
+        md,
+        "Each model (a seed ensemble, its members' mean in the loop) predicts along every \
+         held-out path's uncompensated run, a prediction every {} tick(s); a prediction's \
+         miss is its distance from the tick's true residual (position µm; attitude across \
+         the tool axis, mdeg), its spread the members' root-mean-square distance from their \
+         mean. A {:.0} % interval is calibrated on the validation session (session {}) two \
+         ways: a radius proportional to the spread, and a constant radius. Its coverage is \
+         the share of the scored sessions' predictions within it, per path, mean ± SD over \
+         {} (docs/results.md \"Confidence\").\n",
+        held.every,
+        100.0 * level,
+        held.sessions + 1,
+        held.describe_sessions()
+    );
+    for c in calibrated {
+        let _ = writeln!(md, "## {}\n", c.model);
+        let [pos, att] = c.intervals;
+        let _ = writeln!(
+            md,
+            "Calibrated: position radius {:.2} × spread, or {:.1} µm; attitude {:.2} × \
+             spread, or {:.1} mdeg. Mean radius on the scored sessions: position {:.1} µm \
+             (spread-scaled) against {:.1}; attitude {:.1} mdeg against {:.1}.\n",
+            pos[0].scale,
+            pos[1].constant,
+            att[0].scale,
+            att[1].constant,
+            c.mean_radius[0][0],
+            c.mean_radius[0][1],
+            c.mean_radius[1][0],
+            c.mean_radius[1][1]
+        );
+        let _ = writeln!(
+            md,
+            "| path | position, spread-scaled | position, constant | attitude, spread-scaled | attitude, constant |"
+        );
+        let _ = writeln!(md, "|---|---|---|---|---|");
+        for (path, cov) in PathKind::ALL.iter().zip(&c.coverage) {
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {} | {} |",
+                path.name(),
+                pct(&cov[0][0]),
+                pct(&cov[0][1]),
+                pct(&cov[1][0]),
+                pct(&cov[1][1])
+            );
+        }
+        let _ = writeln!(
+            md,
+            "\nDoes the spread flag the bad predictions? Mean miss where the spread is in \
+             its widest tenth against the rest: position {:.1} against {:.1} µm, attitude \
+             {:.1} against {:.1} mdeg.\n",
+            c.widest_tenth[0][0], c.widest_tenth[0][1], c.widest_tenth[1][0], c.widest_tenth[1][1]
+        );
+    }
+    md
+}
+
+/// One row per run and prediction: `model,session,path,tick,miss_um,miss_mdeg,spread_um,spread_mdeg`.
+pub fn ticks_csv(runs: &[RunTicks]) -> String {
+    let mut csv = String::from("model,session,path,tick,miss_um,miss_mdeg,spread_um,spread_mdeg\n");
+    for r in runs {
+        for t in &r.ticks {
+            let _ = writeln!(
+                csv,
+                "{},{},{},{},{:.3},{:.3},{:.3},{:.3}",
+                r.model,
+                r.session + 1,
+                r.path.name(),
+                t.tick,
+                t.miss[0],
+                t.miss[1],
+                t.spread[0],
+                t.spread[1]
+            );
+        }
+    }
+    csv
+}
+
+/// Writes `confidence.md` and `ticks.csv` into `dir`, together or not at all.
+pub fn write(dir: &Path, markdown: &str, runs: &[RunTicks]) -> Result<()> {
+    let mut batch = crate::atomic::Batch::new();
+    for (name, text) in [
+        ("confidence.md", markdown.to_string()),
+        ("ticks.csv", ticks_csv(runs)),
+    ] {
+        let path = dir.join(name);
+        batch
+            .add(&path, text.as_bytes())
+            .map_err(|e| Error::io(&path, e))?;
+    }
+    batch.commit().map_err(|e| Error::io(dir, e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_quantile_is_the_smallest_value_that_share_reaches() {
+        let v: Vec<f64> = (1..=10).map(f64::from).collect();
+        assert_eq!(quantile(&v, 0.9), Some(9.0));
+        assert_eq!(quantile(&v, 0.91), Some(10.0));
+        assert_eq!(quantile(&v, 0.0), Some(1.0));
+        assert_eq!(quantile(&[f64::NAN, 2.0], 0.5), Some(2.0));
+        assert_eq!(quantile(&[], 0.5), None);
+    }
+
+    #[test]
+    fn intervals_cover_their_level_where_they_were_calibrated() {
+        // miss = 2 · spread on most ticks, 10 · spread on a tenth: the spread-scaled
+        // interval needs a scale of 2 for 90 %, the constant one the 90 % miss.
+        let pairs: Vec<(f64, f64)> = (1..=100)
+            .map(|i| {
+                let s = f64::from(i);
+                (if i % 10 == 0 { 10.0 * s } else { 2.0 * s }, s)
+            })
+            .collect();
+        let scaled = Interval::spread_scaled(&pairs, 0.9).unwrap();
+        assert_eq!(scaled.scale, 2.0);
+        assert!((scaled.coverage(&pairs) - 0.9).abs() < 1e-12);
+        let constant = Interval::constant(&pairs, 0.9).unwrap();
+        assert_eq!(constant.scale, 0.0);
+        assert!(constant.coverage(&pairs) >= 0.9);
+        assert!(Interval::spread_scaled(&[(1.0, 0.0)], 0.9).is_none());
+    }
+
+    #[test]
+    fn a_gate_shrinks_by_the_tighter_of_its_limits() {
+        let g = Gate {
+            scale: [2.0, 4.0],
+            limit: [10.0, 8.0],
+        };
+        assert_eq!(g.factor([1.0, 1.0]), 1.0, "radii 2 and 4 are within");
+        assert_eq!(g.factor([10.0, 1.0]), 0.5, "position radius 20 against 10");
+        assert_eq!(g.factor([10.0, 4.0]), 0.5, "attitude 16 against 8 ties it");
+        assert_eq!(
+            g.factor([10.0, 8.0]),
+            0.25,
+            "attitude 32 against 8 is tighter"
+        );
+        assert_eq!(g.factor([0.0, 0.0]), 1.0);
+    }
+
+    #[test]
+    fn calibration_uses_the_validation_session_and_scores_the_others() {
+        let run = |session, path, miss: f64, spread: f64| RunTicks {
+            model: "m".into(),
+            session,
+            path,
+            ticks: (0..10)
+                .map(|tick| OpenLoopTick {
+                    tick,
+                    miss: [miss * (1 + tick) as f64, miss],
+                    spread: [spread * (1 + tick) as f64, spread],
+                })
+                .collect(),
+        };
+        let mut runs = Vec::new();
+        for path in PathKind::ALL {
+            runs.push(run(0, path, 4.0, 1.0)); // scored: misses twice the validation's
+            runs.push(run(1, path, 2.0, 1.0)); // validation
+        }
+        let c = calibrate(&runs, 1, 0.9).unwrap();
+        assert_eq!(c.len(), 1);
+        assert_eq!(c[0].intervals[0][0].scale, 2.0);
+        // On the scored session every miss is 4 × spread: a 2 × spread radius covers none.
+        for cov in &c[0].coverage {
+            assert_eq!(cov[0][0], vec![0.0]);
+        }
+    }
+}
