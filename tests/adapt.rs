@@ -235,34 +235,25 @@ fn the_cli_adapts_a_checkpoint_and_measures_the_morning_minute() {
     let trained = dir.join("tiny.seed1.safetensors");
     f.trained.save(&trained).unwrap();
     let adapted = dir.join("adapted.safetensors");
-    let text = common::cli(&[
-        "adapt",
-        "--data",
-        s(&f.fermat),
-        "--calibration",
-        s(&f.calibration),
-        "--model",
-        s(&trained),
-        "--method",
-        "offset",
-        "--out",
-        s(&adapted),
-    ]);
+    let args = |method: &'static str| {
+        [
+            "adapt",
+            "--data",
+            s(&f.fermat),
+            "--calibration",
+            s(&f.calibration),
+            "--model",
+            s(&trained),
+            "--method",
+            method,
+            "--out",
+            s(&adapted),
+        ]
+    };
+    let text = common::cli(&args("offset"));
     assert!(text.contains("offset") && text.contains("judged"), "{text}");
     Checkpoint::load(&adapted).unwrap();
-    let e = common::cli_fails(&[
-        "adapt",
-        "--data",
-        s(&f.fermat),
-        "--calibration",
-        s(&f.calibration),
-        "--model",
-        s(&trained),
-        "--method",
-        "sideways",
-        "--out",
-        s(&adapted),
-    ]);
+    let e = common::cli_fails(&args("sideways"));
     assert!(e.contains("sideways"), "{e}");
 
     // The study on one scored session and its validation session, short runs.
@@ -275,7 +266,7 @@ fn the_cli_adapts_a_checkpoint_and_measures_the_morning_minute() {
         s(&f.calibration),
         "--models",
         s(&trained),
-        "--sessions",
+        "--held-out-sessions",
         "1",
         "--minutes",
         "0.25",
@@ -337,7 +328,7 @@ fn confidence_calibrates_on_the_validation_session_and_needs_two_seeds() {
         s(&f.grid),
         "--calibration",
         s(&f.calibration),
-        "--sessions",
+        "--held-out-sessions",
         "1",
         "--held-out-minutes",
         "0.1",

@@ -4,13 +4,16 @@
 # of its three held-out sessions and the validation session records a morning run first
 # and compares the trained IASTGCN and iastgcn-a with the ways of adapting them to it:
 # a minute of the Fermat spiral, two minutes of it (the default), and a minute of the
-# raster. About 12 minutes in all; WORK (default target/morning) keeps the demo's folder.
+# raster. About 12 minutes in all; WORK (default target/morning) keeps the demo's folder,
+# which a second run reuses.
 set -eu
 cd "$(dirname "$0")/../.."
 cargo build --release --bin iastgcn
 WORK=${WORK:-target/morning}
 OUT=docs/morning
-./target/release/iastgcn demo --seeds 1,2,3 --out "$WORK/demo"
+if [ ! -f "$WORK/demo/models/iastgcn.seed3.safetensors" ]; then
+  ./target/release/iastgcn demo --seeds 1,2,3 --out "$WORK/demo"
+fi
 models=()
 for m in iastgcn-a iastgcn; do
   for s in 1 2 3; do models+=("$WORK/demo/models/$m.seed$s.safetensors"); done

@@ -95,6 +95,17 @@ def refine(
     robot: Optional[_Path] = None,
     progress: _Progress = None,
 ) -> dict[str, Any]: ...
+def adapt(
+    recordings: Sequence[_Path],
+    calibration: _Path,
+    model: _Path,
+    out: _Path,
+    method: str = "offset",
+    config: Optional[_Path] = None,
+    graph: Optional[_Path] = None,
+    robot: Optional[_Path] = None,
+    progress: _Progress = None,
+) -> dict[str, Any]: ...
 def evaluate(
     models: Sequence[_Path],
     recordings: Sequence[_Path],

@@ -117,6 +117,18 @@ def test_training_refinement_and_evaluation_from_python(twin_data: dict, tmp_pat
     assert (tmp_path / "refined.safetensors").exists()
     assert isinstance(refined["verdict"], str) and refined["test_after"]
 
+    # The morning minute: adapted to one recording, judged on its last fifth.
+    adapted = iastgcn.adapt(twin_data["recordings"][:1], twin_data["calibration"], model,
+                            tmp_path / "today.safetensors", method="offset",
+                            config=ROOT / "assets/demo.toml")
+    assert (tmp_path / "today.safetensors").exists()
+    assert adapted["verdict"].startswith("offset")
+    assert adapted["kept_trained"] == (adapted["loss_adapted"] >= adapted["loss_before"])
+    assert adapted["windows"][0] > adapted["windows"][1] > 0 and len(adapted["offset"]) == 6
+    with pytest.raises(iastgcn.Error, match="sideways"):
+        iastgcn.adapt(twin_data["recordings"][:1], twin_data["calibration"], model,
+                      tmp_path / "x.safetensors", method="sideways")
+
     tables = iastgcn.evaluate([model], twin_data["recordings"], twin_data["calibration"],
                               tmp_path / "report", config=ROOT / "assets/demo.toml",
                               held_out_minutes=0.1)

@@ -6,9 +6,10 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
+use super::evaluate_args::HeldOutArgs;
 use super::train::{read_run_config, DataArgs};
 use super::Console;
-use iastgcn::experiment::evaluate::HeldOutConfig;
+use iastgcn::experiment::demo::DEMO_HELD_OUT;
 use iastgcn::experiment::morning::{self, MorningSpec, Trained};
 use iastgcn::gpu::Device;
 use iastgcn::model::Checkpoint;
@@ -92,21 +93,8 @@ pub struct MorningArgs {
         default_value = "offset,fine-tune,fine-tune:8:1e-3"
     )]
     pub methods: Vec<String>,
-    /// Held-out sessions scored (the validation session is the one after them).
-    #[arg(long, default_value_t = 3, value_parser = super::count(1..=16))]
-    pub sessions: usize,
-    /// Length of each held-out run, minutes.
-    #[arg(long, default_value_t = 0.5)]
-    pub held_out_minutes: f64,
-    /// Seed of the first held-out run.
-    #[arg(long, default_value_t = 301)]
-    pub held_out_seed: u64,
-    /// Minutes of warm-up before the first session's morning recording.
-    #[arg(long, default_value_t = 2.0)]
-    pub warm_up_minutes: f64,
-    /// The models predict every this many control ticks.
-    #[arg(long, default_value_t = 1, value_parser = super::count(1..=10_000))]
-    pub every: usize,
+    #[command(flatten)]
+    pub held_out: HeldOutArgs,
     /// Output folder: morning.md, morning_table_v.csv, adaptations.csv and the morning
     /// recordings.
     #[arg(long)]
@@ -158,13 +146,7 @@ pub fn morning(device: &Device, args: &MorningArgs) -> anyhow::Result<()> {
             .context("--path")?,
         minutes: args.minutes,
         methods,
-        held: HeldOutConfig {
-            minutes: args.held_out_minutes,
-            seed: args.held_out_seed,
-            warm_up_minutes: args.warm_up_minutes,
-            every: args.every,
-            sessions: args.sessions,
-        },
+        held: args.held_out.config_or(DEMO_HELD_OUT),
     };
     super::make_output_folder("--out", &args.out)?;
     let mut console = Console::default();

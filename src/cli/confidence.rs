@@ -7,10 +7,12 @@ use std::path::PathBuf;
 use anyhow::Context;
 
 use super::adapt::name_and_seed;
+use super::evaluate_args::HeldOutArgs;
 use super::train::DataArgs;
 use super::Console;
 use iastgcn::experiment::confidence;
-use iastgcn::experiment::evaluate::{ensemble, HeldOutConfig};
+use iastgcn::experiment::demo::DEMO_HELD_OUT;
+use iastgcn::experiment::evaluate::ensemble;
 use iastgcn::gpu::Device;
 use iastgcn::model::Checkpoint;
 use iastgcn::progress::Reporter;
@@ -28,21 +30,8 @@ pub struct ConfidenceArgs {
     /// The interval's level: the share of the validation session's predictions it covers.
     #[arg(long, default_value_t = 0.9)]
     pub level: f64,
-    /// Held-out sessions scored (the validation session is the one after them).
-    #[arg(long, default_value_t = 3, value_parser = super::count(1..=16))]
-    pub sessions: usize,
-    /// Length of each held-out run, minutes.
-    #[arg(long, default_value_t = 0.5)]
-    pub held_out_minutes: f64,
-    /// Seed of the first held-out run.
-    #[arg(long, default_value_t = 301)]
-    pub held_out_seed: u64,
-    /// Minutes of warm-up before the first session's runs.
-    #[arg(long, default_value_t = 2.0)]
-    pub warm_up_minutes: f64,
-    /// The models predict every this many control ticks.
-    #[arg(long, default_value_t = 1, value_parser = super::count(1..=10_000))]
-    pub every: usize,
+    #[command(flatten)]
+    pub held_out: HeldOutArgs,
     /// Measure the intervals only, not the gates that shrink wide corrections in the loop.
     #[arg(long)]
     pub no_gates: bool,
@@ -76,13 +65,7 @@ pub fn run(device: &Device, args: &ConfidenceArgs) -> anyhow::Result<()> {
         .iter()
         .map(|(name, members)| ensemble(device, name, members))
         .collect::<Result<Vec<_>, _>>()?;
-    let held = HeldOutConfig {
-        minutes: args.held_out_minutes,
-        seed: args.held_out_seed,
-        warm_up_minutes: args.warm_up_minutes,
-        every: args.every,
-        sessions: args.sessions,
-    };
+    let held = args.held_out.config_or(DEMO_HELD_OUT);
     held.validate()?;
     super::make_output_folder("--out", &args.out)?;
     let mut console = Console::default();

@@ -1,5 +1,5 @@
 //! The flags of `iastgcn evaluate` and the held-out session's flags that `demo`,
-//! `evaluate`, `reproduce` and `scale` share (arguments only: `demo` runs `evaluate`,
+//! `evaluate`, `reproduce`, `scale`, `morning` and `confidence` share (arguments only: `demo` runs `evaluate`,
 //! `arm` the serial arm's evaluation).
 
 use std::path::PathBuf;
@@ -24,7 +24,7 @@ pub struct HeldOutArgs {
     pub warm_up_minutes: f64,
     /// Predict every this many control ticks during compensation (default: the recipe's,
     /// 1 for `use-like`, whose models train on closed-loop data recorded at that rate, 5
-    /// for `paper`; 5 for `evaluate`).
+    /// for `paper`; 5 for `evaluate`; 1 for `morning` and `confidence`, the demo's).
     #[arg(long, value_parser = super::count(1..=10_000))]
     pub every: Option<usize>,
     /// Held-out sessions scored (Table V; in `scale` every job): the first as

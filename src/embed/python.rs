@@ -1,7 +1,7 @@
 //! The `iastgcn` Python module (feature `python`; built by maturin, `make python`;
 //! docs/embedding.md "Python"). `Predictor` for controllers, and the demo's steps as
 //! functions for notebooks: `record_data`, `calibrate`, `calibrate_arm`, `train`,
-//! `refine`, `evaluate`, each with an optional progress callback. Results come back as
+//! `refine`, `adapt`, `evaluate`, each with an optional progress callback. Results come back as
 //! dictionaries (the library's own structures through JSON), errors as `iastgcn.Error`
 //! with the library's message; a panic is caught and raised as `iastgcn.Error` too.
 
@@ -753,6 +753,62 @@ fn refine_model<'py>(
     to_python(py, &result)
 }
 
+/// adapt(recordings, calibration, model, out, method="offset", config=None, graph=None,
+///       robot=None, progress=None) -> dict
+///
+/// The morning minute (docs/model.md "The morning minute"): the checkpoint `model`
+/// adapted to the day of `recordings` (a minute or two of one path with tracker samples)
+/// by `method` ("offset", "fine-tune" or "fine-tune:EPOCHS:LR"), written to `out`: the
+/// adapted weights when they lower the loss on the recording's last fifth, else the
+/// trained ones. Returns the verdict, whether the trained weights were kept, the judging
+/// loss before and adapted, the windows that adapted and judged, and the offset's shift
+/// (µm, mdeg).
+#[pyfunction(name = "adapt")]
+#[pyo3(signature = (recordings, calibration, model, out, method="offset", config=None, graph=None, robot=None, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn adapt_model<'py>(
+    py: Python<'py>,
+    recordings: Vec<PathBuf>,
+    calibration: PathBuf,
+    model: PathBuf,
+    out: PathBuf,
+    method: &str,
+    config: Option<PathBuf>,
+    graph: Option<PathBuf>,
+    robot: Option<PathBuf>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let method: train::Adaptation = method.parse().map_err(raise)?;
+    let sources = sources(recordings, calibration, graph, robot);
+    #[derive(Serialize)]
+    struct Result {
+        verdict: String,
+        kept_trained: bool,
+        loss_before: f64,
+        loss_adapted: f64,
+        windows: [usize; 2],
+        offset: [f64; 6],
+    }
+    let result = long_call(py, progress, |r| {
+        let ck = Checkpoint::load(&model)?;
+        let config = RunConfig::read(config.as_deref(), None)?;
+        let device = open_device()?;
+        let how = train::AdaptConfig::new(method, &config);
+        let adapted = train::adapt(&device, &sources, &ck, &how, r)
+            .map_err(|e| e.context(model.display()))?;
+        adapted.checkpoint(&ck).save(&out)?;
+        Ok(Result {
+            verdict: adapted.verdict(),
+            kept_trained: adapted.kept_trained,
+            loss_before: adapted.loss_before,
+            loss_adapted: adapted.loss_after,
+            windows: adapted.windows,
+            offset: adapted.offset,
+        })
+    })?;
+    to_python(py, &result)
+}
+
 /// evaluate(models, recordings, calibration, out, config=None, held_out_minutes=None,
 ///          held_out_seed=None, graph=None, progress=None, held_out_sessions=None) -> dict
 ///
@@ -827,6 +883,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(calibrate_arm, m)?)?;
     m.add_function(wrap_pyfunction!(train_model, m)?)?;
     m.add_function(wrap_pyfunction!(refine_model, m)?)?;
+    m.add_function(wrap_pyfunction!(adapt_model, m)?)?;
     m.add_function(wrap_pyfunction!(evaluate_models, m)?)?;
     Ok(())
 }

@@ -9,13 +9,13 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use super::evaluate::{session_start, HeldOutConfig, LoopModel};
-use crate::compensate::held_out::{HeldOut, IDLE_BETWEEN_RUNS};
+use crate::compensate::held_out::IDLE_BETWEEN_RUNS;
 use crate::compensate::online::{self, Feedback, Gate, Online, OpenLoopTick};
 use crate::data::DataSources;
 use crate::error::{Error, Result};
 use crate::progress::Reporter;
 use crate::stats::Summary;
-use crate::twin::{PathKind, PathParams};
+use crate::twin::PathKind;
 
 /// The open-loop predictions of one model on one held-out run.
 #[derive(Clone, Debug)]
@@ -46,17 +46,9 @@ pub fn record(
     let settings = Online { every: held.every };
     let mut out = Vec::new();
     for k in 0..=held.sessions {
-        let plan = held.session(k);
         let (machine, calibrated, mut state) = session_start(sources, held, k)?;
         for (i, path) in PathKind::ALL.into_iter().enumerate() {
-            let run = HeldOut {
-                path,
-                params: PathParams::held_out_in(path, k),
-                seconds: held.minutes * 60.0,
-                seed: plan.seed + i as u64,
-                start: state.clone(),
-                conditions: plan.conditions,
-            };
+            let run = held.run(k, i, state.clone());
             reporter.begin(
                 &format!("session {} {}", k + 1, path.name()),
                 (run.config().steps() * models.len()) as u64,
@@ -320,17 +312,9 @@ pub fn gate_study(
     let settings = Online { every: held.every };
     let mut out = Vec::new();
     for k in 0..=held.sessions {
-        let plan = held.session(k);
         let (machine, controller, mut state) = session_start(sources, held, k)?;
         for (i, path) in PathKind::ALL.into_iter().enumerate() {
-            let run = HeldOut {
-                path,
-                params: PathParams::held_out_in(path, k),
-                seconds: held.minutes * 60.0,
-                seed: plan.seed + i as u64,
-                start: state.clone(),
-                conditions: plan.conditions,
-            };
+            let run = held.run(k, i, state.clone());
             let plain = online::run(
                 &machine,
                 &controller,

@@ -223,6 +223,24 @@ pub fn run(
     })
 }
 
+/// An adaptation's cells: session (from 1), model, seed, method, windows adapting and
+/// judging, the judging loss before and adapted, the weights kept, seconds.
+fn fields(a: &AdaptRecord) -> [String; 10] {
+    let d = &a.adapted;
+    [
+        (a.session + 1).to_string(),
+        a.model.clone(),
+        a.seed.to_string(),
+        d.method.to_string(),
+        d.windows[0].to_string(),
+        d.windows[1].to_string(),
+        format!("{:.4}", d.loss_before),
+        format!("{:.4}", d.loss_after),
+        (if d.kept_trained { "trained" } else { "adapted" }).to_string(),
+        format!("{:.2}", d.seconds),
+    ]
+}
+
 /// The share of the calibrated position and attitude error a model's row removed on one
 /// session, mean over the paths, and on Hilbert; `None` when the session lacks the row.
 fn shares(rows: &[TableVRow], session: usize, row: &str) -> Option<([f64; 2], [f64; 2])> {
@@ -381,25 +399,11 @@ impl Morning {
         let _ = writeln!(md, "\n## Each adaptation\n");
         let _ = writeln!(
             md,
-            "| session | model | seed | adaptation | windows (adapt / judge) | loss before | loss adapted | kept | seconds |"
+            "| session | model | seed | adaptation | windows adapting | windows judging | loss before | loss adapted | kept | seconds |"
         );
-        let _ = writeln!(md, "|---|---|---|---|---|---|---|---|---|");
+        let _ = writeln!(md, "|---|---|---|---|---|---|---|---|---|---|");
         for a in &self.adaptations {
-            let d = &a.adapted;
-            let _ = writeln!(
-                md,
-                "| {} | {} | {} | {} | {} / {} | {:.4} | {:.4} | {} | {:.1} |",
-                a.session + 1,
-                a.model,
-                a.seed,
-                d.method,
-                d.windows[0],
-                d.windows[1],
-                d.loss_before,
-                d.loss_after,
-                if d.kept_trained { "trained" } else { "adapted" },
-                d.seconds
-            );
+            let _ = writeln!(md, "| {} |", fields(a).join(" | "));
         }
         md
     }
@@ -421,20 +425,7 @@ impl Morning {
         );
         for a in &self.adaptations {
             let d = &a.adapted;
-            let _ = write!(
-                csv,
-                "{},{},{},{},{},{},{},{},{},{:.3}",
-                a.session + 1,
-                a.model,
-                a.seed,
-                d.method,
-                d.windows[0],
-                d.windows[1],
-                d.loss_before,
-                d.loss_after,
-                if d.kept_trained { "trained" } else { "adapted" },
-                d.seconds
-            );
+            csv.push_str(&fields(a).join(","));
             for o in d.offset {
                 let _ = write!(csv, ",{o}");
             }

@@ -153,6 +153,23 @@ impl HeldOutConfig {
     }
 }
 
+impl HeldOutConfig {
+    /// The `i`-th path of [`PathKind::ALL`] in held-out session `k`, from `start`: at its
+    /// placement for the session, with the session's seed for it and its day.
+    pub fn run(&self, k: usize, i: usize, start: MachineState) -> HeldOut {
+        let plan = self.session(k);
+        let path = PathKind::ALL[i % PathKind::ALL.len()];
+        HeldOut {
+            path,
+            params: PathParams::held_out_in(path, k),
+            seconds: self.minutes * 60.0,
+            seed: plan.seed + i as u64,
+            start,
+            conditions: plan.conditions,
+        }
+    }
+}
+
 impl Default for HeldOutConfig {
     /// The demo's sessions: three, of 0.5 min runs from seed 301, the first after 2 min
     /// of warm-up, a prediction every 5 ticks.
@@ -487,14 +504,7 @@ fn session_runs(
                 })?,
         };
         session.starts.push(start.clone());
-        let run = HeldOut {
-            path,
-            params: PathParams::held_out_in(path, k),
-            seconds: held.minutes * 60.0,
-            seed: plan.seed + i as u64,
-            start,
-            conditions: plan.conditions,
-        };
+        let run = held.run(k, i, start);
         // One budget (the Hilbert run's) keeps the demo in its time; `iastgcn budget`
         // gives any other.
         if options.budget && path == PathKind::Hilbert {
