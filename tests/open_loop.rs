@@ -158,3 +158,73 @@ fn an_ensemble_feeds_back_the_mean_of_its_members() {
     .unwrap_err();
     assert!(err.to_string().contains("at least one predictor"), "{err}");
 }
+
+/// The look-ahead oracle (docs/results.md "The look-ahead floor"): on each tick it acts
+/// (from the window's last tick, every `every`) it sets the true residual of the next
+/// tick; replayed, the first pass reproduces the uncompensated run's residuals it was
+/// built from up to the corrections' own effect, and its fixed point converges and
+/// leaves less than the oracle of the tick just measured on the Hilbert curve.
+#[test]
+fn the_look_ahead_oracle_sets_the_next_ticks_residual_and_converges() {
+    let g = Geometry::default_asset();
+    let machine = draw_machine(g, 1);
+    let controller = machine.robot.clone();
+    let start = warm_up(&machine, &controller, 30.0, 5).unwrap();
+    let mut config = SimConfig::new(PathKind::Hilbert, 12.0, 9);
+    config.path_params = PathParams::held_out(PathKind::Hilbert);
+    let (plain, residuals) = online::with_true_residuals(
+        &machine,
+        &controller,
+        config.clone(),
+        start.clone(),
+        Feedback::None,
+    )
+    .unwrap();
+    assert_eq!(residuals.len(), config.steps());
+    let ahead = online::look_ahead(&residuals, 48, 5);
+    assert_eq!(
+        ahead.first().map(|a| a.0),
+        Some(50),
+        "from tick 47 on, every 5th"
+    );
+    for (t, c) in &ahead {
+        assert!(t % 5 == 0 && *t + 1 >= 48);
+        assert_eq!(
+            c.dp,
+            residuals[t + 1].dp,
+            "tick {t} sets tick {}'s residual",
+            t + 1
+        );
+    }
+    let last = residuals.len() - 1;
+    assert!(
+        ahead.iter().all(|(t, _)| *t < last),
+        "no tick past the run's end"
+    );
+    let oracle = online::run(
+        &machine,
+        &controller,
+        config.clone(),
+        start.clone(),
+        Feedback::Oracle {
+            window: 48,
+            settings: Online { every: 1 },
+        },
+        |_| {},
+    )
+    .unwrap();
+    let (run, passes) =
+        online::look_ahead_oracle(&machine, &controller, &config, &start, 48, 1, 4).unwrap();
+    eprintln!(
+        "calibrated {:.2} µm, oracle {:.2}, look-ahead passes {passes:?}",
+        plain.truth.position.mean, oracle.truth.position.mean
+    );
+    assert_eq!(passes.len(), 4);
+    let step = |i: usize| (passes[i] - passes[i + 1]).abs();
+    assert!(
+        step(2) < 0.2 * step(0).max(1e-9) + 0.05,
+        "the passes converge: {passes:?}"
+    );
+    assert!(run.truth.position.mean < oracle.truth.position.mean);
+    assert!(run.truth.position.mean < 0.2 * plain.truth.position.mean);
+}

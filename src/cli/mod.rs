@@ -10,6 +10,7 @@ mod confidence;
 mod dataset;
 mod demo;
 mod evaluate_args;
+mod floor;
 mod import;
 mod info;
 mod model;
@@ -84,6 +85,9 @@ enum Command {
     Compensate(compensate::CompensateArgs),
     /// The error budget of a run in the twin: the hidden tool-pose error split by source.
     Budget(budget::BudgetArgs),
+    /// The look-ahead floor: what an oracle that knows the residual of the tick it acts on
+    /// leaves on the twin's held-out runs, beside the oracle of the tick just measured.
+    Floor(floor::FloorArgs),
     /// Tables III and V and the report folder for trained models.
     Evaluate(evaluate_args::EvaluateArgs),
     /// The main job end to end on the embedded twin: simulate, calibrate, train IASTGCN,
@@ -315,6 +319,7 @@ pub fn main() -> ExitCode {
             Command::Compensate(args) => open_device(cli.adapter.as_deref())
                 .and_then(|device| compensate::run(device, &args)),
             Command::Budget(args) => budget::run(&args),
+            Command::Floor(args) => floor::run(&args),
             Command::Evaluate(args) => {
                 open_device(cli.adapter.as_deref()).and_then(|device| demo::evaluate(device, &args))
             }

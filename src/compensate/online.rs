@@ -406,12 +406,8 @@ pub fn run_observed(
         }
         if let Some((window, settings)) = oracle {
             if tick + 1 >= window && tick.is_multiple_of(settings.every) {
-                let commanded = &s.hidden.commanded;
                 predictions += 1;
-                sim.set_correction(Correction {
-                    dp: actual.translation.vector - commanded.translation.vector,
-                    dr: (actual.rotation * commanded.rotation.inverse()).scaled_axis(),
-                });
+                sim.set_correction(true_residual(&s, &actual));
             }
         }
         tick += 1;
@@ -456,6 +452,90 @@ pub fn run_observed(
     })
 }
 
+/// [`run`] with `feedback`, and the true residual of each of its ticks: the located
+/// actual pose against the pose the controller expected, what the oracle feeds back.
+pub fn with_true_residuals(
+    machine: &Machine,
+    controller: &Robot,
+    config: SimConfig,
+    start: MachineState,
+    feedback: Feedback<'_>,
+) -> Result<(RunResult, Vec<Correction>)> {
+    let mut residuals = Vec::with_capacity(config.steps());
+    let result = run_observed(machine, controller, config, start, feedback, |s, actual| {
+        residuals.push(true_residual(s, actual))
+    })?;
+    Ok((result, residuals))
+}
+
+/// The true residual of a tick: the located actual pose against the commanded one.
+fn true_residual(s: &crate::twin::Sample, actual: &Isometry3<f64>) -> Correction {
+    let commanded = &s.hidden.commanded;
+    Correction {
+        dp: actual.translation.vector - commanded.translation.vector,
+        dr: (actual.rotation * commanded.rotation.inverse()).scaled_axis(),
+    }
+}
+
+/// The look-ahead oracle's corrections for [`Feedback::Replay`]: on each tick the oracle
+/// would act (from the first a `window`-step model could predict, every `every` ticks),
+/// the true residual of the **next** tick, the one the correction takes effect on, from
+/// a run's `residuals` ([`with_true_residuals`]). The oracle of [`Feedback::Oracle`]
+/// sets the residual of the tick just measured instead; the difference is the floor a
+/// model that predicts ahead could reach (docs/results.md "The look-ahead floor").
+/// Corrections change the residuals they correct (the pad sits elsewhere on the glass),
+/// so [`look_ahead_oracle`] iterates.
+pub fn look_ahead(
+    residuals: &[Correction],
+    window: usize,
+    every: usize,
+) -> Vec<(usize, Correction)> {
+    (0..residuals.len().saturating_sub(1))
+        .filter(|&t| t + 1 >= window && t.is_multiple_of(every.max(1)))
+        .map(|t| (t, residuals[t + 1]))
+        .collect()
+}
+
+/// The look-ahead oracle on one run, as a fixed point: the uncompensated run's residuals
+/// give the first corrections ([`look_ahead`]), the run they correct gives the next ones,
+/// `passes` times in all (at least 1). Returns the last run and, per pass, its true
+/// position error, µm (how far the iteration moved).
+#[allow(clippy::too_many_arguments)]
+pub fn look_ahead_oracle(
+    machine: &Machine,
+    controller: &Robot,
+    config: &SimConfig,
+    start: &MachineState,
+    window: usize,
+    every: usize,
+    passes: usize,
+) -> Result<(RunResult, Vec<f64>)> {
+    let (_, mut residuals) = with_true_residuals(
+        machine,
+        controller,
+        config.clone(),
+        start.clone(),
+        Feedback::None,
+    )?;
+    let mut history = Vec::new();
+    let mut last = None;
+    for _ in 0..passes.max(1) {
+        let ahead = look_ahead(&residuals, window, every);
+        let (r, next) = with_true_residuals(
+            machine,
+            controller,
+            config.clone(),
+            start.clone(),
+            Feedback::Replay(&ahead),
+        )?;
+        history.push(r.truth.position.mean);
+        residuals = next;
+        last = Some(r);
+    }
+    let last = last.ok_or_else(|| Error::Invalid("no pass of the look-ahead oracle".into()))?;
+    Ok((last, history))
+}
+
 /// How far a prediction (dp mm, dr rotation vector rad) is from the true residual of its
 /// tick (the located actual pose against the pose the controller expected, what the
 /// oracle feeds back): position µm, and the attitude difference across the tool axis
@@ -466,14 +546,12 @@ fn prediction_miss(
     dp: nalgebra::Vector3<f64>,
     dr: nalgebra::Vector3<f64>,
 ) -> (f64, f64) {
-    let commanded = &s.hidden.commanded;
-    let true_dp = actual.translation.vector - commanded.translation.vector;
-    let true_dr = (actual.rotation * commanded.rotation.inverse()).scaled_axis();
+    let truth = true_residual(s, actual);
     let axis = s.hidden.target.axis.normalize();
-    let e = dr - true_dr;
+    let e = dr - truth.dr;
     let across = e - axis * e.dot(&axis);
     (
-        (dp - true_dp).norm() * 1e3,
+        (dp - truth.dp).norm() * 1e3,
         across.norm().to_degrees() * 1e3,
     )
 }

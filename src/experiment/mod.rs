@@ -11,8 +11,8 @@
 //! independent runs of an evaluation on every core (`parallel`), models fitted one per
 //! core with the bits of fitting them in turn (`side_by_side`), how long the demo
 //! will take on this machine (`forecast`), the morning minute's adaptation measured on
-//! held-out sessions (`morning`), and how far a seed ensemble's spread tells how far to
-//! trust its prediction (`confidence`).
+//! held-out sessions (`morning`), how far a seed ensemble's spread tells how far to
+//! trust its prediction (`confidence`), and the floor of a look-ahead oracle (`floor`).
 
 pub mod arm;
 pub mod block_study;
@@ -21,6 +21,7 @@ pub mod campaign;
 pub mod confidence;
 pub mod demo;
 pub mod evaluate;
+pub mod floor;
 pub mod forecast;
 pub mod jobs;
 pub mod machines;

@@ -1,11 +1,13 @@
-//! The morning minute (docs/model.md "The morning minute"): an offset moves the output
-//! bias alone and removes the mean miss on the adapting windows; a fine-tune repeats bit
-//! for bit with its seed; the judge keeps the trained weights when adapting makes the
-//! judging windows worse; a recording too short is refused; and the CLI's `adapt` and
-//! `morning` run end to end, refusing a bad method by name. Confidence (docs/results.md
-//! "Confidence"), on the same twin session and two seeds: `confidence` calibrates its
-//! intervals on the validation session, where they cover at least their level, and
-//! refuses a model of one seed.
+//! The studies on the twin's held-out sessions (issue 73). The morning minute
+//! (docs/model.md "The morning minute"): an offset moves the output bias alone and
+//! removes the mean miss on the adapting windows; a fine-tune repeats bit for bit with its
+//! seed; the judge keeps the trained weights when adapting makes the judging windows
+//! worse; a recording too short is refused; and the CLI's `adapt` and `morning` run end
+//! to end, refusing a bad method by name. Confidence (docs/results.md "Confidence"), on
+//! the same twin session and two seeds: `confidence` calibrates its intervals on the
+//! validation session, where they cover at least their level, and refuses a model of one
+//! seed. The look-ahead floor (docs/results.md "The look-ahead floor"): `floor` writes
+//! both oracles for every path.
 
 mod common;
 
@@ -381,4 +383,50 @@ fn confidence_calibrates_on_the_validation_session_and_needs_two_seeds() {
             assert!(c >= 0.89, "quantity {q}: {interval:?} covers {c}");
         }
     }
+}
+
+#[test]
+fn the_floor_writes_both_oracles_for_every_path() {
+    let f = fixture();
+    let out = f.dir.join("floor");
+    let text = common::cli(&[
+        "floor",
+        "--data",
+        s(&f.grid),
+        "--calibration",
+        s(&f.calibration),
+        "--held-out-sessions",
+        "1",
+        "--held-out-minutes",
+        "0.1",
+        "--warm-up-minutes",
+        "0",
+        "--out",
+        s(&out),
+    ]);
+    assert!(text.contains("# The look-ahead floor"), "{text}");
+    let csv = std::fs::read_to_string(out.join("floor.csv")).unwrap();
+    let rows: Vec<Vec<&str>> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    assert_eq!(rows.len(), 4, "{csv}");
+    for r in &rows {
+        let v: Vec<f64> = r[2..].iter().map(|x| x.parse().unwrap()).collect();
+        // Calibrated, oracle, look-ahead: both oracles remove most of the error.
+        assert!(v[2] < 0.3 * v[0] && v[4] < 0.3 * v[0], "{r:?}");
+    }
+    let e = common::cli_fails(&[
+        "floor",
+        "--data",
+        s(&f.grid),
+        "--calibration",
+        s(&f.calibration),
+        "--window",
+        "0",
+        "--out",
+        s(&out),
+    ]);
+    assert!(e.contains("--window"), "{e}");
 }
