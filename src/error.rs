@@ -129,3 +129,16 @@ pub fn ensure(ok: bool, message: impl FnOnce() -> String) -> Result<()> {
 pub fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
     crate::atomic::write(path, bytes).map_err(|e| Error::io(path, e))
 }
+
+/// Writes each `(name, text)` into the folder `dir`, all replaced together or none
+/// ([`crate::atomic::Batch`]), naming the file on error.
+pub fn write_files(dir: &Path, files: &[(&str, &str)]) -> Result<()> {
+    let mut batch = crate::atomic::Batch::new();
+    for (name, text) in files {
+        let path = dir.join(name);
+        batch
+            .add(&path, text.as_bytes())
+            .map_err(|e| Error::io(&path, e))?;
+    }
+    batch.commit().map_err(|e| Error::io(dir, e))
+}

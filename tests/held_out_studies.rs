@@ -229,6 +229,24 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// `command` on the fixture's machine and calibration, over one short held-out session
+/// (and its validation session) that starts cold.
+fn study<'a>(command: &'a str, f: &'a Fixture) -> Vec<&'a str> {
+    vec![
+        command,
+        "--data",
+        s(&f.grid),
+        "--calibration",
+        s(&f.calibration),
+        "--held-out-sessions",
+        "1",
+        "--held-out-minutes",
+        "0.1",
+        "--warm-up-minutes",
+        "0",
+    ]
+}
+
 #[test]
 fn the_cli_adapts_a_checkpoint_and_measures_the_morning_minute() {
     let f = fixture();
@@ -260,27 +278,17 @@ fn the_cli_adapts_a_checkpoint_and_measures_the_morning_minute() {
 
     // The study on one scored session and its validation session, short runs.
     let out = dir.join("morning");
-    let args = [
-        "morning",
-        "--data",
-        s(&f.grid),
-        "--calibration",
-        s(&f.calibration),
+    let mut args = study("morning", f);
+    args.extend([
         "--models",
         s(&trained),
-        "--held-out-sessions",
-        "1",
         "--minutes",
         "0.25",
-        "--held-out-minutes",
-        "0.1",
-        "--warm-up-minutes",
-        "0",
         "--methods",
         "offset,fine-tune:2:1e-3",
         "--out",
         s(&out),
-    ];
+    ]);
     let text = common::cli(&args);
     assert!(text.contains("The validation session favours"), "{text}");
     let md = std::fs::read_to_string(out.join("morning.md")).unwrap();
@@ -324,23 +332,8 @@ fn confidence_calibrates_on_the_validation_session_and_needs_two_seeds() {
     f.trained.save(&one).unwrap();
     f.seed2.save(&two).unwrap();
     let out = dir.join("out");
-    let mut args = vec![
-        "confidence",
-        "--data",
-        s(&f.grid),
-        "--calibration",
-        s(&f.calibration),
-        "--held-out-sessions",
-        "1",
-        "--held-out-minutes",
-        "0.1",
-        "--warm-up-minutes",
-        "0",
-        "--out",
-        s(&out),
-        "--models",
-        s(&one),
-    ];
+    let mut args = study("confidence", f);
+    args.extend(["--out", s(&out), "--models", s(&one)]);
     let e = common::cli_fails(&args);
     assert!(e.contains("one seed"), "{e}");
     args.push(s(&two));
@@ -389,21 +382,9 @@ fn confidence_calibrates_on_the_validation_session_and_needs_two_seeds() {
 fn the_floor_writes_both_oracles_for_every_path() {
     let f = fixture();
     let out = f.dir.join("floor");
-    let text = common::cli(&[
-        "floor",
-        "--data",
-        s(&f.grid),
-        "--calibration",
-        s(&f.calibration),
-        "--held-out-sessions",
-        "1",
-        "--held-out-minutes",
-        "0.1",
-        "--warm-up-minutes",
-        "0",
-        "--out",
-        s(&out),
-    ]);
+    let mut args = study("floor", f);
+    args.extend(["--out", s(&out)]);
+    let text = common::cli(&args);
     assert!(text.contains("# The look-ahead floor"), "{text}");
     let csv = std::fs::read_to_string(out.join("floor.csv")).unwrap();
     let rows: Vec<Vec<&str>> = csv

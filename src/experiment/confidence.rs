@@ -571,17 +571,10 @@ pub fn ticks_csv(runs: &[RunTicks]) -> String {
 
 /// Writes `confidence.md` and `ticks.csv` into `dir`, together or not at all.
 pub fn write(dir: &Path, markdown: &str, runs: &[RunTicks]) -> Result<()> {
-    let mut batch = crate::atomic::Batch::new();
-    for (name, text) in [
-        ("confidence.md", markdown.to_string()),
-        ("ticks.csv", ticks_csv(runs)),
-    ] {
-        let path = dir.join(name);
-        batch
-            .add(&path, text.as_bytes())
-            .map_err(|e| Error::io(&path, e))?;
-    }
-    batch.commit().map_err(|e| Error::io(dir, e))
+    crate::error::write_files(
+        dir,
+        &[("confidence.md", markdown), ("ticks.csv", &ticks_csv(runs))],
+    )
 }
 
 #[cfg(test)]

@@ -185,15 +185,11 @@ pub fn csv(rows: &[FloorRow]) -> String {
 
 /// Writes `floor.md` and `floor.csv` into `dir`, together or not at all.
 pub fn write(dir: &Path, rows: &[FloorRow], held: &HeldOutConfig, window: usize) -> Result<()> {
-    let mut batch = crate::atomic::Batch::new();
-    for (name, text) in [
-        ("floor.md", markdown(rows, held, window)),
-        ("floor.csv", csv(rows)),
-    ] {
-        let path = dir.join(name);
-        batch
-            .add(&path, text.as_bytes())
-            .map_err(|e| Error::io(&path, e))?;
-    }
-    batch.commit().map_err(|e| Error::io(dir, e))
+    crate::error::write_files(
+        dir,
+        &[
+            ("floor.md", &markdown(rows, held, window)),
+            ("floor.csv", &csv(rows)),
+        ],
+    )
 }

@@ -411,15 +411,6 @@ impl Morning {
     /// Writes `morning.md`, `morning_table_v.csv` (every row) and `adaptations.csv` into
     /// `dir`, together or not at all.
     pub fn write(&self, dir: &Path) -> Result<()> {
-        let mut batch = crate::atomic::Batch::new();
-        let mut add = |name: &str, text: String| {
-            let path = dir.join(name);
-            batch
-                .add(&path, text.as_bytes())
-                .map_err(|e| Error::io(&path, e))
-        };
-        add("morning.md", self.markdown())?;
-        add("morning_table_v.csv", table_v_csv(&self.rows))?;
         let mut csv = String::from(
             "session,model,seed,adaptation,adapt_windows,judge_windows,loss_before,loss_adapted,kept,seconds,dx_um,dy_um,dz_um,rx_mdeg,ry_mdeg,rz_mdeg\n",
         );
@@ -431,7 +422,13 @@ impl Morning {
             }
             csv.push('\n');
         }
-        add("adaptations.csv", csv)?;
-        batch.commit().map_err(|e| Error::io(dir, e))
+        crate::error::write_files(
+            dir,
+            &[
+                ("morning.md", &self.markdown()),
+                ("morning_table_v.csv", &table_v_csv(&self.rows)),
+                ("adaptations.csv", &csv),
+            ],
+        )
     }
 }
