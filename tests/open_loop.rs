@@ -7,8 +7,8 @@ use iastgcn::compensate::held_out::warm_up;
 use iastgcn::compensate::online::{self, Feedback, Online};
 use iastgcn::graph::Graph;
 use iastgcn::model::{Checkpoint, ModelConfig, Normalization, Parameters, Predictor, Variant};
-use iastgcn::robot::Geometry;
-use iastgcn::twin::{draw_machine, PathKind, PathParams, SimConfig};
+use iastgcn::robot::{Geometry, Robot};
+use iastgcn::twin::{draw_machine, Machine, MachineState, PathKind, PathParams, SimConfig};
 
 /// A small IASTGCN whose outputs are `label` (µm, mdeg) whatever it reads: its label
 /// scale is zero, so the network's own output does not count.
@@ -25,15 +25,21 @@ fn constant(label: [f64; 6]) -> Checkpoint {
     }
 }
 
-#[test]
-fn open_loop_predictions_are_scored_and_never_applied() {
-    let g = Geometry::default_asset();
-    let machine = draw_machine(g, 1);
-    // A controller that knows the geometry: what is left is the non-geometric residual.
+/// 12 s of the held-out Hilbert curve on the default machine after 30 s of warm-up,
+/// under a controller that knows the geometry (what is left is the non-geometric
+/// residual): the machine, the controller, the start and the run's settings.
+fn hilbert_run() -> (Machine, Robot, MachineState, SimConfig) {
+    let machine = draw_machine(Geometry::default_asset(), 1);
     let controller = machine.robot.clone();
     let start = warm_up(&machine, &controller, 30.0, 5).unwrap();
     let mut config = SimConfig::new(PathKind::Hilbert, 12.0, 9);
     config.path_params = PathParams::held_out(PathKind::Hilbert);
+    (machine, controller, start, config)
+}
+
+#[test]
+fn open_loop_predictions_are_scored_and_never_applied() {
+    let (machine, controller, start, config) = hilbert_run();
     let settings = Online { every: 5 };
     let plain = online::run(
         &machine,
@@ -166,12 +172,7 @@ fn an_ensemble_feeds_back_the_mean_of_its_members() {
 /// leaves less than the oracle of the tick just measured on the Hilbert curve.
 #[test]
 fn the_look_ahead_oracle_sets_the_next_ticks_residual_and_converges() {
-    let g = Geometry::default_asset();
-    let machine = draw_machine(g, 1);
-    let controller = machine.robot.clone();
-    let start = warm_up(&machine, &controller, 30.0, 5).unwrap();
-    let mut config = SimConfig::new(PathKind::Hilbert, 12.0, 9);
-    config.path_params = PathParams::held_out(PathKind::Hilbert);
+    let (machine, controller, start, config) = hilbert_run();
     let (plain, residuals) = online::with_true_residuals(
         &machine,
         &controller,

@@ -38,6 +38,25 @@ impl HeldOut {
         self.conditions.apply(&mut c);
         c
     }
+
+    /// The run on `machine` from its start under `controller`, corrected by `feedback`
+    /// ([`online::run`]); `on_tick` sees the ticks done.
+    pub fn run(
+        &self,
+        machine: &Machine,
+        controller: &Robot,
+        feedback: Feedback<'_>,
+        on_tick: impl FnMut(usize),
+    ) -> Result<online::RunResult> {
+        online::run(
+            machine,
+            controller,
+            self.config(),
+            self.start.clone(),
+            feedback,
+            on_tick,
+        )
+    }
 }
 
 /// Seconds the machine stands idle between two runs of a session (the operator sets up

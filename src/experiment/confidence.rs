@@ -56,11 +56,9 @@ pub fn record(
             let mut done = 0u64;
             let mut end = None;
             for m in models.iter_mut() {
-                let result = online::run(
+                let result = run.run(
                     &machine,
                     &calibrated,
-                    run.config(),
-                    run.start.clone(),
                     Feedback::OpenLoop(&mut m.members, &m.graph, settings),
                     |_| {
                         done += 1;
@@ -315,14 +313,7 @@ pub fn gate_study(
         let (machine, controller, mut state) = session_start(sources, held, k)?;
         for (i, path) in PathKind::ALL.into_iter().enumerate() {
             let run = held.run(k, i, state.clone());
-            let plain = online::run(
-                &machine,
-                &controller,
-                run.config(),
-                run.start.clone(),
-                Feedback::None,
-                |_| {},
-            )?;
+            let plain = run.run(&machine, &controller, Feedback::None, |_| {})?;
             reporter.begin(
                 &format!("gates: session {} {}", k + 1, path.name()),
                 (models.len() * (1 + GATE_QUANTILES.len())) as u64,
@@ -343,14 +334,7 @@ pub fn gate_study(
                         None => Feedback::Model(&mut m.members, &m.graph, settings),
                         Some(g) => Feedback::Gated(&mut m.members, &m.graph, settings, g),
                     };
-                    let r = online::run(
-                        &machine,
-                        &controller,
-                        run.config(),
-                        run.start.clone(),
-                        feedback,
-                        |_| {},
-                    )?;
+                    let r = run.run(&machine, &controller, feedback, |_| {})?;
                     out.push(score(&m.name, &name, k, path, &plain, &r));
                     done += 1;
                     reporter.update(done, "");

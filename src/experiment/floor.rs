@@ -64,16 +64,7 @@ pub fn run(
         reporter.begin(&format!("session {}", k + 1), PathKind::ALL.len() as u64);
         for (i, path) in PathKind::ALL.into_iter().enumerate() {
             let run = held.run(k, i, state.clone());
-            let go = |feedback| {
-                online::run(
-                    &machine,
-                    &controller,
-                    run.config(),
-                    run.start.clone(),
-                    feedback,
-                    |_| {},
-                )
-            };
+            let go = |feedback| run.run(&machine, &controller, feedback, |_| {});
             let plain = go(Feedback::None)?;
             let oracle = go(Feedback::Oracle { window, settings })?;
             let (ahead, passes) = online::look_ahead_oracle(

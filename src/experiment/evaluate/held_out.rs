@@ -151,9 +151,20 @@ impl HeldOutConfig {
             conditions: Conditions::draw(self.seed * 1000 + k as u64),
         }
     }
-}
 
-impl HeldOutConfig {
+    /// The state held-out session `k` starts from: `machine` cold on its day, warmed
+    /// up under `controller` as the session says ([`warm_up_on`]).
+    pub fn warm_up(&self, k: usize, machine: &Machine, controller: &Robot) -> Result<MachineState> {
+        let plan = self.session(k);
+        warm_up_on(
+            machine,
+            controller,
+            plan.warm_up_minutes * 60.0,
+            plan.seed.wrapping_add(1000),
+            &plan.conditions,
+        )
+    }
+
     /// The `i`-th path of [`PathKind::ALL`] in held-out session `k`, from `start`: at its
     /// placement for the session, with the session's seed for it and its day.
     pub fn run(&self, k: usize, i: usize, start: MachineState) -> HeldOut {
@@ -366,14 +377,7 @@ pub fn session_start(
     let cal = file::load(&sources.calibration)?;
     let machine = draw_machine(geometry.clone(), sources.machine_seed()?);
     let calibrated = cal.robot(geometry);
-    let plan = held.session(k);
-    let start = warm_up_on(
-        &machine,
-        &calibrated,
-        plan.warm_up_minutes * 60.0,
-        plan.seed.wrapping_add(1000),
-        &plan.conditions,
-    )?;
+    let start = held.warm_up(k, &machine, &calibrated)?;
     Ok((machine, calibrated, start))
 }
 
@@ -476,17 +480,10 @@ fn session_runs(
         reporter.note(&warning);
         session.calibration_warning = Some(warning);
     }
-    let plan = held.session(k);
     let mut state = match start {
         Start::After(_) => None,
         Start::Given(ref state) => Some((**state).clone()),
-        Start::WarmUp => Some(warm_up_on(
-            &machine,
-            &calibrated,
-            plan.warm_up_minutes * 60.0,
-            plan.seed.wrapping_add(1000),
-            &plan.conditions,
-        )?),
+        Start::WarmUp => Some(held.warm_up(k, &machine, &calibrated)?),
     };
     for (i, path) in PathKind::ALL.into_iter().enumerate() {
         // The warm-up's chain of states, or the one `after`'s runs started from.
@@ -584,19 +581,15 @@ pub(super) fn open_loop_score(
     settings: Online,
     mut on_tick: impl FnMut(usize),
 ) -> Result<Option<OpenLoopScore>> {
-    let open = online::run(
+    let open = run.run(
         machine,
         calibrated,
-        run.config(),
-        run.start.clone(),
         Feedback::OpenLoop(&mut model.members, &model.graph, settings),
         &mut on_tick,
     )?;
-    let replayed = online::run(
+    let replayed = run.run(
         machine,
         calibrated,
-        run.config(),
-        run.start.clone(),
         Feedback::Replay(&open.predicted),
         &mut on_tick,
     )?;
@@ -691,14 +684,7 @@ pub fn table_v(
                     (calibrated, Feedback::Model(members, graph, settings))
                 }
             };
-            online::run(
-                machine,
-                controller,
-                run.config(),
-                run.start.clone(),
-                feedback,
-                |_| tick(),
-            )
+            run.run(machine, controller, feedback, |_| tick())
         },
         || on_tick(0),
     )?;
