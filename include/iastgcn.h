@@ -92,6 +92,15 @@ enum IastgcnStatus iastgcn_predictor_shape(struct IastgcnPredictor *p,
                                            size_t *features,
                                            size_t *window);
 
+// The tick the model's residual is for, in `*ticks`: 0 for the window's last tick (the
+// tick just pushed), 1 for the next, the tick a correction computed now acts on (a
+// look-ahead model, whose frame carries the controller's planned motion to that tick:
+// docs/embedding.md "Look-ahead models").
+//
+// # Safety
+// `p` must be a live handle and `ticks` writable.
+enum IastgcnStatus iastgcn_predictor_look_ahead(struct IastgcnPredictor *p, size_t *ticks);
+
 // The name of graph node `i` (the sensor channel the frame's i-th value comes from, e.g.
 // "T_ps"), or NULL when `i` is out of range. The string lives as long as the handle.
 //

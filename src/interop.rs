@@ -60,7 +60,7 @@ pub fn init(
     if let Some(v) = variant {
         config.variant = v;
     }
-    let graph = Graph::load_or_default(graph)?;
+    let graph = Graph::load_or_default(graph, config.look_ahead)?;
     ensure(graph.len() == config.nodes, || {
         format!(
             "the graph has {} nodes, the config {}",

@@ -263,12 +263,19 @@ fn bad_input_is_refused_with_a_status_and_a_message() {
     let (mut n, mut f, mut t) = (0usize, 0usize, 0usize);
     // SAFETY: a live handle and writable outputs.
     unsafe { iastgcn_predictor_shape(p, &mut n, &mut f, &mut t) };
-    assert_eq!((n, f, t), (14, 3, 48));
+    assert_eq!((n, f, t), (17, 3, 48));
+    let mut ahead = usize::MAX;
+    // SAFETY: a live handle and a writable output.
+    let s = unsafe { iastgcn_predictor_look_ahead(p, &mut ahead) };
+    assert_eq!((s, ahead), (IastgcnStatus::Ok, 1));
+    // SAFETY: a live handle; the NULL output is what is tested.
+    let s = unsafe { iastgcn_predictor_look_ahead(p, std::ptr::null_mut()) };
+    assert_eq!(s, IastgcnStatus::InvalidArgument);
     // SAFETY: a live handle.
     let name = unsafe { CStr::from_ptr(iastgcn_predictor_node_name(p, 0)) };
     assert_eq!(name.to_str().unwrap(), "E1");
     // SAFETY: a live handle; an index out of range is what is tested.
-    assert!(unsafe { iastgcn_predictor_node_name(p, 14) }.is_null());
+    assert!(unsafe { iastgcn_predictor_node_name(p, 17) }.is_null());
     let mut r = [0.0f64; 6];
     // Nothing pushed yet: not ready, and `r` untouched.
     // SAFETY: a live handle and 6 doubles.
@@ -280,21 +287,21 @@ fn bad_input_is_refused_with_a_status_and_a_message() {
     let s = unsafe { iastgcn_predictor_push(p, frame.as_ptr(), frame.len()) };
     assert_eq!(s, IastgcnStatus::InvalidArgument);
     assert!(
-        last_error().contains("14") && last_error().contains("13"),
+        last_error().contains("17") && last_error().contains("13"),
         "{}",
         last_error()
     );
     // SAFETY: NULL frame is what is tested.
-    let s = unsafe { iastgcn_predictor_push(p, std::ptr::null(), 14) };
+    let s = unsafe { iastgcn_predictor_push(p, std::ptr::null(), 17) };
     assert_eq!(s, IastgcnStatus::InvalidArgument);
     // A window of the wrong length.
     let window = [0.0f32; 10];
     // SAFETY: a live handle, 10 floats and 6 doubles.
     let s = unsafe { iastgcn_predictor_predict(p, window.as_ptr(), 10, r.as_mut_ptr()) };
     assert_eq!(s, IastgcnStatus::InvalidArgument);
-    assert!(last_error().contains("2016"), "{}", last_error());
+    assert!(last_error().contains("2448"), "{}", last_error());
     // A batch whose output is too short.
-    let windows = vec![0.0f32; 2 * 14 * 3 * 48];
+    let windows = vec![0.0f32; 2 * 17 * 3 * 48];
     // SAFETY: a live handle, the floats and 6 doubles (fewer than needed: tested).
     let s = unsafe {
         iastgcn_predictor_predict_batch(p, windows.as_ptr(), windows.len(), r.as_mut_ptr(), 6)
@@ -307,9 +314,9 @@ fn bad_input_is_refused_with_a_status_and_a_message() {
     // Loaded without dt: features only.
     let (s, p) = load(&model, 0.0);
     assert_eq!(s, IastgcnStatus::Ok);
-    let frame = [1.0f64; 14];
-    // SAFETY: a live handle and 14 doubles.
-    let s = unsafe { iastgcn_predictor_push(p, frame.as_ptr(), 14) };
+    let frame = [1.0f64; 17];
+    // SAFETY: a live handle and 17 doubles.
+    let s = unsafe { iastgcn_predictor_push(p, frame.as_ptr(), 17) };
     assert_eq!(s, IastgcnStatus::InvalidArgument);
     assert!(
         last_error().contains("without a control period"),

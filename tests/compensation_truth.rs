@@ -104,9 +104,10 @@ fn a_trained_model_beats_calibration_on_the_hidden_truth() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// Two models that read different sensors (the paper's 14 nodes, and the same plus the
-/// polishing force F: assets/graph-force.toml) compensate side by side, each reading its
-/// own checkpoint's channels: each one's row is what it gives alone.
+/// Two models that read different sensors (the demo's 17 nodes, Table II's and the planned
+/// motion, looking ahead; and Table II's 14 plus the polishing force F:
+/// assets/graph-force.toml) compensate side by side, each reading its own checkpoint's
+/// channels: each one's row is what it gives alone.
 #[test]
 fn models_with_different_sensor_graphs_each_read_their_own_channels() {
     let dir = std::env::temp_dir().join(format!("iastgcn-graphs-{}", std::process::id()));
@@ -115,11 +116,15 @@ fn models_with_different_sensor_graphs_each_read_their_own_channels() {
     let f = |name: &str| dir.join(name).to_str().unwrap().to_string();
     let root = env!("CARGO_MANIFEST_DIR");
     let demo = std::fs::read_to_string(format!("{root}/assets/demo.toml")).unwrap();
-    std::fs::write(
-        f("f.toml"),
-        demo.replacen("[model]\n", "[model]\nnodes = 15\n", 1),
-    )
-    .unwrap();
+    let (ahead, force) = (
+        "nodes = 17\nlook_ahead = 1\n",
+        "nodes = 15\nlook_ahead = 0\n",
+    );
+    assert!(
+        demo.contains(ahead),
+        "assets/demo.toml no longer looks ahead on 17 nodes"
+    );
+    std::fs::write(f("f.toml"), demo.replacen(ahead, force, 1)).unwrap();
     cli(&[
         "init",
         "--config",

@@ -172,8 +172,8 @@ fn wavelet_and_chebyshev_bases_match_hand_computed_values() {
 #[test]
 fn graph_mixing_measures_the_graph_convolution() {
     use iastgcn::model::{graph_mixing, Parameters, Variant};
-    let g = Graph::default_asset();
     let mut config = iastgcn::train::RunConfig::demo().model;
+    let g = Graph::default_for(config.look_ahead);
     config.variant = Variant::Iastgcn;
     let mut p = Parameters::init(&config, 1);
     let at_start = graph_mixing(&config, &g, &p);

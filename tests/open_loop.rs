@@ -13,13 +13,24 @@ use iastgcn::twin::{draw_machine, Machine, MachineState, PathKind, PathParams, S
 /// A small IASTGCN whose outputs are `label` (µm, mdeg) whatever it reads: its label
 /// scale is zero, so the network's own output does not count.
 fn constant(label: [f64; 6]) -> Checkpoint {
-    let config = ModelConfig::gradient_check(Variant::Iastgcn);
+    constant_ahead(label, 0)
+}
+
+/// [`constant`] for the tick `look_ahead` ticks after its window (on the look-ahead
+/// graph from 1 on).
+fn constant_ahead(label: [f64; 6], look_ahead: usize) -> Checkpoint {
+    let graph = Graph::default_for(look_ahead);
+    let config = ModelConfig {
+        nodes: graph.len(),
+        look_ahead,
+        ..ModelConfig::gradient_check(Variant::Iastgcn)
+    };
     let mut normalization = Normalization::identity(&config);
     normalization.label_mean = label.to_vec();
     normalization.label_std = vec![0.0; 6];
     Checkpoint {
         parameters: Parameters::init(&config, 3),
-        graph: Graph::default_asset(),
+        graph,
         normalization,
         config,
     }
@@ -37,13 +48,52 @@ fn hilbert_run() -> (Machine, Robot, MachineState, SimConfig) {
     (machine, controller, start, config)
 }
 
+/// `ck` predicting along `run` (a [`hilbert_run`]) without its corrections applied.
+fn open_loop(
+    (machine, controller, start, config): &(Machine, Robot, MachineState, SimConfig),
+    ck: &Checkpoint,
+    settings: Online,
+) -> online::RunResult {
+    let mut predictor = Predictor::native(ck).unwrap();
+    online::run(
+        machine,
+        controller,
+        config.clone(),
+        start.clone(),
+        Feedback::OpenLoop(std::slice::from_mut(&mut predictor), &ck.graph, settings),
+        |_| {},
+    )
+    .unwrap()
+}
+
+#[test]
+fn a_look_ahead_prediction_is_scored_on_the_tick_it_is_for() {
+    let run = hilbert_run();
+    let settings = Online { every: 1 };
+    let score =
+        |look_ahead: usize| open_loop(&run, &constant_ahead([0.0; 6], look_ahead), settings);
+    let (now, ahead) = (score(0), score(1));
+    // Both predict on every tick from the 16th; the look-ahead one's prediction made on
+    // tick t is for t + 1 (the last one's tick never comes), and a zero prediction misses
+    // by that tick's true residual, as the other's made there does.
+    assert_eq!(now.predictions, ahead.predictions);
+    assert_eq!(now.open_loop_ticks[0].tick, 15);
+    assert_eq!(ahead.open_loop_ticks.len(), now.open_loop_ticks.len() - 1);
+    for (a, n) in ahead.open_loop_ticks.iter().zip(&now.open_loop_ticks[1..]) {
+        assert_eq!((a.tick, a.miss), (n.tick, n.miss));
+    }
+    // Predicted (and replayable) on the tick it was made, as any correction.
+    assert_eq!(ahead.predicted[0].0, 15);
+}
+
 #[test]
 fn open_loop_predictions_are_scored_and_never_applied() {
-    let (machine, controller, start, config) = hilbert_run();
+    let run = hilbert_run();
+    let (machine, controller, start, config) = &run;
     let settings = Online { every: 5 };
     let plain = online::run(
-        &machine,
-        &controller,
+        machine,
+        controller,
         config.clone(),
         start.clone(),
         Feedback::None,
@@ -51,20 +101,7 @@ fn open_loop_predictions_are_scored_and_never_applied() {
     )
     .unwrap();
     assert!(plain.open_loop.is_none());
-    let graph = Graph::default_asset();
-    let score = |label: [f64; 6]| {
-        let ck = constant(label);
-        let mut predictor = Predictor::native(&ck).unwrap();
-        online::run(
-            &machine,
-            &controller,
-            config.clone(),
-            start.clone(),
-            Feedback::OpenLoop(std::slice::from_mut(&mut predictor), &graph, settings),
-            |_| {},
-        )
-        .unwrap()
-    };
+    let score = |label: [f64; 6]| open_loop(&run, &constant(label), settings);
     let zero = score([0.0; 6]);
     // Not applied: the run is the uncompensated one, bit for bit.
     assert_eq!(zero.truth, plain.truth);
@@ -100,17 +137,17 @@ fn open_loop_predictions_are_scored_and_never_applied() {
     let ck = constant(label);
     let mut predictor = Predictor::native(&ck).unwrap();
     let closed = online::run(
-        &machine,
-        &controller,
+        machine,
+        controller,
         config.clone(),
         start.clone(),
-        Feedback::Model(std::slice::from_mut(&mut predictor), &graph, settings),
+        Feedback::Model(std::slice::from_mut(&mut predictor), &ck.graph, settings),
         |_| {},
     )
     .unwrap();
     let replayed = online::run(
-        &machine,
-        &controller,
+        machine,
+        controller,
         config.clone(),
         start.clone(),
         Feedback::Replay(&open.predicted),

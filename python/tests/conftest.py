@@ -55,7 +55,7 @@ def set_statistics(path: Path) -> None:
 
 @pytest.fixture(scope="session")
 def checkpoint(profile_dir: Path, tmp_path_factory) -> Path:
-    """An initialised checkpoint of the demo's shape (14 nodes, 3 features, T = 48)."""
+    """An initialised checkpoint of the demo's shape (17 nodes: the sensors and the planned motion, 3 features, T = 48)."""
     out = tmp_path_factory.mktemp("model") / "model.safetensors"
     cli(profile_dir, "init", "--config", str(ROOT / "assets/demo.toml"), "--seed", "5",
         "--out", str(out))

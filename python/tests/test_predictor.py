@@ -30,23 +30,24 @@ def test_controller_example_prints_the_rust_examples_residuals_bit_for_bit(
 
 def test_shapes_names_and_repr(checkpoint: Path):
     p = iastgcn.Predictor(checkpoint, dt=0.02)
-    assert p.window_shape == (14, 3, 48)
-    assert p.nodes[:3] == ["E1", "E2", "E3"] and len(p.nodes) == 14
+    assert p.window_shape == (17, 3, 48)
+    assert p.look_ahead == 1
+    assert p.nodes[:3] == ["E1", "E2", "E3"] and len(p.nodes) == 17
     assert p.variant == "iastgcn"
     assert p.backend == "native"
     assert p.dt == 0.02
     assert p.threads == 1
     p.threads = 2
     assert p.threads == 2
-    assert "nodes=14" in repr(p)
+    assert "nodes=17" in repr(p)
     assert iastgcn.Predictor(checkpoint).dt is None
     assert iastgcn.__version__.count(".") == 2
 
 
 def random_windows(count: int, seed: int = 3) -> np.ndarray:
     rng = np.random.default_rng(seed)
-    means = np.array([[20.0 + n, 0.001, 0.5] for n in range(14)])[None, :, :, None]
-    return (means + rng.normal(0.0, 0.2, (count, 14, 3, 48))).astype(np.float32)
+    means = np.array([[20.0 + n, 0.001, 0.5] for n in range(17)])[None, :, :, None]
+    return (means + rng.normal(0.0, 0.2, (count, 17, 3, 48))).astype(np.float32)
 
 
 def test_batches_single_windows_and_dtypes_agree(checkpoint: Path):
@@ -63,8 +64,8 @@ def test_batches_single_windows_and_dtypes_agree(checkpoint: Path):
     assert not transposed.flags["C_CONTIGUOUS"]
     assert np.array_equal(p.predict_batch(transposed), batch)
     # Already standardised windows skip the checkpoint's statistics.
-    mean = np.array([[20.0 + n, 0.001, 0.5] for n in range(14)], np.float64)[:, :, None]
-    std = np.array([[0.3, 0.01, 0.2]] * 14, np.float64)[:, :, None]
+    mean = np.array([[20.0 + n, 0.001, 0.5] for n in range(17)], np.float64)[:, :, None]
+    std = np.array([[0.3, 0.01, 0.2]] * 17, np.float64)[:, :, None]
     standardised = ((windows.astype(np.float64) - mean) / std).astype(np.float32)
     assert np.allclose(p.predict_batch(standardised, standardised=True), batch, rtol=1e-4,
                        atol=1e-3)
@@ -89,7 +90,7 @@ def test_pushed_feature_steps_give_the_window_residual(checkpoint: Path):
 def test_sensor_frames_accept_lists_and_hold_missing_samples(checkpoint: Path):
     a = iastgcn.Predictor(checkpoint, dt=0.02)
     b = iastgcn.Predictor(checkpoint, dt=0.02)
-    frame = [20.0 + n for n in range(14)]
+    frame = [20.0 + n for n in range(17)]
     for tick in range(50):
         a.push(np.array(frame, dtype=np.float32))
         # NaN holds the last sample: the same as repeating it in float32.
@@ -109,17 +110,17 @@ def test_bad_input_raises_iastgcn_error_with_the_engines_message(checkpoint: Pat
     with pytest.raises(iastgcn.Error, match="dt"):
         iastgcn.Predictor(checkpoint, dt=-1.0)
     p = iastgcn.Predictor(checkpoint, dt=0.02)
-    with pytest.raises(iastgcn.Error, match=r"frame: expected shape \[14\], got \[13\]"):
+    with pytest.raises(iastgcn.Error, match=r"frame: expected shape \[17\], got \[13\]"):
         p.push(np.zeros(13))
     with pytest.raises(iastgcn.Error, match="window: expected shape"):
-        p.predict(np.zeros((14, 3, 47)))
-    with pytest.raises(iastgcn.Error, match=r"windows: expected shape \(W, 14, 3, 48\)"):
-        p.predict_batch(np.zeros((2, 14, 48, 3)))
+        p.predict(np.zeros((17, 3, 47)))
+    with pytest.raises(iastgcn.Error, match=r"windows: expected shape \(W, 17, 3, 48\)"):
+        p.predict_batch(np.zeros((2, 17, 48, 3)))
     with pytest.raises(iastgcn.Error, match="step: expected shape"):
-        p.push_features(np.zeros((3, 14)))
+        p.push_features(np.zeros((3, 17)))
     features_only = iastgcn.Predictor(checkpoint)
     with pytest.raises(iastgcn.Error, match="without a control period"):
-        features_only.push(np.zeros(14))
+        features_only.push(np.zeros(17))
     with pytest.raises(iastgcn.Error, match="threads"):
         p.threads = 0
     not_a_checkpoint = tmp_path / "notes.safetensors"

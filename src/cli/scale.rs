@@ -52,7 +52,8 @@ pub struct ScaleArgs {
     pub machine_seed: u64,
     #[command(flatten)]
     pub recipe: super::RecipeArgs,
-    /// Sensor graph of every model (default: the embedded assets/graph.toml); the run
+    /// Sensor graph of every model (default: the embedded assets/graph.toml, or
+    /// assets/graph-look-ahead.toml for a run config with `[model] look_ahead`); the run
     /// config's `[model] nodes` must match it (assets/graph-force.toml: 15). A folder
     /// keeps it.
     #[arg(long)]

@@ -9,6 +9,7 @@
 //! the mirror with the same tracker, so its pose reaches the controller through the
 //! controller's registration ([`located`]).
 
+use std::collections::VecDeque;
 use std::time::Instant;
 
 use crate::error::{ensure, Error, Result};
@@ -65,7 +66,7 @@ pub struct RunResult {
 /// (as [`RunResult::open_loop`] measures the miss).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct OpenLoopTick {
-    /// The control tick.
+    /// The control tick the prediction is for (made `look_ahead` ticks before it).
     pub tick: usize,
     /// The miss: position µm, attitude mdeg.
     pub miss: [f64; 2],
@@ -206,6 +207,11 @@ impl<'p> ModelInLoop<'p> {
             )
         })?;
         let nodes = node_channels(graph)?;
+        let ahead = members[0].config().look_ahead;
+        ensure(
+            members.iter().all(|m| m.config().look_ahead == ahead),
+            || "an ensemble's members must predict the same tick (look_ahead)".to_string(),
+        )?;
         let mut sensors = Vec::with_capacity(members.len());
         for member in members.iter_mut() {
             member.reset();
@@ -218,6 +224,12 @@ impl<'p> ModelInLoop<'p> {
             nodes,
             settings,
         })
+    }
+
+    /// Ticks after the window's last tick whose residual the model predicts
+    /// (its `look_ahead`): a prediction made on tick t is for tick t + this.
+    pub fn look_ahead(&self) -> usize {
+        self.members[0].predictor().config().look_ahead
     }
 
     /// Forgets the run so far (a new run starts).
@@ -341,6 +353,10 @@ pub fn run_observed(
         Feedback::Oracle { window, settings } => oracle = Some((window, settings)),
     }
     let (mut miss_pos, mut miss_att) = (Vec::new(), Vec::new());
+    // Open-loop predictions waiting for the tick they are for (a look-ahead model's are
+    // for a later tick than the one they are made on), with their spread.
+    let ahead = model.as_ref().map_or(0, ModelInLoop::look_ahead);
+    let mut pending: VecDeque<(usize, Correction, [f64; 2])> = VecDeque::new();
     let mut predicted = Vec::new();
     let mut open_loop_ticks = Vec::new();
     let (mut pos, mut att, mut trace) = (Vec::new(), Vec::new(), Vec::new());
@@ -378,14 +394,8 @@ pub fn run_observed(
                 predictions += 1;
                 let within = within_limit(&c);
                 if !apply {
-                    let (p, a) = prediction_miss(&s, &actual, c.dp, c.dr);
-                    miss_pos.push(p);
-                    miss_att.push(a);
-                    open_loop_ticks.push(OpenLoopTick {
-                        tick,
-                        miss: [p, a],
-                        spread: model.spread(&s.hidden.target.axis.normalize()),
-                    });
+                    let spread = model.spread(&s.hidden.target.axis.normalize());
+                    pending.push_back((tick + ahead, c, spread));
                     if within {
                         predicted.push((tick, c));
                     }
@@ -396,6 +406,18 @@ pub fn run_observed(
                     refused += 1;
                 }
             }
+        }
+        // Each open-loop prediction is scored against the true residual of its tick.
+        while let Some(&(_, c, spread)) = pending.front().filter(|p| p.0 == tick) {
+            pending.pop_front();
+            let (p, a) = prediction_miss(&s, &actual, c.dp, c.dr);
+            miss_pos.push(p);
+            miss_att.push(a);
+            open_loop_ticks.push(OpenLoopTick {
+                tick,
+                miss: [p, a],
+                spread,
+            });
         }
         if let Some(((k, c), rest)) = replay.split_first() {
             if *k == tick {

@@ -58,9 +58,10 @@ pub struct Dataset {
     pub x: Vec<f32>,
     /// `[W, 6]`, z-scored labels.
     pub y: Vec<f32>,
-    /// `[W]` raw labels (µm, mdeg).
+    /// `[W]` raw labels (µm, mdeg): the residual at each window's end, or `look_ahead`
+    /// rows after it ([`WindowConfig::look_ahead`]).
     pub labels: Vec<[f64; OUTPUTS]>,
-    /// `[W]` the tool axis (unit, base frame) at each window's end under the calibrated
+    /// `[W]` the tool axis (unit, base frame) at each label's row under the calibrated
     /// model: attitude errors are scored as the tilt of this axis (docs/twin.md "Scoring").
     pub axes: Vec<[f64; 3]>,
     /// The statistics `x` and `y` were standardised with.
@@ -282,9 +283,11 @@ impl Dataset {
                 (feature_mean[n][f], feature_std[n][f]) = mean_std(values);
             }
         }
-        // invariant: windows are only made to end on labelled rows (windows.rs).
+        // The row a window's label is at: `look_ahead` rows after its last step.
+        let ahead = window.look_ahead;
+        // invariant: windows are only made where their label row is labelled (windows.rs).
         let label_of = |w: &Window| {
-            prepared[w.recording].1.labels[w.end].expect("windows end on labelled rows")
+            prepared[w.recording].1.labels[w.end + ahead].expect("windows have labelled rows")
         };
         let mut label_mean = [0.0; OUTPUTS];
         let mut label_std = [1.0; OUTPUTS];
@@ -334,8 +337,8 @@ impl Dataset {
             let l = label_of(w);
             y.extend((0..OUTPUTS).map(|k| ((l[k] - label_mean[k]) / label_std[k]) as f32));
             labels.push(l);
-            // invariant: windows are only made to end on labelled rows (windows.rs).
-            axes.push(p.axes[w.end].expect("windows end on labelled rows"));
+            // invariant: windows are only made where their label row is labelled (windows.rs).
+            axes.push(p.axes[w.end + ahead].expect("windows have labelled rows"));
         }
         Ok(Dataset {
             nodes: nodes.to_vec(),

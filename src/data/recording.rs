@@ -13,6 +13,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use crate::atomic;
+use crate::twin::PLAN_CHANNELS;
 
 /// The tracker's columns, in order.
 pub const TRACKER_COLUMNS: [&str; 6] = ["x", "y", "z", "rx", "ry", "rz"];
@@ -153,7 +154,8 @@ impl Recording {
     }
 
     /// Reads a recording whose sensor columns must be exactly `channels` (any order in
-    /// the file; returned in file order), with at least `min_rows` rows.
+    /// the file; returned in file order), besides which the twin's planned-motion columns
+    /// ([`PLAN_CHANNELS`]) may be there, with at least `min_rows` rows.
     pub fn read(path: &Path, channels: &[&str], min_rows: usize) -> Result<Recording, DataError> {
         let file = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|e| file_err(&file, e.to_string()))?;
@@ -245,7 +247,9 @@ impl Recording {
         }
         let sensor_cols = &header[1..n - 6];
         for (i, c) in sensor_cols.iter().enumerate() {
-            if !channels.contains(&c.as_str()) {
+            // The twin's planned-motion columns may always be there: a graph without
+            // them as nodes leaves them unread.
+            if !channels.contains(&c.as_str()) && !PLAN_CHANNELS.contains(&c.as_str()) {
                 return Err(table.at(
                     1,
                     i + 1,

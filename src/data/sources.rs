@@ -92,10 +92,16 @@ impl DataSources {
         Ok(found.map_or(1, |(seed, _)| seed))
     }
 
-    /// Graph, calibrated robot and the recordings, read with the graph's channels and
-    /// at least `window` rows each.
-    pub fn load(&self, window: usize) -> Result<Inputs> {
-        let graph = Graph::load_or_default(self.graph.as_deref())?;
+    /// The sensor graph: the given asset, or the embedded one for a model predicting
+    /// `look_ahead` ticks ahead ([`Graph::default_for`]).
+    pub fn graph(&self, look_ahead: usize) -> Result<Graph> {
+        Ok(Graph::load_or_default(self.graph.as_deref(), look_ahead)?)
+    }
+
+    /// Graph ([`DataSources::graph`]), calibrated robot and the recordings, read with the
+    /// graph's channels and at least `rows` rows each.
+    pub fn load(&self, rows: usize, look_ahead: usize) -> Result<Inputs> {
+        let graph = self.graph(look_ahead)?;
         let robot = file::calibrated_robot(self.geometry()?, &self.calibration)?;
         let channels = expected_channels(&graph.nodes);
         let channels: Vec<&str> = channels.iter().map(String::as_str).collect();
@@ -105,7 +111,7 @@ impl DataSources {
             .map(|p| {
                 Ok((
                     p.display().to_string(),
-                    Recording::read(p, &channels, window)?,
+                    Recording::read(p, &channels, rows)?,
                 ))
             })
             .collect::<Result<Vec<_>>>()?;
@@ -124,7 +130,7 @@ impl DataSources {
         mode: SplitMode,
         fixed: Option<&Normalization>,
     ) -> Result<(Graph, Dataset)> {
-        let inputs = self.load(window.length)?;
+        let inputs = self.load(window.length + window.look_ahead, window.look_ahead)?;
         let data = Dataset::build_normalized(
             &inputs.recordings,
             &inputs.graph,

@@ -55,6 +55,10 @@ pub struct WindowConfig {
     /// the first share of each recording's validation block; the test blocks do not
     /// change.
     pub validation_kept: f64,
+    /// Ticks from a window's last step to its labelled row (the model's `look_ahead`):
+    /// the label of the window ending at `end` is the residual at `end + look_ahead`, and
+    /// that row must lie in the window's split block too.
+    pub look_ahead: usize,
 }
 
 impl Default for WindowConfig {
@@ -66,12 +70,13 @@ impl Default for WindowConfig {
             validation: 0.2,
             train_kept: 1.0,
             validation_kept: 1.0,
+            look_ahead: 0,
         }
     }
 }
 
 /// A window of recording `recording` ending at row `end` (inclusive), covering
-/// `end + 1 − T ..= end`.
+/// `end + 1 − T ..= end`; its label is row `end + look_ahead`'s ([`WindowConfig`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Window {
     /// Index of the recording, from 0.
@@ -80,10 +85,10 @@ pub struct Window {
     pub end: usize,
 }
 
-/// Window ends of a recording of `rows` rows: the first labelled row (the tracker
-/// measured there) that completes a window, then each labelled row at least `stride` rows
-/// after the previous end. With the tracker every 5 ticks and S = 20 that is exactly every
-/// 20 rows.
+/// Window ends of a recording of `rows` rows: the first row that completes a window
+/// and whose label row (`look_ahead` rows on) is labelled (the tracker measured there),
+/// then each such row at least `stride` rows after the previous end. With the tracker
+/// every 5 ticks and S = 20 that is exactly every 20 rows.
 ///
 /// ```
 /// use iastgcn::data::{window_ends, WindowConfig};
@@ -91,6 +96,9 @@ pub struct Window {
 /// let config = WindowConfig { length: 10, stride: 4, ..WindowConfig::default() };
 /// // The tracker measured at every second row.
 /// assert_eq!(window_ends(20, &config, |row| row % 2 == 0), vec![10, 14, 18]);
+/// // Predicting one tick ahead: windows end one row before a measured row.
+/// let ahead = WindowConfig { look_ahead: 1, ..config };
+/// assert_eq!(window_ends(20, &ahead, |row| row % 2 == 0), vec![9, 13, 17]);
 /// ```
 pub fn window_ends(
     rows: usize,
@@ -98,11 +106,11 @@ pub fn window_ends(
     labelled: impl Fn(usize) -> bool,
 ) -> Vec<usize> {
     let mut ends: Vec<usize> = Vec::new();
-    for e in config.length.saturating_sub(1)..rows {
+    for e in config.length.saturating_sub(1)..rows.saturating_sub(config.look_ahead) {
         let due = ends
             .last()
             .is_none_or(|&last| e >= last + config.stride.max(1));
-        if due && labelled(e) {
+        if due && labelled(e + config.look_ahead) {
             ends.push(e);
         }
     }
@@ -146,12 +154,14 @@ pub fn split(windows: &[Window], rows: &[usize], config: &WindowConfig, mode: Sp
                 let kept_validation =
                     b1 + (config.validation * config.validation_kept * n).round() as usize;
                 let start = w.end + 1 - config.length;
-                if w.end < b1 {
-                    if w.end < kept {
+                // The last row a window touches: its label's.
+                let last = w.end + config.look_ahead;
+                if last < b1 {
+                    if last < kept {
                         s.train.push(w);
                     }
-                } else if start >= b1 && w.end < b2 {
-                    if w.end < kept_validation {
+                } else if start >= b1 && last < b2 {
+                    if last < kept_validation {
                         s.validation.push(w);
                     }
                 } else if start >= b2 {

@@ -238,6 +238,30 @@ pub unsafe extern "C" fn iastgcn_predictor_shape(
     })
 }
 
+/// The tick the model's residual is for, in `*ticks`: 0 for the window's last tick (the
+/// tick just pushed), 1 for the next, the tick a correction computed now acts on (a
+/// look-ahead model, whose frame carries the controller's planned motion to that tick:
+/// docs/embedding.md "Look-ahead models").
+///
+/// # Safety
+/// `p` must be a live handle and `ticks` writable.
+#[no_mangle]
+pub unsafe extern "C" fn iastgcn_predictor_look_ahead(
+    p: *mut IastgcnPredictor,
+    ticks: *mut usize,
+) -> IastgcnStatus {
+    guard(|| {
+        // SAFETY: the caller promises a live handle.
+        let h = unsafe { handle(p) }?;
+        if ticks.is_null() {
+            return Err(invalid("ticks is NULL"));
+        }
+        // SAFETY: not NULL; the caller promises it is writable.
+        unsafe { *ticks = h.loaded.predictor().config().look_ahead };
+        Ok(IastgcnStatus::Ok)
+    })
+}
+
 /// The name of graph node `i` (the sensor channel the frame's i-th value comes from, e.g.
 /// "T_ps"), or NULL when `i` is out of range. The string lives as long as the handle.
 ///

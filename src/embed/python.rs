@@ -156,6 +156,13 @@ impl PyPredictor {
         self.shape
     }
 
+    /// The tick the residual is for: 0 for the last pushed tick, 1 for the next (a
+    /// look-ahead model, whose frame carries the planned motion to that tick).
+    #[getter]
+    fn look_ahead(&self) -> PyResult<usize> {
+        self.with(|l| Ok(l.predictor().config().look_ahead))
+    }
+
     /// The model's variant ("iastgcn", "tgcn", …).
     #[getter]
     fn variant(&self) -> PyResult<String> {

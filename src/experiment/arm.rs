@@ -312,6 +312,13 @@ pub fn evaluate_arm(
             "corrected targets need a model: the list of models to train is empty".into(),
         ));
     }
+    if config.model.look_ahead > 0 {
+        return Err(Error::Invalid(format!(
+            "model.look_ahead = {}: a serial arm's poses are measured one at a time, with no \
+             planned motion between them to look ahead along; look-ahead is for polishing runs",
+            config.model.look_ahead
+        )));
+    }
     if config.data.split != "contiguous" {
         return Err(Error::Invalid(format!(
             "data.split = {:?}: arm evaluations split each pose file into contiguous blocks (a random split would put neighbours of test poses in training)",

@@ -8,6 +8,8 @@ use serde::Deserialize;
 
 /// The asset shipped with the engine.
 pub const DEFAULT_ASSET: &str = include_str!("../../assets/graph.toml");
+/// The asset of a look-ahead model: [`DEFAULT_ASSET`] and the planned motion's nodes.
+pub const LOOK_AHEAD_ASSET: &str = include_str!("../../assets/graph-look-ahead.toml");
 
 /// The joint-input nodes of the hybrid machine's graph: the motor encoders of the three
 /// limb lengths (Q1–Q3) and the two head angles (Q4, Q5). With the pose a function of
@@ -67,9 +69,37 @@ impl Graph {
         Graph::parse(&text, &file)
     }
 
-    /// The file at `path`, or the embedded default asset when there is none.
-    pub fn load_or_default(path: Option<&Path>) -> Result<Graph, GraphError> {
-        path.map_or_else(|| Ok(Graph::default_asset()), Graph::load)
+    /// The embedded assets/graph-look-ahead.toml: the 14 nodes of Table II and the
+    /// controller's planned motion to the next tick (`planX`, `planY`, `planZ`).
+    ///
+    /// ```
+    /// use iastgcn::graph::Graph;
+    ///
+    /// let graph = Graph::look_ahead_asset();
+    /// assert_eq!(graph.len(), 17);
+    /// assert_eq!(graph.nodes[..14], Graph::default_asset().nodes[..]);
+    /// assert_eq!(graph.nodes[14], "planX");
+    /// ```
+    pub fn look_ahead_asset() -> Graph {
+        // invariant: the embedded asset is parsed in tests/graph.rs.
+        Graph::parse(LOOK_AHEAD_ASSET, "assets/graph-look-ahead.toml")
+            .expect("embedded graph asset is valid")
+    }
+
+    /// The embedded graph of a model that predicts `look_ahead` ticks ahead: the planned
+    /// motion's graph from 1 on, Table II's at 0.
+    pub fn default_for(look_ahead: usize) -> Graph {
+        if look_ahead > 0 {
+            Graph::look_ahead_asset()
+        } else {
+            Graph::default_asset()
+        }
+    }
+
+    /// The file at `path`, or the embedded [`Graph::default_for`] `look_ahead` when there
+    /// is none.
+    pub fn load_or_default(path: Option<&Path>, look_ahead: usize) -> Result<Graph, GraphError> {
+        path.map_or_else(|| Ok(Graph::default_for(look_ahead)), Graph::load)
     }
 
     /// Parses and checks a graph asset; `file` names the source in errors.

@@ -229,7 +229,15 @@ pub struct ModelConfig {
     /// read: the robot's joint inputs, Q1–Q5 on the hybrid machine, the joints' names on a
     /// serial arm. Unused by the other variants.
     pub joint_inputs: Vec<String>,
+    /// Ticks after the window's last tick whose residual the network predicts (0: the
+    /// last tick's own; 1: the next tick's, the one a correction computed now acts on,
+    /// docs/model.md "Look-ahead"). With 1 or more the default graph adds the planned
+    /// motion as nodes (`assets/graph-look-ahead.toml`).
+    pub look_ahead: usize,
 }
+
+/// The most ticks ahead a model may predict.
+pub const MAX_LOOK_AHEAD: usize = 50;
 
 impl Default for ModelConfig {
     fn default() -> ModelConfig {
@@ -249,6 +257,7 @@ impl Default for ModelConfig {
             dropout: 0.2,
             eps: 1e-5,
             joint_inputs: crate::graph::HYBRID_JOINT_INPUTS.map(String::from).to_vec(),
+            look_ahead: 0,
         }
     }
 }
@@ -264,6 +273,15 @@ impl ModelConfig {
             blocks: 2,
             heads: 2,
             ..ModelConfig::default()
+        }
+    }
+
+    /// The look-ahead in a report's words: "no look-ahead" or "look-ahead 1 tick".
+    pub fn look_ahead_words(&self) -> String {
+        match self.look_ahead {
+            0 => "no look-ahead".into(),
+            1 => "look-ahead 1 tick".into(),
+            n => format!("look-ahead {n} ticks"),
         }
     }
 
@@ -317,6 +335,12 @@ impl ModelConfig {
         if let Some((name, v)) = positive.iter().find(|(_, v)| *v > MAX_SIZE) {
             return Err(format!(
                 "model config: {name} = {v} is beyond the largest size this engine takes ({MAX_SIZE})"
+            ));
+        }
+        if self.look_ahead > MAX_LOOK_AHEAD {
+            return Err(format!(
+                "model config: look_ahead = {} ticks is beyond {MAX_LOOK_AHEAD}",
+                self.look_ahead
             ));
         }
         if self.blocks > 16 {

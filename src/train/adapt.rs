@@ -205,6 +205,7 @@ impl Minute {
             stride: config.stride,
             train: 1.0 - config.judge,
             validation: config.judge,
+            look_ahead: model.look_ahead,
             ..WindowConfig::default()
         };
         let (graph, data) = sources.dataset(&window, SplitMode::Contiguous, Some(&fixed))?;

@@ -32,6 +32,7 @@ pub fn window_config(config: &RunConfig) -> WindowConfig {
         stride: config.data.stride,
         train_kept: config.data.train_fraction,
         validation_kept: config.data.validation_fraction,
+        look_ahead: config.model.look_ahead,
         ..WindowConfig::default()
     }
 }

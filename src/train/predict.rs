@@ -66,7 +66,8 @@ pub struct PredictOptions {
 /// tracker measured) the true residual, µm and mdeg.
 #[derive(Clone, Debug)]
 pub struct PredictedWindow {
-    /// The window's last row in the recording, from 0.
+    /// The row the prediction is for, from 0: the window's last row, or the row the
+    /// model's `look_ahead` ticks after it.
     pub row: usize,
     /// That row's time, s.
     pub t: f64,
@@ -102,8 +103,8 @@ pub fn predict_recordings(
             options.stride, options.batch
         )));
     }
-    let t_len = ck.config.window;
-    let inputs = sources.load(t_len)?;
+    let (t_len, ahead) = (ck.config.window, ck.config.look_ahead);
+    let inputs = sources.load(t_len + ahead, ahead)?;
     if inputs.graph.nodes != ck.graph.nodes {
         return Err(Error::Invalid(format!(
             "the model was trained on the graph {:?}, the data uses {:?}",
@@ -115,6 +116,7 @@ pub fn predict_recordings(
     let window = WindowConfig {
         length: t_len,
         stride: options.stride,
+        look_ahead: ahead,
         ..WindowConfig::default()
     };
     let mut results = Vec::new();
@@ -158,10 +160,10 @@ pub fn predict_recordings(
             .iter()
             .zip(out)
             .map(|(w, predicted)| PredictedWindow {
-                row: w.end,
-                t: rec.rows[w.end].t,
+                row: w.end + ahead,
+                t: rec.rows[w.end + ahead].t,
                 predicted,
-                truth: prepared.labels[w.end],
+                truth: prepared.labels[w.end + ahead],
             })
             .collect();
         let (mut pred, mut truth, mut axes) = (Vec::new(), Vec::new(), Vec::new());

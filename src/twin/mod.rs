@@ -20,6 +20,7 @@ pub use mirror::Mirror;
 pub use noise::gaussian;
 pub use sensors::{
     Installation, Instruments, Scene, SensorRates, SensorSpecs, CHANNELS, CHANNEL_UNITS,
+    PLAN_CHANNELS, SENSOR_CHANNELS,
 };
 pub use session::{Conditions, PathOrder, Placement, PlannedSession, Recipe, RunInfo};
 pub use simulate::{

@@ -28,13 +28,24 @@ use rand_chacha::ChaCha8Rng;
 
 use super::noise::gaussian;
 
-/// Channel names in recording order: the 14 nodes of Table II, then the force.
-pub const CHANNELS: [&str; 15] = [
+/// Channel names in recording order: the 14 nodes of Table II, the force, then the
+/// controller's planned motion ([`PLAN_CHANNELS`]).
+pub const CHANNELS: [&str; 18] = [
     "E1", "E2", "E3", "E4", "E5", "E6", "Q1", "Q2", "Q3", "Q4", "Q5", "phiX", "phiY", "phiZ", "F",
+    "planX", "planY", "planZ",
 ];
 
+/// The instruments' channels: the first of [`CHANNELS`], each read by a sensor.
+pub const SENSOR_CHANNELS: usize = 15;
+
+/// What the controller plans, not what a sensor reads: the velocity of the path target
+/// from this tick to the next (mm/s, base frame), known one tick ahead because the path
+/// and its feed are the controller's own program. A look-ahead model's graph has them
+/// as nodes (docs/model.md "Look-ahead"); nothing measured after a tick is in them.
+pub const PLAN_CHANNELS: [&str; 3] = ["planX", "planY", "planZ"];
+
 /// What each channel measures and its unit, for reports and the docs.
-pub const CHANNEL_UNITS: [(&str, &str); 15] = [
+pub const CHANNEL_UNITS: [(&str, &str); 18] = [
     (
         "E1",
         "µm: linear scale (bearing block → nut) minus encoder length, UPS limb 1",
@@ -68,6 +79,12 @@ pub const CHANNEL_UNITS: [(&str, &str); 15] = [
         "deg: fibre-optic gyro yaw of the head, integrated from the run's start",
     ),
     ("F", "N: polishing force from the cylinder pressure"),
+    (
+        "planX",
+        "mm/s: planned velocity of the path target from this tick to the next, base x",
+    ),
+    ("planY", "mm/s: same, base y"),
+    ("planZ", "mm/s: same, base z"),
 ];
 
 /// The instruments' specifications (datasheet-class figures; their sources are in
@@ -247,9 +264,10 @@ impl Instruments {
         }
     }
 
-    /// Every channel's reading for one tick, in [`CHANNELS`] order. Every random draw is
-    /// made each tick, so the sensors' rates never shift the random stream.
-    pub fn read(&mut self, s: &Scene, rng: &mut ChaCha8Rng) -> [f64; 15] {
+    /// Every sensor channel's reading for one tick, in [`CHANNELS`] order (the first
+    /// [`SENSOR_CHANNELS`]). Every random draw is made each tick, so the sensors' rates
+    /// never shift the random stream.
+    pub fn read(&mut self, s: &Scene, rng: &mut ChaCha8Rng) -> [f64; SENSOR_CHANNELS] {
         let p = self.specs;
         let tau = std::f64::consts::TAU;
         // Linear scales: a glass graduation on the housing reads the nut's travel short
@@ -353,8 +371,8 @@ pub fn tracker_noise(
 /// Every how many control ticks each sensor delivers a sample (1 = every tick).
 #[derive(Clone, Copy, Debug)]
 pub struct SensorRates {
-    /// Per channel, in [`CHANNELS`] order.
-    pub channel_every: [u32; 15],
+    /// Per sensor channel, in [`CHANNELS`] order (the planned motion is there every tick).
+    pub channel_every: [u32; SENSOR_CHANNELS],
     /// For the laser tracker.
     pub tracker_every: u32,
 }
@@ -363,7 +381,7 @@ impl Default for SensorRates {
     /// At 50 Hz control: encoders and scales 50 Hz, the inclinometer and gyro 10 Hz, the
     /// force 25 Hz, the laser tracker 10 Hz.
     fn default() -> SensorRates {
-        let mut every = [1; 15];
+        let mut every = [1; SENSOR_CHANNELS];
         for e in &mut every[11..14] {
             *e = 5;
         }

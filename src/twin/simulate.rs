@@ -11,7 +11,9 @@ use rand_chacha::ChaCha8Rng;
 use super::machine::{Actual, Machine, MachineState};
 use super::mirror::Mirror;
 use super::noise::gaussian;
-use super::sensors::{tracker_noise, Instruments, Scene, SensorRates, SensorSpecs, CHANNELS};
+use super::sensors::{
+    tracker_noise, Instruments, Scene, SensorRates, SensorSpecs, CHANNELS, SENSOR_CHANNELS,
+};
 use super::trajectory::{FeedPlan, Path, PathKind, PathParams};
 use crate::robot::{Configuration, Joints, PlatformPose, Robot, RobotError, ToolTarget};
 
@@ -107,8 +109,9 @@ pub struct Hidden {
 pub struct Sample {
     /// Run time of the tick, s, from 0.
     pub t: f64,
-    /// Per [`CHANNELS`], `None` when that sensor had no sample at this tick.
-    pub channels: [Option<f64>; 15],
+    /// Per [`CHANNELS`], `None` when that sensor had no sample at this tick (the planned
+    /// motion is there every tick).
+    pub channels: [Option<f64>; CHANNELS.len()],
     /// The tracker's measurement of the pad pose in its own frame.
     pub tracker: Option<Isometry3<f64>>,
     /// The tick's hidden truth.
@@ -288,19 +291,18 @@ impl<'a> Simulation<'a> {
         Some(self.tick())
     }
 
-    fn tick(&mut self) -> Result<Sample, RobotError> {
+    /// The feed at run time `t` from arc length `arc`, mm/s. Dwell-time polishing: the
+    /// feed follows a plan, or breathes around its mean. Depends on nothing measured after
+    /// the previous tick, so the controller knows the next tick's feed (the planned motion
+    /// of [`PLAN_CHANNELS`](super::PLAN_CHANNELS)).
+    fn feed(&self, t: f64, arc: f64) -> f64 {
         let c = &self.config;
-        let (dt, k) = (c.dt, self.k);
-        let t = k as f64 * dt;
-        // Dwell-time polishing: the feed follows a plan, or breathes around its mean.
-        let feed = match &c.feed_plan {
+        match &c.feed_plan {
             // Force-compensated dwell: the latest force reading (the F channel), within
             // a factor of two of the reference.
             Some(plan) => match (plan.force_reference, self.force_reading) {
-                (Some(f0), Some(f)) if f0 > 0.0 => {
-                    plan.feed_at(self.arc) * (f / f0).clamp(0.5, 2.0)
-                }
-                _ => plan.feed_at(self.arc),
+                (Some(f0), Some(f)) if f0 > 0.0 => plan.feed_at(arc) * (f / f0).clamp(0.5, 2.0),
+                _ => plan.feed_at(arc),
             },
             None => {
                 c.feed
@@ -309,9 +311,15 @@ impl<'a> Simulation<'a> {
                             * (t / 7.0 + self.phases[0]).sin()
                             * (t / 23.0 + self.phases[1]).cos())
             }
-        };
+        }
+    }
+
+    fn tick(&mut self) -> Result<Sample, RobotError> {
+        let c = &self.config;
+        let (dt, k) = (c.dt, self.k);
+        let t = k as f64 * dt;
         if k > 0 {
-            self.arc += feed * dt;
+            self.arc += self.feed(t, self.arc) * dt;
         }
         // Pneumatic force: Ornstein–Uhlenbeck around its mean.
         let a = (-dt / c.force_time_constant).exp();
@@ -372,15 +380,25 @@ impl<'a> Simulation<'a> {
         let values = self.instruments.read(&scene, &mut self.rng);
         // Only the ticks at each sensor's rate are kept.
         let c = &self.config;
-        let mut channels = [None; 15];
+        let mut channels = [None; CHANNELS.len()];
         for (i, v) in values.into_iter().enumerate() {
             if (k as u32).is_multiple_of(c.rates.channel_every[i]) {
                 channels[i] = Some(v);
             }
         }
-        debug_assert_eq!(CHANNELS[CHANNELS.len() - 1], "F");
-        if let Some(f) = channels[CHANNELS.len() - 1] {
+        const FORCE: usize = SENSOR_CHANNELS - 1;
+        debug_assert_eq!(CHANNELS[FORCE], "F");
+        if let Some(f) = channels[FORCE] {
             self.force_reading = Some(f);
+        }
+        // The planned motion to the next tick: its feed from this tick's force reading,
+        // as the next tick will compute it, along the path, corrections left out (they
+        // come from measurements; the plan is the program).
+        let next_arc = self.arc + self.feed(t + dt, self.arc) * dt;
+        let [nx, ny] = self.path.at(next_arc);
+        let planned = (self.mirror.target(nx, ny).position - target.position) / dt;
+        for (slot, v) in channels[SENSOR_CHANNELS..].iter_mut().zip(planned.iter()) {
+            *slot = Some(*v);
         }
         let in_tracker = self.machine.robot.tracker_from_base() * actual.pose;
         let specs = c.sensors;

@@ -185,12 +185,13 @@ fn pays_section(
 pub(super) fn setup_lines(demo: &DemoConfig, closed_loop: Option<String>) -> Vec<String> {
     vec![
         format!(
-            "config: {} (T = {}, C = {}, L = {}, at most {} epochs, patience {}); training \
-             seeds {}",
+            "config: {} (T = {}, C = {}, L = {}, {}, at most {} epochs, patience {}); \
+             training seeds {}",
             demo.run_source,
             demo.run.model.window,
             demo.run.model.channels,
             demo.run.model.blocks,
+            demo.run.model.look_ahead_words(),
             demo.run.train.max_epochs,
             demo.run.train.patience,
             demo.seeds

@@ -10,7 +10,6 @@ use crate::experiment::parallel;
 use crate::experiment::recommend::{recommend, validation_session};
 use crate::experiment::report::{table_iii_lines, Report, TableIIIRow, Timing};
 use crate::gpu::Device;
-use crate::graph::Graph;
 use crate::model::{Checkpoint, Features, ModelError, Predictor};
 use crate::progress::Reporter;
 use crate::train::metrics::per_recording;
@@ -143,7 +142,6 @@ pub fn evaluate_models(
     }
     held.validate()?;
     reporter.note("== Table III: prediction accuracy on the held-out split");
-    let windowed = Graph::load_or_default(sources.graph.as_deref())?;
     // Each model windows the recordings with its own statistics and predicts alone: on
     // every core where the predictions run on the native CPU path.
     let native = match device {
@@ -161,6 +159,7 @@ pub fn evaluate_models(
                 data_normalization(&m.checkpoint.normalization).map_err(|e| e.context(&m.name))?;
             // The test windows are read with the sources' graph: a model that reads other
             // sensors would be scored on the wrong channels.
+            let windowed = sources.graph(c.model.look_ahead)?;
             if windowed.nodes != m.checkpoint.graph.nodes {
                 return Err(Error::Invalid(format!(
                     "{}: the model reads the sensors [{}], but the recordings are windowed \

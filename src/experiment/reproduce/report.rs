@@ -58,12 +58,13 @@ pub(super) fn report(
     let seeds: Vec<String> = protocol.seeds.iter().map(u64::to_string).collect();
     let setup = vec![
         format!(
-            "protocol: {} (T = {}, C = {}, L = {}, batch {}, at most {} epochs, patience {}); \
-             models {}; training seeds {}",
+            "protocol: {} (T = {}, C = {}, L = {}, {}, batch {}, at most {} epochs, \
+             patience {}); models {}; training seeds {}",
             out.join("protocol.toml").display(),
             run.model.window,
             run.model.channels,
             run.model.blocks,
+            run.model.look_ahead_words(),
             run.train.batch,
             run.train.max_epochs,
             run.train.patience,
