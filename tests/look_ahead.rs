@@ -2,7 +2,8 @@
 //! are the controller's program (the target's motion to the next tick, the same whatever
 //! was measured or corrected), a look-ahead window reads no row after its last step and
 //! is labelled by the next row, the contiguous split keeps a window's label row in its
-//! block, and the look-ahead graph is Table II's with the plan as three more nodes.
+//! block, and the look-ahead graphs are Table II's (and the force node's) with the plan as
+//! three more nodes.
 
 use iastgcn::data::{
     prepare, split, tracker_columns, window_ends, Dataset, FeatureConfig, Recording, Row,
@@ -83,6 +84,23 @@ fn the_look_ahead_graph_is_table_ii_and_the_plan() {
     // Every node is a channel the twin records, so its loop can feed the model.
     assert!(g.nodes.iter().all(|n| CHANNELS.contains(&n.as_str())));
     assert_eq!(CHANNELS[SENSOR_CHANNELS..], PLAN_CHANNELS);
+    // The force node's graph looking ahead: the force graph's nodes and edges, then the
+    // plan's nodes with the look-ahead graph's edges.
+    let root = env!("CARGO_MANIFEST_DIR");
+    let force = Graph::load(format!("{root}/assets/graph-force.toml").as_ref()).unwrap();
+    let both = Graph::load(format!("{root}/assets/graph-force-look-ahead.toml").as_ref()).unwrap();
+    assert_eq!(both.nodes[..15], force.nodes[..]);
+    assert_eq!(both.nodes[15..], g.nodes[14..]);
+    let names = |g: &Graph| -> Vec<[String; 2]> { g.edges.iter().map(|&e| named(g, e)).collect() };
+    let (in_both, in_force, in_ahead) = (names(&both), names(&force), names(&g));
+    assert!(in_force
+        .iter()
+        .chain(&in_ahead)
+        .all(|e| in_both.contains(e)));
+    assert_eq!(
+        in_both.len(),
+        in_force.len() + in_ahead.len() - table_ii.edges.len()
+    );
 }
 
 #[test]

@@ -24,7 +24,8 @@ pub struct HeldOutArgs {
     pub warm_up_minutes: f64,
     /// Predict every this many control ticks during compensation (default: the recipe's,
     /// 1 for `use-like`, whose models train on closed-loop data recorded at that rate, 5
-    /// for `paper`; 5 for `evaluate`; 1 for `morning` and `confidence`, the demo's).
+    /// for `paper`; 1, the default recipe's, for `evaluate`, `morning`, `confidence` and
+    /// `floor`).
     #[arg(long, value_parser = super::count(1..=10_000))]
     pub every: Option<usize>,
     /// Held-out sessions scored (Table V; in `scale` every job): the first as
@@ -36,8 +37,8 @@ pub struct HeldOutArgs {
 }
 
 impl HeldOutArgs {
-    /// The session, with 0.5-minute runs and a prediction every 5 ticks unless
-    /// `--held-out-minutes` or `--every` is given.
+    /// The session, with 0.5-minute runs and a prediction every tick (the default
+    /// recipe's) unless `--held-out-minutes` or `--every` is given.
     pub fn config(&self) -> HeldOutConfig {
         self.config_or(HeldOutConfig::default())
     }

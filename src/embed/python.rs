@@ -821,11 +821,11 @@ fn adapt_model<'py>(
 ///
 /// Tables III and V for the checkpoints `models`: each on the test split of
 /// `recordings`, and compensating `held_out_sessions` (default 3) held-out sessions of
-/// the twin online (runs of `held_out_minutes`, default 0.5), scored against the hidden
-/// truth and the tracker; each Table V row names its `session` (from 0). Writes the
-/// report folder `out` (report.md, CSVs, PNGs). Returns the rows of both tables, the
-/// timings, the report's headline (the recommended model on the held-out Hilbert runs,
-/// or None) and the report's path.
+/// the twin online (runs of `held_out_minutes`, default 0.5, a prediction every tick as
+/// the default recipe predicts), scored against the hidden truth and the tracker; each
+/// Table V row names its `session` (from 0). Writes the report folder `out` (report.md,
+/// CSVs, PNGs). Returns the rows of both tables, the timings, the report's headline (the
+/// recommended model on the held-out Hilbert runs, or None) and the report's path.
 #[pyfunction(name = "evaluate")]
 #[pyo3(signature = (models, recordings, calibration, out, config=None, held_out_minutes=None, held_out_seed=None, graph=None, progress=None, held_out_sessions=None))]
 #[allow(clippy::too_many_arguments)]

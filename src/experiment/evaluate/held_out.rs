@@ -183,13 +183,14 @@ impl HeldOutConfig {
 
 impl Default for HeldOutConfig {
     /// The demo's sessions: three, of 0.5 min runs from seed 301, the first after 2 min
-    /// of warm-up, a prediction every 5 ticks.
+    /// of warm-up, a prediction at the default recipe's rate (every tick,
+    /// [`recipe::DEFAULT`](crate::experiment::recipe::DEFAULT)).
     fn default() -> HeldOutConfig {
         HeldOutConfig {
             minutes: 0.5,
             seed: 301,
             warm_up_minutes: 2.0,
-            every: 5,
+            every: crate::experiment::recipe::DEFAULT.every,
             sessions: 3,
         }
     }
