@@ -283,11 +283,10 @@ impl Dataset {
                 (feature_mean[n][f], feature_std[n][f]) = mean_std(values);
             }
         }
-        // The row a window's label is at: `look_ahead` rows after its last step.
-        let ahead = window.look_ahead;
         // invariant: windows are only made where their label row is labelled (windows.rs).
         let label_of = |w: &Window| {
-            prepared[w.recording].1.labels[w.end + ahead].expect("windows have labelled rows")
+            prepared[w.recording].1.labels[window.label_row(w.end)]
+                .expect("windows have labelled rows")
         };
         let mut label_mean = [0.0; OUTPUTS];
         let mut label_std = [1.0; OUTPUTS];
@@ -338,7 +337,7 @@ impl Dataset {
             y.extend((0..OUTPUTS).map(|k| ((l[k] - label_mean[k]) / label_std[k]) as f32));
             labels.push(l);
             // invariant: windows are only made where their label row is labelled (windows.rs).
-            axes.push(p.axes[w.end + ahead].expect("windows have labelled rows"));
+            axes.push(p.axes[window.label_row(w.end)].expect("windows have labelled rows"));
         }
         Ok(Dataset {
             nodes: nodes.to_vec(),

@@ -98,10 +98,13 @@ impl DataSources {
         Ok(Graph::load_or_default(self.graph.as_deref(), look_ahead)?)
     }
 
-    /// Graph ([`DataSources::graph`]), calibrated robot and the recordings, read with the
-    /// graph's channels and at least `rows` rows each.
-    pub fn load(&self, rows: usize, look_ahead: usize) -> Result<Inputs> {
-        let graph = self.graph(look_ahead)?;
+    /// Graph ([`DataSources::graph`] for `window`'s look-ahead), calibrated robot and the
+    /// recordings, read with the graph's channels and rows enough for one labelled window
+    /// each.
+    pub fn load(&self, window: &WindowConfig) -> Result<Inputs> {
+        let graph = self.graph(window.look_ahead)?;
+        // A window's T rows and the rows up to its label.
+        let rows = window.length + window.look_ahead;
         let robot = file::calibrated_robot(self.geometry()?, &self.calibration)?;
         let channels = expected_channels(&graph.nodes);
         let channels: Vec<&str> = channels.iter().map(String::as_str).collect();
@@ -130,7 +133,7 @@ impl DataSources {
         mode: SplitMode,
         fixed: Option<&Normalization>,
     ) -> Result<(Graph, Dataset)> {
-        let inputs = self.load(window.length + window.look_ahead, window.look_ahead)?;
+        let inputs = self.load(window)?;
         let data = Dataset::build_normalized(
             &inputs.recordings,
             &inputs.graph,

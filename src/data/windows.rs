@@ -61,6 +61,13 @@ pub struct WindowConfig {
     pub look_ahead: usize,
 }
 
+impl WindowConfig {
+    /// The row whose label a window ending at row `end` carries: `end + look_ahead`.
+    pub fn label_row(&self, end: usize) -> usize {
+        end + self.look_ahead
+    }
+}
+
 impl Default for WindowConfig {
     fn default() -> WindowConfig {
         WindowConfig {
@@ -110,7 +117,7 @@ pub fn window_ends(
         let due = ends
             .last()
             .is_none_or(|&last| e >= last + config.stride.max(1));
-        if due && labelled(e + config.look_ahead) {
+        if due && labelled(config.label_row(e)) {
             ends.push(e);
         }
     }
@@ -155,7 +162,7 @@ pub fn split(windows: &[Window], rows: &[usize], config: &WindowConfig, mode: Sp
                     b1 + (config.validation * config.validation_kept * n).round() as usize;
                 let start = w.end + 1 - config.length;
                 // The last row a window touches: its label's.
-                let last = w.end + config.look_ahead;
+                let last = config.label_row(w.end);
                 if last < b1 {
                     if last < kept {
                         s.train.push(w);

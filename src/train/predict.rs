@@ -103,8 +103,14 @@ pub fn predict_recordings(
             options.stride, options.batch
         )));
     }
-    let (t_len, ahead) = (ck.config.window, ck.config.look_ahead);
-    let inputs = sources.load(t_len + ahead, ahead)?;
+    let t_len = ck.config.window;
+    let window = WindowConfig {
+        length: t_len,
+        stride: options.stride,
+        look_ahead: ck.config.look_ahead,
+        ..WindowConfig::default()
+    };
+    let inputs = sources.load(&window)?;
     if inputs.graph.nodes != ck.graph.nodes {
         return Err(Error::Invalid(format!(
             "the model was trained on the graph {:?}, the data uses {:?}",
@@ -113,12 +119,6 @@ pub fn predict_recordings(
     }
     let mut predictor =
         Predictor::on(device, ck, options.batch).map_err(|e| batch_error(e, options.batch))?;
-    let window = WindowConfig {
-        length: t_len,
-        stride: options.stride,
-        look_ahead: ahead,
-        ..WindowConfig::default()
-    };
     let mut results = Vec::new();
     for (name, rec) in &inputs.recordings {
         let prepared = prepare(
@@ -159,11 +159,14 @@ pub fn predict_recordings(
         let windows: Vec<PredictedWindow> = chosen
             .iter()
             .zip(out)
-            .map(|(w, predicted)| PredictedWindow {
-                row: w.end + ahead,
-                t: rec.rows[w.end + ahead].t,
-                predicted,
-                truth: prepared.labels[w.end + ahead],
+            .map(|(w, predicted)| {
+                let row = window.label_row(w.end);
+                PredictedWindow {
+                    row,
+                    t: rec.rows[row].t,
+                    predicted,
+                    truth: prepared.labels[row],
+                }
             })
             .collect();
         let (mut pred, mut truth, mut axes) = (Vec::new(), Vec::new(), Vec::new());

@@ -35,8 +35,9 @@ pub const CHANNELS: [&str; 18] = [
     "planX", "planY", "planZ",
 ];
 
-/// The instruments' channels: the first of [`CHANNELS`], each read by a sensor.
-pub const SENSOR_CHANNELS: usize = 15;
+/// The instruments' channels: the first of [`CHANNELS`], each read by a sensor (the
+/// rest are [`PLAN_CHANNELS`]).
+pub const SENSOR_CHANNELS: usize = CHANNELS.len() - PLAN_CHANNELS.len();
 
 /// What the controller plans, not what a sensor reads: the velocity of the path target
 /// from this tick to the next (mm/s, base frame), known one tick ahead because the path

@@ -291,11 +291,12 @@ impl<'a> Simulation<'a> {
         Some(self.tick())
     }
 
-    /// The feed at run time `t` from arc length `arc`, mm/s. Dwell-time polishing: the
-    /// feed follows a plan, or breathes around its mean. Depends on nothing measured after
-    /// the previous tick, so the controller knows the next tick's feed (the planned motion
-    /// of [`PLAN_CHANNELS`](super::PLAN_CHANNELS)).
-    fn feed(&self, t: f64, arc: f64) -> f64 {
+    /// The feed at run time `t` from the arc length reached so far, mm/s. Dwell-time
+    /// polishing: the feed follows a plan, or breathes around its mean. Depends on nothing
+    /// measured after the previous tick, so the controller knows the next tick's feed (the
+    /// planned motion of [`PLAN_CHANNELS`](super::PLAN_CHANNELS)).
+    fn feed(&self, t: f64) -> f64 {
+        let arc = self.arc;
         let c = &self.config;
         match &c.feed_plan {
             // Force-compensated dwell: the latest force reading (the F channel), within
@@ -319,7 +320,7 @@ impl<'a> Simulation<'a> {
         let (dt, k) = (c.dt, self.k);
         let t = k as f64 * dt;
         if k > 0 {
-            self.arc += self.feed(t, self.arc) * dt;
+            self.arc += self.feed(t) * dt;
         }
         // Pneumatic force: Ornstein–Uhlenbeck around its mean.
         let a = (-dt / c.force_time_constant).exp();
@@ -394,7 +395,7 @@ impl<'a> Simulation<'a> {
         // The planned motion to the next tick: its feed from this tick's force reading,
         // as the next tick will compute it, along the path, corrections left out (they
         // come from measurements; the plan is the program).
-        let next_arc = self.arc + self.feed(t + dt, self.arc) * dt;
+        let next_arc = self.arc + self.feed(t + dt) * dt;
         let [nx, ny] = self.path.at(next_arc);
         let planned = (self.mirror.target(nx, ny).position - target.position) / dt;
         for (slot, v) in channels[SENSOR_CHANNELS..].iter_mut().zip(planned.iter()) {
