@@ -64,7 +64,8 @@ const char *iastgcn_last_error(void);
 // a predictor in `*out`. `dt` is the control period in seconds of the recordings the
 // model was trained on (the twin's is 0.02): with `dt > 0` the handle takes raw sensor
 // values (`iastgcn_predictor_push`); with `dt == 0`, feature steps and windows only.
-// All allocation and warm-up happen here; the per-tick calls allocate nothing.
+// A `.toml` path is an ensemble file (its members' mean prediction and a calibrated
+// interval, `iastgcn_predictor_interval`); it needs `dt > 0`. All allocation and warm-up happen here; the per-tick calls allocate nothing.
 // Thread-safe (each call makes its own handle).
 //
 // # Safety
@@ -158,6 +159,28 @@ enum IastgcnStatus iastgcn_predictor_predict_batch(struct IastgcnPredictor *p,
                                                    size_t len,
                                                    double *out,
                                                    size_t out_len);
+
+// The calibrated interval of the last prediction (docs/embedding.md "Ensembles and
+// intervals"): the true residual lies within `*position_um` of the predicted position
+// and within `*attitude_mdeg` of the predicted attitude (across the tool axis) with the
+// share `*level` on the session it was calibrated on. Only a handle loaded from an
+// ensemble file with an interval has one (`IASTGCN_STATUS_INVALID_ARGUMENT` otherwise);
+// `IASTGCN_STATUS_NOT_READY` (nothing written) before the first prediction. Any output
+// pointer may be NULL. Allocation-free.
+//
+// # Safety
+// `p` must be a live handle; the others NULL or writable.
+enum IastgcnStatus iastgcn_predictor_interval(struct IastgcnPredictor *p,
+                                              double *position_um,
+                                              double *attitude_mdeg,
+                                              double *level);
+
+// The checkpoints whose predictions the handle averages in `*members`: an ensemble
+// file's members, 1 for one checkpoint.
+//
+// # Safety
+// `p` must be a live handle and `members` writable.
+enum IastgcnStatus iastgcn_predictor_members(struct IastgcnPredictor *p, size_t *members);
 
 // Forgets the pushed ticks and the features' filter state (a new run, or after a
 // pause in the trajectory).

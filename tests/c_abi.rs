@@ -82,14 +82,19 @@ fn scratch(name: &str) -> PathBuf {
 /// the identity (so that the standardisation of inputs and outputs is exercised); the
 /// pytest suite makes the same one (python/tests/conftest.py).
 fn checkpoint(dir: &Path) -> PathBuf {
-    let out = dir.join("model.safetensors");
+    seeded_checkpoint(dir, "model", 5)
+}
+
+/// As [`checkpoint`], initialised with `seed`, in `dir/<name>.safetensors`.
+fn seeded_checkpoint(dir: &Path, name: &str, seed: u64) -> PathBuf {
+    let out = dir.join(format!("{name}.safetensors"));
     let config = root().join("assets/demo.toml");
     common::cli(&[
         "init",
         "--config",
         config.to_str().unwrap(),
         "--seed",
-        "5",
+        &seed.to_string(),
         "--out",
         out.to_str().unwrap(),
     ]);
@@ -373,6 +378,174 @@ fn feature_windows_and_batches_match_the_rust_predictor() {
     assert_eq!(one, expected[1]);
     // SAFETY: a live handle, freed once.
     unsafe { iastgcn_predictor_free(p) };
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Sensor frame `k` of 17 values, varied over nodes and ticks.
+fn frame(k: usize) -> [f64; 17] {
+    std::array::from_fn(|n| 20.0 + n as f64 + 0.3 * ((k * (n + 1)) as f64 * 0.07).sin())
+}
+
+/// An ensemble file loaded through the C ABI averages its members as the Rust ensemble
+/// does, bit for bit, and carries the calibrated interval: the scale times the members'
+/// spread; window calls, a handle without dt and an interval of a plain checkpoint are
+/// refused with a message.
+#[test]
+fn ensemble_files_average_their_members_and_carry_the_interval() {
+    use iastgcn::compensate::{ensemble, Ensemble, IntervalCalibration, Radius, SensorPredictor};
+    use iastgcn::model::Checkpoint;
+    let dir = scratch("ensemble");
+    let members: Vec<PathBuf> = [5, 6, 7]
+        .iter()
+        .map(|&seed| seeded_checkpoint(&dir, &format!("m.seed{seed}"), seed))
+        .collect();
+    // Position spread-scaled, attitude both.
+    let scale = IntervalCalibration {
+        level: 0.9,
+        position: Radius {
+            scale: 2.5,
+            constant: 0.0,
+        },
+        attitude: Radius {
+            scale: 4.0,
+            constant: 1.5,
+        },
+    };
+    let file = iastgcn::compensate::EnsembleFile {
+        members: vec![
+            "m.seed5.safetensors".into(),
+            "m.seed6.safetensors".into(),
+            dir.join("m.seed7.safetensors"),
+        ],
+        calibrated_on: "a test".into(),
+        interval: Some(scale),
+    };
+    let path = dir.join("m.ensemble.toml");
+    file.write(&path).unwrap();
+    assert_eq!(
+        iastgcn::compensate::EnsembleFile::read(&path).unwrap(),
+        file
+    );
+
+    let mut rust = Ensemble::new(
+        members
+            .iter()
+            .map(|m| SensorPredictor::native(&Checkpoint::load(m).unwrap(), 0.02).unwrap())
+            .collect(),
+        Some(scale),
+    )
+    .unwrap();
+    let (s, p) = load(&path, 0.02);
+    assert_eq!(s, IastgcnStatus::Ok, "{}", last_error());
+    let mut n = 0usize;
+    // SAFETY: a live handle and a writable output.
+    assert_eq!(
+        unsafe { iastgcn_predictor_members(p, &mut n) },
+        IastgcnStatus::Ok
+    );
+    assert_eq!(n, 3);
+    let (mut pos, mut att, mut level) = (-1.0f64, -1.0f64, -1.0f64);
+    // SAFETY: a live handle and writable outputs.
+    let s = unsafe { iastgcn_predictor_interval(p, &mut pos, &mut att, &mut level) };
+    assert_eq!(s, IastgcnStatus::NotReady, "no prediction yet");
+    assert_eq!((pos, att, level), (-1.0, -1.0, -1.0), "nothing written");
+    let mut r = [0.0f64; 6];
+    let mut predicted = 0;
+    for k in 0..60 {
+        let f = frame(k);
+        let full = rust.push(&f).unwrap();
+        // SAFETY: a live handle and 17 doubles.
+        assert_eq!(
+            unsafe { iastgcn_predictor_push(p, f.as_ptr(), 17) },
+            IastgcnStatus::Ok
+        );
+        // SAFETY: a live handle and 6 doubles.
+        let s = unsafe { iastgcn_predictor_predict_latest(p, r.as_mut_ptr()) };
+        if !full {
+            assert_eq!(s, IastgcnStatus::NotReady);
+            continue;
+        }
+        assert_eq!(s, IastgcnStatus::Ok);
+        let mean = rust.predict_latest().unwrap().unwrap();
+        assert_eq!(r, mean, "tick {k}");
+        // SAFETY: a live handle and writable outputs.
+        let s = unsafe { iastgcn_predictor_interval(p, &mut pos, &mut att, &mut level) };
+        assert_eq!(s, IastgcnStatus::Ok);
+        let interval = rust.interval().unwrap();
+        assert_eq!(
+            (pos, att, level),
+            (interval.position_um, interval.attitude_mdeg, 0.9)
+        );
+        predicted += 1;
+    }
+    assert_eq!(predicted, 60 - 47);
+    // The mean and the interval are the members' own: predict each alone.
+    let mut alone: Vec<[f64; 6]> = Vec::new();
+    for m in &members {
+        let mut one = SensorPredictor::native(&Checkpoint::load(m).unwrap(), 0.02).unwrap();
+        for k in 0..60 {
+            one.push(&frame(k)).unwrap();
+        }
+        alone.push(one.predict_latest().unwrap().unwrap());
+    }
+    for (c, v) in r.iter().enumerate() {
+        let mean = alone.iter().map(|a| a[c]).sum::<f64>() / 3.0;
+        assert!(
+            (v - mean).abs() <= 1e-12 * mean.abs().max(1.0),
+            "{v} against {mean}"
+        );
+    }
+    let spread = ensemble::spread(&alone);
+    assert!(
+        spread[0] > 0.0 && spread[1] > 0.0,
+        "different seeds disagree"
+    );
+    assert!(
+        (pos - 2.5 * spread[0]).abs() < 1e-9 * pos
+            && (att - 4.0 * spread[1] - 1.5).abs() < 1e-9 * att
+    );
+
+    // Windows go to one checkpoint; the ensemble refuses them.
+    let window = vec![0.0f32; 17 * 3 * 48];
+    // SAFETY: a live handle, a window and 6 doubles.
+    let s = unsafe { iastgcn_predictor_predict(p, window.as_ptr(), window.len(), r.as_mut_ptr()) };
+    assert_eq!(s, IastgcnStatus::InvalidArgument);
+    assert!(last_error().contains("ensemble"), "{}", last_error());
+    // SAFETY: a live handle, freed once.
+    unsafe { iastgcn_predictor_free(p) };
+    // An ensemble file takes sensor values: dt is needed.
+    let (s, p) = load(&path, 0.0);
+    assert_eq!((s, p.is_null()), (IastgcnStatus::Error, true));
+    assert!(last_error().contains("dt"), "{}", last_error());
+    // A plain checkpoint has no interval.
+    let (s, p) = load(&members[0], 0.02);
+    assert_eq!(s, IastgcnStatus::Ok);
+    // SAFETY: a live handle; NULL outputs are allowed.
+    let s = unsafe {
+        iastgcn_predictor_interval(
+            p,
+            std::ptr::null_mut(),
+            std::ptr::null_mut(),
+            std::ptr::null_mut(),
+        )
+    };
+    assert_eq!(s, IastgcnStatus::InvalidArgument);
+    assert!(last_error().contains("ensemble file"), "{}", last_error());
+    // SAFETY: a live handle and a writable output; freed once.
+    unsafe {
+        assert_eq!(iastgcn_predictor_members(p, &mut n), IastgcnStatus::Ok);
+        iastgcn_predictor_free(p);
+    }
+    assert_eq!(n, 1);
+    // A member that is not there is named.
+    std::fs::remove_file(&members[1]).unwrap();
+    let (s, _) = load(&path, 0.02);
+    assert_eq!(s, IastgcnStatus::Error);
+    assert!(
+        last_error().contains("m.seed6.safetensors"),
+        "{}",
+        last_error()
+    );
     std::fs::remove_dir_all(&dir).ok();
 }
 

@@ -5,8 +5,9 @@
 //! worse; a recording too short is refused; and the CLI's `adapt` and `morning` run end
 //! to end, refusing a bad method by name. Confidence (docs/results.md "Confidence"), on
 //! the same twin session and two seeds: `confidence` calibrates its intervals on the
-//! validation session, where they cover at least their level, and refuses a model of one
-//! seed. The look-ahead floor (docs/results.md "The look-ahead floor"): `floor` writes
+//! validation session, where they cover at least their level, writes the ensemble file
+//! with the radius per quantity that covers it, which a predictor loads and applies, and
+//! refuses a model of one seed. The look-ahead floor (docs/results.md "The look-ahead floor"): `floor` writes
 //! both oracles for every path.
 
 mod common;
@@ -14,7 +15,9 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
+use iastgcn::compensate::{Ensemble, EnsembleFile};
 use iastgcn::data::{DataSources, SplitMode, WindowConfig};
+use iastgcn::experiment::confidence;
 use iastgcn::gpu::Device;
 use iastgcn::model::{Checkpoint, ModelConfig, Parameters, Variant};
 use iastgcn::progress::Silent;
@@ -353,7 +356,8 @@ fn confidence_calibrates_on_the_validation_session_and_needs_two_seeds() {
     let rows: Vec<Vec<f64>> = csv
         .lines()
         .skip(1)
-        .map(|l| l.split(',').skip(3).map(|v| v.parse().unwrap()).collect())
+        // miss_um, miss_mdeg, spread_um, spread_mdeg (after model, session, path, tick).
+        .map(|l| l.split(',').skip(4).map(|v| v.parse().unwrap()).collect())
         .collect();
     assert!(rows.len() > 4 * 2 * 100, "{} predictions", rows.len());
     let validation: Vec<&Vec<f64>> = csv
@@ -367,15 +371,55 @@ fn confidence_calibrates_on_the_validation_session_and_needs_two_seeds() {
     assert!(validation.iter().any(|r| r[2] > 0.0), "two seeds spread");
     for q in 0..2 {
         let pairs: Vec<(f64, f64)> = validation.iter().map(|r| (r[q], r[2 + q])).collect();
-        for interval in [
-            iastgcn::experiment::confidence::Interval::spread_scaled(&pairs, 0.9).unwrap(),
-            iastgcn::experiment::confidence::Interval::constant(&pairs, 0.9).unwrap(),
+        for radius in [
+            confidence::spread_scaled(&pairs, 0.9).unwrap(),
+            confidence::constant(&pairs, 0.9).unwrap(),
         ] {
-            let c = interval.coverage(&pairs);
+            let c = confidence::coverage(&radius, &pairs);
             // The CSV rounds to 3 decimals: a tie at the quantile may fall either side.
-            assert!(c >= 0.89, "quantity {q}: {interval:?} covers {c}");
+            assert!(c >= 0.89, "quantity {q}: {radius:?} covers {c}");
         }
     }
+    // The ensemble file: both seeds, relative to it, and the radius per quantity that
+    // covers the validation session; a predictor loads it and gives each prediction
+    // that interval.
+    let path = out.join("tiny.ensemble.toml");
+    let file = EnsembleFile::read(&path).unwrap();
+    assert_eq!(
+        file.members,
+        vec![
+            PathBuf::from("../tiny.seed1.safetensors"),
+            PathBuf::from("../tiny.seed2.safetensors")
+        ]
+    );
+    let calibration = file.interval.expect("an interval");
+    assert_eq!(calibration.level, 0.9);
+    for (q, radius) in [calibration.position, calibration.attitude]
+        .iter()
+        .enumerate()
+    {
+        let pairs: Vec<(f64, f64)> = validation.iter().map(|r| (r[q], r[2 + q])).collect();
+        assert!(
+            radius.scale == 0.0 || radius.constant == 0.0,
+            "one kind: {radius:?}"
+        );
+        let c = confidence::coverage(radius, &pairs);
+        assert!(
+            (0.89..0.95).contains(&c),
+            "quantity {q}: {radius:?} covers {c}"
+        );
+    }
+    let (mut ensemble, _) = Ensemble::load(&path, 0.02, None).unwrap();
+    let n = ensemble.first().config().nodes;
+    let frame: Vec<f64> = (0..n).map(|k| 20.0 + k as f64).collect();
+    assert!(ensemble.interval().is_none());
+    while !ensemble.push(&frame).unwrap() {}
+    ensemble.predict_latest().unwrap().unwrap();
+    let spread = ensemble.spread().unwrap();
+    let interval = ensemble.interval().unwrap();
+    assert_eq!(interval.level, 0.9);
+    assert_eq!(interval.position_um, calibration.position.of(spread[0]));
+    assert_eq!(interval.attitude_mdeg, calibration.attitude.of(spread[1]));
 }
 
 #[test]

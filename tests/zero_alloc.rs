@@ -4,7 +4,8 @@
 //! `push_step` + `predict_latest` (features), `SensorPredictor::push` +
 //! `predict_latest` (raw sensor values, what the C ABI and Python run), and the C entry
 //! points `iastgcn_predictor_push` + `iastgcn_predictor_predict_latest` on a handle
-//! loaded from a file. The predictor's forward runs its matrix products on the in-place
+//! loaded from a file, also from an ensemble file (its members' mean and interval). The
+//! predictor's forward runs its matrix products on the in-place
 //! kernels of `model/cpu/product.rs` (the `gemm` crate, which training uses,
 //! allocates on every call).
 
@@ -177,5 +178,72 @@ fn the_c_tick_allocates_nothing() {
             variant.name()
         );
     }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// An ensemble file through the C ABI: each tick pushes into every member, predicts
+/// their mean and reads the interval, allocating nothing.
+#[test]
+fn the_ensemble_tick_allocates_nothing() {
+    use iastgcn::compensate::{EnsembleFile, IntervalCalibration, Radius};
+    let dir = std::env::temp_dir().join(format!("iastgcn-zero-alloc-e-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = ModelConfig::gradient_check(Variant::Iastgcn);
+    let (n, t) = (config.nodes, config.window);
+    let mut members = Vec::new();
+    for seed in [7, 8] {
+        let mut ck = checkpoint(config.clone());
+        ck.parameters = Parameters::init(&config, seed);
+        let name = format!("m.seed{seed}.safetensors");
+        ck.save(&dir.join(&name)).unwrap();
+        members.push(name.into());
+    }
+    let file = EnsembleFile {
+        members,
+        calibrated_on: String::new(),
+        interval: Some(IntervalCalibration {
+            level: 0.9,
+            position: Radius {
+                scale: 3.0,
+                constant: 0.0,
+            },
+            attitude: Radius {
+                scale: 0.0,
+                constant: 20.0,
+            },
+        }),
+    };
+    let path = dir.join("m.ensemble.toml");
+    file.write(&path).unwrap();
+    let path = CString::new(path.to_str().unwrap()).unwrap();
+    let mut handle = std::ptr::null_mut();
+    // SAFETY: a NUL-terminated path and a writable handle pointer.
+    let status =
+        unsafe { iastgcn_predictor_load(path.as_ptr(), 0.02, IastgcnBackend::Native, &mut handle) };
+    assert_eq!(status, IastgcnStatus::Ok);
+    let frames: Vec<Vec<f64>> = (0..t + 1 + TICKS)
+        .map(|tick| (0..n).map(|node| sensor(node, tick)).collect())
+        .collect();
+    let (mut out, mut radii) = ([0f64; 6], [0f64; 3]);
+    let mut statuses = Vec::with_capacity(t + 1 + TICKS);
+    let allocated = counted(t + 1, |tick| {
+        // SAFETY: a live handle, a frame of N doubles, room for 6 and for 3.
+        unsafe {
+            let pushed = iastgcn_predictor_push(handle, frames[tick].as_ptr(), n);
+            let predicted = iastgcn_predictor_predict_latest(handle, out.as_mut_ptr());
+            let [p, a, l] = &mut radii;
+            let interval = iastgcn_predictor_interval(handle, p, a, l);
+            statuses.push((pushed, predicted, interval));
+        }
+    });
+    let ok = (IastgcnStatus::Ok, IastgcnStatus::Ok, IastgcnStatus::Ok);
+    assert!(statuses[t + 1..].iter().all(|&s| s == ok), "{statuses:?}");
+    assert!(
+        radii[0] > 0.0 && radii[1] == 20.0 && radii[2] == 0.9,
+        "{radii:?}"
+    );
+    // SAFETY: the live handle from above, not used again.
+    unsafe { iastgcn_predictor_free(handle) };
+    assert_eq!(allocated, 0, "allocations in {TICKS} ticks");
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -1,9 +1,12 @@
 #!/usr/bin/env bash
-# #73 item 2, first part: how far a seed ensemble's spread tells how far to trust its
-# prediction (docs/results.md "Confidence"). The demo's models on seeds 1-3 (trained by
-# docs/morning/run.sh into WORK, or here when they are not there: about 6 min on 2 cores),
-# IASTGCN and iastgcn-a as 3-seed ensembles on the demo's three held-out sessions and its
-# validation session: the intervals, then the gates in the loop (about 1.5 min).
+# #73 item 2: how far a seed ensemble's spread tells how far to trust its prediction, and
+# the calibrated interval the predictors carry (docs/results.md "Confidence"). The demo's
+# models on seeds 1-3 (the look-ahead default since 2026-11-30; trained by
+# docs/morning/run.sh into WORK by the same build, or here when they are not there: about
+# 6-9 min on 2 cores), IASTGCN and iastgcn-a as 3-seed ensembles on the demo's three
+# held-out sessions and its validation session: the intervals, then the gates in the loop
+# (about 4 min). WORK/confidence also gets each model's ensemble file
+# (<model>.ensemble.toml, members relative to it), which a predictor loads.
 set -eu
 cd "$(dirname "$0")/../.."
 cargo build --release --bin iastgcn

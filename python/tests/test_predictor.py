@@ -127,3 +127,40 @@ def test_bad_input_raises_iastgcn_error_with_the_engines_message(checkpoint: Pat
     not_a_checkpoint.write_text("hello")
     with pytest.raises(iastgcn.Error, match="notes.safetensors"):
         iastgcn.Predictor(not_a_checkpoint)
+
+
+def test_ensemble_files_average_their_members_and_give_intervals(
+    profile_dir: Path, checkpoint: Path, tmp_path
+):
+    from conftest import cli, set_statistics
+
+    second = tmp_path / "second.safetensors"
+    cli(profile_dir, "init", "--config", str(ROOT / "assets/demo.toml"), "--seed", "6",
+        "--out", str(second))
+    set_statistics(second)
+    ensemble = tmp_path / "m.ensemble.toml"
+    ensemble.write_text(
+        f'members = ["{checkpoint}", "second.safetensors"]\n\n'
+        "[interval]\nlevel = 0.9\nposition = { constant = 30.0 }\n"
+        "attitude = { scale = 2.0 }\n"
+    )
+    e = iastgcn.Predictor(ensemble, dt=0.02)
+    assert e.members == 2 and e.interval_level == 0.9
+    assert e.interval() is None, "no prediction yet"
+    a = iastgcn.Predictor(checkpoint, dt=0.02)
+    b = iastgcn.Predictor(second, dt=0.02)
+    assert a.members == 1 and a.interval() is None and a.interval_level is None
+    for tick in range(50):
+        frame = [20.0 + n + 0.3 * np.sin(0.07 * tick * (n + 1)) for n in range(17)]
+        for p in (a, b, e):
+            p.push(frame)
+    ra, rb, r = a.predict_latest(), b.predict_latest(), e.predict_latest()
+    assert np.allclose(r, (ra + rb) / 2, rtol=1e-12, atol=1e-12)
+    position, attitude = e.interval()
+    assert position == 30.0
+    # Two members: each is half their distance from the mean.
+    assert np.isclose(attitude, 2.0 * np.linalg.norm(ra[3:] - rb[3:]) / 2, rtol=1e-12)
+    with pytest.raises(iastgcn.Error, match="ensemble"):
+        e.predict(np.zeros((17, 3, 48)))
+    with pytest.raises(iastgcn.Error, match="dt"):
+        iastgcn.Predictor(ensemble)

@@ -35,7 +35,9 @@ pub struct ConfidenceArgs {
     /// Measure the intervals only, not the gates that shrink wide corrections in the loop.
     #[arg(long)]
     pub no_gates: bool,
-    /// Output folder: confidence.md and ticks.csv (every prediction's miss and spread).
+    /// Output folder: confidence.md, ticks.csv (every prediction's miss and spread) and
+    /// `<model>.ensemble.toml` per model (its seeds and calibrated interval, for the
+    /// predictor in Rust, Python and C: docs/embedding.md "Ensembles and intervals").
     #[arg(long)]
     pub out: PathBuf,
 }
@@ -46,16 +48,19 @@ pub fn run(device: &Device, args: &ConfidenceArgs) -> anyhow::Result<()> {
         "--level {}: an interval covers more than half and less than all (0.5 to 1)",
         args.level
     );
-    let mut groups: Vec<(String, Vec<Checkpoint>)> = Vec::new();
+    let mut groups: Vec<(String, Vec<Checkpoint>, Vec<PathBuf>)> = Vec::new();
     for path in &args.models {
         let (name, _) = name_and_seed(path);
         let ck = Checkpoint::load(path).with_context(|| format!("--models {}", path.display()))?;
-        match groups.iter_mut().find(|(n, _)| *n == name) {
-            Some((_, members)) => members.push(ck),
-            None => groups.push((name, vec![ck])),
+        match groups.iter_mut().find(|(n, _, _)| *n == name) {
+            Some((_, members, paths)) => {
+                members.push(ck);
+                paths.push(path.clone());
+            }
+            None => groups.push((name, vec![ck], vec![path.clone()])),
         }
     }
-    if let Some((name, _)) = groups.iter().find(|(_, m)| m.len() < 2) {
+    if let Some((name, _, _)) = groups.iter().find(|(_, m, _)| m.len() < 2) {
         anyhow::bail!(
             "--models: {name} has one seed; its uncertainty is the spread of its seeds, so \
              give two or more (<model>.seed<k>.safetensors)"
@@ -63,7 +68,7 @@ pub fn run(device: &Device, args: &ConfidenceArgs) -> anyhow::Result<()> {
     }
     let mut models = groups
         .iter()
-        .map(|(name, members)| ensemble(device, name, members))
+        .map(|(name, members, _)| ensemble(device, name, members))
         .collect::<Result<Vec<_>, _>>()?;
     let held = args.held_out.config_or(DEMO_HELD_OUT);
     held.validate()?;
@@ -85,7 +90,15 @@ pub fn run(device: &Device, args: &ConfidenceArgs) -> anyhow::Result<()> {
         console.end();
         md.push_str(&confidence::gate_markdown(&gated, held.sessions));
     }
-    confidence::write(&args.out, &md, &runs)?;
+    let ensembles: Vec<_> = calibrated
+        .iter()
+        .filter_map(|c| {
+            let (_, _, paths) = groups.iter().find(|(n, _, _)| *n == c.model)?;
+            let file = confidence::ensemble_file(c, paths, &args.out, &held, args.level);
+            Some((c.model.clone(), file))
+        })
+        .collect();
+    confidence::write(&args.out, &md, &runs, &ensembles)?;
     println!("{md}");
     println!("written to {}", args.out.display());
     Ok(())

@@ -4,8 +4,10 @@
 //! budget of a run by source (`budget`). The experiments that train models and score them this way live in [`crate::experiment`].
 
 pub mod budget;
+pub mod ensemble;
 pub mod held_out;
 pub mod online;
 pub mod sensor_predictor;
 
+pub use ensemble::{Ensemble, EnsembleFile, Interval, IntervalCalibration, Radius};
 pub use sensor_predictor::SensorPredictor;

@@ -14,6 +14,7 @@ use std::time::Instant;
 
 use crate::error::{ensure, Error, Result};
 
+use super::ensemble::Ensemble;
 use super::sensor_predictor::SensorPredictor;
 use crate::graph::Graph;
 use crate::model::Predictor;
@@ -61,9 +62,9 @@ pub struct RunResult {
     pub shrunk: usize,
 }
 
-/// One open-loop prediction: how far it was from the tick's true residual and how far
-/// its members were from their mean, position µm and attitude across the tool axis mdeg
-/// (as [`RunResult::open_loop`] measures the miss).
+/// One open-loop prediction: how far it was from the tick's true residual (position µm,
+/// attitude across the tool axis mdeg, as [`RunResult::open_loop`] measures the miss) and
+/// how far its members were from their mean ([`super::ensemble::spread`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct OpenLoopTick {
     /// The control tick the prediction is for (made `look_ahead` ticks before it).
@@ -71,7 +72,8 @@ pub struct OpenLoopTick {
     /// The miss: position µm, attitude mdeg.
     pub miss: [f64; 2],
     /// The members' root-mean-square distance from their mean (0 for one predictor):
-    /// position µm, attitude mdeg.
+    /// position µm, attitude mdeg (3-D, as a controller computes it without the tool
+    /// axis).
     pub spread: [f64; 2],
 }
 
@@ -180,12 +182,10 @@ fn node_channels(graph: &Graph) -> Result<Vec<usize>> {
 /// its window is full. [`run`] scores it; the recorder of closed-loop training data
 /// (`experiment::scale`, docs/usage.md "scale", `--closed-loop`) records with it.
 pub struct ModelInLoop<'p> {
-    members: Vec<SensorPredictor<&'p mut Predictor>>,
+    ensemble: Ensemble<&'p mut Predictor>,
     nodes: Vec<usize>,
     values: Vec<Option<f64>>,
     settings: Online,
-    /// Each member's last prediction (µm, mdeg), for [`ModelInLoop::spread`].
-    last: Vec<[f64; 6]>,
 }
 
 impl<'p> ModelInLoop<'p> {
@@ -207,19 +207,13 @@ impl<'p> ModelInLoop<'p> {
             )
         })?;
         let nodes = node_channels(graph)?;
-        let ahead = members[0].config().look_ahead;
-        ensure(
-            members.iter().all(|m| m.config().look_ahead == ahead),
-            || "an ensemble's members must predict the same tick (look_ahead)".to_string(),
-        )?;
         let mut sensors = Vec::with_capacity(members.len());
         for member in members.iter_mut() {
             member.reset();
             sensors.push(SensorPredictor::new(member, dt)?);
         }
         Ok(ModelInLoop {
-            last: vec![[0.0; 6]; sensors.len()],
-            members: sensors,
+            ensemble: Ensemble::new(sensors, None)?,
             values: vec![None; nodes.len()],
             nodes,
             settings,
@@ -229,14 +223,12 @@ impl<'p> ModelInLoop<'p> {
     /// Ticks after the window's last tick whose residual the model predicts
     /// (its `look_ahead`): a prediction made on tick t is for tick t + this.
     pub fn look_ahead(&self) -> usize {
-        self.members[0].predictor().config().look_ahead
+        self.ensemble.first().config().look_ahead
     }
 
     /// Forgets the run so far (a new run starts).
     pub fn reset(&mut self) {
-        for m in self.members.iter_mut() {
-            m.reset();
-        }
+        self.ensemble.reset();
     }
 
     /// Control tick `tick` of the run with the twin's `channels`: the members' mean
@@ -247,47 +239,22 @@ impl<'p> ModelInLoop<'p> {
         for (v, &c) in self.values.iter_mut().zip(self.nodes.iter()) {
             *v = channels[c];
         }
-        let mut full = true;
-        for member in self.members.iter_mut() {
-            full &= member.push_values(&self.values)?;
-        }
+        let full = self.ensemble.push_values(&self.values)?;
         if !(full && tick.is_multiple_of(self.settings.every)) {
             return Ok(None);
         }
-        // Every ring is full, so there is a window to predict; an ensemble's prediction
-        // is its members' mean.
-        let mut r = [0.0; 6];
-        let share = 1.0 / self.members.len() as f64;
-        for (member, last) in self.members.iter_mut().zip(self.last.iter_mut()) {
-            let one = member.predict_latest()?.unwrap_or_default();
-            for ((sum, v), l) in r.iter_mut().zip(one).zip(last.iter_mut()) {
-                *sum += share * v;
-                *l = v;
-            }
-        }
+        // Every ring is full, so there is a window to predict.
+        let r = self.ensemble.predict_latest()?.unwrap_or_default();
         Ok(Some(Correction {
             dp: nalgebra::Vector3::new(r[0], r[1], r[2]) * 1e-3,
             dr: nalgebra::Vector3::new(r[3], r[4], r[5]).map(|v| (v * 1e-3).to_radians()),
         }))
     }
-}
 
-impl ModelInLoop<'_> {
-    /// How far the members' last predictions were from their mean: the root mean square
-    /// of their position distances, µm, and of their rotation differences across the
-    /// unit tool `axis`, mdeg (the roll about it is free, as the miss is measured).
-    pub fn spread(&self, axis: &nalgebra::Vector3<f64>) -> [f64; 2] {
-        let n = self.last.len() as f64;
-        let mean: [f64; 6] =
-            std::array::from_fn(|k| self.last.iter().map(|p| p[k]).sum::<f64>() / n);
-        let (mut pos, mut att) = (0.0, 0.0);
-        for p in &self.last {
-            let dp = nalgebra::Vector3::new(p[0] - mean[0], p[1] - mean[1], p[2] - mean[2]);
-            let dr = nalgebra::Vector3::new(p[3] - mean[3], p[4] - mean[4], p[5] - mean[5]);
-            pos += dp.norm_squared() / n;
-            att += (dr - axis * dr.dot(axis)).norm_squared() / n;
-        }
-        [pos.sqrt(), att.sqrt()]
+    /// How far the members' last predictions were from their mean
+    /// ([`super::ensemble::spread`]: position µm, attitude mdeg); zeros before one.
+    pub fn spread(&self) -> [f64; 2] {
+        self.ensemble.spread().unwrap_or_default()
     }
 }
 
@@ -383,7 +350,7 @@ pub fn run_observed(
             let began = Instant::now();
             if let Some(mut c) = model.tick(tick, &s.channels)? {
                 if let Some(g) = &gate {
-                    let f = g.factor(model.spread(&s.hidden.target.axis.normalize()));
+                    let f = g.factor(model.spread());
                     if f < 1.0 {
                         shrunk += 1;
                         c.dp *= f;
@@ -394,7 +361,7 @@ pub fn run_observed(
                 predictions += 1;
                 let within = within_limit(&c);
                 if !apply {
-                    let spread = model.spread(&s.hidden.target.axis.normalize());
+                    let spread = model.spread();
                     pending.push_back((tick + ahead, c, spread));
                     if within {
                         predicted.push((tick, c));

@@ -146,7 +146,8 @@ pub extern "C" fn iastgcn_last_error() -> *const c_char {
 /// a predictor in `*out`. `dt` is the control period in seconds of the recordings the
 /// model was trained on (the twin's is 0.02): with `dt > 0` the handle takes raw sensor
 /// values (`iastgcn_predictor_push`); with `dt == 0`, feature steps and windows only.
-/// All allocation and warm-up happen here; the per-tick calls allocate nothing.
+/// A `.toml` path is an ensemble file (its members' mean prediction and a calibrated
+/// interval, `iastgcn_predictor_interval`); it needs `dt > 0`. All allocation and warm-up happen here; the per-tick calls allocate nothing.
 /// Thread-safe (each call makes its own handle).
 ///
 /// # Safety
@@ -317,8 +318,8 @@ pub unsafe extern "C" fn iastgcn_predictor_push_features(
         // SAFETY: the caller promises a live handle and `len` floats.
         let (h, step) = unsafe { (handle(p)?, slice(step, len, "step")?) };
         h.loaded
-            .predictor()
-            .push_step(step)
+            .windows()
+            .and_then(|p| p.push_step(step))
             .map_err(|e| invalid(e.to_string()))?;
         Ok(IastgcnStatus::Ok)
     })
@@ -369,7 +370,7 @@ pub unsafe extern "C" fn iastgcn_predictor_predict(
     guard(|| {
         // SAFETY: the caller promises a live handle and `len` floats.
         let (h, window) = unsafe { (handle(p)?, slice(window, len, "window")?) };
-        let predictor = h.loaded.predictor();
+        let predictor = h.loaded.windows().map_err(|e| invalid(e.to_string()))?;
         if len != predictor.window_len() {
             return Err(invalid(format!(
                 "window: expected N·F·T = {} floats, got {len}",
@@ -416,11 +417,13 @@ pub unsafe extern "C" fn iastgcn_predictor_predict_batch(
             )));
         }
         let mut batch = std::mem::take(&mut h.batch);
-        let done = h
-            .loaded
-            .predictor()
-            .predict_batch(windows, Features::Raw, &mut batch);
-        let result = done.map_err(Error::from).map_err(Failure::from);
+        let result = match h.loaded.windows() {
+            Ok(p) => p
+                .predict_batch(windows, Features::Raw, &mut batch)
+                .map_err(Error::from)
+                .map_err(Failure::from),
+            Err(e) => Err(invalid(e.to_string())),
+        };
         if result.is_ok() {
             for (k, r) in batch.iter().enumerate() {
                 // SAFETY: out has room for 6 per window, checked above.
@@ -429,6 +432,71 @@ pub unsafe extern "C" fn iastgcn_predictor_predict_batch(
         }
         h.batch = batch;
         result.map(|()| IastgcnStatus::Ok)
+    })
+}
+
+/// The calibrated interval of the last prediction (docs/embedding.md "Ensembles and
+/// intervals"): the true residual lies within `*position_um` of the predicted position
+/// and within `*attitude_mdeg` of the predicted attitude (across the tool axis) with the
+/// share `*level` on the session it was calibrated on. Only a handle loaded from an
+/// ensemble file with an interval has one (`IASTGCN_STATUS_INVALID_ARGUMENT` otherwise);
+/// `IASTGCN_STATUS_NOT_READY` (nothing written) before the first prediction. Any output
+/// pointer may be NULL. Allocation-free.
+///
+/// # Safety
+/// `p` must be a live handle; the others NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn iastgcn_predictor_interval(
+    p: *mut IastgcnPredictor,
+    position_um: *mut f64,
+    attitude_mdeg: *mut f64,
+    level: *mut f64,
+) -> IastgcnStatus {
+    guard(|| {
+        // SAFETY: the caller promises a live handle.
+        let h = unsafe { handle(p) }?;
+        if h.loaded.interval_calibration().is_none() {
+            return Err(invalid(
+                "this handle has no calibrated interval: load an ensemble file with one \
+                 (iastgcn confidence writes them)",
+            ));
+        }
+        let Some(i) = h.loaded.interval() else {
+            return Ok(IastgcnStatus::NotReady);
+        };
+        for (ptr, v) in [
+            (position_um, i.position_um),
+            (attitude_mdeg, i.attitude_mdeg),
+            (level, i.level),
+        ] {
+            if !ptr.is_null() {
+                // SAFETY: not NULL; the caller promises it is writable.
+                unsafe { *ptr = v };
+            }
+        }
+        Ok(IastgcnStatus::Ok)
+    })
+}
+
+/// The checkpoints whose predictions the handle averages in `*members`: an ensemble
+/// file's members, 1 for one checkpoint.
+///
+/// # Safety
+/// `p` must be a live handle and `members` writable.
+#[no_mangle]
+pub unsafe extern "C" fn iastgcn_predictor_members(
+    p: *mut IastgcnPredictor,
+    members: *mut usize,
+) -> IastgcnStatus {
+    guard(|| {
+        // SAFETY: the caller promises a live handle.
+        let h = unsafe { handle(p) }?;
+        if members.is_null() {
+            return Err(invalid("members is NULL"));
+        }
+        // SAFETY: not NULL; the caller promises it is writable.
+        unsafe { *members = h.loaded.members() };
+        Ok(IastgcnStatus::Ok)
     })
 }
 
@@ -463,7 +531,7 @@ pub unsafe extern "C" fn iastgcn_predictor_set_threads(
         if threads == 0 {
             return Err(invalid("threads: 1 or more"));
         }
-        h.loaded.predictor().set_threads(threads);
+        h.loaded.set_threads(threads);
         Ok(IastgcnStatus::Ok)
     })
 }

@@ -10,13 +10,15 @@ pub mod python;
 
 use std::path::Path;
 
-use crate::compensate::SensorPredictor;
+use crate::compensate::{Ensemble, Interval, IntervalCalibration, SensorPredictor};
 use crate::error::{Error, Result};
 use crate::gpu::Device;
 use crate::model::{Checkpoint, ModelError, Predictor, Residual};
 
 /// A checkpoint loaded for another language: with a control period it takes raw sensor
-/// values, without one feature steps and windows only.
+/// values, without one feature steps and windows only. An ensemble file (`.toml`,
+/// [`crate::compensate::EnsembleFile`]) loads its members, takes sensor values only, and
+/// gives each prediction its calibrated interval.
 pub struct Loaded {
     inner: Inner,
     /// The graph's node names, in the frame's order.
@@ -26,20 +28,47 @@ pub struct Loaded {
 enum Inner {
     Sensors(SensorPredictor),
     Features(Predictor),
+    Ensemble(Ensemble),
+}
+
+/// What an ensemble refuses: the calls on windows of features.
+fn ensemble_windows() -> ModelError {
+    ModelError::Config(
+        "an ensemble predicts from sensor values (push, predict_latest); windows and \
+         feature steps go to one of its members' checkpoints"
+            .into(),
+    )
 }
 
 impl Loaded {
     /// Loads the checkpoint at `path` on the native CPU forward (`native`), or on the
     /// default adapter (native on a CPU adapter, and on a machine with no adapter at
-    /// all). `dt`: the control period, s, or `None` for features only.
+    /// all). `dt`: the control period, s, or `None` for features only. A `.toml` path is
+    /// an ensemble file, which needs `dt`.
     pub fn load(path: &Path, dt: Option<f64>, native: bool) -> Result<Loaded> {
-        let checkpoint = Checkpoint::load(path)?;
-        let predictor = if native {
-            Predictor::native(&checkpoint)?
+        let device = if native {
+            None
         } else {
-            let device =
-                Device::open(None).map_err(|e| Error::from(e).context("opening the adapter"))?;
-            Predictor::on(&device, &checkpoint, 8)?
+            Some(Device::open(None).map_err(|e| Error::from(e).context("opening the adapter"))?)
+        };
+        if path.extension().is_some_and(|e| e == "toml") {
+            let dt = dt.ok_or_else(|| {
+                Error::Invalid(format!(
+                    "{}: an ensemble file takes sensor values: load it with the control \
+                     period dt",
+                    path.display()
+                ))
+            })?;
+            let (ensemble, checkpoint) = Ensemble::load(path, dt, device.as_ref())?;
+            return Ok(Loaded {
+                inner: Inner::Ensemble(ensemble),
+                nodes: checkpoint.graph.nodes.clone(),
+            });
+        }
+        let checkpoint = Checkpoint::load(path)?;
+        let predictor = match &device {
+            None => Predictor::native(&checkpoint)?,
+            Some(device) => Predictor::on(device, &checkpoint, 8)?,
         };
         let inner = match dt {
             Some(dt) => Inner::Sensors(SensorPredictor::new(predictor, dt)?),
@@ -51,11 +80,61 @@ impl Loaded {
         })
     }
 
-    /// The predictor underneath.
-    pub fn predictor(&mut self) -> &mut Predictor {
-        match &mut self.inner {
-            Inner::Sensors(s) => s.predictor_mut(),
+    /// The predictor underneath (an ensemble's first member: every member has its shapes
+    /// and variant).
+    pub fn predictor(&self) -> &Predictor {
+        match &self.inner {
+            Inner::Sensors(s) => s.predictor(),
             Inner::Features(p) => p,
+            Inner::Ensemble(e) => e.first(),
+        }
+    }
+
+    /// The predictor underneath, for windows and feature steps; an ensemble refuses.
+    pub fn windows(&mut self) -> std::result::Result<&mut Predictor, ModelError> {
+        match &mut self.inner {
+            Inner::Sensors(s) => Ok(s.predictor_mut()),
+            Inner::Features(p) => Ok(p),
+            Inner::Ensemble(_) => Err(ensemble_windows()),
+        }
+    }
+
+    /// Sets the native forward's tasks per window ([`Predictor::set_threads`]) of every
+    /// predictor underneath.
+    pub fn set_threads(&mut self, threads: usize) {
+        match &mut self.inner {
+            Inner::Sensors(s) => s.predictor_mut().set_threads(threads),
+            Inner::Features(p) => p.set_threads(threads),
+            Inner::Ensemble(e) => {
+                for m in e.members_mut() {
+                    m.predictor_mut().set_threads(threads);
+                }
+            }
+        }
+    }
+
+    /// The members of an ensemble; 1 for one checkpoint.
+    pub fn members(&self) -> usize {
+        match &self.inner {
+            Inner::Ensemble(e) => e.members().len(),
+            _ => 1,
+        }
+    }
+
+    /// The calibrated interval: an ensemble file's, when it has one.
+    pub fn interval_calibration(&self) -> Option<IntervalCalibration> {
+        match &self.inner {
+            Inner::Ensemble(e) => e.interval_calibration(),
+            _ => None,
+        }
+    }
+
+    /// The calibrated interval of the last prediction: an ensemble file's with an
+    /// interval, after a prediction; `None` otherwise.
+    pub fn interval(&self) -> Option<Interval> {
+        match &self.inner {
+            Inner::Ensemble(e) => e.interval(),
+            _ => None,
         }
     }
 
@@ -69,6 +148,7 @@ impl Loaded {
         match &self.inner {
             Inner::Sensors(s) => Some(s.dt()),
             Inner::Features(_) => None,
+            Inner::Ensemble(e) => Some(e.dt()),
         }
     }
 
@@ -76,6 +156,7 @@ impl Loaded {
     pub fn push(&mut self, frame: &[f64]) -> std::result::Result<bool, ModelError> {
         match &mut self.inner {
             Inner::Sensors(s) => s.push(frame),
+            Inner::Ensemble(e) => e.push(frame),
             Inner::Features(_) => Err(ModelError::Config(
                 "this predictor was loaded without a control period (dt): it takes features, \
                  not sensor values; load it with dt to push sensor values"
@@ -89,6 +170,7 @@ impl Loaded {
         match &mut self.inner {
             Inner::Sensors(s) => s.predict_latest(),
             Inner::Features(p) => p.predict_latest(),
+            Inner::Ensemble(e) => e.predict_latest(),
         }
     }
 
@@ -97,6 +179,7 @@ impl Loaded {
         match &mut self.inner {
             Inner::Sensors(s) => s.reset(),
             Inner::Features(p) => p.reset(),
+            Inner::Ensemble(e) => e.reset(),
         }
     }
 }

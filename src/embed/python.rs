@@ -134,7 +134,7 @@ impl PyPredictor {
         }
         let mut loaded =
             py.detach(|| guarded(|| Loaded::load(&checkpoint, dt, native).map_err(raise)))?;
-        loaded.predictor().set_threads(threads);
+        loaded.set_threads(threads);
         let c = loaded.predictor().config();
         let shape = (c.nodes, c.features, c.window);
         Ok(PyPredictor {
@@ -198,7 +198,7 @@ impl PyPredictor {
             return Err(raise("threads: 1 or more"));
         }
         self.with(|l| {
-            l.predictor().set_threads(threads);
+            l.set_threads(threads);
             Ok(())
         })
     }
@@ -239,7 +239,7 @@ impl PyPredictor {
                 &values
             }
         };
-        self.with(|l| l.predictor().push_step(step).map_err(raise))
+        self.with(|l| l.windows().and_then(|p| p.push_step(step)).map_err(raise))
     }
 
     /// predict_latest() -> numpy.ndarray | None
@@ -249,6 +249,30 @@ impl PyPredictor {
     fn predict_latest<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyArray1<f64>>>> {
         let latest = py.detach(|| self.with(|l| l.predict_latest().map_err(raise)))?;
         Ok(latest.map(|r| residual_array(py, &r)))
+    }
+
+    /// interval() -> tuple[float, float] | None
+    ///
+    /// The calibrated interval of the last prediction, (position µm, attitude mdeg): the
+    /// true residual lies within these radii of it with the share `interval_level` (on
+    /// the session it was calibrated on). Only an ensemble file with an interval has one
+    /// (docs/embedding.md "Ensembles and intervals"); None otherwise and before the first
+    /// prediction.
+    fn interval(&self) -> PyResult<Option<(f64, f64)>> {
+        self.with(|l| Ok(l.interval().map(|i| (i.position_um, i.attitude_mdeg))))
+    }
+
+    /// The share of predictions the interval covered where it was calibrated (0.9 for
+    /// a 90 % interval), or None without one.
+    #[getter]
+    fn interval_level(&self) -> PyResult<Option<f64>> {
+        self.with(|l| Ok(l.interval_calibration().map(|s| s.level)))
+    }
+
+    /// The checkpoints averaged: an ensemble file's members, 1 for one checkpoint.
+    #[getter]
+    fn members(&self) -> PyResult<usize> {
+        self.with(|l| Ok(l.members()))
     }
 
     /// predict(window) -> numpy.ndarray
@@ -270,7 +294,8 @@ impl PyPredictor {
                 &copied
             }
         };
-        let r = py.detach(|| self.with(|l| l.predictor().predict(data).map_err(raise)))?;
+        let r =
+            py.detach(|| self.with(|l| l.windows().and_then(|p| p.predict(data)).map_err(raise)))?;
         Ok(residual_array(py, &r))
     }
 
@@ -309,8 +334,8 @@ impl PyPredictor {
         let out = py.detach(|| {
             self.with(|l| {
                 let mut out = Vec::new();
-                l.predictor()
-                    .predict_batch(data, features, &mut out)
+                l.windows()
+                    .and_then(|p| p.predict_batch(data, features, &mut out))
                     .map_err(raise)?;
                 Ok(out)
             })

@@ -6,11 +6,12 @@
 //! on the scored sessions, path by path: a calibrated interval covers 85–95 % of them.
 
 use std::fmt::Write as _;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use super::evaluate::{session_start, HeldOutConfig, LoopModel};
 use crate::compensate::held_out::IDLE_BETWEEN_RUNS;
 use crate::compensate::online::{self, Feedback, Gate, Online, OpenLoopTick};
+use crate::compensate::{EnsembleFile, IntervalCalibration, Radius};
 use crate::data::DataSources;
 use crate::error::{Error, Result};
 use crate::progress::Reporter;
@@ -98,53 +99,42 @@ pub fn quantile(values: &[f64], level: f64) -> Option<f64> {
     Some(v[at])
 }
 
-/// A calibrated interval of one model for one quantity (position or attitude): the radius
-/// of a prediction is `scale · spread + constant`.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Interval {
-    /// Multiplies the members' spread.
-    pub scale: f64,
-    /// Added to it, in the quantity's unit.
-    pub constant: f64,
+/// The share of `pairs` (miss, spread) whose miss is within `radius`.
+pub fn coverage(radius: &Radius, pairs: &[(f64, f64)]) -> f64 {
+    let inside = pairs
+        .iter()
+        .filter(|(miss, spread)| *miss <= radius.of(*spread))
+        .count();
+    inside as f64 / pairs.len().max(1) as f64
 }
 
-impl Interval {
-    /// The radius of a prediction with `spread`.
-    pub fn radius(&self, spread: f64) -> f64 {
-        self.scale * spread + self.constant
-    }
+/// The radius proportional to the spread covering `level` of `pairs` (the `level`
+/// quantile of miss / spread, over the pairs with a spread).
+pub fn spread_scaled(pairs: &[(f64, f64)], level: f64) -> Option<Radius> {
+    let ratios: Vec<f64> = pairs
+        .iter()
+        .filter(|(_, s)| *s > 0.0)
+        .map(|(m, s)| m / s)
+        .collect();
+    Some(Radius {
+        scale: quantile(&ratios, level)?,
+        constant: 0.0,
+    })
+}
 
-    /// The share of `pairs` (miss, spread) whose miss is within the radius.
-    pub fn coverage(&self, pairs: &[(f64, f64)]) -> f64 {
-        let inside = pairs
-            .iter()
-            .filter(|(miss, spread)| *miss <= self.radius(*spread))
-            .count();
-        inside as f64 / pairs.len().max(1) as f64
-    }
+/// The constant radius covering `level` of `pairs` (the `level` quantile of the miss).
+pub fn constant(pairs: &[(f64, f64)], level: f64) -> Option<Radius> {
+    let misses: Vec<f64> = pairs.iter().map(|(m, _)| *m).collect();
+    Some(Radius {
+        scale: 0.0,
+        constant: quantile(&misses, level)?,
+    })
+}
 
-    /// The interval proportional to the spread covering `level` of `pairs` (the `level`
-    /// quantile of miss / spread, over the pairs with a spread).
-    pub fn spread_scaled(pairs: &[(f64, f64)], level: f64) -> Option<Interval> {
-        let ratios: Vec<f64> = pairs
-            .iter()
-            .filter(|(_, s)| *s > 0.0)
-            .map(|(m, s)| m / s)
-            .collect();
-        Some(Interval {
-            scale: quantile(&ratios, level)?,
-            constant: 0.0,
-        })
-    }
-
-    /// The constant interval covering `level` of `pairs` (the `level` quantile of the miss).
-    pub fn constant(pairs: &[(f64, f64)], level: f64) -> Option<Interval> {
-        let misses: Vec<f64> = pairs.iter().map(|(m, _)| *m).collect();
-        Some(Interval {
-            scale: 0.0,
-            constant: quantile(&misses, level)?,
-        })
-    }
+/// The mean radius over `pairs`.
+fn mean_radius_over(radius: &Radius, pairs: &[(f64, f64)]) -> f64 {
+    let radii: Vec<f64> = pairs.iter().map(|(_, s)| radius.of(*s)).collect();
+    Summary::of(&radii).map_or(f64::NAN, |s| s.mean)
 }
 
 /// The (miss, spread) pairs of quantity `q` (0 position, 1 attitude) of `model`'s runs
@@ -166,8 +156,11 @@ fn pairs(
 pub struct Calibrated {
     /// The model.
     pub model: String,
-    /// Position, then attitude: the spread-scaled and the constant interval.
-    pub intervals: [[Interval; 2]; 2],
+    /// Position, then attitude: the spread-scaled and the constant radius.
+    pub intervals: [[Radius; 2]; 2],
+    /// Per quantity and radius: the mean radius on the validation session (both cover
+    /// the level there; the narrower is [`Calibrated::chosen`]).
+    pub validation_radius: [[f64; 2]; 2],
     /// Per path (in [`PathKind::ALL`] order), per quantity and interval: the coverage on
     /// each scored session.
     pub coverage: Vec<[[Vec<f64>; 2]; 2]>,
@@ -176,6 +169,26 @@ pub struct Calibrated {
     /// Per quantity: the mean miss of the predictions whose spread is in the widest tenth,
     /// and of the others, on the scored sessions.
     pub widest_tenth: [[f64; 2]; 2],
+}
+
+impl Calibrated {
+    /// Per quantity, the radius the validation session favours: of the two, which both
+    /// cover the level there, the narrower on average (0 spread-scaled, 1 constant; the
+    /// constant on a tie: it needs no second member).
+    pub fn chosen(&self) -> [usize; 2] {
+        self.validation_radius
+            .map(|[spread, constant]| if spread < constant { 0 } else { 1 })
+    }
+
+    /// The interval of the chosen radii ([`Calibrated::chosen`]) at `level`.
+    pub fn calibration(&self, level: f64) -> IntervalCalibration {
+        let [p, a] = self.chosen();
+        IntervalCalibration {
+            level,
+            position: self.intervals[0][p],
+            attitude: self.intervals[1][a],
+        }
+    }
 }
 
 /// Calibrates each model's intervals at `level` on the validation session (the last of
@@ -189,10 +202,8 @@ pub fn calibrate(runs: &[RunTicks], scored: usize, level: f64) -> Result<Vec<Cal
     }
     let mut out = Vec::new();
     for model in names {
-        let mut intervals = [[Interval {
-            scale: 0.0,
-            constant: 0.0,
-        }; 2]; 2];
+        let mut intervals = [[Radius::default(); 2]; 2];
+        let mut validation_radius = [[0.0; 2]; 2];
         let mut mean_radius = [[0.0; 2]; 2];
         let mut widest_tenth = [[0.0; 2]; 2];
         for q in 0..2 {
@@ -204,13 +215,13 @@ pub fn calibrate(runs: &[RunTicks], scored: usize, level: f64) -> Result<Vec<Cal
                 ))
             };
             intervals[q] = [
-                Interval::spread_scaled(&validation, level).ok_or_else(short)?,
-                Interval::constant(&validation, level).ok_or_else(short)?,
+                spread_scaled(&validation, level).ok_or_else(short)?,
+                constant(&validation, level).ok_or_else(short)?,
             ];
             let test = pairs(runs, &model, q, |r| r.session < scored);
-            for (w, interval) in intervals[q].iter().enumerate() {
-                let radii: Vec<f64> = test.iter().map(|(_, s)| interval.radius(*s)).collect();
-                mean_radius[q][w] = Summary::of(&radii).map_or(f64::NAN, |s| s.mean);
+            for (w, radius) in intervals[q].iter().enumerate() {
+                validation_radius[q][w] = mean_radius_over(radius, &validation);
+                mean_radius[q][w] = mean_radius_over(radius, &test);
             }
             let spreads: Vec<f64> = test.iter().map(|(_, s)| *s).collect();
             let cut = quantile(&spreads, 0.9).unwrap_or(f64::INFINITY);
@@ -233,7 +244,7 @@ pub fn calibrate(runs: &[RunTicks], scored: usize, level: f64) -> Result<Vec<Cal
                             .map(|k| {
                                 let p =
                                     pairs(runs, &model, q, |r| r.session == k && r.path == path);
-                                intervals[q][w].coverage(&p)
+                                coverage(&intervals[q][w], &p)
                             })
                             .collect()
                     })
@@ -243,6 +254,7 @@ pub fn calibrate(runs: &[RunTicks], scored: usize, level: f64) -> Result<Vec<Cal
         out.push(Calibrated {
             model,
             intervals,
+            validation_radius,
             coverage,
             mean_radius,
             widest_tenth,
@@ -478,7 +490,7 @@ pub fn markdown(calibrated: &[Calibrated], held: &HeldOutConfig, level: f64) -> 
          held-out path's uncompensated run, a prediction every {} tick(s); a prediction's \
          miss is its distance from the tick's true residual (position µm; attitude across \
          the tool axis, mdeg), its spread the members' root-mean-square distance from their \
-         mean. A {:.0} % interval is calibrated on the validation session (session {}) two \
+         mean (position and attitude in 3-D, as a controller computes it). A {:.0} % interval is calibrated on the validation session (session {}) two \
          ways: a radius proportional to the spread, and a constant radius. Its coverage is \
          the share of the scored sessions' predictions within it, per path, mean ± SD over \
          {} (docs/results.md \"Confidence\").\n",
@@ -503,6 +515,24 @@ pub fn markdown(calibrated: &[Calibrated], held: &HeldOutConfig, level: f64) -> 
             c.mean_radius[0][1],
             c.mean_radius[1][0],
             c.mean_radius[1][1]
+        );
+        let kind = |w: usize| ["spread-scaled", "constant"][w];
+        let [p, a] = c.chosen();
+        let _ = writeln!(
+            md,
+            "Both cover about {:.0} % of the validation session; there the narrower is, for \
+             position, the {} radius (mean {:.1} µm spread-scaled against {:.1} constant), for \
+             attitude the {} ({:.1} against {:.1} mdeg). Those and the seeds are in `{}`, \
+             which the predictor loads in Rust, Python and C (docs/embedding.md \"Ensembles \
+             and intervals\").\n",
+            100.0 * level,
+            kind(p),
+            c.validation_radius[0][0],
+            c.validation_radius[0][1],
+            kind(a),
+            c.validation_radius[1][0],
+            c.validation_radius[1][1],
+            ensemble_file_name(&c.model)
         );
         let _ = writeln!(
             md,
@@ -553,12 +583,65 @@ pub fn ticks_csv(runs: &[RunTicks]) -> String {
     csv
 }
 
-/// Writes `confidence.md` and `ticks.csv` into `dir`, together or not at all.
-pub fn write(dir: &Path, markdown: &str, runs: &[RunTicks]) -> Result<()> {
-    crate::error::write_files(
-        dir,
-        &[("confidence.md", markdown), ("ticks.csv", &ticks_csv(runs))],
-    )
+/// The ensemble file of a calibrated model (docs/embedding.md "Ensembles and
+/// intervals"): its `members`' checkpoints, relative to `dir` where the file goes when
+/// they can be, and the interval the validation session favours
+/// ([`Calibrated::calibration`]).
+pub fn ensemble_file(
+    c: &Calibrated,
+    members: &[PathBuf],
+    dir: &Path,
+    held: &HeldOutConfig,
+    level: f64,
+) -> EnsembleFile {
+    let absolute = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    let folder = absolute(dir);
+    let members = members
+        .iter()
+        .map(|m| {
+            let m = absolute(m);
+            pathdiff::diff_paths(&m, &folder).unwrap_or(m)
+        })
+        .collect();
+    EnsembleFile {
+        members,
+        calibrated_on: format!(
+            "the validation session (session {}) of {}, a prediction every {} tick(s)",
+            held.sessions + 1,
+            held.describe_sessions(),
+            held.every
+        ),
+        interval: Some(c.calibration(level)),
+    }
+}
+
+/// The name of model `model`'s ensemble file.
+pub fn ensemble_file_name(model: &str) -> String {
+    format!("{model}.ensemble.toml")
+}
+
+/// Writes `confidence.md`, `ticks.csv` and each model's ensemble file
+/// ([`ensemble_file_name`]) into `dir`, together or not at all.
+pub fn write(
+    dir: &Path,
+    markdown: &str,
+    runs: &[RunTicks],
+    ensembles: &[(String, EnsembleFile)],
+) -> Result<()> {
+    let mut files = vec![
+        ("confidence.md".to_string(), markdown.to_string()),
+        ("ticks.csv".to_string(), ticks_csv(runs)),
+    ];
+    for (model, file) in ensembles {
+        let name = ensemble_file_name(model);
+        let text = file.to_toml(&name)?;
+        files.push((name, text));
+    }
+    let refs: Vec<(&str, &str)> = files
+        .iter()
+        .map(|(n, t)| (n.as_str(), t.as_str()))
+        .collect();
+    crate::error::write_files(dir, &refs)
 }
 
 #[cfg(test)]
@@ -585,13 +668,13 @@ mod tests {
                 (if i % 10 == 0 { 10.0 * s } else { 2.0 * s }, s)
             })
             .collect();
-        let scaled = Interval::spread_scaled(&pairs, 0.9).unwrap();
+        let scaled = spread_scaled(&pairs, 0.9).unwrap();
         assert_eq!(scaled.scale, 2.0);
-        assert!((scaled.coverage(&pairs) - 0.9).abs() < 1e-12);
-        let constant = Interval::constant(&pairs, 0.9).unwrap();
-        assert_eq!(constant.scale, 0.0);
-        assert!(constant.coverage(&pairs) >= 0.9);
-        assert!(Interval::spread_scaled(&[(1.0, 0.0)], 0.9).is_none());
+        assert!((coverage(&scaled, &pairs) - 0.9).abs() < 1e-12);
+        let fixed = constant(&pairs, 0.9).unwrap();
+        assert_eq!(fixed.scale, 0.0);
+        assert!(coverage(&fixed, &pairs) >= 0.9);
+        assert!(spread_scaled(&[(1.0, 0.0)], 0.9).is_none());
     }
 
     #[test]
@@ -637,5 +720,24 @@ mod tests {
         for cov in &c[0].coverage {
             assert_eq!(cov[0][0], vec![0.0]);
         }
+        // Position: the miss grows with the spread, so the spread-scaled radius (mean 11
+        // on validation) is narrower than the constant one (18); attitude: both are 2,
+        // and the tie goes to the constant.
+        assert_eq!(c[0].chosen(), [0, 1]);
+        let chosen = c[0].calibration(0.9);
+        assert_eq!(
+            chosen.position,
+            Radius {
+                scale: 2.0,
+                constant: 0.0
+            }
+        );
+        assert_eq!(
+            chosen.attitude,
+            Radius {
+                scale: 0.0,
+                constant: 2.0
+            }
+        );
     }
 }
