@@ -65,6 +65,8 @@ def record_data(
     sessions: Optional[int] = None,
     placement: Optional[str] = None,
     path_order: Optional[str] = None,
+    closed_loop: Optional[bool] = None,
+    config: Optional[_Path] = None,
     progress: _Progress = None,
 ) -> dict[str, Any]: ...
 def calibrate(

@@ -64,10 +64,26 @@ def test_record_data_reports_progress_and_writes_the_files(twin_data: dict):
 
 
 def test_record_data_in_sessions_and_its_refusals(tmp_path: Path):
-    data = iastgcn.record_data(tmp_path / "s", minutes=0.5, sessions=2, placement="varied")
+    data = iastgcn.record_data(tmp_path / "s", minutes=0.5, sessions=2, placement="varied",
+                               closed_loop=False)
     assert [Path(r).name for r in data["recordings"]] == [
         f"{p}.s0{s}.csv" for s in (1, 2) for p in ("grid", "fermat", "hilbert")]
     assert all(Path(f).exists() for f in data["recordings"])
+    assert data["closed_loop"] is None
+    # The default recipe records its second half again with a round-0 model compensating
+    # (here trained for 2 epochs): the recordings to train on are session 1 open loop and
+    # session 2 closed loop.
+    config = tmp_path / "round0.toml"
+    config.write_text((ROOT / "assets/demo.toml").read_text()
+                      .replace("max_epochs = 80", "max_epochs = 2"))
+    closed = iastgcn.record_data(tmp_path / "c", minutes=0.5, sessions=2, config=config)
+    names = [Path(r).relative_to(tmp_path / "c").as_posix() for r in closed["recordings"]]
+    assert names == [f"{p}.s01.csv" for p in ("grid", "fermat", "hilbert")] + [
+        f"closed-loop/{p}.s02.csv" for p in ("grid", "fermat", "hilbert")]
+    assert all(Path(f).exists() for f in closed["recordings"])
+    assert "round 0" in closed["closed_loop"] and "closed loop" in closed["closed_loop"]
+    with pytest.raises(iastgcn.Error, match="closed_loop"):
+        iastgcn.record_data(tmp_path / "u", minutes=0.5, sessions=1)
     with pytest.raises(iastgcn.Error, match="sessions"):
         iastgcn.record_data(tmp_path / "x", minutes=0.5, sessions=3)
     # The default recipe's 4 sessions need a minute per path or more.
@@ -79,7 +95,7 @@ def test_record_data_in_sessions_and_its_refusals(tmp_path: Path):
         iastgcn.record_data(tmp_path / "y", minutes=0.5, sessions=2, placement="diagonal")
     with pytest.raises(iastgcn.Error, match="path order"):
         iastgcn.record_data(tmp_path / "z", minutes=0.5, sessions=2, path_order="sideways")
-    assert not any((tmp_path / d).exists() for d in ("v", "w", "x", "y", "z"))
+    assert not any((tmp_path / d).exists() for d in ("u", "v", "w", "x", "y", "z"))
 
 
 def test_hybrid_calibration_matches_the_command(profile_dir: Path, twin_data: dict,

@@ -443,17 +443,23 @@ fn scoring(hold_out_every: usize, test: Option<PathBuf>) -> Scoring {
     }
 }
 
-/// record_data(out, minutes=2.0, machine_seed=1, recipe="use-like", sessions=None, placement=None, path_order=None, progress=None) -> dict
+/// record_data(out, minutes=2.0, machine_seed=1, recipe="use-like", sessions=None, placement=None, path_order=None, closed_loop=None, config=None, progress=None) -> dict
 ///
 /// The demo's data on the twin, into the folder `out`: a calibration set of a cold
 /// machine, its EKF calibration, and `minutes` of training recordings per path (grid,
 /// fermat, hilbert), in the sessions of the named `recipe` ("use-like", the default: 4
-/// sessions at spread placements; "paper": one session at the training placement;
-/// docs/usage.md "Recipes"), open loop; `sessions`, `placement` ("fixed", "varied" or
-/// "spread") and `path_order` ("fixed" or "rotated") change them (docs/twin.md
-/// "Sessions"). Returns the files: {"recordings": [...], "calibration": ...}.
+/// sessions at spread placements, the second half recorded again closed loop; "paper":
+/// one session at the training placement, open loop; docs/usage.md "Recipes");
+/// `sessions`, `placement` ("fixed", "varied" or "spread") and `path_order` ("fixed" or
+/// "rotated") change them (docs/twin.md "Sessions"). Closed loop (`closed_loop`, default
+/// the recipe's): a round-0 IASTGCN of the run config `config` (TOML; the demo's without
+/// one) is trained on the first half of the sessions into `out/round0` and compensates
+/// the second half as it is recorded again into `out/closed-loop`, as the demo does.
+/// Returns the files: {"recordings": [...] (what to train on: with a closed loop, the
+/// first half open loop and the second half closed loop), "calibration": ...,
+/// "calibration_set": ..., "closed_loop": what the round did, in words, or None}.
 #[pyfunction]
-#[pyo3(signature = (out, minutes=2.0, machine_seed=1, recipe="use-like", sessions=None, placement=None, path_order=None, progress=None))]
+#[pyo3(signature = (out, minutes=2.0, machine_seed=1, recipe="use-like", sessions=None, placement=None, path_order=None, closed_loop=None, config=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn record_data<'py>(
     py: Python<'py>,
@@ -464,6 +470,8 @@ fn record_data<'py>(
     sessions: Option<usize>,
     placement: Option<&str>,
     path_order: Option<&str>,
+    closed_loop: Option<bool>,
+    config: Option<PathBuf>,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Bound<'py, PyAny>> {
     if !(minutes.is_finite() && minutes > 0.0) {
@@ -490,14 +498,50 @@ fn record_data<'py>(
     recipe
         .validate(minutes)
         .map_err(|m| raise(format!("sessions: {m}")))?;
-    let sources = long_call(py, progress, |r| {
-        crate::experiment::protocol::record_data(&out, minutes, machine_seed, &recipe, r)
+    let closed_loop = closed_loop.unwrap_or(named.closed_loop);
+    if closed_loop && recipe.sessions < 2 {
+        return Err(raise(format!(
+            "closed_loop: the second half of the sessions is recorded again with a model \
+             trained on the first, so it needs 2 sessions or more, got {}; give \
+             closed_loop=False for open-loop data",
+            recipe.sessions
+        )));
+    }
+    let (sources, how) = long_call(py, progress, |r| {
+        use crate::experiment::protocol::{self, ClosedLoopRound, ModelFiles};
+        let sources = protocol::record_data(&out, minutes, machine_seed, &recipe, r)?;
+        if !closed_loop {
+            return Ok((sources, None));
+        }
+        let mut round0 = match &config {
+            Some(path) => RunConfig::load(path)?,
+            None => RunConfig::demo(),
+        };
+        round0.model.variant = crate::model::Variant::Iastgcn;
+        let models = out.join("round0");
+        std::fs::create_dir_all(&models).map_err(|e| crate::error::Error::io(&models, e))?;
+        let round = ClosedLoopRound {
+            recipe: &recipe,
+            minutes,
+            machine_seed,
+            every: named.every,
+            name: "round0".into(),
+            files: ModelFiles::named(&models, "round0", true),
+            dir: out.join("closed-loop"),
+        };
+        let device = open_device()?;
+        let (union, how) = protocol::record_closed_loop(&device, &round, &round0, &sources, r)?;
+        Ok((
+            union,
+            Some(format!("{how}; {}", round.training_set("a model"))),
+        ))
     })?;
     #[derive(Serialize)]
     struct Files {
         recordings: Vec<PathBuf>,
         calibration: PathBuf,
         calibration_set: PathBuf,
+        closed_loop: Option<String>,
     }
     to_python(
         py,
@@ -505,6 +549,7 @@ fn record_data<'py>(
             recordings: sources.recordings,
             calibration: sources.calibration,
             calibration_set: out.join("calibration_set.csv"),
+            closed_loop: how,
         },
     )
 }
