@@ -455,3 +455,73 @@ fn the_floor_writes_both_oracles_for_every_path() {
     ]);
     assert!(e.contains("--window"), "{e}");
 }
+
+/// The demo's "Confidence" section: the seeds as one ensemble, recorded session by
+/// session on every core, give the same section twice, and its ensemble file loads.
+#[test]
+fn the_reports_confidence_section_repeats_and_writes_the_ensemble_file() {
+    use iastgcn::experiment::evaluate::HeldOutConfig;
+    let f = fixture();
+    let dir = f.dir.join("section");
+    std::fs::create_dir_all(&dir).unwrap();
+    let members: Vec<(PathBuf, Checkpoint)> = [&f.trained, &f.seed2]
+        .iter()
+        .enumerate()
+        .map(|(i, ck)| {
+            let path = dir.join(format!("tiny.seed{}.safetensors", i + 1));
+            ck.save(&path).unwrap();
+            (path, (*ck).clone())
+        })
+        .collect();
+    let sources = DataSources {
+        recordings: vec![f.grid.clone()],
+        calibration: f.calibration.clone(),
+        graph: None,
+        robot: None,
+    };
+    let held = HeldOutConfig {
+        minutes: 0.1,
+        warm_up_minutes: 0.0,
+        sessions: 2,
+        ..HeldOutConfig::default()
+    };
+    let device = Device::from(gpu());
+    let section = || {
+        confidence::ensemble_section(
+            &device,
+            "tiny",
+            &members,
+            &sources,
+            &held,
+            confidence::LEVEL,
+            &dir,
+            &mut Silent,
+        )
+        .unwrap()
+    };
+    let first = section();
+    for path in ["grid", "fermat", "hilbert", "rosette"] {
+        assert!(first.contains(&format!("| {path} |")), "{first}");
+    }
+    assert!(first.contains("tiny.ensemble.toml"), "{first}");
+    assert_eq!(
+        section(),
+        first,
+        "the same runs, whichever core ran which session"
+    );
+    let file = EnsembleFile::read(&dir.join("tiny.ensemble.toml")).unwrap();
+    assert_eq!(
+        file.members,
+        vec![
+            PathBuf::from("tiny.seed1.safetensors"),
+            PathBuf::from("tiny.seed2.safetensors")
+        ]
+    );
+    assert!(
+        file.calibrated_on.contains("session 3"),
+        "{}",
+        file.calibrated_on
+    );
+    let (ensemble, _) = Ensemble::load(&dir.join("tiny.ensemble.toml"), 0.02, None).unwrap();
+    assert_eq!(ensemble.members().len(), 2);
+}

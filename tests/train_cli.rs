@@ -744,6 +744,14 @@ fn demo_over_seeds_reports_the_spread() {
     );
     let polish = std::fs::read_to_string(out.join("polish/polish.csv")).unwrap();
     assert!(!polish.contains(",compensated ("), "{polish}");
+    // No recommended model, so no ensemble to calibrate an interval for (the section
+    // itself: tests/held_out_studies.rs).
+    assert!(!report.contains("## Confidence"), "{report}");
+    assert!(std::fs::read_dir(out.join("models")).unwrap().all(|e| !e
+        .unwrap()
+        .file_name()
+        .to_string_lossy()
+        .ends_with(".ensemble.toml")));
     for controller in ["nominal", "calibrated", "oracle", "perfect machine"] {
         assert!(
             polish.contains(&format!(",{controller}")),

@@ -28,7 +28,7 @@ pub struct ConfidenceArgs {
     #[arg(long, num_args = 1.., required = true)]
     pub models: Vec<PathBuf>,
     /// The interval's level: the share of the validation session's predictions it covers.
-    #[arg(long, default_value_t = 0.9)]
+    #[arg(long, default_value_t = confidence::LEVEL)]
     pub level: f64,
     #[command(flatten)]
     pub held_out: HeldOutArgs,
@@ -74,7 +74,11 @@ pub fn run(device: &Device, args: &ConfidenceArgs) -> anyhow::Result<()> {
     held.validate()?;
     super::make_output_folder("--out", &args.out)?;
     let mut console = Console::default();
-    let runs = confidence::record(&mut models, &args.data.sources(), &held, &mut console)?;
+    let seeds: Vec<(String, Vec<Checkpoint>)> = groups
+        .iter()
+        .map(|(name, members, _)| (name.clone(), members.clone()))
+        .collect();
+    let runs = confidence::record(device, &seeds, &args.data.sources(), &held, &mut console)?;
     console.end();
     let calibrated = confidence::calibrate(&runs, held.sessions, args.level)?;
     let mut md = confidence::markdown(&calibrated, &held, args.level);

@@ -8,15 +8,18 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use super::evaluate::{session_start, HeldOutConfig, LoopModel};
+use super::evaluate::{ensemble, session_start, HeldOutConfig, LoopModel};
+use super::parallel;
 use crate::compensate::held_out::IDLE_BETWEEN_RUNS;
 use crate::compensate::online::{self, Feedback, Gate, Online, OpenLoopTick};
 use crate::compensate::{EnsembleFile, IntervalCalibration, Radius};
 use crate::data::DataSources;
 use crate::error::{Error, Result};
+use crate::gpu::Device;
+use crate::model::Checkpoint;
 use crate::progress::Reporter;
 use crate::stats::Summary;
-use crate::twin::PathKind;
+use crate::twin::{PathKind, SimConfig};
 
 /// The open-loop predictions of one model on one held-out run.
 #[derive(Clone, Debug)]
@@ -32,11 +35,15 @@ pub struct RunTicks {
 }
 
 /// Records every model's open-loop predictions on the held-out sessions of `held` and
-/// its validation session, on the machine and calibration of `sources`: each session
-/// warms up as Table V's does, then its paths run in turn uncompensated (the machine
-/// idle between them), every model predicting along each from the same start.
+/// its validation session, on the machine and calibration of `sources`: each model is
+/// the seeds `checkpoints` (as one ensemble, [`ensemble`]) named `name`; each session
+/// warms up as Table V's does, then its paths run in turn uncompensated (the machine idle
+/// between them), every model predicting along each from the same start. The sessions
+/// run on every core when the models predict natively, each with predictors of its own;
+/// the runs come back in the sessions' order.
 pub fn record(
-    models: &mut [LoopModel],
+    device: &Device,
+    models: &[(String, Vec<Checkpoint>)],
     sources: &DataSources,
     held: &HeldOutConfig,
     reporter: &mut dyn Reporter,
@@ -45,46 +52,61 @@ pub fn record(
         return Err(Error::Invalid("no model to measure".into()));
     }
     let settings = Online { every: held.every };
-    let mut out = Vec::new();
-    for k in 0..=held.sessions {
-        let (machine, calibrated, mut state) = session_start(sources, held, k)?;
-        for (i, path) in PathKind::ALL.into_iter().enumerate() {
-            let run = held.run(k, i, state.clone());
-            reporter.begin(
-                &format!("session {} {}", k + 1, path.name()),
-                (run.config().steps() * models.len()) as u64,
-            );
-            let mut done = 0u64;
-            let mut end = None;
-            for m in models.iter_mut() {
-                let result = run.run(
-                    &machine,
-                    &calibrated,
-                    Feedback::OpenLoop(&mut m.members, &m.graph, settings),
-                    |_| {
-                        done += 1;
-                        if done.is_multiple_of(200) {
-                            reporter.update(done, "");
-                        }
-                    },
-                )?;
-                out.push(RunTicks {
-                    model: m.name.clone(),
-                    session: k,
-                    path,
-                    ticks: result.open_loop_ticks,
-                });
-                end = Some(result.end);
+    let build = || -> Result<Vec<LoopModel>> {
+        models
+            .iter()
+            .map(|(name, checkpoints)| ensemble(device, name, checkpoints))
+            .collect()
+    };
+    let native = build()?.iter().all(LoopModel::predicts_natively);
+    let sessions: Vec<usize> = (0..=held.sessions).collect();
+    // Every held-out run lasts as long (`held.minutes`).
+    let steps = SimConfig::new(PathKind::Grid, held.minutes * 60.0, 0).steps();
+    let ticks = sessions.len() * PathKind::ALL.len() * steps;
+    reporter.begin("open-loop predictions", (ticks * models.len()) as u64);
+    let mut done = 0u64;
+    let per_session = parallel::run_all(
+        sessions,
+        parallel::workers(native),
+        |k, tick| -> Result<Vec<RunTicks>> {
+            let mut loop_models = build()?;
+            let (machine, calibrated, mut state) = session_start(sources, held, k)?;
+            let mut out = Vec::new();
+            for (i, path) in PathKind::ALL.into_iter().enumerate() {
+                let run = held.run(k, i, state.clone());
+                let mut end = None;
+                for m in loop_models.iter_mut() {
+                    let result = run.run(
+                        &machine,
+                        &calibrated,
+                        Feedback::OpenLoop(&mut m.members, &m.graph, settings),
+                        |_| tick(),
+                    )?;
+                    out.push(RunTicks {
+                        model: m.name.clone(),
+                        session: k,
+                        path,
+                        ticks: result.open_loop_ticks,
+                    });
+                    end = Some(result.end);
+                }
+                // Uncompensated, every model's run ends in the same state.
+                if let Some(mut end) = end {
+                    end.idle(IDLE_BETWEEN_RUNS);
+                    state = end;
+                }
             }
-            reporter.end();
-            // Uncompensated, every model's run ends in the same state.
-            if let Some(mut end) = end {
-                end.idle(IDLE_BETWEEN_RUNS);
-                state = end;
+            Ok(out)
+        },
+        || {
+            done += 1;
+            if done.is_multiple_of(500) {
+                reporter.update(done, "");
             }
-        }
-    }
-    Ok(out)
+        },
+    );
+    reporter.end();
+    Ok(per_session?.into_iter().flatten().collect())
 }
 
 /// The `level` quantile of `values` (the smallest value at least that share of them
@@ -262,6 +284,10 @@ pub fn calibrate(runs: &[RunTicks], scored: usize, level: f64) -> Result<Vec<Cal
     }
     Ok(out)
 }
+
+/// The level of the intervals the demo calibrates and `iastgcn confidence` does by
+/// default: 90 %.
+pub const LEVEL: f64 = 0.9;
 
 /// The radius quantiles on the validation session that the gate's candidate limits take.
 pub const GATE_QUANTILES: [f64; 3] = [0.5, 0.75, 0.9];
@@ -482,83 +508,138 @@ fn pct(values: &[f64]) -> String {
 
 /// The study's Markdown.
 pub fn markdown(calibrated: &[Calibrated], held: &HeldOutConfig, level: f64) -> String {
-    let mut md = String::new();
-    let _ = writeln!(md, "# Confidence\n");
-    let _ = writeln!(
-        md,
-        "Each model (a seed ensemble, its members' mean in the loop) predicts along every \
-         held-out path's uncompensated run, a prediction every {} tick(s); a prediction's \
+    let mut md = String::from("# Confidence\n\n");
+    md.push_str(&method(
+        "Each model (a seed ensemble, its members' mean in the loop) predicts",
+        held,
+        level,
+    ));
+    for c in calibrated {
+        let _ = writeln!(md, "## {}\n", c.model);
+        md.push_str(&model_markdown(c, level));
+    }
+    md
+}
+
+/// What the study does, in a paragraph that starts with `who` predicts.
+fn method(who: &str, held: &HeldOutConfig, level: f64) -> String {
+    format!(
+        "{who} along every held-out path's uncompensated run, a prediction every {} tick(s); a prediction's \
          miss is its distance from the tick's true residual (position µm; attitude across \
          the tool axis, mdeg), its spread the members' root-mean-square distance from their \
-         mean (position and attitude in 3-D, as a controller computes it). A {:.0} % interval is calibrated on the validation session (session {}) two \
-         ways: a radius proportional to the spread, and a constant radius. Its coverage is \
-         the share of the scored sessions' predictions within it, per path, mean ± SD over \
-         {} (docs/results.md \"Confidence\").\n",
+         mean (position and attitude in 3-D, as a controller computes it). A {:.0} % \
+         interval is calibrated on the validation session (session {}) two ways: a radius \
+         proportional to the spread, and a constant radius. Its coverage is the share of \
+         the scored sessions' predictions within it, per path, mean ± SD over {} \
+         (docs/results.md \"Confidence\").\n\n",
         held.every,
         100.0 * level,
         held.sessions + 1,
         held.describe_sessions()
+    )
+}
+
+/// One calibrated model's paragraphs and coverage table.
+fn model_markdown(c: &Calibrated, level: f64) -> String {
+    let mut md = String::new();
+    let [pos, att] = c.intervals;
+    let _ = writeln!(
+        md,
+        "Calibrated: position radius {:.2} × spread, or {:.1} µm; attitude {:.2} × \
+         spread, or {:.1} mdeg. Mean radius on the scored sessions: position {:.1} µm \
+         (spread-scaled) against {:.1}; attitude {:.1} mdeg against {:.1}.\n",
+        pos[0].scale,
+        pos[1].constant,
+        att[0].scale,
+        att[1].constant,
+        c.mean_radius[0][0],
+        c.mean_radius[0][1],
+        c.mean_radius[1][0],
+        c.mean_radius[1][1]
     );
-    for c in calibrated {
-        let _ = writeln!(md, "## {}\n", c.model);
-        let [pos, att] = c.intervals;
+    let kind = |w: usize| ["spread-scaled", "constant"][w];
+    let [p, a] = c.chosen();
+    let _ = writeln!(
+        md,
+        "Both cover about {:.0} % of the validation session; there the narrower is, for \
+         position, the {} radius (mean {:.1} µm spread-scaled against {:.1} constant), for \
+         attitude the {} ({:.1} against {:.1} mdeg). Those and the seeds are in `{}`, \
+         which the predictor loads in Rust, Python and C (docs/embedding.md \"Ensembles \
+         and intervals\").\n",
+        100.0 * level,
+        kind(p),
+        c.validation_radius[0][0],
+        c.validation_radius[0][1],
+        kind(a),
+        c.validation_radius[1][0],
+        c.validation_radius[1][1],
+        ensemble_file_name(&c.model)
+    );
+    let _ = writeln!(
+        md,
+        "| path | position, spread-scaled | position, constant | attitude, spread-scaled | attitude, constant |"
+    );
+    let _ = writeln!(md, "|---|---|---|---|---|");
+    for (path, cov) in PathKind::ALL.iter().zip(&c.coverage) {
         let _ = writeln!(
             md,
-            "Calibrated: position radius {:.2} × spread, or {:.1} µm; attitude {:.2} × \
-             spread, or {:.1} mdeg. Mean radius on the scored sessions: position {:.1} µm \
-             (spread-scaled) against {:.1}; attitude {:.1} mdeg against {:.1}.\n",
-            pos[0].scale,
-            pos[1].constant,
-            att[0].scale,
-            att[1].constant,
-            c.mean_radius[0][0],
-            c.mean_radius[0][1],
-            c.mean_radius[1][0],
-            c.mean_radius[1][1]
-        );
-        let kind = |w: usize| ["spread-scaled", "constant"][w];
-        let [p, a] = c.chosen();
-        let _ = writeln!(
-            md,
-            "Both cover about {:.0} % of the validation session; there the narrower is, for \
-             position, the {} radius (mean {:.1} µm spread-scaled against {:.1} constant), for \
-             attitude the {} ({:.1} against {:.1} mdeg). Those and the seeds are in `{}`, \
-             which the predictor loads in Rust, Python and C (docs/embedding.md \"Ensembles \
-             and intervals\").\n",
-            100.0 * level,
-            kind(p),
-            c.validation_radius[0][0],
-            c.validation_radius[0][1],
-            kind(a),
-            c.validation_radius[1][0],
-            c.validation_radius[1][1],
-            ensemble_file_name(&c.model)
-        );
-        let _ = writeln!(
-            md,
-            "| path | position, spread-scaled | position, constant | attitude, spread-scaled | attitude, constant |"
-        );
-        let _ = writeln!(md, "|---|---|---|---|---|");
-        for (path, cov) in PathKind::ALL.iter().zip(&c.coverage) {
-            let _ = writeln!(
-                md,
-                "| {} | {} | {} | {} | {} |",
-                path.name(),
-                pct(&cov[0][0]),
-                pct(&cov[0][1]),
-                pct(&cov[1][0]),
-                pct(&cov[1][1])
-            );
-        }
-        let _ = writeln!(
-            md,
-            "\nDoes the spread flag the bad predictions? Mean miss where the spread is in \
-             its widest tenth against the rest: position {:.1} against {:.1} µm, attitude \
-             {:.1} against {:.1} mdeg.\n",
-            c.widest_tenth[0][0], c.widest_tenth[0][1], c.widest_tenth[1][0], c.widest_tenth[1][1]
+            "| {} | {} | {} | {} | {} |",
+            path.name(),
+            pct(&cov[0][0]),
+            pct(&cov[0][1]),
+            pct(&cov[1][0]),
+            pct(&cov[1][1])
         );
     }
+    let _ = writeln!(
+        md,
+        "\nDoes the spread flag the bad predictions? Mean miss where the spread is in \
+         its widest tenth against the rest: position {:.1} against {:.1} µm, attitude \
+         {:.1} against {:.1} mdeg.\n",
+        c.widest_tenth[0][0], c.widest_tenth[0][1], c.widest_tenth[1][0], c.widest_tenth[1][1]
+    );
     md
+}
+
+/// One model's seeds as an ensemble for a report (the demo's "Confidence"): `members`
+/// (each checkpoint with its file) named `name` predict open loop along `held`'s
+/// sessions ([`record`]), a `level` interval is calibrated on the validation session
+/// ([`calibrate`]), its ensemble file is written into `dir` (members relative to it),
+/// and the section's Markdown comes back.
+#[allow(clippy::too_many_arguments)]
+pub fn ensemble_section(
+    device: &Device,
+    name: &str,
+    members: &[(PathBuf, Checkpoint)],
+    sources: &DataSources,
+    held: &HeldOutConfig,
+    level: f64,
+    dir: &Path,
+    reporter: &mut dyn Reporter,
+) -> Result<String> {
+    let checkpoints = members.iter().map(|(_, c)| c.clone()).collect();
+    let runs = record(
+        device,
+        &[(name.to_string(), checkpoints)],
+        sources,
+        held,
+        reporter,
+    )?;
+    let calibrated = calibrate(&runs, held.sessions, level)?;
+    let Some(c) = calibrated.first() else {
+        return Err(Error::Invalid(format!("{name}: nothing calibrated")));
+    };
+    let paths: Vec<PathBuf> = members.iter().map(|(p, _)| p.clone()).collect();
+    ensemble_file(c, &paths, dir, held, level).write(&dir.join(ensemble_file_name(name)))?;
+    let who = format!(
+        "The recommended model's {} seeds, as one ensemble (their mean in the loop), predict",
+        members.len()
+    );
+    Ok(format!(
+        "{}{}",
+        method(&who, held, level),
+        model_markdown(c, level)
+    ))
 }
 
 /// One row per run and prediction: `model,session,path,tick,miss_um,miss_mdeg,spread_um,spread_mdeg`.

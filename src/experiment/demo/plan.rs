@@ -49,6 +49,12 @@ pub(super) fn plan(
         ),
         format!("5. the report: {}", out.join("report.md").display()),
     ];
+    if seeds > 1 {
+        lines.push(
+            "   with it, the recommended model's seeds as one ensemble: a 90 % interval calibrated on the validation session, its coverage per path, and models/<model>.ensemble.toml for the predictors"
+                .into(),
+        );
+    }
     if let Some(mirror) = &demo.mirror {
         lines.push(format!(
             "6. the mirror: the recommended model polishing against the other controllers, {} iteration(s) on {} surface(s)",

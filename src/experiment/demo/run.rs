@@ -9,6 +9,7 @@ use super::plan::plan;
 use super::report::{first_result, mirror_section, sensor_table, setup_lines};
 use super::DemoConfig;
 use crate::error::{Error, Result};
+use crate::experiment::confidence;
 use crate::experiment::evaluate::{
     add_graph_mixing, evaluate_models, report_evaluation, Evaluated, NamedModel,
 };
@@ -17,7 +18,7 @@ use crate::experiment::protocol::{
     check_closed_loop_sessions, check_seeds, existing_data, record_closed_loop, record_data,
     sessions_setting, ClosedLoopRound, Fitted, ModelFiles, MACHINE_SEED,
 };
-use crate::experiment::report::seeds::seeded_name;
+use crate::experiment::report::seeds::{seeded_name, split_name};
 use crate::experiment::report::{self, Report};
 use crate::experiment::runner::{Job, Runner};
 use crate::experiment::side_by_side::{fit_side_by_side, FitJob};
@@ -289,6 +290,33 @@ pub fn demo(
         reporter,
     )?;
     add_graph_mixing(&mut report, &models);
+    if let (true, Some(best)) = (seeded, report.recommended.clone()) {
+        let group = split_name(&best).0.to_string();
+        reporter.note(&format!(
+            "== confidence: {group}'s {} seeds as one ensemble, a {:.0} % interval calibrated on the validation session (docs/results.md \"Confidence\")",
+            demo.seeds.len(),
+            100.0 * confidence::LEVEL
+        ));
+        let members: Vec<_> = models
+            .iter()
+            .filter(|m| split_name(&m.name).0 == group)
+            .map(|m| {
+                let files = ModelFiles::named(&model_dir, &m.name, true);
+                (files.refined, m.checkpoint.clone())
+            })
+            .collect();
+        let section = confidence::ensemble_section(
+            &device,
+            &group,
+            &members,
+            &sources,
+            held_out,
+            confidence::LEVEL,
+            &model_dir,
+            reporter,
+        )?;
+        report.sections.push(("Confidence".into(), section));
+    }
     if let Some(spec) = &demo.mirror {
         let name = report.recommended.clone();
         reporter.note(&match &name {
