@@ -206,7 +206,8 @@ fn an_ensemble_feeds_back_the_mean_of_its_members() {
 /// (from the window's last tick, every `every`) it sets the true residual of the next
 /// tick; replayed, the first pass reproduces the uncompensated run's residuals it was
 /// built from up to the corrections' own effect, and its fixed point converges and
-/// leaves less than the oracle of the tick just measured on the Hilbert curve.
+/// leaves less than the oracle of the tick just measured on the Hilbert curve; Table V's
+/// oracle is the one or the other as the models look ahead or not.
 #[test]
 fn the_look_ahead_oracle_sets_the_next_ticks_residual_and_converges() {
     let (machine, controller, start, config) = hilbert_run();
@@ -219,7 +220,7 @@ fn the_look_ahead_oracle_sets_the_next_ticks_residual_and_converges() {
     )
     .unwrap();
     assert_eq!(residuals.len(), config.steps());
-    let ahead = online::look_ahead(&residuals, 48, 5);
+    let ahead = online::look_ahead(&residuals, 48, 5, 1);
     assert_eq!(
         ahead.first().map(|a| a.0),
         Some(50),
@@ -252,7 +253,7 @@ fn the_look_ahead_oracle_sets_the_next_ticks_residual_and_converges() {
     )
     .unwrap();
     let (run, passes) =
-        online::look_ahead_oracle(&machine, &controller, &config, &start, 48, 1, 4).unwrap();
+        online::look_ahead_oracle(&machine, &controller, &config, &start, 48, 1, 1, 4).unwrap();
     eprintln!(
         "calibrated {:.2} µm, oracle {:.2}, look-ahead passes {passes:?}",
         plain.truth.position.mean, oracle.truth.position.mean
@@ -265,4 +266,16 @@ fn the_look_ahead_oracle_sets_the_next_ticks_residual_and_converges() {
     );
     assert!(run.truth.position.mean < oracle.truth.position.mean);
     assert!(run.truth.position.mean < 0.2 * plain.truth.position.mean);
+    // Table V's oracle stands in for a model: the oracle of the tick just measured for
+    // one that does not look ahead, this fixed point for one that looks a tick ahead; two
+    // ticks ahead set the residual of the tick after next.
+    let settings = Online { every: 1 };
+    let table_v = |ahead| {
+        online::oracle(&machine, &controller, &config, &start, 48, settings, ahead).unwrap()
+    };
+    assert_eq!(table_v(0).truth, oracle.truth);
+    assert_eq!(table_v(1).truth, run.truth);
+    let two = online::look_ahead(&residuals, 48, 1, 2);
+    assert!(two.iter().all(|(t, c)| c.dp == residuals[t + 2].dp));
+    assert_eq!(two.last().map(|a| a.0), Some(last - 2));
 }

@@ -525,6 +525,9 @@ fn demo_writes_the_report() {
         // On the hidden truth, the true residual fed back at a model's rate and latency
         // beats calibration alone in position and attitude.
         let (cal, oracle) = (of("calibrated")[0], of("oracle")[0]);
+        // The tiny models do not look ahead, nor does the oracle that stands in for them
+        // (a look-ahead one: tests/open_loop.rs).
+        assert_eq!(oracle[3], "true residual");
         assert!(
             value(oracle, 4) < value(cal, 4),
             "{path}: {oracle:?} vs {cal:?}"

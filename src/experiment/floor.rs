@@ -16,7 +16,7 @@ use crate::stats::Summary;
 use crate::twin::PathKind;
 
 /// Passes of the look-ahead oracle's fixed point ([`online::look_ahead_oracle`]).
-pub const PASSES: usize = 4;
+pub const PASSES: usize = online::LOOK_AHEAD_PASSES;
 
 /// One held-out run under the calibrated controller alone and under both oracles.
 #[derive(Clone, Debug)]
@@ -74,6 +74,7 @@ pub fn run(
                 &run.start,
                 window,
                 held.every,
+                1,
                 PASSES,
             )?;
             reporter.note(&format!(

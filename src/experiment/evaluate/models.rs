@@ -81,6 +81,11 @@ impl LoopModel {
     pub fn window(&self) -> usize {
         self.members.first().map_or(0, |p| p.config().window)
     }
+
+    /// Ticks ahead its first member predicts (the oracle stands in for it).
+    pub fn look_ahead(&self) -> usize {
+        self.members.first().map_or(0, |p| p.config().look_ahead)
+    }
 }
 
 /// A checkpoint with the name the tables give it, and its mean training time per epoch

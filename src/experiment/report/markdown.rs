@@ -303,7 +303,8 @@ pub(super) fn at_a_glance(r: &Report) -> Option<String> {
             "{out}\nAgainst the twin's hidden truth; each share is the mean ± SD over the \
              held-out sessions (and the model's seeds) of the calibrated error removed, \
              position / attitude. The oracle feeds the true residual back at a model's \
-             latency: about what online compensation can remove at all.\n"
+             latency, of the tick the correction acts on when the models look ahead: about \
+             what online compensation can remove at all.\n"
         )
     })
 }
