@@ -156,12 +156,16 @@ fn models_with_different_sensor_graphs_each_read_their_own_channels() {
         }
         cli(&args)
     };
-    let row = |table: &str, model: &str| -> String {
+    // The row's fields: the columns' widths follow the longest name in the table (the
+    // oracle's, which stands in for the first model, says whether it looks ahead).
+    let row = |table: &str, model: &str| -> Vec<String> {
         table
             .lines()
             .find(|l| l.contains(model) && l.contains("truth"))
             .unwrap_or_else(|| panic!("no {model} row in\n{table}"))
-            .to_string()
+            .split_whitespace()
+            .map(str::to_string)
+            .collect()
     };
     let (paper, force) = (f("paper.safetensors"), f("force.safetensors"));
     let both = run(&[&paper, &force]);
