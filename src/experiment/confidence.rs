@@ -58,7 +58,8 @@ pub fn record(
             .map(|(name, checkpoints)| ensemble(device, name, checkpoints))
             .collect()
     };
-    let native = build()?.iter().all(LoopModel::predicts_natively);
+    // Predictors run natively exactly where the device prefers it (`Predictor::on`).
+    let native = device.prefers_native();
     let sessions: Vec<usize> = (0..=held.sessions).collect();
     // Every held-out run lasts as long (`held.minutes`).
     let steps = SimConfig::new(PathKind::Grid, held.minutes * 60.0, 0).steps();
