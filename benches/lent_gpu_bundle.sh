@@ -5,8 +5,10 @@
 #   .gl/      the Vulkan loader's and glvnd's Debian packages (that machine's image has
 #             the NVIDIA driver but not these), downloaded once;
 #   .devbin/  this build's iastgcn and its model, kernels and polish benches, the
-#             matmul, layer_norm and model_gpu test binaries (debug, as `cargo test`
-#             builds them), and for each COMMIT named the model bench built at that
+#             matmul and model_gpu test binaries and the library's unit tests (debug,
+#             as `cargo test` builds them; lent_gpu.sh runs the library's device tests
+#             of the network's steps and the matmul planner), and for each COMMIT named
+#             the model bench built at that
 #             commit as model-COMMIT (lent_gpu.sh times it before and after this
 #             build's, in the same call); all stripped and gzipped (lent_gpu.sh unpacks).
 # Usage: benches/lent_gpu_bundle.sh [COMMIT...]
@@ -48,10 +50,12 @@ for b in model kernels polish; do
     bin=$(built cargo bench --no-run --bench "$b")
     pack "$bin" "$b"
 done
-for t in matmul layer_norm model_gpu; do
+for t in matmul model_gpu; do
     bin=$(built cargo test --no-run --test "$t")
     pack "$bin" "$t.test"
 done
+# Each step's kernels are tested beside them, in the library (src/model/block/*/).
+pack "$(built cargo test --no-run --lib)" lib.test
 for c in "$@"; do
     tree=/tmp/lent-gpu-$c
     rm -rf "$tree"
