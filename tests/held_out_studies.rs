@@ -356,7 +356,8 @@ fn confidence_calibrates_on_the_validation_session_and_needs_two_seeds() {
     let rows: Vec<Vec<f64>> = csv
         .lines()
         .skip(1)
-        // miss_um, miss_mdeg, spread_um, spread_mdeg (after model, session, path, tick).
+        // miss_um, miss_mdeg, spread_um, spread_mdeg, size_um, size_mdeg (after model,
+        // session, path, tick).
         .map(|l| l.split(',').skip(4).map(|v| v.parse().unwrap()).collect())
         .collect();
     assert!(rows.len() > 4 * 2 * 100, "{} predictions", rows.len());
@@ -368,6 +369,10 @@ fn confidence_calibrates_on_the_validation_session_and_needs_two_seeds() {
         .map(|(_, r)| r)
         .collect();
     assert!(validation.iter().all(|r| r[2] >= 0.0 && r[3] >= 0.0));
+    // Every prediction corrects something: the twin's residuals are never zero.
+    assert!(rows
+        .iter()
+        .all(|r| r.len() == 6 && r[4] > 0.0 && r[5] > 0.0));
     assert!(validation.iter().any(|r| r[2] > 0.0), "two seeds spread");
     for q in 0..2 {
         let pairs: Vec<(f64, f64)> = validation.iter().map(|r| (r[q], r[2 + q])).collect();

@@ -23,3 +23,5 @@ done
   --data "$WORK/demo/data/grid.s01.csv" --calibration "$WORK/demo/data/calibration.toml" \
   --models "${models[@]}" --out "$WORK/confidence"
 cp "$WORK/confidence/confidence.md" "$OUT/"
+# What could rank the misses (the spread, the correction's size, the runs' share):
+python3 docs/confidence/rank.py "$WORK/confidence/ticks.csv" > "$OUT/rank.md"

@@ -75,6 +75,8 @@ pub struct OpenLoopTick {
     /// position µm, attitude mdeg (3-D, as a controller computes it without the tool
     /// axis).
     pub spread: [f64; 2],
+    /// The prediction's size, the correction's length: position µm, attitude mdeg (3-D).
+    pub size: [f64; 2],
 }
 
 /// What the loop does with a prediction whose interval is wide ([`Feedback::Gated`],
@@ -384,6 +386,7 @@ pub fn run_observed(
                 tick,
                 miss: [p, a],
                 spread,
+                size: [c.dp.norm() * 1e3, c.dr.norm().to_degrees() * 1e3],
             });
         }
         if let Some(((k, c), rest)) = replay.split_first() {

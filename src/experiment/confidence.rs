@@ -643,14 +643,17 @@ pub fn ensemble_section(
     ))
 }
 
-/// One row per run and prediction: `model,session,path,tick,miss_um,miss_mdeg,spread_um,spread_mdeg`.
+/// One row per run and prediction: `model,session,path,tick,miss_um,miss_mdeg,spread_um,
+/// spread_mdeg,size_um,size_mdeg` (the size: the correction's length).
 pub fn ticks_csv(runs: &[RunTicks]) -> String {
-    let mut csv = String::from("model,session,path,tick,miss_um,miss_mdeg,spread_um,spread_mdeg\n");
+    let mut csv = String::from(
+        "model,session,path,tick,miss_um,miss_mdeg,spread_um,spread_mdeg,size_um,size_mdeg\n",
+    );
     for r in runs {
         for t in &r.ticks {
             let _ = writeln!(
                 csv,
-                "{},{},{},{},{:.3},{:.3},{:.3},{:.3}",
+                "{},{},{},{},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3}",
                 r.model,
                 r.session + 1,
                 r.path.name(),
@@ -658,7 +661,9 @@ pub fn ticks_csv(runs: &[RunTicks]) -> String {
                 t.miss[0],
                 t.miss[1],
                 t.spread[0],
-                t.spread[1]
+                t.spread[1],
+                t.size[0],
+                t.size[1]
             );
         }
     }
@@ -787,6 +792,7 @@ mod tests {
                     tick,
                     miss: [miss * (1 + tick) as f64, miss],
                     spread: [spread * (1 + tick) as f64, spread],
+                    size: [100.0, 50.0],
                 })
                 .collect(),
         };
