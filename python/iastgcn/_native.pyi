@@ -1,4 +1,4 @@
-"""Type hints of the native module (src/embed/python.rs)."""
+"""Type hints of the native module (src/embed/python/)."""
 
 from os import PathLike
 from typing import Any, Callable, Optional, Sequence, Tuple, Union

@@ -1,440 +1,23 @@
-//! The `iastgcn` Python module (feature `python`; built by maturin, `make python`;
-//! docs/embedding.md "Python"). `Predictor` for controllers, and the demo's steps as
-//! functions for notebooks: `record_data`, `calibrate`, `calibrate_arm`, `train`,
-//! `refine`, `adapt`, `evaluate`, each with an optional progress callback. Results come back as
-//! dictionaries (the library's own structures through JSON), errors as `iastgcn.Error`
-//! with the library's message; a panic is caught and raised as `iastgcn.Error` too.
+//! The demo's steps as Python functions for notebooks: `record_data`, `calibrate`,
+//! `calibrate_arm`, `train`, `refine`, `adapt`, `evaluate`, each with an optional
+//! progress callback, their results as dictionaries.
 
-use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::PathBuf;
-use std::sync::Mutex;
 
-use numpy::{
-    AllowTypeChange, PyArray1, PyArrayLike1, PyArrayLikeDyn, PyArrayMethods, PyUntypedArrayMethods,
-};
-use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
 use serde::Serialize;
 
-use super::{panic_message, Loaded};
+use super::convert::{raise, to_python};
+use super::progress::long_call;
 use crate::data::DataSources;
 use crate::experiment::calibration::{
     calibrate_hybrid, calibrate_serial, ErrorRow, HoldOut, Scoring,
 };
 use crate::experiment::evaluate::HeldOutConfig;
 use crate::gpu::Device;
-use crate::model::{Backend, Checkpoint, Features, Residual};
-use crate::progress::Reporter;
+use crate::model::Checkpoint;
 use crate::robot::{Description, ErrorParams};
 use crate::train::{self, build_dataset, RunConfig};
-
-pyo3::create_exception!(
-    iastgcn,
-    Error,
-    PyException,
-    "Every failure of the engine: a file it cannot read, a shape that does not fit the \
-     model, a config it refuses, a device error. The message is the library's, naming \
-     the file, field or tensor."
-);
-
-/// Runs `body` with panics caught and the library's errors raised as `iastgcn.Error`.
-fn guarded<T>(body: impl FnOnce() -> PyResult<T>) -> PyResult<T> {
-    match catch_unwind(AssertUnwindSafe(body)) {
-        Ok(result) => result,
-        Err(panic) => Err(Error::new_err(panic_message(panic.as_ref()))),
-    }
-}
-
-/// The library's error as `iastgcn.Error`.
-fn raise(e: impl std::fmt::Display) -> PyErr {
-    Error::new_err(e.to_string())
-}
-
-/// A Rust value as Python objects (through JSON: numbers, strings, lists, dicts; NaN
-/// becomes None).
-fn to_python<'py>(py: Python<'py>, value: &impl Serialize) -> PyResult<Bound<'py, PyAny>> {
-    let text = serde_json::to_string(value).map_err(raise)?;
-    py.import("json")?.call_method1("loads", (text,))
-}
-
-/// The residual as a float64 array of 6.
-fn residual_array<'py>(py: Python<'py>, r: &Residual) -> Bound<'py, PyArray1<f64>> {
-    PyArray1::from_slice(py, r)
-}
-
-/// A predictor loaded from a checkpoint, for a control loop or for batches of windows.
-///
-/// Predictor(checkpoint, *, dt=None, backend="native", threads=1)
-///
-/// checkpoint: a `.safetensors` file written by iastgcn (train, refine, init).
-/// dt: the control period in seconds of the recordings the model was trained on (the
-///     twin's is 0.02). With it, `push` takes one tick of raw sensor values; without
-///     it, only `push_features`, `predict` and `predict_batch` work.
-/// backend: "native" (the CPU forward on the calling thread; needs no GPU driver) or
-///     "auto" (the default adapter; native on a CPU adapter).
-/// threads: tasks the native forward splits one window into (1: the calling thread).
-///
-/// Residuals are dx, dy, dz in µm and rx, ry, rz in mdeg (base frame): the error to
-/// subtract from the next commanded pose. One thread at a time per predictor (a lock
-/// makes concurrent calls wait); the lock is released around the forward pass.
-#[pyclass(name = "Predictor", module = "iastgcn")]
-struct PyPredictor {
-    inner: Mutex<Loaded>,
-    /// (N, F, T), fixed at load.
-    shape: (usize, usize, usize),
-    /// Sensor values of the last frame when the input was not a contiguous float64
-    /// array, reused.
-    frame: Mutex<Vec<f64>>,
-}
-
-impl PyPredictor {
-    fn with<T>(&self, f: impl FnOnce(&mut Loaded) -> PyResult<T>) -> PyResult<T> {
-        let mut loaded = self
-            .inner
-            .lock()
-            .map_err(|_| raise("the predictor was poisoned by an earlier internal error"))?;
-        guarded(|| f(&mut loaded))
-    }
-}
-
-/// `got` shape against `expected`, as the error message names them.
-fn check_shape(what: &str, got: &[usize], expected: &[&[usize]]) -> PyResult<()> {
-    if expected.contains(&got) {
-        return Ok(());
-    }
-    let list: Vec<String> = expected.iter().map(|e| format!("{e:?}")).collect();
-    Err(raise(format!(
-        "{what}: expected shape {}, got {got:?}",
-        list.join(" or ")
-    )))
-}
-
-#[pymethods]
-impl PyPredictor {
-    #[new]
-    #[pyo3(signature = (checkpoint, *, dt=None, backend="native", threads=1))]
-    fn new(
-        py: Python<'_>,
-        checkpoint: PathBuf,
-        dt: Option<f64>,
-        backend: &str,
-        threads: usize,
-    ) -> PyResult<PyPredictor> {
-        let native = match backend {
-            "native" => true,
-            "auto" => false,
-            other => {
-                return Err(raise(format!(
-                    "backend: \"native\" or \"auto\", got {other:?}"
-                )))
-            }
-        };
-        if threads == 0 {
-            return Err(raise("threads: 1 or more"));
-        }
-        let mut loaded =
-            py.detach(|| guarded(|| Loaded::load(&checkpoint, dt, native).map_err(raise)))?;
-        loaded.set_threads(threads);
-        let c = loaded.predictor().config();
-        let shape = (c.nodes, c.features, c.window);
-        Ok(PyPredictor {
-            inner: Mutex::new(loaded),
-            shape,
-            frame: Mutex::new(vec![0.0; shape.0]),
-        })
-    }
-
-    /// The graph's node names: the order of a sensor frame's values.
-    #[getter]
-    fn nodes(&self) -> PyResult<Vec<String>> {
-        self.with(|l| Ok(l.nodes().to_vec()))
-    }
-
-    /// (N, F, T): nodes, features per node, window length in ticks.
-    #[getter]
-    fn window_shape(&self) -> (usize, usize, usize) {
-        self.shape
-    }
-
-    /// The tick the residual is for: 0 for the last pushed tick, 1 for the next (a
-    /// look-ahead model, whose frame carries the planned motion to that tick).
-    #[getter]
-    fn look_ahead(&self) -> PyResult<usize> {
-        self.with(|l| Ok(l.predictor().config().look_ahead))
-    }
-
-    /// The model's variant ("iastgcn", "tgcn", …).
-    #[getter]
-    fn variant(&self) -> PyResult<String> {
-        self.with(|l| Ok(l.predictor().config().variant.name().to_string()))
-    }
-
-    /// "native" or "device": where windows run.
-    #[getter]
-    fn backend(&self) -> PyResult<&'static str> {
-        self.with(|l| {
-            Ok(match l.predictor().backend() {
-                Backend::Native => "native",
-                Backend::Device => "device",
-            })
-        })
-    }
-
-    /// The control period in seconds, or None when the predictor takes features only.
-    #[getter]
-    fn dt(&self) -> PyResult<Option<f64>> {
-        self.with(|l| Ok(l.dt()))
-    }
-
-    /// Tasks the native forward splits one window into.
-    #[getter]
-    fn get_threads(&self) -> PyResult<usize> {
-        self.with(|l| Ok(l.predictor().threads()))
-    }
-
-    #[setter]
-    fn set_threads(&self, threads: usize) -> PyResult<()> {
-        if threads == 0 {
-            return Err(raise("threads: 1 or more"));
-        }
-        self.with(|l| {
-            l.set_threads(threads);
-            Ok(())
-        })
-    }
-
-    /// push(frame) -> bool
-    ///
-    /// Pushes one control tick of raw sensor values: N numbers in the order of `nodes`
-    /// (float32 or float64; NaN: no new sample this tick, the last one is held).
-    /// Returns True once T ticks are in, so that `predict_latest` has a window.
-    fn push(&self, frame: PyArrayLike1<'_, f64, AllowTypeChange>) -> PyResult<bool> {
-        let (n, _, _) = self.shape;
-        check_shape("frame", frame.shape(), &[&[n]])?;
-        match frame.as_slice() {
-            Ok(values) => self.with(|l| l.push(values).map_err(raise)),
-            Err(_) => {
-                let mut buffer = self.frame.lock().map_err(raise)?;
-                for (b, v) in buffer.iter_mut().zip(frame.as_array().iter()) {
-                    *b = *v;
-                }
-                self.with(|l| l.push(&buffer).map_err(raise))
-            }
-        }
-    }
-
-    /// push_features(step) -> bool
-    ///
-    /// Pushes one step of per-node features, shape (N, F) or (N·F,), before
-    /// standardisation, for callers that compute the features themselves. True once
-    /// T steps are in.
-    fn push_features(&self, step: PyArrayLikeDyn<'_, f32, AllowTypeChange>) -> PyResult<bool> {
-        let (n, f, _) = self.shape;
-        check_shape("step", step.shape(), &[&[n, f], &[n * f]])?;
-        let values: Vec<f32>;
-        let step = match step.as_slice() {
-            Ok(s) => s,
-            Err(_) => {
-                values = step.as_array().iter().copied().collect();
-                &values
-            }
-        };
-        self.with(|l| l.windows().and_then(|p| p.push_step(step)).map_err(raise))
-    }
-
-    /// predict_latest() -> numpy.ndarray | None
-    ///
-    /// The residual (6 float64) of the window ending at the last pushed tick, or None
-    /// until T ticks have been pushed.
-    fn predict_latest<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyArray1<f64>>>> {
-        let latest = py.detach(|| self.with(|l| l.predict_latest().map_err(raise)))?;
-        Ok(latest.map(|r| residual_array(py, &r)))
-    }
-
-    /// interval() -> tuple[float, float] | None
-    ///
-    /// The calibrated interval of the last prediction, (position µm, attitude mdeg): the
-    /// true residual lies within these radii of it with the share `interval_level` (on
-    /// the session it was calibrated on). Only an ensemble file with an interval has one
-    /// (docs/embedding.md "Ensembles and intervals"); None otherwise and before the first
-    /// prediction.
-    fn interval(&self) -> PyResult<Option<(f64, f64)>> {
-        self.with(|l| Ok(l.interval().map(|i| (i.position_um, i.attitude_mdeg))))
-    }
-
-    /// The share of predictions the interval covered where it was calibrated (0.9 for
-    /// a 90 % interval), or None without one.
-    #[getter]
-    fn interval_level(&self) -> PyResult<Option<f64>> {
-        self.with(|l| Ok(l.interval_calibration().map(|s| s.level)))
-    }
-
-    /// The checkpoints averaged: an ensemble file's members, 1 for one checkpoint.
-    #[getter]
-    fn members(&self) -> PyResult<usize> {
-        self.with(|l| Ok(l.members()))
-    }
-
-    /// predict(window) -> numpy.ndarray
-    ///
-    /// The residual (6 float64) of one window of features, shape (N, F, T), oldest step
-    /// first, before standardisation. Leaves the pushed ticks alone.
-    fn predict<'py>(
-        &self,
-        py: Python<'py>,
-        window: PyArrayLikeDyn<'py, f32, AllowTypeChange>,
-    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
-        let (n, f, t) = self.shape;
-        check_shape("window", window.shape(), &[&[n, f, t]])?;
-        let copied: Vec<f32>;
-        let data = match window.as_slice() {
-            Ok(s) => s,
-            Err(_) => {
-                copied = window.as_array().iter().copied().collect();
-                &copied
-            }
-        };
-        let r =
-            py.detach(|| self.with(|l| l.windows().and_then(|p| p.predict(data)).map_err(raise)))?;
-        Ok(residual_array(py, &r))
-    }
-
-    /// predict_batch(windows, standardised=False) -> numpy.ndarray
-    ///
-    /// The residuals, shape (W, 6), of W windows of features, shape (W, N, F, T).
-    /// `standardised`: the windows are already standardised with the checkpoint's
-    /// statistics (as a dataset built with them is).
-    #[pyo3(signature = (windows, standardised=false))]
-    fn predict_batch<'py>(
-        &self,
-        py: Python<'py>,
-        windows: PyArrayLikeDyn<'py, f32, AllowTypeChange>,
-        standardised: bool,
-    ) -> PyResult<Bound<'py, PyAny>> {
-        let (n, f, t) = self.shape;
-        let shape = windows.shape().to_vec();
-        if shape.len() != 4 || shape[1..] != [n, f, t] {
-            return Err(raise(format!(
-                "windows: expected shape (W, {n}, {f}, {t}), got {shape:?}"
-            )));
-        }
-        let copied: Vec<f32>;
-        let data = match windows.as_slice() {
-            Ok(s) => s,
-            Err(_) => {
-                copied = windows.as_array().iter().copied().collect();
-                &copied
-            }
-        };
-        let features = if standardised {
-            Features::Standardised
-        } else {
-            Features::Raw
-        };
-        let out = py.detach(|| {
-            self.with(|l| {
-                let mut out = Vec::new();
-                l.windows()
-                    .and_then(|p| p.predict_batch(data, features, &mut out))
-                    .map_err(raise)?;
-                Ok(out)
-            })
-        })?;
-        let flat: Vec<f64> = out.iter().flatten().copied().collect();
-        PyArray1::from_vec(py, flat)
-            .reshape([shape[0], 6])
-            .map(Bound::into_any)
-    }
-
-    /// Forgets the pushed ticks and the features' filter state (a new run, or after a
-    /// pause in the trajectory).
-    fn reset(&self) -> PyResult<()> {
-        self.with(|l| {
-            l.reset();
-            Ok(())
-        })
-    }
-
-    fn __repr__(&self) -> PyResult<String> {
-        let (n, f, t) = self.shape;
-        let dt = self.dt()?;
-        Ok(format!(
-            "Predictor(variant={:?}, nodes={n}, features={f}, window={t}, dt={}, backend={:?})",
-            self.variant()?,
-            dt.map_or("None".into(), |d| d.to_string()),
-            self.backend()?
-        ))
-    }
-}
-
-/// A [`Reporter`] that calls a Python callable `progress(event, text, position, total)`
-/// with event "begin", "update", "end" or "note". The first exception it raises stops
-/// the calls and is raised when the library call returns.
-struct PyReporter {
-    callback: Option<Py<PyAny>>,
-    error: Option<PyErr>,
-}
-
-impl PyReporter {
-    fn new(callback: Option<Py<PyAny>>) -> PyReporter {
-        PyReporter {
-            callback,
-            error: None,
-        }
-    }
-
-    fn call(&mut self, event: &str, text: &str, position: u64, total: u64) {
-        let (Some(callback), None) = (&self.callback, &self.error) else {
-            return;
-        };
-        let result = Python::attach(|py| {
-            callback
-                .call1(py, (event, text, position, total))
-                .map(|_| ())
-        });
-        if let Err(e) = result {
-            self.error = Some(e);
-        }
-    }
-
-    /// The library call's result, or the callback's first exception.
-    fn finish<T>(self, result: crate::error::Result<T>) -> PyResult<T> {
-        if let Some(e) = self.error {
-            return Err(e);
-        }
-        result.map_err(raise)
-    }
-}
-
-impl Reporter for PyReporter {
-    fn begin(&mut self, what: &str, len: u64) {
-        self.call("begin", what, 0, len);
-    }
-    fn update(&mut self, pos: u64, message: &str) {
-        self.call("update", message, pos, 0);
-    }
-    fn end(&mut self) {
-        self.call("end", "", 0, 0);
-    }
-    fn note(&mut self, line: &str) {
-        self.call("note", line, 0, 0);
-    }
-}
-
-/// Runs a long library call without the GIL, reporting to `progress`.
-fn long_call<T: Send>(
-    py: Python<'_>,
-    progress: Option<Py<PyAny>>,
-    body: impl FnOnce(&mut dyn Reporter) -> crate::error::Result<T> + Send,
-) -> PyResult<T> {
-    py.detach(|| {
-        guarded(|| {
-            let mut reporter = PyReporter::new(progress);
-            let result = body(&mut reporter);
-            reporter.finish(result)
-        })
-    })
-}
 
 fn scoring(hold_out_every: usize, test: Option<PathBuf>) -> Scoring {
     match test {
@@ -461,7 +44,7 @@ fn scoring(hold_out_every: usize, test: Option<PathBuf>) -> Scoring {
 #[pyfunction]
 #[pyo3(signature = (out, minutes=2.0, machine_seed=1, recipe="use-like", sessions=None, placement=None, path_order=None, closed_loop=None, config=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
-fn record_data<'py>(
+pub(super) fn record_data<'py>(
     py: Python<'py>,
     out: PathBuf,
     minutes: f64,
@@ -564,7 +147,7 @@ fn record_data<'py>(
 /// (position µm, attitude mdeg: mean, sd, max) before and after.
 #[pyfunction]
 #[pyo3(signature = (measurements, out=None, hold_out_every=5, test=None, recordings=Vec::new()))]
-fn calibrate<'py>(
+pub(super) fn calibrate<'py>(
     py: Python<'py>,
     measurements: PathBuf,
     out: Option<PathBuf>,
@@ -632,7 +215,7 @@ fn calibrate<'py>(
 /// why, the condition number, and the position error rows (µm) before and after.
 #[pyfunction]
 #[pyo3(signature = (description, poses, out=None, hold_out_every=5, test=None))]
-fn calibrate_arm<'py>(
+pub(super) fn calibrate_arm<'py>(
     py: Python<'py>,
     description: PathBuf,
     poses: PathBuf,
@@ -748,7 +331,7 @@ fn open_device() -> crate::error::Result<Device> {
 #[pyfunction(name = "train")]
 #[pyo3(signature = (recordings, calibration, out, config=None, variant=None, max_epochs=None, patience=None, graph=None, robot=None, resume=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
-fn train_model<'py>(
+pub(super) fn train_model<'py>(
     py: Python<'py>,
     recordings: Vec<PathBuf>,
     calibration: PathBuf,
@@ -790,7 +373,7 @@ fn train_model<'py>(
 #[pyfunction(name = "refine")]
 #[pyo3(signature = (recordings, calibration, model, out, config=None, graph=None, robot=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
-fn refine_model<'py>(
+pub(super) fn refine_model<'py>(
     py: Python<'py>,
     recordings: Vec<PathBuf>,
     calibration: PathBuf,
@@ -843,7 +426,7 @@ fn refine_model<'py>(
 #[pyfunction(name = "adapt")]
 #[pyo3(signature = (recordings, calibration, model, out, method="offset", config=None, graph=None, robot=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
-fn adapt_model<'py>(
+pub(super) fn adapt_model<'py>(
     py: Python<'py>,
     recordings: Vec<PathBuf>,
     calibration: PathBuf,
@@ -899,7 +482,7 @@ fn adapt_model<'py>(
 #[pyfunction(name = "evaluate")]
 #[pyo3(signature = (models, recordings, calibration, out, config=None, held_out_minutes=None, held_out_seed=None, graph=None, progress=None, held_out_sessions=None))]
 #[allow(clippy::too_many_arguments)]
-fn evaluate_models<'py>(
+pub(super) fn evaluate_models<'py>(
     py: Python<'py>,
     models: Vec<PathBuf>,
     recordings: Vec<PathBuf>,
@@ -947,20 +530,4 @@ fn evaluate_models<'py>(
         })
     })?;
     to_python(py, &result)
-}
-
-/// The native module; `iastgcn/__init__.py` re-exports it with its docs.
-#[pymodule]
-fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
-    m.add("Error", m.py().get_type::<Error>())?;
-    m.add_class::<PyPredictor>()?;
-    m.add_function(wrap_pyfunction!(record_data, m)?)?;
-    m.add_function(wrap_pyfunction!(calibrate, m)?)?;
-    m.add_function(wrap_pyfunction!(calibrate_arm, m)?)?;
-    m.add_function(wrap_pyfunction!(train_model, m)?)?;
-    m.add_function(wrap_pyfunction!(refine_model, m)?)?;
-    m.add_function(wrap_pyfunction!(adapt_model, m)?)?;
-    m.add_function(wrap_pyfunction!(evaluate_models, m)?)?;
-    Ok(())
 }
