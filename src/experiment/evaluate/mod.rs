@@ -9,9 +9,9 @@ mod paper_tables;
 mod report;
 
 pub use held_out::{
-    held_out_session, held_out_session_from, more_models, runs_at_a_time, session_start, table_v,
-    HeldOutConfig, HeldOutResult, HeldOutSession, OpenLoopScore, Session, SessionOptions,
-    MAX_HELD_OUT_SESSIONS,
+    held_out_session, held_out_session_from, more_models, oracle_name, runs_at_a_time,
+    session_start, table_v, HeldOutConfig, HeldOutResult, HeldOutSession, OpenLoopScore, Session,
+    SessionOptions, MAX_HELD_OUT_SESSIONS,
 };
 pub use models::{ensemble, predictors, runs_on, LoopModel, NamedModel};
 pub(crate) use paper_tables::{add_graph_mixing, tables};

@@ -4,6 +4,7 @@
 use super::points::Point;
 use super::records::{PathScore, ScaleRecord};
 use super::study::{Study, PAPER_HILBERT_REMOVED};
+use crate::experiment::evaluate::oracle_name;
 use crate::experiment::recipe::NamedRecipe;
 use crate::experiment::recommend::Recommendation;
 use crate::twin::PathKind;
@@ -118,8 +119,10 @@ pub(super) fn markdown(
             oracle = Some(p.oracle_removed);
         }
         if let Some([pos, att]) = oracle {
+            // The oracle stands in for the study's models: it looks ahead as they do.
+            let name = oracle_name(study.run.model.look_ahead);
             s.push_str(&format!(
-                "| oracle (true residual) | | | | {pos:.1} | {att:.1} | | | | | | |\n"
+                "| oracle ({name}) | | | | {pos:.1} | {att:.1} | | | | | | |\n"
             ));
         }
     }
