@@ -48,36 +48,37 @@ pub fn run(device: &Device, args: &ConfidenceArgs) -> anyhow::Result<()> {
         "--level {}: an interval covers more than half and less than all (0.5 to 1)",
         args.level
     );
-    let mut groups: Vec<(String, Vec<Checkpoint>, Vec<PathBuf>)> = Vec::new();
+    // Each model's seeds, and beside them (same order) the files they came from.
+    let mut seeds: Vec<(String, Vec<Checkpoint>)> = Vec::new();
+    let mut files: Vec<Vec<PathBuf>> = Vec::new();
     for path in &args.models {
         let (name, _) = name_and_seed(path);
         let ck = Checkpoint::load(path).with_context(|| format!("--models {}", path.display()))?;
-        match groups.iter_mut().find(|(n, _, _)| *n == name) {
-            Some((_, members, paths)) => {
-                members.push(ck);
-                paths.push(path.clone());
+        match seeds.iter().position(|(n, _)| *n == name) {
+            Some(k) => {
+                seeds[k].1.push(ck);
+                files[k].push(path.clone());
             }
-            None => groups.push((name, vec![ck], vec![path.clone()])),
+            None => {
+                seeds.push((name, vec![ck]));
+                files.push(vec![path.clone()]);
+            }
         }
     }
-    if let Some((name, _, _)) = groups.iter().find(|(_, m, _)| m.len() < 2) {
+    if let Some((name, _)) = seeds.iter().find(|(_, m)| m.len() < 2) {
         anyhow::bail!(
             "--models: {name} has one seed; its uncertainty is the spread of its seeds, so \
              give two or more (<model>.seed<k>.safetensors)"
         );
     }
-    let mut models = groups
+    let mut models = seeds
         .iter()
-        .map(|(name, members, _)| ensemble(device, name, members))
+        .map(|(name, members)| ensemble(device, name, members))
         .collect::<Result<Vec<_>, _>>()?;
     let held = args.held_out.config_or(DEMO_HELD_OUT);
     held.validate()?;
     super::make_output_folder("--out", &args.out)?;
     let mut console = Console::default();
-    let seeds: Vec<(String, Vec<Checkpoint>)> = groups
-        .iter()
-        .map(|(name, members, _)| (name.clone(), members.clone()))
-        .collect();
     let runs = confidence::record(device, &seeds, &args.data.sources(), &held, &mut console)?;
     console.end();
     let calibrated = confidence::calibrate(&runs, held.sessions, args.level)?;
@@ -97,8 +98,8 @@ pub fn run(device: &Device, args: &ConfidenceArgs) -> anyhow::Result<()> {
     let ensembles: Vec<_> = calibrated
         .iter()
         .filter_map(|c| {
-            let (_, _, paths) = groups.iter().find(|(n, _, _)| *n == c.model)?;
-            let file = confidence::ensemble_file(c, paths, &args.out, &held, args.level);
+            let k = seeds.iter().position(|(n, _)| *n == c.model)?;
+            let file = confidence::ensemble_file(c, &files[k], &args.out, &held, args.level);
             Some((c.model.clone(), file))
         })
         .collect();
